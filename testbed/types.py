@@ -1,0 +1,142 @@
+"""Named types for what flows between the parts of the testbed.
+
+The fleet loop, the drivers, the learner and the console meet through these plain
+dataclasses (as Stable-Baselines3's ``type_aliases``), so no part needs to import
+another part's internals. Nothing heavy is imported here.
+
+Conventions shared by every part:
+
+* A robot is named ``"<host>/<arm>"`` (``"cell0/left"``).
+* Images are ``(64, 64, 3)`` ``uint8`` RGB in the arm's *canonical* frame: right-arm
+  crops are mirrored left-right into it, so one policy serves both arms.
+* Canonical coordinates are image units in ``[0, 1]^2``: ``(0, 0)`` is the top-left
+  corner of the arm's 64x64 crop, ``x`` grows right, ``y`` grows down.
+* Action ``k`` in ``Discrete(4)`` pushes the cube face whose push moves the cube
+  (about) along ``FACE_DIRECTIONS[k]`` in the canonical frame: 0 up, 1 left, 2 down,
+  3 right. (Object-centric: the pusher comes in along the face's real normal, which is
+  the cube's yaw away from that direction.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+ImageArray = npt.NDArray[np.uint8]
+"""(64, 64, 3) uint8 RGB, or a batch (N, 64, 64, 3)."""
+
+IMAGE_SIZE: Final = 64
+NUM_ACTIONS: Final = 4
+FACE_DIRECTIONS: Final[tuple[tuple[float, float], ...]] = (
+    (0.0, -1.0),  # 0: up
+    (-1.0, 0.0),  # 1: left
+    (0.0, 1.0),  # 2: down
+    (1.0, 0.0),  # 3: right
+)
+SUCCESS_RADIUS: Final = 6.0 / 64.0
+MIN_GOAL_DISTANCE: Final = 12.0 / 64.0
+MAX_PUSHES_PER_GOAL: Final = 50
+
+
+class Mode(StrEnum):
+    """What a robot did in a timestep (the ``mode`` field of steps.jsonl)."""
+
+    AUTONOMOUS = "autonomous"
+    TELEOP = "teleop"
+    RESET = "reset"
+    IDLE = "idle"
+    FAULT = "fault"
+
+
+class InterventionKind(StrEnum):
+    TELEOP = "teleop"
+    RESET = "reset"
+
+
+@dataclass(frozen=True, slots=True)
+class ArmObservation:
+    """One arm's view at the start of a timestep, as its host reported it."""
+
+    robot: str
+    image: ImageArray
+    violating: bool
+    """The cube is outside the workspace and the arm waits for a hard reset."""
+    goal: tuple[float, float]
+    """Goal centre in canonical coordinates."""
+    expert_action: int | None = None
+    """Ground-truth best push; only a twin host knows it (the scripted human uses it)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PushResult:
+    """Outcome of one arm's push (or of its waiting) in a timestep."""
+
+    robot: str
+    action: int | None
+    success: bool
+    violation: bool
+    """True on the step whose push took the cube out (an event, once per violation)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """An arm whose host could not serve it this step; the trial goes on without it."""
+
+    robot: str
+    reason: str
+    traceback: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class HumanRequest:
+    """What the fleet loop asks one human to do for one arm this timestep."""
+
+    robot: str
+    human: int
+    kind: InterventionKind
+    observation: ArmObservation
+    served: int
+    """Timesteps this human has already spent on this intervention (0 on the first)."""
+    min_steps: int
+    """t_T for teleop, t_R for a hard reset."""
+    key: tuple[float, ...] = ()
+    reason: dict[str, float] = field(default_factory=dict)
+    """Why the arm was chosen: the priority's named signals (c, u, r, ...)."""
+
+
+@dataclass(frozen=True, slots=True)
+class HumanResponse:
+    """A human's answer: a push for teleop, or whether a hard reset is complete."""
+
+    robot: str
+    action: int | None = None
+    reset_done: bool = False
+
+
+@dataclass(slots=True)
+class RobotStatus:
+    """What the overview shows of one robot: its latest image and mode."""
+
+    robot: str
+    mode: Mode
+    image: ImageArray | None
+    human: int | None = None
+
+
+@dataclass(slots=True)
+class FleetStatus:
+    """The live counters of a trial (the progress bar and the console overview)."""
+
+    t: int
+    steps: int
+    successes: int = 0
+    hard_resets: int = 0
+    idle_time: int = 0
+    human_actions: int = 0
+    rohe: float = 0.0
+    robots: list[RobotStatus] = field(default_factory=list)
+    paused: bool = False
