@@ -1,0 +1,166 @@
+"""The ``testbed`` command (DESIGN.md section 7).
+
+Every verb parses its arguments, loads and validates the config, and hands over to a
+function of its own module; this file only turns their outcomes into exit statuses:
+0 done, 1 the run failed (a fault the operator must look at), 2 bad config or
+argument (one line naming the field and the fix, never a traceback), 130 Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+from testbed.config import ConfigError, FleetConfig, load_config
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad argument is one line and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{self.prog}: error: {message}; see {self.prog} --help\n")
+        raise SystemExit(2)
+
+
+def _positive(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
+    return v
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="fleet config (TOML); default: twin fleet")
+
+
+def _trial_args(p: argparse.ArgumentParser) -> None:
+    _common(p)
+    p.add_argument("--algorithm", metavar="NAME", help="bc, random, fleet-ed, fleet-td, cur, "
+                   "cur-i and the ablations c, u, r, cu, cr, ur, uc, ru, cru (default: config)")
+    p.add_argument("--steps", type=_positive, metavar="T", help="timesteps (default: config)")
+    p.add_argument("--seed", type=int, metavar="S", help="trial seed (default: config)")
+    p.add_argument("--out", metavar="DIR", help="folder of runs (default: config, runs/)")
+    p.add_argument("--humans", choices=["scripted", "gui"], help="who helps (default: config)")
+    p.add_argument("--policy", metavar="FILE", help="start from this trained learner.pt "
+                   "instead of pretraining")
+    p.add_argument("--name", help="run folder name (default: ALGORITHM-sSEED)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    root = _Parser(prog="testbed", description="Fleet-DAgger testbed: a fleet of pushing arms, "
+                   "remote humans, online behaviour cloning.")
+    sub = root.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("trial", help="run one trial", description="Run one trial (default: the "
+                       "built-in twin fleet, 4 arms, 2 scripted humans, C.U.R., 250 steps).")
+    _trial_args(p)
+    p.add_argument("--resume", metavar="DIR", help="continue a crashed or killed trial")
+
+    p = sub.add_parser("protocol", help="run a protocol file end to end, then its report",
+                       description="Run trials x algorithms x steps of a protocol, then report.")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--out", metavar="DIR", help="override the protocol's output folder")
+    p.add_argument("--yes", action="store_true", help="do not prompt between trials")
+
+    p = sub.add_parser("report", help="tables and plots of runs or protocol folders",
+                       description="Mean +- std per algorithm, Markdown + CSV, PNG curves.")
+    p.add_argument("dirs", nargs="+", metavar="RUN_OR_PROTOCOL_DIR")
+    p.add_argument("--out", metavar="DIR", help="where to write the report (default: first dir)")
+
+    p = sub.add_parser("check", help="preflight every host and arm, write a mosaic PNG",
+                       description="Reach every host, check the agent version, take a frame of "
+                       "every arm, write a mosaic PNG.")
+    _common(p)
+    p.add_argument("--mosaic", default="check.png", metavar="PNG")
+
+    p = sub.add_parser("collect", help="offline demonstrations (375 pairs by default)",
+                       description="Humans drive every arm; keep the state-action pairs.")
+    _common(p)
+    p.add_argument("--count", type=_positive, help="pairs (default: config learning.demos)")
+    p.add_argument("--humans", choices=["scripted", "gui"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="demos.npz", metavar="NPZ")
+
+    p = sub.add_parser("pretrain", help="pretrain policy and critics from demonstrations",
+                       description="Train the policy on demos, roll it out for the critics' "
+                       "data, train the critics; write learner.pt.")
+    _common(p)
+    p.add_argument("--demos", required=True, metavar="NPZ")
+    p.add_argument("--humans", choices=["scripted", "gui"])
+    p.add_argument("--steps", type=int, help="gradient steps (default: config)")
+    p.add_argument("--out", default="learner.pt", metavar="PT")
+
+    p = sub.add_parser("evaluate", help="a trained policy alone, humans for hard resets only",
+                       description="Run a trained policy for K steps with C-prioritised hard "
+                       "resets only (seed 8.3.4); same records and report.")
+    _common(p)
+    p.add_argument("--policy", required=True, metavar="FILE")
+    p.add_argument("--steps", type=_positive, default=250, metavar="K")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", metavar="DIR")
+    p.add_argument("--humans", choices=["scripted", "gui"])
+    p.add_argument("--name")
+    return root
+
+
+class _Interrupts:
+    """First Ctrl-C: stop gracefully (rest pose, records closed) within 5 s; second: now."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def install(self) -> None:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, self._handler)
+            signal.signal(signal.SIGTERM, self._handler)
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        self.count += 1
+        if self.count > 1:
+            os._exit(130)
+        # A watchdog keeps the promise of 5 s even if a host does not answer its rest.
+        timer = threading.Timer(4.5, lambda: os._exit(130))
+        timer.daemon = True
+        timer.start()
+        raise KeyboardInterrupt
+
+
+def _config(args: argparse.Namespace) -> FleetConfig:
+    return load_config(getattr(args, "config", None))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    _Interrupts().install()
+    verbs: dict[str, Callable[[argparse.Namespace], int]] = {}
+    from testbed import commands  # noqa: PLC0415 - keeps --help fast
+
+    verbs = commands.VERBS
+    try:
+        return verbs[args.verb](args)
+    except ConfigError as exc:
+        sys.stderr.write(f"testbed {args.verb}: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("testbed: interrupted; arms at rest, records closed\n")
+        return 130
+
+
+def run() -> None:  # pragma: no cover - console-script shim
+    raise SystemExit(main())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
+
+
+__all__ = ["Path", "build_parser", "main"]

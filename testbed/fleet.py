@@ -1,0 +1,326 @@
+"""The fleet loop: one Fleet-DAgger timestep after another (DESIGN.md section 3).
+
+::
+
+    observe (all hosts at once) --> signals (learner.act) --> keys (priority)
+        --> Allocator --> humans.act --> execute (all hosts at once) --> log (fsync)
+                               \\__ training step runs here, in a thread, overlapped __/
+
+The training step of timestep t starts as soon as the step's actions are known and
+runs while the humans answer and the arms push; it is joined before the step is
+logged. So the policy used at t+1 is always the one after exactly t training steps,
+whatever the timing: a twin trial with scripted humans is reproducible, overlap
+included. The loop owns no hardware and no GUI: it talks to a ``HostFleet``-like
+object, a ``Humans`` and a ``Learner`` only through their small APIs.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from testbed.allocation import Allocator
+from testbed.humans import Humans
+from testbed.priorities import Algorithm, PrioritySignals
+from testbed.records import RunWriter
+from testbed.types import (
+    IMAGE_SIZE,
+    ArmObservation,
+    Fault,
+    FleetStatus,
+    HumanRequest,
+    InterventionKind,
+    Mode,
+    PushResult,
+    RobotStatus,
+)
+
+
+class HostsLike(Protocol):
+    """What the loop needs of ``drivers.fleet.HostFleet`` (kept structural for tests)."""
+
+    robot_names: list[str]
+
+    def observe(self) -> Mapping[str, ArmObservation | Fault]: ...
+
+    def execute(
+        self, pushes: Mapping[str, int], resets: Sequence[str]
+    ) -> Mapping[str, PushResult | Fault]: ...
+
+
+class LearnerLike(Protocol):
+    def act(self, images: np.ndarray) -> Any: ...
+
+    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None: ...
+
+    def add_transitions(
+        self,
+        images: np.ndarray,
+        actions: np.ndarray,
+        next_images: np.ndarray,
+        violation: np.ndarray,
+        success: np.ndarray,
+    ) -> None: ...
+
+    def train_step(self) -> dict[str, float]: ...
+
+
+@dataclass
+class _Pending:
+    """A push whose next observation is still to come (the critics need s')."""
+
+    image: np.ndarray
+    action: int
+    violation: bool
+    success: bool
+
+
+@dataclass
+class StepOutcome:
+    """Everything one timestep produced, for the caller's progress display."""
+
+    t: int
+    row: dict[str, Any]
+    status: FleetStatus
+    train_info: dict[str, float] = field(default_factory=dict)
+
+
+class FleetLoop:
+    """Runs timesteps of one trial; the caller owns setup, records' folder and teardown."""
+
+    def __init__(
+        self,
+        *,
+        hosts: HostsLike,
+        humans: Humans,
+        learner: LearnerLike,
+        algorithm: Algorithm,
+        allocator: Allocator,
+        writer: RunWriter,
+        steps: int,
+        num_humans: int,
+        t_T: int,
+        t_R: int,
+        after_step: Callable[[int], None] | None = None,
+    ) -> None:
+        self.hosts = hosts
+        self.humans = humans
+        self.learner = learner
+        self.algorithm = algorithm
+        self.allocator = allocator
+        self.writer = writer
+        self.steps = steps
+        self.num_humans = num_humans
+        self.t_T = t_T
+        self.t_R = t_R
+        self.robots = list(hosts.robot_names)
+        self._pending: dict[str, _Pending] = {}
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
+        self._after_step = after_step
+        self.status = FleetStatus(t=0, steps=steps)
+        self.stop_event = threading.Event()
+
+    # ---- counters -------------------------------------------------------------------
+    def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Rebuild the live counters from the records of a resumed trial."""
+        for row in rows:
+            self._count(row)
+
+    def _count(self, row: Mapping[str, Any]) -> None:
+        s = self.status
+        for r in row["robots"]:
+            s.successes += bool(r["success"])
+            s.hard_resets += bool(r["violation"])
+            s.idle_time += r["mode"] in (Mode.IDLE, Mode.RESET)
+            s.human_actions += r["mode"] in (Mode.TELEOP, Mode.RESET)
+        n = max(len(self.robots), 1)
+        s.rohe = (self.num_humans / n) * s.successes / (1 + s.human_actions)
+
+    # ---- one timestep ---------------------------------------------------------------
+    def step(self, t: int) -> StepOutcome:
+        observations = self.hosts.observe()
+        live = [r for r in self.robots if isinstance(observations.get(r), ArmObservation)]
+        self._add_transitions(observations)
+
+        n = len(self.robots)
+        images = np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
+        violating = np.zeros(n, dtype=bool)
+        for i, r in enumerate(self.robots):
+            o = observations.get(r)
+            if isinstance(o, ArmObservation):
+                images[i] = o.image
+                violating[i] = o.violating
+        out = self.learner.act(images)
+        signals = PrioritySignals(
+            t=t,
+            violating=violating,
+            uncertainty=np.asarray(out.uncertainty, dtype=float),
+            risk=np.asarray(out.risk, dtype=float),
+            goal_risk=np.asarray(out.goal_risk, dtype=float),
+            novelty=np.asarray(out.novelty, dtype=float),
+        )
+        keys = np.asarray(self.algorithm.priority.keys(signals), dtype=float)
+        faulted = np.array([r not in live for r in self.robots])
+        keys[faulted] = 0.0  # a human cannot help an arm its host does not answer for
+        assignment = self.allocator.step(keys, violating & ~faulted)
+        kinds, served = self.allocator.kinds, self.allocator.served
+
+        training: Future[dict[str, float]] | None = None
+        if self.algorithm.learns:
+            training = self._executor.submit(self.learner.train_step)
+
+        requests: list[HumanRequest] = []
+        names = self.algorithm.priority.names
+        for i, r in enumerate(self.robots):
+            h = int(assignment[i])
+            if h < 0 or faulted[i]:
+                continue
+            kind = InterventionKind(kinds[i])
+            requests.append(
+                HumanRequest(
+                    robot=r,
+                    human=h,
+                    kind=kind,
+                    observation=observations[r],  # type: ignore[arg-type]
+                    served=int(served[i]),
+                    min_steps=self.t_T if kind is InterventionKind.TELEOP else self.t_R,
+                    key=tuple(float(k) for k in keys[i]),
+                    reason={nm: float(v) for nm, v in zip(names, keys[i], strict=False)}
+                    | {"uncertainty": float(signals.uncertainty[i]),
+                       "risk": float(signals.risk[i])},
+                )
+            )
+        try:
+            responses = self.humans.act(requests, t) if requests else {}
+        except BaseException:
+            if training is not None:
+                training.result()
+            raise
+
+        pushes: dict[str, int] = {}
+        resets: list[str] = []
+        modes: dict[str, Mode] = {}
+        humans_of: dict[str, int | None] = {}
+        for i, r in enumerate(self.robots):
+            h = int(assignment[i])
+            humans_of[r] = h if h >= 0 else None
+            if faulted[i]:
+                modes[r] = Mode.FAULT
+            elif h >= 0 and kinds[i] == InterventionKind.RESET:
+                modes[r] = Mode.RESET
+                if responses.get(r) is not None and responses[r].reset_done:
+                    resets.append(r)
+            elif violating[i]:
+                modes[r] = Mode.IDLE
+            elif h >= 0:
+                modes[r] = Mode.TELEOP
+                pushes[r] = int(responses[r].action)  # type: ignore[arg-type]
+            else:
+                modes[r] = Mode.AUTONOMOUS
+                pushes[r] = int(out.actions[i])
+
+        results = self.hosts.execute(pushes, resets)
+        train_info = training.result() if training is not None else {}
+
+        row = self._row(t, modes, humans_of, results, signals, keys, pushes)
+        self.writer.write_step(row)
+        self._count(row)
+        self._remember(observations, modes, results, pushes, images)
+        if self.algorithm.learns:
+            self._add_human_labels(modes, pushes, images)
+        self.status.t = t + 1
+        self.status.robots = [
+            RobotStatus(r, modes[r], images[i] if not faulted[i] else None, humans_of[r])
+            for i, r in enumerate(self.robots)
+        ]
+        self.humans.show(t, self.status)
+        if self._after_step is not None:
+            self._after_step(t)
+        return StepOutcome(t, row, self.status, train_info)
+
+    def _row(
+        self,
+        t: int,
+        modes: Mapping[str, Mode],
+        humans_of: Mapping[str, int | None],
+        results: Mapping[str, PushResult | Fault],
+        signals: PrioritySignals,
+        keys: np.ndarray,
+        pushes: Mapping[str, int],
+    ) -> dict[str, Any]:
+        rows = []
+        for i, r in enumerate(self.robots):
+            res = results.get(r)
+            mode = modes[r]
+            if isinstance(res, Fault):
+                mode = Mode.FAULT
+            ok = isinstance(res, PushResult)
+            faulted = mode is Mode.FAULT
+            rows.append(
+                {
+                    "robot": r,
+                    "mode": str(mode),
+                    "human": humans_of[r],
+                    "action": pushes.get(r) if not faulted else None,
+                    "success": bool(ok and res.success),  # type: ignore[union-attr]
+                    "violation": bool(ok and res.violation),  # type: ignore[union-attr]
+                    "uncertainty": None if faulted else float(signals.uncertainty[i]),
+                    "risk": None if faulted else float(signals.risk[i]),
+                    "key": [float(k) for k in keys[i]],
+                }
+            )
+        faults = {
+            r: res.reason for r, res in results.items() if isinstance(res, Fault)
+        }
+        row: dict[str, Any] = {"t": t, "robots": rows}
+        if faults:
+            row["faults"] = faults
+        return row
+
+    # ---- data for the learner ---------------------------------------------------------
+    def _remember(
+        self,
+        observations: Mapping[str, ArmObservation | Fault],
+        modes: Mapping[str, Mode],
+        results: Mapping[str, PushResult | Fault],
+        pushes: Mapping[str, int],
+        images: np.ndarray,
+    ) -> None:
+        self._pending = {}
+        for i, r in enumerate(self.robots):
+            res = results.get(r)
+            if r in pushes and isinstance(res, PushResult):
+                self._pending[r] = _Pending(images[i], pushes[r], res.violation, res.success)
+
+    def _add_transitions(self, observations: Mapping[str, ArmObservation | Fault]) -> None:
+        if not self.algorithm.learns or not self._pending:
+            self._pending = {}
+            return
+        done = [r for r in self._pending if isinstance(observations.get(r), ArmObservation)]
+        if done:
+            p = [self._pending[r] for r in done]
+            self.learner.add_transitions(
+                np.stack([x.image for x in p]),
+                np.array([x.action for x in p], dtype=np.int64),
+                np.stack([observations[r].image for r in done]),  # type: ignore[union-attr]
+                np.array([x.violation for x in p], dtype=bool),
+                np.array([x.success for x in p], dtype=bool),
+            )
+        self._pending = {}
+
+    def _add_human_labels(
+        self, modes: Mapping[str, Mode], pushes: Mapping[str, int], images: np.ndarray
+    ) -> None:
+        idx = [i for i, r in enumerate(self.robots) if modes[r] is Mode.TELEOP and r in pushes]
+        if idx:
+            self.learner.add_human(
+                images[idx], np.array([pushes[self.robots[i]] for i in idx], dtype=np.int64)
+            )
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=True)

@@ -1,0 +1,71 @@
+"""The humans behind one interface: scripted (twin) or people at the operator console.
+
+The fleet loop never knows who its humans are. Each timestep it hands the allocated
+interventions to ``Humans.act`` and gets one answer per arm: a push for teleoperation,
+or whether a hard reset is complete. ``ScriptedHumans`` is the twin's "algorithmic
+human" (the seed's simulated experts); ``gui.console.ConsoleHumans`` is the operator
+console, built lazily by ``make_humans`` so ``import testbed`` never pulls in a GUI.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+from testbed.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
+
+
+class HumansStopRequested(Exception):
+    """A human asked for a graceful stop of the trial (Esc, confirmed, on the console)."""
+
+
+@runtime_checkable
+class Humans(Protocol):
+    """Every timestep: answer the interventions the allocator assigned."""
+
+    def act(self, requests: Sequence[HumanRequest], t: int) -> dict[str, HumanResponse]: ...
+
+    def show(self, t: int, status: FleetStatus) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ScriptedHumans:
+    """Ground-truth teleop and timed hard resets, for twin mode.
+
+    Teleop pushes the host's expert action (``ArmObservation.expert_action``, which only
+    a twin host reports). A hard reset is done at the end of the ``t_R``-th step it was
+    served (DESIGN.md section 3), i.e. when ``served + 1 >= min_steps``.
+    """
+
+    def act(self, requests: Sequence[HumanRequest], t: int) -> dict[str, HumanResponse]:
+        out: dict[str, HumanResponse] = {}
+        for req in requests:
+            if req.kind is InterventionKind.TELEOP:
+                action = req.observation.expert_action
+                if action is None:
+                    raise RuntimeError(
+                        f"{req.robot}: scripted humans need a twin host (no expert action); "
+                        "use --humans gui with physical arms"
+                    )
+                out[req.robot] = HumanResponse(req.robot, action=int(action))
+            else:
+                out[req.robot] = HumanResponse(req.robot, reset_done=req.served + 1 >= req.min_steps)
+        return out
+
+    def show(self, t: int, status: FleetStatus) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+def make_humans(kind: str, count: int) -> Humans:
+    """Build the humans of a trial; the console is imported only when asked for."""
+    if kind == "scripted":
+        return ScriptedHumans()
+    if kind == "gui":
+        from gui.console import ConsoleHumans  # noqa: PLC0415 - GUI only on demand
+
+        return ConsoleHumans(num_humans=count)
+    raise ValueError(f"unknown humans kind {kind!r}; use scripted or gui")

@@ -1,0 +1,210 @@
+"""Offline data and pretraining (seed 8.3.2, 8.3.3): what a trial starts from.
+
+``collect_demos`` has the humans (the scripted expert in the twin, the console on
+hardware) drive every arm and keeps the state-action pairs and full transitions;
+``rollout_policy`` runs the pretrained BC policy (with a little noise, as the seed
+suggests, to meet violations) for the safety critic's data. ``pretrain`` chains them:
+demos -> policy steps -> BC rollouts -> critic steps, and ``cached_pretrain`` keeps
+the result under a key of everything that shaped it, so later trials (every
+algorithm of a protocol) start from the same theta_0 without paying for it again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from testbed.config import FleetConfig, LearningConfig
+from testbed.fleet import HostsLike
+from testbed.humans import Humans
+from testbed.records import atomic_write_bytes
+from testbed.types import ArmObservation, HumanRequest, InterventionKind
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass
+class Transitions:
+    """Arrays of pushes: s, a, s', and the push's outcome."""
+
+    images: np.ndarray
+    actions: np.ndarray
+    next_images: np.ndarray
+    violation: np.ndarray
+    success: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def save(self, path: Path) -> None:
+        import io
+
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **self.__dict__)
+        atomic_write_bytes(path, buf.getvalue())
+
+    @classmethod
+    def load(cls, path: Path) -> Transitions:
+        with np.load(path) as z:
+            return cls(**{k: z[k] for k in z.files})
+
+    @classmethod
+    def empty(cls) -> Transitions:
+        img = np.zeros((0, 64, 64, 3), np.uint8)
+        return cls(img, np.zeros(0, np.int64), img.copy(), np.zeros(0, bool), np.zeros(0, bool))
+
+
+def _drive(
+    hosts: HostsLike,
+    count: int,
+    choose: Callable[[list[str], dict[str, ArmObservation], int], dict[str, int]],
+    humans: Humans,
+    t_R: int,
+    progress: Progress | None,
+    label: str,
+) -> Transitions:
+    """Push every healthy arm with ``choose`` until ``count`` transitions are kept.
+
+    Violating arms get a hard reset from the humans (t_R steps, as in a trial).
+    """
+    imgs, acts, nxt, vio, suc = [], [], [], [], []
+    reset_served: dict[str, int] = {}
+    prev: dict[str, tuple[np.ndarray, int]] = {}
+    pending_outcome: dict[str, tuple[bool, bool]] = {}
+    t = 0
+    while len(acts) < count:
+        obs = {r: o for r, o in hosts.observe().items() if isinstance(o, ArmObservation)}
+        if not obs:
+            raise RuntimeError("no arm answered: check the hosts (testbed check)")
+        for r, (img, a) in prev.items():
+            if r in obs and len(acts) < count:
+                v, s = pending_outcome[r]
+                imgs.append(img)
+                acts.append(a)
+                nxt.append(obs[r].image)
+                vio.append(v)
+                suc.append(s)
+        prev, pending_outcome = {}, {}
+        ready = [r for r, o in obs.items() if not o.violating]
+        requests = [
+            HumanRequest(r, i % 1_000_000, InterventionKind.RESET, o, reset_served.get(r, 0), t_R)
+            for i, (r, o) in enumerate(obs.items())
+            if o.violating
+        ]
+        answers = humans.act(requests, t) if requests else {}
+        resets = [r for r, a in answers.items() if a.reset_done]
+        for req in requests:
+            reset_served[req.robot] = 0 if req.robot in resets else req.served + 1
+        pushes = choose(ready, obs, t)
+        results = hosts.execute(pushes, resets)
+        for r, a in pushes.items():
+            res = results.get(r)
+            if res is not None and hasattr(res, "success"):
+                prev[r] = (obs[r].image, a)
+                pending_outcome[r] = (bool(res.violation), bool(res.success))  # type: ignore[union-attr]
+        t += 1
+        if progress is not None:
+            progress(label, min(len(acts), count), count)
+    return Transitions(
+        np.stack(imgs), np.array(acts, np.int64), np.stack(nxt), np.array(vio), np.array(suc)
+    )
+
+
+def collect_demos(
+    hosts: HostsLike, humans: Humans, count: int, t_R: int, progress: Progress | None = None
+) -> Transitions:
+    """``count`` human-driven pushes (every arm teleoperated)."""
+
+    def choose(ready: list[str], obs: dict[str, ArmObservation], t: int) -> dict[str, int]:
+        reqs = [
+            HumanRequest(r, i, InterventionKind.TELEOP, obs[r], 0, 1) for i, r in enumerate(ready)
+        ]
+        answers = humans.act(reqs, t) if reqs else {}
+        return {r: int(a.action) for r, a in answers.items() if a.action is not None}
+
+    return _drive(hosts, count, choose, humans, t_R, progress, "collect")
+
+
+def rollout_policy(
+    hosts: HostsLike,
+    humans: Humans,
+    learner: Any,
+    count: int,
+    t_R: int,
+    seed: int,
+    epsilon: float = 0.2,
+    progress: Progress | None = None,
+) -> Transitions:
+    """``count`` pushes of the current policy, with epsilon-random actions."""
+    rng = np.random.default_rng(seed)
+
+    def choose(ready: list[str], obs: dict[str, ArmObservation], t: int) -> dict[str, int]:
+        if not ready:
+            return {}
+        acts = learner.act(np.stack([obs[r].image for r in ready])).actions
+        noisy = rng.random(len(ready)) < epsilon
+        rand = rng.integers(0, 4, len(ready))
+        return {r: int(rand[i] if noisy[i] else acts[i]) for i, r in enumerate(ready)}
+
+    return _drive(hosts, count, choose, humans, t_R, progress, "rollout")
+
+
+def pretrain_key(cfg: FleetConfig, seed: int) -> str:
+    """What shaped theta_0: the learning config, the fleet's arms, the seed."""
+    blob = json.dumps(
+        {
+            "learning": cfg.learning.model_dump(mode="json"),
+            "hosts": [h.model_dump(mode="json") for h in cfg.hosts],
+            "t_R": cfg.algorithm.t_R,
+            "seed": seed,
+            "v": 1,
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def train_steps(learner: Any, steps: int, progress: Progress | None, label: str) -> None:
+    for k in range(steps):
+        learner.train_step()
+        if progress is not None:
+            progress(label, k + 1, steps)
+
+
+def pretrain(
+    learner: Any,
+    lc: LearningConfig,
+    demos: Transitions,
+    hosts: HostsLike,
+    humans: Humans,
+    t_R: int,
+    seed: int,
+    progress: Progress | None = None,
+) -> Transitions:
+    """Policy on the demos, then the critics on expert + BC-rollout transitions."""
+    learner.add_human(demos.images, demos.actions)
+    learner.add_transitions(
+        demos.images, demos.actions, demos.next_images, demos.violation, demos.success
+    )
+    half = lc.pretrain_steps // 2
+    train_steps(learner, half, progress, "pretrain policy")
+    rollouts = Transitions.empty()
+    if lc.critic_transitions > 0:
+        rollouts = rollout_policy(
+            hosts, humans, learner, lc.critic_transitions, t_R, seed, progress=progress
+        )
+        learner.add_transitions(
+            rollouts.images,
+            rollouts.actions,
+            rollouts.next_images,
+            rollouts.violation,
+            rollouts.success,
+        )
+    train_steps(learner, lc.pretrain_steps - half, progress, "pretrain critics")
+    return rollouts

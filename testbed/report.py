@@ -1,0 +1,145 @@
+"""``testbed report``: the table and the curves of the seed's figures, from records only.
+
+Every figure is recomputed from ``steps.jsonl`` (never from a summary someone may have
+edited), grouped by algorithm, and written as ``report.md``, ``report.csv`` and one PNG
+of the five cumulative curves (successes, hard resets, idle time, human actions, ROHE)
+with one line per algorithm, mean +- std over trials as in the seed's figures 6-9.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from testbed.records import atomic_write_bytes, cumulative, read_steps, summarize
+
+METRICS = ("successes", "hard_resets", "idle_time", "human_actions", "rohe")
+TITLES = {
+    "successes": "Cumulative successes",
+    "hard_resets": "Cumulative hard resets",
+    "idle_time": "Cumulative idle time",
+    "human_actions": "Cumulative human actions",
+    "rohe": "ROHE",
+}
+
+
+@dataclass
+class RunRecord:
+    path: Path
+    algorithm: str
+    num_humans: int
+    summary: dict[str, Any]
+    curves: dict[str, np.ndarray]
+
+
+@dataclass
+class Report:
+    folder: Path
+    markdown: str
+    runs: list[RunRecord]
+
+
+def find_runs(dirs: list[Path]) -> list[Path]:
+    """Run folders (those with a steps.jsonl) among or below the given folders."""
+    found: list[Path] = []
+    for d in dirs:
+        if (d / "steps.jsonl").exists():
+            found.append(d)
+        else:
+            found.extend(sorted(p.parent for p in d.glob("*/steps.jsonl")))
+    return found
+
+
+def load_run(path: Path) -> RunRecord:
+    meta = json.loads((path / "run.json").read_text()) if (path / "run.json").exists() else {}
+    opts = meta.get("options", {})
+    algorithm = opts.get("algorithm") or path.name.split("-t")[0]
+    num_humans = _num_humans(path)
+    steps = read_steps(path / "steps.jsonl")
+    summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)
+    curves = cumulative(steps, num_humans=num_humans)
+    return RunRecord(path, algorithm, num_humans, summary, curves)
+
+
+def _num_humans(path: Path) -> int:
+    import tomllib  # noqa: PLC0415
+
+    cfg = path / "config.toml"
+    if cfg.exists():
+        return int(tomllib.loads(cfg.read_text()).get("humans", {}).get("count", 2))
+    return 2
+
+
+def _table(runs: list[RunRecord]) -> tuple[str, str]:
+    groups: dict[str, list[RunRecord]] = {}
+    for r in runs:
+        groups.setdefault(r.algorithm, []).append(r)
+    header = ["algorithm", "trials", *METRICS]
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["algorithm", "trials"] + [f"{m}_{s}" for m in METRICS for s in ("mean", "std")])
+    for alg, rs in groups.items():
+        cells, row = [], [alg, len(rs)]
+        for m in METRICS:
+            v = np.array([float(r.summary[m]) for r in rs])
+            mean, std = float(v.mean()), float(v.std(ddof=0))
+            fmt = "{:.4f}" if m == "rohe" else "{:.1f}"
+            cells.append(f"{fmt.format(mean)} ± {fmt.format(std)}")
+            row += [round(mean, 6), round(std, 6)]
+        md.append("| " + " | ".join([alg, str(len(rs)), *cells]) + " |")
+        w.writerow(row)
+    return "\n".join(md) + "\n", buf.getvalue()
+
+
+def _plot(runs: list[RunRecord], path: Path) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    groups: dict[str, list[RunRecord]] = {}
+    for r in runs:
+        groups.setdefault(r.algorithm, []).append(r)
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(4.2 * len(METRICS), 3.6))
+    for ax, m in zip(axes, METRICS, strict=True):
+        for alg, rs in groups.items():
+            n = min(len(r.curves[m]) for r in rs)
+            if n == 0:
+                continue
+            ys = np.stack([r.curves[m][:n] for r in rs])
+            mean, std = ys.mean(0), ys.std(0)
+            x = np.arange(1, n + 1)
+            ax.plot(x, mean, label=alg)
+            ax.fill_between(x, mean - std, mean + std, alpha=0.2)
+        ax.set_title(TITLES[m])
+        ax.set_xlabel("timestep")
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def write_report(dirs: list[Path], out: Path) -> Report:
+    runs = [load_run(p) for p in find_runs(dirs)]
+    if not runs:
+        from testbed.config import ConfigError  # noqa: PLC0415
+
+        raise ConfigError(
+            "RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below the folders given)"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    md, csv_text = _table(runs)
+    atomic_write_bytes(out / "report.md", md.encode())
+    atomic_write_bytes(out / "report.csv", csv_text.encode())
+    _plot(runs, out / "curves.png")
+    return Report(out, md, runs)

@@ -1,0 +1,88 @@
+"""The folder of one run: its resolved config, its records, its checkpoint.
+
+``runs/<name>/`` holds ``config.toml`` (the resolved config, so a run can be resumed or
+repeated without the original file), ``steps.jsonl`` and ``summary.json`` (DESIGN.md
+section 5), ``state.json`` + ``learner.pt`` (the checkpoint of the last complete step,
+written atomically) and ``human_data.npz`` (the human-labelled data). A step is
+*complete* once it is in steps.jsonl and in the checkpoint; resume starts after it.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from testbed.config import ConfigError, FleetConfig, parse_config
+from testbed.records import atomic_write_bytes, atomic_write_json
+
+CONFIG = "config.toml"
+STEPS = "steps.jsonl"
+SUMMARY = "summary.json"
+STATE = "state.json"
+LEARNER = "learner.pt"
+META = "run.json"
+
+
+def _drop_none(obj: Any) -> Any:
+    """TOML has no null: leave unset optional fields out of the resolved config."""
+    if isinstance(obj, dict):
+        return {k: _drop_none(v) for k, v in obj.items() if v is not None}
+    if isinstance(obj, list | tuple):
+        return [_drop_none(v) for v in obj]
+    return obj
+
+
+@dataclass(frozen=True)
+class RunDir:
+    path: Path
+
+    @property
+    def steps(self) -> Path:
+        return self.path / STEPS
+
+    @property
+    def summary(self) -> Path:
+        return self.path / SUMMARY
+
+    @property
+    def state(self) -> Path:
+        return self.path / STATE
+
+    @property
+    def learner(self) -> Path:
+        return self.path / LEARNER
+
+    def write_config(self, cfg: FleetConfig) -> None:
+        data = _drop_none(cfg.model_dump(mode="json"))
+        atomic_write_bytes(self.path / CONFIG, tomli_w.dumps(data).encode())
+
+    def read_config(self) -> FleetConfig:
+        p = self.path / CONFIG
+        if not p.exists():
+            raise ConfigError(f"{self.path}: not a run folder (no {CONFIG}); check --resume")
+        return parse_config(tomllib.loads(p.read_text()), str(p))
+
+    def write_meta(self, meta: dict[str, Any]) -> None:
+        atomic_write_json(self.path / META, meta)
+
+    def read_meta(self) -> dict[str, Any]:
+        p = self.path / META
+        return json.loads(p.read_text()) if p.exists() else {}
+
+
+def new_run_dir(out: str | Path, name: str) -> RunDir:
+    """A fresh folder ``out/name`` (``name-2``, ``name-3``... if it is taken)."""
+    base = Path(out)
+    base.mkdir(parents=True, exist_ok=True)
+    p = base / name
+    k = 2
+    while p.exists():
+        p = base / f"{name}-{k}"
+        k += 1
+    p.mkdir(parents=True)
+    return RunDir(p)
