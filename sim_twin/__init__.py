@@ -1,0 +1,35 @@
+"""The PyBullet digital twin of a bimanual pushing cell, and its scripted supervisor.
+
+Why it exists: the fleet controller must be testable and runnable without robots. A
+``TwinCell`` behaves like one lab host (two arms, one overhead camera, a cube each) and
+keeps the task semantics of DESIGN.md section 3; ``supervisor`` is the scripted human
+that teleoperates with ground truth. This package imports nothing of the project.
+"""
+
+from __future__ import annotations
+
+from sim_twin.cell import TwinArmState, TwinCell, TwinOutcome
+from sim_twin.constants import (
+    FACE_DIRECTIONS,
+    IMAGE_SIZE,
+    MAX_PUSHES_PER_GOAL,
+    MIN_GOAL_DISTANCE,
+    NUM_ACTIONS,
+    SUCCESS_RADIUS,
+    WORKSPACE_POLYGON,
+)
+from sim_twin.supervisor import expert_face
+
+__all__ = [
+    "FACE_DIRECTIONS",
+    "IMAGE_SIZE",
+    "MAX_PUSHES_PER_GOAL",
+    "MIN_GOAL_DISTANCE",
+    "NUM_ACTIONS",
+    "SUCCESS_RADIUS",
+    "WORKSPACE_POLYGON",
+    "TwinArmState",
+    "TwinCell",
+    "TwinOutcome",
+    "expert_face",
+]

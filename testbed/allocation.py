@@ -52,6 +52,8 @@ __all__ = [
     "KIND_TELEOP",
     "Allocator",
     "lex_positive",
+    "rng_from_state",
+    "rng_state_json",
 ]
 
 KIND_NONE: Final = 0
@@ -206,10 +208,10 @@ class Allocator:
         if num_free and m:
             candidates = np.flatnonzero(~arm_held & lex_positive(key_arr))
             if candidates.size:
-                sub = key_arr[candidates]
-                # np.lexsort sorts by the LAST key first: primary = column 0.
-                sort_keys = [-tie[candidates], *(-sub[:, c] for c in range(sub.shape[1] - 1, -1, -1))]
-                order = np.lexsort(sort_keys)
+                # np.lexsort's LAST row is the primary key: key column 0, then 1, ...,
+                # then the tie draw; negated for a descending order.
+                sort_rows = np.vstack([tie[candidates], key_arr[candidates, ::-1].T])
+                order = np.lexsort(-sort_rows)
                 chosen = candidates[order[:num_free]]
 
                 chosen_mask = np.zeros(n, dtype=bool)
@@ -266,7 +268,7 @@ class Allocator:
             "human_arm": [int(a) for a in self._human_arm],
             "human_kind": [_KIND_TO_STR[int(k)] for k in self._human_kind],
             "human_served": [int(s) for s in self._human_served],
-            "rng": _jsonable(self._rng.bit_generator.state),
+            "rng": rng_state_json(self._rng),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -293,12 +295,10 @@ class Allocator:
                 or np.any((kind == KIND_NONE) == busy)
                 or np.unique(arm[busy]).size != int(busy.sum())):
             raise ValueError("allocator state is inconsistent (arms, kinds, served)")
-        rng = np.random.default_rng()
         try:
-            rng.bit_generator.state = rng_state
-        except (TypeError, ValueError, KeyError) as exc:
-            raise ValueError(f"allocator state has a bad RNG state ({exc})") from None
-        self._rng = rng
+            self._rng = rng_from_state(rng_state)
+        except ValueError as exc:
+            raise ValueError(f"allocator state: {exc}") from None
         self._human_arm, self._human_kind, self._human_served = arm, kind, served
         self._steps = steps
 
@@ -345,6 +345,22 @@ class Allocator:
             raise ValueError(f"violating must have shape ({self.num_robots},), "
                              f"got {arr.shape}")
         return arr
+
+
+def rng_state_json(rng: np.random.Generator) -> dict[str, Any]:
+    """A Generator's bit-generator state as plain JSON data (for ``state_dict``)."""
+    state: dict[str, Any] = _jsonable(rng.bit_generator.state)
+    return state
+
+
+def rng_from_state(state: dict[str, Any]) -> np.random.Generator:
+    """The inverse of :func:`rng_state_json`; a bad state raises ``ValueError``."""
+    rng = np.random.default_rng()
+    try:
+        rng.bit_generator.state = state
+    except (TypeError, ValueError, KeyError) as exc:
+        raise ValueError(f"bad RNG state ({exc})") from None
+    return rng
 
 
 def _jsonable(obj: Any) -> Any:

@@ -142,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     _Interrupts().install()
     verbs: dict[str, Callable[[argparse.Namespace], int]] = {}
-    from testbed import commands  # noqa: PLC0415 - keeps --help fast
+    from testbed import commands
 
     verbs = commands.VERBS
     try:

@@ -30,7 +30,8 @@ def _config(args: argparse.Namespace) -> FleetConfig:
 def _check_algorithm(name: str) -> None:
     if name not in ALGORITHM_NAMES:
         raise ConfigError(
-            f"--algorithm: unknown algorithm {name!r}; use one of {', '.join(ALGORITHM_NAMES)}"
+            f"--algorithm (or algorithm.name): unknown algorithm {name!r}; "
+            f"use one of {', '.join(ALGORITHM_NAMES)}"
         )
 
 
@@ -62,7 +63,7 @@ def cmd_trial(args: argparse.Namespace) -> int:
         resume = Path(args.resume)
         if not resume.is_dir():
             raise ConfigError(f"--resume: no such run folder {args.resume!r}")
-        from testbed.runs import RunDir  # noqa: PLC0415
+        from testbed.runs import RunDir
 
         cfg = RunDir(resume).read_config()
         opts = TrialOptions(**RunDir(resume).read_meta()["options"])
@@ -89,7 +90,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_protocol(args: argparse.Namespace) -> int:
-    from testbed.protocol import load_protocol, run_protocol  # noqa: PLC0415
+    from testbed.protocol import load_protocol, run_protocol
 
     proto = load_protocol(Path(args.file))
     report = run_protocol(proto, out=args.out, ask=not args.yes)
@@ -99,7 +100,7 @@ def cmd_protocol(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from testbed.report import write_report  # noqa: PLC0415
+    from testbed.report import write_report
 
     dirs = [Path(d) for d in args.dirs]
     for d in dirs:
@@ -112,7 +113,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from testbed.preflight import preflight  # noqa: PLC0415
+    from testbed.preflight import preflight
 
     cfg = _config(args)
     ok = preflight(cfg, Path(args.mosaic), print_line=print)
@@ -120,9 +121,9 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from testbed.humans import make_humans  # noqa: PLC0415
-    from testbed.offline import collect_demos  # noqa: PLC0415
-    from testbed.trial import build_hosts  # noqa: PLC0415
+    from testbed.humans import make_humans
+    from testbed.offline import collect_demos
+    from testbed.trial import build_hosts
 
     cfg = _config(args)
     count = args.count or cfg.learning.demos
@@ -141,9 +142,9 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
-    from testbed.humans import make_humans  # noqa: PLC0415
-    from testbed.offline import Transitions, pretrain  # noqa: PLC0415
-    from testbed.trial import PRETRAIN_SEED, build_hosts, new_learner  # noqa: PLC0415
+    from testbed.humans import make_humans
+    from testbed.offline import Transitions, pretrain
+    from testbed.trial import PRETRAIN_SEED, build_hosts, new_learner
 
     cfg = _config(args)
     if not Path(args.demos).is_file():

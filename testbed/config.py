@@ -66,6 +66,13 @@ class HostConfig(_Strict):
     """YuMi only: the Robot Web Services address of the IRB 14000 controller."""
     deadline_s: float = Field(10.0, gt=0, le=600)
     """Per-call deadline for a push or an observation on this host."""
+    heartbeat_s: float = Field(2.0, gt=0, le=600)
+    """Idle time after which the controller checks the agent is alive (application
+    heartbeat: SSH keepalives do not notice a dead peer)."""
+    connect_timeout_s: float = Field(20.0, gt=0, le=600)
+    """Budget to (re)connect: SSH handshake, agent start, backend start, hello."""
+    physics: bool = True
+    """Twin only: False runs the agent's no-physics mode (canned images; benchmarks)."""
     arms: list[ArmConfig] = Field(default_factory=lambda: [ArmConfig(name="left"),
                                                           ArmConfig(name="right", mirror=True)])
 

@@ -100,7 +100,6 @@ class FleetLoop:
         humans: Humans,
         learner: LearnerLike,
         algorithm: Algorithm,
-        allocator: Allocator,
         writer: RunWriter,
         steps: int,
         num_humans: int,
@@ -112,7 +111,7 @@ class FleetLoop:
         self.humans = humans
         self.learner = learner
         self.algorithm = algorithm
-        self.allocator = allocator
+        self.allocator: Allocator = algorithm.allocator
         self.writer = writer
         self.steps = steps
         self.num_humans = num_humans
@@ -156,18 +155,18 @@ class FleetLoop:
                 images[i] = o.image
                 violating[i] = o.violating
         out = self.learner.act(images)
+        faulted = np.array([r not in live for r in self.robots])
         signals = PrioritySignals(
             t=t,
-            violating=violating,
+            violating=violating & ~faulted,
             uncertainty=np.asarray(out.uncertainty, dtype=float),
             risk=np.asarray(out.risk, dtype=float),
             goal_risk=np.asarray(out.goal_risk, dtype=float),
             novelty=np.asarray(out.novelty, dtype=float),
+            faulted=faulted,
         )
-        keys = np.asarray(self.algorithm.priority.keys(signals), dtype=float)
-        faulted = np.array([r not in live for r in self.robots])
-        keys[faulted] = 0.0  # a human cannot help an arm its host does not answer for
-        assignment = self.allocator.step(keys, violating & ~faulted)
+        assignment = self.algorithm.step(signals)
+        keys = np.asarray(self.algorithm.last_keys, dtype=float)
         kinds, served = self.allocator.kinds, self.allocator.served
 
         training: Future[dict[str, float]] | None = None
@@ -175,12 +174,12 @@ class FleetLoop:
             training = self._executor.submit(self.learner.train_step)
 
         requests: list[HumanRequest] = []
-        names = self.algorithm.priority.names
         for i, r in enumerate(self.robots):
             h = int(assignment[i])
             if h < 0 or faulted[i]:
                 continue
-            kind = InterventionKind(kinds[i])
+            kind = kinds[i]
+            assert kind is not None
             requests.append(
                 HumanRequest(
                     robot=r,
@@ -190,9 +189,8 @@ class FleetLoop:
                     served=int(served[i]),
                     min_steps=self.t_T if kind is InterventionKind.TELEOP else self.t_R,
                     key=tuple(float(k) for k in keys[i]),
-                    reason={nm: float(v) for nm, v in zip(names, keys[i], strict=False)}
-                    | {"uncertainty": float(signals.uncertainty[i]),
-                       "risk": float(signals.risk[i])},
+                    reason=self.algorithm.reason(i)
+                    | {"uncertainty": float(out.uncertainty[i]), "risk": float(out.risk[i])},
                 )
             )
         try:
@@ -211,7 +209,7 @@ class FleetLoop:
             humans_of[r] = h if h >= 0 else None
             if faulted[i]:
                 modes[r] = Mode.FAULT
-            elif h >= 0 and kinds[i] == InterventionKind.RESET:
+            elif h >= 0 and kinds[i] is InterventionKind.RESET:
                 modes[r] = Mode.RESET
                 if responses.get(r) is not None and responses[r].reset_done:
                     resets.append(r)
@@ -227,7 +225,8 @@ class FleetLoop:
         results = self.hosts.execute(pushes, resets)
         train_info = training.result() if training is not None else {}
 
-        row = self._row(t, modes, humans_of, results, signals, keys, pushes)
+        row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
+                       np.asarray(out.risk), keys, pushes)
         self.writer.write_step(row)
         self._count(row)
         self._remember(observations, modes, results, pushes, images)
@@ -249,7 +248,8 @@ class FleetLoop:
         modes: Mapping[str, Mode],
         humans_of: Mapping[str, int | None],
         results: Mapping[str, PushResult | Fault],
-        signals: PrioritySignals,
+        uncertainty: np.ndarray,
+        risk: np.ndarray,
         keys: np.ndarray,
         pushes: Mapping[str, int],
     ) -> dict[str, Any]:
@@ -269,8 +269,8 @@ class FleetLoop:
                     "action": pushes.get(r) if not faulted else None,
                     "success": bool(ok and res.success),  # type: ignore[union-attr]
                     "violation": bool(ok and res.violation),  # type: ignore[union-attr]
-                    "uncertainty": None if faulted else float(signals.uncertainty[i]),
-                    "risk": None if faulted else float(signals.risk[i]),
+                    "uncertainty": None if faulted else float(uncertainty[i]),
+                    "risk": None if faulted else float(risk[i]),
                     "key": [float(k) for k in keys[i]],
                 }
             )

@@ -50,7 +50,8 @@ class ScriptedHumans:
                     )
                 out[req.robot] = HumanResponse(req.robot, action=int(action))
             else:
-                out[req.robot] = HumanResponse(req.robot, reset_done=req.served + 1 >= req.min_steps)
+                done = req.served + 1 >= req.min_steps
+                out[req.robot] = HumanResponse(req.robot, reset_done=done)
         return out
 
     def show(self, t: int, status: FleetStatus) -> None:
@@ -65,7 +66,7 @@ def make_humans(kind: str, count: int) -> Humans:
     if kind == "scripted":
         return ScriptedHumans()
     if kind == "gui":
-        from gui.console import ConsoleHumans  # noqa: PLC0415 - GUI only on demand
+        from gui.console import ConsoleHumans
 
         return ConsoleHumans(num_humans=count)
     raise ValueError(f"unknown humans kind {kind!r}; use scripted or gui")

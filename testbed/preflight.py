@@ -16,9 +16,9 @@ from testbed.types import ArmObservation, Fault
 
 
 def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], None]) -> bool:
-    import cv2  # noqa: PLC0415
+    import cv2
 
-    from testbed.trial import build_hosts, mosaic  # noqa: PLC0415
+    from testbed.trial import build_hosts, mosaic
 
     hosts = build_hosts(cfg, cfg.trial.seed)
     ok = True

@@ -60,7 +60,7 @@ from typing import Any, Final, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
-from testbed.allocation import Allocator
+from testbed.allocation import Allocator, rng_from_state, rng_state_json
 from testbed.config import AlgorithmConfig
 
 __all__ = [
@@ -296,8 +296,10 @@ class RandomPriority:
     (their resets are due), then arms at random. Key (c, x): c = 1 for a chosen
     violating arm, x in (0, 1] for every chosen arm, (0, 0) otherwise.
 
-    It needs the allocator's held set to size the draw; :func:`get_algorithm` binds it.
-    Unbound, it assumes nobody is held.
+    It needs the allocator's held set to size the draw; :func:`get_algorithm` binds it,
+    and the bound allocator must be the one that allocates, once after each
+    :meth:`keys` (checked: ``RuntimeError`` otherwise). Unbound, it assumes nobody is
+    held.
     """
 
     names: tuple[str, ...] = ("c", "x")
@@ -321,6 +323,12 @@ class RandomPriority:
         _check_t(s.t)
         viol = s.violating_array(n)
         faulted = s.faulted_array(n)
+        if self.allocator is not None and self.allocator.steps != self.steps:
+            raise RuntimeError(
+                "RandomPriority: its allocator has stepped "
+                f"{self.allocator.steps} times but keys() ran {self.steps} times; allocate "
+                "with the algorithm's own allocator (Algorithm.allocator or Algorithm.step), "
+                "once per keys() call, or the human-effort budget cannot be kept")
         held = (self.allocator.held_mask(viol) if self.allocator is not None
                 else np.zeros(n, dtype=bool))
         num_held = int(held.sum())
@@ -345,14 +353,10 @@ class RandomPriority:
         return keys
 
     def state_dict(self) -> dict[str, Any]:
-        state = self._rng.bit_generator.state
-        return {"steps": self.steps, "effort": self.effort,
-                "rng": {k: (dict(v) if isinstance(v, dict) else v) for k, v in state.items()}}
+        return {"steps": self.steps, "effort": self.effort, "rng": rng_state_json(self._rng)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        rng = np.random.default_rng()
-        rng.bit_generator.state = state["rng"]
-        self._rng = rng
+        self._rng = rng_from_state(state["rng"])
         self.steps = int(state["steps"])
         self.effort = int(state["effort"])
 
@@ -396,6 +400,14 @@ class Algorithm:
     @property
     def names(self) -> tuple[str, ...]:
         return self.priority.names
+
+    @property
+    def learns(self) -> bool:
+        return self.spec.learns
+
+    @property
+    def teleop(self) -> bool:
+        return self.spec.teleop
 
     def step(self, signals: PrioritySignals) -> npt.NDArray[np.int64]:
         """Compute the keys and allocate; returns (N,) human per arm, -1 for none."""

@@ -63,8 +63,8 @@ def load_protocol(path: Path) -> Protocol:
 
 
 def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True) -> Report:
-    from testbed.progress import TrialProgress  # noqa: PLC0415
-    from testbed.trial import TrialOptions, run_trial  # noqa: PLC0415
+    from testbed.progress import TrialProgress
+    from testbed.trial import TrialOptions, run_trial
 
     folder = Path(out or proto.out)
     folder.mkdir(parents=True, exist_ok=True)
@@ -96,7 +96,7 @@ def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True) -> R
 
 def _discard(path: Path) -> None:
     """A run folder that died before its first checkpoint holds nothing worth keeping."""
-    import shutil  # noqa: PLC0415
+    import shutil
 
     shutil.rmtree(path)
 

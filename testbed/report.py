@@ -68,7 +68,7 @@ def load_run(path: Path) -> RunRecord:
 
 
 def _num_humans(path: Path) -> int:
-    import tomllib  # noqa: PLC0415
+    import tomllib
 
     cfg = path / "config.toml"
     if cfg.exists():
@@ -99,10 +99,10 @@ def _table(runs: list[RunRecord]) -> tuple[str, str]:
 
 
 def _plot(runs: list[RunRecord], path: Path) -> None:
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     groups: dict[str, list[RunRecord]] = {}
     for r in runs:
@@ -132,7 +132,7 @@ def _plot(runs: list[RunRecord], path: Path) -> None:
 def write_report(dirs: list[Path], out: Path) -> Report:
     runs = [load_run(p) for p in find_runs(dirs)]
     if not runs:
-        from testbed.config import ConfigError  # noqa: PLC0415
+        from testbed.config import ConfigError
 
         raise ConfigError(
             "RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below the folders given)"

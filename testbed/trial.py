@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from testbed.allocation import Allocator
 from testbed.config import ConfigError, FleetConfig
 from testbed.fleet import FleetLoop, StepOutcome
 from testbed.humans import Humans, make_humans
@@ -47,19 +46,19 @@ class TrialOptions:
 
 
 def build_hosts(cfg: FleetConfig, seed: int) -> Any:
-    from drivers.fleet import HostFleet  # noqa: PLC0415 - drivers stay out of import testbed
+    from drivers.fleet import HostFleet
 
     return HostFleet(cfg.hosts, trial_seed=seed)
 
 
 def new_learner(cfg: FleetConfig, seed: int) -> Any:
-    from testbed.learning import Learner  # noqa: PLC0415 - torch only when training
+    from testbed.learning import Learner
 
     return Learner(cfg.learning, seed=seed)
 
 
 def load_learner(cfg: FleetConfig, path: Path) -> Any:
-    from testbed.learning import Learner  # noqa: PLC0415
+    from testbed.learning import Learner
 
     return Learner.load(path, cfg.learning)
 
@@ -107,15 +106,6 @@ def pretrained_learner(
     return load_learner(cfg, ckpt), ckpt
 
 
-def _state(t: int, allocator: Allocator, algorithm: Any) -> dict[str, Any]:
-    return {
-        "t": t,
-        "allocator": allocator.state_dict(),
-        "priority": algorithm.state_dict(),
-        "time": time.time(),
-    }
-
-
 def run_trial(
     cfg: FleetConfig,
     opts: TrialOptions,
@@ -150,9 +140,6 @@ def run_trial(
     algorithm = get_algorithm(
         opts.algorithm, cfg.algorithm, num_robots, cfg.humans.count, opts.seed
     )
-    allocator = Allocator(
-        num_robots, cfg.humans.count, cfg.algorithm.t_T, cfg.algorithm.t_R, seed=opts.seed
-    )
     humans = make_humans(opts.humans, cfg.humans.count)
     own_hosts = hosts is None
     if own_hosts:
@@ -164,8 +151,7 @@ def run_trial(
             hosts.start()
         if state is not None:
             learner = load_learner(cfg, run.learner)
-            allocator.load_state_dict(state["allocator"])
-            algorithm.load_state_dict(state["priority"])
+            algorithm.load_state_dict(state["algorithm"])
         elif opts.policy is not None:
             learner = load_learner(cfg, Path(opts.policy))
         else:
@@ -178,14 +164,13 @@ def run_trial(
 
         def checkpoint(t: int) -> None:
             learner.save(run.learner)
-            atomic_write_json(run.state, _state(t, allocator, algorithm))
+            atomic_write_json(run.state, {"t": t, "algorithm": algorithm.state_dict()})
 
         loop = FleetLoop(
             hosts=hosts,
             humans=humans,
             learner=learner,
             algorithm=algorithm,
-            allocator=allocator,
             writer=writer,
             steps=opts.steps,
             num_humans=cfg.humans.count,
@@ -215,7 +200,7 @@ def run_trial(
 
 def _rewrite_steps(path: Path, rows: list[dict[str, Any]]) -> None:
     """Drop the steps past the checkpoint (logged, but their checkpoint never landed)."""
-    from testbed.records import atomic_write_bytes  # noqa: PLC0415
+    from testbed.records import atomic_write_bytes
 
     text = "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows)
     atomic_write_bytes(path, text.encode())

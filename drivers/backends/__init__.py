@@ -1,0 +1,32 @@
+"""Host backends: what an agent drives (a twin cell, an ABB YuMi, any future robot).
+
+Why a lazy factory here: the agent chooses its backend from the command line, and a
+backend's heavy imports (pybullet for the twin, the ABB clients for the YuMi) must
+happen only in the agent that needs them, after the agent has claimed its stdout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from drivers.backends.base import ArmOutcome, ArmView, HostBackend
+
+__all__ = ["ArmOutcome", "ArmView", "HostBackend", "make_backend"]
+
+
+def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed: int,
+                 physics: bool = True, crops: Mapping[str, tuple[int, int, int, int]] | None = None,
+                 calibrations: Mapping[str, str] | None = None, camera: str | None = None,
+                 controller_url: str | None = None) -> HostBackend:
+    if kind == "twin":
+        from drivers.backends.twin import CannedTwinBackend, TwinBackend
+
+        if not physics:
+            return CannedTwinBackend(seed, arms, mirror)
+        return TwinBackend(seed, arms, mirror)
+    if kind == "yumi":
+        from drivers.backends.yumi import build_yumi_backend
+
+        return build_yumi_backend(arms, mirror, crops or {}, calibrations or {}, camera,
+                                  controller_url, seed)
+    raise ValueError(f"unknown backend {kind!r}; expected 'twin' or 'yumi'")

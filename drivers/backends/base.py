@@ -1,0 +1,118 @@
+"""The contract every host backend meets: the arms and the camera of ONE robot host.
+
+Why an ABC (as LeRobot's ``Robot``): the agent, the conformance check and the tests talk
+to a twin cell and to a real ABB YuMi through the same five calls, so a new robot is a
+new subclass and nothing else changes. The backend works in the arms' *canonical*
+frame (right-arm crops mirrored, ``testbed.types``); the agent puts its answers on the
+wire unchanged.
+
+Semantics (DESIGN.md section 3, ARCHITECTURE.md ``TwinCell``):
+
+* ``observe`` takes ONE picture for all arms (the host's camera is shared) with every
+  pusher out of view, and reports per arm the 64x64 canonical crop with the goal drawn
+  in, whether the arm is violating (waiting for a hard reset) and the goal.
+* ``push`` pushes all the named arms AT THE SAME TIME and reports each arm's outcome.
+  A push on a violating arm is refused: no motion, outcome all False.
+* ``reset`` completes a hard reset (twin: puts the cube back; physical: a human did it,
+  the backend checks the picture) and says whether the arm is free again.
+* ``rest`` moves every arm out of the camera's view; ``close`` releases the hardware.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from testbed.types import IMAGE_SIZE, NUM_ACTIONS
+
+
+@dataclass(frozen=True, slots=True)
+class ArmView:
+    """One arm's part of a host observation (what goes on the wire for that arm)."""
+
+    image: npt.NDArray[np.uint8]
+    """(64, 64, 3) uint8 RGB, canonical frame, goal drawn in."""
+    violating: bool
+    goal: tuple[float, float]
+    expert_action: int | None = None
+    png: bytes | None = None
+    """The image already PNG-encoded, when the backend has it cached (saves an encode)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ArmOutcome:
+    """One arm's outcome of a push."""
+
+    success: bool
+    violation: bool
+
+
+class HostBackend(ABC):
+    """The arms and camera of one host. Not thread-safe: the agent calls it serially."""
+
+    kind: str = "abstract"
+    """Short backend name reported in the handshake ("twin", "yumi", ...)."""
+
+    @property
+    @abstractmethod
+    def arm_names(self) -> tuple[str, ...]:
+        """The host's arms, in config order."""
+
+    @property
+    def mirror(self) -> tuple[bool, ...]:
+        """Per arm, whether its crop is mirrored into the canonical frame."""
+        return tuple(False for _ in self.arm_names)
+
+    @abstractmethod
+    def observe(self) -> dict[str, ArmView]:
+        """One picture for all arms; a view for every arm in ``arm_names``."""
+
+    @abstractmethod
+    def push(self, faces: Mapping[str, int]) -> dict[str, ArmOutcome]:
+        """Push the named arms at the same time; an outcome for exactly those arms."""
+
+    @abstractmethod
+    def reset(self, arms: Sequence[str]) -> dict[str, bool]:
+        """Complete the hard reset of ``arms``; per arm, True when it is free again."""
+
+    @abstractmethod
+    def rest(self) -> None:
+        """Every arm to its rest pose, out of the camera's view."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the hardware; idempotent."""
+
+    # -- helpers shared by the backends -------------------------------------------------
+    def check_faces(self, faces: Mapping[str, Any]) -> dict[str, int]:
+        """Validate a push request; ValueError names the arm and the bad face."""
+        out: dict[str, int] = {}
+        for arm, face in faces.items():
+            if arm not in self.arm_names:
+                raise ValueError(f"unknown arm {arm!r}; this host has {list(self.arm_names)}")
+            if type(face) is not int and not isinstance(face, np.integer):
+                raise ValueError(f"arm {arm!r}: face must be an int, got {face!r}")
+            if not 0 <= int(face) < NUM_ACTIONS:
+                raise ValueError(f"arm {arm!r}: face must be in 0..{NUM_ACTIONS - 1}, got {face}")
+            out[arm] = int(face)
+        return out
+
+    def check_arms(self, arms: Sequence[str]) -> list[str]:
+        unknown = [a for a in arms if a not in self.arm_names]
+        if unknown:
+            raise ValueError(f"unknown arm(s) {unknown}; this host has {list(self.arm_names)}")
+        return list(dict.fromkeys(arms))
+
+    def __enter__(self) -> HostBackend:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+IMAGE_SHAPE: Final = (IMAGE_SIZE, IMAGE_SIZE, 3)

@@ -1,0 +1,167 @@
+"""The boundary to the ABB YuMi (IRB 14000) controller: motion programs of waypoints.
+
+Why a boundary: the real controller (an IRC5 reached through Robot Web Services) cannot
+run in CI, so :class:`~drivers.backends.yumi.YumiBackend` talks to a small client
+protocol. :class:`RwsYumiController` implements it with ``abb-motion-program-exec``
+(MultiMove: both arms' programs start together, one RAPID task per arm, ``T_ROB_L`` and
+``T_ROB_R``) and ``abb-robot-client`` (RWS reads of the TCP positions).
+:class:`FakeYumiController` implements it for tests and records every waypoint; it is a
+fake on purpose and says so in its name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+from drivers.errors import BackendError
+
+WaypointKind = Literal["move_j", "move_l", "rest"]
+
+
+@dataclass(frozen=True, slots=True)
+class Waypoint:
+    """One motion command in the robot base frame (mm); ``rest`` is a joint target."""
+
+    kind: WaypointKind
+    xyz_mm: tuple[float, float, float] | None
+    speed_mm_s: float
+    fine: bool = True
+    """Stop exactly at the point (RAPID ``fine``), else fly by (``z10``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ArmPose:
+    """How one arm holds its pusher and where it rests (from the calibration file)."""
+
+    task: str
+    """RAPID task of the arm: ``T_ROB_L`` or ``T_ROB_R`` on an IRB 14000."""
+    mechunit: str
+    """Mechanical unit for RWS reads: ``ROB_L`` or ``ROB_R``."""
+    rest_joints_deg: tuple[float, ...]
+    """7 joint angles (axis 7, the arm angle, last) of the rest pose out of view."""
+    tool_quat_wxyz: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0)
+    robconf: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 4.0)
+    arm_angle_deg: float = 0.0
+    tool_z_mm: float = 0.0
+
+
+class YumiControllerClient(Protocol):
+    def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
+        """Run every arm's program AT THE SAME TIME; return when all have finished."""
+        ...
+
+    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
+        """Current TCP position of every arm, robot base frame, mm."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class RwsYumiController:
+    """The real IRB 14000 through Robot Web Services (abb-motion-program-exec)."""
+
+    def __init__(self, base_url: str, arms: Mapping[str, ArmPose], *,
+                 username: str = "Default User", password: str = "robotics") -> None:
+        # Lazy: these clients pull in requests/websockets; only a YuMi host needs them.
+        from abb_motion_program_exec import abb_motion_program_exec_client as mpe
+
+        self._mpe = mpe
+        self._arms = dict(arms)
+        self._client = mpe.MotionProgramExecClient(base_url=base_url, username=username,
+                                                   password=password)
+
+    def _program(self, arm: str, waypoints: Sequence[Waypoint]) -> object:
+        mpe = self._mpe
+        pose = self._arms[arm]
+        tool = mpe.tooldata(True, mpe.pose([0, 0, pose.tool_z_mm], [1, 0, 0, 0]),
+                            mpe.loaddata(0.001, [0, 0, 0.001], [1, 0, 0, 0], 0, 0, 0))
+        mp = mpe.MotionProgram(tool=tool)
+        extax = [pose.arm_angle_deg, 9e9, 9e9, 9e9, 9e9, 9e9]
+        for w in waypoints:
+            speed = mpe.speeddata(float(w.speed_mm_s), 500, 5000, 1000)
+            zone = mpe.fine if w.fine else mpe.z10
+            if w.kind == "rest":
+                j = pose.rest_joints_deg
+                mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6], 9e9, 9e9, 9e9, 9e9, 9e9]),
+                            speed, zone)
+                continue
+            assert w.xyz_mm is not None
+            target = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
+                                   mpe.confdata(*pose.robconf), extax)
+            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
+        return mp
+
+    def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
+        arms = [a for a in self._arms if a in programs]
+        if not arms:
+            return
+        mps = [self._program(a, programs[a]) for a in arms]
+        tasks = [self._arms[a].task for a in arms]
+        try:
+            if len(arms) == 1:
+                self._client.execute_motion_program(mps[0], task=tasks[0])
+            else:
+                self._client.execute_multimove_motion_program(mps, tasks)
+        except Exception as exc:
+            raise BackendError(f"YuMi controller refused the motion program: {exc}") from exc
+
+    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
+        out: dict[str, tuple[float, float, float]] = {}
+        for arm, pose in self._arms.items():
+            rt = self._client.abb_client.get_robtarget(mechunit=pose.mechunit)
+            out[arm] = (float(rt.trans[0]), float(rt.trans[1]), float(rt.trans[2]))
+        return out
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):  # best effort on the way out
+            self._client.abb_client.logout()
+
+
+@dataclass
+class FakeYumiController:
+    """A FAKE IRB 14000 controller for tests: records programs, moves TCPs instantly.
+
+    ``park_in_view(arm, reads)`` makes the next ``reads`` TCP reads report the arm over
+    the table, so the backend's "take the picture again" path can be tested.
+    """
+
+    rest_xyz: dict[str, tuple[float, float, float]]
+    in_view_xyz: tuple[float, float, float] = (0.0, 0.0, 50.0)
+    programs: list[dict[str, list[Waypoint]]] = field(default_factory=list)
+    closed: bool = False
+    _tcp: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    _in_view_reads: dict[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._tcp = dict(self.rest_xyz)
+
+    def park_in_view(self, arm: str, reads: int = 1) -> None:
+        self._in_view_reads[arm] = reads
+
+    def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
+        if self.closed:
+            raise BackendError("fake controller is closed")
+        unknown = set(programs) - set(self.rest_xyz)
+        if unknown:
+            raise BackendError(f"fake controller has no arm(s) {sorted(unknown)}")
+        self.programs.append({a: list(w) for a, w in programs.items()})
+        for arm, wps in programs.items():
+            for w in wps:
+                if w.speed_mm_s <= 0:
+                    raise BackendError(f"arm {arm}: non-positive speed {w.speed_mm_s}")
+                self._tcp[arm] = self.rest_xyz[arm] if w.kind == "rest" else w.xyz_mm  # type: ignore[assignment]
+            self._in_view_reads.pop(arm, None)
+
+    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
+        out = dict(self._tcp)
+        for arm, n in list(self._in_view_reads.items()):
+            if n > 0:
+                out[arm] = self.in_view_xyz
+                self._in_view_reads[arm] = n - 1
+        return out
+
+    def close(self) -> None:
+        self.closed = True

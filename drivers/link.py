@@ -1,0 +1,95 @@
+"""The controller's end of one agent connection: handshake, then request/reply.
+
+Why separate from the transport and the worker: this is where bytes become checked
+messages. Every call has a deadline; every reply is checked against the request (type,
+id, arm set) by ``drivers.protocol``; when the stream breaks, the error carries what the
+agent left behind (exit status, end of its stderr: e.g. the traceback of a crash at
+import), so the operator reads *why* and not a bare EOF.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from drivers import protocol as p
+from drivers.backends.base import ArmOutcome, ArmView
+from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
+from drivers.transport import Transport
+from testbed.config import HostConfig
+
+
+class AgentLink:
+    """One live connection to one host's agent. Not thread-safe (one caller)."""
+
+    def __init__(self, host: HostConfig, transport: Transport) -> None:
+        self.host = host
+        self.transport = transport
+        self.peer = transport.peer
+        self.reader = p.FrameReader(transport.read, self.peer)
+        self.info: p.HelloInfo | None = None
+        self.last_io = time.monotonic()
+        self._next_id = 1
+
+    @property
+    def arms(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.host.arms)
+
+    def _explain(self, exc: LinkClosed | ProtocolError | DeadlineExceeded) -> Exception:
+        wait_until = time.monotonic() + 0.3
+        while self.transport.exit_status() is None and time.monotonic() < wait_until:
+            time.sleep(0.02)  # the agent may be exiting right now; its status helps
+        diag = self.transport.diagnostics()
+        return type(exc)(f"{exc}\n{diag}" if diag else str(exc))
+
+    def call(self, mtype: str, deadline: float, **fields: Any) -> p.Frame:
+        mid = self._next_id
+        self._next_id = mid % p.MAX_ID + 1
+        try:
+            self.transport.write(p.make_request(mtype, mid, **fields), deadline)
+            frame = self.reader.read_frame(deadline)
+        except (LinkClosed, ProtocolError, DeadlineExceeded) as exc:
+            raise self._explain(exc) from None
+        self.last_io = time.monotonic()
+        return p.check_reply(frame, f"{mtype}_ok", mid, self.peer)
+
+    def open(self, argv: list[str], timeout_s: float) -> p.HelloInfo:
+        """Start the agent and shake hands; the agent must serve the configured arms."""
+        deadline = time.monotonic() + timeout_s
+        self.transport.open(argv, timeout_s)
+        frame = self.call("hello", deadline, version=p.PROTOCOL_VERSION, host=self.host.name)
+        info = p.parse_hello_reply(frame, self.peer)
+        if info.version != p.PROTOCOL_VERSION:
+            raise ProtocolError(f"{self.peer} speaks protocol {info.version}, we speak "
+                                f"{p.PROTOCOL_VERSION}")
+        mirror = tuple(a.mirror for a in self.host.arms)
+        if info.arms != self.arms or info.mirror != mirror:
+            raise ProtocolError(f"{self.peer} serves arms {list(info.arms)} (mirror "
+                                f"{list(info.mirror)}) but the config names {list(self.arms)} "
+                                f"(mirror {list(mirror)})")
+        self.info = info
+        return info
+
+    def observe(self, deadline: float) -> dict[str, ArmView]:
+        return p.parse_observe_reply(self.call("observe", deadline), self.arms, self.peer)
+
+    def push(self, faces: Mapping[str, int], deadline: float) -> dict[str, ArmOutcome]:
+        frame = self.call("push", deadline, faces=dict(faces))
+        return p.parse_push_reply(frame, list(faces), self.peer)
+
+    def reset(self, arms: Sequence[str], deadline: float) -> dict[str, bool]:
+        frame = self.call("reset", deadline, arms=list(arms))
+        return p.parse_reset_reply(frame, list(arms), self.peer)
+
+    def rest(self, deadline: float) -> None:
+        self.call("rest", deadline)
+
+    def heartbeat(self, deadline: float) -> None:
+        self.call("heartbeat", deadline)
+
+    def bye(self, deadline: float) -> None:
+        self.call("bye", deadline)
+
+    def close(self) -> None:
+        self.transport.close()

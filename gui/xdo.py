@@ -1,0 +1,135 @@
+"""Drive real console windows from outside: a private Xvfb and xdotool, for tests and benchmarks.
+
+The console's promises (a key in *this* window pushes *that* arm, Enter completes a
+reset, a frame is on screen within 50 ms) hold only for real windows, so the tests
+open real ones on a virtual X server and act on them as a person would: find the
+window by its title, send it a key, click a point in it. Debian packages: ``xvfb``,
+``xauth``, ``xdotool``.
+
+    with Xvfb() as x:                      # DISPLAY of this process set to x.display
+        wid = find_window(window_name(0))  # "testbed console - human 0"
+        press(wid, "w")                    # or "Up", "Return", "Escape", "space"
+        click(wid, *console.face_click_point(0, 3))
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import shutil
+import subprocess
+import time
+from types import TracebackType
+
+XVFB_SCREEN = "1600x1200x24"
+
+
+def tools_missing() -> list[str]:
+    """The X tools this module needs that are not on PATH."""
+    return [t for t in ("Xvfb", "xdotool") if shutil.which(t) is None]
+
+
+class Xvfb:
+    """A private Xvfb on a free display number; ``DISPLAY`` points at it while open."""
+
+    def __init__(self, screen: str = XVFB_SCREEN, *, set_env: bool = True) -> None:
+        self.screen = screen
+        self.set_env = set_env
+        self.display = ""
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._old_display: str | None = None
+
+    def start(self, timeout_s: float = 10.0) -> str:
+        if tools_missing():
+            raise RuntimeError(
+                f"missing {', '.join(tools_missing())}: apt-get install -y xvfb xauth xdotool"
+            )
+        read_fd, write_fd = os.pipe()
+        try:
+            # -displayfd: Xvfb picks a free display and writes its number when ready.
+            self._proc = subprocess.Popen(
+                ["Xvfb", "-displayfd", str(write_fd), "-screen", "0", self.screen,
+                 "-nolisten", "tcp"],
+                pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            )
+        finally:
+            os.close(write_fd)
+        try:
+            number = b""
+            deadline = time.monotonic() + timeout_s
+            while not number.endswith(b"\n"):
+                left = deadline - time.monotonic()
+                if left <= 0 or not select.select([read_fd], [], [], left)[0]:
+                    raise RuntimeError("Xvfb did not start")
+                chunk = os.read(read_fd, 16)
+                if not chunk:
+                    raise RuntimeError("Xvfb exited at start")
+                number += chunk
+        except BaseException:
+            self.stop()
+            raise
+        finally:
+            os.close(read_fd)
+        self.display = f":{int(number)}"
+        if self.set_env:
+            self._old_display = os.environ.get("DISPLAY")
+            os.environ["DISPLAY"] = self.display
+        return self.display
+
+    def stop(self) -> None:
+        if self.set_env and self.display:
+            if self._old_display is None:
+                os.environ.pop("DISPLAY", None)
+            else:
+                os.environ["DISPLAY"] = self._old_display
+        if self._proc is not None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(5)
+            self._proc = None
+
+    def __enter__(self) -> Xvfb:
+        self.start()
+        return self
+
+    def __exit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+
+def _xdotool(*args: str, display: str | None = None) -> str:
+    env = dict(os.environ)
+    if display is not None:
+        env["DISPLAY"] = display
+    done = subprocess.run(
+        ["xdotool", *args], env=env, capture_output=True, text=True, timeout=10
+    )
+    return done.stdout
+
+
+def find_window(name: str, *, display: str | None = None, timeout_s: float = 10.0) -> str:
+    """The X id of the visible window titled exactly ``name`` (waits for it to appear)."""
+    pattern = "^" + re.sub(r"([.\[\]{}()\\*+?^$|])", r"\\\1", name) + "$"  # POSIX ERE
+    deadline = time.monotonic() + timeout_s
+    while True:
+        ids = _xdotool("search", "--onlyvisible", "--name", pattern, display=display).split()
+        if ids:
+            return ids[-1]
+        if time.monotonic() > deadline:
+            raise LookupError(f"no visible window named {name!r}")
+        time.sleep(0.05)
+
+
+def press(window: str, key: str, *, display: str | None = None) -> None:
+    """Send one key (an X keysym name: w, Up, Return, Escape, space) to a window."""
+    _xdotool("key", "--window", window, key, display=display)
+
+
+def click(window: str, x: int, y: int, *, display: str | None = None) -> None:
+    """Left click at window coordinates (x, y): move the pointer there, then click."""
+    _xdotool("mousemove", "--window", window, str(x), str(y), "click", "1", display=display)

@@ -1,0 +1,107 @@
+"""The policy: a bootstrap ensemble of the lab's CNN classifiers over the 4 face pushes.
+
+Why an ensemble: Fleet-EnsembleDAgger and C.U.R. prioritise robots by the policy's
+uncertainty, and the members' disagreement on a state is that uncertainty. Each member
+trains on its own bootstrap of the data (data.py draws the per-member Poisson weights),
+so members agree where data is dense and disagree away from it.
+
+Two ways to run the members, same parameters, same maths (the checkpoint does not care):
+
+* ``loop``: one member after the other. Fastest on a small CPU (few large kernels).
+* ``vmap``: ``torch.func.vmap`` over the members' parameters stacked with ``torch.stack``
+  (differentiable, so gradients land in each member's own parameters and one optimiser
+  serves both ways). Fewer, larger kernels: the better bet on a GPU.
+
+Signals for the priorities (all in [0, 1]):
+
+* uncertainty = I(action; member) / log K, the ensemble's mutual information (BALD):
+  H(mean p) - mean H(p_m). 0 when the members agree (however unsure they are together);
+  it grows only with disagreement, which is what "far from the data" looks like to a
+  bootstrap ensemble. With E members it cannot exceed log(min(E, K)) / log K.
+* novelty = sum_k Var_m p_m(k) / (1 - 1/K): ThriftyDAgger's novelty is the variance of
+  the ensemble's outputs; for a classifier that is the variance of its probabilities,
+  scaled by its maximum so that it lies in [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import torch
+from torch import Tensor, nn
+from torch.func import functional_call, vmap
+
+from testbed.learning.networks import lab_network
+from testbed.types import NUM_ACTIONS
+
+Impl = Literal["loop", "vmap"]
+
+
+class PolicyEnsemble(nn.Module):
+    """``size`` independent members; ``forward`` gives per-member logits (E, B, K)."""
+
+    def __init__(self, size: int, impl: Impl = "loop") -> None:
+        super().__init__()
+        if size < 1:
+            raise ValueError("the ensemble needs at least one member")
+        self.members = nn.ModuleList(lab_network(NUM_ACTIONS) for _ in range(size))
+        self.impl: Impl = impl
+        self._names = [name for name, _ in self.members[0].named_parameters()]
+
+    @property
+    def size(self) -> int:
+        return len(self.members)
+
+    def forward(self, images: Tensor) -> Tensor:
+        """``images``: uint8 (B, H, W, 3) seen by every member, or (E, B, H, W, 3) one
+        batch per member. Returns logits (E, B, K)."""
+        per_member = images.dim() == 5
+        if per_member and images.shape[0] != self.size:
+            raise ValueError(f"expected {self.size} member batches, got {images.shape[0]}")
+        if self.impl == "vmap":
+            return self._forward_vmap(images, per_member)
+        return torch.stack(
+            [m(images[i] if per_member else images) for i, m in enumerate(self.members)]
+        )
+
+    def _forward_vmap(self, images: Tensor, per_member: bool) -> Tensor:
+        params = [dict(m.named_parameters()) for m in self.members]
+        stacked = {name: torch.stack([p[name] for p in params]) for name in self._names}
+        base = self.members[0]
+
+        def one(member_params: dict[str, Tensor], x: Tensor) -> Tensor:
+            return functional_call(base, member_params, (x,))
+
+        return vmap(one, in_dims=(0, 0 if per_member else None))(stacked, images)
+
+    def loss(self, images: Tensor, actions: Tensor) -> tuple[Tensor, Tensor]:
+        """Cross-entropy of each member on its own batch.
+
+        Returns (the sum over members, to backpropagate: each member's gradient is that of
+        its own mean loss; the per-member losses (E,), detached)."""
+        logits = self(images)
+        e, b, k = logits.shape
+        per_sample = nn.functional.cross_entropy(
+            logits.reshape(e * b, k), actions.reshape(e * b), reduction="none"
+        )
+        per_member = per_sample.view(e, b).mean(dim=1)
+        return per_member.sum(), per_member.detach()
+
+
+def ensemble_signals(logits: Tensor) -> dict[str, Tensor]:
+    """From member logits (E, N, K): mean probs, greedy actions, uncertainty, novelty."""
+    probs = torch.softmax(logits.float(), dim=-1)
+    k = probs.shape[-1]
+    mean = probs.mean(dim=0)
+    log_mean = mean.clamp_min(1e-12).log()
+    entropy_of_mean = -(mean * log_mean).sum(-1)
+    mean_entropy = -(probs * probs.clamp_min(1e-12).log()).sum(-1).mean(0)
+    mutual_info = (entropy_of_mean - mean_entropy).clamp_min(0.0)
+    variance = (probs - mean).pow(2).mean(dim=0).sum(-1)
+    return {
+        "probs": mean,
+        "actions": mean.argmax(dim=-1),
+        "uncertainty": (mutual_info / math.log(k)).clamp(0.0, 1.0),
+        "novelty": (variance / (1.0 - 1.0 / k)).clamp(0.0, 1.0),
+    }

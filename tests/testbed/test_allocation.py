@@ -1,0 +1,464 @@
+"""The Allocator against Algorithm 1 and the rules of DESIGN.md section 4.
+
+Two kinds of checks: the rules stated as invariants (more than M arms never
+assisted, held interventions last as long as the rules say, new arms are the top
+eligible ones, no needless switch, ...), and an exact comparison with a slow reference
+written as plain loops straight from Algorithm 1. Hypothesis drives both with random
+sequences of keys and violations (well over 10,000 sequences in all).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from testbed.allocation import Allocator, lex_positive
+from testbed.types import InterventionKind
+
+# ------------------------------------------------------------------ the reference
+
+
+def ref_lex_positive(row: list[float]) -> bool:
+    for v in row:
+        if v != 0:
+            return v > 0
+    return False
+
+
+@dataclass
+class RefIntervention:
+    arm: int
+    kind: str  # "teleop" | "reset"
+    served: int
+
+
+class RefAllocator:
+    """Algorithm 1 with the contract's rules, one loop at a time, no numpy tricks.
+
+    Tie-breaks use the same stream as the Allocator (``rng.random(N)`` once per step,
+    larger draw first among equal keys), so the two can be compared exactly.
+    """
+
+    def __init__(self, n: int, m: int, t_teleop: int, t_reset: int, seed: int) -> None:
+        self.n, self.m, self.t_teleop, self.t_reset = n, m, t_teleop, t_reset
+        self.rng = np.random.default_rng(seed)
+        self.humans: list[RefIntervention | None] = [None] * m
+
+    def step(self, keys: list[list[float]], violating: list[bool]) -> list[int]:
+        draws = [float(x) for x in self.rng.random(self.n)]
+        # Lines 4-10: keep the held interventions.
+        held: dict[int, RefIntervention] = {}
+        for j in range(self.m):
+            prev = self.humans[j]
+            if prev is None:
+                continue
+            kind, served = prev.kind, prev.served + 1
+            if kind == "teleop" and violating[prev.arm]:
+                kind, served = "reset", 0
+            if (kind == "reset" and (served < self.t_reset or violating[prev.arm])) or (
+                    kind == "teleop" and served < self.t_teleop):
+                held[j] = RefIntervention(prev.arm, kind, served)
+        held_arms = {iv.arm for iv in held.values()}
+        free = [j for j in range(self.m) if j not in held]
+        # Line 13: robots with positive priority, not held, highest first.
+        candidates = [i for i in range(self.n)
+                      if i not in held_arms and ref_lex_positive(keys[i])]
+        candidates.sort(key=lambda i: (tuple(keys[i]), draws[i]), reverse=True)
+        chosen = candidates[: len(free)]
+        new: list[RefIntervention | None] = [None] * self.m
+        for j, iv in held.items():
+            new[j] = iv
+        # No needless switch: a free human whose arm is chosen again keeps it.
+        kept_arms = set()
+        for j in free:
+            prev = self.humans[j]
+            if prev is not None and prev.arm in chosen:
+                kind = "reset" if violating[prev.arm] else "teleop"
+                served = prev.served + 1 if kind == prev.kind else 0
+                new[j] = RefIntervention(prev.arm, kind, served)
+                kept_arms.add(prev.arm)
+        # Lines 14-17: the other free humans take the other chosen arms, in order.
+        others = [j for j in free if new[j] is None]
+        for j, arm in zip(others, [a for a in chosen if a not in kept_arms], strict=False):
+            new[j] = RefIntervention(arm, "reset" if violating[arm] else "teleop", 0)
+        self.humans = new
+        out = [-1] * self.n
+        for j, iv in enumerate(new):
+            if iv is not None:
+                out[iv.arm] = j
+        return out
+
+    def per_arm(self) -> list[tuple[str | None, int]]:
+        out: list[tuple[str | None, int]] = [(None, 0)] * self.n
+        for iv in self.humans:
+            if iv is not None:
+                out[iv.arm] = (iv.kind, iv.served)
+        return out
+
+
+# ------------------------------------------------------------------ the scenarios
+
+
+@dataclass
+class Scenario:
+    n: int
+    m: int
+    t_teleop: int
+    t_reset: int
+    seed: int
+    keys: list[list[list[float]]]  # per step (N, K)
+    violating: list[list[bool]]  # per step (N,)
+    split: int  # step at which a resumed allocator takes over
+
+
+# Few distinct values: plenty of ties, zeros and negative leads. Drawn as bytes (one
+# draw per array instead of one per entry) because generation dominates the runtime.
+KEY_VALUES = (-1.0, 0.0, 0.0, 0.25, 0.5, 1.0, 2.0)
+
+
+@st.composite
+def scenarios(draw: st.DrawFn, *, sticky: bool) -> Scenario:
+    n = draw(st.integers(1, 7))
+    m = draw(st.integers(0, 5))
+    k = draw(st.integers(1, 3))
+    t_teleop = draw(st.integers(1, 4))
+    t_reset = draw(st.integers(1, 4))
+    steps = draw(st.integers(1, 20))
+    raw_keys = draw(st.binary(min_size=steps * n * k, max_size=steps * n * k))
+    keys = [[[KEY_VALUES[raw_keys[(s * n + i) * k + c] % len(KEY_VALUES)] for c in range(k)]
+             for i in range(n)] for s in range(steps)]
+    # Sticky: per step, where a new violation starts (1 in 4); it then lasts until its
+    # reset is done. Otherwise: the violation flags themselves, arbitrary.
+    raw_flags = draw(st.binary(min_size=steps * n, max_size=steps * n))
+    period = 4 if sticky else 2
+    flags = [[raw_flags[s * n + i] % period == 1 for i in range(n)] for s in range(steps)]
+    return Scenario(n, m, t_teleop, t_reset, draw(st.integers(0, 2**32 - 1)), keys, flags,
+                    draw(st.integers(0, steps)))
+
+
+def lex_gt(a: list[float], b: list[float]) -> bool:
+    return tuple(a) > tuple(b)
+
+
+def check_step(
+    alloc: Allocator,
+    prev_assign: np.ndarray,
+    prev_kinds: list[InterventionKind | None],
+    prev_served: np.ndarray,
+    keys: list[list[float]],
+    violating: list[bool],
+    assign: np.ndarray,
+) -> None:
+    """The contract's invariants for one step, from the outside only."""
+    n, m = alloc.num_robots, alloc.num_humans
+    kinds, served = alloc.kinds, alloc.served
+    # One arm per human, at most M arms, valid indices.
+    humans = assign[assign >= 0]
+    assert humans.size <= m
+    assert len(set(humans.tolist())) == humans.size
+    assert np.all(assign < m)
+    for i in range(n):
+        assert (assign[i] >= 0) == (kinds[i] is not None)
+        if kinds[i] is None:
+            assert served[i] == 0
+
+    # Held interventions: exactly the rules.
+    held_arms: set[int] = set()
+    free_humans: set[int] = set(range(m))
+    for i in range(n):
+        j = int(prev_assign[i])
+        if j < 0:
+            continue
+        s = int(prev_served[i]) + 1
+        kind = prev_kinds[i]
+        if kind is InterventionKind.TELEOP and violating[i]:
+            # Teleop on a violating arm becomes a reset, served from 0, and is held.
+            assert assign[i] == j and kinds[i] is InterventionKind.RESET and served[i] == 0
+            held_arms.add(i)
+            free_humans.discard(j)
+        elif kind is InterventionKind.TELEOP and s < alloc.min_teleop_steps:
+            assert assign[i] == j and kinds[i] is InterventionKind.TELEOP and served[i] == s
+            held_arms.add(i)
+            free_humans.discard(j)
+        elif kind is InterventionKind.RESET and (s < alloc.hard_reset_steps or violating[i]):
+            assert assign[i] == j and kinds[i] is InterventionKind.RESET and served[i] == s
+            held_arms.add(i)
+            free_humans.discard(j)
+
+    # New assignments: the top eligible non-held arms, as many as free humans allow.
+    candidates = [i for i in range(n) if i not in held_arms and ref_lex_positive(keys[i])]
+    newly = [i for i in range(n) if assign[i] >= 0 and i not in held_arms]
+    assert len(newly) == min(len(free_humans), len(candidates))
+    for i in newly:
+        assert ref_lex_positive(keys[i]), "an arm with a non-positive key got a human"
+        assert int(assign[i]) in free_humans
+        for x in candidates:
+            if x not in newly:
+                assert not lex_gt(keys[x], keys[i]), "a higher-key arm was passed over"
+        # Reset if violating when assigned, else teleop.
+        want = InterventionKind.RESET if violating[i] else InterventionKind.TELEOP
+        assert kinds[i] is want
+        j = int(assign[i])
+        kept = prev_assign[i] == j
+        if kept and prev_kinds[i] is want:
+            assert served[i] == prev_served[i] + 1  # served continues on the same arm
+        else:
+            assert served[i] == 0
+    # No needless switch: a free human whose arm is chosen again keeps it.
+    for i in newly:
+        j_prev = int(prev_assign[i])
+        if j_prev >= 0 and j_prev in free_humans:
+            assert assign[i] == j_prev
+
+
+def run_scenario(sc: Scenario, *, sticky: bool) -> None:
+    alloc = Allocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, seed=sc.seed)
+    ref = RefAllocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, sc.seed)
+    resumed: Allocator | None = None
+    violating_now = [False] * sc.n
+    for step, keys in enumerate(sc.keys):
+        if sticky:
+            # A new violation may start on any arm; an existing one ends only once its
+            # reset has been served t_R steps (the twin restores the cube at the end of
+            # the t_R-th step).
+            violating = [violating_now[i] or sc.violating[step][i] for i in range(sc.n)]
+        else:
+            violating = sc.violating[step]
+        if step == sc.split:
+            resumed = Allocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, seed=None)
+            resumed.load_state_dict(json.loads(json.dumps(alloc.state_dict())))
+        prev = (alloc.assignment, alloc.kinds, alloc.served)
+        key_arr = np.asarray(keys, dtype=float)
+        viol_arr = np.asarray(violating, dtype=bool)
+        assign = alloc.step(key_arr, viol_arr)
+        check_step(alloc, *prev, keys, violating, assign)
+        assert assign.tolist() == ref.step(keys, violating)
+        assert [(None if k is None else str(k), int(s)) for k, s in alloc.held_kinds()] \
+            == ref.per_arm()
+        if resumed is not None:
+            assert resumed.step(key_arr, viol_arr).tolist() == assign.tolist()
+            assert resumed.state_dict() == alloc.state_dict()
+        if sticky:
+            kinds, served = alloc.kinds, alloc.served
+            violating_now = [
+                violating[i] and not (kinds[i] is InterventionKind.RESET
+                                      and served[i] + 1 >= sc.t_reset)
+                for i in range(sc.n)
+            ]
+
+
+PROPERTY_SETTINGS = settings(max_examples=6000, deadline=None,
+                             suppress_health_check=[HealthCheck.too_slow])
+
+
+@PROPERTY_SETTINGS
+@given(scenarios(sticky=False))
+def test_rules_and_reference_on_arbitrary_sequences(sc: Scenario) -> None:
+    run_scenario(sc, sticky=False)
+
+
+@settings(max_examples=4500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios(sticky=True))
+def test_rules_and_reference_with_violations_that_last_until_reset(sc: Scenario) -> None:
+    run_scenario(sc, sticky=True)
+
+
+# ------------------------------------------------------------------ hand-built cases
+
+
+def _keys(*rows: float | tuple[float, ...]) -> np.ndarray:
+    return np.array([r if isinstance(r, tuple) else (r,) for r in rows], dtype=float)
+
+
+NO_VIOLATION = np.zeros(3, dtype=bool)
+
+
+def test_teleop_lasts_exactly_t_teleop_when_the_key_drops() -> None:
+    alloc = Allocator(3, 1, min_teleop_steps=3, hard_reset_steps=2, seed=0)
+    history = [alloc.step(_keys(1, 0, 0), NO_VIOLATION)[0]]
+    history += [alloc.step(_keys(0, 0, 0), NO_VIOLATION)[0] for _ in range(4)]
+    assert history == [0, 0, 0, -1, -1]
+
+
+def test_teleop_switches_after_t_teleop_to_a_higher_arm() -> None:
+    alloc = Allocator(3, 1, min_teleop_steps=2, hard_reset_steps=2, seed=0)
+    assert alloc.step(_keys(1, 0, 0), NO_VIOLATION).tolist() == [0, -1, -1]
+    assert alloc.step(_keys(1, 5, 0), NO_VIOLATION).tolist() == [0, -1, -1]  # held
+    assert alloc.step(_keys(1, 5, 0), NO_VIOLATION).tolist() == [-1, 0, -1]
+
+
+def test_free_human_keeps_its_arm_and_served_continues() -> None:
+    alloc = Allocator(2, 2, min_teleop_steps=1, hard_reset_steps=1, seed=0)
+    # Human 0 to arm 0 (the highest key), human 1 to arm 1.
+    assert alloc.step(_keys(2, 1), np.zeros(2, bool)).tolist() == [0, 1]
+    # Now arm 1 leads; without the keep rule human 0 would take it. No switch.
+    assert alloc.step(_keys(1, 2), np.zeros(2, bool)).tolist() == [0, 1]
+    assert alloc.served.tolist() == [1, 1]
+    assert alloc.step(_keys(1, 2), np.zeros(2, bool)).tolist() == [0, 1]
+    assert alloc.served.tolist() == [2, 2]
+
+
+def test_reset_lasts_t_reset_and_while_violating() -> None:
+    alloc = Allocator(2, 1, min_teleop_steps=1, hard_reset_steps=3, seed=0)
+    viol = np.array([True, False])
+    got = [alloc.step(_keys(9, 1), viol).tolist()]
+    for _ in range(4):  # violating throughout: held every step, whatever the keys
+        got.append(alloc.step(_keys(1, 9), viol).tolist())
+    assert got == [[0, -1]] * 5
+    assert alloc.kinds[0] is InterventionKind.RESET and alloc.served[0] == 4
+    # Reset done: the arm is no longer violating, served >= t_R, the human is free.
+    assert alloc.step(_keys(0, 9), np.array([False, False])).tolist() == [-1, 0]
+
+
+def test_reset_held_at_least_t_reset_even_if_the_violation_ends() -> None:
+    alloc = Allocator(2, 1, min_teleop_steps=1, hard_reset_steps=3, seed=0)
+    alloc.step(_keys(1, 0), np.array([True, False]))
+    clear = np.array([False, False])
+    assert alloc.step(_keys(0, 9), clear).tolist() == [0, -1]
+    assert alloc.step(_keys(0, 9), clear).tolist() == [0, -1]
+    assert alloc.step(_keys(0, 9), clear).tolist() == [-1, 0]
+
+
+def test_teleop_on_a_violating_arm_becomes_a_reset_from_zero() -> None:
+    alloc = Allocator(2, 1, min_teleop_steps=5, hard_reset_steps=2, seed=0)
+    alloc.step(_keys(1, 0), np.array([False, False]))
+    alloc.step(_keys(1, 0), np.array([False, False]))
+    assert alloc.kinds[0] is InterventionKind.TELEOP and alloc.served[0] == 1
+    alloc.step(_keys(0, 9), np.array([True, False]))
+    assert alloc.assignment.tolist() == [0, -1]
+    assert alloc.kinds[0] is InterventionKind.RESET and alloc.served[0] == 0
+    alloc.step(_keys(0, 9), np.array([False, False]))
+    assert alloc.served[0] == 1  # t_R = 2: still held
+    assert alloc.step(_keys(0, 9), np.array([False, False])).tolist() == [-1, 0]
+
+
+def test_finished_reset_chosen_again_becomes_teleop_from_zero() -> None:
+    alloc = Allocator(1, 1, min_teleop_steps=3, hard_reset_steps=2, seed=0)
+    alloc.step(_keys(1), np.array([True]))
+    alloc.step(_keys(1), np.array([False]))
+    alloc.step(_keys(1), np.array([False]))
+    assert alloc.held_kinds() == [(InterventionKind.TELEOP, 0)]
+
+
+def test_new_intervention_kind_follows_the_violation() -> None:
+    alloc = Allocator(3, 3, min_teleop_steps=1, hard_reset_steps=1, seed=0)
+    alloc.step(_keys(1, 1, 1), np.array([True, False, True]))
+    assert alloc.kinds == [InterventionKind.RESET, InterventionKind.TELEOP,
+                           InterventionKind.RESET]
+    assert alloc.min_steps("teleop") == 1 and alloc.min_steps(InterventionKind.RESET) == 1
+
+
+def test_lexicographic_order_and_eligibility() -> None:
+    keys = _keys((0, 1, -5), (0, -1, 9), (0, 0, 0), (-1, 9, 9), (1, -9, -9), (0, 1, -4))
+    assert lex_positive(keys).tolist() == [True, False, False, False, True, True]
+    alloc = Allocator(6, 6, 1, 1, seed=0)
+    assign = alloc.step(keys, np.zeros(6, bool))
+    # Eligible: arms 4 > 5 > 0; others never.
+    assert assign.tolist() == [2, -1, -1, -1, 0, 1]
+
+
+def test_no_eligible_arm_leaves_humans_free() -> None:
+    alloc = Allocator(3, 2, 1, 1, seed=0)
+    assert alloc.step(_keys(0, -1, 0), NO_VIOLATION).tolist() == [-1, -1, -1]
+
+
+def test_zero_humans() -> None:
+    alloc = Allocator(3, 0, 1, 1, seed=0)
+    assert alloc.step(_keys(1, 2, 3), np.ones(3, bool)).tolist() == [-1, -1, -1]
+    assert alloc.held_mask(np.ones(3, bool)).tolist() == [False] * 3
+
+
+def test_ties_are_random_but_seeded() -> None:
+    def winners(seed: int) -> list[int]:
+        alloc = Allocator(4, 1, 1, 1, seed=seed)
+        keys = _keys(1, 1, 1, 0.5)
+        return [int(np.flatnonzero(alloc.step(keys, np.zeros(4, bool)) >= 0)[0])
+                for _ in range(300)]
+
+    a, b = winners(7), winners(7)
+    assert a == b
+    counts = np.bincount(a, minlength=4)
+    assert counts[3] == 0
+    assert all(counts[:3] > 60), counts  # each tied arm wins about a third
+
+
+def test_held_mask_predicts_without_changing_state() -> None:
+    alloc = Allocator(3, 2, min_teleop_steps=3, hard_reset_steps=1, seed=0)
+    alloc.step(_keys(1, 0, 1), np.array([False, False, True]))
+    before = alloc.state_dict()
+    assert alloc.held_mask(np.array([False, False, True])).tolist() == [True, False, True]
+    assert alloc.held_mask(np.array([False, False, False])).tolist() == [True, False, False]
+    assert alloc.state_dict() == before
+
+
+def test_release_frees_the_human() -> None:
+    alloc = Allocator(2, 1, min_teleop_steps=1, hard_reset_steps=1, seed=0)
+    alloc.step(_keys(1, 0), np.array([True, False]))
+    assert alloc.release(0) == 0
+    assert alloc.release(0) is None
+    assert alloc.assignment.tolist() == [-1, -1]
+    with pytest.raises(ValueError, match="out of range"):
+        alloc.release(2)
+
+
+def test_state_dict_round_trips_through_json_and_checks_shape() -> None:
+    alloc = Allocator(4, 2, 2, 3, seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        alloc.step(rng.integers(-1, 3, size=(4, 2)).astype(float), rng.random(4) < 0.3)
+    text = json.dumps(alloc.state_dict())
+    twin = Allocator(4, 2, 2, 3)
+    twin.load_state_dict(json.loads(text))
+    assert twin.steps == alloc.steps == 5
+    for _ in range(20):
+        keys, viol = rng.integers(-1, 3, size=(4, 2)).astype(float), rng.random(4) < 0.3
+        assert twin.step(keys, viol).tolist() == alloc.step(keys, viol).tolist()
+    with pytest.raises(ValueError, match="num_humans"):
+        Allocator(4, 3, 2, 3).load_state_dict(json.loads(text))
+    bad = json.loads(text)
+    bad["human_arm"] = [1, 1]
+    bad["human_kind"] = ["teleop", "teleop"]
+    with pytest.raises(ValueError, match="inconsistent"):
+        Allocator(4, 2, 2, 3).load_state_dict(bad)
+    with pytest.raises(ValueError, match="malformed"):
+        Allocator(4, 2, 2, 3).load_state_dict({"version": 1})
+
+
+@pytest.mark.parametrize(
+    ("keys", "violating", "match"),
+    [
+        (np.zeros((2, 1)), np.zeros(3, bool), r"keys must have shape \(3, K\)"),
+        (np.zeros((3, 0)), np.zeros(3, bool), r"keys must have shape"),
+        (np.zeros((3, 1, 1)), np.zeros(3, bool), r"keys must have shape"),
+        (np.array([[0.0], [np.nan], [1.0]]), np.zeros(3, bool), r"NaN for arm\(s\) \[1\]"),
+        ([["a"], ["b"], ["c"]], np.zeros(3, bool), "float array"),
+        (np.zeros((3, 1)), np.zeros(3, int), "bool array"),
+        (np.zeros((3, 1)), np.zeros(2, bool), r"violating must have shape \(3,\)"),
+    ],
+)
+def test_bad_inputs_are_clear_value_errors(keys: object, violating: object, match: str) -> None:
+    alloc = Allocator(3, 1, 1, 1, seed=0)
+    with pytest.raises(ValueError, match=match):
+        alloc.step(keys, violating)  # type: ignore[arg-type]
+    assert alloc.steps == 0
+
+
+def test_one_dimensional_keys_mean_k_equals_one() -> None:
+    alloc = Allocator(3, 1, 1, 1, seed=0)
+    assert alloc.step(np.array([0.0, 2.0, 1.0]), NO_VIOLATION).tolist() == [-1, 0, -1]
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [((0, 1, 1, 1), "num_robots"), ((1, -1, 1, 1), "num_humans"),
+     ((1, 1, 0, 1), "min_teleop_steps"), ((1, 1, 1, 0), "hard_reset_steps"),
+     ((1.5, 1, 1, 1), "num_robots must be an int")],
+)
+def test_bad_constructor_arguments(args: tuple[int, int, int, int], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        Allocator(*args)

@@ -1,0 +1,143 @@
+"""End to end on the real parts: twin hosts in agent processes, torch, records.
+
+A small learner (2 members, batch 32) keeps these fast; the loop, the hosts, the
+allocator and the records are the real ones that the 250-step trial uses.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import tomli_w
+
+from testbed.records import read_steps, summarize, validate_step
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SMALL = {
+    "trial": {"steps": 24, "seed": 3},
+    "learning": {
+        "ensemble_size": 2,
+        "batch_size": 32,
+        "demos": 60,
+        "critic_transitions": 40,
+        "pretrain_steps": 10,
+    },
+}
+
+
+def _cli(*args: str, cwd: Path, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "testbed.cli", *args],
+        cwd=cwd, capture_output=True, text=True, timeout=timeout,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("trial")
+    (d / "small.toml").write_text(tomli_w.dumps(SMALL))
+    return d
+
+
+@pytest.mark.slow
+def test_twin_trial_summary_equals_recomputation(workdir: Path) -> None:
+    proc = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", "a", cwd=workdir)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = workdir / "runs" / "a"
+    steps = read_steps(run / "steps.jsonl")
+    assert [s["t"] for s in steps] == list(range(24))
+    for s in steps:
+        validate_step(s)
+        assert len(s["robots"]) == 4
+    printed = json.loads(proc.stdout[proc.stdout.index("{"):])
+    on_disk = json.loads((run / "summary.json").read_text())
+    again = summarize(steps, algorithm="cur", num_humans=2, num_robots=4)
+    for k in ("successes", "hard_resets", "idle_time", "human_actions", "rohe", "steps"):
+        assert printed[k] == on_disk[k] == again[k], k
+    modes = {r["mode"] for s in steps for r in s["robots"]}
+    assert "autonomous" in modes and "teleop" in modes
+
+
+@pytest.mark.slow
+def test_same_seed_same_records(workdir: Path) -> None:
+    """Reproducible, training overlap included (pretraining comes from the cache)."""
+    for name in ("r1", "r2"):
+        proc = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", name,
+                    "--steps", "12", cwd=workdir)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    a = (workdir / "runs" / "r1" / "steps.jsonl").read_text()
+    b = (workdir / "runs" / "r2" / "steps.jsonl").read_text()
+    assert a == b
+
+
+@pytest.mark.slow
+def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
+    # warm the pretraining cache first so the kill lands in the loop
+    warm = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", "warm",
+                "--steps", "1", cwd=workdir)
+    assert warm.returncode == 0, warm.stderr[-3000:]
+    run = workdir / "runs" / "k"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml", "--out", "runs",
+         "--name", "k", "--steps", "40"],
+        cwd=workdir, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(ROOT)}, start_new_session=True,
+    )
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline:
+        p = run / "steps.jsonl"
+        if p.exists() and p.read_text().count("\n") >= 10:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)  # the controller and its host agents, at once
+    proc.wait(timeout=30)
+    before = read_steps(run / "steps.jsonl")
+    assert 10 <= len(before) < 40
+    state = json.loads((run / "state.json").read_text())
+
+    done = _cli("trial", "--resume", str(run), cwd=workdir)
+    assert done.returncode == 0, done.stderr[-3000:]
+    steps = read_steps(run / "steps.jsonl")
+    assert [s["t"] for s in steps] == list(range(40))
+    for s in steps:
+        validate_step(s)
+    # nothing finished was lost: every checkpointed step is still there, unchanged
+    kept = [s for s in before if s["t"] <= state["t"]]
+    assert steps[: len(kept)] == kept
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary == {**summary, **summarize(steps, algorithm="cur", num_humans=2,
+                                              num_robots=4)}
+
+
+@pytest.mark.slow
+def test_ctrl_c_rests_arms_and_closes_records_within_5s(workdir: Path) -> None:
+    run = workdir / "runs" / "c"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml", "--out", "runs",
+         "--name", "c", "--steps", "400"],
+        cwd=workdir, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline:
+        p = run / "steps.jsonl"
+        if p.exists() and p.read_text().count("\n") >= 3:
+            break
+        time.sleep(0.05)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=10)
+    assert time.monotonic() - t0 < 5.0
+    assert proc.returncode == 130, err[-2000:]
+    assert "interrupted" in err
+    steps = read_steps(run / "steps.jsonl")  # no torn line: the records were closed
+    assert len(steps) >= 3
