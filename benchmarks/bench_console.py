@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import queue
 import statistics
 import threading
 import time
@@ -61,38 +62,69 @@ def pct(values: list[float], q: float) -> float:
     return s[min(len(s) - 1, round(q * (len(s) - 1)))]
 
 
+class LoopThread:
+    """Calls ``act`` from one long-lived thread, as the fleet loop does."""
+
+    def __init__(self, console: ConsoleHumans) -> None:
+        self.console = console
+        self.jobs: queue.Queue[tuple[list[HumanRequest], int] | None] = queue.Queue()
+        self.results: queue.Queue[dict[str, HumanResponse] | BaseException] = queue.Queue()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while (job := self.jobs.get()) is not None:
+            try:
+                self.results.put(self.console.act(*job))
+            except BaseException as exc:  # reported to the main thread
+                self.results.put(exc)
+
+    def act(self, requests: list[HumanRequest], t: int) -> None:
+        self.jobs.put((requests, t))
+
+    def result(self) -> dict[str, HumanResponse]:
+        out = self.results.get(timeout=10)
+        if isinstance(out, BaseException):
+            raise out
+        return out
+
+    def stop(self) -> None:
+        self.jobs.put(None)
+        self.thread.join(5)
+
+
 def bench_console(n: int, humans: int, seed: int) -> tuple[list[float], list[float]]:
     rng = np.random.default_rng(seed)
     imshow_ms: list[float] = []
     painted_ms: list[float] = []
     with ConsoleHumans(num_humans=humans) as console:
+        loop = LoopThread(console)
         windows = [find_window(console.window_name(h)) for h in range(humans)]
-        for i in range(n + 5):  # 5 warm-up allocations
-            h = i % humans
-            kind = InterventionKind.TELEOP if (i // humans) % 2 else InterventionKind.RESET
-            req = request(f"cell{h}/arm{i}", h, kind, twin_like_image(rng))
-            before = len(console.frame_latencies())
-            if kind is InterventionKind.TELEOP:
-                out: dict[str, HumanResponse] = {}
-                th = threading.Thread(target=lambda r=req, o=out, t=i: o.update(
-                    console.act([r], t)))
-                th.start()
-                console.wait_for_prompt(h, timeout_s=10)
-                press(windows[h], "d")
-                th.join(10)
-                assert out[req.robot].action == 3, out
-            else:
-                console.act([req], i)
-            deadline = time.monotonic() + 5
-            while len(console.frame_latencies()) == before:
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f"allocation {i}: frame never shown")
-                time.sleep(0.001)
-            sample = console.frame_latencies()[-1]
-            if i >= 5:
-                imshow_ms.append(sample.imshow_ms)
-                painted_ms.append(sample.painted_ms)
-            time.sleep(0.02)
+        try:
+            for i in range(n + 5):  # 5 warm-up allocations
+                h = i % humans
+                kind = InterventionKind.TELEOP if (i // humans) % 2 else InterventionKind.RESET
+                req = request(f"cell{h}/arm{i}", h, kind, twin_like_image(rng))
+                before = len(console.frame_latencies())
+                loop.act([req], i)
+                if kind is InterventionKind.TELEOP:
+                    console.wait_for_prompt(h, timeout_s=10)
+                    press(windows[h], "d")  # the human answers, as a person would
+                out = loop.result()
+                expected = 3 if kind is InterventionKind.TELEOP else None
+                assert out[req.robot].action == expected, out
+                deadline = time.monotonic() + 5
+                while len(console.frame_latencies()) == before:
+                    if time.monotonic() > deadline:
+                        raise TimeoutError(f"allocation {i}: frame never shown")
+                    time.sleep(0.002)
+                sample = console.frame_latencies()[-1]
+                if i >= 5:
+                    imshow_ms.append(sample.imshow_ms)
+                    painted_ms.append(sample.painted_ms)
+                time.sleep(0.02)
+        finally:
+            loop.stop()
     return imshow_ms, painted_ms
 
 

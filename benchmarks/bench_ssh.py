@@ -77,69 +77,62 @@ def echo(chan, data: bytes) -> None:  # type: ignore[no-untyped-def]
         got += len(chunk)
 
 
-def bench_raw(servers: list[SshServer], frames: list[bytes], steps: int, warmup: int
-              ) -> list[float]:
-    chans = [cat_channel(s) for s in servers]
-    barrier = threading.Barrier(len(chans) + 1)
-    stop = False
+class RawEcho:
+    """The baseline: one bare ``cat`` channel per host, driven by one thread per host."""
 
-    def run(chan) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, servers: list[SshServer], frames: list[bytes]) -> None:
+        self.frames = frames
+        self.chans = [cat_channel(s) for s in servers]
+        self._go = [threading.Event() for _ in self.chans]
+        self._done = [threading.Event() for _ in self.chans]
+        self._stop = False
+        self._threads = [threading.Thread(target=self._run, args=(i,), daemon=True)
+                         for i in range(len(self.chans))]
+        for t in self._threads:
+            t.start()
+
+    def _run(self, i: int) -> None:
+        chan = self.chans[i][1]
         while True:
-            barrier.wait()
-            if stop:
+            self._go[i].wait()
+            self._go[i].clear()
+            if self._stop:
                 return
-            for f in frames:
+            for f in self.frames:
                 echo(chan, f)
-            barrier.wait()
+            self._done[i].set()
 
-    threads = [threading.Thread(target=run, args=(c,), daemon=True) for _, c in chans]
-    for t in threads:
-        t.start()
-    times: list[float] = []
-    for i in range(warmup + steps):
+    def step(self) -> None:
+        for e in self._go:
+            e.set()
+        for d in self._done:
+            d.wait()
+            d.clear()
+
+    def close(self) -> None:
+        self._stop = True
+        for e in self._go:
+            e.set()
+        for client, chan in self.chans:
+            chan.close()
+            client.close()
+
+
+def fleet_step(fleet: HostFleet, pushes: dict[str, int]) -> None:
+    obs = fleet.observe()
+    res = fleet.execute(pushes, [])
+    bad = [r for r, v in {**obs, **res}.items() if type(v).__name__ == "Fault"]
+    if bad:
+        raise RuntimeError(f"faults during the benchmark: {bad}")
+
+
+def timed(fn, n: int) -> list[float]:  # type: ignore[no-untyped-def]
+    out = []
+    for _ in range(n):
         t0 = time.perf_counter()
-        barrier.wait()
-        barrier.wait()
-        if i >= warmup:
-            times.append(time.perf_counter() - t0)
-    stop = True
-    barrier.wait()
-    for client, chan in chans:
-        chan.close()
-        client.close()
-    return times
-
-
-def bench_raw_single(server: SshServer, frames: list[bytes], steps: int) -> list[float]:
-    client, chan = cat_channel(server)
-    times = []
-    for i in range(steps + 20):
-        t0 = time.perf_counter()
-        for f in frames:
-            echo(chan, f)
-        if i >= 20:
-            times.append(time.perf_counter() - t0)
-    chan.close()
-    client.close()
-    return times
-
-
-def bench_fleet(hosts: list[HostConfig], steps: int, warmup: int) -> list[float]:
-    times: list[float] = []
-    with HostFleet(hosts, trial_seed=0) as fleet:
-        if not all(s.connected for s in fleet.host_status().values()):
-            raise RuntimeError(f"hosts not connected: {fleet.host_status()}")
-        pushes = dict.fromkeys(fleet.robot_names, 1)
-        for i in range(warmup + steps):
-            t0 = time.perf_counter()
-            obs = fleet.observe()
-            res = fleet.execute(pushes, [])
-            if i >= warmup:
-                times.append(time.perf_counter() - t0)
-            bad = [r for r, v in {**obs, **res}.items() if type(v).__name__ == "Fault"]
-            if bad:
-                raise RuntimeError(f"faults during the benchmark: {bad}")
-    return times
+        fn()
+        out.append(time.perf_counter() - t0)
+    return out
 
 
 def summary(name: str, times: list[float]) -> str:
@@ -150,28 +143,49 @@ def summary(name: str, times: list[float]) -> str:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=500)
-    ap.add_argument("--warmup", type=int, default=50)
-    ap.add_argument("--rounds", type=int, default=3, help="alternate fleet/raw this often")
+    ap.add_argument("--steps", type=int, default=2000, help="timed steps of each kind")
+    ap.add_argument("--block", type=int, default=25,
+                    help="alternate fleet and raw every BLOCK steps (the machine's load "
+                         "drifts; both kinds see the same drift)")
     args = ap.parse_args()
     if not sshd_available():
         print("needs /usr/sbin/sshd and ssh-keygen (apt-get install openssh-server)")
         return 2
     frames = reply_frames()
     print(f"bytes per host per step: observe reply {len(frames[0])}, push reply "
-          f"{len(frames[1])}; 2 hosts x 2 arms")
+          f"{len(frames[1])}; 2 hosts x 2 arms, {args.steps} steps each, blocks of "
+          f"{args.block}")
     with tempfile.TemporaryDirectory(prefix="bench-ssh-") as tmp:
         servers = [SshServer(Path(tmp) / f"host{i}") for i in range(2)]
         try:
             for s in servers:
                 s.start()
             hosts = [host_config(f"cell{i}", s) for i, s in enumerate(servers)]
-            fleet_t: list[float] = []
-            raw_t: list[float] = []
-            for _ in range(args.rounds):  # interleave: both see the same machine state
-                fleet_t += bench_fleet(hosts, args.steps, args.warmup)
-                raw_t += bench_raw(servers, frames, args.steps, args.warmup)
-            single = bench_raw_single(servers[0], frames, args.steps)
+            with HostFleet(hosts, trial_seed=0) as fleet:
+                if not all(st.connected for st in fleet.host_status().values()):
+                    raise RuntimeError(f"hosts not connected: {fleet.host_status()}")
+                pushes = dict.fromkeys(fleet.robot_names, 1)
+                raw = RawEcho(servers, frames)
+                try:
+                    timed(lambda: fleet_step(fleet, pushes), 100)  # warm up both
+                    timed(raw.step, 100)
+                    fleet_t: list[float] = []
+                    raw_t: list[float] = []
+                    block_ratios: list[float] = []
+                    for _ in range(max(args.steps // args.block, 1)):
+                        f = timed(lambda: fleet_step(fleet, pushes), args.block)
+                        r = timed(raw.step, args.block)
+                        fleet_t += f
+                        raw_t += r
+                        block_ratios.append(statistics.median(f) / statistics.median(r))
+                finally:
+                    raw.close()
+            alone = RawEcho(servers[:1], frames)
+            try:
+                timed(alone.step, 100)
+                single = timed(alone.step, 500)
+            finally:
+                alone.close()
         finally:
             for s in servers:
                 s.stop()
@@ -180,7 +194,9 @@ def main() -> int:
     print(summary("raw round trip, 1 host alone", single))
     ratio_med = statistics.median(fleet_t) / statistics.median(raw_t)
     ratio_mean = statistics.fmean(fleet_t) / statistics.fmean(raw_t)
-    print(f"ratio (median) {ratio_med:.3f}   ratio (mean) {ratio_mean:.3f}   target <= 1.25")
+    print(f"overhead ratio: {ratio_med:.3f} (medians), {ratio_mean:.3f} (means), "
+          f"{statistics.median(block_ratios):.3f} (median of per-block ratios); "
+          f"target <= 1.25")
     return 0
 
 

@@ -37,20 +37,29 @@ from sim_twin import TwinCell
 TARGET_MS = 150.0
 
 
-def _timestep(cells: list[TwinCell], rng: np.random.Generator) -> None:
-    """One fleet timestep: every arm pushes (mostly the expert, sometimes at random, so
-    violations and hard resets happen too), then every cell is observed."""
+def _push_all(cells: list[TwinCell], rng: np.random.Generator) -> None:
+    """Every arm pushes: mostly the expert, sometimes at random, so violations and hard
+    resets happen too."""
     for cell in cells:
         faces = {a: (cell.expert_action(a) if rng.random() < 0.7 else int(rng.integers(4)))
                  for a in cell.arm_names}
         for arm, out in cell.push(faces).items():
             if out.violation:
                 cell.hard_reset(arm)
+
+
+def _observe_all(cells: list[TwinCell]) -> None:
+    """What a twin host reports per timestep: images, ground truth, the expert's choice."""
     for cell in cells:
         cell.observe()
         for a in cell.arm_names:
             cell.arm_state(a)
             cell.expert_action(a)
+
+
+def _timestep(cells: list[TwinCell], rng: np.random.Generator) -> None:
+    _push_all(cells, rng)
+    _observe_all(cells)
 
 
 def _worker(conn: Connection, seeds: list[int]) -> None:
@@ -63,20 +72,33 @@ def _worker(conn: Connection, seeds: list[int]) -> None:
         c.close()
 
 
-def bench_serial(n_cells: int, steps: int) -> tuple[float, float]:
+def bench_serial(n_cells: int, steps: int) -> tuple[float, float, float, float, float]:
+    """Median timestep, its push and observe parts, its CPU time, and the build time (ms).
+
+    The CPU time (this process's, ``time.process_time``) is the figure to compare across
+    runs on a shared machine: wall time also counts the other processes' turns."""
     start = time.perf_counter()
     cells = [TwinCell(seed) for seed in range(n_cells)]
     build = time.perf_counter() - start
     rng = np.random.default_rng(0)
     _timestep(cells, rng)  # warm-up
-    times = []
+    total, push, observe, cpu = [], [], [], []
     for _ in range(steps):
+        c0 = time.process_time()
         t0 = time.perf_counter()
-        _timestep(cells, rng)
-        times.append(time.perf_counter() - t0)
+        _push_all(cells, rng)
+        t1 = time.perf_counter()
+        _observe_all(cells)
+        t2 = time.perf_counter()
+        cpu.append(time.process_time() - c0)
+        total.append(t2 - t0)
+        push.append(t1 - t0)
+        observe.append(t2 - t1)
     for c in cells:
         c.close()
-    return statistics.median(times) * 1e3, build * 1e3
+    med = statistics.median
+    return (med(total) * 1e3, med(push) * 1e3, med(observe) * 1e3, med(cpu) * 1e3,
+            build * 1e3)
 
 
 def bench_processes(n_cells: int, steps: int, n_proc: int) -> float:
@@ -147,9 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--images", type=int, default=1000)
     args = parser.parse_args(argv)
 
-    serial = [bench_serial(args.cells, args.steps) for _ in range(args.repeats)]
-    ser = min(s[0] for s in serial)
-    build = min(s[1] for s in serial)
+    ser, push, observe, cpu, build = min(bench_serial(args.cells, args.steps)
+                                         for _ in range(args.repeats))
     par = min(bench_processes(args.cells, args.steps, args.processes)
               for _ in range(args.repeats))
     ours, bare, table = max((bench_images(args.images) for _ in range(args.repeats)),
@@ -160,6 +181,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  build {args.cells} cells: {build:.0f} ms")
     print(f"  timestep, 1 process:   {ser:7.1f} ms  ratio to the {TARGET_MS:.0f} ms target "
           f"{ser / TARGET_MS:.2f}  ({ser / arms:.2f} ms per arm)")
+    print(f"    of which pushes (physics) {push:.1f} ms, observe (render, crops, "
+          f"ground truth, expert) {observe:.1f} ms; CPU time {cpu:.1f} ms "
+          f"(wall / CPU {ser / cpu:.2f}: above 1 = other processes' turns)")
     print(f"  timestep, {args.processes} processes: {par:7.1f} ms  ratio to the target "
           f"{par / TARGET_MS:.2f}  speed-up {ser / par:.2f}x")
     print("images, one cell (2 arms per picture):")

@@ -22,6 +22,7 @@ truncation) cannot be resynchronised: the agent answers ``error`` (fatal) and ex
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import select
@@ -31,9 +32,13 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+# Light imports only (numpy, json, zlib): nothing here prints to fd 1. The backends
+# (pybullet!) are imported in main(), after claim_stdout().
+from drivers import protocol as p
+from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
+
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend
-    from drivers.protocol import FrameReader
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -55,16 +60,18 @@ def claim_stdout() -> int:
 
 
 def fd_reader(fd: int) -> Callable[[int, float], bytes]:
-    from drivers.errors import DeadlineExceeded
+    os.set_blocking(fd, False)
 
     def read(n: int, deadline: float) -> bytes:
         while True:
+            try:
+                return os.read(fd, n)  # a pipelined request is often there already
+            except BlockingIOError:
+                pass
             timeout = deadline - time.monotonic()
             if timeout <= 0:
                 raise DeadlineExceeded("no frame from the controller in time")
-            ready, _, _ = select.select([fd], [], [], timeout)
-            if ready:
-                return os.read(fd, n)
+            select.select([fd], [], [], timeout)
 
     return read
 
@@ -90,15 +97,12 @@ def fd_writer(fd: int, timeout_s: float) -> Callable[[bytes], None]:
     return write
 
 
-def serve(reader: FrameReader, write: Callable[[bytes], None],
+def serve(reader: p.FrameReader, write: Callable[[bytes], None],
           make_backend: Callable[[], HostBackend], *, idle_timeout_s: float = 120.0) -> int:
     """Serve one controller until bye/EOF/broken frame; returns the exit status.
 
     Never raises: every failure becomes an ``error`` frame and/or an exit status.
     """
-    from drivers import protocol as p
-    from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
-
     started = time.monotonic()
     backend: HostBackend | None = None
     startup_error: tuple[str, str] | None = None
@@ -166,10 +170,7 @@ def serve(reader: FrameReader, write: Callable[[bytes], None],
                     log.exception("during shutdown")
 
 
-def _dispatch(backend: HostBackend, req: object, started: float) -> bytes:
-    from drivers import protocol as p
-
-    assert isinstance(req, p.Request)
+def _dispatch(backend: HostBackend, req: p.Request, started: float) -> bytes:
     try:
         if req.type == "observe":
             return p.make_observe_reply(req.id, backend.observe())
@@ -249,7 +250,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     calibrations = _pairs(args.calibration, "--calibration")
 
     from drivers.backends import make_backend
-    from drivers.protocol import FrameReader
 
     def factory() -> HostBackend:
         return make_backend(args.backend, arms=arms, mirror=mirror, seed=args.seed,
@@ -257,9 +257,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                             calibrations=calibrations, camera=args.camera,
                             controller_url=args.controller_url)
 
-    reader = FrameReader(fd_reader(0), "controller")
-    return serve(reader, fd_writer(frames_fd, max(10.0, args.idle_timeout)), factory,
-                 idle_timeout_s=args.idle_timeout)
+    reader = p.FrameReader(fd_reader(0), "controller")
+    try:
+        return serve(reader, fd_writer(frames_fd, max(10.0, args.idle_timeout)), factory,
+                     idle_timeout_s=args.idle_timeout)
+    finally:
+        for fd in (0, frames_fd):  # leave a terminal as we found it
+            with contextlib.suppress(OSError):
+                os.set_blocking(fd, True)
 
 
 if __name__ == "__main__":

@@ -2,46 +2,51 @@
 
 Why it looks like this: the loop wants "observe every arm" and "execute these pushes and
 resets" as two calls that return a value for EVERY robot and never hang, whatever the
-hosts do. So each call is broadcast to all host workers at once (one process per host,
-see ``drivers.worker`` for why), and the answers are collected until each host's
-deadline; a host that fails, is late, or whose worker died gives ``Fault`` for all of
-its arms, with the reason and the traceback, and the trial goes on. Reconnection
-happens in the workers, in the background, with exponential backoff; a dead worker is
-respawned here with backoff too.
+hosts do. Each host runs ONE agent process (``python -m drivers.agent``) that drives
+all of its arms at once: the host's camera and robot controller are shared by its two
+arms (one picture, one MultiMove program), so one process per host, not per arm. That
+agent is the host's worker process, in Gymnasium's sense: it runs the environment,
+reports every exception as an ``error`` frame naming the arm, with its traceback, and
+a crash of it faults that host only.
+
+The controller talks to all agents from the calling thread, without a relay process in
+between (measured: a relay process per host made a loopback SSH step 2-5x slower on
+the 2-core test machine, worse under load; see docs/notes/drivers.md):
 
     observe()/execute()/rest()
-        │ send ("call", rid, op, args) to every worker, then
-        │ multiprocessing.connection.wait(...) until all answered or deadlines passed
-        ▼
-    {robot: ArmObservation | PushResult | Fault}  for every robot, in config order
+      1. write each host's request(s) to its link (local pipe or SSH channel)
+      2. read each host's reply, each with its own absolute deadline; replies of fast
+         hosts wait in their pipe/channel buffers meanwhile, so hosts run in parallel
+      3. a host that fails (error, deadline, EOF, malformed frame) -> Fault for its arms
+
+    keeper thread (every 0.1 s): per host, start a reconnect (backoff) or a heartbeat
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import os
-import socket
-import subprocess
-import sys
+import threading
 import time
-from collections.abc import Collection, Mapping, Sequence
-from dataclasses import dataclass, field
-from multiprocessing.connection import Connection, wait
+from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from drivers.backends.base import ArmView
-from drivers.transport import PROJECT_ROOT
-from drivers.worker import MAX_BACKOFF_S, WorkerSpec
+from drivers import protocol as p
+from drivers.errors import AgentError
+from drivers.link import AgentLink
+from drivers.session import HostSession, HostStatus, describe, remote_traceback
 from testbed.config import HostConfig
 from testbed.types import NUM_ACTIONS, ArmObservation, Fault, PushResult
 
+__all__ = ["HostFleet", "HostStatus", "derive_seed"]
+
 log = logging.getLogger("drivers.fleet")
 
-GRACE_S = 2.0
-"""Slack over a host's own deadlines before its worker counts as wedged (and is killed)."""
+KEEPER_PERIOD_S = 0.1
+Program = list[tuple[str, dict[str, Any]]]
+Outcome = tuple[str, Any]
+"""("ok", payload) or ("fault", {"reason", "traceback", "arm"})."""
 
 
 def derive_seed(trial_seed: int, host_index: int) -> int:
@@ -50,39 +55,8 @@ def derive_seed(trial_seed: int, host_index: int) -> int:
     return int(state.generate_state(1)[0] & 0x7FFFFFFF)
 
 
-@dataclass
-class HostStatus:
-    """What the fleet knows of one host (for ``testbed check`` and the console)."""
-
-    name: str
-    connected: bool = False
-    backend: str | None = None
-    agent_pid: int | None = None
-    error: str | None = None
-    traceback: str | None = None
-    worker_alive: bool = False
-    reported: bool = False
-    """The worker has reported the outcome of its first connection attempt."""
-
-
-@dataclass
-class _Handle:
-    cfg: HostConfig
-    index: int
-    seed: int
-    status: HostStatus
-    proc: Any = None
-    conn: Connection | None = None
-    next_rid: int = 1
-    respawns: int = 0
-    respawn_at: float = 0.0
-    expect: int = 0
-    deadline: float = 0.0
-    budget: float = 0.0
-    arm_names: list[str] = field(default_factory=list)
-
-    def robot(self, arm: str) -> str:
-        return f"{self.cfg.name}/{arm}"
+def _fault(reason: str, tb: str = "", arm: str | None = None) -> Outcome:
+    return ("fault", {"reason": reason, "traceback": tb, "arm": arm})
 
 
 class HostFleet:
@@ -93,85 +67,59 @@ class HostFleet:
         names = [h.name for h in hosts]
         if not hosts or len(set(names)) != len(names):
             raise ValueError(f"need at least one host and unique host names, got {names}")
-        self._backoff = reconnect_backoff_s
-        self._handles = [
-            _Handle(h, i, h.seed if h.seed is not None else derive_seed(trial_seed, i),
-                    HostStatus(h.name), arm_names=[a.name for a in h.arms])
+        self._sessions = [
+            HostSession(h, h.seed if h.seed is not None else derive_seed(trial_seed, i),
+                        reconnect_backoff_s)
             for i, h in enumerate(hosts)]
-        self.robot_names: list[str] = [hd.robot(a) for hd in self._handles for a in hd.arm_names]
+        self.robot_names: list[str] = [f"{s.name}/{a}" for s in self._sessions for a in s.arms]
+        self._stop = threading.Event()
+        self._keeper: threading.Thread | None = None
         self._started = False
         self._closed = False
 
     # -- lifecycle --------------------------------------------------------------------
-    def _spawn(self, h: _Handle) -> None:
-        cfg = h.cfg
-        spec = WorkerSpec(host=cfg, seed=h.seed, backoff_s=self._backoff,
-                          heartbeat_s=cfg.heartbeat_s, connect_timeout_s=cfg.connect_timeout_s,
-                          idle_timeout_s=max(30.0, 5 * cfg.heartbeat_s + cfg.deadline_s))
-        # A plain subprocess, not multiprocessing's spawn: that one re-imports the
-        # caller's __main__ and breaks every script without an ``if __name__`` guard.
-        parent, child = socket.socketpair()
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(
-            p for p in (str(PROJECT_ROOT), env.get("PYTHONPATH", "")) if p)
-        try:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "drivers.worker", str(child.fileno())],
-                pass_fds=(child.fileno(),), env=env, stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL, start_new_session=True)
-        finally:
-            child.close()
-        conn = Connection(parent.detach())
-        h.proc, h.conn = proc, conn
-        h.expect = 0
-        h.status.worker_alive = True
-        h.status.reported = False
-        try:
-            conn.send(spec)
-        except OSError:
-            self._worker_died(h)
-
     def start(self, timeout_s: float | None = None) -> None:
-        """Spawn the workers and wait for each host's first handshake (or its failure).
+        """Start every host's agent and wait for its handshake (or its failure).
 
         A host that cannot be reached does not make this raise: its arms are ``Fault``
-        until it comes back (see :meth:`host_status` for why).
+        until it comes back; :meth:`host_status` says why.
         """
         if self._started:
             return
         self._started = True
-        for h in self._handles:
-            self._spawn(h)
+        now = time.monotonic()
+        for s in self._sessions:
+            s.tick(now)
+        self._keeper = threading.Thread(target=self._keep, name="fleet-keeper", daemon=True)
+        self._keeper.start()
         limit = timeout_s if timeout_s is not None else max(
-            h.cfg.connect_timeout_s for h in self._handles) + 15.0
+            s.cfg.connect_timeout_s for s in self._sessions) + 5.0
         deadline = time.monotonic() + limit
-        while (pending := [h for h in self._handles if not h.status.reported
-                           and h.conn is not None]) and time.monotonic() < deadline:
-            ready = wait([h.conn for h in pending if h.conn is not None],
-                         deadline - time.monotonic())
-            for h in pending:
-                if h.conn in ready:
-                    self._receive(h)
-        for h in self._handles:
-            if not h.status.connected:
-                log.warning("host %s not connected at start: %s", h.cfg.name, h.status.error)
+        while (not all(s.status.reported for s in self._sessions)
+               and time.monotonic() < deadline):
+            time.sleep(0.01)
+        for s in self._sessions:
+            if not s.status.connected:
+                log.warning("host %s not connected at start: %s", s.name, s.status.error)
+
+    def _keep(self) -> None:
+        while not self._stop.wait(KEEPER_PERIOD_S):
+            now = time.monotonic()
+            for s in self._sessions:
+                s.tick(now)
 
     def close(self) -> None:
-        """Stop every worker (its agent gets ``bye``: arms to rest, agent exits)."""
+        """Say bye to every agent (it rests its arms and exits); bounded time."""
         if self._closed:
             return
         self._closed = True
-        for h in self._handles:
-            if h.conn is not None and self._alive(h):
-                with contextlib.suppress(OSError, ValueError):
-                    h.conn.send(("close", 0))
-        deadline = time.monotonic() + 6.0
-        for h in self._handles:
-            if h.proc is not None:
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    h.proc.wait(max(deadline - time.monotonic(), 0.1))
-        for h in self._handles:
-            self._kill(h)
+        self._stop.set()
+        closers = [threading.Thread(target=s.close, daemon=True) for s in self._sessions]
+        for t in closers:
+            t.start()
+        deadline = time.monotonic() + 8.0
+        for t in closers:
+            t.join(max(deadline - time.monotonic(), 0.0))
 
     def __enter__(self) -> HostFleet:
         self.start()
@@ -180,150 +128,103 @@ class HostFleet:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _alive(self, h: _Handle) -> bool:
-        return h.proc is not None and h.proc.poll() is None
-
-    def _kill(self, h: _Handle) -> None:
-        proc, conn = h.proc, h.conn
-        h.proc, h.conn = None, None
-        h.status.worker_alive = False
-        h.status.connected = False
-        if conn is not None:
-            conn.close()  # EOF: a live worker closes its link (the agent rests) and exits
-        if proc is not None and proc.poll() is None:
-            try:
-                proc.wait(0.5)
-            except subprocess.TimeoutExpired:
-                proc.terminate()
-                try:
-                    proc.wait(1.0)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait(2.0)
-
     def host_status(self) -> dict[str, HostStatus]:
-        for h in self._handles:
-            self._drain(h)
-        return {h.cfg.name: h.status for h in self._handles}
-
-    # -- messages from workers --------------------------------------------------------
-    def _receive(self, h: _Handle) -> tuple[int, str, Any] | None:
-        """One message from a worker; status updates are absorbed, replies returned."""
-        assert h.conn is not None
-        try:
-            msg = h.conn.recv()
-        except (EOFError, OSError):
-            self._worker_died(h)
-            return None
-        if msg[0] == "status":
-            st = msg[1]
-            h.status.connected = st["connected"]
-            h.status.reported = True
-            h.status.error = st["error"]
-            h.status.traceback = st["traceback"]
-            if st["connected"]:
-                h.respawns = 0
-                h.status.backend = st["info"].get("backend")
-                h.status.agent_pid = st["info"].get("pid")
-            return None
-        return msg[1], msg[2], msg[3]
-
-    def _drain(self, h: _Handle) -> None:
-        while h.conn is not None and h.conn.poll(0):
-            self._receive(h)
-
-    def _worker_died(self, h: _Handle) -> None:
-        code = h.proc.poll() if h.proc is not None else None
-        self._kill(h)
-        h.respawns += 1
-        h.respawn_at = time.monotonic() + min(self._backoff * 2 ** (h.respawns - 1),
-                                              MAX_BACKOFF_S)
-        h.status.error = f"worker process died (exit code {code})"
-        h.status.reported = True
+        return {s.name: s.status for s in self._sessions}
 
     # -- the broadcast ----------------------------------------------------------------
-    def _broadcast(self, calls: Mapping[int, tuple[str, dict[str, Any], int]]
-                   ) -> dict[int, tuple[str, Any]]:
-        """Send each host its call; gather ("ok", payload) or ("fault", info) per host."""
-        results: dict[int, tuple[str, Any]] = {}
-        waiting: list[_Handle] = []
-        now = time.monotonic()
-        for i, (op, args, n_calls) in calls.items():
-            h = self._handles[i]
-            if h.conn is None and not self._closed and now >= h.respawn_at:
-                self._spawn(h)  # its first connection happens in the background
-            if h.conn is None:
-                results[i] = ("fault", {"reason": f"host {h.cfg.name}: {h.status.error}; "
-                                        f"worker restarts in "
-                                        f"{max(h.respawn_at - now, 0):.1f} s",
-                                        "traceback": "", "arm": None})
-                continue
-            self._drain(h)
-            if h.conn is None:  # died while draining
-                results[i] = ("fault", {"reason": f"host {h.cfg.name}: {h.status.error}",
-                                        "traceback": "", "arm": None})
-                continue
-            h.expect = h.next_rid
-            h.next_rid += 1
-            try:
-                h.conn.send(("call", h.expect, op, args))
-            except (OSError, ValueError):
-                self._worker_died(h)
-                results[i] = ("fault", {"reason": f"host {h.cfg.name}: {h.status.error}",
-                                        "traceback": "", "arm": None})
-                continue
-            h.budget = n_calls * h.cfg.deadline_s + GRACE_S
-            h.deadline = now + h.budget
-            waiting.append(h)
-        while waiting:
-            now = time.monotonic()
-            for h in [h for h in waiting if now >= h.deadline]:
-                waiting.remove(h)
-                results[h.index] = ("fault", {
-                    "reason": f"host {h.cfg.name}: its worker did not answer within "
-                              f"{h.budget:.1f} s (deadline_s {h.cfg.deadline_s:g} + grace); "
-                              f"worker restarted",
-                    "traceback": "", "arm": None})
-                self._worker_died(h)
-            if not waiting:
-                break
-            timeout = min(h.deadline for h in waiting) - now
-            ready = wait([h.conn for h in waiting if h.conn is not None], max(timeout, 0.0))
-            for h in list(waiting):
-                if h.conn not in ready:
+    def _run(self, programs: Mapping[int, Program],
+             parse: Callable[[HostSession, AgentLink, list[p.Frame]], Any]) -> dict[int, Outcome]:
+        """Pipelined broadcast: every host's requests are written first (back to back),
+        then every host's replies are read in order, each with its own deadline."""
+        out: dict[int, Outcome] = {}
+        inflight: list[tuple[int, HostSession, AgentLink, list[tuple[str, int, float]]]] = []
+        start = time.monotonic()
+        try:
+            for i, program in programs.items():
+                s = self._sessions[i]
+                if not s.lock.acquire(timeout=s.cfg.deadline_s):
+                    out[i] = _fault(f"host {s.name}: link busy beyond the deadline")
                     continue
-                got = self._receive(h)
-                if h.conn is None:  # worker died
-                    waiting.remove(h)
-                    results[h.index] = ("fault", {"reason": f"host {h.cfg.name}: "
-                                                  f"{h.status.error}", "traceback": "",
-                                                  "arm": None})
-                elif got is not None and got[0] == h.expect:
-                    waiting.remove(h)
-                    results[h.index] = (got[1], got[2])
-        return results
+                link = s.link
+                if link is None:
+                    s.lock.release()
+                    out[i] = _fault(s.down_reason(), s.status.traceback or "")
+                    continue
+                sent: list[tuple[str, int, float]] = []
+                inflight.append((i, s, link, sent))
+                try:
+                    for k, (mtype, fields) in enumerate(program):
+                        deadline = start + (k + 1) * s.cfg.deadline_s
+                        sent.append((mtype, link.send(mtype, deadline, **fields), deadline))
+                except Exception as exc:
+                    s.drop(link, exc)
+                    out[i] = _fault(describe(exc), remote_traceback(exc))
+            for i, s, link, sent in inflight:
+                if i in out:
+                    continue
+                out[i] = self._collect(s, link, sent, parse)
+        except BaseException:
+            # Ctrl-C mid-read: those streams are mid-frame; drop them (EOF makes each agent
+            # rest its arms and exit) and let the caller handle the interrupt.
+            for i, s, link, _ in inflight:
+                if i not in out:
+                    s.drop(link, RuntimeError("interrupted during a call"))
+            raise
+        finally:
+            for _, s, _, _ in inflight:
+                s.lock.release()
+        return out
 
-    def _faults(self, h: _Handle, info: Mapping[str, Any]) -> dict[str, Fault]:
+    @staticmethod
+    def _collect(s: HostSession, link: AgentLink, sent: list[tuple[str, int, float]],
+                 parse: Callable[[HostSession, AgentLink, list[p.Frame]], Any]) -> Outcome:
+        frames: list[p.Frame] = []
+        agent_error: AgentError | None = None
+        try:
+            for mtype, mid, deadline in sent:
+                try:
+                    frames.append(link.receive(mtype, mid, deadline))
+                except AgentError as exc:  # a clean refusal: later replies still come
+                    if exc.fatal:
+                        raise
+                    agent_error = agent_error or exc
+            if agent_error is not None:
+                return _fault(str(agent_error), agent_error.remote_traceback, agent_error.arm)
+            return ("ok", parse(s, link, frames))
+        except Exception as exc:  # protocol error, deadline, EOF, or a bug: this host only
+            s.drop(link, exc)
+            return _fault(describe(exc), remote_traceback(exc))
+
+    def _faults(self, s: HostSession, info: Mapping[str, Any]) -> dict[str, Fault]:
         reason = str(info.get("reason") or "unknown failure")
-        return {h.robot(a): Fault(h.robot(a), reason, str(info.get("traceback") or ""))
-                for a in h.arm_names}
+        tb = str(info.get("traceback") or "")
+        return {f"{s.name}/{a}": Fault(f"{s.name}/{a}", reason, tb) for a in s.arms}
+
+    def _require_started(self) -> None:
+        if self._closed:
+            raise RuntimeError("HostFleet is closed")
+        if not self._started:
+            self.start()
 
     # -- the API ----------------------------------------------------------------------
     def observe(self) -> dict[str, ArmObservation | Fault]:
         """One picture per host, all hosts at once; a value for every robot."""
         self._require_started()
-        res = self._broadcast({h.index: ("observe", {}, 1) for h in self._handles})
+
+        def parse(s: HostSession, link: AgentLink, frames: list[p.Frame]) -> Any:
+            return p.parse_observe_reply(frames[0], s.arms, link.peer)
+
+        res = self._run({i: [("observe", {})] for i in range(len(self._sessions))}, parse)
         out: dict[str, ArmObservation | Fault] = {}
-        for h in self._handles:
-            kind, payload = res[h.index]
+        for i, s in enumerate(self._sessions):
+            kind, payload = res[i]
             if kind != "ok":
-                out.update(self._faults(h, payload))
+                out.update(self._faults(s, payload))
                 continue
-            views: dict[str, ArmView] = payload
-            for a in h.arm_names:
-                v = views[a]
-                out[h.robot(a)] = ArmObservation(h.robot(a), v.image, v.violating, v.goal,
-                                                 v.expert_action)
+            for a in s.arms:
+                v = payload[a]
+                r = f"{s.name}/{a}"
+                out[r] = ArmObservation(r, v.image, v.violating, v.goal, v.expert_action)
         return {r: out[r] for r in self.robot_names}
 
     def execute(self, pushes: Mapping[str, int], resets: Collection[str]
@@ -331,25 +232,37 @@ class HostFleet:
         """Push the arms in ``pushes`` at once, complete the resets; others wait."""
         self._require_started()
         self._check_execute(pushes, resets)
-        per_host: dict[int, tuple[str, dict[str, Any], int]] = {}
-        for h in self._handles:
-            faces = {a: int(pushes[h.robot(a)]) for a in h.arm_names if h.robot(a) in pushes}
-            rs = [a for a in h.arm_names if h.robot(a) in resets]
-            per_host[h.index] = ("execute", {"faces": faces, "resets": rs},
-                                 int(bool(faces)) + int(bool(rs)) or 1)
-        res = self._broadcast(per_host)
+        programs: dict[int, Program] = {}
+        faces_of: dict[int, dict[str, int]] = {}
+        for i, s in enumerate(self._sessions):
+            faces = {a: int(pushes[f"{s.name}/{a}"]) for a in s.arms if f"{s.name}/{a}" in pushes}
+            rs = [a for a in s.arms if f"{s.name}/{a}" in resets]
+            faces_of[i] = faces
+            programs[i] = ([("reset", {"arms": rs})] if rs else []) + (
+                [("push", {"faces": faces})] if faces else [])
+
+        def parse(s: HostSession, link: AgentLink, frames: list[p.Frame]) -> Any:
+            i = self._sessions.index(s)
+            if not faces_of[i]:
+                if programs[i]:
+                    p.parse_reset_reply(frames[0], programs[i][0][1]["arms"], link.peer)
+                return {}
+            if len(frames) == 2:
+                p.parse_reset_reply(frames[0], programs[i][0][1]["arms"], link.peer)
+            return p.parse_push_reply(frames[-1], list(faces_of[i]), link.peer)
+
+        res = self._run(programs, parse)
         out: dict[str, PushResult | Fault] = {}
-        for h in self._handles:
-            kind, payload = res[h.index]
+        for i, s in enumerate(self._sessions):
+            kind, payload = res[i]
             if kind != "ok":
-                out.update(self._faults(h, payload))
+                out.update(self._faults(s, payload))
                 continue
-            pushed = payload["push"]
-            for a in h.arm_names:
-                r = h.robot(a)
-                if a in pushed:
-                    o = pushed[a]
-                    out[r] = PushResult(r, int(pushes[r]), o.success, o.violation)
+            for a in s.arms:
+                r = f"{s.name}/{a}"
+                if a in payload:
+                    o = payload[a]
+                    out[r] = PushResult(r, faces_of[i][a], o.success, o.violation)
                 else:
                     out[r] = PushResult(r, None, False, False)
         return {r: out[r] for r in self.robot_names}
@@ -358,17 +271,12 @@ class HostFleet:
         """Every arm to its rest pose; hosts that fail are logged, never raised."""
         if not self._started or self._closed:
             return
-        res = self._broadcast({h.index: ("rest", {}, 1) for h in self._handles})
-        for h in self._handles:
-            kind, payload = res[h.index]
+        res = self._run({i: [("rest", {})] for i in range(len(self._sessions))},
+                        lambda s, link, frames: None)
+        for i, s in enumerate(self._sessions):
+            kind, payload = res[i]
             if kind != "ok":
-                log.warning("rest failed on host %s: %s", h.cfg.name, payload.get("reason"))
-
-    def _require_started(self) -> None:
-        if self._closed:
-            raise RuntimeError("HostFleet is closed")
-        if not self._started:
-            self.start()
+                log.warning("rest failed on host %s: %s", s.name, payload.get("reason"))
 
     def _check_execute(self, pushes: Mapping[str, int], resets: Collection[str]) -> None:
         known = set(self.robot_names)

@@ -43,16 +43,27 @@ class AgentLink:
         diag = self.transport.diagnostics()
         return type(exc)(f"{exc}\n{diag}" if diag else str(exc))
 
-    def call(self, mtype: str, deadline: float, **fields: Any) -> p.Frame:
+    def send(self, mtype: str, deadline: float, **fields: Any) -> int:
+        """Write one request; returns its id. Requests may be pipelined."""
         mid = self._next_id
         self._next_id = mid % p.MAX_ID + 1
         try:
             self.transport.write(p.make_request(mtype, mid, **fields), deadline)
+        except (LinkClosed, DeadlineExceeded) as exc:
+            raise self._explain(exc) from None
+        return mid
+
+    def receive(self, mtype: str, mid: int, deadline: float) -> p.Frame:
+        """Read the reply to request ``mid``; ``error`` replies raise (AgentError...)."""
+        try:
             frame = self.reader.read_frame(deadline)
         except (LinkClosed, ProtocolError, DeadlineExceeded) as exc:
             raise self._explain(exc) from None
         self.last_io = time.monotonic()
         return p.check_reply(frame, f"{mtype}_ok", mid, self.peer)
+
+    def call(self, mtype: str, deadline: float, **fields: Any) -> p.Frame:
+        return self.receive(mtype, self.send(mtype, deadline, **fields), deadline)
 
     def open(self, argv: list[str], timeout_s: float) -> p.HelloInfo:
         """Start the agent and shake hands; the agent must serve the configured arms."""

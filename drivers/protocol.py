@@ -47,6 +47,7 @@ import numpy.typing as npt
 
 from drivers.backends.base import IMAGE_SHAPE, ArmOutcome, ArmView
 from drivers.errors import AgentError, DeadlineExceeded, LinkClosed, ProtocolError
+from drivers.png import decode_png, encode_png
 from testbed.types import NUM_ACTIONS
 
 PROTOCOL_VERSION: Final = 1
@@ -60,6 +61,8 @@ MAX_ID: Final = 2**32 - 1
 
 REQUEST_TYPES: Final = ("hello", "observe", "push", "reset", "rest", "heartbeat", "bye")
 ERROR_KINDS: Final = ("protocol", "version", "request", "backend", "startup")
+
+_JSON: Final = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
 ReadFn = Callable[[int, float], bytes]
 """``read(n, deadline)``: up to ``n`` bytes (at least 1), ``b""`` at EOF; raises
@@ -86,7 +89,7 @@ def encode_frame(header: Mapping[str, Any], blobs: Sequence[bytes] = ()) -> byte
     h = dict(header)
     h["blobs"] = [len(b) for b in blobs]
     try:
-        hb = json.dumps(h, separators=(",", ":"), allow_nan=False).encode("utf-8")
+        hb = _JSON.encode(h).encode("utf-8")
     except (TypeError, ValueError) as exc:
         raise ProtocolError(f"cannot encode a {h.get('type')!r} header: {exc}") from None
     body = b"".join(blobs)
@@ -106,29 +109,32 @@ class FrameReader:
 
     ``peer`` names the other end in messages ("agent on host cell0", "controller").
     EOF exactly at a frame boundary is :class:`LinkClosed`; EOF inside a frame is a
-    truncated frame (:class:`ProtocolError`).
+    truncated frame (:class:`ProtocolError`). Reads are buffered (one read usually
+    brings a whole frame); the protocol is strictly request/reply, so nothing is ever
+    read ahead of the frame being waited for except by a misbehaving peer.
     """
 
     def __init__(self, read: ReadFn, peer: str) -> None:
         self._read = read
+        self._buf = bytearray()
         self.peer = peer
 
-    def _exact(self, n: int, deadline: float, what: str, *, at_boundary: bool = False) -> bytes:
-        chunks: list[bytes] = []
-        got = 0
-        while got < n:
-            chunk = self._read(n - got, deadline)
+    def _take(self, n: int, deadline: float, what: str, *, at_boundary: bool = False) -> bytes:
+        buf = self._buf
+        while len(buf) < n:
+            chunk = self._read(max(n - len(buf), 65536), deadline)
             if not chunk:
-                if at_boundary and got == 0:
+                if at_boundary and not buf:
                     raise LinkClosed(f"{self.peer} closed the stream")
                 raise ProtocolError(f"truncated frame from {self.peer}: the stream ended "
-                                    f"after {got} of {n} {what} bytes")
-            chunks.append(chunk)
-            got += len(chunk)
-        return chunks[0] if len(chunks) == 1 else b"".join(chunks)
+                                    f"after {len(buf)} of {n} {what} bytes")
+            buf += chunk
+        out = bytes(buf[:n])
+        del buf[:n]
+        return out
 
     def read_frame(self, deadline: float) -> Frame:
-        prefix = self._exact(PREFIX_BYTES, deadline, "prefix", at_boundary=True)
+        prefix = self._take(PREFIX_BYTES, deadline, "prefix", at_boundary=True)
         magic, hlen, blen, crc = PREFIX.unpack(prefix)
         if magic != MAGIC:
             raise ProtocolError(
@@ -140,7 +146,7 @@ class FrameReader:
         if hlen + blen > MAX_FRAME_BYTES:
             raise ProtocolError(f"malformed frame from {self.peer}: {hlen + blen} bytes "
                                 f"exceeds the limit of {MAX_FRAME_BYTES}")
-        rest = self._exact(hlen + blen, deadline, "header+body")
+        rest = self._take(hlen + blen, deadline, "header+body")
         if zlib.crc32(rest) != crc:
             raise ProtocolError(f"corrupted frame from {self.peer}: CRC mismatch over "
                                 f"{hlen + blen} bytes")
@@ -181,35 +187,13 @@ def decode_body(hb: bytes, body: bytes, peer: str) -> Frame:
 
 
 # ----------------------------------------------------------------------------- images
-_PNG_SIG: Final = b"\x89PNG\r\n\x1a\n"
+def encode_image(image: npt.NDArray[np.uint8]) -> bytes:
+    return encode_png(image)
 
 
-def encode_png(image: npt.NDArray[np.uint8]) -> bytes:
-    """RGB uint8 image -> PNG bytes (fast compression: the link is the bottleneck)."""
-    import cv2
-
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]),
-                           [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:
-        raise ValueError("PNG encoding failed")
-    return buf.tobytes()
-
-
-def decode_png(data: bytes, what: str) -> npt.NDArray[np.uint8]:
-    """PNG bytes -> (64, 64, 3) RGB uint8; the IHDR is checked before decoding."""
-    if len(data) < 33 or data[:8] != _PNG_SIG or data[12:16] != b"IHDR":
-        raise ProtocolError(f"{what}: not a PNG image ({len(data)} bytes, starts "
-                            f"{_preview(data)})")
-    width, height, depth, colour = struct.unpack(">IIBB", data[16:26])
-    if (height, width) != IMAGE_SHAPE[:2] or depth != 8 or colour != 2:
-        raise ProtocolError(f"{what}: PNG is {width}x{height}, depth {depth}, colour type "
-                            f"{colour}; expected {IMAGE_SHAPE[1]}x{IMAGE_SHAPE[0]} 8-bit RGB")
-    import cv2
-
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if img is None or img.shape != IMAGE_SHAPE or img.dtype != np.uint8:
-        raise ProtocolError(f"{what}: the PNG data is corrupt")
-    return np.ascontiguousarray(img[..., ::-1])
+def decode_image(data: bytes, what: str) -> npt.NDArray[np.uint8]:
+    """A (64, 64, 3) RGB image from a PNG blob; ProtocolError for anything else."""
+    return decode_png(data, IMAGE_SHAPE, what)
 
 
 # --------------------------------------------------------------------- field checkers
@@ -303,7 +287,7 @@ def make_observe_reply(mid: int, views: Mapping[str, ArmView]) -> bytes:
                      "goal": [float(v.goal[0]), float(v.goal[1])],
                      "expert_action": None if v.expert_action is None else int(v.expert_action),
                      "blob": i})
-        blobs.append(v.png if v.png is not None else encode_png(v.image))
+        blobs.append(v.png if v.png is not None else encode_image(v.image))
     return encode_frame({"type": "observe_ok", "id": mid, "arms": arms}, blobs)
 
 
@@ -389,7 +373,7 @@ def parse_observe_reply(frame: Frame, arms: Sequence[str], peer: str) -> dict[st
         if type(bi) is not int or not 0 <= bi < len(frame.blobs):
             raise _bad("observe_ok", peer, f"arm {arm!r} 'blob' must index one of the "
                                            f"{len(frame.blobs)} blobs, got {bi!r:.40}")
-        image = decode_png(frame.blobs[bi], f"observe_ok from {peer}, arm {arm!r}")
+        image = decode_image(frame.blobs[bi], f"observe_ok from {peer}, arm {arm!r}")
         out[arm] = ArmView(image, violating, (float(goal[0]), float(goal[1])), ea)
     if set(out) != set(arms):
         raise _bad("observe_ok", peer, f"views for {sorted(out)}, expected {sorted(arms)}")
@@ -421,7 +405,7 @@ def parse_reset_reply(frame: Frame, reset: Sequence[str], peer: str) -> dict[str
 __all__ = [
     "MAGIC", "MAX_FRAME_BYTES", "MAX_HEADER_BYTES", "PROTOCOL_VERSION", "AgentError",
     "DeadlineExceeded", "Frame", "FrameReader", "HelloInfo", "LinkClosed", "ProtocolError",
-    "Request", "check_reply", "decode_png", "encode_frame", "encode_png", "make_error",
+    "Request", "check_reply", "decode_image", "encode_frame", "encode_image", "make_error",
     "make_observe_reply", "make_push_reply", "make_request", "make_reset_reply",
     "parse_hello_reply", "parse_observe_reply", "parse_push_reply", "parse_request",
     "parse_reset_reply",

@@ -452,6 +452,11 @@ class ConsoleHumans:
             self._redraw_all()
 
     def _pump_loop(self) -> None:
+        from gui import draw  # lazy: cv2 only once a console exists
+
+        # OpenCV 5 loads its fonts once per thread (~25 ms on the first putText): pay
+        # that here, not on the first key a human presses.
+        draw.render_console(ConsoleView(0, Phase.IDLE), self.layout)
         while True:
             with self._cond:
                 if self._closed:

@@ -21,8 +21,11 @@ import sys
 from gui.errors import ConsoleUnavailable
 
 INSTALL_GUI = (
-    "install the GUI build: pip uninstall -y opencv-python-headless && "
+    "install the GUI build: pip uninstall -y opencv-python-headless opencv-python && "
     "pip install -e .[console]"
+)
+UNREACHABLE_DISPLAY = (
+    "start one (Xvfb :99 & export DISPLAY=:99), fix DISPLAY, or use xvfb-run -a"
 )
 NEED_DISPLAY = (
     "set DISPLAY to your desktop's display (ssh -X forwards one), or run under a virtual "
@@ -77,13 +80,10 @@ def explain_window_failure(display: str | None, detail: str, log_tail: str) -> s
         "platform plugin" in text
     ):
         return (f"operator console: cannot open a window on DISPLAY={display}: no X "
-                f"server answers there; " + NEED_SHOW_ONE)
-    return f"operator console: a window on DISPLAY={display} did not open ({detail})"
+                f"server answers there; " + UNREACHABLE_DISPLAY)
+    why = " ".join(f"{detail}; {log_tail}".split()) if log_tail else " ".join(detail.split())
+    return f"operator console: a window on DISPLAY={display} did not open: {why[:300]}"
 
-
-NEED_SHOW_ONE = (
-    "start one (Xvfb :99 & export DISPLAY=:99), fix DISPLAY, or use xvfb-run -a"
-)
 
 
 def default_display() -> str | None:

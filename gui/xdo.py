@@ -14,12 +14,15 @@ window by its title, send it a key, click a point in it. Debian packages: ``xvfb
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import select
 import shutil
 import subprocess
+import threading
 import time
+from collections.abc import Callable
 from types import TracebackType
 
 XVFB_SCREEN = "1600x1200x24"
@@ -133,3 +136,91 @@ def press(window: str, key: str, *, display: str | None = None) -> None:
 def click(window: str, x: int, y: int, *, display: str | None = None) -> None:
     """Left click at window coordinates (x, y): move the pointer there, then click."""
     _xdotool("mousemove", "--window", window, str(x), str(y), "click", "1", display=display)
+
+
+# ---- driving a console in another process (``testbed trial --humans gui``) ----------
+def read_console_state(path: str | os.PathLike[str]) -> dict[str, object] | None:
+    """The console's state file (``$TESTBED_CONSOLE_STATE``), or None if not there yet."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc: dict[str, object] = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return doc
+
+
+Answer = tuple[str, "int | str"]
+"""("key", keysym) or ("click", action): how the autopilot answers a teleop prompt."""
+
+
+class Autopilot:
+    """Answers every prompt of a console in another process, as people would.
+
+    Reads the console's state file; when a human's window shows a teleop prompt (its
+    latest frame on screen), answers with ``teleop(human)``: ``("key", "w")`` presses a
+    key, ``("click", k)`` clicks face marker k; when it shows a hard-reset banner,
+    presses Return. Each frame is answered once. For end-to-end tests:
+
+        TESTBED_CONSOLE_STATE=state.json xvfb-run testbed trial --humans gui ...
+        Autopilot("state.json", display, lambda h: ("key", "w") if h == 0 else ("click", 3))
+    """
+
+    def __init__(
+        self, state_path: str | os.PathLike[str], display: str | None,
+        teleop: Callable[[int], Answer], period_s: float = 0.02,
+    ) -> None:
+        self.state_path = state_path
+        self.display = display
+        self.teleop = teleop
+        self.period_s = period_s
+        self.answers: list[tuple[int, str, str, Answer]] = []
+        """(human, robot, phase, answer) of every prompt answered, in order."""
+        self._done: set[tuple[int, int]] = set()
+        self._ids: dict[str, str] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="autopilot", daemon=True)
+
+    def start(self) -> Autopilot:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def __enter__(self) -> Autopilot:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _window(self, name: str) -> str:
+        if name not in self._ids:
+            self._ids[name] = find_window(name, display=self.display)
+        return self._ids[name]
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            doc = read_console_state(self.state_path)
+            windows = doc.get("windows") if doc else None
+            if not isinstance(windows, list) or (doc or {}).get("paused"):
+                continue
+            for w in windows:
+                human, seq = int(w["human"]), int(w["seq_shown"])
+                if not w.get("on_screen") or (human, seq) in self._done:
+                    continue
+                if w["phase"] == "choose":
+                    answer = self.teleop(human)
+                    wid = self._window(w["window"])
+                    if answer[0] == "click":
+                        x, y = w["markers"][int(answer[1])]
+                        click(wid, int(x), int(y), display=self.display)
+                    else:
+                        press(wid, str(answer[1]), display=self.display)
+                elif w["phase"] == "reset":
+                    answer = ("key", "Return")
+                    press(self._window(w["window"]), "Return", display=self.display)
+                else:
+                    continue
+                self._done.add((human, seq))
+                self.answers.append((human, str(w["robot"]), str(w["phase"]), answer))

@@ -126,9 +126,9 @@ class CellCamera:
         """An arm's canonical (image_size, image_size, 3) crop of the (H, W, 3) picture."""
         out = self._cut(picture, arm)
         if self.render_scale != 1:
-            out = cv2.resize(out, (self.image_size, self.image_size),
-                             interpolation=cv2.INTER_AREA)
-        return np.ascontiguousarray(out)
+            return cv2.resize(out, (self.image_size, self.image_size),
+                              interpolation=cv2.INTER_AREA)
+        return out.copy()  # always a new array: the goal is drawn into it
 
     def crop_mask(self, mask: npt.NDArray[np.bool_], arm: int) -> npt.NDArray[np.bool_]:
         """The same crop of a (H, W) bool mask (a pixel is set if mostly covered)."""

@@ -132,16 +132,20 @@ def find_goal(image: Image) -> tuple[float, float] | None:
     x0, x1 = max(int(mx - 2 * r) - 1, 0), min(int(mx + 2 * r) + 3, w)
     y0, y1 = max(int(my - 2 * r) - 1, 0), min(int(my + 2 * r) + 3, h)
     py, px = np.mgrid[y0:y1, x0:x1]
-    centres = np.stack([px.ravel(), py.ravel()], axis=1) + 0.5
-    is_green = green[y0:y1, x0:x1].ravel()
-    is_free = free[y0:y1, x0:x1].ravel()
+    # cost(c) = green pixels outside disc(c) + free pixels inside it
+    #         = const + sum over pixels inside disc(c) of (+1 free, -1 green, 0 cube).
+    weight = free[y0:y1, x0:x1].astype(np.float32) - green[y0:y1, x0:x1]
+    keep = (weight != 0).ravel()
+    cx, cy = px.ravel()[keep] + 0.5, py.ravel()[keep] + 0.5
+    weight = weight.ravel()[keep]
     best = np.array([mx, my]) + 0.5
     for half, step in ((r, 0.5), (0.5, _GOAL_FIT_STEP_PX)):  # coarse, then fine
         offs = np.arange(-half, half + 1e-9, step)
-        cand = np.stack(np.meshgrid(best[0] + offs, best[1] + offs), axis=-1).reshape(-1, 2)
-        inside = ((cand[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2) <= r * r
-        cost = (~inside & is_green).sum(axis=1) + (inside & is_free).sum(axis=1)
-        best = cand[cost == cost.min()].mean(axis=0)
+        gx, gy = (a.ravel() for a in np.meshgrid(best[0] + offs, best[1] + offs))
+        inside = (gx[:, None] - cx) ** 2 + (gy[:, None] - cy) ** 2 <= r * r
+        cost = inside.astype(np.float32) @ weight
+        low = cost == cost.min()
+        best = np.array([gx[low].mean(), gy[low].mean()])
     return (float(best[0]) / w, float(best[1]) / h)
 
 

@@ -90,12 +90,12 @@ class TwinBackend(HostBackend):
 
 def canned_image(arm_index: int, cube_xy: tuple[float, float], goal_xy: tuple[float, float]
                  ) -> npt.NDArray[np.uint8]:
-    """A plausible 64x64 frame: grey table, orange cube, green goal disc."""
+    """A twin-like 64x64 frame: grey table, orange cube, green goal disc (flat colours,
+    as the twin renders them, so the bytes on the wire are the twin's)."""
     import cv2
 
     img = np.full((IMAGE_SIZE, IMAGE_SIZE, 3), (158, 158, 153), np.uint8)
-    noise = np.random.default_rng(arm_index).integers(0, 6, img.shape, dtype=np.uint8)
-    img = cv2.add(img, noise)
+    img[:, : 2 + arm_index] = (150, 150, 146)  # a table edge; each arm's image differs
     c = (int(cube_xy[0] * IMAGE_SIZE), int(cube_xy[1] * IMAGE_SIZE))
     cv2.rectangle(img, (c[0] - 4, c[1] - 4), (c[0] + 4, c[1] + 4), (235, 77, 15), -1)
     g = (int(goal_xy[0] * IMAGE_SIZE), int(goal_xy[1] * IMAGE_SIZE))
@@ -110,7 +110,7 @@ class CannedTwinBackend(HostBackend):
 
     def __init__(self, seed: int, arms: Sequence[str] = ("left", "right"),
                  mirror: Sequence[bool] = (False, True)) -> None:
-        from drivers.protocol import encode_png
+        from drivers.protocol import encode_image
 
         self._arms = tuple(arms)
         self._mirror = tuple(bool(m) for m in mirror)
@@ -120,7 +120,7 @@ class CannedTwinBackend(HostBackend):
         self._goal = (0.7, 0.3)
         for i, arm in enumerate(self._arms):
             img = canned_image(i, (0.5, 0.5), self._goal)
-            self._views[arm] = ArmView(img, False, self._goal, 0, encode_png(img))
+            self._views[arm] = ArmView(img, False, self._goal, 0, encode_image(img))
 
     @property
     def arm_names(self) -> tuple[str, ...]:

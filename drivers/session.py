@@ -1,0 +1,192 @@
+"""One host as the controller sees it: its link, why it is down, when to retry.
+
+Why this exists: the fleet must never wait for a host that is gone. A session keeps
+the host's live :class:`~drivers.link.AgentLink` (or the reason there is none), and the
+three things that happen to it outside the fleet's calls run in background threads:
+
+* (re)connecting, with exponential backoff (1, 2, 4, ... s, at most 30 s), in a thread
+  of its own per attempt, so an SSH connect that hangs in the network hangs nothing;
+* the application heartbeat, when the link has been idle for ``heartbeat_s`` (SSH
+  keepalives do not notice a dead peer; the agent exits when it hears nothing);
+* closing a dropped link (waits for the agent to exit, bounded).
+
+A link is dropped as soon as its byte stream can no longer be trusted (protocol error,
+deadline, EOF); the agent sees EOF, rests its arms and exits. ``lock`` serialises the
+fleet's calls and the heartbeat on the link.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+
+from drivers.errors import AgentError, DeadlineExceeded, DriverError, LinkClosed
+from drivers.link import AgentLink
+from drivers.transport import LocalTransport, agent_argv, make_transport
+from testbed.config import HostConfig
+
+MAX_BACKOFF_S = 30.0
+
+
+@dataclass
+class HostStatus:
+    """What the fleet knows of one host (for ``testbed check`` and the console)."""
+
+    name: str
+    connected: bool = False
+    backend: str | None = None
+    agent_pid: int | None = None
+    error: str | None = None
+    """Why the host is down (None while connected)."""
+    traceback: str | None = None
+    reported: bool = False
+    """At least one connection attempt has finished (either way)."""
+    attempts: int = 0
+    """Failed attempts since the host was last up."""
+
+
+class HostSession:
+    def __init__(self, cfg: HostConfig, seed: int, backoff_s: float) -> None:
+        self.cfg = cfg
+        self.name = cfg.name
+        self.arms = [a.name for a in cfg.arms]
+        self.seed = seed
+        self.backoff_s = backoff_s
+        self.lock = threading.Lock()
+        self.link: AgentLink | None = None
+        self.status = HostStatus(cfg.name)
+        self.closed = False
+        self._state = threading.Lock()  # guards the fields below and self.link swaps
+        self._connecting = False
+        self._heartbeating = False
+        self._next_attempt = 0.0
+        self._down_since = time.monotonic()
+        self.status.error = "not connected yet"
+
+    # -- background work (called by the fleet's keeper thread) ----------------------
+    def argv(self) -> list[str]:
+        h = self.cfg
+        python = LocalTransport.python_for(h) if h.transport == "local" else h.python
+        idle = max(30.0, 5 * h.heartbeat_s + h.deadline_s)
+        return agent_argv(h, seed=self.seed, python=python, idle_timeout_s=idle)
+
+    def tick(self, now: float) -> None:
+        """Start a reconnect or a heartbeat if one is due (never blocks)."""
+        with self._state:
+            if self.closed:
+                return
+            if self.link is None:
+                if not self._connecting and now >= self._next_attempt:
+                    self._connecting = True
+                    _spawn(self._connect, f"connect-{self.name}")
+                return
+            due = now - self.link.last_io >= self.cfg.heartbeat_s
+            if not due or self._heartbeating:
+                return
+            self._heartbeating = True
+        _spawn(self._heartbeat, f"heartbeat-{self.name}")
+
+    def _connect(self) -> None:
+        link = AgentLink(self.cfg, make_transport(self.cfg))
+        try:
+            info = link.open(self.argv(), self.cfg.connect_timeout_s)
+        except Exception as exc:
+            close_async(link)
+            with self._state:
+                self._connecting = False
+                self.status.attempts += 1
+                delay = min(self.backoff_s * 2 ** (self.status.attempts - 1), MAX_BACKOFF_S)
+                self._next_attempt = time.monotonic() + delay
+                self.status.error = describe(exc)
+                self.status.traceback = remote_traceback(exc)
+                self.status.reported = True
+            return
+        with self._state:
+            self._connecting = False
+            if self.closed:
+                close_async(link)
+                return
+            self.link = link
+            self.status.connected = True
+            self.status.backend = info.backend
+            self.status.agent_pid = info.pid
+            self.status.error = self.status.traceback = None
+            self.status.attempts = 0
+            self.status.reported = True
+
+    def _heartbeat(self) -> None:
+        try:
+            if not self.lock.acquire(blocking=False):
+                return  # a call is using the link: that is proof of life enough
+            try:
+                link = self.link
+                if link is not None:
+                    try:
+                        link.heartbeat(time.monotonic() + self.cfg.deadline_s)
+                    except Exception as exc:
+                        self.drop(link, exc)
+            finally:
+                self.lock.release()
+        finally:
+            with self._state:
+                self._heartbeating = False
+
+    # -- used by the fleet's calls ----------------------------------------------------
+    def drop(self, link: AgentLink, exc: BaseException) -> None:
+        """The stream can't be trusted: forget the link, reconnect after the backoff."""
+        with self._state:
+            if self.link is not link:
+                return
+            self.link = None
+            self._down_since = time.monotonic()
+            self._next_attempt = self._down_since + self.backoff_s
+            self.status.connected = False
+            self.status.error = describe(exc)
+            self.status.traceback = remote_traceback(exc)
+        close_async(link)
+
+    def down_reason(self) -> str:
+        with self._state:
+            now = time.monotonic()
+            retry = ("reconnecting now" if self._connecting else
+                     f"next attempt in {max(self._next_attempt - now, 0.0):.1f} s")
+            return (f"host {self.name} is unreachable (down {now - self._down_since:.1f} s, "
+                    f"{retry}): {self.status.error}")
+
+    def close(self) -> None:
+        with self._state:
+            self.closed = True
+            link, self.link = self.link, None
+            self.status.connected = False
+        if link is not None:
+            with contextlib.suppress(Exception):
+                link.bye(time.monotonic() + min(self.cfg.deadline_s, 3.0))
+            link.close()
+
+
+def _spawn(target: object, name: str) -> None:
+    threading.Thread(target=target, name=name, daemon=True).start()  # type: ignore[arg-type]
+
+
+def close_async(link: AgentLink) -> None:
+    """Close a link off the call path (it waits, bounded, for the agent to exit)."""
+    _spawn(link.close, "link-reaper")
+
+
+def describe(exc: BaseException) -> str:
+    if isinstance(exc, AgentError):
+        return str(exc)
+    if isinstance(exc, DriverError):
+        kind = {LinkClosed: "link closed", DeadlineExceeded: "deadline exceeded"}.get(
+            type(exc), type(exc).__name__)
+        return f"{kind}: {exc}"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def remote_traceback(exc: BaseException) -> str:
+    if isinstance(exc, AgentError) and exc.remote_traceback:
+        return exc.remote_traceback
+    return "".join(traceback.format_exception(exc))

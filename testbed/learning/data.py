@@ -1,0 +1,218 @@
+"""Replay data: the policy's human-labelled samples and the critics' transitions.
+
+Why augmented copies are stored, not made on the fly: a training step draws 5 x 256
+policy images; augmenting them per step would cost ~0.1 s on top of a ~0.5 s step,
+while storing the 10 copies costs ~20 augmented images per fleet step (milliseconds)
+and 120 KiB per labelled image in memory. Storing also makes each copy a fixed function
+of (learner seed, chunk), so a checkpoint needs only the originals: ``PolicyData``
+re-creates the copies on load, chunk by chunk with the same generators, and checks a
+digest of the result (a 250-step trial's checkpoint stays ~10x smaller).
+
+Bootstrap: each labelled image gets one Poisson(1) weight per member when it arrives
+(the online bootstrap of Oza and Russell); a member samples its minibatches in
+proportion to its weights, and an image's 10 copies share its weight (bootstrapping the
+copies separately would give each member nearly the same data). About 37 % of the
+images are outside any one member's bootstrap, which is what makes members disagree
+away from the data.
+
+Critic minibatches are shared by both critics (one policy pass for pi(s') serves both):
+25 % violating transitions (seed 8.3.2, Recovery RL), 25 % successful ones (the goal
+critic's rare positive, "in the same manner"), the rest uniform; a class that has no
+transition yet gives its share to the uniform part.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from testbed.learning.api import Transitions
+from testbed.learning.augment import augment_copies
+from testbed.learning.runtime import STREAM_AUGMENT, generator
+from testbed.types import IMAGE_SIZE
+
+IMAGE_SHAPE = (IMAGE_SIZE, IMAGE_SIZE, 3)
+POSITIVE_FRACTION = 0.25
+
+
+class _Growable:
+    """Named tensors that share a first dimension, grown by doubling (amortised O(1))."""
+
+    def __init__(self, specs: dict[str, tuple[tuple[int, ...], torch.dtype]],
+                 capacity: int = 256) -> None:
+        self._specs = specs
+        self._data = {k: torch.zeros((capacity, *shape), dtype=dt)
+                      for k, (shape, dt) in specs.items()}
+        self.size = 0
+
+    def append(self, **columns: Tensor) -> None:
+        n = next(iter(columns.values())).shape[0]
+        need = self.size + n
+        cap = next(iter(self._data.values())).shape[0]
+        if need > cap:
+            new_cap = max(need, 2 * cap)
+            for k, old in self._data.items():
+                grown = torch.zeros((new_cap, *old.shape[1:]), dtype=old.dtype)
+                grown[: self.size] = old[: self.size]
+                self._data[k] = grown
+        for k, value in columns.items():
+            self._data[k][self.size : need] = value
+        self.size = need
+
+    def __getitem__(self, name: str) -> Tensor:
+        """The filled rows of a column (a view)."""
+        return self._data[name][: self.size]
+
+
+def _digest(t: Tensor) -> str:
+    return hashlib.blake2b(t.contiguous().numpy().data, digest_size=16).hexdigest()
+
+
+class PolicyData:
+    """Human-labelled (image, action) pairs, each with ``factor`` stored copies."""
+
+    def __init__(self, ensemble_size: int, factor: int, seed: int) -> None:
+        self.ensemble_size = ensemble_size
+        self.factor = factor
+        self.seed = seed
+        self._store = self._new_store()
+        self._chunks: list[int] = []  # sizes of the add() calls, in order
+
+    def _new_store(self, capacity: int = 256) -> _Growable:
+        return _Growable({
+            "images": ((self.factor, *IMAGE_SHAPE), torch.uint8),
+            "actions": ((), torch.int64),
+            "weights": ((self.ensemble_size,), torch.float32),
+        }, capacity)
+
+    def __len__(self) -> int:
+        return self._store.size
+
+    def add(self, images: np.ndarray, actions: np.ndarray) -> None:
+        """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,)."""
+        n = int(images.shape[0])
+        if n == 0:
+            return
+        gen = generator(self.seed, STREAM_AUGMENT, len(self._chunks))
+        copies = augment_copies(torch.from_numpy(images), self.factor, gen)
+        weights = torch.poisson(torch.ones(n, self.ensemble_size), generator=gen)
+        self._store.append(images=copies, actions=torch.from_numpy(actions), weights=weights)
+        self._chunks.append(n)
+
+    def sample(self, batch: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+        """Per-member bootstrap minibatches: images (E, B, 64, 64, 3), actions (E, B)."""
+        n = len(self)
+        if n == 0:
+            raise ValueError("no policy data yet")
+        weights = self._store["weights"]
+        rows = []
+        for m in range(self.ensemble_size):
+            w = weights[:, m]
+            if float(w.sum()) <= 0.0:  # tiny data: this member's bootstrap came out empty
+                w = torch.ones(n)
+            rows.append(torch.multinomial(w, batch, replacement=True, generator=gen))
+        index = torch.stack(rows)
+        copy = torch.randint(self.factor, index.shape, generator=gen)
+        return self._store["images"][index, copy], self._store["actions"][index]
+
+    def state_dict(self) -> dict[str, Any]:
+        images = self._store["images"]
+        return {
+            "originals": images[:, 0].clone(),
+            "actions": self._store["actions"].clone(),
+            "weights": self._store["weights"].clone(),
+            "chunks": list(self._chunks),
+            "digest": _digest(images),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> bool:
+        """Rebuild from originals; returns whether the re-made copies match the digest."""
+        originals = state["originals"].numpy()
+        actions = state["actions"].numpy()
+        start = 0
+        self._store = self._new_store(capacity=max(256, originals.shape[0]))
+        self._chunks = []
+        for size in state["chunks"]:
+            self.add(originals[start : start + size], actions[start : start + size])
+            start += size
+        if start != originals.shape[0]:
+            raise ValueError("policy data: chunk sizes do not add up to the stored images")
+        self._store["weights"].copy_(state["weights"])
+        return _digest(self._store["images"]) == state["digest"]
+
+
+class TransitionBuffer:
+    """All (s, a, s', violation, success) pushes the critics learn from."""
+
+    def __init__(self) -> None:
+        self._store = self._new_store()
+
+    @staticmethod
+    def _new_store(capacity: int = 256) -> _Growable:
+        return _Growable({
+            "images": (IMAGE_SHAPE, torch.uint8),
+            "next_images": (IMAGE_SHAPE, torch.uint8),
+            "actions": ((), torch.int64),
+            "violation": ((), torch.bool),
+            "success": ((), torch.bool),
+        }, capacity)
+
+    def __len__(self) -> int:
+        return self._store.size
+
+    def add(self, t: Transitions) -> None:
+        if len(t) == 0:
+            return
+        self._store.append(
+            images=torch.from_numpy(t.images),
+            next_images=torch.from_numpy(t.next_images),
+            actions=torch.from_numpy(t.actions),
+            violation=torch.from_numpy(t.violation),
+            success=torch.from_numpy(t.success),
+        )
+
+    def counts(self) -> dict[str, int]:
+        return {
+            "transitions": len(self),
+            "violations": int(self._store["violation"].sum()),
+            "successes": int(self._store["success"].sum()),
+        }
+
+    def sample_indices(self, batch: int, gen: torch.Generator) -> Tensor:
+        """``batch`` indices: 25 % violating, 25 % successful, the rest uniform."""
+        n = len(self)
+        if n == 0:
+            raise ValueError("no transitions yet")
+        parts = []
+        taken = 0
+        for flag in ("violation", "success"):
+            pool = torch.nonzero(self._store[flag]).view(-1)
+            k = round(POSITIVE_FRACTION * batch) if len(pool) else 0
+            k = min(k, batch - taken)
+            if k:
+                parts.append(pool[torch.randint(len(pool), (k,), generator=gen)])
+                taken += k
+        parts.append(torch.randint(n, (batch - taken,), generator=gen))
+        return torch.cat(parts)
+
+    def gather(self, index: Tensor) -> dict[str, Tensor]:
+        return {k: self._store[k][index] for k in
+                ("images", "next_images", "actions", "violation", "success")}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {k: self._store[k].clone() for k in
+                ("images", "next_images", "actions", "violation", "success")}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self._store = self._new_store(capacity=max(256, len(state["actions"])))
+        self.add(Transitions(
+            images=state["images"].numpy(),
+            actions=state["actions"].numpy(),
+            next_images=state["next_images"].numpy(),
+            violation=state["violation"].numpy(),
+            success=state["success"].numpy(),
+        ))

@@ -1,0 +1,328 @@
+"""The Learner: the one object the fleet loop and the CLI use for everything learned.
+
+Why a facade: the loop needs five verbs (act, add data, train, pretrain, save/load) and
+must not know about ensembles, critics, target networks, replay or augmentation. One
+lock makes every verb safe to call from the training thread and the main thread (the
+loop joins training before act(), but a lock costs nothing and rules out a torn step).
+
+    human labels ──► add_human ──► PolicyData (x factor augmented, bootstrap weights)
+                                        │ per-member minibatches
+                                        ▼
+    images ──► act ──► PolicyEnsemble ──► actions, probs, uncertainty, novelty
+                 │                │ pi(s), pi(s')
+                 └──► safety / goal Critic ──► risk, goal_risk
+    every push ──► add_transitions ──► TransitionBuffer ──► critic minibatches (25 % / 25 %)
+
+Reproducibility: the initial weights come from the seed (torch's global generator is
+forked and restored, so other code's randomness is untouched), every minibatch from the
+learner's own ``torch.Generator``, every augmentation from a per-chunk generator, and a
+checkpoint holds the weights, the optimisers, the data and the generator state: the same
+seed and the same calls give the same weights on CPU, also across save/load.
+"""
+
+from __future__ import annotations
+
+import threading
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from torch import Tensor
+
+from testbed.config import LearningConfig
+from testbed.learning import checkpoint
+from testbed.learning.api import (
+    EnsembleImpl,
+    PolicyOutput,
+    ProgressFn,
+    Transitions,
+    check_actions,
+    check_images,
+)
+from testbed.learning.critics import Critic, CriticBatch, CriticSpec
+from testbed.learning.data import PolicyData, TransitionBuffer
+from testbed.learning.policy import PolicyEnsemble, ensemble_signals
+from testbed.learning.runtime import (
+    STREAM_INIT,
+    STREAM_SAMPLE,
+    LearningError,
+    configure_torch,
+    derive_seed,
+    generator,
+    resolve_device,
+    resolve_impl,
+)
+from testbed.types import NUM_ACTIONS
+
+
+def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]:
+    """range(total) that reports each finished step to ``progress``."""
+    for i in range(total):
+        yield i
+        if progress is not None:
+            progress(phase, i + 1, total)
+
+
+class Learner:
+    """Policy ensemble + safety critic + goal critic + their data, for one trial.
+
+    ``impl`` picks how the ensemble runs (``auto``: the faster for the device);
+    ``num_threads`` torch's CPU threads (default: all cores this process may use).
+    """
+
+    def __init__(
+        self,
+        cfg: LearningConfig,
+        seed: int,
+        *,
+        impl: EnsembleImpl = "auto",
+        num_threads: int | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.seed = int(seed)
+        self.num_threads = configure_torch(num_threads)
+        self.device = resolve_device(cfg.device)
+        self.impl = resolve_impl(impl, self.device)
+        self._lock = threading.RLock()
+        with torch.random.fork_rng(devices=[]):
+            torch.random.default_generator.manual_seed(derive_seed(self.seed, STREAM_INIT))
+            self.policy = PolicyEnsemble(cfg.ensemble_size, self.impl).to(self.device)
+            self.safety = Critic(CriticSpec("safety", cfg.gamma_safe, "max"), cfg.lr, self.device)
+            self.goal = Critic(CriticSpec("goal", cfg.gamma_goal, "min"), cfg.lr, self.device)
+        self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.lr)
+        self._sampler = generator(self.seed, STREAM_SAMPLE)
+        self.policy_data = PolicyData(cfg.ensemble_size, cfg.augmentation_factor, self.seed)
+        self.transitions = TransitionBuffer()
+        self.policy_updates = 0
+        self.critic_updates = 0
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def has_data(self) -> bool:
+        """Whether the policy has labelled data (an untrained policy acts at random)."""
+        return len(self.policy_data) > 0
+
+    def stats(self) -> dict[str, int]:
+        """Sizes and counters, for logs and the console."""
+        with self._lock:
+            return {
+                "human_samples": len(self.policy_data),
+                **self.transitions.counts(),
+                "policy_updates": self.policy_updates,
+                "critic_updates": self.critic_updates,
+            }
+
+    def act(self, images: npt.ArrayLike) -> PolicyOutput:
+        """Actions and priority signals for uint8 images (N, 64, 64, 3)."""
+        arr = check_images(images)
+        n = arr.shape[0]
+        if n == 0:
+            empty = np.zeros(0, dtype=np.float32)
+            return PolicyOutput(np.zeros(0, dtype=np.int64),
+                                np.zeros((0, NUM_ACTIONS), dtype=np.float32),
+                                empty, empty.copy(), empty.copy(), empty.copy())
+        with self._lock, torch.no_grad():
+            x = torch.from_numpy(arr).to(self.device)
+            signals = ensemble_signals(self.policy(x))
+            actions = signals["actions"]
+            risk = self.safety.values(x, actions)
+            goal_risk = 1.0 - self.goal.values(x, actions)
+
+        def out(t: Tensor) -> np.ndarray:
+            return t.float().cpu().numpy()
+
+        return PolicyOutput(
+            actions=actions.cpu().numpy().astype(np.int64),
+            probs=out(signals["probs"]),
+            uncertainty=out(signals["uncertainty"]),
+            risk=out(risk),
+            goal_risk=out(goal_risk.clamp(0.0, 1.0)),
+            novelty=out(signals["novelty"]),
+        )
+
+    def critic_values(self, images: npt.ArrayLike, actions: npt.ArrayLike
+                      ) -> dict[str, np.ndarray]:
+        """The critics at given actions (diagnostics, tests): ``risk`` = Q_risk(s, a),
+        ``goal_risk`` = 1 - Q_goal(s, a), float32 (N,) in [0, 1]."""
+        arr = check_images(images)
+        acts = check_actions(actions, arr.shape[0])
+        with self._lock, torch.no_grad():
+            x = torch.from_numpy(arr).to(self.device)
+            a = torch.from_numpy(acts).to(self.device)
+            return {
+                "risk": self.safety.values(x, a).float().cpu().numpy(),
+                "goal_risk": (1.0 - self.goal.values(x, a)).float().cpu().numpy(),
+            }
+
+    # ------------------------------------------------------------------ data
+    def add_human(self, images: npt.ArrayLike, actions: npt.ArrayLike) -> None:
+        """Human-labelled (image, action) pairs for the policy, stored x factor augmented."""
+        arr = check_images(images)
+        acts = check_actions(actions, arr.shape[0])
+        with self._lock:
+            self.policy_data.add(arr, acts)
+
+    def add_transitions(
+        self,
+        images: npt.ArrayLike,
+        actions: npt.ArrayLike,
+        next_images: npt.ArrayLike,
+        violation: npt.ArrayLike,
+        success: npt.ArrayLike,
+    ) -> None:
+        """Pushes (any arm, any mode) for the critics."""
+        t = Transitions.build(images, actions, next_images, violation, success)
+        with self._lock:
+            self.transitions.add(t)
+
+    # ------------------------------------------------------------------ training
+    def train_step(self) -> dict[str, float]:
+        """``cfg.gradient_steps`` updates of the policy and of both critics, at
+        ``cfg.batch_size``. A part with no data is skipped and its key left out:
+        ``policy_loss`` (mean cross-entropy over members), ``safety_loss``, ``goal_loss``
+        (TD losses, BCE)."""
+        with self._lock:
+            sums: dict[str, float] = {}
+            for _ in range(self.cfg.gradient_steps):
+                for key, value in self._one_step().items():
+                    sums[key] = sums.get(key, 0.0) + value
+            return {k: v / self.cfg.gradient_steps for k, v in sums.items()}
+
+    def _one_step(self) -> dict[str, float]:
+        losses: dict[str, float] = {}
+        if len(self.policy_data):
+            losses["policy_loss"] = self._policy_update()
+        if len(self.transitions):
+            losses.update(self._critic_update())
+        return losses
+
+    def _policy_update(self) -> float:
+        images, actions = self.policy_data.sample(self.cfg.batch_size, self._sampler)
+        loss, per_member = self.policy.loss(images.to(self.device), actions.to(self.device))
+        self.policy_optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.policy_optimizer.step()
+        self.policy_updates += 1
+        return float(per_member.mean())
+
+    def _critic_update(self) -> dict[str, float]:
+        index = self.transitions.sample_indices(self.cfg.batch_size, self._sampler)
+        b = {k: v.to(self.device) for k, v in self.transitions.gather(index).items()}
+        with torch.no_grad():
+            next_actions = ensemble_signals(self.policy(b["next_images"]))["actions"]
+        violation = b["violation"].float()
+        success = b["success"].float()
+        safety = self.safety.update(CriticBatch(
+            b["images"], b["actions"], b["next_images"], next_actions,
+            reward=violation, done=violation,
+        ))
+        goal = self.goal.update(CriticBatch(
+            b["images"], b["actions"], b["next_images"], next_actions,
+            reward=success, done=torch.maximum(success, violation),
+        ))
+        self.critic_updates += 1
+        return {"safety_loss": safety, "goal_loss": goal}
+
+    def pretrain(
+        self,
+        demo_images: npt.ArrayLike | None = None,
+        demo_actions: npt.ArrayLike | None = None,
+        transitions: Transitions | None = None,
+        steps: int | None = None,
+        progress: ProgressFn | None = None,
+    ) -> dict[str, float]:
+        """Offline training (``testbed pretrain``), in the order the data arrives:
+
+        1. with demos: add them (augmented) and train the policy alone for ``steps``;
+        2. with transitions (the BC policy's rollouts for the safety critic, the expert's
+           for the goal critic; both critics see all): add them and train the critics for
+           ``steps``, with pi(s') from the policy as trained so far.
+
+        Call it once with both, or once per phase. ``steps`` defaults to
+        ``cfg.pretrain_steps``. Returns the mean losses over the last 20 steps of each
+        phase run.
+        """
+        total = self.cfg.pretrain_steps if steps is None else int(steps)
+        if (demo_images is None) != (demo_actions is None):
+            raise ValueError("pretrain needs demo_images and demo_actions together")
+        result: dict[str, float] = {}
+        with self._lock:
+            if demo_images is not None:
+                self.add_human(demo_images, demo_actions)  # type: ignore[arg-type]
+                tail = [self._policy_update() for _ in _ticks("policy", total, progress)]
+                result["policy_loss"] = float(np.mean(tail[-20:])) if tail else float("nan")
+            if transitions is not None:
+                self.transitions.add(transitions)
+                tail_c = [self._critic_update() for _ in _ticks("critics", total, progress)]
+                for key in ("safety_loss", "goal_loss"):
+                    values = [d[key] for d in tail_c[-20:]]
+                    result[key] = float(np.mean(values)) if values else float("nan")
+        return result
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed trial needs to continue exactly."""
+        with self._lock:
+            return {
+                "format": checkpoint.FORMAT,
+                "cfg": self.cfg.model_dump(),
+                "seed": self.seed,
+                "policy": self.policy.state_dict(),
+                "policy_optimizer": self.policy_optimizer.state_dict(),
+                "safety": self.safety.state_dict(),
+                "goal": self.goal.state_dict(),
+                "policy_data": self.policy_data.state_dict(),
+                "transitions": self.transitions.state_dict(),
+                "sampler": self._sampler.get_state(),
+                "counters": [self.policy_updates, self.critic_updates],
+            }
+
+    def save(self, path: str | Path) -> Path:
+        """Write a checkpoint atomically (temp file, fsync, os.replace)."""
+        with self._lock:
+            return checkpoint.save_atomic(self.state_dict(), path)
+
+    @classmethod
+    def load(
+        cls,
+        path: str | Path,
+        cfg: LearningConfig | None = None,
+        *,
+        impl: EnsembleImpl = "auto",
+        num_threads: int | None = None,
+    ) -> Learner:
+        """A learner from a checkpoint. ``cfg`` defaults to the saved one; a given one
+        may change the training knobs (lr, batch size, gradient steps, device) but not the
+        ensemble size or the augmentation factor, which shape the saved state."""
+        state = checkpoint.load(path)
+        saved = LearningConfig.model_validate(state["cfg"])
+        cfg = saved if cfg is None else cfg
+        for field in ("ensemble_size", "augmentation_factor"):
+            if getattr(cfg, field) != getattr(saved, field):
+                raise LearningError(
+                    f"{path}: checkpoint has learning.{field} = {getattr(saved, field)}, "
+                    f"config asks for {getattr(cfg, field)}; use the checkpoint's value"
+                )
+        learner = cls(cfg, int(state["seed"]), impl=impl, num_threads=num_threads)
+        learner.policy.load_state_dict(state["policy"])
+        learner.policy_optimizer.load_state_dict(state["policy_optimizer"])
+        learner.safety.load_state_dict(state["safety"])
+        learner.goal.load_state_dict(state["goal"])
+        for group in learner.policy_optimizer.param_groups:
+            group["lr"] = cfg.lr
+        learner.safety.set_lr(cfg.lr)
+        learner.goal.set_lr(cfg.lr)
+        if not learner.policy_data.load_state_dict(state["policy_data"]):
+            warnings.warn(
+                f"{path}: the re-made augmented copies differ from the saved run's "
+                "(another torch/kornia version?); training continues, not bit-exact",
+                RuntimeWarning, stacklevel=2,
+            )
+        learner.transitions.load_state_dict(state["transitions"])
+        learner._sampler.set_state(state["sampler"])
+        learner.policy_updates, learner.critic_updates = (int(c) for c in state["counters"])
+        return learner

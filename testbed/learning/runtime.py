@@ -1,0 +1,80 @@
+"""Where and how torch runs for the learner: device, threads, determinism, seeds.
+
+Why in one place: these are process-wide torch settings, and twin trials must be
+reproducible (same seed, same calls -> same weights on CPU), so every choice that can
+change a number is made here, once, and documented.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Literal
+
+import numpy as np
+import torch
+
+from testbed.learning.api import EnsembleImpl
+
+# Independent random streams derived from the learner's seed.
+STREAM_INIT = 0
+STREAM_SAMPLE = 1
+STREAM_AUGMENT = 2
+
+
+class LearningError(RuntimeError):
+    """The learner cannot do what was asked (no CUDA, a checkpoint that does not fit)."""
+
+
+def derive_seed(seed: int, *keys: int) -> int:
+    """A 63-bit seed for the stream ``keys`` of ``seed`` (numpy's SeedSequence hashing, so
+    nearby seeds and chunk indices give unrelated streams)."""
+    words = [int(seed) & 0xFFFF_FFFF_FFFF_FFFF, *(int(k) for k in keys)]
+    state = np.random.SeedSequence(words).generate_state(2, dtype=np.uint32)
+    return (int(state[0]) << 31) ^ int(state[1])
+
+
+def generator(seed: int, *keys: int) -> torch.Generator:
+    """A CPU ``torch.Generator`` for one stream; CPU even for a CUDA learner, so the
+    sampled indices and augmentations do not depend on the device."""
+    return torch.Generator(device="cpu").manual_seed(derive_seed(seed, *keys))
+
+
+def resolve_device(requested: Literal["auto", "cpu", "cuda"]) -> torch.device:
+    """``auto``: CUDA when present, else CPU. ``cuda`` without CUDA is an error."""
+    if requested == "cpu":
+        return torch.device("cpu")
+    if torch.cuda.is_available():
+        return torch.device("cuda")
+    if requested == "cuda":
+        raise LearningError(
+            "learning.device = 'cuda' but torch sees no CUDA device; "
+            "set learning.device to 'auto' or 'cpu'"
+        )
+    return torch.device("cpu")
+
+
+def resolve_impl(impl: EnsembleImpl, device: torch.device) -> Literal["loop", "vmap"]:
+    """``auto``: the loop on CPU (measured: benchmarks/bench_training.py, about 2-8x faster
+    on 2 cores); vmap on CUDA, where fewer and larger kernels usually win (not measured
+    here: re-run the benchmark on the GPU machine and adjust this line if it says so)."""
+    if impl == "auto":
+        return "vmap" if device.type == "cuda" else "loop"
+    return impl
+
+
+def configure_torch(num_threads: int | None = None) -> int:
+    """Set torch's intra-op threads (default: every core this process may use: training
+    runs while the main thread waits on the arms' I/O, and act() never overlaps it) and
+    deterministic algorithms (warn-only: CPU ops here are deterministic anyway; on CUDA it
+    picks deterministic kernels where they exist). Returns the thread count."""
+    if num_threads is None:
+        try:
+            num_threads = len(os.sched_getaffinity(0))
+        except AttributeError:  # not Linux
+            num_threads = os.cpu_count() or 1
+    num_threads = max(1, int(num_threads))
+    if torch.get_num_threads() != num_threads:
+        torch.set_num_threads(num_threads)
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    return num_threads

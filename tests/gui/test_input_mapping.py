@@ -1,0 +1,52 @@
+"""Key codes and clicks -> commands, with the codes HighGUI really returns."""
+
+from __future__ import annotations
+
+import pytest
+
+from gui.keys import Command, action_for_click, decode_key
+
+
+@pytest.mark.parametrize(
+    ("code", "action"),
+    [
+        (ord("w"), 0), (ord("a"), 1), (ord("x"), 2), (ord("d"), 3),
+        (ord("W"), 0), (ord("D"), 3),
+        (0xFF52, 0), (0xFF51, 1), (0xFF54, 2), (0xFF53, 3),  # X11 arrows (Qt, GTK)
+        (0xFF97, 0), (0xFF98, 3),  # keypad arrows
+        (0x260000, 0), (0x250000, 1), (0x280000, 2), (0x270000, 3),  # Windows arrows
+        (0x10000 | ord("a"), 1),  # GTK: modifier state in the high bits
+    ],
+)
+def test_push_keys(code: int, action: int) -> None:
+    cmd = decode_key(code)
+    assert cmd is not None
+    assert cmd.command is Command.PUSH and cmd.action == action
+
+
+@pytest.mark.parametrize(
+    ("code", "command"),
+    [
+        (13, Command.CONFIRM), (10, Command.CONFIRM), (0xFF8D, Command.CONFIRM),
+        (ord("p"), Command.PAUSE), (ord(" "), Command.PAUSE),
+        (27, Command.STOP), (ord("y"), Command.YES), (ord("Y"), Command.YES),
+        (ord("s"), Command.OTHER), (ord("n"), Command.OTHER), (0xFFE1, Command.OTHER),
+    ],
+)
+def test_other_keys(code: int, command: Command) -> None:
+    cmd = decode_key(code)
+    assert cmd is not None and cmd.command is command and cmd.action is None
+
+
+def test_no_key() -> None:
+    assert decode_key(-1) is None
+
+
+def test_click_picks_the_nearest_marker() -> None:
+    markers = [(100, 50), (50, 100), (100, 150), (150, 100)]  # up, left, down, right
+    assert action_for_click((100, 10), markers) == 0
+    assert action_for_click((60, 95), markers) == 1
+    assert action_for_click((99, 149), markers) == 2
+    assert action_for_click((300, 120), markers) == 3
+    with pytest.raises(ValueError):
+        action_for_click((0, 0), [])
