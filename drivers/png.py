@@ -64,16 +64,20 @@ def decode_png(data: bytes, shape: tuple[int, int, int], what: str) -> npt.NDArr
             break
     else:
         raise ProtocolError(f"{what}: PNG has no IEND chunk (truncated?)")
+    if interlace != 0:
+        return _decode_any(data, shape, what)
     expected = h * (1 + 3 * w)
     try:
-        d = zlib.decompressobj()
-        raw = d.decompress(b"".join(idat), expected + 1)
+        raw = zlib.decompressobj().decompress(b"".join(idat), expected + 1)
     except zlib.error as exc:
         raise ProtocolError(f"{what}: PNG data does not inflate ({exc})") from None
-    if interlace == 0 and len(raw) == expected:
-        rows = np.frombuffer(raw, np.uint8).reshape(h, 1 + 3 * w)
-        if not rows[:, 0].any():  # every row filter type 0: the pixels as they are
-            return rows[:, 1:].reshape(h, w, 3).copy()
+    if len(raw) != expected:
+        raise ProtocolError(f"{what}: PNG pixel data inflates to "
+                            f"{'more than ' if len(raw) > expected else ''}{len(raw)} bytes, "
+                            f"expected {expected}")
+    rows = np.frombuffer(raw, np.uint8).reshape(h, 1 + 3 * w)
+    if not rows[:, 0].any():  # every row filter type 0: the pixels as they are
+        return rows[:, 1:].reshape(h, w, 3).copy()
     return _decode_any(data, shape, what)
 
 

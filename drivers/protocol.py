@@ -119,22 +119,23 @@ class FrameReader:
         self._buf = bytearray()
         self.peer = peer
 
-    def _take(self, n: int, deadline: float, what: str, *, at_boundary: bool = False) -> bytes:
+    def _take(self, n: int, deadline: float, *, done: int = 0, total: int = PREFIX_BYTES
+              ) -> bytes:
         buf = self._buf
         while len(buf) < n:
             chunk = self._read(max(n - len(buf), 65536), deadline)
             if not chunk:
-                if at_boundary and not buf:
+                if done == 0 and not buf:
                     raise LinkClosed(f"{self.peer} closed the stream")
                 raise ProtocolError(f"truncated frame from {self.peer}: the stream ended "
-                                    f"after {len(buf)} of {n} {what} bytes")
+                                    f"after {done + len(buf)} of {total} bytes")
             buf += chunk
         out = bytes(buf[:n])
         del buf[:n]
         return out
 
     def read_frame(self, deadline: float) -> Frame:
-        prefix = self._take(PREFIX_BYTES, deadline, "prefix", at_boundary=True)
+        prefix = self._take(PREFIX_BYTES, deadline)
         magic, hlen, blen, crc = PREFIX.unpack(prefix)
         if magic != MAGIC:
             raise ProtocolError(
@@ -146,7 +147,8 @@ class FrameReader:
         if hlen + blen > MAX_FRAME_BYTES:
             raise ProtocolError(f"malformed frame from {self.peer}: {hlen + blen} bytes "
                                 f"exceeds the limit of {MAX_FRAME_BYTES}")
-        rest = self._take(hlen + blen, deadline, "header+body")
+        rest = self._take(hlen + blen, deadline, done=PREFIX_BYTES,
+                          total=PREFIX_BYTES + hlen + blen)
         if zlib.crc32(rest) != crc:
             raise ProtocolError(f"corrupted frame from {self.peer}: CRC mismatch over "
                                 f"{hlen + blen} bytes")

@@ -50,8 +50,9 @@ from gui.keys import Command, decode_key
 from gui.layout import ConsoleLayout, Point
 from gui.view import ConsoleView, Phase
 from gui.window import WindowProcess
-from testbed.types import FleetStatus, HumanRequest, HumanResponse
+from testbed.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
 
+TELEOP: Final = InterventionKind.TELEOP
 OVERVIEW: Final = -1
 """Window id of the fleet overview (humans are 0..M-1)."""
 STATE_ENV: Final = "TESTBED_CONSOLE_STATE"
@@ -194,11 +195,12 @@ class ConsoleHumans:
     def overview_name(self) -> str:
         return overview_window_name(self.title)
 
-    def window_position(self, human: int) -> tuple[int, int]:
-        """Where human ``human``'s window is placed (side by side, overview below)."""
-        if human == OVERVIEW:
+    def window_position(self, wid: int) -> tuple[int, int]:
+        """Where window ``wid`` (a human, or ``OVERVIEW``) is placed: humans side by side,
+        the overview below them, so no window hides another (clicks land where aimed)."""
+        if wid == OVERVIEW:
             return 0, self.layout.height + TITLE_BAR_PX + WINDOW_GAP_PX
-        return human * (self.layout.width + WINDOW_GAP_PX), 0
+        return wid * (self.layout.width + WINDOW_GAP_PX), 0
 
     def _open_windows(self, disp: list[str | None], overview: bool, timeout_s: float) -> None:
         wanted: list[tuple[int, str, str | None]] = [
@@ -244,8 +246,8 @@ class ConsoleHumans:
             out: dict[str, HumanResponse] = {}
             for desk in self._desks:
                 out.update(desk.responses())
-            for h, desk in enumerate(self._desks):
-                if h in groups and desk.view().phase is Phase.CHOOSE:  # timed out
+            for h, reqs in groups.items():  # timed out: the window must stop asking
+                if any(out[r.robot].action is None for r in reqs if r.kind is TELEOP):
                     self._redraw(h)
             return out
 

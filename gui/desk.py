@@ -43,6 +43,8 @@ class _Item:
     cube: CubeMarker | None
     markers: tuple[Point, ...]
     answer: int | None = None
+    expired: bool = False
+    """``act`` returned without a push (timeout): later keys must not pretend to count."""
 
     @property
     def ident(self) -> ItemId:
@@ -95,7 +97,7 @@ class Desk:
 
     def needs_input(self) -> bool:
         """True while a teleop request has no push yet (``act`` waits for it)."""
-        return any(i.teleop and i.answer is None for i in self._items)
+        return any(i.teleop and i.answer is None and not i.expired for i in self._items)
 
     def responses(self) -> dict[str, HumanResponse]:
         """The answers of this ``act`` call; a reported reset confirmation is used up."""
@@ -103,6 +105,7 @@ class Desk:
         for item in self._items:
             robot = item.request.robot
             if item.teleop:
+                item.expired = item.answer is None
                 out[robot] = HumanResponse(robot, action=item.answer)
             else:
                 done = robot in self._confirmed
@@ -121,6 +124,8 @@ class Desk:
         item = self._current()
         info = self._frames.get(seq)
         if item is None or not item.teleop or item.answer is not None or info is None:
+            return False
+        if item.expired:
             return False
         if info.item != item.ident:
             return False
@@ -149,7 +154,7 @@ class Desk:
     # ---- what to show -------------------------------------------------------------------
     def _current(self) -> _Item | None:
         for item in self._items:
-            if item.teleop and item.answer is None:
+            if item.teleop and item.answer is None and not item.expired:
                 return item
         resets = [i for i in self._items if not i.teleop]
         for item in resets:
@@ -173,12 +178,12 @@ class Desk:
         if item is None:
             return ConsoleView(self.human, Phase.IDLE, t=self._t)
         if item.teleop:
-            phase = Phase.CHOOSE if item.answer is None else Phase.SENT
+            phase = Phase.CHOOSE if item.answer is None and not item.expired else Phase.SENT
         else:
             phase = self._reset_phase(item)
         waiting = sum(
             1 for i in self._items
-            if i is not item and ((i.teleop and i.answer is None)
+            if i is not item and ((i.teleop and i.answer is None and not i.expired)
                                   or (not i.teleop and self._reset_phase(i) is Phase.RESET))
         )
         return ConsoleView(

@@ -176,7 +176,7 @@ def _footer(img: Frame, layout: ConsoleLayout, view: ConsoleView) -> None:
             f"{KEY_NAMES[k]}/{ARROW_NAMES[k]}" for k in range(4)) + ", or click a marker",
         Phase.SENT: (
             f"sent: {DIRECTION_NAMES[view.sent_action]} - waiting for the arm"
-            if view.sent_action is not None else "waiting for the arm"),
+            if view.sent_action is not None else "no push in time: the arm waits"),
         Phase.RESET: "put the cube back, then press Enter",
         Phase.RESET_CONFIRMED: "reset confirmed - waiting for the fleet",
     }[view.phase]

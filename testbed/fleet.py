@@ -217,7 +217,9 @@ class FleetLoop:
                 modes[r] = Mode.IDLE
             elif h >= 0:
                 modes[r] = Mode.TELEOP
-                pushes[r] = int(responses[r].action)  # type: ignore[arg-type]
+                answer = responses.get(r)
+                if answer is not None and answer.action is not None:
+                    pushes[r] = int(answer.action)  # else the human let the step pass
             else:
                 modes[r] = Mode.AUTONOMOUS
                 pushes[r] = int(out.actions[i])

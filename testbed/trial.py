@@ -10,6 +10,7 @@ the records are closed, and it checkpoints every complete step so that
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,7 +21,7 @@ import numpy as np
 
 from testbed.config import ConfigError, FleetConfig
 from testbed.fleet import FleetLoop, StepOutcome
-from testbed.humans import Humans, make_humans
+from testbed.humans import Humans, HumansStopRequested, make_humans
 from testbed.offline import Progress, Transitions, collect_demos, pretrain, pretrain_key
 from testbed.priorities import get_algorithm
 from testbed.records import (
@@ -31,6 +32,8 @@ from testbed.records import (
     truncate_torn_tail,
 )
 from testbed.runs import RunDir, new_run_dir
+
+LOG = logging.getLogger(__name__)
 
 
 @dataclass
@@ -180,7 +183,11 @@ def run_trial(
         )
         loop.restore_counters(prior_rows)
         for t in range(start, opts.steps):
-            outcome = loop.step(t)
+            try:
+                outcome = loop.step(t)
+            except HumansStopRequested as stop:  # Esc + confirm on the console
+                LOG.warning("trial stopped by the operator at step %d: %s", t, stop)
+                break
             if on_step is not None:
                 on_step(outcome)
     finally:

@@ -146,6 +146,17 @@ def test_pause_blocks_act_until_resumed(
     assert call.join()["cell0/left"].action == 1
 
 
+def test_teleop_timeout_answers_none(
+    console: ConsoleHumans, make_request: RequestFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(console, "teleop_timeout_s", 0.3)
+    t0 = time.monotonic()
+    out = console.act([make_request("cell0/left", 0)], 40)
+    assert out["cell0/left"].action is None
+    assert 0.25 <= time.monotonic() - t0 < 3.0
+    assert console.snapshot(0).phase is Phase.SENT
+
+
 def test_overview_window(console: ConsoleHumans, xvfb: Xvfb) -> None:
     status = FleetStatus(5, 250, 1, 0, 0, 3, 0.2, [
         RobotStatus("cell0/left", Mode.TELEOP, arm_image(), 0),

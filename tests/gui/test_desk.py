@@ -125,3 +125,14 @@ def test_no_request_is_idle(make_request: RequestFactory) -> None:
     d.assign([make_request()], t=0, serial=1)
     d.assign([], t=1, serial=2)
     assert d.view().phase is Phase.IDLE and d.responses() == {}
+
+
+def test_after_a_timeout_late_keys_do_not_count(make_request: RequestFactory) -> None:
+    d = desk()
+    d.assign([make_request()], t=0, serial=1)
+    seq = shown(d, 1)
+    assert d.responses()["cell0/left"].action is None  # act() gave up waiting
+    assert not d.needs_input()
+    assert not d.on_push(0, seq)
+    view = d.view()
+    assert view.phase is Phase.SENT and view.sent_action is None

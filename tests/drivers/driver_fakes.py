@@ -1,0 +1,214 @@
+"""Test doubles for the drivers: an agent served in a thread, with hooks that corrupt
+the bytes crossing in either direction, and a picture source for the YuMi backend.
+
+Why an in-thread agent: the fuzz tests push a thousand broken frames each way through
+the REAL agent loop (``drivers.agent.serve``) and the REAL fleet; a process per case
+would take minutes. The pipes are real ``os.pipe`` pairs, so reads, EOF and deadlines
+behave as they do with a subprocess.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from drivers.agent import fd_reader, serve
+from drivers.backends.base import ArmOutcome, ArmView, HostBackend
+from drivers.backends.twin import CannedTwinBackend
+from drivers.errors import DeadlineExceeded
+from drivers.protocol import FrameReader
+from drivers.testing.sshd import SshServer
+from drivers.transport import Transport
+from testbed.config import HostConfig
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def local_host(name: str, **kw: Any) -> HostConfig:
+    kw.setdefault("deadline_s", 5.0)
+    kw.setdefault("connect_timeout_s", 20.0)
+    return HostConfig(name=name, **kw)
+
+
+def ssh_host(name: str, server: SshServer, **kw: Any) -> HostConfig:
+    kw.setdefault("deadline_s", 5.0)
+    kw.setdefault("connect_timeout_s", 20.0)
+    return HostConfig(name=name, transport="ssh", address="127.0.0.1", port=server.port,
+                      user=server.user, key_file=str(server.client_key),
+                      known_hosts=str(server.known_hosts), python=sys.executable,
+                      workdir=str(ROOT), **kw)
+
+
+def wait_until(cond: Callable[[], bool], timeout_s: float, what: str) -> float:
+    """Poll ``cond``; return the seconds it took, fail the test after ``timeout_s``."""
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > timeout_s:
+            pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(0.02)
+    return time.monotonic() - t0
+
+
+class ExplodingBackend(HostBackend):
+    """A backend whose push raises on one arm (as a camera or controller would)."""
+
+    kind = "exploding"
+
+    def __init__(self) -> None:
+        self.inner = CannedTwinBackend(0)
+        self.rested = 0
+
+    @property
+    def arm_names(self) -> tuple[str, ...]:
+        return self.inner.arm_names
+
+    @property
+    def mirror(self) -> tuple[bool, ...]:
+        return self.inner.mirror
+
+    def observe(self) -> dict[str, ArmView]:
+        return self.inner.observe()
+
+    def push(self, faces: Mapping[str, int]) -> dict[str, ArmOutcome]:
+        if "right" in faces:
+            err = RuntimeError("gripper camera unplugged")
+            err.arm = "right"  # type: ignore[attr-defined]
+            raise err
+        return self.inner.push(faces)
+
+    def reset(self, arms: Sequence[str]) -> dict[str, bool]:
+        return self.inner.reset(arms)
+
+    def rest(self) -> None:
+        self.rested += 1
+
+    def close(self) -> None:
+        pass
+
+
+Mutation = Callable[[int, bytes], tuple[bytes, bool]]
+"""(index of the frame in its direction, bytes) -> (bytes to send, close the stream
+after them?)."""
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        try:
+            view = view[os.write(fd, view):]
+        except BlockingIOError:
+            select.select([], [fd], [], 1.0)
+
+
+class ThreadAgentTransport(Transport):
+    """The real agent loop in a thread of this process, over two pipes."""
+
+    def __init__(self, host: HostConfig, *, mutate_request: Mutation | None = None,
+                 mutate_reply: Mutation | None = None,
+                 backend_factory: Callable[[], HostBackend] | None = None) -> None:
+        super().__init__(host)
+        arms = tuple(a.name for a in host.arms)
+        mirror = tuple(a.mirror for a in host.arms)
+        self._factory = backend_factory or (lambda: CannedTwinBackend(0, arms, mirror))
+        self._mreq = mutate_request
+        self._mrep = mutate_reply
+        self._sent = 0
+        self._replied = 0
+        self._reply_closed = False
+        self.rc: int | None = None
+        self.crashed: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    def open(self, argv: list[str], timeout_s: float) -> None:
+        self._c2a_r, self._c2a_w = os.pipe()
+        self._a2c_r, self._a2c_w = os.pipe()
+        self._req_closed = False
+        reader = FrameReader(fd_reader(self._c2a_r), "controller")
+
+        def write(data: bytes) -> None:
+            if self._reply_closed:
+                raise BrokenPipeError("reply stream closed by the test")
+            close = False
+            if self._mrep is not None:
+                data, close = self._mrep(self._replied, data)
+            self._replied += 1
+            _write_all(self._a2c_w, data)
+            if close:
+                self._reply_closed = True
+                os.close(self._a2c_w)
+
+        def run() -> None:
+            try:
+                self.rc = serve(reader, write, self._factory, idle_timeout_s=10.0)
+            except BaseException as exc:  # the test asserts this never happens
+                self.crashed = exc
+            finally:
+                if not self._reply_closed:
+                    self._reply_closed = True
+                    os.close(self._a2c_w)
+                os.close(self._c2a_r)
+
+        self._thread = threading.Thread(target=run, daemon=True, name="thread-agent")
+        self._thread.start()
+
+    def write(self, data: bytes, deadline: float) -> None:
+        if self._req_closed:
+            from drivers.errors import LinkClosed
+
+            raise LinkClosed("request stream closed by the test")
+        close = False
+        if self._mreq is not None:
+            data, close = self._mreq(self._sent, data)
+        self._sent += 1
+        _write_all(self._c2a_w, data)
+        if close:
+            self._req_closed = True
+            os.close(self._c2a_w)
+
+    def read(self, n: int, deadline: float) -> bytes:
+        while True:
+            timeout = deadline - time.monotonic()
+            if timeout <= 0:
+                raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
+            if select.select([self._a2c_r], [], [], timeout)[0]:
+                return os.read(self._a2c_r, n)
+
+    def exit_status(self) -> int | None:
+        return self.rc
+
+    def close(self) -> None:
+        if not self._req_closed:
+            self._req_closed = True
+            with contextlib.suppress(OSError):
+                os.close(self._c2a_w)
+        if self._thread is not None:
+            self._thread.join(5.0)
+        with contextlib.suppress(OSError):
+            os.close(self._a2c_r)
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float = 10.0) -> Path:
+    """Frames (RGB) into a lossless video file for VideoCaptureCamera."""
+    import cv2
+
+    h, w = frames[0].shape[:2]
+    for fourcc in ("FFV1", "HFYU", "MJPG"):
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
+        if writer.isOpened():
+            break
+    else:
+        raise RuntimeError("no usable VideoWriter codec")
+    for f in frames:
+        writer.write(np.ascontiguousarray(f[..., ::-1]))
+    writer.release()
+    return path

@@ -1,0 +1,169 @@
+"""The frame format and the messages (drivers.protocol, drivers.png)."""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers import protocol as p
+from drivers.backends.base import ArmOutcome, ArmView
+from drivers.errors import AgentError, LinkClosed, ProtocolError
+from drivers.png import decode_png, encode_png
+
+
+def reader_of(data: bytes, peer: str = "agent on host t") -> p.FrameReader:
+    bio = io.BytesIO(data)
+    return p.FrameReader(lambda n, deadline: bio.read(n), peer)
+
+
+def raw_frame(header: bytes, body: bytes = b"", *, magic: bytes = p.MAGIC,
+              hlen: int | None = None, blen: int | None = None, crc: int | None = None
+              ) -> bytes:
+    hlen = len(header) if hlen is None else hlen
+    blen = len(body) if blen is None else blen
+    crc = zlib.crc32(body, zlib.crc32(header)) if crc is None else crc
+    return p.PREFIX.pack(magic, hlen, blen, crc) + header + body
+
+
+def test_frame_round_trip_with_blobs() -> None:
+    data = p.encode_frame({"type": "x", "id": 7, "k": [1, 2]}, [b"abc", b"", b"\x00" * 5])
+    f = reader_of(data).read_frame(1e18)
+    assert f.type == "x" and f.id == 7 and f.header["k"] == [1, 2]
+    assert f.blobs == [b"abc", b"", b"\x00" * 5]
+
+
+def test_eof_at_boundary_is_link_closed_and_inside_a_frame_is_truncation() -> None:
+    with pytest.raises(LinkClosed):
+        reader_of(b"").read_frame(1e18)
+    data = p.make_request("observe", 1)
+    with pytest.raises(ProtocolError, match=r"truncated frame .* after 20 of"):
+        reader_of(data[:20]).read_frame(1e18)
+
+
+@pytest.mark.parametrize(("frame", "match"), [
+    (b"pybullet build time: Jan 29 2025\n" + p.make_request("observe", 1),
+     "bad magic b'pybu.*something else writing to the agent's stdout"),
+    (raw_frame(b'{"type":"x","id":1}', hlen=10**6), "header length 1000000"),
+    (raw_frame(b'{"type":"x","id":1}', blen=p.MAX_FRAME_BYTES), "exceeds the limit"),
+    (raw_frame(b'{"type":"x","id":1}', crc=1), "CRC mismatch"),
+    (raw_frame(b'\xff\xfe{}'), "not UTF-8 JSON"),
+    (raw_frame(b"[" * 30000 + b"]" * 30000), "not UTF-8 JSON"),
+    (raw_frame(b"[1, 2]"), "header is a JSON list"),
+    (raw_frame(b'{"id": 1}'), "no string 'type'"),
+    (raw_frame(b'{"type": "x", "id": -1}'), "'id' must be a u32"),
+    (raw_frame(b'{"type": "x", "id": true}'), "'id' must be a u32"),
+    (raw_frame(b'{"type": "x", "id": 1, "blobs": [4]}', b"abc"), "blob sizes sum to 4"),
+])
+def test_every_framing_error_is_a_clear_protocol_error(frame: bytes, match: str) -> None:
+    with pytest.raises(ProtocolError, match=match):
+        reader_of(frame).read_frame(1e18)
+
+
+def test_encode_frame_refuses_oversize_and_nan() -> None:
+    with pytest.raises(ProtocolError, match="exceeds the limit"):
+        p.encode_frame({"type": "x", "id": 1}, [b"\0" * p.MAX_FRAME_BYTES])
+    with pytest.raises(ProtocolError, match="cannot encode"):
+        p.encode_frame({"type": "x", "id": 1, "v": float("nan")})
+
+
+def test_png_writer_is_standard_and_reader_takes_any_png() -> None:
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (64, 64, 3), dtype=np.uint8)
+    ours = encode_png(img)
+    assert np.array_equal(cv2.imdecode(np.frombuffer(ours, np.uint8), cv2.IMREAD_COLOR),
+                          img[..., ::-1])  # any decoder reads it
+    assert np.array_equal(decode_png(ours, (64, 64, 3), "t"), img)
+    ok, theirs = cv2.imencode(".png", img[..., ::-1])  # adaptive filters: fallback path
+    assert ok and np.array_equal(decode_png(theirs.tobytes(), (64, 64, 3), "t"), img)
+    back = decode_png(ours, (64, 64, 3), "t")
+    back[0, 0] = 1  # the decoded array is the caller's to change
+
+
+@pytest.mark.parametrize(("data", "match"), [
+    (b"GIF89a" + b"\0" * 40, "not a PNG"),
+    (encode_png(np.zeros((32, 32, 3), np.uint8)), "32x32"),
+    (encode_png(np.zeros((64, 64, 3), np.uint8))[:60], "runs past the end|no IEND"),
+])
+def test_bad_images_name_the_arm(data: bytes, match: str) -> None:
+    with pytest.raises(ProtocolError, match=f"arm 'left'.*({match})|({match})"):
+        decode_png(data, (64, 64, 3), "arm 'left'")
+
+
+def test_png_bomb_is_capped() -> None:
+    raw = zlib.compress(b"\0" * (50 * 1024 * 1024))
+    ihdr = struct.pack(">IIBBBBB", 64, 64, 8, 2, 0, 0, 0)
+
+    def chunk(kind: bytes, d: bytes) -> bytes:
+        return struct.pack(">I", len(d)) + kind + d + struct.pack(">I", zlib.crc32(kind + d))
+
+    bomb = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", raw) + chunk(b"IEND", b"")
+    with pytest.raises(ProtocolError):
+        decode_png(bomb, (64, 64, 3), "arm 'left'")
+
+
+def view(v: int = 0, violating: bool = False) -> ArmView:
+    return ArmView(np.full((64, 64, 3), v, np.uint8), violating, (0.25, 0.75),
+                   None if violating else 3)
+
+
+def test_observe_reply_round_trip() -> None:
+    frame = reader_of(p.make_observe_reply(5, {"left": view(1), "right": view(2, True)})
+                      ).read_frame(1e18)
+    views = p.parse_observe_reply(p.check_reply(frame, "observe_ok", 5, "a"),
+                                  ["left", "right"], "a")
+    assert views["left"].image[0, 0, 0] == 1 and views["left"].expert_action == 3
+    assert views["right"].violating and views["right"].expert_action is None
+    assert views["right"].goal == (0.25, 0.75)
+
+
+def test_push_and_reset_replies_must_name_exactly_the_asked_arms() -> None:
+    f = reader_of(p.make_push_reply(1, {"left": ArmOutcome(True, False)})).read_frame(1e18)
+    assert p.parse_push_reply(f, ["left"], "a")["left"].success
+    with pytest.raises(ProtocolError, match="names arms"):
+        p.parse_push_reply(f, ["left", "right"], "a")
+    f = reader_of(p.make_reset_reply(2, {"right": True})).read_frame(1e18)
+    assert p.parse_reset_reply(f, ["right"], "a") == {"right": True}
+
+
+def test_reply_checks_type_id_and_turns_error_frames_into_named_errors() -> None:
+    f = reader_of(p.make_push_reply(4, {})).read_frame(1e18)
+    with pytest.raises(ProtocolError, match="got 'push_ok', expected 'observe_ok'"):
+        p.check_reply(f, "observe_ok", 4, "a")
+    with pytest.raises(ProtocolError, match=r"out-of-order reply .* id 4, expected 5"):
+        p.check_reply(f, "push_ok", 5, "a")
+    err = reader_of(p.make_error(9, "backend", "camera gone", traceback="TB", arm="left")
+                    ).read_frame(1e18)
+    with pytest.raises(AgentError, match="backend error on arm 'left': camera gone") as ei:
+        p.check_reply(err, "observe_ok", 9, "agent on host h")
+    assert ei.value.arm == "left" and ei.value.remote_traceback == "TB"
+    bad = reader_of(p.make_error(9, "protocol", "what is this")).read_frame(1e18)
+    with pytest.raises(ProtocolError, match="rejected our 'observe_ok' frame"):
+        p.check_reply(bad, "observe_ok", 9, "a")
+
+
+@pytest.mark.parametrize(("header", "match"), [
+    ({"type": "launch"}, "unknown request type"),
+    ({"type": "push", "faces": {}}, "names no arm"),
+    ({"type": "push", "faces": {"left": 4}}, "face must be an int in 0..3"),
+    ({"type": "push", "faces": {"left": True}}, "face must be an int"),
+    ({"type": "push", "faces": {"elbow": 1}}, "unknown arm 'elbow'"),
+    ({"type": "reset", "arms": ["left", "left"]}, "distinct"),
+    ({"type": "hello", "version": "1", "host": "h"}, "'version' must be int"),
+])
+def test_bad_requests_are_refused_with_the_reason(header: dict, match: str) -> None:
+    f = reader_of(p.encode_frame({"id": 1, **header})).read_frame(1e18)
+    with pytest.raises(ProtocolError, match=match):
+        p.parse_request(f, ("left", "right"))
+
+
+def test_header_is_compact_json() -> None:
+    data = p.make_request("push", 3, faces={"left": 1})
+    hlen = p.PREFIX.unpack(data[:16])[1]
+    assert json.loads(data[16:16 + hlen]) == {"type": "push", "id": 3, "faces": {"left": 1},
+                                              "blobs": []}

@@ -1,0 +1,198 @@
+"""The Learner facade: outputs, input checks, determinism, checkpoints, thread safety."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from synthetic_pushing import transitions
+
+from testbed.config import LearningConfig
+from testbed.learning import Learner, LearningError, PolicyOutput, Transitions
+from testbed.learning import checkpoint as ckpt
+
+SMALL = LearningConfig(ensemble_size=2, batch_size=16, augmentation_factor=3, lr=1e-3,
+                       gradient_steps=2, pretrain_steps=3)
+
+
+def filled(seed: int = 0, cfg: LearningConfig = SMALL) -> Learner:
+    learner = Learner(cfg, seed)
+    rng = np.random.default_rng(seed)
+    b = transitions(40, rng)
+    learner.add_human(b.images[:20], b.actions[:20])
+    learner.add_transitions(b.images, b.actions, b.next_images, b.violation, b.success)
+    return learner
+
+
+def params(learner: Learner) -> list[torch.Tensor]:
+    mods = [learner.policy, learner.safety.net, learner.safety.target, learner.goal.net,
+            learner.goal.target]
+    return [p.detach().clone() for m in mods for p in m.parameters()]
+
+
+def same(a: list[torch.Tensor], b: list[torch.Tensor]) -> bool:
+    return len(a) == len(b) and all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_act_shapes_and_ranges() -> None:
+    learner = filled()
+    images = transitions(6, np.random.default_rng(1)).images
+    out = learner.act(images)
+    assert isinstance(out, PolicyOutput) and len(out) == 6
+    assert out.actions.dtype == np.int64 and out.actions.shape == (6,)
+    assert out.probs.shape == (6, 4) and np.allclose(out.probs.sum(1), 1, atol=1e-5)
+    assert (out.actions == out.probs.argmax(1)).all()
+    for name in ("uncertainty", "risk", "goal_risk", "novelty"):
+        v = getattr(out, name)
+        assert v.shape == (6,) and v.dtype == np.float32
+        assert ((v >= 0) & (v <= 1)).all(), name
+    assert len(learner.act(np.zeros((0, 64, 64, 3), np.uint8))) == 0
+    assert len(learner.act(images[0])) == 1  # a single (64, 64, 3) image
+
+
+def test_inputs_are_validated() -> None:
+    learner = Learner(SMALL, 0)
+    with pytest.raises(ValueError, match="uint8"):
+        learner.act(np.zeros((1, 64, 64, 3), np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        learner.act(np.zeros((1, 32, 32, 3), np.uint8))
+    with pytest.raises(ValueError, match=r"\[0, 4\)"):
+        learner.add_human(np.zeros((1, 64, 64, 3), np.uint8), [4])
+    with pytest.raises(ValueError, match="expected 2 values"):
+        learner.add_human(np.zeros((2, 64, 64, 3), np.uint8), [1])
+    with pytest.raises(ValueError, match="next_images"):
+        Transitions.build(np.zeros((2, 64, 64, 3), np.uint8), [0, 1],
+                          np.zeros((1, 64, 64, 3), np.uint8), [0, 0], [0, 0])
+
+
+def test_train_step_trains_what_has_data() -> None:
+    learner = Learner(SMALL, 0)
+    assert learner.train_step() == {} and not learner.has_data
+    b = transitions(20, np.random.default_rng(0))
+    learner.add_transitions(b.images, b.actions, b.next_images, b.violation, b.success)
+    assert set(learner.train_step()) == {"safety_loss", "goal_loss"}
+    learner.add_human(b.images, b.actions)
+    assert learner.has_data
+    assert set(learner.train_step()) == {"policy_loss", "safety_loss", "goal_loss"}
+    stats = learner.stats()
+    assert stats["human_samples"] == 20 and stats["transitions"] == 20
+    assert stats["policy_updates"] == 2 and stats["critic_updates"] == 4  # gradient_steps 2
+
+
+def test_same_seed_same_weights_different_seed_different() -> None:
+    a, b, c = filled(0), filled(0), filled(0, SMALL)
+    c2 = Learner(SMALL, 1)
+    assert same(params(a), params(b))
+    assert not same(params(a), params(c2))
+    for learner in (a, b):
+        learner.train_step()
+        learner.train_step()
+    assert same(params(a), params(b))
+    assert not same(params(a), params(c))  # c did not train
+
+
+def test_global_torch_rng_untouched() -> None:
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    Learner(SMALL, 5)
+    assert torch.equal(torch.rand(3), expected)
+
+
+def test_save_load_round_trip_continues_exactly(tmp_path: Path) -> None:
+    learner = filled()
+    learner.train_step()
+    path = learner.save(tmp_path / "ckpt.pt")
+    loaded = Learner.load(path)
+    images = transitions(8, np.random.default_rng(2)).images
+    a, b = learner.act(images), loaded.act(images)
+    for name in ("actions", "probs", "uncertainty", "risk", "goal_risk", "novelty"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert loaded.stats() == learner.stats()
+    # the data, the optimisers and the sampler state came along: training continues alike
+    more = transitions(5, np.random.default_rng(3))
+    for x in (learner, loaded):
+        x.add_human(more.images, more.actions)
+        x.train_step()
+    assert same(params(learner), params(loaded))
+    assert [p.name for p in tmp_path.iterdir()] == ["ckpt.pt"]  # no temp file left
+
+
+def test_load_checks_the_shape_defining_config(tmp_path: Path) -> None:
+    path = filled().save(tmp_path / "c.pt")
+    with pytest.raises(LearningError, match="ensemble_size"):
+        Learner.load(path, SMALL.model_copy(update={"ensemble_size": 3}))
+    loaded = Learner.load(path, SMALL.model_copy(update={"lr": 1e-4, "batch_size": 8}))
+    assert loaded.policy_optimizer.param_groups[0]["lr"] == 1e-4
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(Exception):  # noqa: B017 - torch's own unpickling error
+        Learner.load(tmp_path / "junk.pt")
+
+
+def test_failed_save_keeps_the_old_checkpoint(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    learner = filled()
+    path = learner.save(tmp_path / "c.pt")
+    before = path.read_bytes()
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(ckpt.torch, "save", broken)
+    learner.train_step()
+    with pytest.raises(OSError, match="disk full"):
+        learner.save(path)
+    assert path.read_bytes() == before
+    assert sorted(os.listdir(tmp_path)) == ["c.pt"]
+
+
+def test_pretrain_reports_progress_in_phases() -> None:
+    learner = Learner(SMALL, 0)
+    b = transitions(30, np.random.default_rng(0))
+    seen: list[tuple[str, int, int]] = []
+    t = Transitions.build(b.images, b.actions, b.next_images, b.violation, b.success)
+    out = learner.pretrain(b.images, b.actions, t, progress=lambda *a: seen.append(a))
+    assert seen == [("policy", i, 3) for i in (1, 2, 3)] + [("critics", i, 3) for i in (1, 2, 3)]
+    assert set(out) == {"policy_loss", "safety_loss", "goal_loss"}
+    assert learner.stats()["policy_updates"] == 3 and learner.stats()["critic_updates"] == 3
+    with pytest.raises(ValueError, match="together"):
+        learner.pretrain(b.images, None)
+
+
+def test_concurrent_calls_are_serialised() -> None:
+    learner = filled()
+    images = transitions(4, np.random.default_rng(1)).images
+    errors: list[BaseException] = []
+
+    def train() -> None:
+        try:
+            for _ in range(3):
+                learner.train_step()
+        except BaseException as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    thread = threading.Thread(target=train)
+    thread.start()
+    for _ in range(5):
+        assert len(learner.act(images)) == 4
+    thread.join()
+    assert not errors
+
+
+def test_cuda_request_without_cuda_is_a_clear_error() -> None:
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(LearningError, match="device"):
+        Learner(SMALL.model_copy(update={"device": "cuda"}), 0)
+
+
+def test_import_testbed_does_not_import_torch() -> None:
+    code = ("import sys, testbed, testbed.config, testbed.types; "
+            "sys.exit(1 if 'torch' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
