@@ -7,7 +7,8 @@ runs a 4-arm fleet (2 hosts x 2 arms) whose agents run the twin's ``--no-physics
 The baseline moves the same reply frames through a bare ``cat`` exec channel on a
 second connection to each host: per step and host, the observe reply's bytes and the
 push reply's bytes each make one round trip (write them, read them back), both hosts
-at once (one thread per host, as the fleet's hosts run at once).
+at once, driven as the fleet drives its agents (write to every host, then read every
+host) and with nothing else: no framing, no agent, no decoding.
 
     ratio = fleet step time / raw round-trip time        (target <= 1.25)
 
@@ -18,11 +19,13 @@ run sshd; needs the Debian package openssh-server).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import socket
 import statistics
+import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -36,8 +39,9 @@ from drivers.testing.sshd import SshServer, sshd_available  # noqa: E402
 from testbed.config import HostConfig  # noqa: E402
 
 
-def host_config(name: str, server: SshServer) -> HostConfig:
-    return HostConfig(name=name, transport="ssh", address="127.0.0.1", port=server.port,
+def host_config(name: str, server: SshServer, port: int | None = None) -> HostConfig:
+    return HostConfig(name=name, transport="ssh", address="127.0.0.1",
+                      port=port or server.port,
                       user=server.user, key_file=str(server.client_key),
                       known_hosts=str(server.known_hosts), python=sys.executable,
                       workdir=str(ROOT), physics=False, deadline_s=10.0)
@@ -51,15 +55,15 @@ def reply_frames() -> list[bytes]:
     return [obs, push]
 
 
-def cat_channel(server: SshServer):  # type: ignore[no-untyped-def]
+def cat_channel(server: SshServer, port: int | None = None):  # type: ignore[no-untyped-def]
     import paramiko
 
-    sock = socket.create_connection(("127.0.0.1", server.port))
+    sock = socket.create_connection(("127.0.0.1", port or server.port))
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     client = paramiko.SSHClient()
     client.load_host_keys(str(server.known_hosts))
     client.set_missing_host_key_policy(paramiko.RejectPolicy())
-    client.connect("127.0.0.1", port=server.port, username=server.user,
+    client.connect("127.0.0.1", port=port or server.port, username=server.user,
                    key_filename=str(server.client_key), sock=sock, allow_agent=False,
                    look_for_keys=False)
     chan = client.get_transport().open_session()  # type: ignore[union-attr]
@@ -67,52 +71,79 @@ def cat_channel(server: SshServer):  # type: ignore[no-untyped-def]
     return client, chan
 
 
-def echo(chan, data: bytes) -> None:  # type: ignore[no-untyped-def]
-    chan.sendall(data)
-    got = 0
-    while got < len(data):
-        chunk = chan.recv(len(data) - got)
-        if not chunk:
-            raise RuntimeError("cat channel closed")
-        got += len(chunk)
+# --- an optional one-way delay in front of each sshd (the internet, roughly) --------
+def relay_main(target_port: int, delay_s: float) -> int:
+    """``--relay-for PORT``: forward 127.0.0.1:<printed port> to PORT, each byte late
+    by ``delay_s`` in each direction. Runs in its own process (its threads would
+    otherwise share the benchmark's GIL)."""
+    import queue
+    import threading
+
+    srv = socket.create_server(("127.0.0.1", 0))
+    print(srv.getsockname()[1], flush=True)
+
+    def pipe(src: socket.socket, dst: socket.socket) -> None:
+        q: queue.Queue[tuple[float, bytes] | None] = queue.Queue()
+
+        def read() -> None:
+            with contextlib.suppress(OSError):  # a reset at the end of the run
+                while data := src.recv(65536):
+                    q.put((time.monotonic() + delay_s, data))
+            q.put(None)
+
+        def write() -> None:
+            with contextlib.suppress(OSError):
+                while (item := q.get()) is not None:
+                    time.sleep(max(item[0] - time.monotonic(), 0.0))
+                    dst.sendall(item[1])
+                dst.shutdown(socket.SHUT_WR)
+
+        for fn in (read, write):
+            threading.Thread(target=fn, daemon=True).start()
+
+    while True:
+        client, _ = srv.accept()
+        upstream = socket.create_connection(("127.0.0.1", target_port))
+        for sock in (client, upstream):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        pipe(client, upstream)
+        pipe(upstream, client)
+
+
+def start_relay(server: SshServer, delay_ms: float) -> tuple[subprocess.Popen[str], int]:
+    proc = subprocess.Popen([sys.executable, __file__, "--relay-for", str(server.port),
+                             "--delay-ms", str(delay_ms)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    port = int(proc.stdout.readline())
+    key = server.host_key.with_suffix(".pub").read_text().split()
+    with open(server.known_hosts, "a") as f:  # the same host key, seen at the relay port
+        f.write(f"[127.0.0.1]:{port} {key[0]} {key[1]}\n")
+    return proc, port
 
 
 class RawEcho:
-    """The baseline: one bare ``cat`` channel per host, driven by one thread per host."""
+    """The baseline: one bare ``cat`` channel per host, driven the way the fleet drives
+    its agents (write to every host, then read every host), with nothing else."""
 
-    def __init__(self, servers: list[SshServer], frames: list[bytes]) -> None:
+    def __init__(self, servers: list[SshServer], frames: list[bytes],
+                 ports: list[int | None]) -> None:
         self.frames = frames
-        self.chans = [cat_channel(s) for s in servers]
-        self._go = [threading.Event() for _ in self.chans]
-        self._done = [threading.Event() for _ in self.chans]
-        self._stop = False
-        self._threads = [threading.Thread(target=self._run, args=(i,), daemon=True)
-                         for i in range(len(self.chans))]
-        for t in self._threads:
-            t.start()
-
-    def _run(self, i: int) -> None:
-        chan = self.chans[i][1]
-        while True:
-            self._go[i].wait()
-            self._go[i].clear()
-            if self._stop:
-                return
-            for f in self.frames:
-                echo(chan, f)
-            self._done[i].set()
+        self.chans = [cat_channel(s, port) for s, port in zip(servers, ports, strict=True)]
 
     def step(self) -> None:
-        for e in self._go:
-            e.set()
-        for d in self._done:
-            d.wait()
-            d.clear()
+        chans = [c for _, c in self.chans]
+        for f in self.frames:  # observe, then push: two round trips per step
+            for chan in chans:
+                chan.sendall(f)
+            for chan in chans:
+                got = 0
+                while got < len(f):
+                    chunk = chan.recv(len(f) - got)
+                    if not chunk:
+                        raise RuntimeError("cat channel closed")
+                    got += len(chunk)
 
     def close(self) -> None:
-        self._stop = True
-        for e in self._go:
-            e.set()
         for client, chan in self.chans:
             chan.close()
             client.close()
@@ -147,25 +178,38 @@ def main() -> int:
     ap.add_argument("--block", type=int, default=25,
                     help="alternate fleet and raw every BLOCK steps (the machine's load "
                          "drifts; both kinds see the same drift)")
+    ap.add_argument("--delay-ms", type=float, default=0.0,
+                    help="one-way delay added in front of each sshd by a relay process "
+                         "(0: plain loopback, the target's setting)")
+    ap.add_argument("--relay-for", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.relay_for is not None:
+        return relay_main(args.relay_for, args.delay_ms / 1000.0)
     if not sshd_available():
         print("needs /usr/sbin/sshd and ssh-keygen (apt-get install openssh-server)")
         return 2
     frames = reply_frames()
     print(f"bytes per host per step: observe reply {len(frames[0])}, push reply "
           f"{len(frames[1])}; 2 hosts x 2 arms, {args.steps} steps each, blocks of "
-          f"{args.block}")
+          f"{args.block}; one-way delay {args.delay_ms:g} ms; {os.cpu_count()} CPUs, "
+          f"load {os.getloadavg()[0]:.1f}")
+    relays: list[subprocess.Popen[str]] = []
     with tempfile.TemporaryDirectory(prefix="bench-ssh-") as tmp:
         servers = [SshServer(Path(tmp) / f"host{i}") for i in range(2)]
         try:
             for s in servers:
                 s.start()
-            hosts = [host_config(f"cell{i}", s) for i, s in enumerate(servers)]
+            ports: list[int | None] = [None, None]
+            if args.delay_ms > 0:
+                for i, s in enumerate(servers):
+                    proc, ports[i] = start_relay(s, args.delay_ms)
+                    relays.append(proc)
+            hosts = [host_config(f"cell{i}", s, ports[i]) for i, s in enumerate(servers)]
             with HostFleet(hosts, trial_seed=0) as fleet:
                 if not all(st.connected for st in fleet.host_status().values()):
                     raise RuntimeError(f"hosts not connected: {fleet.host_status()}")
                 pushes = dict.fromkeys(fleet.robot_names, 1)
-                raw = RawEcho(servers, frames)
+                raw = RawEcho(servers, frames, ports)
                 try:
                     timed(lambda: fleet_step(fleet, pushes), 100)  # warm up both
                     timed(raw.step, 100)
@@ -180,21 +224,19 @@ def main() -> int:
                         block_ratios.append(statistics.median(f) / statistics.median(r))
                 finally:
                     raw.close()
-            alone = RawEcho(servers[:1], frames)
-            try:
-                timed(alone.step, 100)
-                single = timed(alone.step, 500)
-            finally:
-                alone.close()
         finally:
+            for proc in relays:
+                proc.kill()
+                proc.wait()
             for s in servers:
                 s.stop()
     print(summary("fleet step (observe + execute)", fleet_t))
-    print(summary("raw round trip, 2 hosts at once", raw_t))
-    print(summary("raw round trip, 1 host alone", single))
+    print(summary("raw round trip of the same bytes", raw_t))
+    extra = (statistics.median(fleet_t) - statistics.median(raw_t)) * 1000
     ratio_med = statistics.median(fleet_t) / statistics.median(raw_t)
     ratio_mean = statistics.fmean(fleet_t) / statistics.fmean(raw_t)
-    print(f"overhead ratio: {ratio_med:.3f} (medians), {ratio_mean:.3f} (means), "
+    print(f"controller overhead per step: {extra:.3f} ms (medians)")
+    print(f"ratio fleet/raw: {ratio_med:.3f} (medians), {ratio_mean:.3f} (means), "
           f"{statistics.median(block_ratios):.3f} (median of per-block ratios); "
           f"target <= 1.25")
     return 0

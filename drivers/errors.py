@@ -21,6 +21,10 @@ class ProtocolError(DriverError):
     """A frame or message that breaks the wire protocol (either direction)."""
 
 
+class TruncatedFrame(ProtocolError):
+    """The stream ended inside a frame (the peer died or closed mid-write)."""
+
+
 class LinkClosed(DriverError):
     """The peer closed the byte stream (agent exited, channel or connection gone)."""
 

@@ -138,11 +138,14 @@ class HostFleet:
         then every host's replies are read in order, each with its own deadline."""
         out: dict[int, Outcome] = {}
         inflight: list[tuple[int, HostSession, AgentLink, list[tuple[str, int, float]]]] = []
-        start = time.monotonic()
         try:
-            for i, program in programs.items():
+            # A heartbeat may hold a host's lock for a moment: send to the free hosts
+            # first, then wait for the busy ones, so no host waits for another.
+            busy = [i for i in programs if not self._sessions[i].lock.acquire(blocking=False)]
+            order = [i for i in programs if i not in busy] + busy
+            for i in order:
                 s = self._sessions[i]
-                if not s.lock.acquire(timeout=s.cfg.deadline_s):
+                if i in busy and not s.lock.acquire(timeout=s.cfg.deadline_s):
                     out[i] = _fault(f"host {s.name}: link busy beyond the deadline")
                     continue
                 link = s.link
@@ -152,8 +155,9 @@ class HostFleet:
                     continue
                 sent: list[tuple[str, int, float]] = []
                 inflight.append((i, s, link, sent))
+                start = time.monotonic()
                 try:
-                    for k, (mtype, fields) in enumerate(program):
+                    for k, (mtype, fields) in enumerate(programs[i]):
                         deadline = start + (k + 1) * s.cfg.deadline_s
                         sent.append((mtype, link.send(mtype, deadline, **fields), deadline))
                 except Exception as exc:

@@ -15,7 +15,7 @@ from typing import Any
 
 from drivers import protocol as p
 from drivers.backends.base import ArmOutcome, ArmView
-from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
+from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError, TruncatedFrame
 from drivers.transport import Transport
 from testbed.config import HostConfig
 
@@ -37,9 +37,12 @@ class AgentLink:
         return tuple(a.name for a in self.host.arms)
 
     def _explain(self, exc: LinkClosed | ProtocolError | DeadlineExceeded) -> Exception:
-        wait_until = time.monotonic() + 0.3
-        while self.transport.exit_status() is None and time.monotonic() < wait_until:
-            time.sleep(0.02)  # the agent may be exiting right now; its status helps
+        if isinstance(exc, LinkClosed | TruncatedFrame):
+            # The stream ended: the agent is most likely exiting right now, and its exit
+            # status tells why (a crash, a kill). Wait for it briefly, never long.
+            wait_until = time.monotonic() + 0.2
+            while self.transport.exit_status() is None and time.monotonic() < wait_until:
+                time.sleep(0.005)
         diag = self.transport.diagnostics()
         return type(exc)(f"{exc}\n{diag}" if diag else str(exc))
 

@@ -46,7 +46,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.backends.base import IMAGE_SHAPE, ArmOutcome, ArmView
-from drivers.errors import AgentError, DeadlineExceeded, LinkClosed, ProtocolError
+from drivers.errors import AgentError, DeadlineExceeded, LinkClosed, ProtocolError, TruncatedFrame
 from drivers.png import decode_png, encode_png
 from testbed.types import NUM_ACTIONS
 
@@ -127,7 +127,7 @@ class FrameReader:
             if not chunk:
                 if done == 0 and not buf:
                     raise LinkClosed(f"{self.peer} closed the stream")
-                raise ProtocolError(f"truncated frame from {self.peer}: the stream ended "
+                raise TruncatedFrame(f"truncated frame from {self.peer}: the stream ended "
                                     f"after {done + len(buf)} of {total} bytes")
             buf += chunk
         out = bytes(buf[:n])

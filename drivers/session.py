@@ -157,14 +157,21 @@ class HostSession:
                     f"{retry}): {self.status.error}")
 
     def close(self) -> None:
-        with self._state:
-            self.closed = True
-            link, self.link = self.link, None
-            self.status.connected = False
-        if link is not None:
-            with contextlib.suppress(Exception):
-                link.bye(time.monotonic() + min(self.cfg.deadline_s, 3.0))
-            link.close()
+        """Bye to the agent (it rests its arms and exits), then close; bounded."""
+        locked = self.lock.acquire(timeout=min(self.cfg.deadline_s, 3.0))
+        try:
+            with self._state:
+                self.closed = True
+                link, self.link = self.link, None
+                self.status.connected = False
+            if link is not None:
+                if locked:  # never interleave with a heartbeat on the same stream
+                    with contextlib.suppress(Exception):
+                        link.bye(time.monotonic() + min(self.cfg.deadline_s, 3.0))
+                link.close()
+        finally:
+            if locked:
+                self.lock.release()
 
 
 def _spawn(target: object, name: str) -> None:
@@ -176,7 +183,7 @@ def close_async(link: AgentLink) -> None:
     _spawn(link.close, "link-reaper")
 
 
-def describe(exc: BaseException) -> str:
+def _text(exc: BaseException) -> str:
     if isinstance(exc, AgentError):
         return str(exc)
     if isinstance(exc, DriverError):
@@ -186,7 +193,18 @@ def describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
+def describe(exc: BaseException) -> str:
+    """One line for a Fault's reason (the agent's exit status kept, its stderr not)."""
+    lines = _text(exc).splitlines() or [""]
+    status = [ln for ln in lines[1:] if ln.startswith("agent exited with status")]
+    return "; ".join([lines[0], *status])
+
+
 def remote_traceback(exc: BaseException) -> str:
+    """Everything else: the agent's stderr tail and the (remote, else local) traceback."""
+    extra = "\n".join(_text(exc).splitlines()[1:])
     if isinstance(exc, AgentError) and exc.remote_traceback:
-        return exc.remote_traceback
-    return "".join(traceback.format_exception(exc))
+        tb = exc.remote_traceback
+    else:
+        tb = "".join(traceback.format_exception(exc))
+    return f"{extra}\n{tb}" if extra else tb

@@ -162,15 +162,17 @@ class LocalTransport(Transport):
         if self._due_drain():
             self._drain_stderr()
         while True:
-            timeout = deadline - time.monotonic()
-            if timeout <= 0:
-                raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
+            # Past the deadline, bytes that are already there still count: the fleet
+            # reads hosts one after the other, and a fast host must not pay for a slow one.
+            timeout = max(deadline - time.monotonic(), 0.0)
             ready, _, _ = select.select([fd], [], [], timeout)
             if ready:
                 data = os.read(fd, n)
                 if not data:
                     self._drain_stderr()
                 return data
+            if timeout == 0.0:
+                raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
 
     def write(self, data: bytes, deadline: float) -> None:
         assert self._proc is not None and self._proc.stdin is not None
@@ -239,7 +241,11 @@ class SshTransport(Transport):
         import paramiko  # only the SSH path needs it
 
         h = self.host
-        assert h.known_hosts is not None and h.key_file is not None and h.user is not None
+        if h.known_hosts is None or h.key_file is None or h.user is None:
+            raise TransportError(f"host {h.name}: ssh needs user, key_file and known_hosts")
+        if not argv or not argv[0].startswith("/"):
+            raise TransportError(f"host {h.name}: over ssh the agent's interpreter must be "
+                                 f"an absolute path, got {argv[:1]}")
         where = f"{h.address}:{h.port}"
         client = paramiko.SSHClient()
         try:
@@ -293,10 +299,8 @@ class SshTransport(Transport):
         assert chan is not None
         if self._due_drain():
             self._drain_stderr()
-        timeout = deadline - time.monotonic()
-        if timeout <= 0:
-            raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
-        chan.settimeout(timeout)
+        # Past the deadline, bytes already received still count (see LocalTransport).
+        chan.settimeout(max(deadline - time.monotonic(), 0.0))
         try:
             data: bytes = chan.recv(n)
         except TimeoutError:

@@ -62,8 +62,9 @@ class VideoCaptureCamera:
         for _ in range(self._flush):
             self._cap.grab()
         ok, frame = self._cap.read()
-        if not ok and self._is_file:
-            self._cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+        if not ok and self._is_file:  # at the end of the file: start it again
+            self._cap.release()
+            self._cap = cv2.VideoCapture(self._source)
             ok, frame = self._cap.read()
         if not ok or frame is None or frame.ndim != 3 or frame.shape[2] != 3:
             raise BackendError(f"camera {self._source!r} gave no frame")

@@ -12,9 +12,10 @@ fake on purpose and says so in its name.
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 from drivers.errors import BackendError
 
@@ -42,8 +43,8 @@ class ArmPose:
     """Mechanical unit for RWS reads: ``ROB_L`` or ``ROB_R``."""
     rest_joints_deg: tuple[float, ...]
     """7 joint angles (axis 7, the arm angle, last) of the rest pose out of view."""
-    tool_quat_wxyz: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0)
-    robconf: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 4.0)
+    tool_quat_wxyz: tuple[float, ...] = (0.0, 0.0, 1.0, 0.0)
+    robconf: tuple[float, ...] = (0.0, 0.0, 0.0, 4.0)
     arm_angle_deg: float = 0.0
     tool_z_mm: float = 0.0
 
@@ -64,16 +65,29 @@ class RwsYumiController:
     """The real IRB 14000 through Robot Web Services (abb-motion-program-exec)."""
 
     def __init__(self, base_url: str, arms: Mapping[str, ArmPose], *,
-                 username: str = "Default User", password: str = "robotics") -> None:
+                 username: str = "Default User", password: str = "robotics",
+                 http_timeout_s: float = 5.0, motion_timeout_s: float = 60.0) -> None:
         # Lazy: these clients pull in requests/websockets; only a YuMi host needs them.
         from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 
-        self._mpe = mpe
+        self._mpe: Any = mpe
         self._arms = dict(arms)
-        self._client = mpe.MotionProgramExecClient(base_url=base_url, username=username,
-                                                   password=password)
+        self._motion_timeout_s = motion_timeout_s
+        self._client: Any = mpe.MotionProgramExecClient(base_url=base_url, username=username,
+                                                        password=password)
+        # abb-robot-client issues its HTTP requests without a timeout: a controller that
+        # accepts the connection and never answers would block the agent for ever.
+        session = self._client.abb_client._session
+        plain_request = session.request
 
-    def _program(self, arm: str, waypoints: Sequence[Waypoint]) -> object:
+        def request(method: str, url: str, **kw: Any) -> Any:
+            kw.setdefault("timeout", http_timeout_s)
+            return plain_request(method, url, **kw)
+
+        session.request = request
+
+    def program(self, arm: str, waypoints: Sequence[Waypoint]) -> Any:
+        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read)."""
         mpe = self._mpe
         pose = self._arms[arm]
         tool = mpe.tooldata(True, mpe.pose([0, 0, pose.tool_z_mm], [1, 0, 0, 0]),
@@ -88,7 +102,8 @@ class RwsYumiController:
                 mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6], 9e9, 9e9, 9e9, 9e9, 9e9]),
                             speed, zone)
                 continue
-            assert w.xyz_mm is not None
+            if w.xyz_mm is None:
+                raise BackendError(f"arm {arm}: a {w.kind} waypoint needs a position")
             target = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
                                    mpe.confdata(*pose.robconf), extax)
             (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
@@ -98,21 +113,36 @@ class RwsYumiController:
         arms = [a for a in self._arms if a in programs]
         if not arms:
             return
-        mps = [self._program(a, programs[a]) for a in arms]
+        mps = [self.program(a, programs[a]) for a in arms]
         tasks = [self._arms[a].task for a in arms]
+        client = self._client
         try:
             if len(arms) == 1:
-                self._client.execute_motion_program(mps[0], task=tasks[0])
+                seq = client.execute_motion_program(mps[0], task=tasks[0], wait=False)
             else:
-                self._client.execute_multimove_motion_program(mps, tasks)
+                seq = client.execute_multimove_motion_program(mps, tasks, wait=False)
+            deadline = time.monotonic() + self._motion_timeout_s
+            while client.is_motion_program_running():  # the library's own wait has no limit
+                if time.monotonic() > deadline:
+                    client.stop_motion_program()
+                    raise BackendError(f"motion did not finish within "
+                                       f"{self._motion_timeout_s:g} s; program stopped")
+                time.sleep(0.05)
+            client.read_motion_program_result_log(seq)  # raises on a controller error
+        except BackendError:
+            raise
         except Exception as exc:
             raise BackendError(f"YuMi controller refused the motion program: {exc}") from exc
 
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
         out: dict[str, tuple[float, float, float]] = {}
-        for arm, pose in self._arms.items():
-            rt = self._client.abb_client.get_robtarget(mechunit=pose.mechunit)
-            out[arm] = (float(rt.trans[0]), float(rt.trans[1]), float(rt.trans[2]))
+        try:
+            for arm, pose in self._arms.items():
+                rt = self._client.abb_client.get_robtarget(mechunit=pose.mechunit)
+                out[arm] = (float(rt.trans[0]), float(rt.trans[1]), float(rt.trans[2]))
+        except Exception as exc:
+            raise BackendError(f"cannot read the arms' positions from the YuMi controller: "
+                               f"{exc}") from exc
         return out
 
     def close(self) -> None:
@@ -125,11 +155,13 @@ class FakeYumiController:
     """A FAKE IRB 14000 controller for tests: records programs, moves TCPs instantly.
 
     ``park_in_view(arm, reads)`` makes the next ``reads`` TCP reads report the arm over
-    the table, so the backend's "take the picture again" path can be tested.
+    the table (until it is sent to rest), so the backend's "take the picture again" path
+    can be tested; an arm in ``stuck`` stays in view whatever it is told.
     """
 
     rest_xyz: dict[str, tuple[float, float, float]]
     in_view_xyz: tuple[float, float, float] = (0.0, 0.0, 50.0)
+    stuck: set[str] = field(default_factory=set)
     programs: list[dict[str, list[Waypoint]]] = field(default_factory=list)
     closed: bool = False
     _tcp: dict[str, tuple[float, float, float]] = field(default_factory=dict)
@@ -152,8 +184,11 @@ class FakeYumiController:
             for w in wps:
                 if w.speed_mm_s <= 0:
                     raise BackendError(f"arm {arm}: non-positive speed {w.speed_mm_s}")
-                self._tcp[arm] = self.rest_xyz[arm] if w.kind == "rest" else w.xyz_mm  # type: ignore[assignment]
-            self._in_view_reads.pop(arm, None)
+                if w.kind == "rest":
+                    self._tcp[arm] = self.rest_xyz[arm]
+                    self._in_view_reads.pop(arm, None)
+                elif w.xyz_mm is not None:
+                    self._tcp[arm] = w.xyz_mm
 
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
         out = dict(self._tcp)
@@ -161,6 +196,8 @@ class FakeYumiController:
             if n > 0:
                 out[arm] = self.in_view_xyz
                 self._in_view_reads[arm] = n - 1
+        for arm in self.stuck:
+            out[arm] = self.in_view_xyz
         return out
 
     def close(self) -> None:

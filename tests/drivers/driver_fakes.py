@@ -49,13 +49,14 @@ def ssh_host(name: str, server: SshServer, **kw: Any) -> HostConfig:
                       workdir=str(ROOT), **kw)
 
 
-def wait_until(cond: Callable[[], bool], timeout_s: float, what: str) -> float:
+def wait_until(cond: Callable[[], bool], timeout_s: float, what: str, poll_s: float = 0.02
+               ) -> float:
     """Poll ``cond``; return the seconds it took, fail the test after ``timeout_s``."""
     t0 = time.monotonic()
     while not cond():
         if time.monotonic() - t0 > timeout_s:
             pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.02)
+        time.sleep(poll_s)
     return time.monotonic() - t0
 
 
@@ -143,8 +144,9 @@ class ThreadAgentTransport(Transport):
                 data, close = self._mrep(self._replied, data)
             self._replied += 1
             _write_all(self._a2c_w, data)
-            if close:
+            if close:  # as a real agent whose stdout closes: it is exiting
                 self._reply_closed = True
+                self.rc = -1 if self.rc is None else self.rc
                 os.close(self._a2c_w)
 
         def run() -> None:
@@ -177,11 +179,11 @@ class ThreadAgentTransport(Transport):
 
     def read(self, n: int, deadline: float) -> bytes:
         while True:
-            timeout = deadline - time.monotonic()
-            if timeout <= 0:
-                raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
+            timeout = max(deadline - time.monotonic(), 0.0)
             if select.select([self._a2c_r], [], [], timeout)[0]:
                 return os.read(self._a2c_r, n)
+            if timeout == 0.0:
+                raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
 
     def exit_status(self) -> int | None:
         return self.rc
@@ -212,3 +214,53 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float = 10.0) -> Path
         writer.write(np.ascontiguousarray(f[..., ::-1]))
     writer.release()
     return path
+
+
+# --- the YuMi backend against a fake controller and a video-file camera -------------
+YUMI_SCALE = 4
+"""The twin's cell picture at 4x: 576 x 256 pixels, each workspace 256 x 256."""
+YUMI_CROPS: dict[str, tuple[int, int, int, int]] = {"left": (0, 0, 256, 256),
+                                                    "right": (320, 0, 576, 256)}
+YUMI_HOMOGRAPHY = [[0.0, 1.25, 200.0], [1.25, 0.0, -360.0], [0.0, 0.0, 1.0]]
+"""Camera pixel (u, v) -> robot base (x, y) mm: x = 1.25 v + 200, y = 1.25 u - 360."""
+YUMI_BOXES = {"left": [210.0, -350.0, 510.0, -50.0], "right": [210.0, 50.0, 510.0, 350.0]}
+YUMI_REST = {"left": (100.0, -400.0, 300.0), "right": (100.0, 400.0, 300.0)}
+YUMI_IN_VIEW = (360.0, -200.0, 50.0)
+
+
+def twin_picture(seed: int = 0, cubes: Mapping[str, tuple[float, float]] | None = None
+                 ) -> np.ndarray:
+    """An overhead picture of a twin cell (RGB), cubes placed at canonical positions."""
+    from sim_twin.cell import TwinCell
+
+    with TwinCell(seed, render_scale=YUMI_SCALE) as cell:
+        for arm, xy in (cubes or {}).items():
+            cell.set_arm_state(arm, xy, 0.0, (0.5, 0.5))
+        return cell.picture()
+
+
+def yumi_calibration(arm: str) -> dict[str, Any]:
+    return {"homography": YUMI_HOMOGRAPHY, "table_box_mm": YUMI_BOXES[arm],
+            "z_push_mm": 12.0, "z_travel_mm": 90.0, "max_speed_mm_s": 120.0,
+            "push_speed_mm_s": 40.0,
+            "rest_joints_deg": [0, -130, 30, 0, 40, 0, 135 if arm == "left" else -135]}
+
+
+def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,
+              name: str = "cam") -> tuple[Any, Any]:
+    """A YumiBackend on a FakeYumiController and a video file of ``pictures``."""
+    import json
+
+    from drivers.backends.camera import VideoCaptureCamera
+    from drivers.backends.yumi import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.backends.yumi_controller import FakeYumiController
+
+    video = write_video(tmp_path / f"{name}.avi", list(pictures))
+    setups = []
+    for arm in ("left", "right"):
+        cal = tmp_path / f"{name}-{arm}.json"
+        cal.write_text(json.dumps(yumi_calibration(arm)))
+        setups.append(ArmSetup(arm, YUMI_CROPS[arm], arm == "right",
+                               ArmCalibration.load(cal, arm)))
+    ctrl = FakeYumiController(dict(YUMI_REST), in_view_xyz=YUMI_IN_VIEW)
+    return YumiBackend(setups, VideoCaptureCamera(str(video)), ctrl, seed=seed), ctrl

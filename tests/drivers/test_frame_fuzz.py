@@ -9,6 +9,7 @@ assertion message.
 from __future__ import annotations
 
 import json
+import os
 import re
 import time
 import zlib
@@ -27,7 +28,7 @@ from drivers.png import encode_png
 from testbed.config import HostConfig
 from testbed.types import ArmObservation, Fault, PushResult
 
-CASES = 1000
+CASES = int(os.environ.get("FUZZ_CASES", "1000"))
 DEADLINE_S = 0.4
 STALL_P = 0.006  # a few stalled streams: only the deadline can end those
 
@@ -213,7 +214,7 @@ def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict
     with HostFleet(hosts, reconnect_backoff_s=0.0) as fleet:
         for case in range(CASES):
             wait_until(lambda: fleet.host_status()["bad"].connected, 10,
-                       f"case {case}: reconnect")
+                       f"case {case}: reconnect", poll_s=0.001)
             t0 = time.monotonic()
             use_push = case % 2 == 1
             if use_push:

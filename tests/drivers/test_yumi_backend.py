@@ -1,0 +1,202 @@
+"""The YuMi backend at its boundaries: FakeYumiController and a video-file camera.
+
+The video frames are overhead pictures of a twin cell at 4x (576 x 256), so the
+perception that judges them is the project's own; the calibration maps camera pixels
+to the robot base frame with a known homography, so every waypoint can be checked.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from driver_fakes import (
+    YUMI_BOXES,
+    YUMI_CROPS,
+    YUMI_REST,
+    local_host,
+    make_yumi,
+    twin_picture,
+    write_video,
+    yumi_calibration,
+)
+
+from drivers.backends.base import ArmOutcome
+from drivers.backends.yumi import ArmCalibration, ArmSetup, plan_push
+from drivers.backends.yumi_controller import ArmPose, RwsYumiController, Waypoint
+from drivers.errors import BackendError
+from drivers.fleet import HostFleet
+from testbed.config import ArmConfig
+from testbed.types import MIN_GOAL_DISTANCE, ArmObservation, Fault
+
+
+def setup(arm: str) -> ArmSetup:
+    return ArmSetup(arm, YUMI_CROPS[arm], arm == "right",
+                    ArmCalibration.from_dict(yumi_calibration(arm), arm))
+
+
+def inside_box(arm: str, w: Waypoint) -> bool:
+    x0, y0, x1, y1 = YUMI_BOXES[arm]
+    assert w.xyz_mm is not None
+    return x0 <= w.xyz_mm[0] <= x1 and y0 <= w.xyz_mm[1] <= y1
+
+
+@pytest.mark.parametrize(("arm", "face", "axis", "sign"), [
+    ("left", 3, 1, +1),   # canonical right -> camera u grows -> robot y grows
+    ("left", 2, 0, +1),   # canonical down -> camera v grows -> robot x grows
+    ("right", 3, 1, -1),  # the right arm's crop is mirrored: canonical right is -u
+    ("right", 0, 0, -1),
+])
+def test_push_maps_through_the_calibration(arm: str, face: int, axis: int, sign: int) -> None:
+    wps = plan_push(setup(arm), (0.5, 0.5), 0.0, face)
+    assert [w.kind for w in wps] == ["move_j", "move_l", "move_l", "move_l", "rest"]
+    start, end = wps[1].xyz_mm, wps[2].xyz_mm
+    assert start is not None and end is not None
+    assert sign * (end[axis] - start[axis]) == pytest.approx(0.15 * 256 * 1.25)
+    assert end[1 - axis] == pytest.approx(start[1 - axis])
+    assert wps[1].xyz_mm[2] == wps[2].xyz_mm[2] == 12.0  # type: ignore[index]
+    assert wps[0].xyz_mm[2] == wps[3].xyz_mm[2] == 90.0  # type: ignore[index]
+    assert wps[2].speed_mm_s == 40.0 and all(w.speed_mm_s <= 120.0 for w in wps)
+
+
+def test_push_follows_the_cube_yaw() -> None:
+    wps = plan_push(setup("left"), (0.5, 0.5), math.radians(30), 3)
+    (x0, y0, _), (x1, y1, _) = wps[1].xyz_mm, wps[2].xyz_mm  # type: ignore[misc]
+    assert math.degrees(math.atan2(x1 - x0, y1 - y0)) == pytest.approx(30, abs=1e-6)
+
+
+def test_waypoints_are_clipped_into_the_table_box() -> None:
+    for face in range(4):
+        for centre in [(0.01, 0.01), (0.99, 0.5), (0.5, 0.99), (0.0, 1.0)]:
+            for arm in ("left", "right"):
+                assert all(inside_box(arm, w) for w in plan_push(setup(arm), centre, 0.3,
+                                                                  face)[:4])
+
+
+def test_calibration_errors_name_the_arm_and_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "cal.json"
+    for bad, match in [
+        ({}, "needs 'homography'"),
+        ({**yumi_calibration("left"), "homography": [[1, 0, 0], [2, 0, 0], [0, 0, 1]]},
+         "invertible"),
+        ({**yumi_calibration("left"), "table_box_mm": [5, 0, 1, 9]}, "x_min, y_min"),
+        ({**yumi_calibration("left"), "push_speed_mm_s": 500}, "push_speed_mm_s"),
+        ({**yumi_calibration("left"), "z_push": 3}, "unknown key"),
+        ({**yumi_calibration("left"), "rest_joints_deg": [0, 0]}, "7 angles"),
+    ]:
+        path.write_text(json.dumps(bad))
+        with pytest.raises(BackendError, match=f"arm left: {path}: .*{match}"):
+            ArmCalibration.load(path, "left")
+    with pytest.raises(BackendError, match="cannot read calibration"):
+        ArmCalibration.load(tmp_path / "missing.json", "left")
+
+
+def test_both_arms_move_in_one_program_and_end_at_rest(tmp_path: Path) -> None:
+    backend, ctrl = make_yumi(tmp_path, [twin_picture(3)])
+    backend.observe()
+    out = backend.push({"left": 0, "right": 2})
+    assert set(out) == {"left", "right"}
+    programs = ctrl.programs[-1]
+    assert set(programs) == {"left", "right"}  # one MultiMove call for both arms
+    for arm, wps in programs.items():
+        assert wps[-1].kind == "rest" and all(inside_box(arm, w) for w in wps[:-1])
+    backend.push({"left": 1})
+    assert [w.kind for w in ctrl.programs[-1]["right"]] == ["rest"]  # the other arm waits
+    assert ctrl.tcp_xyz() == YUMI_REST
+    backend.close()
+    assert ctrl.closed
+
+
+def test_a_picture_with_an_arm_in_view_is_taken_again(tmp_path: Path) -> None:
+    backend, ctrl = make_yumi(tmp_path, [twin_picture(0)])
+    ctrl.park_in_view("left", reads=1)
+    n = len(ctrl.programs)
+    views = backend.observe()
+    assert backend.retaken == 1
+    assert ctrl.programs[n] == {"left": [Waypoint("rest", None, 120.0)]}
+    assert not views["left"].violating
+    ctrl.stuck.add("right")
+    with pytest.raises(BackendError, match="no picture without an arm in view"):
+        backend.observe()
+
+
+def test_violation_refusal_and_the_reset_recheck(tmp_path: Path) -> None:
+    out_left = twin_picture(1, {"left": (0.02, 0.5)})
+    back_in = twin_picture(1, {"left": (0.5, 0.45)})
+    # Frames in order: start (cube out), reset check (still out), reset check (back in).
+    backend, ctrl = make_yumi(tmp_path, [out_left, out_left, back_in])
+    views = backend.observe()
+    assert views["left"].violating and not views["right"].violating
+    n = len(ctrl.programs)
+    assert backend.push({"left": 1}) == {"left": ArmOutcome(False, False)}  # refused: no motion
+    assert len(ctrl.programs) == n
+    assert backend.reset(["left"]) == {"left": False}  # the picture says: still out
+    assert backend.reset(["left"]) == {"left": True}  # now it is back
+    goal = backend.observe()["left"].goal
+    assert math.dist(goal, (0.5, 0.45)) >= MIN_GOAL_DISTANCE - 0.02
+
+
+def test_success_is_judged_from_the_picture_and_gives_a_new_goal(tmp_path: Path) -> None:
+    probe, _ = make_yumi(tmp_path, [twin_picture(2, {"left": (0.5, 0.5)})], seed=7,
+                         name="probe")
+    goal = probe.observe()["left"].goal
+    probe.close()
+    start = twin_picture(2, {"left": (0.5, 0.5)})
+    at_goal = twin_picture(2, {"left": goal})
+    backend, _ = make_yumi(tmp_path, [start, at_goal], seed=7)
+    assert backend.observe()["left"].goal == goal  # same seed, same picture: same goal
+    out = backend.push({"left": 0})
+    assert out["left"].success and not out["left"].violation
+    assert backend.observe()["left"].goal != goal  # a soft reset: a new goal
+
+
+def test_goal_is_drawn_into_the_image_like_the_twin(tmp_path: Path) -> None:
+    from testbed import perception
+
+    backend, _ = make_yumi(tmp_path, [twin_picture(4)])
+    v = backend.observe()["right"]
+    found = perception.find_goal(v.image)
+    assert found is not None and math.dist(found, v.goal) < 1.5 / 64
+
+
+def test_rws_adapter_builds_multimove_rapid_without_a_controller(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    poses = {"left": ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135)),
+             "right": ArmPose("T_ROB_R", "ROB_R", (0, -130, 30, 0, 40, 0, -135))}
+    ctrl = RwsYumiController("http://127.0.0.1:1", poses, motion_timeout_s=0.3)
+    wps = plan_push(setup("left"), (0.5, 0.5), 0.0, 3)
+    rapid = ctrl.program("left", wps).get_program_rapid()
+    assert rapid.count("MoveL") == 3 and "MoveJ" in rapid and "MoveAbsJ" in rapid
+    assert "[40,500,5000,1000]" in rapid.replace(" ", "").replace(".0", "")
+    calls: list[tuple[object, ...]] = []
+    client = ctrl._client
+    monkeypatch.setattr(client, "execute_multimove_motion_program",
+                        lambda mps, tasks, wait: calls.append((len(mps), tasks, wait)) or 5)
+    monkeypatch.setattr(client, "is_motion_program_running", lambda: True)
+    monkeypatch.setattr(client, "stop_motion_program", lambda: calls.append(("stop",)))
+    with pytest.raises(BackendError, match=r"did not finish within 0\.3 s"):
+        ctrl.execute({"left": wps, "right": [Waypoint("rest", None, 100.0)]})
+    assert calls == [(2, ["T_ROB_L", "T_ROB_R"], False), ("stop",)]
+
+
+def test_yumi_agent_with_an_unreachable_controller_faults_clearly(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "cam.avi", [twin_picture(0)])
+    arms = []
+    for arm in ("left", "right"):
+        cal = tmp_path / f"{arm}.json"
+        cal.write_text(json.dumps(yumi_calibration(arm)))
+        arms.append(ArmConfig(name=arm, crop=YUMI_CROPS[arm], mirror=arm == "right",
+                              calibration=str(cal)))
+    host = local_host("yumi0", backend="yumi", camera=str(video),
+                      controller_url="http://127.0.0.1:9", arms=arms)
+    with HostFleet([host]) as fleet:
+        assert fleet.host_status()["yumi0"].connected  # the agent started; the robot is away
+        obs = fleet.observe()
+    f = obs["yumi0/left"]
+    assert isinstance(f, Fault) and "cannot read the arms' positions" in f.reason
+    assert "Traceback" in f.traceback
+    assert not isinstance(obs["yumi0/right"], ArmObservation)
+    assert np.all([isinstance(o, Fault) for o in obs.values()])
