@@ -12,8 +12,13 @@ host) and with nothing else: no framing, no agent, no decoding.
 
     ratio = fleet step time / raw round-trip time        (target <= 1.25)
 
-Run: ``.venv/bin/python benchmarks/bench_ssh.py [--steps N]`` (root or any user that can
-run sshd; needs the Debian package openssh-server).
+Fleet and raw steps alternate in blocks (the 2-core test machine is shared and its
+load drifts); medians are the figure to quote. ``--delay-ms D`` puts a relay process
+in front of each sshd that delays every byte by D ms each way, to see the same ratio
+at LAN/WAN latencies (both the fleet and the baseline go through it).
+
+Run: ``.venv/bin/python benchmarks/bench_ssh.py [--steps N] [--delay-ms D]`` (root or
+any user that can run sshd; needs the Debian package openssh-server).
 """
 
 from __future__ import annotations

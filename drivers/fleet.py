@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+import weakref
 from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import Any
 
@@ -55,6 +56,31 @@ def derive_seed(trial_seed: int, host_index: int) -> int:
     return int(state.generate_state(1)[0] & 0x7FFFFFFF)
 
 
+def _keep(sessions: Sequence[HostSession], stop: threading.Event) -> None:
+    """The keeper thread: per host, start a reconnect or a heartbeat when one is due."""
+    while not stop.wait(KEEPER_PERIOD_S):
+        now = time.monotonic()
+        for s in sessions:
+            s.tick(now)
+
+
+def _shutdown(sessions: Sequence[HostSession], stop: threading.Event) -> None:
+    """Close every session in parallel (bounded); also run for a fleet never closed."""
+    stop.set()
+    closers: list[threading.Thread] = []
+    for s in sessions:
+        t = threading.Thread(target=s.close, daemon=True)
+        try:
+            t.start()
+        except RuntimeError:  # no new threads at interpreter shutdown: one by one
+            s.close()
+            continue
+        closers.append(t)
+    deadline = time.monotonic() + 8.0
+    for t in closers:
+        t.join(max(deadline - time.monotonic(), 0.0))
+
+
 def _fault(reason: str, tb: str = "", arm: str | None = None) -> Outcome:
     return ("fault", {"reason": reason, "traceback": tb, "arm": arm})
 
@@ -76,6 +102,9 @@ class HostFleet:
         self._keeper: threading.Thread | None = None
         self._started = False
         self._closed = False
+        # A fleet dropped without close() still says bye to its agents when collected
+        # (the keeper thread holds no reference to the fleet, so it can be collected).
+        self._finalizer = weakref.finalize(self, _shutdown, self._sessions, self._stop)
 
     # -- lifecycle --------------------------------------------------------------------
     def start(self, timeout_s: float | None = None) -> None:
@@ -90,7 +119,8 @@ class HostFleet:
         now = time.monotonic()
         for s in self._sessions:
             s.tick(now)
-        self._keeper = threading.Thread(target=self._keep, name="fleet-keeper", daemon=True)
+        self._keeper = threading.Thread(target=_keep, args=(self._sessions, self._stop),
+                                        name="fleet-keeper", daemon=True)
         self._keeper.start()
         limit = timeout_s if timeout_s is not None else max(
             s.cfg.connect_timeout_s for s in self._sessions) + 5.0
@@ -102,24 +132,12 @@ class HostFleet:
             if not s.status.connected:
                 log.warning("host %s not connected at start: %s", s.name, s.status.error)
 
-    def _keep(self) -> None:
-        while not self._stop.wait(KEEPER_PERIOD_S):
-            now = time.monotonic()
-            for s in self._sessions:
-                s.tick(now)
-
     def close(self) -> None:
         """Say bye to every agent (it rests its arms and exits); bounded time."""
         if self._closed:
             return
         self._closed = True
-        self._stop.set()
-        closers = [threading.Thread(target=s.close, daemon=True) for s in self._sessions]
-        for t in closers:
-            t.start()
-        deadline = time.monotonic() + 8.0
-        for t in closers:
-            t.join(max(deadline - time.monotonic(), 0.0))
+        self._finalizer()
 
     def __enter__(self) -> HostFleet:
         self.start()

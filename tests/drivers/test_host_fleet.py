@@ -187,6 +187,17 @@ def test_close_is_bounded_with_a_frozen_agent() -> None:
     wait_until(lambda: not alive(victim), 10, "the agent to be gone")
 
 
+def test_a_fleet_dropped_without_close_still_stops_its_agents() -> None:
+    import gc
+
+    fleet = HostFleet([local_host("cell0", physics=False)])
+    fleet.start()
+    pid = agent_pids(fleet)["cell0"]
+    del fleet
+    gc.collect()
+    wait_until(lambda: not alive(pid), 10, "the agent of a dropped fleet to exit")
+
+
 def test_local_agent_uses_the_controllers_interpreter_unless_absolute() -> None:
     import sys
 
