@@ -122,7 +122,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def cmd_collect(args: argparse.Namespace) -> int:
     from testbed.humans import make_humans
-    from testbed.offline import collect_demos
+    from testbed.offline import collect_demos, save_transitions
     from testbed.trial import build_hosts
 
     cfg = _config(args)
@@ -136,14 +136,14 @@ def cmd_collect(args: argparse.Namespace) -> int:
     finally:
         hosts.close()
         humans.close()
-    demos.save(Path(args.out))
+    save_transitions(demos, Path(args.out))
     print(f"{len(demos)} state-action pairs -> {args.out}")
     return 0
 
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
     from testbed.humans import make_humans
-    from testbed.offline import Transitions, pretrain
+    from testbed.offline import load_transitions, pretrain
     from testbed.trial import PRETRAIN_SEED, build_hosts, new_learner
 
     cfg = _config(args)
@@ -155,7 +155,7 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
         cfg = cfg.model_copy(
             update={"learning": cfg.learning.model_copy(update={"pretrain_steps": args.steps})}
         )
-    demos = Transitions.load(Path(args.demos))
+    demos = load_transitions(Path(args.demos))
     humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count)
     hosts = build_hosts(cfg, PRETRAIN_SEED)
     learner = new_learner(cfg, PRETRAIN_SEED)

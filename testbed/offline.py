@@ -12,52 +12,53 @@ algorithm of a protocol) start from the same theta_0 without paying for it again
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from testbed.config import FleetConfig, LearningConfig
+from testbed.config import ConfigError, FleetConfig, LearningConfig
 from testbed.fleet import HostsLike
 from testbed.humans import Humans
 from testbed.records import atomic_write_bytes
 from testbed.types import ArmObservation, HumanRequest, InterventionKind
 
+if TYPE_CHECKING:  # the learning package imports torch: only when data is really built
+    from testbed.learning.api import Transitions
+
+FIELDS = ("images", "actions", "next_images", "violation", "success")
+
 Progress = Callable[[str, int, int], None]
 
 
-@dataclass
-class Transitions:
-    """Arrays of pushes: s, a, s', and the push's outcome."""
+def _transitions() -> type[Transitions]:
+    from testbed.learning.api import Transitions
 
-    images: np.ndarray
-    actions: np.ndarray
-    next_images: np.ndarray
-    violation: np.ndarray
-    success: np.ndarray
+    return Transitions
 
-    def __len__(self) -> int:
-        return len(self.actions)
 
-    def save(self, path: Path) -> None:
-        import io
+def save_transitions(t: Transitions, path: Path) -> None:
+    """Offline data as one compressed npz, written atomically."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: getattr(t, k) for k in FIELDS})
+    atomic_write_bytes(path, buf.getvalue())
 
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **self.__dict__)
-        atomic_write_bytes(path, buf.getvalue())
 
-    @classmethod
-    def load(cls, path: Path) -> Transitions:
-        with np.load(path) as z:
-            return cls(**{k: z[k] for k in z.files})
+def load_transitions(path: Path) -> Transitions:
+    with np.load(path) as z:
+        missing = [k for k in FIELDS if k not in z.files]
+        if missing:
+            raise ConfigError(f"{path}: not a transitions file (missing {', '.join(missing)})")
+        return _transitions().build(*(z[k] for k in FIELDS))
 
-    @classmethod
-    def empty(cls) -> Transitions:
-        img = np.zeros((0, 64, 64, 3), np.uint8)
-        return cls(img, np.zeros(0, np.int64), img.copy(), np.zeros(0, bool), np.zeros(0, bool))
+
+def concat(*parts: Transitions) -> Transitions:
+    return _transitions().build(
+        *(np.concatenate([getattr(p, k) for p in parts]) for k in FIELDS)
+    )
 
 
 def _drive(
@@ -111,7 +112,7 @@ def _drive(
         t += 1
         if progress is not None:
             progress(label, min(len(acts), count), count)
-    return Transitions(
+    return _transitions().build(
         np.stack(imgs), np.array(acts, np.int64), np.stack(nxt), np.array(vio), np.array(suc)
     )
 
@@ -170,13 +171,6 @@ def pretrain_key(cfg: FleetConfig, seed: int) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def train_steps(learner: Any, steps: int, progress: Progress | None, label: str) -> None:
-    for k in range(steps):
-        learner.train_step()
-        if progress is not None:
-            progress(label, k + 1, steps)
-
-
 def pretrain(
     learner: Any,
     lc: LearningConfig,
@@ -187,24 +181,20 @@ def pretrain(
     seed: int,
     progress: Progress | None = None,
 ) -> Transitions:
-    """Policy on the demos, then the critics on expert + BC-rollout transitions."""
-    learner.add_human(demos.images, demos.actions)
-    learner.add_transitions(
-        demos.images, demos.actions, demos.next_images, demos.violation, demos.success
-    )
-    half = lc.pretrain_steps // 2
-    train_steps(learner, half, progress, "pretrain policy")
-    rollouts = Transitions.empty()
-    if lc.critic_transitions > 0:
-        rollouts = rollout_policy(
-            hosts, humans, learner, lc.critic_transitions, t_R, seed, progress=progress
-        )
-        learner.add_transitions(
-            rollouts.images,
-            rollouts.actions,
-            rollouts.next_images,
-            rollouts.violation,
-            rollouts.success,
-        )
-    train_steps(learner, lc.pretrain_steps - half, progress, "pretrain critics")
-    return rollouts
+    """Policy on the demos; then the critics on the expert's and the BC rollouts' pushes.
+
+    The safety critic needs violations, which the expert almost never makes: the
+    rollouts of the pretrained (noisy) BC policy supply them (seed 8.3.2).
+    """
+    def phase(name: str) -> Progress | None:
+        if progress is None:
+            return None
+        return lambda _p, done, total: progress(f"pretrain {name}", done, total)
+
+    learner.pretrain(demos.images, demos.actions, steps=lc.pretrain_steps,
+                     progress=phase("policy"))
+    rollouts = rollout_policy(hosts, humans, learner, lc.critic_transitions, t_R, seed,
+                              progress=progress) if lc.critic_transitions > 0 else None
+    data = demos if rollouts is None else concat(demos, rollouts)
+    learner.pretrain(transitions=data, steps=lc.pretrain_steps, progress=phase("critics"))
+    return data

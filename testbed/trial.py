@@ -22,7 +22,14 @@ import numpy as np
 from testbed.config import ConfigError, FleetConfig
 from testbed.fleet import FleetLoop, StepOutcome
 from testbed.humans import Humans, HumansStopRequested, make_humans
-from testbed.offline import Progress, Transitions, collect_demos, pretrain, pretrain_key
+from testbed.offline import (
+    Progress,
+    collect_demos,
+    load_transitions,
+    pretrain,
+    pretrain_key,
+    save_transitions,
+)
 from testbed.priorities import get_algorithm
 from testbed.records import (
     RunWriter,
@@ -88,18 +95,18 @@ def pretrained_learner(
             hosts.start()
             demos_path = cache / "demos.npz"
             if demos_path.exists():
-                demos = Transitions.load(demos_path)
+                demos = load_transitions(demos_path)
             else:
                 demos = collect_demos(
                     hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress
                 )
-                demos.save(demos_path)
+                save_transitions(demos, demos_path)
             learner = new_learner(cfg, PRETRAIN_SEED)
-            rollouts = pretrain(
+            data = pretrain(
                 learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
                 PRETRAIN_SEED, progress,
             )
-            rollouts.save(cache / "rollouts.npz")
+            save_transitions(data, cache / "transitions.npz")
             learner.save(ckpt)
         finally:
             try:

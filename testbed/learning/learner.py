@@ -185,12 +185,13 @@ class Learner:
         ``cfg.batch_size``. A part with no data is skipped and its key left out:
         ``policy_loss`` (mean cross-entropy over members), ``safety_loss``, ``goal_loss``
         (TD losses, BCE)."""
+        steps = self.cfg.gradient_steps
         with self._lock:
             sums: dict[str, float] = {}
-            for _ in range(self.cfg.gradient_steps):
+            for _ in range(steps):
                 for key, value in self._one_step().items():
                     sums[key] = sums.get(key, 0.0) + value
-            return {k: v / self.cfg.gradient_steps for k, v in sums.items()}
+            return {k: v / steps for k, v in sums.items()}
 
     def _one_step(self) -> dict[str, float]:
         losses: dict[str, float] = {}

@@ -28,7 +28,8 @@ class ImageInput(nn.Module):
     """
 
     def forward(self, images: Tensor) -> Tensor:
-        return images.permute(0, 3, 1, 2).float().sub(127.5).mul(1.0 / 127.5)
+        x = images.permute(0, 3, 1, 2).float()  # a new tensor: safe to scale in place
+        return x.mul_(1.0 / 127.5).sub_(1.0)
 
 
 def conv_trunk() -> nn.Sequential:

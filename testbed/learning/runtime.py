@@ -54,8 +54,8 @@ def resolve_device(requested: Literal["auto", "cpu", "cuda"]) -> torch.device:
 
 
 def resolve_impl(impl: EnsembleImpl, device: torch.device) -> Literal["loop", "vmap"]:
-    """``auto``: the loop on CPU (measured: benchmarks/bench_training.py, about 2-8x faster
-    on 2 cores); vmap on CUDA, where fewer and larger kernels usually win (not measured
+    """``auto``: the loop on CPU (measured: benchmarks/bench_training.py, about 3x faster
+    than vmap on 2 cores); vmap on CUDA, where fewer and larger kernels usually win (not measured
     here: re-run the benchmark on the GPU machine and adjust this line if it says so)."""
     if impl == "auto":
         return "vmap" if device.type == "cuda" else "loop"

@@ -61,21 +61,25 @@ class Batch:
 
 
 def transitions(n: int, rng: np.random.Generator, expert_fraction: float = 0.5,
-                cube_x: tuple[float, float] = (LO, HI)) -> Batch:
-    """States with the cube in the workspace (x in ``cube_x``) and a goal 0.05-0.35 away;
-    actions from the expert with probability ``expert_fraction``, else uniform."""
-    cube = np.stack([rng.uniform(*cube_x, n), rng.uniform(LO, HI, n)], axis=1)
-    angle = rng.uniform(0, 2 * np.pi, n)
-    radius = rng.uniform(0.05, 0.35, n)
-    goal = np.clip(cube + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1),
-                   LO + 0.03, HI - 0.03)
-    actions = np.where(rng.random(n) < expert_fraction, expert(cube, goal),
+                goal: tuple[float, float] | None = None) -> Batch:
+    """States with the cube anywhere in the workspace and the goal at ``goal`` (default:
+    0.05-0.35 from the cube in a random direction); actions from the expert with
+    probability ``expert_fraction``, else uniform."""
+    cube = rng.uniform(LO, HI, (n, 2))
+    if goal is None:
+        angle = rng.uniform(0, 2 * np.pi, n)
+        radius = rng.uniform(0.05, 0.35, n)
+        offset = radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
+        goals = np.clip(cube + offset, LO + 0.03, HI - 0.03)
+    else:
+        goals = np.tile(np.asarray(goal, dtype=float), (n, 1))
+    actions = np.where(rng.random(n) < expert_fraction, expert(cube, goals),
                        rng.integers(0, 4, n))
     nxt = cube + STEP * DIRS[actions] + rng.normal(0, 0.01, (n, 2))
     violation = ((nxt < LO) | (nxt > HI)).any(axis=1)
-    success = ~violation & (np.linalg.norm(nxt - goal, axis=1) < SUCCESS_RADIUS)
-    return Batch(render(cube, goal), actions.astype(np.int64), render(nxt, goal),
-                 violation, success, cube, goal)
+    success = ~violation & (np.linalg.norm(nxt - goals, axis=1) < SUCCESS_RADIUS)
+    return Batch(render(cube, goals), actions.astype(np.int64), render(nxt, goals),
+                 violation, success, cube, goals)
 
 
 def roc_auc(scores: np.ndarray, labels: np.ndarray) -> float:

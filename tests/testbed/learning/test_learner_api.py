@@ -196,3 +196,25 @@ def test_import_testbed_does_not_import_torch() -> None:
     code = ("import sys, testbed, testbed.config, testbed.types; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_loop_and_vmap_compute_the_same() -> None:
+    loop, vmap = filled(0), Learner(SMALL, 0, impl="vmap")
+    assert loop.impl == "loop" and vmap.impl == "vmap"
+    b = transitions(40, np.random.default_rng(0))
+    vmap.add_human(b.images[:20], b.actions[:20])
+    vmap.add_transitions(b.images, b.actions, b.next_images, b.violation, b.success)
+    images = transitions(5, np.random.default_rng(4)).images
+    assert np.allclose(loop.act(images).probs, vmap.act(images).probs, atol=1e-6)
+    a, v = loop.train_step(), vmap.train_step()
+    assert a.keys() == v.keys()
+    assert all(abs(a[k] - v[k]) < 1e-4 for k in a)
+    for p, q in zip(params(loop), params(vmap), strict=True):
+        assert torch.allclose(p, q, atol=1e-5)
+
+
+def test_no_gradient_steps_is_a_no_op() -> None:
+    learner = filled(0, SMALL.model_copy(update={"gradient_steps": 0}))
+    before = params(learner)
+    assert learner.train_step() == {}
+    assert same(before, params(learner))
