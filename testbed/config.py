@@ -205,4 +205,4 @@ def default_twin_config() -> FleetConfig:
     Pretraining is sized for a 2-core laptop (a few minutes); the paper-scale
     hyperparameters live in ``protocols/*.toml``.
     """
-    return FleetConfig(learning=LearningConfig(pretrain_steps=300, critic_transitions=1000))
+    return FleetConfig(learning=LearningConfig(pretrain_steps=120, critic_transitions=400))

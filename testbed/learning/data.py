@@ -32,7 +32,7 @@ from torch import Tensor
 
 from testbed.learning.api import Transitions
 from testbed.learning.augment import augment_copies
-from testbed.learning.runtime import STREAM_AUGMENT, generator
+from testbed.learning.runtime import STREAM_AUGMENT, derive_seed
 from testbed.types import IMAGE_SIZE
 
 IMAGE_SHAPE = (IMAGE_SIZE, IMAGE_SIZE, 3)
@@ -80,7 +80,7 @@ class PolicyData:
         self.factor = factor
         self.seed = seed
         self._store = self._new_store()
-        self._chunks: list[int] = []  # sizes of the add() calls, in order
+        self._chunks: list[tuple[int, int, str]] = []  # (size, seed, digest) per add()
 
     def _new_store(self, capacity: int = 256) -> _Growable:
         return _Growable({
@@ -92,16 +92,21 @@ class PolicyData:
     def __len__(self) -> int:
         return self._store.size
 
-    def add(self, images: np.ndarray, actions: np.ndarray) -> None:
-        """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,)."""
+    def add(self, images: np.ndarray, actions: np.ndarray, chunk_seed: int | None = None
+            ) -> None:
+        """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,). The copies
+        and bootstrap weights come from ``chunk_seed`` (default: derived from the data's
+        seed and the chunk's index)."""
         n = int(images.shape[0])
         if n == 0:
             return
-        gen = generator(self.seed, STREAM_AUGMENT, len(self._chunks))
+        if chunk_seed is None:
+            chunk_seed = derive_seed(self.seed, STREAM_AUGMENT, len(self._chunks))
+        gen = torch.Generator().manual_seed(chunk_seed)
         copies = augment_copies(torch.from_numpy(images), self.factor, gen)
         weights = torch.poisson(torch.ones(n, self.ensemble_size), generator=gen)
         self._store.append(images=copies, actions=torch.from_numpy(actions), weights=weights)
-        self._chunks.append(n)
+        self._chunks.append((n, chunk_seed, _digest(copies)))
 
     def sample(self, batch: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
         """Per-member bootstrap minibatches: images (E, B, 64, 64, 3), actions (E, B)."""
@@ -120,29 +125,39 @@ class PolicyData:
         return self._store["images"][index, copy], self._store["actions"][index]
 
     def state_dict(self) -> dict[str, Any]:
-        images = self._store["images"]
+        """Originals, weights and per-chunk (size, seed, digest of the copies): the copies
+        themselves are re-made on load (a checkpoint ~10x smaller, no hashing at save)."""
         return {
-            "originals": images[:, 0].clone(),
+            "originals": self._store["images"][:, 0].clone(),
             "actions": self._store["actions"].clone(),
             "weights": self._store["weights"].clone(),
-            "chunks": list(self._chunks),
-            "digest": _digest(images),
+            "chunks": [list(c) for c in self._chunks],
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> bool:
-        """Rebuild from originals; returns whether the re-made copies match the digest."""
+        """Rebuild from originals; returns whether the re-made copies match the digests."""
         originals = state["originals"].numpy()
         actions = state["actions"].numpy()
         start = 0
         self._store = self._new_store(capacity=max(256, originals.shape[0]))
         self._chunks = []
-        for size in state["chunks"]:
-            self.add(originals[start : start + size], actions[start : start + size])
+        same = True
+        for i, chunk in enumerate(state["chunks"]):
+            # older checkpoints stored the size alone (seed derived from the data's seed),
+            # or (size, seed) with one digest of all the copies
+            entry = [chunk] if isinstance(chunk, int) else list(chunk)
+            size = int(entry[0])
+            seed = int(entry[1]) if len(entry) > 1 else derive_seed(self.seed, STREAM_AUGMENT, i)
+            self.add(originals[start : start + size], actions[start : start + size], seed)
+            if len(entry) > 2:
+                same = same and self._chunks[-1][2] == entry[2]
             start += size
         if start != originals.shape[0]:
             raise ValueError("policy data: chunk sizes do not add up to the stored images")
         self._store["weights"].copy_(state["weights"])
-        return _digest(self._store["images"]) == state["digest"]
+        if "digest" in state:
+            same = same and _digest(self._store["images"]) == state["digest"]
+        return same
 
 
 class TransitionBuffer:

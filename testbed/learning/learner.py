@@ -264,6 +264,18 @@ class Learner:
                     result[key] = float(np.mean(values)) if values else float("nan")
         return result
 
+    def reseed(self, seed: int) -> None:
+        """Give this learner a new seed for everything random from now on (minibatches,
+        augmentation and bootstrap weights of new data); weights and data are kept.
+
+        Why: every trial of a protocol starts from the same pretrained theta_0 (loaded
+        from one checkpoint), and each trial's seed must still make its own training
+        reproducible and distinct."""
+        with self._lock:
+            self.seed = int(seed)
+            self._sampler = generator(self.seed, STREAM_SAMPLE)
+            self.policy_data.seed = self.seed
+
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
         """Everything a resumed trial needs to continue exactly."""

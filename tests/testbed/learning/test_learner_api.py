@@ -218,3 +218,22 @@ def test_no_gradient_steps_is_a_no_op() -> None:
     before = params(learner)
     assert learner.train_step() == {}
     assert same(before, params(learner))
+
+
+def test_reseed_keeps_weights_and_makes_trials_distinct(tmp_path: Path) -> None:
+    theta0 = filled(0).save(tmp_path / "theta0.pt")
+    more = transitions(6, np.random.default_rng(5))
+    runs = {}
+    for name, seed in (("a", 11), ("b", 11), ("c", 12)):
+        learner = Learner.load(theta0)
+        learner.reseed(seed)
+        learner.add_human(more.images, more.actions)
+        learner.train_step()
+        runs[name] = learner
+    assert same(params(runs["a"]), params(runs["b"]))
+    assert not same(params(runs["a"]), params(runs["c"]))
+    # a reseeded learner's checkpoint resumes exactly (the chunks keep their own seeds)
+    resumed = Learner.load(runs["a"].save(tmp_path / "a.pt"))
+    for x in (runs["a"], resumed):
+        x.train_step()
+    assert same(params(runs["a"]), params(resumed))
