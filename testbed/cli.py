@@ -9,15 +9,13 @@ argument (one line naming the field and the fix, never a traceback), 130 Ctrl-C.
 from __future__ import annotations
 
 import argparse
-import os
-import signal
 import sys
-import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 from testbed.config import ConfigError, FleetConfig, load_config
+from testbed.interrupts import EXIT_INTERRUPTED, INTERRUPTS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -112,35 +110,13 @@ def build_parser() -> argparse.ArgumentParser:
     return root
 
 
-class _Interrupts:
-    """First Ctrl-C: stop gracefully (rest pose, records closed) within 5 s; second: now."""
-
-    def __init__(self) -> None:
-        self.count = 0
-
-    def install(self) -> None:
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGINT, self._handler)
-            signal.signal(signal.SIGTERM, self._handler)
-
-    def _handler(self, signum: int, frame: Any) -> None:
-        self.count += 1
-        if self.count > 1:
-            os._exit(130)
-        # A watchdog keeps the promise of 5 s even if a host does not answer its rest.
-        timer = threading.Timer(4.5, lambda: os._exit(130))
-        timer.daemon = True
-        timer.start()
-        raise KeyboardInterrupt
-
-
 def _config(args: argparse.Namespace) -> FleetConfig:
     return load_config(getattr(args, "config", None))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    _Interrupts().install()
+    INTERRUPTS.install()
     verbs: dict[str, Callable[[argparse.Namespace], int]] = {}
     from testbed import commands
 
@@ -152,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         sys.stderr.write("testbed: interrupted; arms at rest, records closed\n")
-        return 130
+        return EXIT_INTERRUPTED
 
 
 def run() -> None:  # pragma: no cover - console-script shim

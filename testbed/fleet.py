@@ -26,6 +26,7 @@ import numpy as np
 
 from testbed.allocation import Allocator
 from testbed.humans import Humans
+from testbed.interrupts import critical
 from testbed.priorities import Algorithm, PrioritySignals
 from testbed.records import RunWriter
 from testbed.types import (
@@ -229,7 +230,8 @@ class FleetLoop:
 
         row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
                        np.asarray(out.risk), keys, pushes)
-        self.writer.write_step(row)
+        with critical():
+            self.writer.write_step(row)
         self._count(row)
         self._remember(observations, modes, results, pushes, images)
         if self.algorithm.learns:

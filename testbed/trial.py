@@ -22,6 +22,7 @@ import numpy as np
 from testbed.config import ConfigError, FleetConfig
 from testbed.fleet import FleetLoop, StepOutcome
 from testbed.humans import Humans, HumansStopRequested, make_humans
+from testbed.interrupts import critical
 from testbed.offline import (
     Progress,
     collect_demos,
@@ -160,21 +161,25 @@ def run_trial(
         if own_hosts:
             hosts.start()
         if state is not None:
-            learner = load_learner(cfg, run.learner)
+            learner = load_learner(cfg, run.path / state["learner"])
             algorithm.load_state_dict(state["algorithm"])
         elif opts.policy is not None:
             learner = load_learner(cfg, Path(opts.policy))
         else:
             learner, _ = pretrained_learner(cfg, humans, Path(opts.out), progress)
-        if state is None:
-            learner.save(run.learner)
-        if hasattr(learner, "reseed") and state is None:
+        if state is None:  # the trial seed, not theta_0's, drives sampling from here on
             learner.reseed(opts.seed)
         writer = RunWriter(run.path)
 
         def checkpoint(t: int) -> None:
-            learner.save(run.learner)
-            atomic_write_json(run.state, {"t": t, "algorithm": algorithm.state_dict()})
+            # Two alternating learner files: state.json, written last, names the one that
+            # matches it, so a kill between the two writes leaves a consistent pair.
+            name = f"learner-{t % 2}.pt"
+            with critical():
+                learner.save(run.path / name)
+                atomic_write_json(
+                    run.state, {"t": t, "learner": name, "algorithm": algorithm.state_dict()}
+                )
 
         loop = FleetLoop(
             hosts=hosts,
@@ -197,6 +202,8 @@ def run_trial(
                 break
             if on_step is not None:
                 on_step(outcome)
+        with critical():
+            learner.save(run.learner)  # the trained policy: testbed evaluate --policy
     finally:
         if loop is not None:
             loop.close()

@@ -3,10 +3,10 @@
 Why augmented copies are stored, not made on the fly: a training step draws 5 x 256
 policy images; augmenting them per step would cost ~0.1 s on top of a ~0.5 s step,
 while storing the 10 copies costs ~20 augmented images per fleet step (milliseconds)
-and 120 KiB per labelled image in memory. Storing also makes each copy a fixed function
-of (learner seed, chunk), so a checkpoint needs only the originals: ``PolicyData``
-re-creates the copies on load, chunk by chunk with the same generators, and checks a
-digest of the result (a 250-step trial's checkpoint stays ~10x smaller).
+and 120 KiB per labelled image in memory. Each ``add`` call is a chunk whose copies are
+a fixed function of the chunk's seed, so a checkpoint holds only the originals (its
+policy data 10x smaller): ``PolicyData`` re-creates the copies on load, chunk by chunk,
+and compares each chunk's digest, taken when it was added.
 
 Bootstrap: each labelled image gets one Poisson(1) weight per member when it arrives
 (the online bootstrap of Oza and Russell); a member samples its minibatches in

@@ -245,7 +245,7 @@ class Learner:
 
         Call it once with both, or once per phase. ``steps`` defaults to
         ``cfg.pretrain_steps``. Returns the mean losses over the last 20 steps of each
-        phase run.
+        phase run (no key for a phase that ran no step).
         """
         total = self.cfg.pretrain_steps if steps is None else int(steps)
         if (demo_images is None) != (demo_actions is None):
@@ -255,13 +255,14 @@ class Learner:
             if demo_images is not None:
                 self.add_human(demo_images, demo_actions)  # type: ignore[arg-type]
                 tail = [self._policy_update() for _ in _ticks("policy", total, progress)]
-                result["policy_loss"] = float(np.mean(tail[-20:])) if tail else float("nan")
+                if tail:
+                    result["policy_loss"] = float(np.mean(tail[-20:]))
             if transitions is not None:
                 self.transitions.add(transitions)
                 tail_c = [self._critic_update() for _ in _ticks("critics", total, progress)]
                 for key in ("safety_loss", "goal_loss"):
-                    values = [d[key] for d in tail_c[-20:]]
-                    result[key] = float(np.mean(values)) if values else float("nan")
+                    if tail_c:
+                        result[key] = float(np.mean([d[key] for d in tail_c[-20:]]))
         return result
 
     def reseed(self, seed: int) -> None:

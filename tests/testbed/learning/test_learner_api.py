@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -237,3 +238,29 @@ def test_reseed_keeps_weights_and_makes_trials_distinct(tmp_path: Path) -> None:
     for x in (runs["a"], resumed):
         x.train_step()
     assert same(params(runs["a"]), params(resumed))
+
+
+def test_remade_copies_are_checked(tmp_path: Path) -> None:
+    learner = filled(0)
+    state = learner.state_dict()
+    state["policy_data"]["chunks"][0][2] = "0" * 32
+    ckpt.save_atomic(state, tmp_path / "tampered.pt")
+    with pytest.warns(RuntimeWarning, match="not bit-exact"):
+        Learner.load(tmp_path / "tampered.pt")
+
+
+def test_loads_checkpoints_that_stored_chunk_sizes_only(tmp_path: Path) -> None:
+    from testbed.learning.data import _digest
+
+    learner = filled(0)
+    state = learner.state_dict()
+    data = state["policy_data"]
+    data["chunks"] = [c[0] for c in data["chunks"]]  # the first format: sizes, one digest
+    data["digest"] = _digest(learner.policy_data._store["images"])
+    ckpt.save_atomic(state, tmp_path / "v1.pt")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = Learner.load(tmp_path / "v1.pt")
+    for x in (learner, loaded):
+        x.train_step()
+    assert same(params(learner), params(loaded))
