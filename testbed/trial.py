@@ -9,6 +9,7 @@ the records are closed, and it checkpoints every complete step so that
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -19,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from testbed.checkpoints import CheckpointWriter
 from testbed.config import ConfigError, FleetConfig
 from testbed.fleet import FleetLoop, StepOutcome
 from testbed.humans import Humans, HumansStopRequested, make_humans
@@ -156,6 +158,7 @@ def run_trial(
     if own_hosts:
         hosts = build_hosts(cfg, opts.seed + (start * 7919 if start else 0))
     loop: FleetLoop | None = None
+    checkpoints: CheckpointWriter | None = None
     writer: RunWriter | None = None
     try:
         if own_hosts:
@@ -171,15 +174,10 @@ def run_trial(
             learner.reseed(opts.seed)
         writer = RunWriter(run.path)
 
+        checkpoints = CheckpointWriter(run.path)
+
         def checkpoint(t: int) -> None:
-            # Two alternating learner files: state.json, written last, names the one that
-            # matches it, so a kill between the two writes leaves a consistent pair.
-            name = f"learner-{t % 2}.pt"
-            with critical():
-                learner.save(run.path / name)
-                atomic_write_json(
-                    run.state, {"t": t, "learner": name, "algorithm": algorithm.state_dict()}
-                )
+            checkpoints.submit(t, learner, {"algorithm": algorithm.state_dict()})
 
         loop = FleetLoop(
             hosts=hosts,
@@ -202,9 +200,13 @@ def run_trial(
                 break
             if on_step is not None:
                 on_step(outcome)
+        checkpoints.wait()
         with critical():
             learner.save(run.learner)  # the trained policy: testbed evaluate --policy
     finally:
+        if checkpoints is not None:
+            with contextlib.suppress(RuntimeError):
+                checkpoints.wait()
         if loop is not None:
             loop.close()
         if writer is not None:
