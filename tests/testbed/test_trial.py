@@ -141,3 +141,54 @@ def test_ctrl_c_rests_arms_and_closes_records_within_5s(workdir: Path) -> None:
     assert "interrupted" in err
     steps = read_steps(run / "steps.jsonl")  # no torn line: the records were closed
     assert len(steps) >= 3
+
+
+@pytest.mark.slow
+def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdir: Path) -> None:
+    proto = {
+        "name": "mini",
+        "trials": 2,
+        "algorithms": ["bc", "cur"],
+        "steps": 6,
+        "seeds": [5, 6],
+        "out": "proto",
+        "fleet": SMALL,
+    }
+    (workdir / "mini.toml").write_text(tomli_w.dumps(proto))
+    proc = _cli("protocol", "mini.toml", "--yes", cwd=workdir)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = workdir / "proto"
+    runs = sorted(p.name for p in out.iterdir() if (p / "steps.jsonl").exists())
+    assert runs == ["bc-t0", "bc-t1", "cur-t0", "cur-t1"]
+    md = (out / "report.md").read_text()
+    rows = [ln for ln in md.splitlines() if ln.startswith("| bc ") or ln.startswith("| cur ")]
+    assert len(rows) == 2 and all("| 2 |" in r for r in rows)
+    csv_lines = (out / "report.csv").read_text().splitlines()
+    assert csv_lines[0].startswith("algorithm,trials,successes_mean,successes_std")
+    png = (out / "curves.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    # BC gives humans hard resets only: it never teleoperates
+    for s in read_steps(out / "bc-t0" / "steps.jsonl"):
+        assert all(r["mode"] != "teleop" for r in s["robots"])
+
+    ev = _cli("evaluate", "--config", "small.toml", "--policy", str(out / "cur-t0" / "learner.pt"),
+              "--steps", "5", "--out", "evals", "--name", "e", cwd=workdir)
+    assert ev.returncode == 0, ev.stderr[-3000:]
+    steps = read_steps(workdir / "evals" / "e" / "steps.jsonl")
+    assert len(steps) == 5
+    assert all(r["mode"] in ("autonomous", "reset", "idle") for s in steps for r in s["robots"])
+
+    rep = _cli("report", str(out), str(workdir / "evals"), "--out", "both", cwd=workdir)
+    assert rep.returncode == 0, rep.stderr[-3000:]
+    assert (workdir / "both" / "report.md").exists()
+
+
+def test_check_preflights_every_arm_and_writes_a_mosaic(workdir: Path) -> None:
+    proc = _cli("check", "--config", "small.toml", "--mosaic", "m.png", cwd=workdir)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    ok_lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("ok ")]
+    assert len(ok_lines) == 4
+    import cv2
+
+    img = cv2.imread(str(workdir / "m.png"))
+    assert img is not None and img.shape == (256, 1024, 3)
