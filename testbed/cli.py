@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 from typing import NoReturn
 
-from testbed.config import ConfigError, FleetConfig, load_config
+from testbed.config import ConfigError
 from testbed.interrupts import EXIT_INTERRUPTED, INTERRUPTS
 
 
@@ -110,19 +109,13 @@ def build_parser() -> argparse.ArgumentParser:
     return root
 
 
-def _config(args: argparse.Namespace) -> FleetConfig:
-    return load_config(getattr(args, "config", None))
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     INTERRUPTS.install()
-    verbs: dict[str, Callable[[argparse.Namespace], int]] = {}
-    from testbed import commands
+    from testbed.commands import VERBS  # imported after parsing: keeps --help fast
 
-    verbs = commands.VERBS
     try:
-        return verbs[args.verb](args)
+        return VERBS[args.verb](args)
     except ConfigError as exc:
         sys.stderr.write(f"testbed {args.verb}: {exc}\n")
         return 2
@@ -131,12 +124,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
 
 
-def run() -> None:  # pragma: no cover - console-script shim
-    raise SystemExit(main())
-
-
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())
-
-
-__all__ = ["Path", "build_parser", "main"]

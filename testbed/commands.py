@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -181,5 +180,3 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "collect": cmd_collect,
     "pretrain": cmd_pretrain,
 }
-
-__all__ = ["VERBS", "sys"]
