@@ -16,7 +16,6 @@ object, a ``Humans`` and a ``Learner`` only through their small APIs.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -123,7 +122,6 @@ class FleetLoop:
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
         self._after_step = after_step
         self.status = FleetStatus(t=0, steps=steps)
-        self.stop_event = threading.Event()
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
