@@ -9,7 +9,7 @@ Rules kept here (DESIGN.md section 8):
 
 * The agent's command line is a fixed argv built by :func:`agent_argv`; over SSH every
   word is quoted with ``shlex.quote`` (the remote side always runs a shell), so no config
-  value is ever interpolated into a shell string. No ``shell=True`` anywhere.
+  value is ever interpolated into a shell string; no local shell is ever started.
 * SSH: host key checked against the host's configured known_hosts file only; an unknown
   key is refused (a ``RejectPolicy``) with a message naming the host and the file; key
   auth only (no passwords, no ssh-agent, no ~/.ssh key search); TCP_NODELAY on the
