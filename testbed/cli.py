@@ -93,7 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--demos", required=True, metavar="NPZ")
     p.add_argument("--humans", choices=["scripted", "gui"])
-    p.add_argument("--steps", type=int, help="gradient steps (default: config)")
+    p.add_argument("--steps", type=int,
+                   help="gradient steps of each phase, policy and critics (default: config)")
     p.add_argument("--out", default="learner.pt", metavar="PT")
 
     p = sub.add_parser("evaluate", help="a trained policy alone, humans for hard resets only",

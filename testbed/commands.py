@@ -152,7 +152,8 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
         if args.steps < 0:
             raise ConfigError("--steps: must be >= 0")
         cfg = cfg.model_copy(
-            update={"learning": cfg.learning.model_copy(update={"pretrain_steps": args.steps})}
+            update={"learning": cfg.learning.model_copy(
+                update={"pretrain_steps": args.steps, "critic_pretrain_steps": None})}
         )
     demos = load_transitions(Path(args.demos))
     humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count)

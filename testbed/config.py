@@ -121,9 +121,19 @@ class LearningConfig(_Strict):
     demos: int = Field(375, ge=1, description="offline state-action pairs")
     critic_transitions: int = Field(1000, ge=0, description="BC rollouts for the critics")
     pretrain_steps: int = Field(300, ge=0)
+    critic_pretrain_steps: int | None = Field(
+        None, ge=0, description="critics' offline steps; None: pretrain_steps. The seed "
+        "trains them 3000 steps; the goal critic needs ~600 at batch 64 (docs/notes)")
     gamma_safe: float = Field(0.5, ge=0, le=1)
     gamma_goal: float = Field(0.999, ge=0, le=1)
     device: Literal["auto", "cpu", "cuda"] = "auto"
+
+
+    @property
+    def critic_steps(self) -> int:
+        """The critics' offline gradient steps (``critic_pretrain_steps`` if set)."""
+        return self.pretrain_steps if self.critic_pretrain_steps is None else (
+            self.critic_pretrain_steps)
 
 
 class TrialConfig(_Strict):

@@ -196,5 +196,5 @@ def pretrain(
     rollouts = rollout_policy(hosts, humans, learner, lc.critic_transitions, t_R, seed,
                               progress=progress) if lc.critic_transitions > 0 else None
     data = demos if rollouts is None else concat(demos, rollouts)
-    learner.pretrain(transitions=data, steps=lc.pretrain_steps, progress=phase("critics"))
+    learner.pretrain(transitions=data, steps=lc.critic_steps, progress=phase("critics"))
     return data

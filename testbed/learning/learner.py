@@ -245,9 +245,11 @@ class Learner:
 
         Call it once with both, or once per phase. ``steps`` defaults to
         ``cfg.pretrain_steps``. Returns the mean losses over the last 20 steps of each
-        phase run (no key for a phase that ran no step).
+        phase run (no key for a phase that ran no step). With ``steps`` None the critics
+        take ``cfg.critic_steps`` (``critic_pretrain_steps``, else ``pretrain_steps``).
         """
         total = self.cfg.pretrain_steps if steps is None else int(steps)
+        critic_total = self.cfg.critic_steps if steps is None else int(steps)
         if (demo_images is None) != (demo_actions is None):
             raise ValueError("pretrain needs demo_images and demo_actions together")
         result: dict[str, float] = {}
@@ -259,7 +261,8 @@ class Learner:
                     result["policy_loss"] = float(np.mean(tail[-20:]))
             if transitions is not None:
                 self.transitions.add(transitions)
-                tail_c = [self._critic_update() for _ in _ticks("critics", total, progress)]
+                tail_c = [self._critic_update()
+                          for _ in _ticks("critics", critic_total, progress)]
                 for key in ("safety_loss", "goal_loss"):
                     if tail_c:
                         result[key] = float(np.mean([d[key] for d in tail_c[-20:]]))

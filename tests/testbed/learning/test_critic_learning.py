@@ -7,9 +7,9 @@ with the configured discounts (gamma_safe 0.5, gamma_goal 0.999); their scores o
 transitions, Q_risk(s, a) and Q_goal(s, a) at the logged action, must give a ROC AUC of at
 least 0.8 for "violation at the next step" and "success at the next step".
 
-With goals anywhere (``transitions(goal=None)``) success depends on where the goal is
-relative to the cube; the goal critic then needs ~1000 steps at batch 128 to reach an AUC
-of ~0.76 (docs/notes/learning.md), too slow for a unit test.
+The goal stays at the centre here so that this test stays fast; goals anywhere, as in
+a trial, are the twin test's (``test_critics_on_twin.py``), where the goal critic needs
+~600 steps (docs/notes/learning.md).
 """
 
 from __future__ import annotations

@@ -1,11 +1,24 @@
 """The critics on held-out transitions of the PyBullet twin (the issue's acceptance test).
 
-Transitions: a twin cell's two arms, each placed (``set_arm_state``) with the cube
-anywhere inside the workspace at any yaw and the goal at the centre, pushed by the
-scripted expert or at random (half each), with the twin's own physics and judgement of
-violation and success. The critics train on 3000 such transitions with the configured
-discounts and must rank 600 held-out ones by "violation at the next step" and "success at
-the next step" with a ROC AUC of at least 0.8.
+Transitions come from the twin as a trial makes them: each arm's goal is the twin's own
+(a new one anywhere in the workspace after every success, as in a trial), the cube moves
+only by pushes, and a violation is followed by a hard reset. To meet enough violations,
+before a step each arm's cube is, with probability 0.4, put somewhere else in the
+workspace at any yaw (its goal kept). Pushes are the scripted expert's or random, half
+each. Violation and success are the twin's own judgement.
+
+The learner first learns a BC policy from the expert's labels of 500 of the training
+states (the critics estimate Q of that policy, as in a trial), then the critics train
+on 3000 transitions with the configured discounts (gamma_safe 0.5, gamma_goal 0.999)
+and must rank 800 held-out transitions from another cell by "violation at the next
+step" (Q_risk(s, a)) and "success at the next step" (Q_goal(s, a)) with a ROC AUC of at
+least 0.8.
+
+Why 600 critic steps: with the goal anywhere, success depends on where the goal is
+relative to the cube, and the goal critic's gamma of 0.999 bootstraps through a target
+network that follows at tau 0.005 (a time constant of 200 steps). Measured on this data
+(batch 64, 2 members): AUC 0.64-0.84 after 300 steps, 0.87-0.94 after 600, 0.88-0.92 up
+to 1600 (docs/notes/learning.md). About a minute on 2 cores.
 
 Skipped when the twin cannot be imported (no pybullet on this machine).
 """
@@ -15,6 +28,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 from synthetic_pushing import roc_auc
 
@@ -24,22 +38,31 @@ from testbed.learning import Learner, Transitions
 cell_module = pytest.importorskip("sim_twin.cell")
 geometry = pytest.importorskip("sim_twin.geometry")
 
-CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3)
-STEPS = 100
-GOAL = (0.5, 0.5)
+CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3, augmentation_factor=2)
+POLICY_STEPS = 100
+CRITIC_STEPS = 600
+P_EXPERT = 0.5
+P_MOVE = 0.4
 
 
-def collect(cell: Any, n: int, rng: np.random.Generator) -> Transitions:
+def collect(cell: Any, n: int, rng: np.random.Generator
+            ) -> tuple[Transitions, npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """``n`` transitions, the expert's label of each state, and each state's goal."""
     images, actions, next_images, violation, success = [], [], [], [], []
+    expert, goals = [], []
     arms = cell.arm_names
     while len(actions) < n:
         for arm in arms:
-            xy = rng.uniform(0.05, 0.95, 2)
-            while geometry.depth_inside(xy) < 0.01:
+            if rng.random() < P_MOVE:
                 xy = rng.uniform(0.05, 0.95, 2)
-            cell.set_arm_state(arm, xy, rng.uniform(-np.pi / 4, np.pi / 4), GOAL)
+                while geometry.depth_inside(xy) < 0.01:
+                    xy = rng.uniform(0.05, 0.95, 2)
+                cell.set_arm_state(arm, xy, rng.uniform(-np.pi / 4, np.pi / 4),
+                                   cell.arm_state(arm).goal_xy)
         before = cell.observe()
-        faces = {a: cell.expert_action(a) if rng.random() < 0.5 else int(rng.integers(4))
+        labels = {a: cell.expert_action(a) for a in arms}
+        state_goals = {a: cell.arm_state(a).goal_xy for a in arms}
+        faces = {a: labels[a] if rng.random() < P_EXPERT else int(rng.integers(4))
                  for a in arms}
         outcome = cell.push(faces)
         after = cell.observe()
@@ -49,30 +72,49 @@ def collect(cell: Any, n: int, rng: np.random.Generator) -> Transitions:
             next_images.append(after[arm])
             violation.append(outcome[arm].violation)
             success.append(outcome[arm].success)
-    return Transitions.build(np.stack(images), np.asarray(actions), np.stack(next_images),
+            expert.append(labels[arm])
+            goals.append(state_goals[arm])
+            if outcome[arm].violation:
+                cell.hard_reset(arm)
+    data = Transitions.build(np.stack(images), np.asarray(actions), np.stack(next_images),
                              np.asarray(violation), np.asarray(success))
+    return data, np.asarray(expert, np.int64), np.asarray(goals)
 
 
 @pytest.fixture(scope="module")
-def trained() -> tuple[Learner, Transitions]:
-    rng = np.random.default_rng(0)
-    with cell_module.TwinCell(seed=0) as cell:
-        train = collect(cell, 3000, rng)
-        held = collect(cell, 600, rng)
-    assert train.violation.sum() > 100 and train.success.sum() > 100
-    assert held.violation.sum() > 20 and held.success.sum() > 20
+def trained() -> tuple[Learner, Transitions, npt.NDArray[np.float64]]:
+    with cell_module.TwinCell(seed=1) as cell:
+        train, expert, _ = collect(cell, 3000, np.random.default_rng(1))
+    with cell_module.TwinCell(seed=2) as cell:
+        held, _, held_goals = collect(cell, 800, np.random.default_rng(2))
+    assert train.violation.sum() > 80 and train.success.sum() > 150
+    assert held.violation.sum() > 25 and held.success.sum() > 40
     learner = Learner(CFG, seed=0)
-    learner.pretrain(transitions=train, steps=STEPS)
-    return learner, held
+    learner.pretrain(train.images[:500], expert[:500], steps=POLICY_STEPS)
+    learner.pretrain(transitions=train, steps=CRITIC_STEPS)
+    return learner, held, held_goals
 
 
-def test_safety_critic_auc_on_twin(trained: tuple[Learner, Transitions]) -> None:
-    learner, held = trained
+def test_goals_cover_the_workspace(
+        trained: tuple[Learner, Transitions, npt.NDArray[np.float64]]) -> None:
+    """The test is about goals anywhere: the held-out goals spread over the workspace."""
+    _, held, goals = trained
+    assert len(goals) == len(held.actions)
+    assert (goals.std(axis=0) > 0.15).all()
+    assert (goals.min(axis=0) < 0.3).all() and (goals.max(axis=0) > 0.7).all()
+    successes = goals[held.success]
+    assert len(np.unique(np.round(successes, 3), axis=0)) > 20
+
+
+def test_safety_critic_auc_on_twin(
+        trained: tuple[Learner, Transitions, npt.NDArray[np.float64]]) -> None:
+    learner, held, _ = trained
     risk = learner.critic_values(held.images, held.actions)["risk"]
     assert roc_auc(risk, held.violation) >= 0.8
 
 
-def test_goal_critic_auc_on_twin(trained: tuple[Learner, Transitions]) -> None:
-    learner, held = trained
+def test_goal_critic_auc_on_twin(
+        trained: tuple[Learner, Transitions, npt.NDArray[np.float64]]) -> None:
+    learner, held, _ = trained
     goal_risk = learner.critic_values(held.images, held.actions)["goal_risk"]
     assert roc_auc(-goal_risk, held.success) >= 0.8
