@@ -42,6 +42,7 @@ MALFORMED: list[tuple[str, str, str]] = [
     ("batch-zero", "[learning]\nbatch_size = 0\n", "learning.batch_size"),
     ("ensemble-huge", "[learning]\nensemble_size = 100\n", "learning.ensemble_size"),
     ("device", '[learning]\ndevice = "tpu"\n', "learning.device"),
+    ("critic-steps", "[learning]\ncritic_pretrain_steps = -1\n", "learning.critic_pretrain_steps"),
     ("steps-zero", "[trial]\nsteps = 0\n", "trial.steps"),
     ("host-name-space", '[[hosts]]\nname = "cell 0"\n', "name"),
     ("mirror-int", HOST + 'arms = [{name = "a", mirror = 3}]\n', "mirror"),

@@ -166,6 +166,21 @@ def test_pretrain_reports_progress_in_phases() -> None:
         learner.pretrain(b.images, None)
 
 
+def test_critics_take_their_own_pretrain_steps() -> None:
+    """``critic_pretrain_steps`` sets the critics' phase alone; an explicit ``steps``
+    argument still sets both phases."""
+    learner = Learner(SMALL.model_copy(update={"critic_pretrain_steps": 5}), 0)
+    b = transitions(30, np.random.default_rng(0))
+    t = Transitions.build(b.images, b.actions, b.next_images, b.violation, b.success)
+    seen: list[tuple[str, int, int]] = []
+    learner.pretrain(b.images, b.actions, t, progress=lambda *a: seen.append(a))
+    assert [s for s in seen if s[0] == "policy"][-1] == ("policy", 3, 3)
+    assert [s for s in seen if s[0] == "critics"][-1] == ("critics", 5, 5)
+    assert learner.stats()["policy_updates"] == 3 and learner.stats()["critic_updates"] == 5
+    learner.pretrain(transitions=t, steps=2)
+    assert learner.stats()["critic_updates"] == 7
+
+
 def test_concurrent_calls_are_serialised() -> None:
     learner = filled()
     images = transitions(4, np.random.default_rng(1)).images
