@@ -17,6 +17,15 @@ load drifts); medians are the figure to quote. ``--delay-ms D`` puts a relay pro
 in front of each sshd that delays every byte by D ms each way, to see the same ratio
 at LAN/WAN latencies (both the fleet and the baseline go through it).
 
+Where the time goes: two more baselines run in the same blocks, over the same kind
+of bare channel, and their ratios to the raw round trip are printed too:
+
+* ``python echo``: the channel runs this interpreter with a two-line read/write loop
+  instead of ``cat``: the least any agent written in Python can cost;
+* ``agent, bare channel``: the real agent (``--no-physics``), its request frames written
+  and its reply frames read off a bare channel with no controller-side work but reading
+  the length prefix: the agent's share. The fleet step minus this is the controller's.
+
 Run: ``.venv/bin/python benchmarks/bench_ssh.py [--steps N] [--delay-ms D]`` (root or
 any user that can run sshd; needs the Debian package openssh-server).
 """
@@ -26,6 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import shlex
 import socket
 import statistics
 import subprocess
@@ -40,7 +50,9 @@ sys.path.insert(0, str(ROOT))
 from drivers import protocol as p  # noqa: E402
 from drivers.backends.twin import CannedTwinBackend  # noqa: E402
 from drivers.fleet import HostFleet  # noqa: E402
+from drivers.session import HostSession  # noqa: E402
 from drivers.testing.sshd import SshServer, sshd_available  # noqa: E402
+from drivers.transport import SshTransport  # noqa: E402
 from testbed.config import HostConfig  # noqa: E402
 
 
@@ -60,7 +72,11 @@ def reply_frames() -> list[bytes]:
     return [obs, push]
 
 
-def cat_channel(server: SshServer, port: int | None = None):  # type: ignore[no-untyped-def]
+PYTHON_ECHO = "import os\nwhile d := os.read(0, 65536):\n    os.write(1, d)\n"
+
+
+def cat_channel(server: SshServer, port: int | None = None,  # type: ignore[no-untyped-def]
+                command: str = "cat"):
     import paramiko
 
     sock = socket.create_connection(("127.0.0.1", port or server.port))
@@ -72,7 +88,7 @@ def cat_channel(server: SshServer, port: int | None = None):  # type: ignore[no-
                    key_filename=str(server.client_key), sock=sock, allow_agent=False,
                    look_for_keys=False)
     chan = client.get_transport().open_session()  # type: ignore[union-attr]
-    chan.exec_command("cat")
+    chan.exec_command(command)
     return client, chan
 
 
@@ -131,9 +147,10 @@ class RawEcho:
     its agents (write to every host, then read every host), with nothing else."""
 
     def __init__(self, servers: list[SshServer], frames: list[bytes],
-                 ports: list[int | None]) -> None:
+                 ports: list[int | None], command: str = "cat") -> None:
         self.frames = frames
-        self.chans = [cat_channel(s, port) for s, port in zip(servers, ports, strict=True)]
+        self.chans = [cat_channel(s, port, command)
+                      for s, port in zip(servers, ports, strict=True)]
 
     def step(self) -> None:
         chans = [c for _, c in self.chans]
@@ -152,6 +169,53 @@ class RawEcho:
         for client, chan in self.chans:
             chan.close()
             client.close()
+
+
+def _read_exactly(chan, n: int) -> bytes:  # type: ignore[no-untyped-def]
+    out = b""
+    while len(out) < n:
+        chunk = chan.recv(n - len(out))
+        if not chunk:
+            raise RuntimeError("channel closed")
+        out += chunk
+    return out
+
+
+class AgentBare(RawEcho):
+    """The real agent on a bare channel: request frames written, reply frames read with
+    nothing done to them but reading their length (the agent's share of a step)."""
+
+    def __init__(self, servers: list[SshServer], hosts: list[HostConfig],
+                 ports: list[int | None]) -> None:
+        self.frames = [p.make_request("observe", 7),
+                       p.make_request("push", 8, faces={"left": 1, "right": 1})]
+        self.chans = []
+        for s, h, port in zip(servers, hosts, ports, strict=True):
+            argv = HostSession(h, 0, 1.0).argv()
+            client, chan = cat_channel(s, port, SshTransport.remote_command(h, argv))
+            chan.sendall(p.make_request("hello", 1, version=p.PROTOCOL_VERSION, host=h.name))
+            self.chans.append((client, chan))
+            if self._reply(chan)[:4] != p.MAGIC:
+                raise RuntimeError("the agent did not answer hello")
+
+    @staticmethod
+    def _reply(chan) -> bytes:  # type: ignore[no-untyped-def]
+        prefix = _read_exactly(chan, p.PREFIX_BYTES)
+        _, hlen, blen, _ = p.PREFIX.unpack(prefix)
+        return prefix + _read_exactly(chan, hlen + blen)
+
+    def step(self) -> None:
+        chans = [c for _, c in self.chans]
+        for f in self.frames:  # observe, then push, as the fleet step
+            for chan in chans:
+                chan.sendall(f)
+            for chan in chans:
+                self._reply(chan)
+
+    def close(self) -> None:
+        for _, chan in self.chans:
+            chan.shutdown_write()  # EOF: the agent exits
+        super().close()
 
 
 def fleet_step(fleet: HostFleet, pushes: dict[str, int]) -> None:
@@ -215,20 +279,31 @@ def main() -> int:
                     raise RuntimeError(f"hosts not connected: {fleet.host_status()}")
                 pushes = dict.fromkeys(fleet.robot_names, 1)
                 raw = RawEcho(servers, frames, ports)
+                floors = {"python echo": RawEcho(servers, frames, ports,
+                                                 f"{sys.executable} -c "
+                                                 f"{shlex.quote(PYTHON_ECHO)}"),
+                          "agent, bare channel": AgentBare(servers, hosts, ports)}
                 try:
-                    timed(lambda: fleet_step(fleet, pushes), 100)  # warm up both
+                    timed(lambda: fleet_step(fleet, pushes), 100)  # warm up all
                     timed(raw.step, 100)
+                    for b in floors.values():
+                        timed(b.step, 100)
                     fleet_t: list[float] = []
                     raw_t: list[float] = []
+                    floor_t: dict[str, list[float]] = {k: [] for k in floors}
                     block_ratios: list[float] = []
                     for _ in range(max(args.steps // args.block, 1)):
                         f = timed(lambda: fleet_step(fleet, pushes), args.block)
                         r = timed(raw.step, args.block)
+                        for k, b in floors.items():
+                            floor_t[k] += timed(b.step, args.block)
                         fleet_t += f
                         raw_t += r
                         block_ratios.append(statistics.median(f) / statistics.median(r))
                 finally:
                     raw.close()
+                    for b in floors.values():
+                        b.close()
         finally:
             for proc in relays:
                 proc.kill()
@@ -237,6 +312,9 @@ def main() -> int:
                 s.stop()
     print(summary("fleet step (observe + execute)", fleet_t))
     print(summary("raw round trip of the same bytes", raw_t))
+    raw_med = statistics.median(raw_t)
+    for k, t in floor_t.items():
+        print(summary(k, t) + f"   ratio {statistics.median(t) / raw_med:.3f}")
     extra = (statistics.median(fleet_t) - statistics.median(raw_t)) * 1000
     ratio_med = statistics.median(fleet_t) / statistics.median(raw_t)
     ratio_mean = statistics.fmean(fleet_t) / statistics.fmean(raw_t)
