@@ -123,11 +123,10 @@ class LearningConfig(_Strict):
     pretrain_steps: int = Field(300, ge=0)
     critic_pretrain_steps: int | None = Field(
         None, ge=0, description="critics' offline steps; None: pretrain_steps. The seed "
-        "trains them 3000 steps; the goal critic needs ~600 at batch 64 (docs/notes)")
+        "trains them 3000 steps; the goal critic needs ~600 at batch 64 (docs/notes/learning.md)")
     gamma_safe: float = Field(0.5, ge=0, le=1)
     gamma_goal: float = Field(0.999, ge=0, le=1)
     device: Literal["auto", "cpu", "cuda"] = "auto"
-
 
     @property
     def critic_steps(self) -> int:
