@@ -208,10 +208,17 @@ def load_config(path: str | Path | None) -> FleetConfig:
     return parse_config(data, str(p))
 
 
+TWIN_U_HAT = 0.17
+"""The twin's uncertainty threshold: the 75th percentile of its ensemble's uncertainty
+in C.U.R. runs (the seed's 0.05 made 55% of the twin's arm-steps eligible)."""
+
+
 def default_twin_config() -> FleetConfig:
     """2 twin hosts x 2 arms, 2 scripted humans, local transport, 250 steps, C.U.R.
 
     Pretraining is sized for a 2-core laptop (a few minutes); the paper-scale
-    hyperparameters live in ``protocols/*.toml``.
+    hyperparameters live in ``protocols/*.toml``. u_hat is the twin's calibrated 0.17,
+    as in ``protocols/twin.toml`` (docs/notes/fleet.md).
     """
-    return FleetConfig(learning=LearningConfig(pretrain_steps=120, critic_transitions=400))
+    return FleetConfig(algorithm=AlgorithmConfig(u_hat=TWIN_U_HAT),
+                       learning=LearningConfig(pretrain_steps=120, critic_transitions=400))

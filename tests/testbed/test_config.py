@@ -129,6 +129,9 @@ def test_shipped_protocols_are_valid() -> None:
     assert phys.algorithms == ["bc", "random", "fleet-ed", "cur"]
     assert phys.fleet.humans.kind == "gui" and phys.prompt_between_trials
     assert all(h.transport == "ssh" and h.backend == "yumi" for h in phys.fleet.hosts)
+    # One calibrated u_hat for the twin: the default trial and the twin protocol agree.
+    assert twin.fleet.algorithm.u_hat == default_twin_config().algorithm.u_hat == 0.17
+    assert phys.fleet.learning.critic_steps == 3000
 
 
 def test_load_config_missing_file_is_config_error(tmp_path: Path) -> None:
