@@ -29,7 +29,7 @@ import threading
 import time
 import weakref
 from collections.abc import Callable, Collection, Mapping, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -46,6 +46,7 @@ log = logging.getLogger("drivers.fleet")
 
 KEEPER_PERIOD_S = 0.1
 Program = list[tuple[str, dict[str, Any]]]
+T = TypeVar("T")
 Outcome = tuple[str, Any]
 """("ok", payload) or ("fault", {"reason", "traceback", "arm"})."""
 
@@ -222,6 +223,21 @@ class HostFleet:
         tb = str(info.get("traceback") or "")
         return {f"{s.name}/{a}": Fault(f"{s.name}/{a}", reason, tb) for a in s.arms}
 
+    def _per_robot(self, res: Mapping[int, Outcome],
+                   value: Callable[[int, str, str, Any], T]) -> dict[str, T | Fault]:
+        """Per-host outcomes -> a value for every robot, in fleet order: ``value(host
+        index, robot, arm, payload)`` for a host that answered, ``Fault`` otherwise."""
+        out: dict[str, T | Fault] = {}
+        for i, s in enumerate(self._sessions):
+            kind, payload = res[i]
+            if kind != "ok":
+                out.update(self._faults(s, payload))
+                continue
+            for a in s.arms:
+                r = f"{s.name}/{a}"
+                out[r] = value(i, r, a, payload)
+        return {r: out[r] for r in self.robot_names}
+
     def _require_started(self) -> None:
         if self._closed:
             raise RuntimeError("HostFleet is closed")
@@ -236,18 +252,12 @@ class HostFleet:
         def parse(s: HostSession, link: AgentLink, frames: list[p.Frame]) -> Any:
             return p.parse_observe_reply(frames[0], s.arms, link.peer)
 
+        def view(i: int, r: str, arm: str, payload: Any) -> ArmObservation:
+            v = payload[arm]
+            return ArmObservation(r, v.image, v.violating, v.goal, v.expert_action)
+
         res = self._run({i: [("observe", {})] for i in range(len(self._sessions))}, parse)
-        out: dict[str, ArmObservation | Fault] = {}
-        for i, s in enumerate(self._sessions):
-            kind, payload = res[i]
-            if kind != "ok":
-                out.update(self._faults(s, payload))
-                continue
-            for a in s.arms:
-                v = payload[a]
-                r = f"{s.name}/{a}"
-                out[r] = ArmObservation(r, v.image, v.violating, v.goal, v.expert_action)
-        return {r: out[r] for r in self.robot_names}
+        return self._per_robot(res, view)
 
     def execute(self, pushes: Mapping[str, int], resets: Collection[str]
                 ) -> dict[str, PushResult | Fault]:
@@ -273,21 +283,13 @@ class HostFleet:
                 p.parse_reset_reply(frames[0], programs[i][0][1]["arms"], link.peer)
             return p.parse_push_reply(frames[-1], list(faces_of[i]), link.peer)
 
-        res = self._run(programs, parse)
-        out: dict[str, PushResult | Fault] = {}
-        for i, s in enumerate(self._sessions):
-            kind, payload = res[i]
-            if kind != "ok":
-                out.update(self._faults(s, payload))
-                continue
-            for a in s.arms:
-                r = f"{s.name}/{a}"
-                if a in payload:
-                    o = payload[a]
-                    out[r] = PushResult(r, faces_of[i][a], o.success, o.violation)
-                else:
-                    out[r] = PushResult(r, None, False, False)
-        return {r: out[r] for r in self.robot_names}
+        def result(i: int, r: str, arm: str, payload: Any) -> PushResult:
+            if arm not in payload:  # reset or waiting
+                return PushResult(r, None, False, False)
+            o = payload[arm]
+            return PushResult(r, faces_of[i][arm], o.success, o.violation)
+
+        return self._per_robot(self._run(programs, parse), result)
 
     def rest(self) -> None:
         """Every arm to its rest pose; hosts that fail are logged, never raised."""
