@@ -1,0 +1,332 @@
+"""The YuMi hardware twin as a process: camera stream, controller API, lab side channel.
+
+Why a process with HTTP: the physical path (agent -> YumiBackend -> camera seam and
+controller seam) must run unchanged against the twin, over the same kinds of channel as
+in the lab: an IP camera's MJPEG stream that ``cv2.VideoCapture`` opens, and a
+controller reached over the network. The lab side channel (/lab/*) is what the
+rehearsal's humans and truth recorder use; the backend never sees it.
+
+Usage::
+
+    python -m sim_twin.yumi_server --arms left,right --seed 7 --port 0 \\
+        --port-file /tmp/twin.port [--fps 15] [--realtime 0] [--host 127.0.0.1]
+
+It listens on HOST:PORT (port 0: any free port), writes the port (a decimal line) to
+``--port-file`` atomically once listening, serves until SIGTERM/SIGINT and exits 0.
+
+Endpoints (JSON unless said otherwise; errors are ``{"error": "..."}`` with 400/404/503):
+
+- ``GET /camera.mjpg``: ``multipart/x-mixed-replace; boundary=frame``, one JPEG part per
+  frame at ``--fps`` (each part: ``--frame``, ``Content-Type: image/jpeg``,
+  ``Content-Length``). One client at a time, like a V4L2 device: a second one gets 503
+  with the text ``camera busy: another client is streaming``. The world is rendered
+  once per state (after a motion or a reset, before its reply is sent); every frame gets
+  fresh sensor noise. The socket's send buffer is kept small so few stale frames queue.
+- ``GET /camera.jpg``: one JPEG of the current state (not a stream client).
+- ``POST /controller/execute`` ``{"programs": {arm: [waypoint, ...]}}``, each waypoint
+  ``{"kind": "move_j"|"move_l"|"rest", "xyz_mm": [x, y, z] | null, "speed_mm_s": v,
+  "fine": bool}``: all arms at once (MultiMove), returns ``{"ok": true, "sim_s": s}``
+  when every program ended and the cubes settled; 400 and nothing moves on a bad program
+  (unknown arm or kind, speed not in (0, 1500] mm/s, z < 0, NaN).
+- ``GET /controller/tcp`` -> ``{"tcp": {arm: [x, y, z]}}`` (actual TCP, mm).
+- ``POST /lab/reset`` ``{"arm": "left"}`` -> ``{"ok": true}``: the lab hand puts the
+  arm's cube back near its workspace centre.
+- ``GET /lab/truth`` -> ``{"arms": {arm: {"cube_mm", "on_table", "cube_px", "yaw_px"}}}``.
+- ``GET /lab/camera`` -> the true camera model and the cell's layout (K, dist, R/t and
+  rvec/tvec world mm -> camera, crops, mirror, workspaces_mm, rest_mm, marker, ...).
+- ``GET /lab/health`` -> ``{"ok": true}``.
+
+The geometry, camera model and physics are documented in ``sim_twin.yumi_geometry`` and
+``sim_twin.yumi_cell``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import select
+import signal
+import socket
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from sim_twin.yumi_cell import YumiTwinCell
+
+BUSY_TEXT = "camera busy: another client is streaming"
+JPEG_QUALITY = 90
+VARIANTS = 4
+"""Noisy JPEGs kept per world state (the stream cycles through them)."""
+SNDBUF_BYTES = 16384
+MAX_BODY_BYTES = 1 << 20
+
+
+class FrameCache:
+    """The newest clean picture and a few noisy JPEGs of it. The clean picture is
+    published under the cell lock; JPEGs are made on demand by whoever needs one."""
+
+    def __init__(self, cell: YumiTwinCell) -> None:
+        self._cell = cell
+        self._lock = threading.Lock()
+        self._clean: np.ndarray | None = None
+        self._jpegs: list[bytes] = []
+        self._next = 0
+        self.published = 0
+
+    def publish(self) -> None:
+        """Render the cell's current state (call with the cell lock held)."""
+        clean = self._cell.render(noise=False)
+        with self._lock:
+            self._clean, self._jpegs, self._next = clean, [], 0
+            self.published += 1
+
+    def jpeg(self) -> bytes:
+        with self._lock:
+            clean, jpegs = self._clean, self._jpegs
+            if clean is None:
+                raise RuntimeError("no picture published yet")
+            if len(jpegs) >= VARIANTS:
+                self._next = (self._next + 1) % len(jpegs)
+                return jpegs[self._next]
+            noisy = self._cell.add_noise(clean)
+        ok, buf = cv2.imencode(".jpg", noisy, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        data = buf.tobytes()
+        with self._lock:
+            if self._jpegs is jpegs:  # not replaced by a newer state meanwhile
+                jpegs.append(data)
+        return data
+
+
+class TwinServer(ThreadingHTTPServer):
+    """The HTTP server around one cell (threads per request, one lock for the cell)."""
+
+    daemon_threads = True
+    allow_reuse_address = True
+
+    def __init__(self, cell: YumiTwinCell, host: str = "127.0.0.1", port: int = 0,
+                 fps: float = 15.0, verbose: bool = False) -> None:
+        self.cell = cell
+        self.fps = float(fps)
+        self.verbose = verbose
+        self.cell_lock = threading.Lock()
+        self.stream_slot = threading.Lock()
+        self.stopping = threading.Event()
+        self.frames = FrameCache(cell)
+        self._streams: set[socket.socket] = set()
+        self._streams_lock = threading.Lock()
+        with self.cell_lock:
+            self.frames.publish()
+        super().__init__((host, port), Handler)
+
+    @property
+    def port(self) -> int:
+        return int(self.server_address[1])
+
+    def track(self, sock: socket.socket, on: bool) -> None:
+        with self._streams_lock:
+            (self._streams.add if on else self._streams.discard)(sock)
+
+    def stop(self) -> None:
+        """End serve_forever (from another thread) and unblock the stream's writes."""
+        self.stopping.set()
+        with self._streams_lock:
+            for s in self._streams:
+                with contextlib.suppress(OSError):
+                    s.shutdown(socket.SHUT_RDWR)
+        self.shutdown()
+
+
+class Handler(BaseHTTPRequestHandler):
+    server: TwinServer
+    server_version = "YumiTwin/1"
+
+    def log_message(self, format: str, *args: Any) -> None:
+        if self.server.verbose:
+            super().log_message(format, *args)
+
+    # --- replies ------------------------------------------------------------------------
+    def _send(self, status: int, body: bytes, ctype: str) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, status: int, obj: Any) -> None:
+        self._send(status, json.dumps(obj).encode(), "application/json")
+
+    def _body(self) -> Any:
+        n = int(self.headers.get("Content-Length") or 0)
+        if not 0 < n <= MAX_BODY_BYTES:
+            raise ValueError("expected a JSON body")
+        try:
+            return json.loads(self.rfile.read(n))
+        except ValueError as exc:
+            raise ValueError(f"bad JSON: {exc}") from None
+
+    # --- routes ---------------------------------------------------------------------------
+    def do_GET(self) -> None:
+        path = self.path.split("?", 1)[0]
+        srv, cell = self.server, self.server.cell
+        if path == "/camera.mjpg":
+            self._stream()
+        elif path == "/camera.jpg":
+            self._send(200, srv.frames.jpeg(), "image/jpeg")
+        elif path == "/controller/tcp":
+            with srv.cell_lock:
+                tcp = cell.tcp_xyz()
+            self._json(200, {"tcp": {a: list(v) for a, v in tcp.items()}})
+        elif path == "/lab/truth":
+            with srv.cell_lock:
+                truth = cell.truth()
+            self._json(200, {"arms": truth})
+        elif path == "/lab/camera":
+            self._json(200, cell.camera_model)
+        elif path == "/lab/health":
+            self._json(200, {"ok": True})
+        else:
+            self._json(404, {"error": f"no such endpoint: GET {path}"})
+
+    def do_POST(self) -> None:
+        path = self.path.split("?", 1)[0]
+        routes: dict[str, Callable[[Any], dict[str, Any]]] = {
+            "/controller/execute": self._execute, "/lab/reset": self._reset}
+        if path not in routes:
+            self._json(404, {"error": f"no such endpoint: POST {path}"})
+            return
+        try:
+            reply = routes[path](self._body())
+        except ValueError as exc:
+            self._json(400, {"error": str(exc)})
+            return
+        self._json(200, reply)
+
+    def _execute(self, body: Any) -> dict[str, Any]:
+        if not isinstance(body, dict) or not isinstance(body.get("programs"), dict):
+            raise ValueError('expected {"programs": {arm: [waypoint, ...]}}')
+        srv = self.server
+        with srv.cell_lock:
+            live = srv.cell.realtime > 0  # a paced motion shows on the stream as it happens
+            sim_s = srv.cell.execute(  # live frames at --fps of wall time
+                body["programs"], on_frame=srv.frames.publish if live else None,
+                frame_every_s=srv.cell.realtime / srv.fps if live else 0.0)
+            srv.frames.publish()
+        return {"ok": True, "sim_s": round(sim_s, 6)}
+
+    def _reset(self, body: Any) -> dict[str, Any]:
+        if not isinstance(body, dict) or not isinstance(body.get("arm"), str):
+            raise ValueError('expected {"arm": NAME}')
+        srv = self.server
+        with srv.cell_lock:
+            srv.cell.lab_reset(body["arm"])
+            srv.frames.publish()
+        return {"ok": True}
+
+    def _stream(self) -> None:
+        srv = self.server
+        if not srv.stream_slot.acquire(blocking=False):
+            self._send(503, BUSY_TEXT.encode(), "text/plain; charset=utf-8")
+            return
+        sock = self.connection
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SNDBUF_BYTES)
+            srv.track(sock, True)
+            self.send_response(200)
+            self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
+            self.send_header("Cache-Control", "no-store")
+            self.send_header("Connection", "close")
+            self.end_headers()
+            period, due = 1.0 / srv.fps, time.monotonic()
+            while not srv.stopping.is_set():
+                # A client that stopped reading (a paused VideoCapture) fills the socket:
+                # wait until it reads again and then send the NEWEST frame, rather than
+                # blocking on a frame that is stale by the time it goes out.
+                if not select.select([], [sock], [], 0.5)[1]:
+                    continue
+                data = srv.frames.jpeg()
+                self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
+                                 + str(len(data)).encode() + b"\r\n\r\n" + data + b"\r\n")
+                self.wfile.flush()
+                due = max(due + period, time.monotonic())  # a blocked client: no burst
+                srv.stopping.wait(max(due - time.monotonic(), 0.0))
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            pass  # the client went away
+        finally:
+            srv.track(sock, False)
+            self.close_connection = True
+            srv.stream_slot.release()
+
+
+def _write_port(path: Path, port: int) -> None:
+    """Atomically: a reader never sees a half-written port."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".")
+    with os.fdopen(fd, "w") as f:
+        f.write(f"{port}\n")
+    os.replace(tmp, path)
+
+
+def _args(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m sim_twin.yumi_server",
+                                description="The YuMi hardware twin's HTTP server.")
+    p.add_argument("--arms", default="left,right", help="comma-separated arm names")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=0, help="0: any free port")
+    p.add_argument("--port-file", type=Path, default=None)
+    p.add_argument("--fps", type=float, default=15.0)
+    p.add_argument("--realtime", type=float, default=0.0,
+                   help="real-time factor of motions (sim s per wall s); 0: fast as possible")
+    p.add_argument("--verbose", action="store_true", help="log every request to stderr")
+    a = p.parse_args(argv)
+    if not (math.isfinite(a.fps) and 0 < a.fps <= 60):
+        p.error("--fps must be in (0, 60]")
+    if not (math.isfinite(a.realtime) and a.realtime >= 0):
+        p.error("--realtime must be >= 0")
+    return a
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    a = _args(argv)
+    arms = tuple(s.strip() for s in a.arms.split(",") if s.strip())
+    try:
+        cell = YumiTwinCell(a.seed, arms, realtime=a.realtime)
+    except ValueError as exc:
+        print(f"yumi_server: {exc}", file=sys.stderr)
+        return 2
+    server = TwinServer(cell, a.host, a.port, a.fps, a.verbose)
+
+    def on_signal(signum: int, frame: object) -> None:
+        threading.Thread(target=server.stop, daemon=True).start()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    if a.port_file is not None:
+        _write_port(a.port_file, server.port)
+    print(f"yumi_server: arms {','.join(arms)} seed {a.seed} on http://{a.host}:{server.port}",
+          file=sys.stderr, flush=True)
+    try:
+        server.serve_forever(poll_interval=0.2)
+    finally:
+        server.server_close()
+        with server.cell_lock:
+            cell.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
