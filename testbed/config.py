@@ -9,11 +9,25 @@ the program; ``default_twin_config`` is the built-in 2 x 2-arm twin fleet that
 
 from __future__ import annotations
 
+import os
+import re
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Self
+from urllib.parse import urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
 Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
@@ -45,9 +59,60 @@ class ArmConfig(_Strict):
         return self
 
 
-class HostConfig(_Strict):
+class FieldProblem(ValueError):
+    """A model-level check that is about one field: ``field`` joins the error's location,
+    so the one-line error names it (``hosts[0].key_file: ...``), not just the host."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+CHECK_FILES = "check_files"
+"""Validation-context key: ``False`` skips the existence check of key_file/known_hosts
+(for tools that load a protocol to rewrite its hosts, e.g. a rehearsal; paths are still
+expanded)."""
+
+
+def validation_context(check_files: bool = True) -> dict[str, Any]:
+    """The pydantic ``context`` for ``model_validate`` of a fleet or a protocol."""
+    return {CHECK_FILES: check_files}
+
+
+def _checking_files(info: ValidationInfo) -> bool:
+    ctx = info.context
+    return not (isinstance(ctx, dict) and ctx.get(CHECK_FILES) is False)
+
+
+_VAR = re.compile(r"\$(?:\{(?P<braced>[A-Za-z_][A-Za-z0-9_]*)\}|(?P<plain>[A-Za-z_][A-Za-z0-9_]*))")
+
+
+def expand_path(text: str, field: str) -> str:
+    """``~`` and ``$VAR``/``${VAR}`` expanded as a shell would; an unset variable is an
+    error naming it (``os.path.expandvars`` would leave ``$VAR`` in the path silently)."""
+
+    def value(m: re.Match[str]) -> str:
+        name = m.group("braced") or m.group("plain")
+        if name not in os.environ:
+            raise FieldProblem(field, f"${name} is not set (in {text!r}); set it or write "
+                               "the path out")
+        return os.environ[name]
+
+    return _VAR.sub(value, os.path.expanduser(text))
+
+
+class _HostBase(_Strict):
+    """What every host has, whatever its backend: where it is and how to reach it.
+
+    Paths are expanded (``~``, ``$VARS``) when the config is loaded: ``key_file`` and
+    ``known_hosts`` always (they are read on this machine, and a missing one is an
+    error here, before anything starts), ``python``, ``workdir``, a YuMi ``camera``
+    path and the arms' ``calibration`` only for ``transport = "local"``. Over ssh those
+    are paths on the robot host: they are passed as written and the agent expands them
+    there.
+    """
+
     name: Name
-    backend: Literal["twin", "yumi"] = "twin"
     transport: Literal["local", "ssh"] = "local"
     address: str = "127.0.0.1"
     port: int = Field(22, ge=1, le=65535)
@@ -58,12 +123,6 @@ class HostConfig(_Strict):
     """Interpreter that runs the agent; over SSH it must be an absolute path."""
     workdir: str | None = None
     """Project checkout on the host (over SSH); the agent runs with it as PYTHONPATH."""
-    seed: int | None = None
-    """Twin only: the cell's world seed (default: derived from the trial seed)."""
-    camera: str | None = None
-    """YuMi only: camera device index or a video file path for VideoCapture."""
-    controller_url: str | None = None
-    """YuMi only: the Robot Web Services address of the IRB 14000 controller."""
     deadline_s: float = Field(10.0, gt=0, le=600)
     """Per-call deadline for a push or an observation on this host."""
     heartbeat_s: float = Field(2.0, gt=0, le=600)
@@ -71,13 +130,11 @@ class HostConfig(_Strict):
     heartbeat: SSH keepalives do not notice a dead peer)."""
     connect_timeout_s: float = Field(20.0, gt=0, le=600)
     """Budget to (re)connect: SSH handshake, agent start, backend start, hello."""
-    physics: bool = True
-    """Twin only: False runs the agent's no-physics mode (canned images; benchmarks)."""
     arms: list[ArmConfig] = Field(default_factory=lambda: [ArmConfig(name="left"),
                                                           ArmConfig(name="right", mirror=True)])
 
     @model_validator(mode="after")
-    def _transport_fields(self) -> HostConfig:
+    def _transport_fields(self, info: ValidationInfo) -> Self:
         if self.transport == "ssh":
             missing = [f for f in ("user", "key_file", "known_hosts") if getattr(self, f) is None]
             if missing:
@@ -89,7 +146,118 @@ class HostConfig(_Strict):
             raise ValueError("arm names must be unique within a host")
         if not self.arms:
             raise ValueError("a host needs at least one arm")
+        self._expand_paths(_checking_files(info))
         return self
+
+    def _set(self, field: str, value: Any) -> None:
+        object.__setattr__(self, field, value)  # frozen: only while validating
+
+    def _expand_paths(self, check_files: bool) -> None:
+        for field in ("key_file", "known_hosts"):
+            raw = getattr(self, field)
+            if raw is None:
+                continue
+            path = expand_path(raw, field)
+            if check_files and not Path(path).is_file():
+                shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
+                raise FieldProblem(field, f"no such file {shown}; fix the path or create it")
+            self._set(field, path)
+        if self.transport != "local":
+            return
+        self._set("python", expand_path(self.python, "python"))  # "python3" stays as is
+        if self.workdir is not None:
+            self._set("workdir", expand_path(self.workdir, "workdir"))
+        self._set("arms", [
+            a if a.calibration is None else a.model_copy(update={
+                "calibration": expand_path(a.calibration, f"arms[{i}].calibration")})
+            for i, a in enumerate(self.arms)
+        ])
+
+
+class TwinHost(_HostBase):
+    """A PyBullet twin cell (``drivers/backends/twin.py``)."""
+
+    backend: Literal["twin"] = "twin"
+    seed: int | None = None
+    """The cell's world seed (default: derived from the trial seed)."""
+    physics: bool = True
+    """False runs the agent's no-physics mode (canned images; benchmarks)."""
+
+
+CONTROLLER_SCHEMES = ("http", "https", "twin+http")
+CAMERA_SCHEMES = ("http", "https", "rtsp")
+
+
+def _camera_text(value: Any) -> Any:
+    """TOML ``camera = 0`` (an integer) means device 0, as ``camera = "0"``."""
+    return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
+
+
+class YumiHost(_HostBase):
+    """An ABB YuMi (IRB 14000) with an overhead camera (``drivers/backends/yumi.py``).
+
+    Everything the agent needs is checked here, at load time, so a typo is one line
+    before anything starts rather than a traceback on the host after pretraining.
+    """
+
+    backend: Literal["yumi"] = "yumi"
+    camera: Annotated[str, BeforeValidator(_camera_text)]
+    """A device index ("0"), a video file path, or a lab IP camera URL (http(s), rtsp)."""
+    controller_url: str
+    """The controller: http(s)://HOST (Robot Web Services) or twin+http://HOST:PORT (the
+    hardware twin)."""
+
+    @field_validator("camera")
+    @classmethod
+    def _camera_kind(cls, v: str) -> str:
+        v = v.strip()
+        if not v:
+            raise ValueError("camera is empty; give a device index, a video file or a URL")
+        if "://" in v:
+            url = urlsplit(v)
+            if url.scheme not in CAMERA_SCHEMES or not url.netloc:
+                raise ValueError(f"camera URL must be {', '.join(CAMERA_SCHEMES)}://HOST/...")
+        return v
+
+    @field_validator("controller_url")
+    @classmethod
+    def _controller_kind(cls, v: str) -> str:
+        url = urlsplit(v.strip())
+        if url.scheme not in CONTROLLER_SCHEMES or not url.hostname:
+            raise ValueError("controller_url must be http(s)://HOST (Robot Web Services) or "
+                             "twin+http://HOST:PORT (the hardware twin)")
+        return v.strip()
+
+    @model_validator(mode="after")
+    def _yumi_arms(self) -> Self:
+        for i, a in enumerate(self.arms):
+            if a.crop is None:
+                raise FieldProblem(f"arms[{i}].crop", f"arm {a.name} of a yumi host needs "
+                                   "its crop box (x0, y0, x1, y1) in the camera image")
+            if a.calibration is None or not a.calibration.endswith(".json"):
+                raise FieldProblem(f"arms[{i}].calibration", f"arm {a.name} of a yumi host "
+                                   "needs its calibration file (a path ending .json)")
+        if self.transport == "local" and "://" not in self.camera and not self.camera.isdigit():
+            self._set("camera", expand_path(self.camera, "camera"))
+        return self
+
+
+HOST_MODELS: dict[str, type[_HostBase]] = {"twin": TwinHost, "yumi": YumiHost}
+
+
+def _backend_of(value: Any) -> str:
+    """The union's tag: ``backend``, ``"twin"`` when the key is absent."""
+    backend = (value.get("backend", "twin") if isinstance(value, dict)
+               else getattr(value, "backend", "twin"))
+    return backend if isinstance(backend, str) else repr(backend)
+
+
+HostConfig = Annotated[
+    Annotated[TwinHost, Tag("twin")] | Annotated[YumiHost, Tag("yumi")],
+    Discriminator(_backend_of, custom_error_type="unknown_backend",
+                  custom_error_message="unknown backend"),
+]
+"""One host of the fleet: a ``TwinHost`` or a ``YumiHost``, chosen by ``backend``."""
 
 
 class HumansConfig(_Strict):
@@ -147,8 +315,8 @@ class FleetConfig(_Strict):
     humans: HumansConfig = HumansConfig()
     algorithm: AlgorithmConfig = AlgorithmConfig()
     learning: LearningConfig = LearningConfig()
-    hosts: list[HostConfig] = Field(default_factory=lambda: [HostConfig(name="cell0"),
-                                                             HostConfig(name="cell1")])
+    hosts: list[HostConfig] = Field(default_factory=lambda: [TwinHost(name="cell0"),
+                                                             TwinHost(name="cell1")])
 
     @model_validator(mode="after")
     def _unique_hosts(self) -> FleetConfig:
@@ -164,48 +332,124 @@ class FleetConfig(_Strict):
         return [f"{h.name}/{a.name}" for h in self.hosts for a in h.arms]
 
 
-def _one_line(err: ValidationError, source: str) -> str:
+def _where(loc: tuple[int | str, ...]) -> tuple[list[int | str], str | None]:
+    """The error's location without the union's tag (``hosts.0.yumi.camera`` ->
+    ``hosts[0].camera``), and that tag (the host's backend) if there was one."""
+    parts: list[int | str] = []
+    tag = None
+    for k, p in enumerate(loc):
+        if (p in HOST_MODELS and k >= 2 and isinstance(loc[k - 1], int)
+                and loc[k - 2] == "hosts"):
+            tag = str(p)
+            continue
+        parts.append(p)
+    return parts, tag
+
+
+def _one_line(err: ValidationError, source: str, prefix: tuple[str, ...] = ()) -> str:
+    """The first error as ``SOURCE: FIELD.PATH: what is wrong; the fix (+N more)``."""
     first = err.errors()[0]
-    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in first["loc"])
-    loc = loc.replace(".[", "[") or "(top level)"
+    parts, tag = _where(prefix + tuple(first["loc"]))
     msg = first["msg"].removeprefix("Value error, ")
+    problem = first.get("ctx", {}).get("error")
+    if isinstance(problem, FieldProblem):
+        parts.append(problem.field)
+    got = first.get("input")
     if first["type"] == "extra_forbidden":
-        fix = "remove it or check its spelling (unknown keys are errors)"
-        msg = "unknown key"
+        key = str(parts[-1])
+        other = [b for b, m in HOST_MODELS.items() if b != tag and key in m.model_fields]
+        if tag is not None and other and len(parts) >= 2 and isinstance(parts[-2], int):
+            msg = f"{key} is a {other[0]}-only field, not one of a {tag} host"
+            fix = f"remove it, or set backend = \"{other[0]}\""
+        else:
+            msg = "unknown key"
+            fix = "remove it or check its spelling (unknown keys are errors)"
     elif first["type"] == "missing":
-        fix = "add it"
+        fix = f"add it (a {tag} host needs it)" if tag is not None else "add it"
+    elif first["type"] == "unknown_backend":
+        parts.append("backend")
+        got = got.get("backend") if isinstance(got, dict) else got
+        fix = f"got {got!r}; use {' or '.join(repr(b) for b in HOST_MODELS)}"
+    elif isinstance(problem, FieldProblem):
+        fix = ""  # its message says what to do
     else:
-        got = first.get("input")
         fix = f"got {got!r}" if not isinstance(got, dict | list) else "see README, section Config"
+    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in parts)
+    loc = loc.replace(".[", "[") or "(top level)"
     more = len(err.errors()) - 1
     tail = f" (+{more} more)" if more else ""
-    return f"{source}: {loc}: {msg}; {fix}{tail}"
+    return f"{source}: {loc}: {msg}{'; ' + fix if fix else ''}{tail}"
 
 
-def parse_config(data: dict[str, Any], source: str = "config") -> FleetConfig:
-    """Validate a dict into a FleetConfig, or raise ConfigError with one line."""
+def parse_config(data: dict[str, Any], source: str = "config", *,
+                 check_files: bool = True, prefix: tuple[str, ...] = ()) -> FleetConfig:
+    """Validate a dict into a FleetConfig, or raise ConfigError with one line.
+
+    ``prefix``: where the dict sits in its file (``("fleet",)`` for a protocol's fleet),
+    so the error names the field as the file spells it.
+    """
     try:
-        return FleetConfig.model_validate(data)
+        return FleetConfig.model_validate(data, context=validation_context(check_files))
     except ValidationError as err:
-        raise ConfigError(_one_line(err, source)) from None
+        raise ConfigError(_one_line(err, source, prefix)) from None
 
 
-def load_config(path: str | Path | None) -> FleetConfig:
-    """Read and validate a TOML config; ``None`` gives the built-in twin fleet."""
-    if path is None:
-        return default_twin_config()
+def read_toml(path: str | Path, what: str = "config") -> dict[str, Any]:
+    """A TOML file as a dict, or ConfigError naming the file and what is wrong with it."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the config file ({exc.strerror})") from None
+        raise ConfigError(f"{p}: cannot read the {what} file ({exc.strerror})") from None
     except UnicodeDecodeError:
-        raise ConfigError(f"{p}: the config file is not UTF-8 text") from None
+        raise ConfigError(f"{p}: the {what} file is not UTF-8 text") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML ({exc})") from None
-    return parse_config(data, str(p))
+
+
+PROTOCOL_KEYS = ("algorithms", "trials")
+
+
+def file_kind(data: dict[str, Any]) -> Literal["fleet", "protocol"]:
+    """A protocol has top-level ``algorithms``/``trials`` or a ``[fleet]`` table; anything
+    else is read as a fleet config (and validated as one)."""
+    if isinstance(data.get("fleet"), dict) or any(k in data for k in PROTOCOL_KEYS):
+        return "protocol"
+    return "fleet"
+
+
+def require_protocol(data: dict[str, Any], path: str | Path) -> None:
+    """Name a fleet config given where a protocol is expected, in one line."""
+    if file_kind(data) == "fleet":
+        raise ConfigError(
+            f"{path} is a fleet config, not a protocol: run it with `testbed trial --config "
+            f"{path}`, or give a protocol file (top-level algorithms and trials, its fleet "
+            "in a [fleet] table)")
+
+
+def load_fleet(path: str | Path | None, *, check_files: bool = True) -> FleetConfig:
+    """The fleet of a fleet config or of a protocol file (its ``[fleet]`` table).
+
+    Every verb that takes a fleet reads it here, so ``testbed check --config
+    protocols/physical.toml`` checks the protocol's own hosts. ``None`` gives the
+    built-in twin fleet.
+    """
+    if path is None:
+        return default_twin_config()
+    data = read_toml(path)
+    if file_kind(data) == "protocol":
+        fleet = data.get("fleet", {})
+        if not isinstance(fleet, dict):
+            raise ConfigError(f"{path}: fleet: a protocol's fleet must be a [fleet] table")
+        return parse_config(fleet, str(path), check_files=check_files, prefix=("fleet",))
+    return parse_config(data, str(path), check_files=check_files)
+
+
+def load_config(path: str | Path | None) -> FleetConfig:
+    """Read and validate a fleet config (or a protocol's fleet): ``load_fleet``."""
+    return load_fleet(path)
 
 
 TWIN_U_HAT = 0.17

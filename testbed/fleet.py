@@ -16,6 +16,7 @@ object, a ``Humans`` and a ``Learner`` only through their small APIs.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -141,6 +142,7 @@ class FleetLoop:
 
     # ---- one timestep ---------------------------------------------------------------
     def step(self, t: int) -> StepOutcome:
+        started = time.monotonic()
         observations = self.hosts.observe()
         live = [r for r in self.robots if isinstance(observations.get(r), ArmObservation)]
         self._add_transitions(observations)
@@ -225,9 +227,14 @@ class FleetLoop:
 
         results = self.hosts.execute(pushes, resets)
         train_info = training.result() if training is not None else {}
+        modes = self._final_modes(modes, results, pushes)
 
         row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
                        np.asarray(out.risk), keys, pushes)
+        # Timing rides along for the lab (DESIGN.md section 9): it is the one part of a
+        # row that differs between two runs of the same seed.
+        row["wall_time"] = time.time()
+        row["duration_s"] = time.monotonic() - started
         with critical():
             self.writer.write_step(row)
         self._count(row)
@@ -239,10 +246,23 @@ class FleetLoop:
             RobotStatus(r, modes[r], images[i] if not faulted[i] else None, humans_of[r])
             for i, r in enumerate(self.robots)
         ]
-        self.humans.show(t, self.status)
-        if self._after_step is not None:
+        if self._after_step is not None:  # checkpoint first: a stop in show keeps step t
             self._after_step(t)
+        self.humans.show(t, self.status)
         return StepOutcome(t, row, self.status, train_info)
+
+    def _final_modes(self, modes: Mapping[str, Mode],
+                     results: Mapping[str, PushResult | Fault],
+                     pushes: Mapping[str, int]) -> dict[str, Mode]:
+        """The modes the row records: a host's fault wins, then a push it refused."""
+        final = dict(modes)
+        for r in self.robots:
+            res = results.get(r)
+            if isinstance(res, Fault):
+                final[r] = Mode.FAULT
+            elif r in pushes and isinstance(res, PushResult) and res.refused is not None:
+                final[r] = Mode.REFUSED
+        return final
 
     def _row(
         self,
@@ -259,12 +279,9 @@ class FleetLoop:
         for i, r in enumerate(self.robots):
             res = results.get(r)
             mode = modes[r]
-            if isinstance(res, Fault):
-                mode = Mode.FAULT
             ok = isinstance(res, PushResult)
             faulted = mode is Mode.FAULT
-            rows.append(
-                {
+            entry: dict[str, Any] = {
                     "robot": r,
                     "mode": str(mode),
                     "human": humans_of[r],
@@ -275,7 +292,9 @@ class FleetLoop:
                     "risk": None if faulted else float(risk[i]),
                     "key": [float(k) for k in keys[i]],
                 }
-            )
+            if mode is Mode.REFUSED:
+                entry["refused"] = str(res.refused)  # type: ignore[union-attr]
+            rows.append(entry)
         faults = {
             r: res.reason for r, res in results.items() if isinstance(res, Fault)
         }
@@ -296,7 +315,7 @@ class FleetLoop:
         self._pending = {}
         for i, r in enumerate(self.robots):
             res = results.get(r)
-            if r in pushes and isinstance(res, PushResult):
+            if r in pushes and isinstance(res, PushResult) and res.refused is None:
                 self._pending[r] = _Pending(images[i], pushes[r], res.violation, res.success)
 
     def _add_transitions(self, observations: Mapping[str, ArmObservation | Fault]) -> None:

@@ -156,15 +156,24 @@ def rollout_policy(
     return _drive(hosts, count, choose, humans, t_R, progress, "rollout")
 
 
+_HOW_TO_REACH = frozenset({"transport", "address", "port", "user", "key_file", "known_hosts",
+                           "python", "workdir", "deadline_s", "heartbeat_s",
+                           "connect_timeout_s"})
+"""Host fields that say how a host is reached, not what it is: left out of the key, so a
+rehearsal's fresh ports or a lab's new address do not throw theta_0 away."""
+
+
 def pretrain_key(cfg: FleetConfig, seed: int) -> str:
-    """What shaped theta_0: the learning config, the fleet's arms, the seed."""
+    """What shaped theta_0: the learning config, the fleet's robots, the seed."""
+    hosts = [{k: v for k, v in h.model_dump(mode="json").items() if k not in _HOW_TO_REACH}
+             for h in cfg.hosts]
     blob = json.dumps(
         {
             "learning": cfg.learning.model_dump(mode="json"),
-            "hosts": [h.model_dump(mode="json") for h in cfg.hosts],
+            "hosts": hosts,
             "t_R": cfg.algorithm.t_R,
             "seed": seed,
-            "v": 1,
+            "v": 2,
         },
         sort_keys=True,
     )

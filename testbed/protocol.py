@@ -5,21 +5,41 @@ validated like any config), the algorithms, the number of trials, their seeds an
 steps. Runs go to ``<out>/<algorithm>-t<k>``; a run that already has its summary is
 skipped and one without it is resumed, so a protocol interrupted on day one goes on
 on day two with ``testbed protocol FILE`` again.
+
+For the lab (``protocols/physical.toml``): ``prompt_when = "before_each_run"`` asks the
+operator to put the cubes back before EVERY run (a caller such as ``testbed rehearse``
+passes ``before_run`` instead of a person), and ``order = "counterbalanced"`` runs the
+algorithms in a different, balanced order in each trial (a seeded Williams Latin
+square), so no algorithm always meets the freshest cubes or the most tired operator.
+Each run's run.json records its trial, its position and the trial's order. A run the
+operator stopped with Esc stays ``stopped`` (no summary, left out of the report); the
+protocol stops there and goes on from it when run again.
 """
 
 from __future__ import annotations
 
 import sys
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from testbed.config import ConfigError, FleetConfig, _one_line
+from testbed.config import (
+    ConfigError,
+    FleetConfig,
+    _one_line,
+    require_protocol,
+    validation_context,
+)
 from testbed.priorities import ALGORITHM_NAMES
 from testbed.report import Report, write_report
 from testbed.runs import RunDir
+
+if TYPE_CHECKING:
+    from testbed.fleet import StepOutcome
+    from testbed.humans import Humans
 
 
 class Protocol(BaseModel):
@@ -32,9 +52,28 @@ class Protocol(BaseModel):
     seeds: list[int] | None = None
     out: str = "runs/protocol"
     humans: Literal["scripted", "gui"] = "scripted"
-    prompt_between_trials: bool = False
+    prompt_when: Literal["never", "between_trials", "before_each_run"] = "never"
+    """When the operator is asked to put the cubes back (``prompt``): never, before
+    each trial but the first, or before every run (algorithm x trial)."""
     prompt: str = "Put every cube back near the centre of its workspace, then press Enter."
+    order: Literal["fixed", "counterbalanced"] = "fixed"
+    """``fixed``: every trial runs ``algorithms`` in the given order; ``counterbalanced``:
+    each trial a row of a Williams Latin square seeded from ``seeds`` (see run_order)."""
     fleet: FleetConfig = FleetConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy_prompt(cls, data: Any) -> Any:
+        """``prompt_between_trials = true`` (older protocol files) still works."""
+        if isinstance(data, dict) and "prompt_between_trials" in data:
+            data = dict(data)
+            legacy = data.pop("prompt_between_trials")
+            if not isinstance(legacy, bool):
+                raise ValueError("prompt_between_trials must be true or false; "
+                                 "prefer prompt_when")
+            if legacy and "prompt_when" not in data:
+                data["prompt_when"] = "between_trials"
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> Protocol:
@@ -48,35 +87,115 @@ class Protocol(BaseModel):
     def seed(self, k: int) -> int:
         return self.seeds[k] if self.seeds is not None else k
 
+    def run_order(self, k: int) -> list[str]:
+        """The algorithms of trial ``k`` in the order they run.
 
-def load_protocol(path: Path) -> Protocol:
+        Counterbalanced: trial k takes row k of a Williams Latin square over the
+        algorithms (rows shuffled and algorithms relabelled by an RNG seeded from the
+        protocol's trial seeds), so over each block of rows every algorithm runs once
+        in every position and, for an even count, follows every other one once; a
+        rerun of the protocol gets the same orders.
+        """
+        if self.order == "fixed" or len(self.algorithms) < 2:
+            return list(self.algorithms)
+        import numpy as np
+
+        n = len(self.algorithms)
+        rows = williams_square(n)
+        seeds = [self.seed(j) & 0xFFFFFFFF for j in range(self.trials)]
+        rng = np.random.default_rng(np.random.SeedSequence([0xC0B1A5, n, *seeds]))
+        row_order = rng.permutation(len(rows))
+        label = rng.permutation(n)
+        row = rows[int(row_order[k % len(rows)])]
+        return [self.algorithms[int(label[j])] for j in row]
+
+
+def williams_square(n: int) -> list[list[int]]:
+    """A Williams design: rows of a Latin square in which, for even ``n``, each symbol
+    follows each other one exactly once; for odd ``n`` the square and its mirror (2n
+    rows) together balance it."""
+    first = [0]
+    lo, hi = 1, n - 1
+    for j in range(1, n):
+        if j % 2:
+            first.append(lo)
+            lo += 1
+        else:
+            first.append(hi)
+            hi -= 1
+    rows = [[(v + i) % n for v in first] for i in range(n)]
+    if n % 2:
+        rows += [list(reversed(r)) for r in rows]
+    return rows
+
+
+def load_protocol(path: Path, *, check_files: bool = True) -> Protocol:
+    """``check_files=False``: expand but do not require the hosts' key_file/known_hosts
+    (a caller that rewrites the hosts, e.g. a rehearsal)."""
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the protocol file ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    require_protocol(data, path)
     try:
-        return Protocol.model_validate(data)
+        return Protocol.model_validate(data, context=validation_context(check_files))
     except ValidationError as err:
         raise ConfigError(_one_line(err, str(path))) from None
 
 
-def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True) -> Report:
+def run_protocol(
+    proto: Protocol,
+    out: str | None = None,
+    ask: bool = True,
+    *,
+    before_run: Callable[[str], None] | None = None,
+    humans: Callable[[str], Humans] | None = None,
+    wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
+    on_step: Callable[[StepOutcome], None] | None = None,
+) -> Report:
+    """Run every (trial, algorithm) of ``proto`` not yet complete, then the report.
+
+    ``proto.fleet`` is the fleet driven (a caller may rewrite it with ``model_copy``;
+    a resumed run drives it too). ``ask``: show the console prompt (``prompt_when``).
+    ``before_run(name)``: called before every run that starts or resumes, in place of
+    the console prompt (the rehearsal's lab hand puts every cube back). ``humans(name)``:
+    the run's humans (default from ``proto.humans``). ``wrap_hosts(hosts, run)``: wraps
+    each run's ``HostFleet`` (it must pass start/rest/close/reseed through).
+    ``on_step``: called after each step, beside the progress bar.
+
+    A run the operator stops (Esc) ends the protocol: the report then covers the
+    finished runs and says which one is stopped; ``testbed protocol FILE`` again
+    resumes it.
+    """
+    from testbed.config import ConfigError
     from testbed.progress import TrialProgress
-    from testbed.trial import TrialOptions, run_trial
+    from testbed.trial import STOPPED, TrialOptions, run_trial
 
     folder = Path(out or proto.out)
     folder.mkdir(parents=True, exist_ok=True)
     cfg = proto.fleet
+    total = proto.trials * len(proto.algorithms)
+    index = 0
     for k in range(proto.trials):
-        if k > 0 and proto.prompt_between_trials and ask:
-            _prompt(f"trial {k + 1}/{proto.trials}: {proto.prompt}")
-        for algorithm in proto.algorithms:
+        order = proto.run_order(k)
+        first_in_trial = True
+        for position, algorithm in enumerate(order):
+            index += 1
             name = f"{algorithm}-t{k}"
             run = RunDir(folder / name)
             if run.summary.exists():
                 continue
+            resume = run.path if run.state.exists() else None
+            what = "resume" if resume is not None else "start"
+            if before_run is not None:
+                before_run(name)
+            elif ask and (proto.prompt_when == "before_each_run"
+                          or (proto.prompt_when == "between_trials" and k > 0
+                              and first_in_trial)):
+                _prompt(f"run {index}/{total} ({what} {name}): {proto.prompt}")
+            first_in_trial = False
             opts = TrialOptions(
                 algorithm=algorithm,
                 steps=proto.steps,
@@ -85,12 +204,31 @@ def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True) -> R
                 humans=proto.humans,
                 name=name,
             )
-            resume = run.path if run.state.exists() else None
             if run.path.exists() and resume is None:
                 _discard(run.path)
+            meta = {"protocol": {"name": proto.name, "trial": k, "position": position,
+                                 "order": order, "ordering": proto.order}}
             with TrialProgress(proto.steps, cfg.humans.count, len(cfg.robot_names),
                                label=name) as bar:
-                run_trial(cfg, opts, resume=resume, on_step=bar.on_step, progress=bar.on_phase)
+
+                def tick(outcome: StepOutcome, bar: TrialProgress = bar) -> None:
+                    bar.on_step(outcome)
+                    if on_step is not None:
+                        on_step(outcome)
+
+                _, summary = run_trial(
+                    cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
+                    humans=humans(name) if humans is not None else None, meta=meta,
+                    host_configs=cfg.hosts if resume is not None else None,
+                    wrap_hosts=wrap_hosts)
+            if summary.get("status") == STOPPED:
+                note = (f"protocol stopped: {name} was stopped at step "
+                        f"{summary.get('stopped_at')}; run the protocol again to resume it")
+                sys.stderr.write(note + "\n")
+                try:
+                    return write_report([folder], folder)  # it names the stopped run
+                except ConfigError:  # nothing finished yet
+                    return Report(folder, note + "\n", [], [note])
     return write_report([folder], folder)
 
 
@@ -108,4 +246,4 @@ def _prompt(text: str) -> None:
     input(f"{text} ")
 
 
-__all__: list[Any] = ["Protocol", "load_protocol", "run_protocol"]
+__all__: list[Any] = ["Protocol", "load_protocol", "run_protocol", "williams_square"]

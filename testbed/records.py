@@ -59,6 +59,8 @@ _MODES: Final = frozenset(m.value for m in Mode)
 _HUMAN_MODES: Final = frozenset({Mode.TELEOP.value, Mode.RESET.value})
 _IDLE_MODES: Final = frozenset({Mode.IDLE.value, Mode.RESET.value})
 _NO_HUMAN_MODES: Final = frozenset({Mode.AUTONOMOUS.value, Mode.IDLE.value})
+# A refused push (the host could not push, e.g. the cube was not found) counts as neither
+# autonomous nor human (DESIGN.md section 9); the human of a refused teleop step is kept.
 
 
 class RecordError(ValueError):
@@ -80,13 +82,19 @@ def validate_step(obj: object) -> None:
 
     Extra fields are allowed (the row is extensible); the listed ones must be there
     with their types, robots must be unique, and the human must match the mode:
-    autonomous and idle arms have none, teleop and reset arms have one.
+    autonomous and idle arms have none, teleop and reset arms have one, a refused arm
+    may have one (a teleop push the host refused) and says why in ``refused``.
+    ``wall_time`` and ``duration_s`` (DESIGN.md section 9) are optional, so records
+    written before them still read, but must be finite numbers >= 0 when present.
     """
     if not isinstance(obj, dict):
         raise RecordError(f"step must be a JSON object, got {type(obj).__name__}")
     t = obj.get("t")
     if not _is_int(t) or t < 0:
         raise RecordError(f"t must be an int >= 0, got {t!r}")
+    for timing in ("wall_time", "duration_s"):
+        if timing in obj and not (_is_number(obj[timing]) and obj[timing] >= 0):
+            raise RecordError(f"{timing} must be a finite number >= 0, got {obj[timing]!r}")
     robots = obj.get("robots")
     if not isinstance(robots, list):
         raise RecordError(f"robots must be a list, got {type(robots).__name__}")
@@ -112,6 +120,12 @@ def validate_step(obj: object) -> None:
             raise RecordError(f"{where}: mode {mode!r} needs a human")
         if mode in _NO_HUMAN_MODES and human is not None:
             raise RecordError(f"{where}: mode {mode!r} cannot have a human")
+        refused = row.get("refused")
+        if mode == Mode.REFUSED.value and not (isinstance(refused, str) and refused):
+            raise RecordError(f"{where}: mode 'refused' needs the reason in refused, got "
+                              f"{refused!r}")
+        if "refused" in row and mode != Mode.REFUSED.value:
+            raise RecordError(f"{where}.refused is only for mode 'refused', got mode {mode!r}")
         action = row.get("action", ...)
         if action is ... or not (action is None or (_is_int(action)
                                                     and 0 <= action < NUM_ACTIONS)):
@@ -304,7 +318,7 @@ def _per_step_counts(steps: Sequence[Mapping[str, Any]]) -> dict[str, npt.NDArra
     n = len(steps)
     out = {k: np.zeros(n, dtype=np.int64) for k in
            ("t", "robots", "successes", "hard_resets", "idle_time", "human_actions",
-            "teleop_steps", "reset_steps", "fault_steps")}
+            "teleop_steps", "reset_steps", "fault_steps", "refused_steps")}
     last_t: int | None = None
     for i, step in enumerate(steps):
         t = step["t"]
@@ -323,6 +337,7 @@ def _per_step_counts(steps: Sequence[Mapping[str, Any]]) -> dict[str, npt.NDArra
             out["teleop_steps"][i] += mode == Mode.TELEOP.value
             out["reset_steps"][i] += mode == Mode.RESET.value
             out["fault_steps"][i] += mode == Mode.FAULT.value
+            out["refused_steps"][i] += mode == Mode.REFUSED.value
     return out
 
 
@@ -331,14 +346,16 @@ def summarize(steps: Sequence[Mapping[str, Any]], algorithm: str, num_humans: in
     """Every metric of DESIGN.md section 5 from the step rows (the one place they are made).
 
     ``num_robots`` defaults to the most robots any step lists. Extra keys beyond the
-    contract: ``teleop_steps``, ``reset_steps``, ``fault_steps``, ``last_t``.
+    contract: ``teleop_steps``, ``reset_steps``, ``fault_steps``, ``refused_steps``
+    (arm-steps the host refused to push: counted in none of the contract's metrics),
+    ``last_t``.
     """
     counts = _per_step_counts(steps)
     if num_robots is None:
         num_robots = int(counts["robots"].max()) if len(steps) else 0
     totals = {k: int(counts[k].sum()) for k in
               ("successes", "hard_resets", "idle_time", "human_actions",
-               "teleop_steps", "reset_steps", "fault_steps")}
+               "teleop_steps", "reset_steps", "fault_steps", "refused_steps")}
     return {
         "algorithm": algorithm,
         "steps": len(steps),
@@ -352,6 +369,7 @@ def summarize(steps: Sequence[Mapping[str, Any]], algorithm: str, num_humans: in
         "teleop_steps": totals["teleop_steps"],
         "reset_steps": totals["reset_steps"],
         "fault_steps": totals["fault_steps"],
+        "refused_steps": totals["refused_steps"],
         "last_t": int(counts["t"][-1]) if len(steps) else None,
     }
 

@@ -4,6 +4,8 @@ Every figure is recomputed from ``steps.jsonl`` (never from a summary someone ma
 edited), grouped by algorithm, and written as ``report.md``, ``report.csv`` and one PNG
 of the five cumulative curves (successes, hard resets, idle time, human actions, ROHE)
 with one line per algorithm, mean +- std over trials as in the seed's figures 6-9.
+Only finished runs count: a run whose run.json says ``stopped`` (Esc) or ``running``
+(in progress, or killed) is left out, and the report says so in one line.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +45,22 @@ class Report:
     folder: Path
     markdown: str
     runs: list[RunRecord]
+    notes: list[str] = field(default_factory=list)
+    """One line each: what the table leaves out (unfinished runs)."""
+
+
+def unfinished(path: Path) -> str | None:
+    """Why the run in ``path`` is not finished (``None``: it is, or it predates statuses)."""
+    meta_path = path / "run.json"
+    if not meta_path.exists():
+        return None
+    meta = json.loads(meta_path.read_text())
+    status = meta.get("status")
+    if status is None or status == "complete":
+        return None
+    if status == "stopped":
+        return f"stopped at step {meta.get('stopped_at')}"
+    return str(status)
 
 
 def find_runs(dirs: list[Path]) -> list[Path]:
@@ -130,16 +148,28 @@ def _plot(runs: list[RunRecord], path: Path) -> None:
 
 
 def write_report(dirs: list[Path], out: Path) -> Report:
-    runs = [load_run(p) for p in find_runs(dirs)]
-    if not runs:
-        from testbed.config import ConfigError
+    from testbed.config import ConfigError
 
+    found = find_runs(dirs)
+    if not found:
         raise ConfigError(
             "RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below the folders given)"
         )
+    left_out = {p: why for p in found if (why := unfinished(p)) is not None}
+    notes = []
+    if left_out:
+        notes.append(
+            f"left out {len(left_out)} unfinished run(s) (resume with testbed trial --resume "
+            "DIR, or run the protocol again): "
+            + ", ".join(f"{p} ({why})" for p, why in left_out.items())
+        )
+    runs = [load_run(p) for p in found if p not in left_out]
+    if not runs:
+        raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no finished run; {notes[0]}")
     out.mkdir(parents=True, exist_ok=True)
     md, csv_text = _table(runs)
+    md += "".join(f"\n{n}\n" for n in notes)
     atomic_write_bytes(out / "report.md", md.encode())
     atomic_write_bytes(out / "report.csv", csv_text.encode())
     _plot(runs, out / "curves.png")
-    return Report(out, md, runs)
+    return Report(out, md, runs, notes)

@@ -13,7 +13,7 @@ import contextlib
 import json
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from testbed.checkpoints import CheckpointWriter
-from testbed.config import ConfigError, FleetConfig
+from testbed.config import ConfigError, FleetConfig, HostConfig
 from testbed.fleet import FleetLoop, StepOutcome
 from testbed.humans import Humans, HumansStopRequested, make_humans
 from testbed.interrupts import critical
@@ -58,10 +58,14 @@ class TrialOptions:
     name: str | None = None
 
 
-def build_hosts(cfg: FleetConfig, seed: int) -> Any:
+def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> Any:
+    """The fleet's ``HostFleet``; with ``log_dir`` each host's agent log and the
+    controller's events about it go to ``log_dir/<host>.log`` (DESIGN.md section 9)."""
     from drivers.fleet import HostFleet
 
-    return HostFleet(cfg.hosts, trial_seed=seed)
+    if log_dir is None:
+        return HostFleet(cfg.hosts, trial_seed=seed)
+    return HostFleet(cfg.hosts, trial_seed=seed, log_dir=log_dir)
 
 
 def new_learner(cfg: FleetConfig, seed: int) -> Any:
@@ -79,44 +83,76 @@ def load_learner(cfg: FleetConfig, path: Path) -> Any:
 PRETRAIN_SEED = 0
 """Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison)."""
 
+PRETRAIN_HOSTS_SEED = PRETRAIN_SEED + 104729
+"""The hosts' trial seed while pretraining: the same world whichever trial pretrains."""
+
 
 def pretrained_learner(
-    cfg: FleetConfig, humans: Humans, out: Path, progress: Progress | None
+    cfg: FleetConfig,
+    humans: Humans,
+    out: Path,
+    progress: Progress | None,
+    hosts: Any = None,
+    trial_seed: int | None = None,
 ) -> tuple[Any, Path]:
     """theta_0: from the cache if this exact pretraining was done before, else made now.
 
-    Pretraining drives hosts of its own (seeded by ``PRETRAIN_SEED``), so the trial's
-    hosts start from the same state whether the cache was warm or cold, and the learner
-    is always reloaded from the checkpoint: a trial is reproducible either way.
+    A cold cache pretrains on the trial's own ``hosts`` (already started): one agent
+    per host, ever, which on hardware means one lock, one camera client, one SSH
+    session. They are reseeded to ``PRETRAIN_HOSTS_SEED`` first (theta_0 does not
+    depend on which trial happened to pretrain) and to ``trial_seed`` after, which
+    puts every host where a fresh start with that seed would; and the learner is
+    always reloaded from the checkpoint: so a trial is reproducible, cold cache or
+    warm. Without ``hosts`` (``testbed pretrain``-like callers, benchmarks) pretraining
+    builds and closes hosts of its own.
     """
     cache = out / ".pretrained" / pretrain_key(cfg, PRETRAIN_SEED)
     ckpt = cache / "learner.pt"
     if not ckpt.exists():
         cache.mkdir(parents=True, exist_ok=True)
-        hosts = build_hosts(cfg, PRETRAIN_SEED + 104729)
-        try:
-            hosts.start()
-            demos_path = cache / "demos.npz"
-            if demos_path.exists():
-                demos = load_transitions(demos_path)
-            else:
-                demos = collect_demos(
-                    hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress
-                )
-                save_transitions(demos, demos_path)
-            learner = new_learner(cfg, PRETRAIN_SEED)
-            data = pretrain(
-                learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
-                PRETRAIN_SEED, progress,
-            )
-            save_transitions(data, cache / "transitions.npz")
-            learner.save(ckpt)
-        finally:
+        if hosts is None:
+            own = build_hosts(cfg, PRETRAIN_HOSTS_SEED)
             try:
-                hosts.rest()
+                own.start()
+                _pretrain_into(cfg, humans, cache, own, progress)
             finally:
-                hosts.close()
+                try:
+                    own.rest()
+                finally:
+                    own.close()
+        else:
+            if trial_seed is None:
+                raise ValueError("pretraining on the trial's hosts needs the trial seed")
+            hosts.reseed(PRETRAIN_HOSTS_SEED)
+            _pretrain_into(cfg, humans, cache, hosts, progress)
+            hosts.reseed(trial_seed)
     return load_learner(cfg, ckpt), ckpt
+
+
+def _pretrain_into(
+    cfg: FleetConfig, humans: Humans, cache: Path, hosts: Any, progress: Progress | None
+) -> None:
+    """Collect the demos (unless cached), pretrain theta_0, write it to ``cache``."""
+    demos_path = cache / "demos.npz"
+    if demos_path.exists():
+        demos = load_transitions(demos_path)
+    else:
+        demos = collect_demos(hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress)
+        save_transitions(demos, demos_path)
+    learner = new_learner(cfg, PRETRAIN_SEED)
+    data = pretrain(
+        learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R, PRETRAIN_SEED, progress
+    )
+    save_transitions(data, cache / "transitions.npz")
+    learner.save(cache / "learner.pt")
+
+
+COMPLETE = "complete"
+STOPPED = "stopped"
+RUNNING = "running"
+"""run.json ``status``: ``running`` until the loop ends (also what a crash or a kill
+leaves), ``stopped`` when the operator stopped it (Esc; resumable, no summary),
+``complete`` when every step ran (summary.json written)."""
 
 
 def run_trial(
@@ -127,16 +163,34 @@ def run_trial(
     on_step: Callable[[StepOutcome], None] | None = None,
     progress: Progress | None = None,
     hosts: Any = None,
+    humans: Humans | None = None,
+    meta: Mapping[str, Any] | None = None,
+    host_configs: Sequence[HostConfig] | None = None,
+    wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
 ) -> tuple[RunDir, dict[str, Any]]:
-    """Run (or resume) a trial; return its folder and its summary."""
+    """Run (or resume) a trial; return its folder and its summary.
+
+    ``humans``: who answers the interventions (default: ``make_humans(opts.humans)``);
+    the trial closes it. ``meta``: extra keys for a new run's run.json (a protocol's
+    trial index and algorithm order). ``host_configs``: drive these hosts instead of
+    the run's (same host and arm names): a resumed protocol run takes the protocol's
+    current fleet, e.g. the fresh ports of a rehearsal or a lab's edited addresses.
+    ``wrap_hosts(hosts, run)``: wraps the hosts the trial builds (a rehearsal's truth
+    recorder); the wrapper passes start/rest/close/reseed through.
+
+    The summary has ``status``: ``complete`` (summary.json written) or ``stopped``
+    (the operator pressed Esc: run.json says ``stopped`` and the step; resume it with
+    ``testbed trial --resume`` or by rerunning the protocol; no summary.json until
+    it is finished).
+    """
     num_robots = len(cfg.robot_names)
     start = 0
     prior_rows: list[dict[str, Any]] = []
     if resume is not None:
         run = RunDir(resume)
         cfg = run.read_config()
-        meta = run.read_meta()
-        opts = TrialOptions(**meta["options"])
+        run_meta = run.read_meta()
+        opts = TrialOptions(**run_meta["options"])
         if not run.state.exists():
             raise ConfigError(f"{resume}: no checkpoint yet (state.json); start a new trial")
         state = json.loads(run.state.read_text())
@@ -144,65 +198,91 @@ def run_trial(
         prior_rows = [r for r in read_steps(run.steps) if r["t"] <= state["t"]]
         _rewrite_steps(run.steps, prior_rows)
         start = state["t"] + 1
+        run_meta.update(status=RUNNING, resumed=[*run_meta.get("resumed", []), time.time()])
+        run_meta.pop("stopped_at", None)
+        run.write_meta(run_meta)
     else:
         run = new_run_dir(opts.out, opts.name or f"{opts.algorithm}-s{opts.seed}")
         run.write_config(cfg)
-        run.write_meta({"options": opts.__dict__, "created": time.time()})
+        run_meta = {**(meta or {}), "options": opts.__dict__, "created": time.time(),
+                    "status": RUNNING}
+        run.write_meta(run_meta)
         state = None
+    if host_configs is not None:
+        cfg = _with_hosts(cfg, host_configs, run.path)
+    num_robots = len(cfg.robot_names)
 
     algorithm = get_algorithm(
         opts.algorithm, cfg.algorithm, num_robots, cfg.humans.count, opts.seed
     )
-    humans = make_humans(opts.humans, cfg.humans.count)
+    if humans is None:
+        humans = make_humans(opts.humans, cfg.humans.count)
     own_hosts = hosts is None
     if own_hosts:
-        hosts = build_hosts(cfg, opts.seed + (start * 7919 if start else 0))
+        hosts = build_hosts(cfg, opts.seed + (start * 7919 if start else 0),
+                            log_dir=run.path / "hosts")
+        if wrap_hosts is not None:
+            hosts = wrap_hosts(hosts, run)
     loop: FleetLoop | None = None
     checkpoints: CheckpointWriter | None = None
     writer: RunWriter | None = None
+    stopped_at: int | None = None
     try:
         if own_hosts:
             hosts.start()
-        if state is not None:
-            learner = load_learner(cfg, run.path / state["learner"])
-            algorithm.load_state_dict(state["algorithm"])
-        elif opts.policy is not None:
-            learner = load_learner(cfg, Path(opts.policy))
-        else:
-            learner, _ = pretrained_learner(cfg, humans, Path(opts.out), progress)
-        if state is None:  # the trial seed, not theta_0's, drives sampling from here on
-            learner.reseed(opts.seed)
-        writer = RunWriter(run.path)
+        try:
+            if state is not None:
+                learner = load_learner(cfg, run.path / state["learner"])
+                algorithm.load_state_dict(state["algorithm"])
+            elif opts.policy is not None:
+                learner = load_learner(cfg, Path(opts.policy))
+            else:
+                learner, _ = pretrained_learner(cfg, humans, Path(opts.out), progress,
+                                                hosts=hosts, trial_seed=opts.seed)
+        except HumansStopRequested as stop:  # Esc while the demos were being collected
+            LOG.warning("trial stopped by the operator before step %d: %s", start, stop)
+            stopped_at = start
+        if stopped_at is None:
+            if state is None:  # the trial seed, not theta_0's, drives sampling from here on
+                learner.reseed(opts.seed)
+            writer = RunWriter(run.path)
 
-        checkpoints = CheckpointWriter(run.path)
+            checkpoints = CheckpointWriter(run.path)
 
-        def checkpoint(t: int) -> None:
-            checkpoints.submit(t, learner, {"algorithm": algorithm.state_dict()})
+            def checkpoint(step: int) -> None:
+                checkpoints.submit(step, learner, {"algorithm": algorithm.state_dict()})
 
-        loop = FleetLoop(
-            hosts=hosts,
-            humans=humans,
-            learner=learner,
-            algorithm=algorithm,
-            writer=writer,
-            steps=opts.steps,
-            num_humans=cfg.humans.count,
-            t_T=cfg.algorithm.t_T,
-            t_R=cfg.algorithm.t_R,
-            after_step=checkpoint,
-        )
-        loop.restore_counters(prior_rows)
-        for t in range(start, opts.steps):
-            try:
-                outcome = loop.step(t)
-            except HumansStopRequested as stop:  # Esc + confirm on the console
-                LOG.warning("trial stopped by the operator at step %d: %s", t, stop)
-                break
-            if on_step is not None:
-                on_step(outcome)
-        checkpoints.wait()
-        with critical():
-            learner.save(run.learner)  # the trained policy: testbed evaluate --policy
+            loop = FleetLoop(
+                hosts=hosts,
+                humans=humans,
+                learner=learner,
+                algorithm=algorithm,
+                writer=writer,
+                steps=opts.steps,
+                num_humans=cfg.humans.count,
+                t_T=cfg.algorithm.t_T,
+                t_R=cfg.algorithm.t_R,
+                after_step=checkpoint,
+            )
+            loop.restore_counters(prior_rows)
+            for t in range(start, opts.steps):
+                try:
+                    outcome = loop.step(t)
+                except HumansStopRequested as stop:  # Esc + confirm on the console
+                    # From act: step t did not happen; from show: it did (logged and
+                    # checkpointed), and status.t is already t + 1. Resume starts there.
+                    stopped_at = max(t, loop.status.t)
+                    LOG.warning("trial stopped by the operator at step %d: %s", stopped_at,
+                                stop)
+                    break
+                if on_step is not None:
+                    on_step(outcome)
+            checkpoints.wait()
+            if stopped_at is not None and stopped_at >= opts.steps:
+                stopped_at = None  # the stop came after the last step: nothing is left
+            if stopped_at is None:
+                with critical():
+                    learner.save(run.learner)  # the trained policy: testbed evaluate --policy
     finally:
         if checkpoints is not None:
             with contextlib.suppress(RuntimeError):
@@ -217,8 +297,28 @@ def run_trial(
             finally:
                 hosts.close()
         humans.close()
+    if stopped_at is not None:
+        run_meta.update(status=STOPPED, stopped_at=stopped_at, stopped_time=time.time())
+        run.write_meta(run_meta)
+        summary = summarize(read_steps(run.steps) if run.steps.exists() else [],
+                            algorithm=opts.algorithm, num_humans=cfg.humans.count,
+                            num_robots=num_robots)
+        return run, {**summary, "status": STOPPED, "stopped_at": stopped_at}
     summary = write_summary(run, opts.algorithm, cfg.humans.count, num_robots)
-    return run, summary
+    run_meta.update(status=COMPLETE, finished=time.time())
+    run.write_meta(run_meta)
+    return run, {**summary, "status": COMPLETE}
+
+
+def _with_hosts(cfg: FleetConfig, hosts: Sequence[HostConfig], where: Path) -> FleetConfig:
+    """``cfg`` driving ``hosts`` instead; the robots must be the run's own."""
+    new = cfg.model_copy(update={"hosts": list(hosts)})
+    if new.robot_names != cfg.robot_names:
+        raise ConfigError(
+            f"{where}: the fleet's robots {new.robot_names} are not the run's "
+            f"{cfg.robot_names}; resume with the fleet the run was started with"
+        )
+    return new
 
 
 def _rewrite_steps(path: Path, rows: list[dict[str, Any]]) -> None:

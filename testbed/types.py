@@ -50,6 +50,8 @@ class Mode(StrEnum):
     RESET = "reset"
     IDLE = "idle"
     FAULT = "fault"
+    REFUSED = "refused"
+    """The host could not push (e.g. the cube not found): neither autonomous nor human."""
 
 
 class InterventionKind(StrEnum):
@@ -80,6 +82,8 @@ class PushResult:
     success: bool
     violation: bool
     """True on the step whose push took the cube out (an event, once per violation)."""
+    refused: str | None = None
+    """Why the host did not push this arm (None: it pushed, or it was not asked to)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -46,10 +46,18 @@ class ArmView:
 
 @dataclass(frozen=True, slots=True)
 class ArmOutcome:
-    """One arm's outcome of a push."""
+    """One arm's outcome of a push.
+
+    ``refused``: the backend did not push this arm and says why (e.g. the cube was not
+    found); the step is neither autonomous nor human for that arm. ``error``: this arm
+    alone failed (its sibling's push still happened and is reported); the controller
+    faults this arm only.
+    """
 
     success: bool
     violation: bool
+    refused: str | None = None
+    error: str | None = None
 
 
 class HostBackend(ABC):
@@ -87,6 +95,26 @@ class HostBackend(ABC):
     @abstractmethod
     def close(self) -> None:
         """Release the hardware; idempotent."""
+
+    # -- optional capabilities (a backend that lacks one says so) ------------------------
+    def reseed(self, seed: int) -> None:
+        """Start the host's task afresh from ``seed`` (twin: a new cell; YuMi: the goal
+        stream), as a newly started agent with that seed would."""
+        raise NotImplementedError(f"backend {self.kind!r} cannot be reseeded")
+
+    def frame(self) -> npt.NDArray[np.uint8]:
+        """The full camera frame as the camera gives it (BGR, HxWx3), for calibration and
+        ``testbed check``; arms may be in view."""
+        raise NotImplementedError(f"backend {self.kind!r} has no camera frame")
+
+    def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
+        """Calibration: bring ``arm``'s TCP to ``xyz_mm`` (robot base frame) from above;
+        returns the TCP position the controller reports there."""
+        raise NotImplementedError(f"backend {self.kind!r} cannot move a TCP to a point")
+
+    def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
+        """Write ``arm``'s calibration file atomically on the host; returns its path."""
+        raise NotImplementedError(f"backend {self.kind!r} has no calibration file")
 
     # -- helpers shared by the backends -------------------------------------------------
     def check_faces(self, faces: Mapping[str, Any]) -> dict[str, int]:

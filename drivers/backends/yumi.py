@@ -17,14 +17,30 @@ One push, per arm (all arms' programs run at once, MultiMove)::
 
 A picture is only taken with every TCP outside the camera's view; if an arm is in view
 (before or after the shot) it is sent to rest and the picture is taken again.
+
+A push the backend cannot make is *refused* with the reason (the cube not found in this
+picture, the arm violating), never reported as a push; a push that cannot be planned for
+one arm is that arm's *error* while the other arms' programs still run. Which controller
+client drives the arms (the real controller's RWS, the hardware twin) is chosen from the
+controller URL in :func:`~drivers.backends.yumi_controller.make_controller`, so nothing
+here knows the twin.
+
+Calibration mode (``build_yumi_backend(..., calibrating=[arm])``): that arm may have no
+calibration file yet, or one without a homography; it gets a provisional calibration,
+and only ``frame``, ``move_tcp``, ``rest`` and ``save_calibration`` work (observe, push
+and reset need the homography, so they are errors naming the arm).
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
+import logging
 import math
-from collections.abc import Mapping, Sequence
+import os
+import tempfile
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,7 +49,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
-from drivers.backends.camera import Camera
+from drivers.backends.camera import Camera, expand_path, is_url
 from drivers.backends.yumi_controller import ArmPose, Waypoint, YumiControllerClient
 from drivers.errors import BackendError
 from testbed.types import (
@@ -48,6 +64,11 @@ GOAL_RGB = (40, 200, 40)
 GOAL_RADIUS = 3.0 / 64.0
 GOAL_MARGIN = 0.12
 CUBE_HALF = 4.0 / 64.0
+CALIBRATION_BOX_MM = (-1000.0, -1000.0, 1000.0, 1000.0)
+"""Table box of an arm being calibrated whose file has none: wide on purpose; the
+calibration command supplies the safe box it drives in (``move_tcp`` refuses outside)."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,7 +160,9 @@ class ArmSetup:
     def canonical_to_pixel(self, c: Sequence[float]) -> tuple[float, float]:
         x0, y0, x1, y1 = self.crop
         cx = 1.0 - c[0] if self.mirror else c[0]
-        return (x0 + cx * (x1 - x0), y0 + c[1] * (y1 - y0))
+        # OpenCV's pixel centres are at integers: the crop's edge is half a pixel before
+        # x0, so canonical 0 is at x0 - 0.5 (the calibration's homography uses centres).
+        return (x0 - 0.5 + cx * (x1 - x0), y0 - 0.5 + c[1] * (y1 - y0))
 
     def canonical_to_table(self, c: Sequence[float]) -> tuple[float, float]:
         return self.calibration.pixel_to_table(*self.canonical_to_pixel(c))
@@ -162,7 +185,11 @@ def plan_push(arm: ArmSetup, centre: Sequence[float], yaw: float, face: int) -> 
     bx0, by0, bx1, by1 = cal.table_box_mm
 
     def table(p: Sequence[float], z: float) -> tuple[float, float, float]:
-        x, y = arm.canonical_to_table(p)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = arm.canonical_to_table(p)
+        if not (math.isfinite(x) and math.isfinite(y)):  # clipping would hide a bad homography
+            raise BackendError(f"arm {arm.name}: push point {tuple(p)} maps to a non-finite "
+                               f"table point; check the calibration's homography")
         return (min(max(x, bx0), bx1), min(max(y, by0), by1), z)
 
     vmax = cal.max_speed_mm_s
@@ -183,10 +210,17 @@ class YumiBackend(HostBackend):
 
     def __init__(self, arms: Sequence[ArmSetup], camera: Camera,
                  controller: YumiControllerClient, *, seed: int = 0,
-                 perception: Any = None, retakes: int = 3) -> None:
+                 perception: Any = None, retakes: int = 3,
+                 calibration_paths: Mapping[str, str] | None = None,
+                 calibrating: Collection[str] = ()) -> None:
         if not arms:
             raise BackendError("a YuMi host needs at least one arm")
         self._arms = {a.name: a for a in arms}
+        if unknown := sorted(set(calibrating) - set(self._arms)):
+            raise BackendError(f"cannot calibrate arm(s) {unknown}: this host has "
+                               f"{list(self._arms)}")
+        self._calibrating = frozenset(calibrating)
+        self._cal_paths = dict(calibration_paths or {})
         self._camera = camera
         self._controller = controller
         self._perception = perception
@@ -213,6 +247,15 @@ class YumiBackend(HostBackend):
         if self._perception is None:
             self._perception = importlib.import_module("testbed.perception")
         return self._perception
+
+    def _require_calibrated(self) -> None:
+        """Pictures need every arm's homography (an arm's TCP in view is judged with it)."""
+        for arm in self._arms:
+            if arm in self._calibrating:
+                err = BackendError(f"arm {arm} is being calibrated: observe, push and reset "
+                                   f"work once the agent restarts with its new calibration")
+                err.arm = arm  # type: ignore[attr-defined]
+                raise err
 
     # -- pictures --------------------------------------------------------------------
     def _arms_in_view(self) -> list[str]:
@@ -292,6 +335,7 @@ class YumiBackend(HostBackend):
 
     # -- HostBackend -----------------------------------------------------------------
     def observe(self) -> dict[str, ArmView]:
+        self._require_calibrated()
         crops = self._look()
         views: dict[str, ArmView] = {}
         for arm in self._arms:
@@ -308,24 +352,34 @@ class YumiBackend(HostBackend):
 
     def push(self, faces: Mapping[str, int]) -> dict[str, ArmOutcome]:
         faces = self.check_faces(faces)
+        self._require_calibrated()
         if any(self._pose[a] is None and self._violating[a] is None for a in faces):
             self.observe()
         moving = {a: f for a, f in faces.items()
                   if not self._violating[a] and self._pose[a] is not None}
         programs: dict[str, list[Waypoint]] = {}
+        errors: dict[str, str] = {}
         for name, arm in self._arms.items():
             if name in moving:
                 pose = self._pose[name]
-                programs[name] = plan_push(arm, pose.centre, float(pose.yaw), moving[name])
-            else:
-                programs[name] = [Waypoint("rest", None, arm.calibration.max_speed_mm_s)]
+                try:
+                    programs[name] = plan_push(arm, pose.centre, float(pose.yaw), moving[name])
+                    continue
+                except Exception as exc:  # this arm only: its siblings still push
+                    errors[name] = f"cannot plan the push: {type(exc).__name__}: {exc}"
+                    log.warning("arm %s: %s", name, errors[name])
+                    del moving[name]
+            programs[name] = [Waypoint("rest", None, arm.calibration.max_speed_mm_s)]
         if moving:
             self._controller.execute(programs)
             self._look()
         out: dict[str, ArmOutcome] = {}
         for arm in faces:
-            if arm not in moving:  # refused: violating (or no cube seen)
-                out[arm] = ArmOutcome(False, False)
+            if arm in errors:
+                out[arm] = ArmOutcome(False, False, error=errors[arm])
+                continue
+            if arm not in moving:  # refused: no cube seen, or violating: nothing moved
+                out[arm] = ArmOutcome(False, False, refused=self._refusal(arm))
                 continue
             if self._out(arm):
                 self._violating[arm] = True
@@ -339,8 +393,14 @@ class YumiBackend(HostBackend):
             out[arm] = ArmOutcome(success, False)
         return out
 
+    def _refusal(self, arm: str) -> str:
+        if self._pose[arm] is None:
+            return "cube not found"
+        return "arm is violating: waiting for a hard reset"
+
     def reset(self, arms: Sequence[str]) -> dict[str, bool]:
         arms = self.check_arms(arms)
+        self._require_calibrated()
         self._look()  # the human put the cube back; believe the picture, not the human
         done: dict[str, bool] = {}
         for arm in arms:
@@ -355,6 +415,71 @@ class YumiBackend(HostBackend):
         self._controller.execute({name: [Waypoint("rest", None, a.calibration.max_speed_mm_s)]
                                   for name, a in self._arms.items()})
 
+    def reseed(self, seed: int) -> None:
+        """A fresh goal stream from ``seed``, as a newly started agent would have: goals,
+        push counts and violations are forgotten and judged again at the next observe."""
+        self._rng = np.random.default_rng(seed)
+        for arm in self._arms:
+            self._goal[arm] = None
+            self._violating[arm] = None
+            self._pose[arm] = None
+            self._pushes[arm] = 0
+
+    def frame(self) -> npt.NDArray[np.uint8]:
+        return self._camera.read()
+
+    def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
+        """Calibration: above the point at travel height, then straight down to it.
+
+        A point outside the arm's table box is refused (ValueError), never clipped: the
+        calibration fit needs the TCP where it was asked to be. An arm low over the table
+        is lifted straight up first, so its joint move does not sweep the table.
+        """
+        if arm not in self._arms:
+            raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
+        try:
+            x, y, z = (float(v) for v in xyz_mm)
+        except (TypeError, ValueError):
+            raise ValueError(f"arm {arm}: xyz_mm must be 3 numbers, got {xyz_mm!r}") from None
+        if not all(math.isfinite(v) for v in (x, y, z)):
+            raise ValueError(f"arm {arm}: xyz_mm must be finite, got {(x, y, z)}")
+        cal = self._arms[arm].calibration
+        bx0, by0, bx1, by1 = cal.table_box_mm
+        if not (bx0 <= x <= bx1 and by0 <= y <= by1):
+            raise ValueError(f"arm {arm}: ({x:g}, {y:g}) mm is outside its table box "
+                             f"{cal.table_box_mm}; refusing to move there")
+        if z < 0:
+            raise ValueError(f"arm {arm}: z = {z:g} mm is below the table top (z = 0)")
+        vmax = cal.max_speed_mm_s
+        vslow = min(vmax, 2 * cal.push_speed_mm_s)
+        program: list[Waypoint] = []
+        cx, cy, cz = self._controller.tcp_xyz()[arm]
+        if cz < cal.z_travel_mm and bx0 <= cx <= bx1 and by0 <= cy <= by1:
+            program.append(Waypoint("move_l", (cx, cy, cal.z_travel_mm), vslow, fine=False))
+        program += [Waypoint("move_j", (x, y, cal.z_travel_mm), vmax, fine=False),
+                    Waypoint("move_l", (x, y, z), vslow)]
+        self._controller.execute({arm: program})
+        return self._controller.tcp_xyz()[arm]
+
+    def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
+        """Validate ``data`` as ``arm``'s calibration and replace its file atomically (a
+        crash leaves the old file or the new one, never half of one). The running backend
+        keeps its calibration: the new one is used from the agent's next start."""
+        if arm not in self._arms:
+            raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
+        path = self._cal_paths.get(arm)
+        if path is None:
+            raise BackendError(f"arm {arm}: no calibration file configured for it")
+        if not isinstance(data, Mapping):
+            raise ValueError(f"arm {arm}: calibration data must be an object, got "
+                             f"{type(data).__name__}")
+        try:
+            ArmCalibration.from_dict(data, arm, path)
+        except BackendError as exc:
+            raise ValueError(str(exc)) from None
+        write_atomic(Path(path), json.dumps(dict(data), indent=2) + "\n")
+        return path
+
     def close(self) -> None:
         if not self._closed:
             self._closed = True
@@ -364,34 +489,88 @@ class YumiBackend(HostBackend):
                 self._controller.close()
 
 
+def write_atomic(path: Path, text: str) -> None:
+    """Temp file in the same folder, fsync, ``os.replace``, fsync the folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fchmod(f.fileno(), mode)
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    with contextlib.suppress(OSError):  # the rename itself durable (not on every FS)
+        dfd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+
+
+def provisional_calibration(path: str, arm: str) -> ArmCalibration:
+    """An arm being calibrated: the file's speeds, heights, table box and rest pose when
+    it has them, an identity homography (unused: pictures are off in calibration mode)
+    and, without a table box in the file, the wide :data:`CALIBRATION_BOX_MM`."""
+    p = Path(path)
+    d: dict[str, Any] = {}
+    if p.exists():
+        try:
+            d = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise BackendError(f"arm {arm}: cannot read calibration {p}: {exc}") from None
+        if not isinstance(d, dict):
+            raise BackendError(f"arm {arm}: calibration {p} is not a JSON object")
+    d = {**d, "homography": np.eye(3).tolist()}
+    d.setdefault("table_box_mm", list(CALIBRATION_BOX_MM))
+    return ArmCalibration.from_dict(d, arm, str(p))
+
+
 def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
                        crops: Mapping[str, tuple[int, int, int, int]],
                        calibrations: Mapping[str, str], camera: str | None,
-                       controller_url: str | None, seed: int = 0) -> YumiBackend:
-    """The agent's ``--backend yumi``: real camera, real controller."""
+                       controller_url: str | None, seed: int = 0,
+                       calibrating: Collection[str] = ()) -> YumiBackend:
+    """The agent's ``--backend yumi``: its camera, its controller (real or twin).
+
+    Paths (calibration files, a video-file camera) are host paths: ``~`` and ``$VARS``
+    are expanded here, on the host. ``calibrating``: arms in calibration mode (see the
+    module docstring).
+    """
     from drivers.backends.camera import VideoCaptureCamera
-    from drivers.backends.yumi_controller import RwsYumiController
+    from drivers.backends.yumi_controller import make_controller
 
     if camera is None:
-        raise BackendError("--backend yumi needs --camera (device index or video file)")
+        raise BackendError("--backend yumi needs --camera (device index, video file or "
+                           "http(s)/rtsp URL)")
     if controller_url is None:
-        raise BackendError("--backend yumi needs --controller-url (the controller's RWS URL)")
+        raise BackendError("--backend yumi needs --controller-url (the controller's RWS URL, "
+                           "or twin+http://HOST:PORT)")
+    if unknown := [a for a in calibrating if a not in arms]:
+        raise BackendError(f"--calibrate {unknown[0]}: no such arm; this host has {list(arms)}")
     setups: list[ArmSetup] = []
+    paths: dict[str, str] = {}
     for name, m in zip(arms, mirror, strict=True):
         if name not in crops:
             raise BackendError(f"arm {name}: --crop {name}=x0,y0,x1,y1 is required for yumi")
         if name not in calibrations:
             raise BackendError(f"arm {name}: --calibration {name}=FILE is required for yumi")
-        cal = ArmCalibration.load(calibrations[name], name)
-        if cal.pose is None:
-            raise BackendError(f"arm {name}: calibration {calibrations[name]} has no "
-                               f"'rest_joints_deg' (7 angles)")
+        paths[name] = expand_path(calibrations[name], f"arm {name}: calibration")
+        cal = (provisional_calibration(paths[name], name) if name in calibrating
+               else ArmCalibration.load(paths[name], name))
         setups.append(ArmSetup(name, crops[name], m, cal))
-    cam = VideoCaptureCamera(camera)
+    ctrl = make_controller(controller_url, {s.name: s.calibration.pose for s in setups})
     try:
-        poses = {s.name: s.calibration.pose for s in setups}
-        ctrl = RwsYumiController(controller_url, poses)  # type: ignore[arg-type]
+        if not camera.isdigit() and not is_url(camera):
+            camera = expand_path(camera, "camera")
+        cam = VideoCaptureCamera(camera)
     except Exception:
-        cam.close()
+        ctrl.close()
         raise
-    return YumiBackend(setups, cam, ctrl, seed=seed)
+    return YumiBackend(setups, cam, ctrl, seed=seed, calibration_paths=paths,
+                       calibrating=calibrating)

@@ -4,7 +4,9 @@ Why a boundary: the real controller (an IRC5 reached through Robot Web Services)
 run in CI, so :class:`~drivers.backends.yumi.YumiBackend` talks to a small client
 protocol. :class:`RwsYumiController` implements it with ``abb-motion-program-exec``
 (MultiMove: both arms' programs start together, one RAPID task per arm, ``T_ROB_L`` and
-``T_ROB_R``) and ``abb-robot-client`` (RWS reads of the TCP positions).
+``T_ROB_R``) and ``abb-robot-client`` (RWS reads of the TCP positions). The hardware twin's client
+(``drivers.backends.twin_controller``) is the other real one; :func:`make_controller`
+picks one from the controller URL.
 :class:`FakeYumiController` implements it for tests and records every waypoint; it is a
 fake on purpose and says so in its name.
 """
@@ -59,6 +61,30 @@ class YumiControllerClient(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+def make_controller(url: str, poses: Mapping[str, ArmPose | None], *,
+                    field_name: str = "controller_url") -> YumiControllerClient:
+    """The controller client that ``url`` names: ``twin+http://HOST:PORT`` the hardware
+    twin (:class:`~drivers.backends.twin_controller.TwinControllerClient`), ``http(s)://``
+    the real controller's Robot Web Services. Here, so that ``yumi.py`` never knows which
+    one it drives. ``poses``: every arm (config order) with its pose from the calibration
+    file; the real controller needs each arm's rest pose, the twin knows its own."""
+    low = url.strip().lower()
+    if low.startswith("twin+http://"):
+        from drivers.backends.twin_controller import TwinControllerClient
+
+        return TwinControllerClient(url.strip(), list(poses))
+    if low.startswith(("http://", "https://")):
+        if missing := [arm for arm, pose in poses.items() if pose is None]:
+            raise BackendError(
+                f"arm {missing[0]}: its calibration file has no 'rest_joints_deg' (7 angles): "
+                f"the YuMi controller (RWS) needs every arm's rest pose, also while "
+                f"calibrating" + (f" (arms without one: {missing})" if len(missing) > 1 else ""))
+        return RwsYumiController(url.strip(), {a: p for a, p in poses.items() if p is not None})
+    raise BackendError(f"{field_name}: {url!r} is not a controller URL; expected http(s)://HOST "
+                       f"(the YuMi's Robot Web Services) or twin+http://HOST:PORT (the "
+                       f"hardware twin)")
 
 
 class RwsYumiController:

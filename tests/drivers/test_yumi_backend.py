@@ -131,7 +131,8 @@ def test_violation_refusal_and_the_reset_recheck(tmp_path: Path) -> None:
     views = backend.observe()
     assert views["left"].violating and not views["right"].violating
     n = len(ctrl.programs)
-    assert backend.push({"left": 1}) == {"left": ArmOutcome(False, False)}  # refused: no motion
+    assert backend.push({"left": 1}) == {  # refused, with the reason: no motion
+        "left": ArmOutcome(False, False, refused="arm is violating: waiting for a hard reset")}
     assert len(ctrl.programs) == n
     assert backend.reset(["left"]) == {"left": False}  # the picture says: still out
     assert backend.reset(["left"]) == {"left": True}  # now it is back
@@ -200,3 +201,54 @@ def test_yumi_agent_with_an_unreachable_controller_faults_clearly(tmp_path: Path
     assert "Traceback" in f.traceback
     assert not isinstance(obs["yumi0/right"], ArmObservation)
     assert np.all([isinstance(o, Fault) for o in obs.values()])
+
+
+def test_reseed_gives_the_goals_of_a_fresh_backend_with_that_seed(tmp_path: Path) -> None:
+    pictures = [twin_picture(5)]
+    fresh, _ = make_yumi(tmp_path, pictures, seed=9, name="fresh")
+    want = {a: v.goal for a, v in fresh.observe().items()}
+    fresh.close()
+    backend, _ = make_yumi(tmp_path, pictures, seed=0)
+    first = {a: v.goal for a, v in backend.observe().items()}
+    backend.reseed(9)
+    assert {a: v.goal for a, v in backend.observe().items()} == want != first
+    backend.close()
+
+
+def test_a_push_point_off_the_homography_is_an_error_not_a_clipped_waypoint() -> None:
+    cal = yumi_calibration("left")
+    # w = 1 - (u + 0.5)/128 vanishes on u = 127.5: the crop's centre line (pixel centres
+    # at integers, so the crop's edge is at -0.5)
+    cal["homography"] = [[0.0, 1.25, 200.0], [1.25, 0.0, -360.0],
+                         [-1 / 128, 0.0, 1.0 - 0.5 / 128]]
+    arm = ArmSetup("left", YUMI_CROPS["left"], False, ArmCalibration.from_dict(cal, "left"))
+    with pytest.raises(BackendError, match=r"arm left: push point .* non-finite"):
+        plan_push(arm, (0.5 + (8 / 64 + 4 / 64), 0.5), 0.0, 3)
+
+
+def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> None:
+    from drivers.backends.yumi import CALIBRATION_BOX_MM, YumiBackend, build_yumi_backend
+
+    video = str(write_video(tmp_path / "cam.avi", [twin_picture(0)]))
+    right = tmp_path / "right.json"
+    right.write_text(json.dumps(yumi_calibration("right")))
+    cals = {"left": str(tmp_path / "none-yet.json"), "right": str(right)}
+
+    def build(url: str, calibrating: list[str]) -> YumiBackend:
+        return build_yumi_backend(["left", "right"], [False, True], YUMI_CROPS, cals, video,
+                                  url, calibrating=calibrating)
+
+    with pytest.raises(BackendError, match=r"--calibrate middle: no such arm"):
+        build("twin+http://127.0.0.1:9", ["middle"])
+    with pytest.raises(BackendError, match=r"arm left: cannot read calibration"):
+        build("twin+http://127.0.0.1:9", [])  # not calibrating: the file must exist
+    with pytest.raises(BackendError, match=r"arm left: .*'rest_joints_deg'.*RWS"):
+        build("http://127.0.0.1:9", ["left"])
+    backend = build("twin+http://127.0.0.1:9", ["left"])
+    assert backend._arms["left"].calibration.table_box_mm == CALIBRATION_BOX_MM
+    with pytest.raises(BackendError, match="arm left is being calibrated"):
+        backend.push({"right": 0})
+    assert backend.frame().shape == (256, 576, 3)
+    with pytest.raises(ValueError, match="unknown arm"):
+        backend.move_tcp("middle", (0, 0, 0))
+    backend.close()

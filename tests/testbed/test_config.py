@@ -4,14 +4,29 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
 
 from testbed.cli import main
-from testbed.config import ConfigError, default_twin_config, load_config
+from testbed.config import (
+    ConfigError,
+    TwinHost,
+    YumiHost,
+    default_twin_config,
+    file_kind,
+    load_config,
+    load_fleet,
+    parse_config,
+)
 
 HOST = '[[hosts]]\nname = "cell0"\n'
+YUMI = (
+    '[[hosts]]\nname = "yumi0"\nbackend = "yumi"\ncamera = "0"\n'
+    'controller_url = "http://192.0.2.1"\n'
+    'arms = [{name = "left", crop = [0, 0, 300, 300], calibration = "/c/l.json"}]\n'
+)
 
 # (id, TOML text, a word the one-line error must contain)
 MALFORMED: list[tuple[str, str, str]] = [
@@ -49,6 +64,32 @@ MALFORMED: list[tuple[str, str, str]] = [
     ("deadline-negative", HOST + "deadline_s = -1\n", "deadline_s"),
     ("hosts-not-list", 'hosts = "cell0"\n', "hosts"),
     ("algorithm-name", '[algorithm]\nname = "magic"\n', "magic"),
+    # The host union: YuMi fields checked at load time, each backend's own fields only.
+    ("yumi-no-camera", YUMI.replace('camera = "0"\n', ""), "hosts[0].camera"),
+    ("yumi-no-controller", YUMI.replace('controller_url = "http://192.0.2.1"\n', ""),
+     "hosts[0].controller_url"),
+    ("yumi-controller-scheme", YUMI.replace("http://192.0.2.1", "ftp://192.0.2.1"),
+     "hosts[0].controller_url"),
+    ("yumi-controller-no-host", YUMI.replace("http://192.0.2.1", "twin+http://"),
+     "hosts[0].controller_url"),
+    ("yumi-camera-scheme", YUMI.replace('camera = "0"', 'camera = "ftp://cam/x"'),
+     "hosts[0].camera"),
+    ("yumi-camera-empty", YUMI.replace('camera = "0"', 'camera = " "'), "hosts[0].camera"),
+    ("yumi-no-crop", YUMI.replace("crop = [0, 0, 300, 300], ", ""), "hosts[0].arms[0].crop"),
+    ("yumi-no-calibration", YUMI.replace(', calibration = "/c/l.json"', ""),
+     "hosts[0].arms[0].calibration"),
+    ("yumi-calibration-not-json", YUMI.replace("/c/l.json", "/c/l.yaml"),
+     "hosts[0].arms[0].calibration"),
+    ("yumi-seed", YUMI + "seed = 3\n", "hosts[0].seed: seed is a twin-only field"),
+    ("yumi-physics", YUMI + "physics = false\n", "twin-only"),
+    ("twin-camera", HOST + 'camera = "0"\n', "hosts[0].camera: camera is a yumi-only field"),
+    ("twin-controller", HOST + 'controller_url = "http://x"\n', "yumi-only"),
+    ("backend-not-string", HOST + "backend = 3\n", "hosts[0].backend"),
+    ("key-file-missing", HOST + 'key_file = "/no/such/key"\n', "hosts[0].key_file: no such"),
+    ("known-hosts-missing", HOST + 'known_hosts = "/no/such/kh"\n', "hosts[0].known_hosts"),
+    ("unset-var", HOST + 'key_file = "$T1_SURELY_UNSET_VAR/k"\n', "$T1_SURELY_UNSET_VAR"),
+    ("unset-var-local-workdir", HOST + 'workdir = "${T1_SURELY_UNSET_VAR}/x"\n',
+     "hosts[0].workdir"),
 ]
 
 
@@ -119,16 +160,28 @@ def test_default_config_is_the_twin_fleet() -> None:
     assert all(h.transport == "local" and h.backend == "twin" for h in cfg.hosts)
 
 
-def test_shipped_protocols_are_valid() -> None:
+def lab_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A HOME holding the key and known_hosts files that physical.toml names."""
+    home = tmp_path / "home"
+    (home / ".ssh").mkdir(parents=True)
+    for name in ("fleet_ed25519", "known_hosts"):
+        (home / ".ssh" / name).write_text("x\n")
+    monkeypatch.setenv("HOME", str(home))
+    return home
+
+
+def test_shipped_protocols_are_valid(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from testbed.protocol import load_protocol
 
+    home = lab_home(tmp_path, monkeypatch)
     root = Path(__file__).resolve().parents[2] / "protocols"
     twin = load_protocol(root / "twin.toml")
     phys = load_protocol(root / "physical.toml")
     assert twin.trials == 3 and twin.steps == 250 and len(twin.fleet.robot_names) == 4
     assert phys.algorithms == ["bc", "random", "fleet-ed", "cur"]
-    assert phys.fleet.humans.kind == "gui" and phys.prompt_between_trials
+    assert phys.fleet.humans.kind == "gui" and phys.prompt_when == "before_each_run"
     assert all(h.transport == "ssh" and h.backend == "yumi" for h in phys.fleet.hosts)
+    assert all(h.key_file == str(home / ".ssh/fleet_ed25519") for h in phys.fleet.hosts)
     # One calibrated u_hat for the twin: the default trial and the twin protocol agree.
     assert twin.fleet.algorithm.u_hat == default_twin_config().algorithm.u_hat == 0.17
     assert phys.fleet.learning.critic_steps == 3000
@@ -137,3 +190,59 @@ def test_shipped_protocols_are_valid() -> None:
 def test_load_config_missing_file_is_config_error(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "none.toml")
+
+
+def test_backend_selects_the_host_model() -> None:
+    cfg = parse_config(tomllib.loads(HOST + YUMI))
+    twin, yumi = cfg.hosts
+    assert isinstance(twin, TwinHost) and twin.backend == "twin"  # absent key: twin
+    assert isinstance(yumi, YumiHost) and yumi.camera == "0" and yumi.arms[0].crop
+    assert not hasattr(yumi, "seed") and not hasattr(twin, "camera")
+    assert parse_config(tomllib.loads(YUMI.replace('"0"', "2"))).hosts[0].camera == "2"
+    again = parse_config(cfg.model_dump(mode="json"))  # a run's config.toml round trip
+    assert again == cfg and [type(h) for h in again.hosts] == [TwinHost, YumiHost]
+
+
+def test_paths_expand_tilde_and_vars(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    home = lab_home(tmp_path, monkeypatch)
+    monkeypatch.setenv("LAB", str(tmp_path / "lab"))
+    local = (YUMI.replace('camera = "0"', 'camera = "$LAB/cam.avi"')
+             .replace("/c/l.json", "~/calib/left.json")
+             + 'key_file = "~/.ssh/fleet_ed25519"\nknown_hosts = "${HOME}/.ssh/known_hosts"\n'
+             'python = "$LAB/venv/bin/python"\nworkdir = "~/fleet"\n')
+    h = parse_config(tomllib.loads(local)).hosts[0]
+    assert h.key_file == str(home / ".ssh/fleet_ed25519")
+    assert h.known_hosts == str(home / ".ssh/known_hosts")
+    assert (h.python, h.workdir) == (f"{tmp_path}/lab/venv/bin/python", f"{home}/fleet")
+    assert h.camera == f"{tmp_path}/lab/cam.avi"
+    assert h.arms[0].calibration == f"{home}/calib/left.json"
+    # Over ssh python/workdir/camera/calibration are the robot host's paths: as written.
+    remote = local.replace('python = "$LAB/venv/bin/python"', 'python = "/opt/py"') + (
+        'transport = "ssh"\nuser = "fleet"\n')
+    r = parse_config(tomllib.loads(remote)).hosts[0]
+    assert r.key_file == str(home / ".ssh/fleet_ed25519")  # read here: expanded
+    assert (r.workdir, r.camera, r.arms[0].calibration) == (
+        "~/fleet", "$LAB/cam.avi", "~/calib/left.json")
+
+
+def test_missing_key_file_checked_unless_told(tmp_path: Path) -> None:
+    text = HOST + 'key_file = "~/no-such-key"\n'
+    with pytest.raises(ConfigError, match=r"hosts\[0\]\.key_file: no such file"):
+        parse_config(tomllib.loads(text))
+    # A caller that rewrites the hosts (a rehearsal) loads without the check.
+    assert parse_config(tomllib.loads(text), check_files=False).hosts[0].key_file.endswith(
+        "/no-such-key")
+
+
+def test_load_fleet_reads_a_protocol_fleet(tmp_path: Path) -> None:
+    root = Path(__file__).resolve().parents[2] / "protocols"
+    cfg = load_fleet(root / "twin.toml")
+    assert cfg.name == "twin" and len(cfg.robot_names) == 4
+    assert load_fleet(root / "physical.toml", check_files=False).name == "yumi-lab"
+    bad = tmp_path / "proto.toml"
+    bad.write_text('name = "p"\ntrials = 1\n[fleet]\n[[fleet.hosts]]\nname = "a"\nport = 0\n')
+    with pytest.raises(ConfigError, match=r"proto.toml: fleet.hosts\[0\].port"):
+        load_fleet(bad)
+    fleet = tmp_path / "fleet.toml"
+    fleet.write_text(HOST)
+    assert file_kind(tomllib.loads(HOST)) == "fleet" and load_fleet(fleet).hosts[0].name == "cell0"

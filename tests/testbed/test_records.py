@@ -66,7 +66,8 @@ def test_summarize_a_hand_built_log() -> None:
         "algorithm": "cur", "steps": 4, "num_robots": 3, "num_humans": 2,
         "successes": 3, "hard_resets": 2, "idle_time": 4, "human_actions": 5,
         "rohe": pytest.approx((2 / 3) * 3 / (1 + 5)),
-        "teleop_steps": 3, "reset_steps": 2, "fault_steps": 0, "last_t": 3,
+        "teleop_steps": 3, "reset_steps": 2, "fault_steps": 0, "refused_steps": 0,
+        "last_t": 3,
     }
     assert summarize(LOG, "cur", num_humans=2, num_robots=4)["rohe"] == pytest.approx(
         (2 / 4) * 3 / 6)
@@ -82,6 +83,19 @@ def test_summarize_counts_faults_but_not_as_effort() -> None:
     rows = [{"t": 0, "robots": [robot("h/a", "fault"), robot("h/b", "fault", 1)]}]
     s = summarize(rows, "bc", num_humans=2)
     assert (s["fault_steps"], s["human_actions"], s["idle_time"]) == (2, 0, 0)
+
+
+def test_summarize_counts_refused_as_neither_autonomous_nor_human() -> None:
+    rows = [{"t": 0, "wall_time": 1.7e9, "duration_s": 0.8,
+             "robots": [robot("h/a", "refused", action=2) | {"refused": "cube not found"},
+                        robot("h/b", "refused", 1, action=0) | {"refused": "cube not found"},
+                        robot("h/c", "autonomous", action=1, success=True)]}]
+    for row in rows:
+        validate_step(row)
+    s = summarize(rows, "cur", num_humans=2)
+    assert (s["refused_steps"], s["human_actions"], s["idle_time"], s["teleop_steps"],
+            s["successes"]) == (2, 0, 0, 0, 1)
+    assert s["rohe"] == pytest.approx((2 / 3) * 1 / 1)
 
 
 def test_summarize_empty_log() -> None:
@@ -290,6 +304,10 @@ def test_valid_rows_pass() -> None:
         validate_step(row)
     validate_step({"t": 0, "robots": [], "faults": {"h/a": "timeout"}})  # extras allowed
     validate_step({"t": 0, "robots": [robot("h/a", "fault", 1)]})
+    # DESIGN.md section 9: timing, and a push the host refused (with or without a human)
+    validate_step({"t": 3, "wall_time": 1.7e9, "duration_s": 0.0, "robots": [
+        robot("h/a", "refused", action=1) | {"refused": "cube not found"},
+        robot("h/b", "refused", 0, action=1) | {"refused": "arm violating"}]})
 
 
 @pytest.mark.parametrize(
@@ -309,7 +327,10 @@ def test_valid_rows_pass() -> None:
      ({"risk": float("inf")}, r"risk must be a finite number or null"),
      ({"key": [1, "a"]}, r"key must be a list of finite numbers"),
      ({"key": 1.0}, r"key must be a list"),
-     ({"robot": ""}, r"robot must be a non-empty string")],
+     ({"robot": ""}, r"robot must be a non-empty string"),
+     ({"mode": "refused"}, r"mode 'refused' needs the reason in refused, got None"),
+     ({"mode": "refused", "refused": ""}, r"needs the reason in refused"),
+     ({"refused": "cube not found"}, r"refused is only for mode 'refused'")],
 )
 def test_bad_rows_name_the_field(patch: dict[str, Any], match: str) -> None:
     row = {"t": 0, "robots": [robot("h/a", "autonomous", action=1) | patch]}
@@ -326,7 +347,10 @@ def test_bad_rows_name_the_field(patch: dict[str, Any], match: str) -> None:
      ({"t": 0, "robots": [1]}, r"robots\[0\] must be an object"),
      ({"t": 0, "robots": [robot("h/a", "idle"), robot("h/a", "idle")]}, r"appears twice"),
      ({"t": 0, "robots": [{k: v for k, v in robot("h/a", "idle").items() if k != "human"}]},
-      r"human must be an int >= 0 or null, got nothing")],
+      r"human must be an int >= 0 or null, got nothing"),
+     ({"t": 0, "robots": [], "wall_time": "noon"}, r"wall_time must be a finite number >= 0"),
+     ({"t": 0, "robots": [], "duration_s": -0.1}, r"duration_s must be a finite number >= 0"),
+     ({"t": 0, "robots": [], "duration_s": float("nan")}, r"duration_s must be a finite")],
 )
 def test_bad_steps_name_the_field(row: dict[str, Any], match: str) -> None:
     with pytest.raises(RecordError, match=match):
