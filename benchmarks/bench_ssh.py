@@ -53,11 +53,11 @@ from drivers.fleet import HostFleet  # noqa: E402
 from drivers.session import HostSession  # noqa: E402
 from drivers.testing.sshd import SshServer, sshd_available  # noqa: E402
 from drivers.transport import SshTransport  # noqa: E402
-from testbed.config import HostConfig  # noqa: E402
+from testbed.config import HostConfig, TwinHost  # noqa: E402
 
 
 def host_config(name: str, server: SshServer, port: int | None = None) -> HostConfig:
-    return HostConfig(name=name, transport="ssh", address="127.0.0.1",
+    return TwinHost(name=name, transport="ssh", address="127.0.0.1",
                       port=port or server.port,
                       user=server.user, key_file=str(server.client_key),
                       known_hosts=str(server.known_hosts), python=sys.executable,

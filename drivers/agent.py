@@ -9,10 +9,18 @@ build time to fd 1 at import and a stray ``print`` would corrupt the stream.
 
 Lifecycle::
 
-    start backend (errors kept for the hello reply) -> wait for hello (version check)
-    -> serve observe / push / reset / rest / heartbeat until bye, EOF, a broken frame,
-       or no frame for --idle-timeout seconds (the controller or the link is dead)
-    -> finally: arms to rest, backend closed
+    take the robot's lock (drivers.hostlock; a second agent for the same robot is refused
+    and never builds its backend) -> start backend (errors kept for the hello reply)
+    -> wait for hello (version check)
+    -> serve observe / push / reset / rest / heartbeat / reseed / frame / move_tcp /
+       save_calibration until bye, EOF, a broken frame, or no frame for --idle-timeout
+       seconds (the controller or the link is dead)
+    -> bye: arms to rest, then bye_ok; anything else: NO motion
+    -> finally: backend closed, lock released
+
+An orphaned agent never moves an arm: once its controller is gone (EOF, idle timeout,
+broken pipe, broken frame) nobody is watching the cell, so it closes the backend
+where the arms are. Arms rest only when asked (``rest``, ``bye``).
 
 A backend exception answers that one request with an ``error`` frame carrying the arm
 and the traceback; the agent keeps serving. A broken frame (bad magic, length, CRC,
@@ -35,7 +43,9 @@ from typing import TYPE_CHECKING
 # Light imports only (numpy, json, zlib): nothing here prints to fd 1. The backends
 # (pybullet!) are imported in main(), after claim_stdout().
 from drivers import protocol as p
+from drivers.backends.base import ArmView
 from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
+from drivers.hostlock import RobotBusy, RobotLock, default_lock_dir, lock_identity
 
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend
@@ -109,7 +119,8 @@ def serve(reader: p.FrameReader, write: Callable[[bytes], None],
     try:
         backend = make_backend()
     except Exception as exc:  # reported to the controller at hello
-        startup_error = (f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        what = str(exc) if isinstance(exc, RobotBusy) else f"{type(exc).__name__}: {exc}"
+        startup_error = (what, traceback.format_exc())
         log.error("backend failed to start: %s", startup_error[0])
     greeted = False
     try:
@@ -117,13 +128,15 @@ def serve(reader: p.FrameReader, write: Callable[[bytes], None],
             try:
                 frame = reader.read_frame(time.monotonic() + idle_timeout_s)
             except LinkClosed:
+                log.info("the controller closed the stream; closing the backend without "
+                         "moving the arms")
                 return EXIT_OK
             except DeadlineExceeded:
-                log.error("no frame from the controller in %.0f s; resting and exiting",
-                          idle_timeout_s)
+                log.error("no frame from the controller in %.0f s; the controller or the "
+                          "link is dead: exiting WITHOUT moving the arms", idle_timeout_s)
                 return EXIT_IDLE
             except ProtocolError as exc:
-                log.error("%s", exc)
+                log.error("%s; exiting without moving the arms", exc)
                 write(p.make_error(0, "protocol", str(exc), fatal=True))
                 return EXIT_PROTOCOL
             mid = frame.id
@@ -155,25 +168,57 @@ def serve(reader: p.FrameReader, write: Callable[[bytes], None],
                 write(p.make_error(mid, "protocol", f"{req.type!r} before hello"))
                 continue
             if req.type == "bye":
+                # Rest BEFORE bye_ok: the controller's close waits for it, so the arms are
+                # out of the way when the agent is gone.
+                log.info("bye: arms to rest, then exiting")
+                try:
+                    backend.rest()
+                except Exception:
+                    log.exception("rest at bye failed")
                 write(p.encode_frame({"type": "bye_ok", "id": mid}))
                 return EXIT_OK
             write(_dispatch(backend, req, started))
     except (BrokenPipeError, ConnectionError) as exc:
-        log.error("cannot write to the controller: %s", exc)
+        log.error("cannot write to the controller: %s; exiting without moving the arms", exc)
         return EXIT_LINK
     finally:
         if backend is not None:
-            for step in (backend.rest, backend.close):
-                try:
-                    step()
-                except Exception:  # shutting down; say it and go on
-                    log.exception("during shutdown")
+            try:
+                backend.close()  # never rest here: an orphaned agent does not move
+            except Exception:  # shutting down; say it and go on
+                log.exception("closing the backend")
+
+
+_CANNOT: dict[str, str] = {
+    "reseed": "be reseeded", "frame": "take a full camera frame",
+    "move_tcp": "move a TCP to a point", "save_calibration": "save a calibration"}
+
+
+def _observe_reply(backend: HostBackend, mid: int) -> bytes:
+    """Views for the arms that have one; the others' errors (that arm alone faults).
+
+    A backend says an arm has no view by leaving it out, or by giving an exception or a
+    :class:`~drivers.protocol.ArmFailed` in its place."""
+    got: dict[str, object] = dict(backend.observe())
+    views: dict[str, ArmView] = {}
+    errors: dict[str, str] = {}
+    for arm in backend.arm_names:
+        v = got.get(arm)
+        if isinstance(v, ArmView):
+            views[arm] = v
+        elif isinstance(v, p.ArmFailed):
+            errors[arm] = v.error
+        elif isinstance(v, BaseException):
+            errors[arm] = f"{type(v).__name__}: {v}"
+        else:
+            errors[arm] = f"the backend returned no view for arm {arm!r}"
+    return p.make_observe_reply(mid, views, errors)
 
 
 def _dispatch(backend: HostBackend, req: p.Request, started: float) -> bytes:
     try:
         if req.type == "observe":
-            return p.make_observe_reply(req.id, backend.observe())
+            return _observe_reply(backend, req.id)
         if req.type == "push":
             return p.make_push_reply(req.id, backend.push(req.body["faces"]))
         if req.type == "reset":
@@ -184,7 +229,24 @@ def _dispatch(backend: HostBackend, req: p.Request, started: float) -> bytes:
         if req.type == "heartbeat":
             return p.encode_frame({"type": "heartbeat_ok", "id": req.id,
                                    "uptime_s": round(time.monotonic() - started, 3)})
+        if req.type == "reseed":
+            backend.reseed(req.body["seed"])
+            return p.encode_frame({"type": "reseed_ok", "id": req.id})
+        if req.type == "frame":
+            return p.make_frame_reply(req.id, backend.frame())
+        if req.type == "move_tcp":
+            tcp = backend.move_tcp(req.body["arm"], req.body["xyz_mm"])
+            return p.encode_frame({"type": "move_tcp_ok", "id": req.id,
+                                   "tcp": [float(v) for v in tcp]})
+        if req.type == "save_calibration":
+            path = backend.save_calibration(req.body["arm"], req.body["data"])
+            return p.encode_frame({"type": "save_calibration_ok", "id": req.id,
+                                   "path": str(path)})
         return p.make_error(req.id, "protocol", f"unhandled request {req.type!r}")
+    except NotImplementedError as exc:
+        what = _CANNOT.get(req.type, f"do {req.type!r}")
+        return p.make_error(req.id, "request", f"this backend ({backend.kind}) cannot {what}"
+                            f"{f': {exc}' if str(exc) else ''}", arm=req.body.get("arm"))
     except ValueError as exc:
         return p.make_error(req.id, "request", str(exc), traceback=traceback.format_exc(),
                             arm=getattr(exc, "arm", None))
@@ -218,8 +280,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--controller-url", default=None, help="yumi: RWS URL of the controller")
     ap.add_argument("--crop", action="append", default=[], metavar="ARM=x0,y0,x1,y1")
     ap.add_argument("--calibration", action="append", default=[], metavar="ARM=FILE")
+    ap.add_argument("--calibrate", action="append", default=[], metavar="ARM",
+                    help="yumi: this arm is being calibrated (provisional calibration; "
+                         "frame, move_tcp, rest and save_calibration only); repeatable")
+    ap.add_argument("--lock-dir", default=None,
+                    help="directory of the per-robot lock files (default "
+                         "${XDG_RUNTIME_DIR:-/tmp}/fleet-testbed-locks)")
+    ap.add_argument("--lock-id", default=None,
+                    help="lock this identity (default: yumi: the controller URL; twin: "
+                         "no lock, every twin agent owns its own cell)")
     ap.add_argument("--idle-timeout", type=float, default=120.0,
-                    help="exit (arms at rest) after this long without a frame")
+                    help="exit (arms NOT moved) after this long without a frame")
     ap.add_argument("--chdir", default=None, help="working directory (the project checkout)")
     return ap.parse_args(argv)
 
@@ -228,7 +299,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     frames_fd = claim_stdout()
     args = parse_args(argv)
     logging.basicConfig(stream=sys.stderr, level=logging.WARNING,
-                        format=f"agent[{args.host}] %(levelname)s %(message)s")
+                        format=f"%(asctime)s agent[{args.host}] %(levelname)s %(message)s")
+    log.setLevel(logging.INFO)  # our lifecycle lines (a few per session), not others
     if args.chdir:
         os.chdir(args.chdir)
     arms = [a for a in args.arms.split(",") if a]
@@ -249,19 +321,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         crops[arm] = (x0, y0, x1, y1)
     calibrations = _pairs(args.calibration, "--calibration")
 
-    from drivers.backends import make_backend
+    identity = lock_identity(args.backend, args.controller_url, args.lock_id)
+    lock = (RobotLock(identity, args.lock_dir or default_lock_dir(), args.host)
+            if identity else None)
+    log.info("agent pid %d for host %s: backend %s, protocol %d", os.getpid(), args.host,
+             args.backend, p.PROTOCOL_VERSION)
 
     def factory() -> HostBackend:
+        if lock is not None:  # before anything touches the robot (refusal: at hello)
+            lock.acquire()
+            log.info("holding the lock of robot %s (%s)", lock.identity, lock.path)
+        from drivers.backends import make_backend
+
         return make_backend(args.backend, arms=arms, mirror=mirror, seed=args.seed,
                             physics=not args.no_physics, crops=crops,
                             calibrations=calibrations, camera=args.camera,
-                            controller_url=args.controller_url)
+                            controller_url=args.controller_url, calibrating=args.calibrate)
 
     reader = p.FrameReader(fd_reader(0), "controller")
     try:
         return serve(reader, fd_writer(frames_fd, max(10.0, args.idle_timeout)), factory,
                      idle_timeout_s=args.idle_timeout)
     finally:
+        if lock is not None:
+            lock.release()
         for fd in (0, frames_fd):  # leave a terminal as we found it
             with contextlib.suppress(OSError):
                 os.set_blocking(fd, True)

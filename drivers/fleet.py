@@ -20,27 +20,39 @@ the 2-core test machine, worse under load; see docs/notes/drivers.md):
       3. a host that fails (error, deadline, EOF, malformed frame) -> Fault for its arms
 
     keeper thread (every 0.1 s): per host, start a reconnect (backoff) or a heartbeat
+
+Faults are as narrow as we can know them: an arm whose own entry in a push or observe
+reply carries ``error`` is a Fault alone (its sibling's push happened and is reported);
+an error frame for the whole request faults the whole host, since we cannot know what
+moved (its reason names the arm when the agent does).
+
+Besides the loop's calls, single-host calls for calibration and checks (``frame``,
+``move_tcp``, ``save_calibration``) and ``reseed`` raise :class:`HostCallError` (one
+line) on failure instead of returning a Fault.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 import weakref
 from collections.abc import Callable, Collection, Mapping, Sequence
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
 from drivers import protocol as p
-from drivers.errors import AgentError
+from drivers.errors import AgentError, DriverError
+from drivers.hostlog import HostLog
 from drivers.link import AgentLink
 from drivers.session import HostSession, HostStatus, describe, remote_traceback
 from testbed.config import HostConfig
 from testbed.types import NUM_ACTIONS, ArmObservation, Fault, PushResult
 
-__all__ = ["HostFleet", "HostStatus", "derive_seed"]
+__all__ = ["HostCallError", "HostFleet", "HostStatus", "derive_seed"]
 
 log = logging.getLogger("drivers.fleet")
 
@@ -49,6 +61,16 @@ Program = list[tuple[str, dict[str, Any]]]
 T = TypeVar("T")
 Outcome = tuple[str, Any]
 """("ok", payload) or ("fault", {"reason", "traceback", "arm"})."""
+
+
+class HostCallError(DriverError):
+    """A single-host call (frame, move_tcp, save_calibration, reseed) failed; the message
+    is one line naming the host, ``traceback`` has the agent's side."""
+
+    def __init__(self, message: str, *, host: str, traceback: str = "") -> None:
+        super().__init__(message)
+        self.host = host
+        self.traceback = traceback
 
 
 def derive_seed(trial_seed: int, host_index: int) -> int:
@@ -67,6 +89,15 @@ def _keep(sessions: Sequence[HostSession], stop: threading.Event) -> None:
 
 def _shutdown(sessions: Sequence[HostSession], stop: threading.Event) -> None:
     """Close every session in parallel (bounded); also run for a fleet never closed."""
+    try:
+        _close_all(sessions, stop)
+    finally:
+        for s in sessions:
+            if s.log is not None:
+                s.log.close()
+
+
+def _close_all(sessions: Sequence[HostSession], stop: threading.Event) -> None:
     stop.set()
     closers: list[threading.Thread] = []
     for s in sessions:
@@ -82,21 +113,41 @@ def _shutdown(sessions: Sequence[HostSession], stop: threading.Event) -> None:
         t.join(max(deadline - time.monotonic(), 0.0))
 
 
-def _fault(reason: str, tb: str = "", arm: str | None = None) -> Outcome:
-    return ("fault", {"reason": reason, "traceback": tb, "arm": arm})
+def _fault(reason: str, tb: str = "", arm: str | None = None, *, refused: bool = False
+           ) -> Outcome:
+    """``refused``: a clean error reply from a healthy agent (the link is kept)."""
+    return ("fault", {"reason": reason, "traceback": tb, "arm": arm, "refused": refused})
+
+
+def _seed_of(host: HostConfig, index: int, trial_seed: int) -> int:
+    seed = getattr(host, "seed", None)  # twin hosts only
+    return int(seed) if seed is not None else derive_seed(trial_seed, index)
 
 
 class HostFleet:
     """All hosts of a fleet; every call returns a result for every robot, never hangs."""
 
     def __init__(self, hosts: Sequence[HostConfig], *, trial_seed: int = 0,
-                 reconnect_backoff_s: float = 1.0) -> None:
+                 reconnect_backoff_s: float = 1.0, log_dir: Path | str | None = None,
+                 calibrating: Mapping[str, Collection[str]] | None = None) -> None:
+        """``log_dir``: one rotating, timestamped log per host (``<host>.log``): every
+        stderr line of its agent and our events about it. ``calibrating``: host name ->
+        arms whose agent starts in calibration mode (``--calibrate ARM``)."""
         names = [h.name for h in hosts]
         if not hosts or len(set(names)) != len(names):
             raise ValueError(f"need at least one host and unique host names, got {names}")
+        calibrating = dict(calibrating or {})
+        for host, arms in calibrating.items():
+            cfg = next((h for h in hosts if h.name == host), None)
+            if cfg is None:
+                raise ValueError(f"calibrating names unknown host {host!r}; hosts: {names}")
+            if unknown := sorted(set(arms) - {a.name for a in cfg.arms}):
+                raise ValueError(f"host {host}: cannot calibrate unknown arm(s) {unknown}")
+        logs = ({h.name: HostLog(Path(log_dir), h.name) for h in hosts}
+                if log_dir is not None else {})
         self._sessions = [
-            HostSession(h, h.seed if h.seed is not None else derive_seed(trial_seed, i),
-                        reconnect_backoff_s)
+            HostSession(h, _seed_of(h, i, trial_seed), reconnect_backoff_s,
+                        calibrating=tuple(calibrating.get(h.name, ())), log=logs.get(h.name))
             for i, h in enumerate(hosts)]
         self.robot_names: list[str] = [f"{s.name}/{a}" for s in self._sessions for a in s.arms]
         self._stop = threading.Event()
@@ -152,9 +203,11 @@ class HostFleet:
 
     # -- the broadcast ----------------------------------------------------------------
     def _run(self, programs: Mapping[int, Program],
-             parse: Callable[[HostSession, AgentLink, list[p.Frame]], Any]) -> dict[int, Outcome]:
+             parse: Callable[[HostSession, AgentLink, list[p.Frame]], Any],
+             timeout_s: float | None = None) -> dict[int, Outcome]:
         """Pipelined broadcast: every host's requests are written first (back to back),
-        then every host's replies are read in order, each with its own deadline."""
+        then every host's replies are read in order, each with its own deadline
+        (``timeout_s`` per request instead of the host's ``deadline_s``, e.g. a motion)."""
         out: dict[int, Outcome] = {}
         inflight: list[tuple[int, HostSession, AgentLink, list[tuple[str, int, float]]]] = []
         try:
@@ -175,9 +228,10 @@ class HostFleet:
                 sent: list[tuple[str, int, float]] = []
                 inflight.append((i, s, link, sent))
                 start = time.monotonic()
+                per_request = s.cfg.deadline_s if timeout_s is None else timeout_s
                 try:
                     for k, (mtype, fields) in enumerate(programs[i]):
-                        deadline = start + (k + 1) * s.cfg.deadline_s
+                        deadline = start + (k + 1) * per_request
                         sent.append((mtype, link.send(mtype, deadline, **fields), deadline))
                 except Exception as exc:
                     s.drop(link, exc)
@@ -187,8 +241,8 @@ class HostFleet:
                     continue
                 out[i] = self._collect(s, link, sent, parse)
         except BaseException:
-            # Ctrl-C mid-read: those streams are mid-frame; drop them (EOF makes each agent
-            # rest its arms and exit) and let the caller handle the interrupt.
+            # Ctrl-C mid-read: those streams are mid-frame; drop them (at EOF each agent
+            # exits without moving its arms) and let the caller handle the interrupt.
             for i, s, link, _ in inflight:
                 if i not in out:
                     s.drop(link, RuntimeError("interrupted during a call"))
@@ -212,7 +266,8 @@ class HostFleet:
                         raise
                     agent_error = agent_error or exc
             if agent_error is not None:
-                return _fault(str(agent_error), agent_error.remote_traceback, agent_error.arm)
+                return _fault(str(agent_error), agent_error.remote_traceback, agent_error.arm,
+                              refused=True)
             return ("ok", parse(s, link, frames))
         except Exception as exc:  # protocol error, deadline, EOF, or a bug: this host only
             s.drop(link, exc)
@@ -221,22 +276,33 @@ class HostFleet:
     def _faults(self, s: HostSession, info: Mapping[str, Any]) -> dict[str, Fault]:
         reason = str(info.get("reason") or "unknown failure")
         tb = str(info.get("traceback") or "")
+        if s.log is not None and not reason.startswith(f"host {s.name} is unreachable"):
+            s.note_fault(reason, s.arms)  # (an unreachable host's drop is logged once)
         return {f"{s.name}/{a}": Fault(f"{s.name}/{a}", reason, tb) for a in s.arms}
 
     def _per_robot(self, res: Mapping[int, Outcome],
-                   value: Callable[[int, str, str, Any], T]) -> dict[str, T | Fault]:
+                   value: Callable[[int, str, str, Any], T | Fault]) -> dict[str, T | Fault]:
         """Per-host outcomes -> a value for every robot, in fleet order: ``value(host
-        index, robot, arm, payload)`` for a host that answered, ``Fault`` otherwise."""
+        index, robot, arm, payload)`` for a host that answered (a Fault for an arm that
+        failed alone), ``Fault`` for every arm of a host that did not."""
         out: dict[str, T | Fault] = {}
         for i, s in enumerate(self._sessions):
+            if i not in res:
+                continue
             kind, payload = res[i]
             if kind != "ok":
                 out.update(self._faults(s, payload))
                 continue
             for a in s.arms:
                 r = f"{s.name}/{a}"
-                out[r] = value(i, r, a, payload)
-        return {r: out[r] for r in self.robot_names}
+                v = out[r] = value(i, r, a, payload)
+                if isinstance(v, Fault) and s.log is not None:
+                    s.note_fault(v.reason, [a])
+        return {r: out[r] for r in self.robot_names if r in out}
+
+    def _arm_fault(self, s: HostSession, r: str, arm: str, why: str) -> Fault:
+        return Fault(r, f"agent on host {s.name}: arm {arm!r} failed: "
+                        f"{why.splitlines()[0] if why else 'no reason given'}", why)
 
     def _require_started(self) -> None:
         if self._closed:
@@ -252,8 +318,10 @@ class HostFleet:
         def parse(s: HostSession, link: AgentLink, frames: list[p.Frame]) -> Any:
             return p.parse_observe_reply(frames[0], s.arms, link.peer)
 
-        def view(i: int, r: str, arm: str, payload: Any) -> ArmObservation:
+        def view(i: int, r: str, arm: str, payload: Any) -> ArmObservation | Fault:
             v = payload[arm]
+            if isinstance(v, p.ArmFailed):
+                return self._arm_fault(self._sessions[i], r, arm, v.error)
             return ArmObservation(r, v.image, v.violating, v.goal, v.expert_action)
 
         res = self._run({i: [("observe", {})] for i in range(len(self._sessions))}, parse)
@@ -283,11 +351,14 @@ class HostFleet:
                 p.parse_reset_reply(frames[0], programs[i][0][1]["arms"], link.peer)
             return p.parse_push_reply(frames[-1], list(faces_of[i]), link.peer)
 
-        def result(i: int, r: str, arm: str, payload: Any) -> PushResult:
+        def result(i: int, r: str, arm: str, payload: Any) -> PushResult | Fault:
             if arm not in payload:  # reset or waiting
                 return PushResult(r, None, False, False)
             o = payload[arm]
-            return PushResult(r, faces_of[i][arm], o.success, o.violation)
+            if o.error is not None:
+                return self._arm_fault(self._sessions[i], r, arm, o.error)
+            # refused: the face asked for, not pushed, and the backend's reason
+            return PushResult(r, faces_of[i][arm], o.success, o.violation, o.refused)
 
         return self._per_robot(self._run(programs, parse), result)
 
@@ -301,6 +372,91 @@ class HostFleet:
             kind, payload = res[i]
             if kind != "ok":
                 log.warning("rest failed on host %s: %s", s.name, payload.get("reason"))
+                s.event("rest failed: %s", payload.get("reason"))
+
+    # -- reseed and the single-host calls (calibration, checks) ------------------------
+    def reseed(self, trial_seed: int) -> None:
+        """Every host's task afresh, as a fleet built with ``trial_seed`` would start it
+        (twin: ``seed`` of the host config if set, else ``derive_seed(trial_seed, i)``).
+
+        A host that is down, or whose link breaks during the call, is reseeded by
+        construction: its next agent starts with the new seed. Raises
+        :class:`HostCallError` when an agent answers that it cannot (its backend keeps
+        its old state)."""
+        self._require_started()
+        for i, s in enumerate(self._sessions):
+            s.seed = _seed_of(s.cfg, i, trial_seed)
+        res = self._run({i: [("reseed", {"seed": s.seed})]
+                         for i, s in enumerate(self._sessions)}, lambda s, link, frames: None)
+        failed: list[tuple[HostSession, Mapping[str, Any]]] = []
+        for i, s in enumerate(self._sessions):
+            kind, info = res[i]
+            if kind == "ok":
+                s.event("reseeded: seed %d", s.seed)
+            elif info.get("refused"):
+                s.event("reseed refused: %s", info.get("reason"))
+                failed.append((s, info))
+            else:
+                s.event("reseed not delivered (the next agent starts with seed %d): %s",
+                        s.seed, info.get("reason"))
+        if failed:
+            s, info = failed[0]
+            more = f" (and {len(failed) - 1} more host(s))" if len(failed) > 1 else ""
+            raise HostCallError(f"reseed failed on host {s.name}{more}: "
+                                f"{_one_line(info.get('reason'))}", host=s.name,
+                                traceback=str(info.get("traceback") or ""))
+
+    def frame(self, host: str, *, timeout_s: float | None = None) -> np.ndarray:
+        """The host camera's full frame (H, W, 3) uint8 BGR, lossless, arms maybe in view."""
+        return self._call_one(host, "frame", {},
+                              lambda f, peer: p.parse_frame_reply(f, peer), timeout_s)
+
+    def move_tcp(self, host: str, arm: str, xyz_mm: Sequence[float], *,
+                 timeout_s: float | None = None) -> tuple[float, float, float]:
+        """Calibration: ``arm``'s TCP to ``xyz_mm`` (robot base frame, from above); the TCP
+        the controller reports there. Default timeout: ``max(deadline_s, 60)`` (a motion)."""
+        s = self._session(host)
+        if arm not in s.arms:
+            raise ValueError(f"host {host} has no arm {arm!r}; it has {s.arms}")
+        xyz = [float(v) for v in xyz_mm]
+        if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
+            raise ValueError(f"xyz_mm must be three finite numbers, got {list(xyz_mm)!r}")
+        return self._call_one(host, "move_tcp", {"arm": arm, "xyz_mm": xyz},
+                              lambda f, peer: p.parse_move_tcp_reply(f, peer),
+                              timeout_s if timeout_s is not None
+                              else max(s.cfg.deadline_s, 60.0))
+
+    def save_calibration(self, host: str, arm: str, data: Mapping[str, Any], *,
+                         timeout_s: float | None = None) -> str:
+        """Write ``arm``'s calibration file on the host (atomically); its path there."""
+        s = self._session(host)
+        if arm not in s.arms:
+            raise ValueError(f"host {host} has no arm {arm!r}; it has {s.arms}")
+        return self._call_one(host, "save_calibration", {"arm": arm, "data": dict(data)},
+                              lambda f, peer: p.parse_save_calibration_reply(f, peer),
+                              timeout_s)
+
+    def _session(self, host: str) -> HostSession:
+        for s in self._sessions:
+            if s.name == host:
+                return s
+        raise ValueError(f"unknown host {host!r}; the fleet has "
+                         f"{[s.name for s in self._sessions]}")
+
+    def _call_one(self, host: str, mtype: str, fields: dict[str, Any],
+                  parse: Callable[[p.Frame, str], T], timeout_s: float | None) -> T:
+        self._require_started()
+        s = self._session(host)
+        i = self._sessions.index(s)
+        res = self._run({i: [(mtype, fields)]},
+                        lambda s, link, frames: parse(frames[0], link.peer), timeout_s)
+        kind, payload = res[i]
+        if kind == "ok":
+            return payload  # type: ignore[no-any-return]
+        s.event("%s failed: %s", mtype, payload.get("reason"))
+        raise HostCallError(f"{mtype} on host {host} failed: "
+                            f"{_one_line(payload.get('reason'))}", host=host,
+                            traceback=str(payload.get("traceback") or ""))
 
     def _check_execute(self, pushes: Mapping[str, int], resets: Collection[str]) -> None:
         known = set(self.robot_names)
@@ -313,3 +469,8 @@ class HostFleet:
                     0 <= int(face) < NUM_ACTIONS):
                 raise ValueError(f"{r}: action must be a face in 0..{NUM_ACTIONS - 1}, "
                                  f"got {face!r}")
+
+
+def _one_line(reason: object) -> str:
+    text = str(reason or "unknown failure").strip()
+    return text.splitlines()[0] if text else "unknown failure"

@@ -23,13 +23,23 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
     controller -> agent                     agent -> controller
     hello {version, host}                   hello_ok {version, backend, arms, mirror, pid}
     observe {}                              observe_ok {arms: [{arm, violating, goal,
-                                                        expert_action, blob}]} + PNGs
-    push {faces: {arm: face}}               push_ok {results: {arm: {success, violation}}}
+                                                        expert_action, blob} | {arm, error}]}
+                                                        + PNGs
+    push {faces: {arm: face}}               push_ok {results: {arm: {success, violation
+                                                        [, refused] [, error]}}}
     reset {arms: [arm]}                     reset_ok {results: {arm: {done}}}
     rest {}                                 rest_ok {}
     heartbeat {}                            heartbeat_ok {uptime_s}
-    bye {}                                  bye_ok {}
+    reseed {seed}                           reseed_ok {}
+    frame {}                                frame_ok {} + one PNG (the full BGR camera frame)
+    move_tcp {arm, xyz_mm}                  move_tcp_ok {tcp: [x, y, z]}
+    save_calibration {arm, data}            save_calibration_ok {path}
+    bye {}                                  bye_ok {} (after the arms are at rest)
                                             error {kind, message, traceback, arm, fatal}
+
+Version 2 (this one) added the per-arm ``refused``/``error`` of push and observe replies
+and the four requests reseed, frame, move_tcp, save_calibration: a version-1 peer would
+misread a refused push as a plain failure, so the versions must match.
 """
 
 from __future__ import annotations
@@ -47,10 +57,11 @@ import numpy.typing as npt
 
 from drivers.backends.base import IMAGE_SHAPE, ArmOutcome, ArmView
 from drivers.errors import AgentError, DeadlineExceeded, LinkClosed, ProtocolError, TruncatedFrame
+from drivers.png import SIGNATURE as PNG_SIGNATURE
 from drivers.png import decode_png, encode_png
 from testbed.types import NUM_ACTIONS
 
-PROTOCOL_VERSION: Final = 1
+PROTOCOL_VERSION: Final = 2
 MAGIC: Final = b"FDG1"
 PREFIX: Final = struct.Struct(">4sIII")
 PREFIX_BYTES: Final = PREFIX.size  # 16
@@ -59,7 +70,12 @@ MAX_FRAME_BYTES: Final = 8 * 1024 * 1024
 MAX_BLOBS: Final = 64
 MAX_ID: Final = 2**32 - 1
 
-REQUEST_TYPES: Final = ("hello", "observe", "push", "reset", "rest", "heartbeat", "bye")
+REQUEST_TYPES: Final = ("hello", "observe", "push", "reset", "rest", "heartbeat", "bye",
+                        "reseed", "frame", "move_tcp", "save_calibration")
+MAX_REASON_CHARS: Final = 2000
+"""A per-arm ``refused``/``error`` text is cut to this (a reason, not a traceback)."""
+MAX_FRAME_PIXELS: Final = 4096 * 4096
+"""A camera frame PNG may not claim more pixels than this (a PNG bomb is refused)."""
 ERROR_KINDS: Final = ("protocol", "version", "request", "backend", "startup")
 
 _JSON: Final = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
@@ -271,7 +287,38 @@ def parse_request(frame: Frame, arms: Sequence[str] | None, peer: str = "control
         if arms is not None and (unknown := [a for a in rarms if a not in arms]):
             raise _bad(mtype, peer, f"unknown arm(s) {unknown}; this host has {list(arms)}")
         body["arms"] = list(rarms)
+    elif mtype == "reseed":
+        seed = _get(h, "seed", int, peer)
+        if not 0 <= seed < 2**63:
+            raise _bad(mtype, peer, f"'seed' must be in 0..2**63-1, got {seed}")
+        body["seed"] = seed
+    elif mtype in ("move_tcp", "save_calibration"):
+        arm = _get(h, "arm", str, peer)
+        if arms is not None and arm not in arms:
+            raise _bad(mtype, peer, f"unknown arm {arm!r}; this host has {list(arms)}")
+        body["arm"] = arm
+        if mtype == "move_tcp":
+            body["xyz_mm"] = _xyz(h.get("xyz_mm"), mtype, peer, "'xyz_mm'")
+        else:
+            body["data"] = _get(h, "data", dict, peer)
     return Request(mtype, frame.id, body)
+
+
+def _xyz(v: Any, mtype: str, peer: str, what: str) -> tuple[float, float, float]:
+    """Three finite numbers (a point in mm)."""
+    if (not isinstance(v, list) or len(v) != 3
+            or any(type(c) not in (int, float) or not math.isfinite(c) for c in v)):
+        raise _bad(mtype, peer, f"{what} must be [x, y, z] finite numbers, got {v!r:.60}")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _reason(v: Any, mtype: str, peer: str, what: str) -> str | None:
+    """An optional per-arm text (null or a non-empty string)."""
+    if v is None:
+        return None
+    if not isinstance(v, str) or not v:
+        raise _bad(mtype, peer, f"{what} must be null or a non-empty string, got {v!r:.40}")
+    return v[:MAX_REASON_CHARS]
 
 
 # ---------------------------------------------------------------- agent -> controller
@@ -281,22 +328,51 @@ def make_error(mid: int, kind: str, message: str, *, traceback: str = "",
                          "traceback": traceback[-12000:], "arm": arm, "fatal": fatal})
 
 
-def make_observe_reply(mid: int, views: Mapping[str, ArmView]) -> bytes:
+def make_observe_reply(mid: int, views: Mapping[str, ArmView],
+                       errors: Mapping[str, str] | None = None) -> bytes:
+    """``views``: the arms that have a view; ``errors``: arm -> why it has none (that arm
+    alone is faulted by the controller)."""
     arms: list[dict[str, Any]] = []
     blobs: list[bytes] = []
-    for i, (arm, v) in enumerate(views.items()):
+    for arm, v in views.items():
         arms.append({"arm": arm, "violating": bool(v.violating),
                      "goal": [float(v.goal[0]), float(v.goal[1])],
                      "expert_action": None if v.expert_action is None else int(v.expert_action),
-                     "blob": i})
+                     "blob": len(blobs)})
         blobs.append(v.png if v.png is not None else encode_image(v.image))
+    for arm, why in (errors or {}).items():
+        arms.append({"arm": arm, "error": (why or "failed")[:MAX_REASON_CHARS]})
     return encode_frame({"type": "observe_ok", "id": mid, "arms": arms}, blobs)
 
 
 def make_push_reply(mid: int, outcomes: Mapping[str, ArmOutcome]) -> bytes:
-    return encode_frame({"type": "push_ok", "id": mid, "results": {
+    results: dict[str, dict[str, Any]] = {
         a: {"success": bool(o.success), "violation": bool(o.violation)}
-        for a, o in outcomes.items()}})
+        for a, o in outcomes.items()}
+    for a, o in outcomes.items():
+        # Only when set: the frame of an ordinary push stays as in version 1.
+        if o.refused is not None:
+            results[a]["refused"] = str(o.refused)[:MAX_REASON_CHARS] or "refused"
+        if o.error is not None:
+            results[a]["error"] = str(o.error)[:MAX_REASON_CHARS] or "failed"
+    return encode_frame({"type": "push_ok", "id": mid, "results": results})
+
+
+def make_frame_reply(mid: int, image_bgr: npt.NDArray[np.uint8]) -> bytes:
+    """The full camera frame, lossless: a PNG (OpenCV's, adaptive filters, fast level)."""
+    import cv2
+
+    img = np.asarray(image_bgr)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3 or 0 in img.shape:
+        raise ValueError(f"a camera frame must be an (H, W, 3) uint8 BGR image, got "
+                         f"{img.shape} {img.dtype}")
+    if img.shape[0] * img.shape[1] > MAX_FRAME_PIXELS:
+        raise ValueError(f"camera frame {img.shape[1]}x{img.shape[0]} exceeds "
+                         f"{MAX_FRAME_PIXELS} pixels")
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(img), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError("OpenCV could not encode the camera frame as PNG")
+    return encode_frame({"type": "frame_ok", "id": mid}, [png.tobytes()])
 
 
 def make_reset_reply(mid: int, done: Mapping[str, bool]) -> bytes:
@@ -311,6 +387,14 @@ class HelloInfo:
     arms: tuple[str, ...]
     mirror: tuple[bool, ...]
     pid: int
+
+
+@dataclass(frozen=True, slots=True)
+class ArmFailed:
+    """One arm's entry of an observe reply when that arm alone has no view (e.g. its
+    calibration is missing): the controller faults that arm, its siblings go on."""
+
+    error: str
 
 
 def check_reply(frame: Frame, expected_type: str, expected_id: int, peer: str) -> Frame:
@@ -351,15 +435,26 @@ def parse_hello_reply(frame: Frame, peer: str) -> HelloInfo:
     return HelloInfo(version, backend, tuple(arms), tuple(mirror), pid)
 
 
-def parse_observe_reply(frame: Frame, arms: Sequence[str], peer: str) -> dict[str, ArmView]:
+def parse_observe_reply(frame: Frame, arms: Sequence[str], peer: str
+                        ) -> dict[str, ArmView | ArmFailed]:
+    """A view, or an :class:`ArmFailed` (that arm's view is missing), for every arm."""
     entries = _get(frame.header, "arms", list, peer)
-    out: dict[str, ArmView] = {}
+    out: dict[str, ArmView | ArmFailed] = {}
     for e in entries:
         if not isinstance(e, dict):
             raise _bad("observe_ok", peer, "each entry of 'arms' must be an object")
         arm = _get(e, "arm", str, peer, "observe_ok")
         if arm not in arms or arm in out:
             raise _bad("observe_ok", peer, f"unexpected or repeated arm {arm!r}")
+        if "error" in e:
+            if set(e) != {"arm", "error"}:
+                raise _bad("observe_ok", peer, f"arm {arm!r}: an entry with 'error' carries "
+                                               f"nothing else, got keys {sorted(e)}")
+            why = _reason(e["error"], "observe_ok", peer, f"arm {arm!r} 'error'")
+            if why is None:
+                raise _bad("observe_ok", peer, f"arm {arm!r} 'error' must be a string")
+            out[arm] = ArmFailed(why)
+            continue
         violating = _bool(e.get("violating"), "observe_ok", peer, f"arm {arm!r} 'violating'")
         goal = e.get("goal")
         if (not isinstance(goal, list) or len(goal) != 2
@@ -388,9 +483,19 @@ def parse_push_reply(frame: Frame, pushed: Sequence[str], peer: str) -> dict[str
     for arm, r in results.items():
         if not isinstance(r, dict):
             raise _bad("push_ok", peer, f"arm {arm!r} result must be an object")
-        out[arm] = ArmOutcome(_bool(r.get("success"), "push_ok", peer, f"arm {arm!r} success"),
-                              _bool(r.get("violation"), "push_ok", peer,
-                                    f"arm {arm!r} violation"))
+        success = r.get("success")
+        violation = r.get("violation")
+        if type(success) is not bool or type(violation) is not bool:
+            _bool(success, "push_ok", peer, f"arm {arm!r} success")
+            _bool(violation, "push_ok", peer, f"arm {arm!r} violation")
+        if len(r) == 2:  # the ordinary case, checked above
+            out[arm] = ArmOutcome(success, violation)
+            continue
+        if extra := set(r) - {"success", "violation", "refused", "error"}:
+            raise _bad("push_ok", peer, f"arm {arm!r} result has unknown keys {sorted(extra)}")
+        out[arm] = ArmOutcome(success, violation,
+                              _reason(r.get("refused"), "push_ok", peer, f"arm {arm!r} refused"),
+                              _reason(r.get("error"), "push_ok", peer, f"arm {arm!r} error"))
     return out
 
 
@@ -404,11 +509,40 @@ def parse_reset_reply(frame: Frame, reset: Sequence[str], peer: str) -> dict[str
     return out
 
 
+def parse_frame_reply(frame: Frame, peer: str) -> npt.NDArray[np.uint8]:
+    """The camera frame (H, W, 3) uint8 BGR from a ``frame_ok``; checked before decoding
+    (PNG signature, 8-bit RGB, at most MAX_FRAME_PIXELS)."""
+    if len(frame.blobs) != 1:
+        raise _bad("frame_ok", peer, f"expected one PNG blob, got {len(frame.blobs)}")
+    data = frame.blobs[0]
+    what = f"frame_ok from {peer}"
+    if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise ProtocolError(f"{what}: not a PNG image ({len(data)} bytes)")
+    width, height = struct.unpack(">II", data[16:24])
+    if width == 0 or height == 0 or width * height > MAX_FRAME_PIXELS:
+        raise ProtocolError(f"{what}: PNG claims {width}x{height} pixels; at most "
+                            f"{MAX_FRAME_PIXELS} are accepted")
+    rgb = decode_png(data, (height, width, 3), what)
+    return np.ascontiguousarray(rgb[..., ::-1])
+
+
+def parse_move_tcp_reply(frame: Frame, peer: str) -> tuple[float, float, float]:
+    return _xyz(frame.header.get("tcp"), "move_tcp_ok", peer, "'tcp'")
+
+
+def parse_save_calibration_reply(frame: Frame, peer: str) -> str:
+    path = _get(frame.header, "path", str, peer)
+    if not path:
+        raise _bad("save_calibration_ok", peer, "'path' is empty")
+    return path
+
+
 __all__ = [
     "MAGIC", "MAX_FRAME_BYTES", "MAX_HEADER_BYTES", "PROTOCOL_VERSION", "AgentError",
-    "DeadlineExceeded", "Frame", "FrameReader", "HelloInfo", "LinkClosed", "ProtocolError",
-    "Request", "check_reply", "decode_image", "encode_frame", "encode_image", "make_error",
-    "make_observe_reply", "make_push_reply", "make_request", "make_reset_reply",
-    "parse_hello_reply", "parse_observe_reply", "parse_push_reply", "parse_request",
-    "parse_reset_reply",
+    "ArmFailed", "DeadlineExceeded", "Frame", "FrameReader", "HelloInfo", "LinkClosed",
+    "ProtocolError", "Request", "check_reply", "decode_image", "encode_frame", "encode_image",
+    "make_error", "make_frame_reply", "make_observe_reply", "make_push_reply", "make_request",
+    "make_reset_reply", "parse_frame_reply", "parse_hello_reply", "parse_move_tcp_reply",
+    "parse_observe_reply", "parse_push_reply", "parse_request", "parse_reset_reply",
+    "parse_save_calibration_reply",
 ]

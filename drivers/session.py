@@ -11,19 +11,23 @@ three things that happen to it outside the fleet's calls run in background threa
 * closing a dropped link (waits for the agent to exit, bounded).
 
 A link is dropped as soon as its byte stream can no longer be trusted (protocol error,
-deadline, EOF); the agent sees EOF, rests its arms and exits. ``lock`` serialises the
-fleet's calls and the heartbeat on the link.
+deadline, EOF); the agent sees EOF and exits WITHOUT moving its arms (nobody would be
+watching them). ``lock`` serialises the fleet's calls and the heartbeat on the link.
+
+With a :class:`~drivers.hostlog.HostLog`, every event of the host (attempts, connected,
+dropped, faults, close) and every stderr line of its agent goes to its log file.
 """
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
 import traceback
+from collections.abc import Collection
 from dataclasses import dataclass
 
 from drivers.errors import AgentError, DeadlineExceeded, DriverError, LinkClosed
+from drivers.hostlog import HostLog
 from drivers.link import AgentLink
 from drivers.transport import LocalTransport, agent_argv, make_transport
 from testbed.config import HostConfig
@@ -49,11 +53,16 @@ class HostStatus:
 
 
 class HostSession:
-    def __init__(self, cfg: HostConfig, seed: int, backoff_s: float) -> None:
+    def __init__(self, cfg: HostConfig, seed: int, backoff_s: float, *,
+                 calibrating: Collection[str] = (), log: HostLog | None = None) -> None:
         self.cfg = cfg
         self.name = cfg.name
         self.arms = [a.name for a in cfg.arms]
         self.seed = seed
+        """The seed a new agent starts with (``HostFleet.reseed`` changes it, so an agent
+        started after a reseed is already reseeded)."""
+        self.calibrating = tuple(calibrating)
+        self.log = log
         self.backoff_s = backoff_s
         self.lock = threading.Lock()
         self.link: AgentLink | None = None
@@ -71,7 +80,12 @@ class HostSession:
         h = self.cfg
         python = LocalTransport.python_for(h) if h.transport == "local" else h.python
         idle = max(30.0, 5 * h.heartbeat_s + h.deadline_s)
-        return agent_argv(h, seed=self.seed, python=python, idle_timeout_s=idle)
+        return agent_argv(h, seed=self.seed, python=python, idle_timeout_s=idle,
+                          calibrating=self.calibrating)
+
+    def event(self, msg: str, *args: object) -> None:
+        if self.log is not None:
+            self.log.event(msg, *args)
 
     def tick(self, now: float) -> None:
         """Start a reconnect or a heartbeat if one is due (never blocks)."""
@@ -90,9 +104,18 @@ class HostSession:
         _spawn(self._heartbeat, f"heartbeat-{self.name}")
 
     def _connect(self) -> None:
-        link = AgentLink(self.cfg, make_transport(self.cfg))
+        transport = make_transport(self.cfg)
+        if self.log is not None:
+            transport.on_stderr_line = self.log.agent_line
+        link = AgentLink(self.cfg, transport)
+        seed = self.seed
+        argv = self.argv()
+        self.event("starting the agent (attempt %d, %s): %s", self.status.attempts + 1,
+                   self.cfg.transport, " ".join(argv))
         try:
-            info = link.open(self.argv(), self.cfg.connect_timeout_s)
+            info = link.open(argv, self.cfg.connect_timeout_s)
+            if self.seed != seed:  # reseeded while this agent was starting
+                link.call("reseed", time.monotonic() + self.cfg.deadline_s, seed=self.seed)
         except Exception as exc:
             close_async(link)
             with self._state:
@@ -103,6 +126,10 @@ class HostSession:
                 self.status.error = describe(exc)
                 self.status.traceback = remote_traceback(exc)
                 self.status.reported = True
+                attempts = self.status.attempts
+            if self.log is not None:
+                self.event("attempt %d failed, next in %.1f s: %s\n%s", attempts, delay,
+                           describe(exc), _indent(remote_traceback(exc)))
             return
         with self._state:
             self._connecting = False
@@ -116,6 +143,8 @@ class HostSession:
             self.status.error = self.status.traceback = None
             self.status.attempts = 0
             self.status.reported = True
+        self.event("connected: agent pid %d, backend %s, arms %s, seed %d", info.pid,
+                   info.backend, ",".join(info.arms), self.seed)
 
     def _heartbeat(self) -> None:
         try:
@@ -146,7 +175,14 @@ class HostSession:
             self.status.connected = False
             self.status.error = describe(exc)
             self.status.traceback = remote_traceback(exc)
+        if self.log is not None:
+            self.event("dropped the link (reconnecting in %.1f s): %s\n%s", self.backoff_s,
+                       describe(exc), _indent(remote_traceback(exc)))
         close_async(link)
+
+    def note_fault(self, reason: str, arms: Collection[str]) -> None:
+        """A call's Fault for ``arms`` of this host (the host log only)."""
+        self.event("fault for %s: %s", ",".join(arms), reason)
 
     def down_reason(self) -> str:
         with self._state:
@@ -157,7 +193,7 @@ class HostSession:
                     f"{retry}): {self.status.error}")
 
     def close(self) -> None:
-        """Bye to the agent (it rests its arms and exits), then close; bounded."""
+        """Bye to the agent (it rests its arms, answers, exits), then close; bounded."""
         locked = self.lock.acquire(timeout=min(self.cfg.deadline_s, 3.0))
         try:
             with self._state:
@@ -165,13 +201,23 @@ class HostSession:
                 link, self.link = self.link, None
                 self.status.connected = False
             if link is not None:
+                said = "not said (link busy)"
                 if locked:  # never interleave with a heartbeat on the same stream
-                    with contextlib.suppress(Exception):
-                        link.bye(time.monotonic() + min(self.cfg.deadline_s, 3.0))
+                    try:  # the agent rests its arms before it answers: give it time
+                        link.bye(time.monotonic() + min(self.cfg.deadline_s, 5.0))
+                        said = "answered"
+                    except Exception as exc:
+                        said = f"failed: {describe(exc)}"
                 link.close()
+                self.event("closed: bye %s; agent exit status %s", said,
+                           link.transport.exit_status())
         finally:
             if locked:
                 self.lock.release()
+
+
+def _indent(text: str) -> str:
+    return "\n".join("    " + ln for ln in text.rstrip().splitlines())
 
 
 def _spawn(target: object, name: str) -> None:

@@ -29,6 +29,7 @@ import subprocess
 import sys
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
@@ -37,26 +38,34 @@ from testbed.config import HostConfig
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STDERR_KEEP = 8192
+STDERR_LINE_MAX = 16384
 
 
-def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: float) -> list[str]:
-    """The agent's argv for ``host`` (no shell words; quoting is the transport's job)."""
+def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: float,
+               calibrating: Collection[str] = ()) -> list[str]:
+    """The agent's argv for ``host`` (no shell words; quoting is the transport's job).
+
+    Backend-specific fields are read with ``getattr``: a twin host's config has no
+    camera, a YuMi host's no physics. ``calibrating``: arms started in calibration mode
+    (``--calibrate ARM``)."""
     argv = [python, "-m", "drivers.agent", "--backend", host.backend, "--host", host.name,
             "--arms", ",".join(a.name for a in host.arms),
             "--mirror", ",".join("1" if a.mirror else "0" for a in host.arms),
             "--seed", str(seed), "--idle-timeout", f"{idle_timeout_s:g}"]
-    if host.backend == "twin" and not host.physics:
+    if host.backend == "twin" and not getattr(host, "physics", True):
         argv.append("--no-physics")
     if host.backend == "yumi":
-        if host.camera is not None:
-            argv += ["--camera", host.camera]
-        if host.controller_url is not None:
-            argv += ["--controller-url", host.controller_url]
+        if (camera := getattr(host, "camera", None)) is not None:
+            argv += ["--camera", str(camera)]
+        if (url := getattr(host, "controller_url", None)) is not None:
+            argv += ["--controller-url", str(url)]
         for a in host.arms:
-            if a.crop is not None:
-                argv += ["--crop", f"{a.name}=" + ",".join(str(v) for v in a.crop)]
-            if a.calibration is not None:
-                argv += ["--calibration", f"{a.name}={a.calibration}"]
+            if (crop := getattr(a, "crop", None)) is not None:
+                argv += ["--crop", f"{a.name}=" + ",".join(str(v) for v in crop)]
+            if (cal := getattr(a, "calibration", None)) is not None:
+                argv += ["--calibration", f"{a.name}={cal}"]
+    for arm in calibrating:
+        argv += ["--calibrate", arm]
     if host.workdir is not None:
         argv += ["--chdir", host.workdir]
     return argv
@@ -69,6 +78,10 @@ class Transport(ABC):
         self.host = host
         self._stderr = bytearray()
         self._reads = 0
+        self._partial = bytearray()
+        self.on_stderr_line: Callable[[str], None] | None = None
+        """Called with every complete line the agent writes to stderr (the host log);
+        lines arrive when stderr is drained: every 32nd read, at EOF and at close."""
 
     @property
     def peer(self) -> str:
@@ -104,6 +117,31 @@ class Transport(ABC):
         self._stderr += data
         if len(self._stderr) > STDERR_KEEP:
             del self._stderr[:-STDERR_KEEP]
+        if self.on_stderr_line is None or not data:
+            return
+        self._partial += data
+        if b"\n" not in data and len(self._partial) <= STDERR_LINE_MAX:
+            return
+        *lines, rest = self._partial.split(b"\n")
+        self._partial = bytearray(rest)
+        if len(self._partial) > STDERR_LINE_MAX:  # a runaway line: pass it on in pieces
+            lines.append(bytes(self._partial))
+            self._partial.clear()
+        for line in lines:
+            self._emit(line)
+
+    def _emit(self, line: bytes) -> None:
+        cb = self.on_stderr_line
+        if cb is None:
+            return
+        with contextlib.suppress(Exception):  # a log sink must never break the link
+            cb(line.decode("utf-8", "replace").rstrip("\r"))
+
+    def flush_stderr_lines(self) -> None:
+        """Pass on a last line that had no newline (the agent has exited)."""
+        if self._partial:
+            line, self._partial = bytes(self._partial), bytearray()
+            self._emit(line)
 
     def stderr_tail(self) -> str:
         return self._stderr.decode("utf-8", "replace").strip()
@@ -205,7 +243,7 @@ class LocalTransport(Transport):
         self._closed = True
         with contextlib.suppress(OSError):
             assert proc.stdin is not None
-            proc.stdin.close()  # EOF: the agent rests its arms and exits
+            proc.stdin.close()  # EOF: the agent exits (arms unmoved: bye rested them)
         try:
             proc.wait(0.5)
         except subprocess.TimeoutExpired:
@@ -217,6 +255,7 @@ class LocalTransport(Transport):
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     proc.wait(2.0)
         self._drain_stderr()
+        self.flush_stderr_lines()
         for f in (proc.stdout, proc.stderr):
             with contextlib.suppress(OSError):
                 if f is not None:
@@ -336,8 +375,15 @@ class SshTransport(Transport):
         self._client = None
         if chan is not None:
             with contextlib.suppress(Exception):
-                chan.shutdown_write()  # EOF on the agent's stdin: it rests and exits
+                chan.shutdown_write()  # EOF on the agent's stdin: it exits, arms unmoved
+            # Its last stderr lines (for the host log): until it exits, briefly.
+            until = time.monotonic() + 0.5
+            with contextlib.suppress(Exception):
+                while not chan.exit_status_ready() and time.monotonic() < until:
+                    self._drain_stderr()
+                    time.sleep(0.01)
             self._drain_stderr()
+            self.flush_stderr_lines()
             with contextlib.suppress(Exception):
                 chan.close()
         if client is not None:

@@ -36,7 +36,8 @@ def _positive(text: str) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", metavar="FILE", help="fleet config (TOML); default: twin fleet")
+    p.add_argument("--config", metavar="FILE", help="fleet config (TOML), or a protocol file "
+                   "(its [fleet] is used); default: the built-in twin fleet")
 
 
 def _trial_args(p: argparse.ArgumentParser) -> None:
@@ -79,6 +80,50 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--mosaic", default="check.png", metavar="PNG")
 
+    p = sub.add_parser("calibrate", help="fit a YuMi arm's image-to-table homography",
+                       description="Drive the arm's TCP over a grid in a safe box, find the "
+                       "ArUco marker on its pusher in each camera frame, fit pixel -> table mm "
+                       "(RANSAC), print the errors, propose the crop box, check the rest pose "
+                       "is out of view, and write the calibration file on the host.")
+    p.add_argument("--config", metavar="FILE", required=True,
+                   help="fleet config or protocol file with the yumi host")
+    p.add_argument("--host", required=True, metavar="NAME")
+    p.add_argument("--arm", required=True, metavar="NAME")
+    p.add_argument("--box", metavar="x0,y0,x1,y1", help="safe box of TCP points, mm, robot "
+                   "base frame (default: the calibration's table_box_mm); written as table_box_mm")
+    p.add_argument("--grid", default="5x4", metavar="NXxNY", help="points over the box (5x4)")
+    p.add_argument("--z", type=float, default=10.0, metavar="MM", help="TCP height (default "
+                   "10: the marker in the cube-top plane)")
+    p.add_argument("--marker-above-tcp", type=float, default=30.0, metavar="MM",
+                   help="marker plane above the TCP (default 30)")
+    p.add_argument("--marker-id", type=int, metavar="ID", help="ArUco DICT_4X4_50 id "
+                   "(default: left 0, right 1)")
+    p.add_argument("--out", metavar="FILE", help="also write the calibration JSON here, locally")
+    p.add_argument("--image", metavar="PNG", help="the last frame with sightings, crop and box")
+    p.add_argument("--max-px", type=float, default=2.0, metavar="PX",
+                   help="fail (exit 1, nothing written) above this max error in pixels")
+    p.add_argument("--max-mm", type=float, default=3.0, metavar="MM",
+                   help="fail (exit 1, nothing written) above this max error in mm")
+
+    p = sub.add_parser("rehearse", help="a physical protocol on hardware twins over real SSH",
+                       description="Start a hardware twin (PyBullet YuMi cell, MJPEG camera, "
+                       "controller API) behind a real OpenSSH sshd on loopback for each host "
+                       "of a physical protocol, calibrate every arm with testbed calibrate, "
+                       "and run the protocol against them with the YuMi backend.")
+    p.add_argument("protocol", nargs="?", default="protocols/physical.toml", metavar="PROTOCOL")
+    p.add_argument("--trials", type=_positive, metavar="N", help="trials (default 1)")
+    p.add_argument("--steps", type=_positive, metavar="T", help="steps per run "
+                   "(default: the protocol's)")
+    p.add_argument("--humans", choices=["scripted", "gui"], default="scripted")
+    p.add_argument("--quick", action="store_true", help="the default twin trial's learning "
+                   "sizes instead of the protocol's (the report says so)")
+    p.add_argument("--algorithms", metavar="A,B", help="a subset of the protocol's algorithms")
+    p.add_argument("--out", metavar="DIR", help="folder of the rehearsal's runs "
+                   "(default runs/rehearsal-NAME)")
+    p.add_argument("--realtime", type=float, default=0.0, metavar="X",
+                   help="pace the twins' motion at X times real time (default 0: as fast "
+                   "as they compute)")
+
     p = sub.add_parser("collect", help="offline demonstrations (375 pairs by default)",
                        description="Humans drive every arm; keep the state-action pairs.")
     _common(p)
@@ -113,11 +158,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     INTERRUPTS.install()
+    from gui.errors import ConsoleUnavailable
     from testbed.commands import VERBS  # imported after parsing: keeps --help fast
 
     try:
         return VERBS[args.verb](args)
-    except ConfigError as exc:
+    except (ConfigError, ConsoleUnavailable) as exc:
+        # ConsoleUnavailable: a DISPLAY that is set but that no X server answers, found
+        # only when the console opens its windows (its message is one line with the fix).
         sys.stderr.write(f"testbed {args.verb}: {exc}\n")
         return 2
     except KeyboardInterrupt:

@@ -8,13 +8,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from rich.console import Console
 
-from testbed.config import ConfigError, FleetConfig, load_config
+from testbed.config import NAME_PATTERN, ConfigError, FleetConfig, load_fleet
 from testbed.priorities import ALGORITHM_NAMES
 from testbed.progress import TrialProgress
 from testbed.trial import TrialOptions, run_trial
@@ -23,7 +25,90 @@ console = Console(stderr=True)
 
 
 def _config(args: argparse.Namespace) -> FleetConfig:
-    return load_config(getattr(args, "config", None))
+    """The fleet of ``--config``: a fleet config or a protocol file's ``[fleet]``."""
+    return load_fleet(getattr(args, "config", None))
+
+
+# ---- checks of what the user asked for, before anything starts (exit 2, one line) ----
+def check_device(cfg: FleetConfig) -> None:
+    """``learning.device = "cuda"`` needs CUDA here. Only verbs that train or run a
+    policy call this, so torch is imported then, not when the config is read."""
+    if cfg.learning.device != "cuda":
+        return
+    import torch
+
+    if not torch.cuda.is_available():
+        raise ConfigError('learning.device: "cuda" but torch sees no CUDA device on this '
+                          'machine; set it to "auto" (CUDA when present) or "cpu"')
+
+
+def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
+    """The humans can work here: the console can open its windows (``gui``), or the
+    scripted expert has a twin to read its pushes from (``scripted`` with ``teleop``).
+
+    A yumi host whose controller is the hardware twin (``twin+http://``) has one: a
+    rehearsal's scripted humans read it over the twin's side channel.
+    """
+    where = "--humans (or humans.kind)"
+    if kind == "gui":
+        if cfg.humans.count < 1:
+            raise ConfigError("humans.count: the operator console needs at least one person; "
+                              "set humans.count >= 1")
+        from gui.display import check_window_system, default_display
+        from gui.errors import ConsoleUnavailable
+
+        try:
+            check_window_system([default_display()] * cfg.humans.count)
+        except ConsoleUnavailable as exc:
+            raise ConfigError(f"{where} gui: {exc}") from None
+    elif kind == "scripted" and teleop:
+        real = [h.name for h in cfg.hosts if h.backend != "twin"
+                and not str(getattr(h, "controller_url", "")).startswith("twin+")]
+        if real:
+            raise ConfigError(f"{where} scripted: scripted humans teleoperate from the twin's "
+                              f"expert and host {real[0]} is a physical robot; use --humans gui")
+
+
+def check_policy(path: str, cfg: FleetConfig) -> None:
+    """``--policy`` is a learner checkpoint this config can load (same ensemble size and
+    augmentation factor): found now, not after the hosts have started."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"--policy: no such file {path!r}; give a learner.pt")
+    from testbed.learning import checkpoint
+
+    try:
+        saved = checkpoint.load(p)["cfg"]
+    except Exception as exc:  # torch's many ways of saying "not a checkpoint"
+        why = " ".join(str(exc).split())[:160]
+        raise ConfigError(f"--policy: {path} is not a learner checkpoint ({why}); give the "
+                          "learner.pt of a trial or of testbed pretrain") from None
+    for field in ("ensemble_size", "augmentation_factor"):
+        if saved.get(field) != getattr(cfg.learning, field):
+            raise ConfigError(f"--policy: {path} has learning.{field} = {saved.get(field)}, "
+                              f"the config {getattr(cfg.learning, field)}; use the "
+                              "checkpoint's value in the config")
+
+
+def check_out_dir(flag: str, path: str) -> None:
+    """A folder the verb will create or fill: not an existing file."""
+    if Path(path).exists() and not Path(path).is_dir():
+        raise ConfigError(f"{flag}: {path!r} is a file, not a folder")
+
+
+def check_out_file(flag: str, path: str) -> None:
+    """A file the verb writes at the end: its folder exists now, not after the work."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{flag}: {path!r} is a folder; give a file name")
+    if not p.parent.is_dir():
+        raise ConfigError(f"{flag}: no such folder {str(p.parent)!r}; create it first")
+
+
+def check_name(name: str | None) -> None:
+    if name is not None and not re.fullmatch(NAME_PATTERN, name):
+        raise ConfigError(f"--name: {name!r} is not a run folder name (letters, digits, "
+                          "_ . -; not starting with . or -)")
 
 
 def _check_algorithm(name: str) -> None:
@@ -47,9 +132,37 @@ def trial_options(cfg: FleetConfig, args: argparse.Namespace, **over: Any) -> Tr
     for k, v in over.items():
         setattr(opts, k, v)
     _check_algorithm(opts.algorithm)
-    if opts.policy is not None and not Path(opts.policy).is_file():
-        raise ConfigError(f"--policy: no such file {opts.policy!r}; give a learner.pt")
+    check_name(opts.name)
+    check_out_dir("--out (or trial.out)", opts.out)
+    check_device(cfg)
+    check_humans(opts.humans, cfg, teleop=not opts.evaluate)
+    if opts.policy is not None:
+        check_policy(opts.policy, cfg)
     return opts
+
+
+def resume_options(resume: Path) -> tuple[FleetConfig, TrialOptions]:
+    """The config and options of a run to resume, checked as a new trial's are."""
+    from testbed.runs import RunDir
+
+    if not resume.is_dir():
+        raise ConfigError(f"--resume: no such run folder {str(resume)!r}")
+    run = RunDir(resume)
+    cfg = run.read_config()
+    options = run.read_meta().get("options")
+    if not isinstance(options, dict):
+        raise ConfigError(f"--resume: {resume} has no run.json with the trial's options; "
+                          "not a trial run folder")
+    try:
+        opts = TrialOptions(**options)
+    except TypeError as exc:
+        raise ConfigError(f"--resume: {resume}/run.json: unexpected options ({exc})") from None
+    if not run.state.exists():
+        raise ConfigError(f"--resume: {resume}: no checkpoint yet (state.json); start a new "
+                          "trial")
+    check_device(cfg)
+    check_humans(opts.humans, cfg, teleop=not opts.evaluate)
+    return cfg, opts
 
 
 def print_summary(run_dir: Path, summary: dict[str, Any]) -> None:
@@ -60,12 +173,7 @@ def print_summary(run_dir: Path, summary: dict[str, Any]) -> None:
 def cmd_trial(args: argparse.Namespace) -> int:
     if args.resume:
         resume = Path(args.resume)
-        if not resume.is_dir():
-            raise ConfigError(f"--resume: no such run folder {args.resume!r}")
-        from testbed.runs import RunDir
-
-        cfg = RunDir(resume).read_config()
-        opts = TrialOptions(**RunDir(resume).read_meta()["options"])
+        cfg, opts = resume_options(resume)
     else:
         resume = None
         cfg = _config(args)
@@ -92,6 +200,10 @@ def cmd_protocol(args: argparse.Namespace) -> int:
     from testbed.protocol import load_protocol, run_protocol
 
     proto = load_protocol(Path(args.file))
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    check_device(proto.fleet)
+    check_humans(proto.humans, proto.fleet)
     report = run_protocol(proto, out=args.out, ask=not args.yes)
     print(report.markdown)
     print(f"report: {report.folder}")
@@ -105,6 +217,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     for d in dirs:
         if not d.is_dir():
             raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no such folder {str(d)!r}")
+    if args.out is not None:
+        check_out_dir("--out", args.out)
     report = write_report(dirs, Path(args.out) if args.out else dirs[0])
     print(report.markdown)
     print(f"report: {report.folder}")
@@ -115,6 +229,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from testbed.preflight import preflight
 
     cfg = _config(args)
+    check_out_file("--mosaic", args.mosaic)
     ok = preflight(cfg, Path(args.mosaic), print_line=print)
     return 0 if ok else 1
 
@@ -126,6 +241,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     count = args.count or cfg.learning.demos
+    check_out_file("--out", args.out)
+    check_humans(args.humans or cfg.humans.kind, cfg)
     humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count)
     hosts = build_hosts(cfg, args.seed)
     try:
@@ -155,7 +272,17 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
             update={"learning": cfg.learning.model_copy(
                 update={"pretrain_steps": args.steps, "critic_pretrain_steps": None})}
         )
-    demos = load_transitions(Path(args.demos))
+    check_out_file("--out", args.out)
+    check_device(cfg)
+    check_humans(args.humans or cfg.humans.kind, cfg, teleop=False)
+    try:
+        demos = load_transitions(Path(args.demos))
+    except ConfigError:
+        raise
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # not an .npz
+        why = " ".join(str(exc).split())[:160]
+        raise ConfigError(f"--demos: {args.demos} is not a demonstrations file ({why}); "
+                          "give the .npz of testbed collect") from None
     humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count)
     hosts = build_hosts(cfg, PRETRAIN_SEED)
     learner = new_learner(cfg, PRETRAIN_SEED)
@@ -172,6 +299,39 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from testbed.calibrate_cmd import cmd_calibrate as calibrate  # cv2, only when asked
+
+    return calibrate(args)
+
+
+def cmd_rehearse(args: argparse.Namespace) -> int:
+    from testbed.protocol import load_protocol
+    from testbed.rehearsal import RehearsalOptions, rehearse
+
+    path = Path(args.protocol)
+    proto = load_protocol(path, check_files=False)  # the lab's key files need not exist here
+    algorithms = [a for a in (args.algorithms or "").split(",") if a] or None
+    for a in algorithms or []:
+        if a not in proto.algorithms:
+            raise ConfigError(f"--algorithms: {a!r} is not one of the protocol's "
+                              f"{', '.join(proto.algorithms)}")
+    check_humans(args.humans, proto.fleet, teleop=False)
+    check_device(proto.fleet)
+    if args.realtime < 0:
+        raise ConfigError("--realtime: must be >= 0")
+    result = rehearse(RehearsalOptions(path, args.trials, args.steps, args.humans, args.quick,
+                                       Path(args.out) if args.out else None, algorithms,
+                                       args.realtime))
+    print(result.report_markdown)
+    for robot, fig in result.calibration.items():
+        print(f"calibration {robot}: against the twin's true camera model median "
+              f"{fig['median_px']:.2f} px / {fig['median_mm']:.2f} mm, max "
+              f"{fig['max_px']:.2f} px / {fig['max_mm']:.2f} mm")
+    print(f"rehearsal: {result.folder} (one folder per run; report.md, rehearsal.md)")
+    return 0
+
+
 VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "trial": cmd_trial,
     "evaluate": cmd_evaluate,
@@ -180,4 +340,6 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "check": cmd_check,
     "collect": cmd_collect,
     "pretrain": cmd_pretrain,
+    "calibrate": cmd_calibrate,
+    "rehearse": cmd_rehearse,
 }

@@ -7,7 +7,7 @@ happen only in the agent that needs them, after the agent has claimed its stdout
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 
@@ -17,7 +17,10 @@ __all__ = ["ArmOutcome", "ArmView", "HostBackend", "make_backend"]
 def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed: int,
                  physics: bool = True, crops: Mapping[str, tuple[int, int, int, int]] | None = None,
                  calibrations: Mapping[str, str] | None = None, camera: str | None = None,
-                 controller_url: str | None = None) -> HostBackend:
+                 controller_url: str | None = None, calibrating: Collection[str] = ()
+                 ) -> HostBackend:
+    """The agent's backend. ``calibrating``: yumi arms being calibrated (``--calibrate``):
+    they start with a provisional calibration; a twin has nothing to calibrate."""
     if kind == "twin":
         from drivers.backends.twin import CannedTwinBackend, TwinBackend
 
@@ -28,5 +31,5 @@ def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed
         from drivers.backends.yumi import build_yumi_backend
 
         return build_yumi_backend(arms, mirror, crops or {}, calibrations or {}, camera,
-                                  controller_url, seed)
+                                  controller_url, seed, calibrating=tuple(calibrating))
     raise ValueError(f"unknown backend {kind!r}; expected 'twin' or 'yumi'")

@@ -34,12 +34,23 @@ class TwinBackend(HostBackend):
             from sim_twin.cell import TwinCell  # pybullet only in the agent
 
             cell_factory = TwinCell
-        self._cell = cell_factory(seed=seed, arms=tuple(arms), mirror=tuple(mirror),
-                                  image_size=IMAGE_SIZE)
+        self._factory = cell_factory
         self._arms = tuple(arms)
         self._mirror = tuple(bool(m) for m in mirror)
+        self._cell = self._new_cell(seed)
         self._pushed_since_rest = False
         self._closed = False
+
+    def _new_cell(self, seed: int) -> Any:
+        return self._factory(seed=seed, arms=self._arms, mirror=self._mirror,
+                             image_size=IMAGE_SIZE)
+
+    def reseed(self, seed: int) -> None:
+        """A new cell from ``seed``, exactly as a newly started agent would build it (so
+        pretraining on a host, then reseeding, gives the trial a fresh start)."""
+        old, self._cell = self._cell, self._new_cell(seed)
+        self._pushed_since_rest = False
+        old.close()
 
     @property
     def arm_names(self) -> tuple[str, ...]:
@@ -114,13 +125,17 @@ class CannedTwinBackend(HostBackend):
 
         self._arms = tuple(arms)
         self._mirror = tuple(bool(m) for m in mirror)
-        self._rng = np.random.default_rng(seed)
-        self._violating = dict.fromkeys(self._arms, False)
+        self.reseed(seed)
         self._views: dict[str, ArmView] = {}
         self._goal = (0.7, 0.3)
         for i, arm in enumerate(self._arms):
             img = canned_image(i, (0.5, 0.5), self._goal)
             self._views[arm] = ArmView(img, False, self._goal, 0, encode_image(img))
+
+    def reseed(self, seed: int) -> None:
+        """Outcomes from ``seed`` again, every arm free (as a new agent)."""
+        self._rng = np.random.default_rng(seed)
+        self._violating = dict.fromkeys(self._arms, False)
 
     @property
     def arm_names(self) -> tuple[str, ...]:

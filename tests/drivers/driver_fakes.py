@@ -29,7 +29,7 @@ from drivers.errors import DeadlineExceeded
 from drivers.protocol import FrameReader
 from drivers.testing.sshd import SshServer
 from drivers.transport import Transport
-from testbed.config import HostConfig
+from testbed.config import HostConfig, TwinHost, YumiHost
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -37,13 +37,14 @@ ROOT = Path(__file__).resolve().parents[2]
 def local_host(name: str, **kw: Any) -> HostConfig:
     kw.setdefault("deadline_s", 5.0)
     kw.setdefault("connect_timeout_s", 20.0)
-    return HostConfig(name=name, **kw)
+    model = YumiHost if kw.get("backend") == "yumi" else TwinHost
+    return model(name=name, **kw)
 
 
 def ssh_host(name: str, server: SshServer, **kw: Any) -> HostConfig:
     kw.setdefault("deadline_s", 5.0)
     kw.setdefault("connect_timeout_s", 20.0)
-    return HostConfig(name=name, transport="ssh", address="127.0.0.1", port=server.port,
+    return TwinHost(name=name, transport="ssh", address="127.0.0.1", port=server.port,
                       user=server.user, key_file=str(server.client_key),
                       known_hosts=str(server.known_hosts), python=sys.executable,
                       workdir=str(ROOT), **kw)
@@ -95,6 +96,88 @@ class ExplodingBackend(HostBackend):
 
     def close(self) -> None:
         pass
+
+
+class RecordingBackend(HostBackend):
+    """Records every call (the agent's own logic under test: what does it ask the arms
+    to do?). ``push_outcomes``/``observe_errors`` script per-arm refusals and errors;
+    the optional capabilities answer like a backend that has them."""
+
+    kind = "recording"
+
+    def __init__(self, arms: Sequence[str] = ("left", "right"), *,
+                 push_outcomes: Mapping[str, ArmOutcome] | None = None,
+                 observe_errors: Mapping[str, str] | None = None,
+                 capable: bool = True) -> None:
+        self.inner = CannedTwinBackend(0, arms, tuple(a.startswith("right") for a in arms))
+        self.calls: list[tuple[str, Any]] = []
+        self.push_outcomes = dict(push_outcomes or {})
+        self.observe_errors = dict(observe_errors or {})
+        self.capable = capable
+
+    MOTION = ("push", "reset", "rest", "move_tcp")
+
+    def motions(self) -> list[tuple[str, Any]]:
+        return [c for c in self.calls if c[0] in self.MOTION]
+
+    @property
+    def arm_names(self) -> tuple[str, ...]:
+        return self.inner.arm_names
+
+    @property
+    def mirror(self) -> tuple[bool, ...]:
+        return self.inner.mirror
+
+    def observe(self) -> dict[str, ArmView]:
+        self.calls.append(("observe", None))
+        views: dict[str, Any] = self.inner.observe()
+        for arm, why in self.observe_errors.items():
+            views[arm] = RuntimeError(why)  # an arm without a view, as the agent allows
+        return views
+
+    def push(self, faces: Mapping[str, int]) -> dict[str, ArmOutcome]:
+        self.calls.append(("push", dict(faces)))
+        out = self.inner.push(faces)
+        return {a: self.push_outcomes.get(a, o) for a, o in out.items()}
+
+    def reset(self, arms: Sequence[str]) -> dict[str, bool]:
+        self.calls.append(("reset", list(arms)))
+        return self.inner.reset(arms)
+
+    def rest(self) -> None:
+        self.calls.append(("rest", None))
+
+    def close(self) -> None:
+        self.calls.append(("close", None))
+
+    def reseed(self, seed: int) -> None:
+        self.calls.append(("reseed", seed))
+        if not self.capable:
+            super().reseed(seed)
+        self.inner.reseed(seed)
+
+    def frame(self) -> np.ndarray:
+        self.calls.append(("frame", None))
+        if not self.capable:
+            return super().frame()
+        rng = np.random.default_rng(5)
+        return rng.integers(0, 256, (48, 80, 3), dtype=np.uint8)
+
+    def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
+        self.calls.append(("move_tcp", (arm, tuple(xyz_mm))))
+        if not self.capable:
+            return super().move_tcp(arm, xyz_mm)
+        if xyz_mm[2] < 0:
+            err = ValueError(f"arm {arm}: {list(xyz_mm)} is below the table")
+            err.arm = arm  # type: ignore[attr-defined]
+            raise err
+        return (float(xyz_mm[0]), float(xyz_mm[1]), float(xyz_mm[2]) + 0.25)
+
+    def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
+        self.calls.append(("save_calibration", (arm, dict(data))))
+        if not self.capable:
+            return super().save_calibration(arm, data)
+        return f"/calib/{arm}.json"
 
 
 Mutation = Callable[[int, bytes], tuple[bytes, bool]]

@@ -1,6 +1,8 @@
 """Fuzz: 1000 malformed or truncated frames in each direction, through the real agent
 loop and the real fleet. Every one must give a clear error and a Fault for that host's
-arms, within the deadline; the other host goes on; nothing crashes, nothing hangs.
+arms (or, for the single-host calls frame / move_tcp / save_calibration, a HostCallError
+naming the host), within the deadline; the other host goes on; nothing crashes, nothing
+hangs.
 
 Seeded (numpy Generator) so a failure is reproducible: the case number is in the
 assertion message.
@@ -18,12 +20,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from driver_fakes import ThreadAgentTransport, local_host, wait_until
+from driver_fakes import RecordingBackend, ThreadAgentTransport, local_host, wait_until
 
 import drivers.fleet
 import drivers.session
 from drivers import protocol as p
-from drivers.fleet import HostFleet
+from drivers.fleet import HostCallError, HostFleet
 from drivers.png import encode_png
 from testbed.config import HostConfig
 from testbed.types import ArmObservation, Fault, PushResult
@@ -35,7 +37,8 @@ STALL_P = 0.006  # a few stalled streams: only the deadline can end those
 CLEAR = re.compile(
     r"malformed|truncated frame|corrupted frame|bad magic|CRC mismatch|unexpected reply|"
     r"out-of-order|not a PNG|PNG (is|data|pixel|chunk|has)|rejected our|closed the stream|"
-    r"deadline exceeded|exceeds the limit|header length|link closed")
+    r"deadline exceeded|exceeds the limit|header length|link closed|claims \d+x\d+|"
+    r"one PNG blob")
 
 Mutator = Callable[[bytes], tuple[bytes, bool, str]]
 """frame -> (bytes to send, close the stream after them?, category)."""
@@ -94,7 +97,14 @@ def mutate_fields(rng: np.random.Generator, h: dict[str, Any], body: bytes
     if t == "observe_ok":
         entries = h["arms"]
         e = entries[int(rng.integers(0, len(entries)))]
-        k = int(rng.integers(0, 12))
+        k = int(rng.integers(0, 14))
+        if k == 12:  # an arm error that is not a reason
+            e.clear()
+            e.update(arm="left", error=["", None, 7][int(rng.integers(0, 3))])
+            return h, body
+        if k == 13:  # an arm error with a view's keys
+            e["error"] = "camera"
+            return h, body
         if k == 0:
             del h["arms"]
         elif k == 1:
@@ -130,7 +140,7 @@ def mutate_fields(rng: np.random.Generator, h: dict[str, Any], body: bytes
     if t == "push_ok":
         res = h["results"]
         arm = sorted(res)[int(rng.integers(0, len(res)))]
-        k = int(rng.integers(0, 5))
+        k = int(rng.integers(0, 7))
         if k == 0:
             del res[arm]
         elif k == 1:
@@ -139,9 +149,56 @@ def mutate_fields(rng: np.random.Generator, h: dict[str, Any], body: bytes
             res[arm]["success"] = 1
         elif k == 3:
             res[arm] = [True, False]
+        elif k == 4:
+            res[arm][str(rng.choice(["refused", "error"]))] = [5, "", False][
+                int(rng.integers(0, 3))]
+        elif k == 5:
+            res[arm]["why"] = "no"
         else:
             del h["results"]
         return h, body
+    if t == "frame_ok":
+        k = int(rng.integers(0, 5))
+        if k == 0:  # no blob
+            h["blobs"] = []
+            return h, b""
+        if k == 1:  # not a PNG
+            blob = bytes(rng.integers(0, 256, 64, dtype=np.uint8))
+        elif k == 2:  # truncated PNG
+            blob = body[:int(rng.integers(8, len(body) - 20))]
+        elif k == 3:  # a PNG header claiming a huge image
+            blob = (body[:16] + int(rng.integers(5000, 2**31)).to_bytes(4, "big") * 2
+                    + body[24:])
+        else:  # two blobs
+            blob = body + body
+            h["blobs"] = [len(body), len(body)]
+            return h, blob
+        h["blobs"] = [len(blob)]
+        return h, blob
+    if t == "move_tcp_ok":
+        h["tcp"] = [None, [1, 2], "here", [1, 2, "3"], {"x": 1}][int(rng.integers(0, 5))]
+        return h, body
+    if t == "save_calibration_ok":
+        h["path"] = ["", 3, None, ["/x"]][int(rng.integers(0, 4))]
+        return h, body
+    if t == "move_tcp":
+        k = int(rng.integers(0, 4))
+        if k == 0:
+            h["arm"] = "elbow"
+        elif k == 1:
+            h["xyz_mm"] = [[1, 2], "origin", [1, 2, None], [1, 2, True]][int(rng.integers(0, 4))]
+        elif k == 2:
+            del h["arm"]
+        else:
+            h["type"] = "move_tcp_now"
+        return h, body
+    if t == "save_calibration":
+        h["data"] = [[1], "x", None, 3][int(rng.integers(0, 4))]
+        return h, body
+    if t == "frame":  # requests carry no blobs
+        blob = b"\0" * int(rng.integers(1, 64))
+        h["blobs"] = [len(blob)]
+        return h, blob
     if t == "observe":
         h["type"] = str(rng.choice(["observe_all", "OBSERVE", "launch"]))
         return h, body
@@ -184,6 +241,17 @@ def make_mutator(rng: np.random.Generator) -> Mutator:
     return mutate
 
 
+CALLS = ("observe", "push", "frame", "move_tcp", "save_calibration")
+
+
+def single_host_call(fleet: HostFleet, call: str, host: str) -> object:
+    if call == "frame":
+        return fleet.frame(host, timeout_s=DEADLINE_S)
+    if call == "move_tcp":
+        return fleet.move_tcp(host, "left", (400.0, 100.0, 10.0), timeout_s=DEADLINE_S)
+    return fleet.save_calibration(host, "right", {"z_push_mm": 12.0}, timeout_s=DEADLINE_S)
+
+
 def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict[str, int]:
     rng = np.random.default_rng(seed)
     mutate = make_mutator(rng)
@@ -192,7 +260,7 @@ def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict
 
     def transport(host: HostConfig) -> ThreadAgentTransport:
         if host.name == "good":
-            t = ThreadAgentTransport(host)
+            t = ThreadAgentTransport(host, backend_factory=RecordingBackend)
         else:
             def hook(i: int, data: bytes) -> tuple[bytes, bool]:
                 if i != 1:  # 0 is hello / hello_ok: the case starts after the handshake
@@ -201,8 +269,10 @@ def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict
                 current["kind"] = kind
                 return out, close
 
-            t = (ThreadAgentTransport(host, mutate_reply=hook) if direction == "reply"
-                 else ThreadAgentTransport(host, mutate_request=hook))
+            t = (ThreadAgentTransport(host, mutate_reply=hook, backend_factory=RecordingBackend)
+                 if direction == "reply" else
+                 ThreadAgentTransport(host, mutate_request=hook,
+                                      backend_factory=RecordingBackend))
         made.append(t)
         return t
 
@@ -216,8 +286,24 @@ def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict
             wait_until(lambda: fleet.host_status()["bad"].connected, 10,
                        f"case {case}: reconnect", poll_s=0.001)
             t0 = time.monotonic()
-            use_push = case % 2 == 1
-            if use_push:
+            call = CALLS[case % len(CALLS)]
+            if call not in ("observe", "push"):
+                try:
+                    got = single_host_call(fleet, call, "bad")
+                    failure = f"the call returned {got!r:.60}"
+                except HostCallError as exc:
+                    failure = str(exc)
+                took = time.monotonic() - t0
+                kind = current.get("kind", "?")
+                seen[kind] = seen.get(kind, 0) + 1
+                where = f"case {case} ({direction}, {call}, {kind}, seed {seed})"
+                assert took < DEADLINE_S + 1.5, f"{where}: took {took:.2f} s"
+                assert failure.startswith(f"{call} on host bad failed: "), f"{where}: {failure}"
+                assert CLEAR.search(failure), f"{where}: unclear reason {failure!r}"
+                assert "\n" not in failure, f"{where}: not one line"
+                single_host_call(fleet, call, "good")  # the other host goes on
+                continue
+            if call == "push":
                 res: dict[str, Any] = dict(fleet.execute(dict.fromkeys(fleet.robot_names, 1), []))
                 ok_type: type = PushResult
             else:

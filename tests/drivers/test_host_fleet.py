@@ -14,7 +14,7 @@ from driver_fakes import ExplodingBackend, ThreadAgentTransport, local_host, wai
 import drivers.session
 from drivers.fleet import HostFleet, derive_seed
 from drivers.transport import LocalTransport, make_transport
-from testbed.config import HostConfig
+from testbed.config import HostConfig, TwinHost, YumiHost
 from testbed.types import ArmObservation, Fault, PushResult
 
 
@@ -123,7 +123,9 @@ def test_frozen_agent_is_a_deadline_fault_not_a_hang() -> None:
 
 def test_unstartable_agent_is_a_fault_with_the_reason() -> None:
     hosts = [local_host("cell0", physics=False, python="/nonexistent/python3"),
-             local_host("yumi0", backend="yumi")]  # no camera: the backend cannot start
+             # no camera: the backend cannot start (a config the loader refuses, built
+             # unvalidated to reach the agent's own check)
+             YumiHost.model_construct(name="yumi0", deadline_s=5.0)]
     with HostFleet(hosts, reconnect_backoff_s=5.0) as fleet:
         st = fleet.host_status()
         assert not st["cell0"].connected and "cannot start the agent" in str(st["cell0"].error)
@@ -201,5 +203,5 @@ def test_a_fleet_dropped_without_close_still_stops_its_agents() -> None:
 def test_local_agent_uses_the_controllers_interpreter_unless_absolute() -> None:
     import sys
 
-    assert LocalTransport.python_for(HostConfig(name="a")) == sys.executable
-    assert LocalTransport.python_for(HostConfig(name="a", python="/opt/py")) == "/opt/py"
+    assert LocalTransport.python_for(TwinHost(name="a")) == sys.executable
+    assert LocalTransport.python_for(TwinHost(name="a", python="/opt/py")) == "/opt/py"

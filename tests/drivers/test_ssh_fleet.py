@@ -20,7 +20,7 @@ from driver_fakes import ROOT, ssh_host, wait_until
 from drivers.fleet import HostFleet
 from drivers.testing.sshd import SshServer
 from drivers.transport import SshTransport, agent_argv
-from testbed.config import HostConfig
+from testbed.config import TwinHost
 from testbed.types import ArmObservation, Fault, PushResult
 
 pytestmark = pytest.mark.ssh
@@ -59,10 +59,10 @@ def test_twin_trial_steps_over_ssh(sshd_factory: SshdFactory) -> None:
 
 
 def test_agent_killed_mid_trial_faults_that_host_and_it_comes_back(
-        sshd_factory: SshdFactory) -> None:
+        sshd_factory: SshdFactory, tmp_path: Path) -> None:
     a, b = sshd_factory("a"), sshd_factory("b")
     hosts = [ssh_host("cell0", a, physics=False), ssh_host("cell1", b, physics=False)]
-    with HostFleet(hosts, reconnect_backoff_s=0.2) as fleet:
+    with HostFleet(hosts, reconnect_backoff_s=0.2, log_dir=tmp_path / "hosts") as fleet:
         steps(fleet, 2)
         victim = fleet.host_status()["cell0"].agent_pid
         assert victim is not None
@@ -71,8 +71,15 @@ def test_agent_killed_mid_trial_faults_that_host_and_it_comes_back(
         assert isinstance(obs["cell0/left"], Fault) and "link closed" in obs["cell0/left"].reason
         assert all(isinstance(obs[f"cell1/{arm}"], ArmObservation) for arm in ("left", "right"))
         wait_until(lambda: fleet.host_status()["cell0"].connected, 20, "cell0 back")
-        assert fleet.host_status()["cell0"].agent_pid != victim
+        second = fleet.host_status()["cell0"].agent_pid
+        assert second != victim
         assert kinds(steps(fleet, 1)[0], "cell0") == {"ArmObservation", "PushResult"}
+    # The host log over SSH: the agents' stderr lines (channel stderr) and our events.
+    log = (tmp_path / "hosts" / "cell0.log").read_text()
+    assert f"agent[cell0] INFO agent pid {victim} for host cell0" in log
+    assert f"agent[cell0] INFO agent pid {second} for host cell0" in log
+    assert "fleet | dropped the link" in log and "(attempt 1, ssh)" in log
+    assert "agent[cell0] INFO bye: arms to rest" in log
 
 
 def test_sshd_stopped_mid_trial_then_restarted(sshd_factory: SshdFactory) -> None:
@@ -184,4 +191,4 @@ def test_config_values_are_never_shell_code(sshd_factory: SshdFactory, tmp_path:
 
 def test_ssh_config_validation_requires_absolute_python() -> None:
     with pytest.raises(ValueError, match="absolute interpreter path"):
-        HostConfig(name="h", transport="ssh", user="u", key_file="k", known_hosts="kh")
+        TwinHost(name="h", transport="ssh", user="u", key_file="k", known_hosts="kh")

@@ -167,3 +167,106 @@ def test_header_is_compact_json() -> None:
     hlen = p.PREFIX.unpack(data[:16])[1]
     assert json.loads(data[16:16 + hlen]) == {"type": "push", "id": 3, "faces": {"left": 1},
                                               "blobs": []}
+
+
+# ------------------------------------------------------------- version 2 additions
+def test_protocol_version_is_2() -> None:
+    assert p.PROTOCOL_VERSION == 2
+
+
+def test_push_reply_carries_per_arm_refused_and_error_only_when_set() -> None:
+    plain = p.make_push_reply(1, {"left": ArmOutcome(True, False)})
+    assert b"refused" not in plain and b"error" not in plain  # v1-sized ordinary frames
+    data = p.make_push_reply(1, {"left": ArmOutcome(False, False, refused="cube not found"),
+                                 "right": ArmOutcome(False, False, error="planning failed")})
+    out = p.parse_push_reply(reader_of(data).read_frame(1e18), ["left", "right"], "a")
+    assert out["left"] == ArmOutcome(False, False, "cube not found", None)
+    assert out["right"] == ArmOutcome(False, False, None, "planning failed")
+
+
+@pytest.mark.parametrize(("result", "match"), [
+    ({"success": False, "violation": False, "refused": ""}, "refused must be null or"),
+    ({"success": False, "violation": False, "error": 3}, "error must be null or"),
+    ({"success": False, "violation": False, "why": "x"}, "unknown keys"),
+])
+def test_bad_per_arm_reasons_are_protocol_errors(result: dict, match: str) -> None:
+    f = reader_of(p.encode_frame({"type": "push_ok", "id": 1, "results": {"left": result}})
+                  ).read_frame(1e18)
+    with pytest.raises(ProtocolError, match=match):
+        p.parse_push_reply(f, ["left"], "a")
+
+
+def test_observe_reply_may_fault_one_arm_and_keep_the_other() -> None:
+    data = p.make_observe_reply(3, {"left": view(7)}, {"right": "arm right is being calibrated"})
+    views = p.parse_observe_reply(reader_of(data).read_frame(1e18), ["left", "right"], "a")
+    assert isinstance(views["left"], ArmView) and views["left"].image[0, 0, 0] == 7
+    assert views["right"] == p.ArmFailed("arm right is being calibrated")
+    bad = p.encode_frame({"type": "observe_ok", "id": 1, "arms": [
+        {"arm": "left", "error": "x", "violating": False}]})
+    with pytest.raises(ProtocolError, match="carries nothing else"):
+        p.parse_observe_reply(reader_of(bad).read_frame(1e18), ["left"], "a")
+
+
+def test_frame_reply_is_a_lossless_bgr_png() -> None:
+    img = np.random.default_rng(2).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    f = reader_of(p.make_frame_reply(4, img)).read_frame(1e18)
+    back = p.parse_frame_reply(p.check_reply(f, "frame_ok", 4, "a"), "a")
+    assert back.dtype == np.uint8 and np.array_equal(back, img)  # BGR in, BGR out
+    with pytest.raises(ValueError, match="uint8 BGR"):
+        p.make_frame_reply(1, np.zeros((4, 4), np.uint8))
+
+
+@pytest.mark.parametrize(("blobs", "match"), [
+    ([], "one PNG blob"),
+    ([b"GIF89a" + b"\0" * 40], "not a PNG"),
+    ([b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR"
+      + struct.pack(">IIBBBBB", 100000, 100000, 8, 2, 0, 0, 0) + b"\0" * 8], "claims"),
+])
+def test_bad_frame_replies_are_refused(blobs: list[bytes], match: str) -> None:
+    f = reader_of(p.encode_frame({"type": "frame_ok", "id": 1}, blobs)).read_frame(1e18)
+    with pytest.raises(ProtocolError, match=match):
+        p.parse_frame_reply(f, "a")
+
+
+def test_move_tcp_and_save_calibration_replies() -> None:
+    f = reader_of(p.encode_frame({"type": "move_tcp_ok", "id": 1, "tcp": [1, 2.5, 3]})
+                  ).read_frame(1e18)
+    assert p.parse_move_tcp_reply(f, "a") == (1.0, 2.5, 3.0)
+    f = reader_of(p.encode_frame({"type": "move_tcp_ok", "id": 1, "tcp": [1, 2]})
+                  ).read_frame(1e18)
+    with pytest.raises(ProtocolError, match="'tcp' must be"):
+        p.parse_move_tcp_reply(f, "a")
+    f = reader_of(p.encode_frame({"type": "save_calibration_ok", "id": 1, "path": "/x.json"})
+                  ).read_frame(1e18)
+    assert p.parse_save_calibration_reply(f, "a") == "/x.json"
+
+
+@pytest.mark.parametrize(("header", "body"), [
+    ({"type": "reseed", "seed": 12}, {"seed": 12}),
+    ({"type": "frame"}, {}),
+    ({"type": "move_tcp", "arm": "left", "xyz_mm": [400, 100.5, 10]},
+     {"arm": "left", "xyz_mm": (400.0, 100.5, 10.0)}),
+    ({"type": "save_calibration", "arm": "right", "data": {"z_push_mm": 12}},
+     {"arm": "right", "data": {"z_push_mm": 12}}),
+])
+def test_new_requests_parse(header: dict, body: dict) -> None:
+    f = reader_of(p.encode_frame({"id": 1, **header})).read_frame(1e18)
+    assert p.parse_request(f, ("left", "right")).body == body
+
+
+@pytest.mark.parametrize(("header", "match"), [
+    ({"type": "reseed"}, "'seed' must be int"),
+    ({"type": "reseed", "seed": -1}, "'seed' must be in"),
+    ({"type": "reseed", "seed": True}, "'seed' must be int"),
+    ({"type": "move_tcp", "arm": "elbow", "xyz_mm": [1, 2, 3]}, "unknown arm 'elbow'"),
+    ({"type": "move_tcp", "arm": "left", "xyz_mm": [1, 2]}, "'xyz_mm' must be"),
+    ({"type": "move_tcp", "arm": "left", "xyz_mm": [1, 2, "3"]}, "'xyz_mm' must be"),
+    ({"type": "move_tcp", "arm": "left", "xyz_mm": [1, 2, 1e999]}, "'xyz_mm' must be"),
+    ({"type": "save_calibration", "arm": "left", "data": [1]}, "'data' must be dict"),
+    ({"type": "save_calibration", "data": {}}, "'arm' must be str"),
+])
+def test_bad_new_requests_are_refused(header: dict, match: str) -> None:
+    # json.dumps writes Infinity (a peer could send it; our encoder refuses to)
+    f = reader_of(raw_frame(json.dumps({"id": 1, **header}).encode())).read_frame(1e18)
+    with pytest.raises(ProtocolError, match=match):
+        p.parse_request(f, ("left", "right"))
