@@ -31,6 +31,8 @@ Endpoints (JSON unless said otherwise; errors are ``{"error": "..."}`` with 400/
 - ``GET /controller/tcp`` -> ``{"tcp": {arm: [x, y, z]}}`` (actual TCP, mm).
 - ``POST /lab/reset`` ``{"arm": "left"}`` -> ``{"ok": true}``: the lab hand puts the
   arm's cube back near its workspace centre.
+- ``POST /lab/place`` ``{"arm", "xy_mm": [x, y], "yaw"}`` -> ``{"ok": true}``: a person puts
+  the cube somewhere (fault drills, tests).
 - ``GET /lab/truth`` -> ``{"arms": {arm: {"cube_mm", "on_table", "cube_px", "yaw_px"}}}``.
 - ``GET /lab/camera`` -> the true camera model and the cell's layout (K, dist, R/t and
   rvec/tvec world mm -> camera, crops, mirror, workspaces_mm, rest_mm, marker, ...).
@@ -204,7 +206,8 @@ class Handler(BaseHTTPRequestHandler):
     def do_POST(self) -> None:
         path = self.path.split("?", 1)[0]
         routes: dict[str, Callable[[Any], dict[str, Any]]] = {
-            "/controller/execute": self._execute, "/lab/reset": self._reset}
+            "/controller/execute": self._execute, "/lab/reset": self._reset,
+            "/lab/place": self._place}
         if path not in routes:
             self._json(404, {"error": f"no such endpoint: POST {path}"})
             return
@@ -233,6 +236,25 @@ class Handler(BaseHTTPRequestHandler):
         srv = self.server
         with srv.cell_lock:
             srv.cell.lab_reset(body["arm"])
+            srv.frames.publish()
+        return {"ok": True}
+
+    def _place(self, body: Any) -> dict[str, Any]:
+        """A person in the lab puts a cube somewhere (fault drills, tests): anywhere on
+        the table, in a neighbour's workspace or beyond the camera's view."""
+        if not isinstance(body, dict) or not isinstance(body.get("arm"), str):
+            raise ValueError('expected {"arm": NAME, "xy_mm": [x, y], "yaw": rad}')
+        xy = body.get("xy_mm")
+        yaw = body.get("yaw", 0.0)
+        if (not isinstance(xy, list) or len(xy) != 2
+                or not all(isinstance(v, int | float) and math.isfinite(v) for v in xy)
+                or not isinstance(yaw, int | float) or not math.isfinite(yaw)):
+            raise ValueError("xy_mm must be [x, y] (finite mm) and yaw a finite number")
+        srv = self.server
+        if body["arm"] not in srv.cell.arms:
+            raise ValueError(f"unknown arm {body['arm']!r} (this cell has {list(srv.cell.arms)})")
+        with srv.cell_lock:
+            srv.cell.place_cube(body["arm"], (float(xy[0]), float(xy[1])), float(yaw))
             srv.frames.publish()
         return {"ok": True}
 

@@ -322,10 +322,16 @@ def _check_inside(box: cal.Box, table_box: Any, where: str) -> None:
 
 
 def make_fleet(host: HostConfig, arm: str) -> Any:
-    """A one-host fleet whose agent runs with ``--calibrate ARM``."""
+    """A one-host fleet whose agent runs every arm of the host in calibration mode.
+
+    All of them, not only ``arm``: on day one the sibling has no homography yet either,
+    and calibration mode never observes or pushes, so the sibling loses nothing (it is
+    rested, and its file is read only for its box and rest pose).
+    """
     from drivers.fleet import HostFleet
 
-    return HostFleet([host], trial_seed=0, calibrating={host.name: [arm]})
+    arms = [arm, *(a.name for a in host.arms if a.name != arm)]
+    return HostFleet([host], trial_seed=0, calibrating={host.name: arms})
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

@@ -307,7 +307,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_rehearse(args: argparse.Namespace) -> int:
     from testbed.protocol import load_protocol
-    from testbed.rehearsal import RehearsalOptions, rehearse
+    from testbed.rehearsal import RehearsalError, RehearsalOptions, rehearse
 
     path = Path(args.protocol)
     proto = load_protocol(path, check_files=False)  # the lab's key files need not exist here
@@ -320,9 +320,13 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     check_device(proto.fleet)
     if args.realtime < 0:
         raise ConfigError("--realtime: must be >= 0")
-    result = rehearse(RehearsalOptions(path, args.trials, args.steps, args.humans, args.quick,
-                                       Path(args.out) if args.out else None, algorithms,
-                                       args.realtime))
+    try:
+        result = rehearse(RehearsalOptions(path, args.trials, args.steps, args.humans,
+                                           args.quick, Path(args.out) if args.out else None,
+                                           algorithms, args.realtime))
+    except RehearsalError as exc:
+        console.print(f"testbed rehearse: {exc}", markup=False, highlight=False)
+        return 1
     print(result.report_markdown)
     for robot, fig in result.calibration.items():
         print(f"calibration {robot}: against the twin's true camera model median "

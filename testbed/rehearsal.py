@@ -59,6 +59,11 @@ class LabError(RuntimeError):
     """The hardware twin's lab side channel failed (the twin process is gone?)."""
 
 
+class RehearsalError(RuntimeError):
+    """The rehearsal itself could not go on (a twin or an sshd did not start, an arm
+    could not be calibrated); ``str()`` is the one line to print."""
+
+
 class LabClient:
     """The lab's side channel to one hardware twin: truth, the lab hand, the camera model.
 
@@ -92,6 +97,10 @@ class LabClient:
 
     def reset(self, arm: str) -> None:
         self._call("/lab/reset", {"arm": arm})
+
+    def place(self, arm: str, xy_mm: Sequence[float], yaw: float = 0.0) -> None:
+        """A person puts the cube somewhere (fault drills, tests)."""
+        self._call("/lab/place", {"arm": arm, "xy_mm": [float(v) for v in xy_mm], "yaw": yaw})
 
     def camera(self) -> dict[str, Any]:
         return self._call("/lab/camera")
@@ -134,16 +143,39 @@ def arm_views(cfg: FleetConfig) -> dict[str, ArmView]:
     return out
 
 
-def _inside_workspace(xy: Sequence[float]) -> bool:
+def _polygon() -> Any:
     import numpy as np
 
     from testbed.perception import WORKSPACE_POLYGON
 
-    poly = np.asarray(WORKSPACE_POLYGON, dtype=float)
+    return np.asarray(WORKSPACE_POLYGON, dtype=float)
+
+
+def _inside_workspace(xy: Sequence[float]) -> bool:
+    import numpy as np
+
+    poly = _polygon()
     e = np.roll(poly, -1, axis=0) - poly
     rel = np.asarray(xy, dtype=float)[None, :] - poly
     cross = e[:, 0] * rel[:, 1] - e[:, 1] * rel[:, 0]
     return bool(np.all(cross >= 0) or np.all(cross <= 0))
+
+
+def edge_distance(xy: Sequence[float]) -> float:
+    """Distance (canonical units) from a point to the workspace polygon's boundary."""
+    import numpy as np
+
+    poly = _polygon()
+    a, b = poly, np.roll(poly, -1, axis=0)
+    p = np.asarray(xy, dtype=float)[None, :]
+    ab = b - a
+    u = np.clip(np.sum((p - a) * ab, axis=1) / np.sum(ab * ab, axis=1), 0.0, 1.0)
+    return float(np.min(np.linalg.norm(a + u[:, None] * ab - p, axis=1)))
+
+
+BORDERLINE = 1.0 / 64.0
+"""A cube this close (one canonical pixel, ~5 mm) to the workspace edge or to the success
+circle is a call perception may make either way: its centre error is ~0.2/64."""
 
 
 class TwinLabHumans:
@@ -257,7 +289,8 @@ class TruthRecorder:
                            and math.dist(xy, goal) <= SUCCESS_RADIUS)
             violation = bool(pushed and self._inside.get(robot, True) and not inside)
             rows.append({"robot": robot, "success": success, "violation": violation,
-                         "cube_xy": [round(xy[0], 5), round(xy[1], 5)], "pushed": pushed})
+                         "cube_xy": [round(xy[0], 5), round(xy[1], 5)], "pushed": pushed,
+                         "goal": None if goal is None else [round(g, 5) for g in goal]})
         self._pending = rows
         return results
 
@@ -275,8 +308,25 @@ class TruthRecorder:
         return getattr(self.hosts, name)
 
 
+def _borderline(row: Mapping[str, Any], prev: Mapping[str, Any] | None) -> bool:
+    """Whether a disagreement is a call within perception's resolution: the cube (now, or
+    one step earlier for a violation seen one step late) within BORDERLINE of the
+    workspace edge, or of the success circle around the goal."""
+    for r in (row, prev):
+        if r is None:
+            continue
+        if edge_distance(r["cube_xy"]) <= BORDERLINE:
+            return True
+        goal = r.get("goal")
+        if goal is not None and abs(math.dist(r["cube_xy"], goal) - SUCCESS_RADIUS) <= BORDERLINE:
+            return True
+    return False
+
+
 def truth_agreement(run: Path) -> dict[str, Any]:
-    """Perception's success/violation decisions (steps.jsonl) against the twin's truth."""
+    """Perception's success/violation decisions (steps.jsonl) against the twin's truth,
+    over every arm-step the twin recorded that was not a fault; each disagreement says
+    whether it was borderline (see :data:`BORDERLINE`)."""
     from testbed.records import read_steps
 
     truth: dict[tuple[int, str], dict[str, Any]] = {}
@@ -289,8 +339,9 @@ def truth_agreement(run: Path) -> dict[str, Any]:
     n = agree = pushed_n = pushed_agree = 0
     disagreements: list[dict[str, Any]] = []
     for step in read_steps(run / "steps.jsonl"):
+        t = int(step["t"])
         for r in step["robots"]:
-            tr = truth.get((int(step["t"]), r["robot"]))
+            tr = truth.get((t, r["robot"]))
             if tr is None or r["mode"] == "fault":
                 continue
             same = (bool(r["success"]) == tr["success"] and bool(r["violation"]) == tr["violation"])
@@ -300,14 +351,15 @@ def truth_agreement(run: Path) -> dict[str, Any]:
                 pushed_n += 1
                 pushed_agree += same
             if not same:
-                disagreements.append({"t": step["t"], "robot": r["robot"],
-                                      "perceived": [r["success"], r["violation"]],
-                                      "truth": [tr["success"], tr["violation"]],
-                                      "cube_xy": tr["cube_xy"]})
+                disagreements.append({
+                    "t": t, "robot": r["robot"], "perceived": [r["success"], r["violation"]],
+                    "truth": [tr["success"], tr["violation"]], "cube_xy": tr["cube_xy"],
+                    "borderline": _borderline(tr, truth.get((t - 1, r["robot"])))})
     return {"arm_steps": n, "agree": agree, "rate": agree / n if n else float("nan"),
             "pushed_arm_steps": pushed_n, "pushed_agree": pushed_agree,
             "pushed_rate": pushed_agree / pushed_n if pushed_n else float("nan"),
-            "disagreements": disagreements}
+            "disagreements": disagreements,
+            "borderline": sum(d["borderline"] for d in disagreements)}
 
 
 # -- the twin hosts: one hardware twin process and one sshd per YuMi host --------------
@@ -342,7 +394,7 @@ class HardwareTwinLab:
                               "physical protocol (backend = \"yumi\" hosts); for twin hosts "
                               "run testbed protocol")
         self.fleet = fleet
-        self.root = root
+        self.root = root.resolve()  # sshd's config needs absolute paths
         self.seed = seed
         self.realtime = realtime
         self.hosts: dict[str, TwinHost] = {}
@@ -372,7 +424,11 @@ class HardwareTwinLab:
             for name, arms, proc, port_file in starting:
                 port = _wait_port(proc, port_file, self.root / f"{name}-twin.log")
                 sshd = SshServer(self.root / f"sshd-{name}")
-                sshd.start()
+                try:
+                    sshd.start()
+                except RuntimeError as exc:
+                    raise RehearsalError(f"host {name}: the rehearsal's sshd did not start: "
+                                         f"{' '.join(str(exc).split())[:300]}") from None
                 self.hosts[name] = TwinHost(name, arms, port, proc, sshd,
                                             LabClient(f"http://127.0.0.1:{port}"))
         except BaseException:
@@ -450,14 +506,16 @@ def _wait_port(proc: subprocess.Popen[bytes], port_file: Path, log: Path) -> int
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             tail = log.read_text(errors="replace")[-1500:] if log.exists() else ""
-            raise RuntimeError(f"hardware twin exited with status {proc.returncode}: {tail}")
+            raise RehearsalError(f"the hardware twin exited with status {proc.returncode}: "
+                                 f"{' '.join(tail.split())[-300:]}")
         with contextlib.suppress(OSError, ValueError):
             text = port_file.read_text().strip()
             if text:
                 return int(text)
         time.sleep(0.05)
     _terminate(proc)
-    raise RuntimeError(f"hardware twin did not start within {SERVER_START_S:g} s (see {log})")
+    raise RehearsalError(f"the hardware twin did not start within {SERVER_START_S:g} s "
+                         f"(see {log})")
 
 
 def _terminate(proc: subprocess.Popen[bytes]) -> None:
@@ -505,12 +563,9 @@ def seed_calibration(lab: HardwareTwinLab, host: str, arm: str) -> Path:
     from testbed.records import atomic_write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    side = "L" if arm.startswith("l") else "R"
-    atomic_write_json(path, {
-        "table_box_mm": [float(v) for v in cam["workspaces_mm"][arm]],
-        "rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0 if side == "L" else 135.0],
-        "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}",
-    })
+    seed = true_calibration(cam, arm)
+    del seed["homography"]  # what a person knows before calibrating: box and rest pose
+    atomic_write_json(path, seed)
     return path
 
 
@@ -541,13 +596,38 @@ def _calibrate_all(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path,
             status = testbed_main(["calibrate", "--config", str(fleet_file), "--host", h.name,
                                    "--arm", a.name])
             if status != 0:
-                raise RuntimeError(f"testbed calibrate failed for {h.name}/{a.name} "
-                                   f"(exit {status}); see the lines above")
+                raise RehearsalError(f"testbed calibrate failed for {h.name}/{a.name} "
+                                     f"(exit {status}); see the lines above")
             data = json.loads(lab.calibration_path(h.name, a.name).read_text())
             cam = lab.hosts[h.name].lab.camera()
             figures[f"{h.name}/{a.name}"] = true_model_error(
                 cam, data["homography"], cam["workspaces_mm"][a.name])
     return figures
+
+
+def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
+                     n: int = 9) -> dict[str, Any]:
+    """The arm's calibration file as a perfect ``testbed calibrate`` would write it: the
+    homography fitted to the twin's TRUE projection of the cube-top plane over the arm's
+    workspace. For tests and benchmarks that need a calibrated twin quickly; a rehearsal
+    calibrates with ``testbed calibrate`` itself."""
+    import cv2
+    import numpy as np
+
+    box = [float(v) for v in cam["workspaces_mm"][arm]]
+    xs = np.linspace(box[0], box[2], n)
+    ys = np.linspace(box[1], box[3], n)
+    pts = np.array([(x, y, plane_z_mm) for x in xs for y in ys], dtype=np.float64)
+    rvec, _ = cv2.Rodrigues(np.asarray(cam["R"], dtype=np.float64))
+    px, _ = cv2.projectPoints(pts, rvec, np.asarray(cam["t"], dtype=np.float64),
+                              np.asarray(cam["K"], dtype=np.float64),
+                              np.asarray(cam["dist"], dtype=np.float64))
+    h, _ = cv2.findHomography(px.reshape(-1, 2), pts[:, :2])
+    side = "L" if arm.startswith("l") else "R"
+    return {"homography": h.tolist(), "table_box_mm": box,
+            "rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
+                                -135.0 if side == "L" else 135.0],
+            "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
 
 
 def true_model_error(cam: Mapping[str, Any], homography: Any, box_mm: Sequence[float],
@@ -642,9 +722,10 @@ def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
 
 def agreement_table(agreement: Mapping[str, Mapping[str, Any]]) -> str:
     lines = ["Perception (steps.jsonl) against the twin's truth (twin_truth.jsonl):", "",
-             "| run | arm-steps | agree | pushed arm-steps | agree | disagreements |",
-             "|---|---|---|---|---|---|"]
+             "| run | arm-steps | agree | pushed arm-steps | agree | disagreements "
+             "(borderline) |", "|---|---|---|---|---|---|"]
     for name, a in agreement.items():
         lines.append(f"| {name} | {a['arm_steps']} | {a['rate']:.2%} | {a['pushed_arm_steps']} "
-                     f"| {a['pushed_rate']:.2%} | {len(a['disagreements'])} |")
+                     f"| {a['pushed_rate']:.2%} | {len(a['disagreements'])} "
+                     f"({a['borderline']}) |")
     return "\n".join(lines) + "\n"
