@@ -307,10 +307,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_rehearse(args: argparse.Namespace) -> int:
     from testbed.protocol import load_protocol
-    from testbed.rehearsal import RehearsalError, RehearsalOptions, rehearse
+    from testbed.rehearsal import RehearsalError, RehearsalOptions, rehearse, require_yumi
 
     path = Path(args.protocol)
     proto = load_protocol(path, check_files=False)  # the lab's key files need not exist here
+    require_yumi(proto.fleet)
     algorithms = [a for a in (args.algorithms or "").split(",") if a] or None
     for a in algorithms or []:
         if a not in proto.algorithms:

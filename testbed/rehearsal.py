@@ -383,16 +383,21 @@ class TwinHost:
         return f"twin+http://127.0.0.1:{self.port}"
 
 
+def require_yumi(fleet: FleetConfig) -> None:
+    """A rehearsal stands hardware twins where YuMi hosts are; twin hosts have none."""
+    not_yumi = [h.name for h in fleet.hosts if h.backend != "yumi"]
+    if not_yumi:
+        raise ConfigError(f"fleet.hosts[{not_yumi[0]}].backend: testbed rehearse needs a "
+                          "physical protocol (backend = \"yumi\" hosts); run a twin "
+                          "protocol with testbed protocol")
+
+
 class HardwareTwinLab:
     """Starts, rewrites for, and stops the hardware twin hosts of one rehearsal."""
 
     def __init__(self, fleet: FleetConfig, root: Path, *, seed: int = 0,
                  realtime: float = 0.0) -> None:
-        not_yumi = [h.name for h in fleet.hosts if h.backend != "yumi"]
-        if not_yumi:
-            raise ConfigError(f"hosts[{not_yumi[0]}].backend: testbed rehearse needs a "
-                              "physical protocol (backend = \"yumi\" hosts); for twin hosts "
-                              "run testbed protocol")
+        require_yumi(fleet)
         self.fleet = fleet
         self.root = root.resolve()  # sshd's config needs absolute paths
         self.seed = seed
@@ -663,6 +668,7 @@ def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
     from testbed.runs import RunDir
 
     proto = load_protocol(opts.protocol, check_files=False)  # its keys are the lab's
+    require_yumi(proto.fleet)
     folder = opts.out or Path("runs") / f"rehearsal-{proto.name}"
     update: dict[str, Any] = {"out": str(folder), "humans": opts.humans}
     trials = opts.trials or 1

@@ -127,6 +127,20 @@ def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with
     assert "| bc |" in report and "| fleet-ed |" in report and "twin's truth" in report
 
 
+def test_rehearse_refuses_a_twin_protocol_in_one_line_before_anything_starts(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    twin = PHYSICAL.parent / "twin.toml"
+    assert main(["rehearse", str(twin)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fleet.hosts[cell0].backend" in err[0] and "yumi" in err[0]
+    assert main(["rehearse", str(tiny_protocol(tmp_path)), "--algorithms", "cur,nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--algorithms" in err[0]
+    assert not (tmp_path / "runs").exists()  # nothing was started or written
+
+
 # -- one lab for the drills below (2 hardware twin hosts behind 2 sshds) -------------------
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[HardwareTwinLab, Path]]:
