@@ -11,12 +11,16 @@ run:
 2. the same step on a ``YumiBackend`` in this process (same camera URL, same controller
    URL, same calibration), its two seams and its perception wrapped in timers.
 
-Shares of the fleet step: camera (``Camera.read``, the MJPEG stream's drain included),
-controller motion (``execute``/``tcp_xyz``: the twin integrates the programs' physics),
-perception (``find_cube``/``is_success``/``is_violation``), planning (the rest of the
-backend: crops, goals, waypoints) and SSH + agent (fleet step minus the backend step:
-framing, PNG, the channel, the agent's dispatch). The simulated motion time is printed
-too: on a real YuMi the motion alone takes that long.
+Shares of the fleet step (means, so the parts add up): camera (``Camera.read``: the
+stream's drain and the wait for a frame made after the call, on average half a frame
+interval at 15 fps), controller motion (``execute``/``tcp_xyz``: the twin integrates
+the programs' physics), perception (``find_cube``/``is_success``/``is_violation``),
+planning (the rest of the backend: crops, goals, waypoints) and SSH + agent (fleet step
+minus the backend step: framing, PNG, the channel, the agent's dispatch), with its
+standard error; the camera's frame phase makes that difference noisy, so the bare
+round trip of a heartbeat on the same SSH link is printed as the transport's floor.
+The simulated motion time is printed too: on a real YuMi the motion alone takes that
+long.
 
     .venv/bin/python benchmarks/bench_rehearsal.py [--steps 20] [--blocks 3]
 """
@@ -24,6 +28,7 @@ too: on a real YuMi the motion alone takes that long.
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 import tempfile
@@ -89,13 +94,18 @@ def faces(rng: np.random.Generator, arms: list[str]) -> dict[str, int]:
 
 
 def run_fleet(host: YumiHost, steps: int, rng: np.random.Generator,
-              reset: Callable[[], None]) -> list[float]:
+              reset: Callable[[], None], rtts: list[float]) -> list[float]:
     from drivers.fleet import HostFleet
 
     out: list[float] = []
     with HostFleet([host]) as fleet:
         fleet.observe()  # warm
+        session = fleet._sessions[0]  # the bare link, for the heartbeat floor
         for _ in range(steps):
+            with session.lock:
+                t0 = time.perf_counter()
+                session.link.heartbeat(time.monotonic() + 5.0)
+                rtts.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             obs = fleet.observe()
             live = {r: f for r, f in faces(rng, list(obs)).items()
@@ -156,30 +166,36 @@ def main() -> None:
 
         fleet_t: list[float] = []
         local_t: list[float] = []
+        rtts: list[float] = []
         parts: list[dict[str, float]] = []
         sims: list[float] = []
         for _ in range(args.blocks):
             reset()
-            fleet_t += run_fleet(host, args.steps, rng, reset)
+            fleet_t += run_fleet(host, args.steps, rng, reset, rtts)
             reset()
             lt, lp, sim = run_local(local_host, args.steps, rng, reset)
             local_t += lt
             parts += lp
             sims.append(sim)
-    fleet_ms = statistics.median(fleet_t) * 1e3
-    local_ms = statistics.median(local_t) * 1e3
-    med = {k: statistics.median(p.get(k, 0.0) for p in parts) * 1e3
-           for k in ("camera", "motion", "perception")}
-    planning = max(local_ms - sum(med.values()), 0.0)
-    ssh = max(fleet_ms - local_ms, 0.0)
-    print(f"rehearsal step, 1 YuMi host (2 arms), medians of {len(fleet_t)} steps "
+    fleet_ms = statistics.mean(fleet_t) * 1e3
+    local_ms = statistics.mean(local_t) * 1e3
+    mean = {k: statistics.mean(p.get(k, 0.0) for p in parts) * 1e3
+            for k in ("camera", "motion", "perception")}
+    planning = local_ms - sum(mean.values())
+    ssh = fleet_ms - local_ms
+    se = 1e3 * math.sqrt(statistics.variance(fleet_t) / len(fleet_t)
+                         + statistics.variance(local_t) / len(local_t))
+    print(f"rehearsal step, 1 YuMi host (2 arms), means of {len(fleet_t)} steps each way "
           f"in {args.blocks} alternating blocks")
     print(f"  fleet step over SSH (reference)   {fleet_ms:8.1f} ms   100.0 %")
-    for label, ms in (("camera (MJPEG read + drain)", med["camera"]),
-                      ("controller motion (twin physics)", med["motion"]),
-                      ("perception", med["perception"]), ("planning (rest of backend)", planning),
+    for label, ms in (("camera (drain + next frame)", mean["camera"]),
+                      ("controller motion (twin physics)", mean["motion"]),
+                      ("perception", mean["perception"]), ("planning (rest of backend)", planning),
                       ("SSH + agent (fleet - backend)", ssh)):
         print(f"  {label:<34}{ms:8.1f} ms   {100 * ms / fleet_ms:5.1f} %")
+    print(f"    (SSH + agent: +- {se:.1f} ms standard error; bare heartbeat round trip on the "
+          f"link: median {statistics.median(rtts) * 1e3:.2f} ms, "
+          f"{100 * statistics.median(rtts) / (fleet_ms / 1e3):.2f} % of the step)")
     print(f"  backend step in-process           {local_ms:8.1f} ms   ratio to fleet step "
           f"{local_ms / fleet_ms:.3f}")
     print(f"  simulated motion per step         {statistics.mean(sims):8.2f} s   (what a real "
