@@ -31,6 +31,7 @@ import numpy as np
 
 from testbed import calibration as cal
 from testbed.config import ConfigError, FleetConfig, HostConfig
+from testbed.records import atomic_write_json
 
 CUBE_TOP_MM = 40.0
 """The plane perception sees the cube's centre in (a 40 mm cube's top face)."""
@@ -290,24 +291,6 @@ def _overlay(out: CalibrationOutcome, opts: CalibrateOptions, mirror: bool) -> A
     return cal.draw_overlays(out.last_frame, [arm])
 
 
-def _write_local_json(path: Path, data: Mapping[str, Any]) -> None:
-    import os
-    import tempfile
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _check_inside(box: cal.Box, table_box: Any, where: str) -> None:
     """``--box`` must lie in the file's table box: the host refuses TCP points outside
     the box it was started with, so say so now rather than at every point."""
@@ -387,7 +370,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         out.saved_path = str(fleet.save_calibration(host.name, opts.arm, out.data))
         say(f"calibration -> {out.saved_path} (on host {host.name})")
         if opts.out is not None:
-            _write_local_json(opts.out, out.data)
+            atomic_write_json(opts.out, out.data)
             say(f"copy -> {opts.out}")
         return 0
     except Exception as exc:

@@ -282,16 +282,16 @@ class FleetLoop:
             ok = isinstance(res, PushResult)
             faulted = mode is Mode.FAULT
             entry: dict[str, Any] = {
-                    "robot": r,
-                    "mode": str(mode),
-                    "human": humans_of[r],
-                    "action": pushes.get(r) if not faulted else None,
-                    "success": bool(ok and res.success),  # type: ignore[union-attr]
-                    "violation": bool(ok and res.violation),  # type: ignore[union-attr]
-                    "uncertainty": None if faulted else float(uncertainty[i]),
-                    "risk": None if faulted else float(risk[i]),
-                    "key": [float(k) for k in keys[i]],
-                }
+                "robot": r,
+                "mode": str(mode),
+                "human": humans_of[r],
+                "action": pushes.get(r) if not faulted else None,
+                "success": bool(ok and res.success),  # type: ignore[union-attr]
+                "violation": bool(ok and res.violation),  # type: ignore[union-attr]
+                "uncertainty": None if faulted else float(uncertainty[i]),
+                "risk": None if faulted else float(risk[i]),
+                "key": [float(k) for k in keys[i]],
+            }
             if mode is Mode.REFUSED:
                 entry["refused"] = str(res.refused)  # type: ignore[union-attr]
             rows.append(entry)

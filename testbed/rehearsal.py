@@ -610,6 +610,23 @@ def _calibrate_all(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path,
     return figures
 
 
+def project_plane(cam: Mapping[str, Any], box_mm: Sequence[float], plane_z_mm: float,
+                  n: int) -> tuple[Any, Any]:
+    """An n x n grid of the box at height ``plane_z_mm`` (mm, (n*n, 3)) and where the
+    twin's TRUE camera (pinhole, distortion, pose from ``/lab/camera``) sees it ((n*n, 2))."""
+    import cv2
+    import numpy as np
+
+    xs = np.linspace(box_mm[0], box_mm[2], n)
+    ys = np.linspace(box_mm[1], box_mm[3], n)
+    pts = np.array([(x, y, plane_z_mm) for x in xs for y in ys], dtype=np.float64)
+    rvec, _ = cv2.Rodrigues(np.asarray(cam["R"], dtype=np.float64))
+    px, _ = cv2.projectPoints(pts, rvec, np.asarray(cam["t"], dtype=np.float64),
+                              np.asarray(cam["K"], dtype=np.float64),
+                              np.asarray(cam["dist"], dtype=np.float64))
+    return pts, px.reshape(-1, 2)
+
+
 def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
                      n: int = 9) -> dict[str, Any]:
     """The arm's calibration file as a perfect ``testbed calibrate`` would write it: the
@@ -617,17 +634,10 @@ def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
     workspace. For tests and benchmarks that need a calibrated twin quickly; a rehearsal
     calibrates with ``testbed calibrate`` itself."""
     import cv2
-    import numpy as np
 
     box = [float(v) for v in cam["workspaces_mm"][arm]]
-    xs = np.linspace(box[0], box[2], n)
-    ys = np.linspace(box[1], box[3], n)
-    pts = np.array([(x, y, plane_z_mm) for x in xs for y in ys], dtype=np.float64)
-    rvec, _ = cv2.Rodrigues(np.asarray(cam["R"], dtype=np.float64))
-    px, _ = cv2.projectPoints(pts, rvec, np.asarray(cam["t"], dtype=np.float64),
-                              np.asarray(cam["K"], dtype=np.float64),
-                              np.asarray(cam["dist"], dtype=np.float64))
-    h, _ = cv2.findHomography(px.reshape(-1, 2), pts[:, :2])
+    pts, px = project_plane(cam, box, plane_z_mm, n)
+    h, _ = cv2.findHomography(px, pts[:, :2])
     side = "L" if arm.startswith("l") else "R"
     return {"homography": h.tolist(), "table_box_mm": box,
             "rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
@@ -644,14 +654,7 @@ def true_model_error(cam: Mapping[str, Any], homography: Any, box_mm: Sequence[f
     import cv2
     import numpy as np
 
-    xs = np.linspace(box_mm[0], box_mm[2], n)
-    ys = np.linspace(box_mm[1], box_mm[3], n)
-    pts = np.array([(x, y, plane_z_mm) for x in xs for y in ys], dtype=np.float64)
-    rvec, _ = cv2.Rodrigues(np.asarray(cam["R"], dtype=np.float64))
-    px, _ = cv2.projectPoints(pts, rvec, np.asarray(cam["t"], dtype=np.float64),
-                              np.asarray(cam["K"], dtype=np.float64),
-                              np.asarray(cam["dist"], dtype=np.float64))
-    px = px.reshape(-1, 2)
+    pts, px = project_plane(cam, box_mm, plane_z_mm, n)
     h = np.asarray(homography, dtype=np.float64)
     mm = cv2.perspectiveTransform(px.reshape(-1, 1, 2), h).reshape(-1, 2)
     back = cv2.perspectiveTransform(pts[:, None, :2].copy(), np.linalg.inv(h)).reshape(-1, 2)
