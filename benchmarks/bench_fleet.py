@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from testbed.config import FleetConfig, LearningConfig, TrialConfig, default_twin_config
+from testbed.priorities import ALGORITHMS
 from testbed.trial import TrialOptions, build_hosts, load_learner, pretrained_learner, run_trial
 
 
@@ -74,8 +75,10 @@ def main() -> None:
 
     _, ckpt = pretrained_learner(cfg, ScriptedHumans(), out, None)
 
-    # Reference: the same number of training steps alone.
+    # Reference: the same number of training steps alone, of the parts C.U.R. trains.
     learner = load_learner(cfg, ckpt)
+    cur = ALGORITHMS["cur"]
+    learner.set_parts(train=cur.train_parts, read=cur.critics)
     learner.train_step()
     t0 = time.perf_counter()
     times = []

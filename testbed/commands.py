@@ -289,8 +289,9 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
     try:
         hosts.start()
         with TrialProgress(cfg.learning.pretrain_steps, 0, 0, label="pretrain") as bar:
+            # both critics: this learner.pt may serve any algorithm
             pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
-                     PRETRAIN_SEED, bar.on_phase)
+                     PRETRAIN_SEED, bar.on_phase, critics=None)
     finally:
         hosts.close()
         humans.close()

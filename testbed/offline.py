@@ -7,6 +7,11 @@ suggests, to meet violations) for the safety critic's data. ``pretrain`` chains 
 demos -> policy steps -> BC rollouts -> critic steps, and ``cached_pretrain`` keeps
 the result under a key of everything that shaped it, so later trials (every
 algorithm of a protocol) start from the same theta_0 without paying for it again.
+
+Which critics are pretrained is part of that key (issue 13): a protocol pretrains the
+critics any of its algorithms reads, once; a lone trial its own algorithm's; ``testbed
+pretrain`` both (it does not know the algorithm). With no critic to pretrain, the BC
+rollouts (the critics' data) are not collected either.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +35,23 @@ if TYPE_CHECKING:  # the learning package imports torch: only when data is reall
     from testbed.learning.api import Transitions
 
 FIELDS = ("images", "actions", "next_images", "violation", "success")
+
+CRITICS = ("safety", "goal")
+"""The learner's critics (``testbed.learning.learner.CRITICS``, without importing torch)."""
+
+
+def critic_set(critics: Iterable[str] | None) -> tuple[str, ...]:
+    """``critics`` checked and in ``CRITICS`` order; None: both."""
+    if critics is None:
+        return CRITICS
+    if isinstance(critics, str):
+        raise TypeError(f"critics: expected a collection of names, got the string {critics!r}")
+    given = set(critics)
+    unknown = sorted(given - set(CRITICS))
+    if unknown:
+        raise ValueError(f"critics: unknown critic(s) {', '.join(map(repr, unknown))}; "
+                         f"use {', '.join(CRITICS)}")
+    return tuple(c for c in CRITICS if c in given)
 
 Progress = Callable[[str, int, int], None]
 
@@ -163,20 +185,23 @@ _HOW_TO_REACH = frozenset({"transport", "address", "port", "user", "key_file", "
 rehearsal's fresh ports or a lab's new address do not throw theta_0 away."""
 
 
-def pretrain_key(cfg: FleetConfig, seed: int) -> str:
-    """What shaped theta_0: the learning config, the fleet's robots, the seed."""
+def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = None) -> str:
+    """What shaped theta_0: the learning config, the fleet's robots, the seed, and the
+    critics pretrained (None: both). Both critics keep the key of before the critics
+    were a choice, so caches made then stay valid (they pretrained both)."""
     hosts = [{k: v for k, v in h.model_dump(mode="json").items() if k not in _HOW_TO_REACH}
              for h in cfg.hosts]
-    blob = json.dumps(
-        {
-            "learning": cfg.learning.model_dump(mode="json"),
-            "hosts": hosts,
-            "t_R": cfg.algorithm.t_R,
-            "seed": seed,
-            "v": 2,
-        },
-        sort_keys=True,
-    )
+    which = critic_set(critics)
+    fields: dict[str, Any] = {
+        "learning": cfg.learning.model_dump(mode="json"),
+        "hosts": hosts,
+        "t_R": cfg.algorithm.t_R,
+        "seed": seed,
+        "v": 2,
+    }
+    if which != CRITICS:
+        fields["critics"] = list(which)
+    blob = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -189,12 +214,16 @@ def pretrain(
     t_R: int,
     seed: int,
     progress: Progress | None = None,
+    critics: Iterable[str] | None = None,
 ) -> Transitions:
-    """Policy on the demos; then the critics on the expert's and the BC rollouts' pushes.
+    """Policy on the demos; then ``critics`` (None: both) on the expert's and the BC
+    rollouts' pushes. Returns the transitions added to the learner.
 
     The safety critic needs violations, which the expert almost never makes: the
-    rollouts of the pretrained (noisy) BC policy supply them (seed 8.3.2).
+    rollouts of the pretrained (noisy) BC policy supply them (seed 8.3.2). With no
+    critic to pretrain no rollout is made and only the demos' pushes are added.
     """
+    which = critic_set(critics)
     def phase(name: str) -> Progress | None:
         if progress is None:
             return None
@@ -203,7 +232,8 @@ def pretrain(
     learner.pretrain(demos.images, demos.actions, steps=lc.pretrain_steps,
                      progress=phase("policy"))
     rollouts = rollout_policy(hosts, humans, learner, lc.critic_transitions, t_R, seed,
-                              progress=progress) if lc.critic_transitions > 0 else None
+                              progress=progress) if which and lc.critic_transitions > 0 else None
     data = demos if rollouts is None else concat(demos, rollouts)
-    learner.pretrain(transitions=data, steps=lc.critic_steps, progress=phase("critics"))
+    learner.pretrain(transitions=data, steps=lc.critic_steps, progress=phase("critics"),
+                     critics=which)
     return data

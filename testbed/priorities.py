@@ -49,6 +49,14 @@ Decisions beyond the seed's text (also in docs/notes/core.md):
   budget ``random_budget * M * steps`` minus the human-steps spent, so the
   cumulative human effort tracks the budget even though teleops are held t_T steps.
 * Arms marked ``faulted`` (host unreachable) get an all-zero key: never a new human.
+
+What an algorithm reads decides what the learner trains (issue 13): each priority class
+declares the learned signals its keys read (``reads``: a subset of uncertainty, risk,
+goal_risk, novelty), its registry factory carries the same set, and
+``AlgorithmSpec.critics`` maps it to the critics behind it (risk -> the safety critic,
+goal_risk -> the goal critic). The trial trains online, and ``act`` computes, only those
+(``AlgorithmSpec.train_parts``); a test checks that every algorithm's keys work with
+exactly the signals it declares.
 """
 
 from __future__ import annotations
@@ -66,6 +74,8 @@ from testbed.config import AlgorithmConfig
 __all__ = [
     "ALGORITHMS",
     "ALGORITHM_NAMES",
+    "CRITIC_OF_SIGNAL",
+    "LEARNED_SIGNALS",
     "Algorithm",
     "AlgorithmSpec",
     "OrderedPriority",
@@ -79,6 +89,12 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+
+LEARNED_SIGNALS: Final = frozenset({"uncertainty", "risk", "goal_risk", "novelty"})
+"""The signals that come from the learner (``violating`` comes from the arms)."""
+
+CRITIC_OF_SIGNAL: Final[dict[str, str]] = {"risk": "safety", "goal_risk": "goal"}
+"""Which critic a signal comes from; uncertainty and novelty come from the policy."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,10 +178,18 @@ class OrderedPriority:
     ``initial_period`` t_I: for t < t_I a violating arm's c is -1 instead of 1.
     """
 
+    SIGNAL_OF_LETTER: Final = {"u": "uncertainty", "r": "risk"}
+
+    @classmethod
+    def reads_of(cls, order: str) -> frozenset[str]:
+        """The learned signals the keys of ``order`` read (``c`` reads none)."""
+        return frozenset(cls.SIGNAL_OF_LETTER[x] for x in order if x in cls.SIGNAL_OF_LETTER)
+
     def __init__(self, order: str, num_robots: int, *, initial_period: int = 0,
                  u_hat: float = 0.0, r_hat: float = 0.0) -> None:
         if not order or set(order) - set("cur") or len(set(order)) != len(order):
             raise ValueError(f"order must be distinct letters of 'cur', got {order!r}")
+        self.reads: frozenset[str] = self.reads_of(order)
         if initial_period < 0:
             raise ValueError(f"initial_period must be >= 0, got {initial_period}")
         self.order: Final[str] = order
@@ -245,6 +269,7 @@ class ThriftyPriority:
     """
 
     names: tuple[str, ...] = ("s", "c")
+    reads: frozenset[str] = frozenset({"goal_risk", "novelty"})
 
     def __init__(self, num_robots: int, *, alpha: float = 0.5, threshold: float = 0.0,
                  eps: float = 1e-8) -> None:
@@ -303,6 +328,7 @@ class RandomPriority:
     """
 
     names: tuple[str, ...] = ("c", "x")
+    reads: frozenset[str] = frozenset()
 
     def __init__(self, num_robots: int, num_humans: int, *, budget: float,
                  seed: int | np.random.SeedSequence | None = None,
@@ -368,7 +394,11 @@ PriorityFactory = Callable[[AlgorithmConfig, int, int, np.random.SeedSequence, A
 
 @dataclass(frozen=True, slots=True)
 class AlgorithmSpec:
-    """One named algorithm: how to build its priority function, and its two flags."""
+    """One named algorithm: how to build its priority function, and its two flags.
+
+    What it reads and trains is derived from its factory's ``reads`` (the priority
+    class's own declaration); a factory without one is taken to read every signal.
+    """
 
     name: str
     priority: PriorityFactory = field(repr=False)
@@ -377,6 +407,23 @@ class AlgorithmSpec:
     teleop: bool = True
     """Humans may teleoperate (BC: False; its keys only ever pick violating arms)."""
     description: str = ""
+
+    @property
+    def reads(self) -> frozenset[str]:
+        """The learned signals its keys read (subset of ``LEARNED_SIGNALS``)."""
+        declared = getattr(self.priority, "reads", None)
+        return LEARNED_SIGNALS if declared is None else frozenset(declared)
+
+    @property
+    def critics(self) -> frozenset[str]:
+        """The critics behind what it reads: ``"safety"`` (risk), ``"goal"`` (goal_risk)."""
+        return frozenset(CRITIC_OF_SIGNAL[s] for s in self.reads if s in CRITIC_OF_SIGNAL)
+
+    @property
+    def train_parts(self) -> frozenset[str]:
+        """What the learner trains online for it: the policy and the critics it reads,
+        or nothing for an algorithm that does not learn (BC)."""
+        return frozenset({"policy", *self.critics}) if self.learns else frozenset()
 
 
 @dataclass(slots=True)
@@ -436,7 +483,16 @@ class Algorithm:
         self.last_keys = None if lk is None else np.asarray(lk, dtype=np.float64)
 
 
+def _reading(reads: frozenset[str]) -> Callable[[PriorityFactory], PriorityFactory]:
+    """Mark a factory with what its priority function reads (``AlgorithmSpec.reads``)."""
+    def mark(factory: PriorityFactory) -> PriorityFactory:
+        factory.reads = reads  # type: ignore[attr-defined]
+        return factory
+    return mark
+
+
 def _ordered(order: str, *, initial_period: bool) -> PriorityFactory:
+    @_reading(OrderedPriority.reads_of(order))
     def build(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
               allocator: Allocator) -> PriorityFunction:
         del m, seed, allocator
@@ -445,12 +501,14 @@ def _ordered(order: str, *, initial_period: bool) -> PriorityFactory:
     return build
 
 
+@_reading(ThriftyPriority.reads)
 def _thrifty(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
              allocator: Allocator) -> PriorityFunction:
     del m, seed, allocator
     return ThriftyPriority(n, alpha=p.thrifty_alpha, threshold=p.thrifty_threshold)
 
 
+@_reading(RandomPriority.reads)
 def _random(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
             allocator: Allocator) -> PriorityFunction:
     return RandomPriority(n, m, budget=p.random_budget, seed=seed, allocator=allocator)

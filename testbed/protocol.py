@@ -33,7 +33,7 @@ from testbed.config import (
     require_protocol,
     validation_context,
 )
-from testbed.priorities import ALGORITHM_NAMES
+from testbed.priorities import ALGORITHM_NAMES, ALGORITHMS
 from testbed.report import Report, write_report
 from testbed.runs import RunDir
 
@@ -110,6 +110,13 @@ class Protocol(BaseModel):
         return [self.algorithms[int(label[j])] for j in row]
 
 
+def pretrain_critics(algorithms: list[str]) -> list[str]:
+    """The critics theta_0 is pretrained with: every one that any of ``algorithms``
+    reads (one theta_0 for the whole protocol, no critic pretrained for nobody)."""
+    read = set().union(*(ALGORITHMS[a].critics for a in algorithms))
+    return sorted(read)
+
+
 def williams_square(n: int) -> list[list[int]]:
     """A Williams design: rows of a Latin square in which, for even ``n``, each symbol
     follows each other one exactly once; for odd ``n`` the square and its mirror (2n
@@ -177,6 +184,7 @@ def run_protocol(
     folder.mkdir(parents=True, exist_ok=True)
     cfg = proto.fleet
     total = proto.trials * len(proto.algorithms)
+    critics = pretrain_critics(proto.algorithms)
     index = 0
     for k in range(proto.trials):
         order = proto.run_order(k)
@@ -203,6 +211,7 @@ def run_protocol(
                 out=str(folder),
                 humans=proto.humans,
                 name=name,
+                pretrain_critics=critics,
             )
             if run.path.exists() and resume is None:
                 _discard(run.path)
@@ -246,4 +255,5 @@ def _prompt(text: str) -> None:
     input(f"{text} ")
 
 
-__all__: list[Any] = ["Protocol", "load_protocol", "run_protocol", "williams_square"]
+__all__: list[Any] = ["Protocol", "load_protocol", "pretrain_critics", "run_protocol",
+                     "williams_square"]

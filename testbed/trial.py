@@ -13,7 +13,7 @@ import contextlib
 import json
 import logging
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,7 @@ from testbed.interrupts import critical
 from testbed.offline import (
     Progress,
     collect_demos,
+    critic_set,
     load_transitions,
     pretrain,
     pretrain_key,
@@ -56,6 +57,11 @@ class TrialOptions:
     policy: str | None = None
     evaluate: bool = False
     name: str | None = None
+    pretrain_critics: list[str] | None = None
+    """The critics theta_0 is pretrained with (``"safety"``, ``"goal"``): a protocol
+    sets the union over its algorithms, so they all share one theta_0. The trial's own
+    algorithm's critics are always added (None: just those). The trial itself trains
+    online only what its algorithm reads."""
 
 
 def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> Any:
@@ -94,8 +100,13 @@ def pretrained_learner(
     progress: Progress | None,
     hosts: Any = None,
     trial_seed: int | None = None,
+    critics: Iterable[str] | None = None,
 ) -> tuple[Any, Path]:
     """theta_0: from the cache if this exact pretraining was done before, else made now.
+
+    ``critics``: the critics to pretrain (None: both), part of the cache key. The
+    learner comes back with every part set to train; the caller narrows it
+    (``Learner.set_parts``) to what its algorithm reads.
 
     A cold cache pretrains on the trial's own ``hosts`` (already started): one agent
     per host, ever, which on hardware means one lock, one camera client, one SSH
@@ -106,7 +117,8 @@ def pretrained_learner(
     warm. Without ``hosts`` (``testbed pretrain``-like callers, benchmarks) pretraining
     builds and closes hosts of its own.
     """
-    cache = out / ".pretrained" / pretrain_key(cfg, PRETRAIN_SEED)
+    which = critic_set(critics)
+    cache = out / ".pretrained" / pretrain_key(cfg, PRETRAIN_SEED, which)
     ckpt = cache / "learner.pt"
     if not ckpt.exists():
         cache.mkdir(parents=True, exist_ok=True)
@@ -114,7 +126,7 @@ def pretrained_learner(
             own = build_hosts(cfg, PRETRAIN_HOSTS_SEED)
             try:
                 own.start()
-                _pretrain_into(cfg, humans, cache, own, progress)
+                _pretrain_into(cfg, humans, cache, own, progress, which)
             finally:
                 try:
                     own.rest()
@@ -124,13 +136,14 @@ def pretrained_learner(
             if trial_seed is None:
                 raise ValueError("pretraining on the trial's hosts needs the trial seed")
             hosts.reseed(PRETRAIN_HOSTS_SEED)
-            _pretrain_into(cfg, humans, cache, hosts, progress)
+            _pretrain_into(cfg, humans, cache, hosts, progress, which)
             hosts.reseed(trial_seed)
     return load_learner(cfg, ckpt), ckpt
 
 
 def _pretrain_into(
-    cfg: FleetConfig, humans: Humans, cache: Path, hosts: Any, progress: Progress | None
+    cfg: FleetConfig, humans: Humans, cache: Path, hosts: Any, progress: Progress | None,
+    critics: tuple[str, ...],
 ) -> None:
     """Collect the demos (unless cached), pretrain theta_0, write it to ``cache``."""
     demos_path = cache / "demos.npz"
@@ -140,9 +153,8 @@ def _pretrain_into(
         demos = collect_demos(hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress)
         save_transitions(demos, demos_path)
     learner = new_learner(cfg, PRETRAIN_SEED)
-    data = pretrain(
-        learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R, PRETRAIN_SEED, progress
-    )
+    data = pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
+                    PRETRAIN_SEED, progress, critics=critics)
     save_transitions(data, cache / "transitions.npz")
     learner.save(cache / "learner.pt")
 
@@ -237,8 +249,12 @@ def run_trial(
             elif opts.policy is not None:
                 learner = load_learner(cfg, Path(opts.policy))
             else:
+                critics = algorithm.spec.critics | set(opts.pretrain_critics or ())
                 learner, _ = pretrained_learner(cfg, humans, Path(opts.out), progress,
-                                                hosts=hosts, trial_seed=opts.seed)
+                                                hosts=hosts, trial_seed=opts.seed,
+                                                critics=critics)
+            # whatever theta_0 had trained: from here on only what this algorithm reads
+            learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
         except HumansStopRequested as stop:  # Esc while the demos were being collected
             LOG.warning("trial stopped by the operator before step %d: %s", start, stop)
             stopped_at = start

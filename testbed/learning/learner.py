@@ -13,6 +13,16 @@ loop joins training before act(), but a lock costs nothing and rules out a torn 
                  └──► safety / goal Critic ──► risk, goal_risk
     every push ──► add_transitions ──► TransitionBuffer ──► critic minibatches (25 % / 25 %)
 
+Parts (issue 13): a learner trains online only the parts its algorithm uses
+(``train``: a subset of policy, safety, goal; default all three) and ``act`` computes
+only the critics it reads (``read``; default both): C.U.R. trains the policy and the
+safety critic, Fleet-ThriftyDAgger the policy and the goal critic, Fleet-ED and Random
+the policy alone, BC nothing. The trial sets them from ``AlgorithmSpec`` after loading
+theta_0 (``set_parts``), so one checkpoint serves every algorithm. ``pretrain`` takes
+its own set of critics (what any algorithm of a protocol reads). Per-part counters
+(``policy_updates``, ``safety_updates``, ``goal_updates``) are in ``stats()`` and the
+checkpoint.
+
 Reproducibility: the initial weights come from the seed (torch's global generator is
 forked and restored, so other code's randomness is untouched), every minibatch from the
 learner's own ``torch.Generator``, every augmentation from a per-chunk generator, and a
@@ -24,9 +34,9 @@ from __future__ import annotations
 
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -58,6 +68,27 @@ from testbed.learning.runtime import (
 )
 from testbed.types import NUM_ACTIONS
 
+CRITICS: Final[tuple[str, ...]] = ("safety", "goal")
+"""The critics, in the order they are updated on a shared minibatch."""
+
+PARTS: Final[tuple[str, ...]] = ("policy", *CRITICS)
+"""Everything a learner can train."""
+
+
+def _parts(value: Iterable[str] | None, allowed: tuple[str, ...], what: str
+           ) -> frozenset[str]:
+    """``value`` as a checked frozenset (None: all of ``allowed``)."""
+    if value is None:
+        return frozenset(allowed)
+    if isinstance(value, str):
+        raise TypeError(f"{what}: expected a collection of names, got the string {value!r}")
+    parts = frozenset(value)
+    unknown = sorted(parts - set(allowed))
+    if unknown:
+        raise ValueError(f"{what}: unknown part(s) {', '.join(map(repr, unknown))}; "
+                         f"use {', '.join(allowed)}")
+    return parts
+
 
 def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]:
     """range(total) that reports each finished step to ``progress``."""
@@ -71,7 +102,9 @@ class Learner:
     """Policy ensemble + safety critic + goal critic + their data, for one trial.
 
     ``impl`` picks how the ensemble runs (``auto``: the faster for the device);
-    ``num_threads`` torch's CPU threads (default: all cores this process may use).
+    ``num_threads`` torch's CPU threads (default: all cores this process may use);
+    ``train`` the parts ``train_step`` trains (default all of ``PARTS``), ``read`` the
+    critics ``act`` computes (default both): see :meth:`set_parts`.
     """
 
     def __init__(
@@ -81,6 +114,8 @@ class Learner:
         *,
         impl: EnsembleImpl = "auto",
         num_threads: int | None = None,
+        train: Iterable[str] | None = None,
+        read: Iterable[str] | None = None,
     ) -> None:
         self.cfg = cfg
         self.seed = int(seed)
@@ -99,6 +134,27 @@ class Learner:
         self.transitions = TransitionBuffer()
         self.policy_updates = 0
         self.critic_updates = 0
+        """Critic minibatches (one shared pi(s') each), whichever critics they updated."""
+        self.safety_updates = 0
+        self.goal_updates = 0
+        self.train_parts: frozenset[str] = frozenset(PARTS)
+        self.read_critics: frozenset[str] = frozenset(CRITICS)
+        self.set_parts(train=train, read=read)
+
+    def set_parts(self, *, train: Iterable[str] | None = None,
+                  read: Iterable[str] | None = None) -> None:
+        """What this learner's algorithm uses (``AlgorithmSpec.train_parts`` / ``critics``).
+
+        ``train`` ⊆ {"policy", "safety", "goal"}: the parts ``train_step`` updates (the
+        critics share one minibatch and one pi(s') forward pass, skipped when no critic
+        trains); ``read`` ⊆ {"safety", "goal"}: the critics ``act`` evaluates. A critic
+        not read gives ``act`` a placeholder of zeros (risk 0, goal_risk 0: finite, so
+        logs, keys and the console's reason stay valid; nothing reads them). None: all.
+        Weights, data and counters are untouched; ``pretrain`` takes its own set.
+        """
+        with self._lock:
+            self.train_parts = _parts(train, PARTS, "train")
+            self.read_critics = _parts(read, CRITICS, "read")
 
     # ------------------------------------------------------------------ queries
     @property
@@ -114,10 +170,15 @@ class Learner:
                 **self.transitions.counts(),
                 "policy_updates": self.policy_updates,
                 "critic_updates": self.critic_updates,
+                "safety_updates": self.safety_updates,
+                "goal_updates": self.goal_updates,
             }
 
     def act(self, images: npt.ArrayLike) -> PolicyOutput:
-        """Actions and priority signals for uint8 images (N, 64, 64, 3)."""
+        """Actions and priority signals for uint8 images (N, 64, 64, 3).
+
+        ``risk`` / ``goal_risk`` are zeros when their critic is not in ``read_critics``
+        (the algorithm does not read it: the critic's forward pass is skipped)."""
         arr = check_images(images)
         n = arr.shape[0]
         if n == 0:
@@ -129,8 +190,10 @@ class Learner:
             x = torch.from_numpy(arr).to(self.device)
             signals = ensemble_signals(self.policy(x))
             actions = signals["actions"]
-            risk = self.safety.values(x, actions)
-            goal_risk = 1.0 - self.goal.values(x, actions)
+            risk = (self.safety.values(x, actions) if "safety" in self.read_critics
+                    else torch.zeros(n, device=self.device))
+            goal_risk = (1.0 - self.goal.values(x, actions) if "goal" in self.read_critics
+                         else torch.zeros(n, device=self.device))
 
         def out(t: Tensor) -> np.ndarray:
             return t.float().cpu().numpy()
@@ -181,10 +244,10 @@ class Learner:
 
     # ------------------------------------------------------------------ training
     def train_step(self) -> dict[str, float]:
-        """``cfg.gradient_steps`` updates of the policy and of both critics, at
-        ``cfg.batch_size``. A part with no data is skipped and its key left out:
-        ``policy_loss`` (mean cross-entropy over members), ``safety_loss``, ``goal_loss``
-        (TD losses, BCE)."""
+        """``cfg.gradient_steps`` updates of the parts in ``train_parts``, at
+        ``cfg.batch_size``. A part not trained or with no data is skipped and its key
+        left out: ``policy_loss`` (mean cross-entropy over members), ``safety_loss``,
+        ``goal_loss`` (TD losses, BCE). With no part to train: ``{}``, nothing drawn."""
         steps = self.cfg.gradient_steps
         with self._lock:
             sums: dict[str, float] = {}
@@ -195,10 +258,11 @@ class Learner:
 
     def _one_step(self) -> dict[str, float]:
         losses: dict[str, float] = {}
-        if len(self.policy_data):
+        if "policy" in self.train_parts and len(self.policy_data):
             losses["policy_loss"] = self._policy_update()
-        if len(self.transitions):
-            losses.update(self._critic_update())
+        critics = tuple(c for c in CRITICS if c in self.train_parts)
+        if critics and len(self.transitions):
+            losses.update(self._critic_update(critics))
         return losses
 
     def _policy_update(self) -> float:
@@ -210,23 +274,30 @@ class Learner:
         self.policy_updates += 1
         return float(per_member.mean())
 
-    def _critic_update(self) -> dict[str, float]:
+    def _critic_update(self, critics: tuple[str, ...] = CRITICS) -> dict[str, float]:
+        """One minibatch for ``critics`` (non-empty, in ``CRITICS`` order): one sample,
+        one pi(s') forward pass shared by them, one update each."""
         index = self.transitions.sample_indices(self.cfg.batch_size, self._sampler)
         b = {k: v.to(self.device) for k, v in self.transitions.gather(index).items()}
         with torch.no_grad():
             next_actions = ensemble_signals(self.policy(b["next_images"]))["actions"]
         violation = b["violation"].float()
         success = b["success"].float()
-        safety = self.safety.update(CriticBatch(
-            b["images"], b["actions"], b["next_images"], next_actions,
-            reward=violation, done=violation,
-        ))
-        goal = self.goal.update(CriticBatch(
-            b["images"], b["actions"], b["next_images"], next_actions,
-            reward=success, done=torch.maximum(success, violation),
-        ))
+        losses: dict[str, float] = {}
+        if "safety" in critics:
+            losses["safety_loss"] = self.safety.update(CriticBatch(
+                b["images"], b["actions"], b["next_images"], next_actions,
+                reward=violation, done=violation,
+            ))
+            self.safety_updates += 1
+        if "goal" in critics:
+            losses["goal_loss"] = self.goal.update(CriticBatch(
+                b["images"], b["actions"], b["next_images"], next_actions,
+                reward=success, done=torch.maximum(success, violation),
+            ))
+            self.goal_updates += 1
         self.critic_updates += 1
-        return {"safety_loss": safety, "goal_loss": goal}
+        return losses
 
     def pretrain(
         self,
@@ -235,13 +306,16 @@ class Learner:
         transitions: Transitions | None = None,
         steps: int | None = None,
         progress: ProgressFn | None = None,
+        critics: Iterable[str] | None = None,
     ) -> dict[str, float]:
         """Offline training (``testbed pretrain``), in the order the data arrives:
 
         1. with demos: add them (augmented) and train the policy alone for ``steps``;
         2. with transitions (the BC policy's rollouts for the safety critic, the expert's
-           for the goal critic; both critics see all): add them and train the critics for
-           ``steps``, with pi(s') from the policy as trained so far.
+           for the goal critic; both critics see all): add them and train ``critics``
+           (default both; a protocol passes what any of its algorithms reads) for
+           ``steps``, with pi(s') from the policy as trained so far. With no critic the
+           transitions are added and no step runs (no ``"critics"`` progress).
 
         Call it once with both, or once per phase. ``steps`` defaults to
         ``cfg.pretrain_steps``. Returns the mean losses over the last 20 steps of each
@@ -250,6 +324,7 @@ class Learner:
         """
         total = self.cfg.pretrain_steps if steps is None else int(steps)
         critic_total = self.cfg.critic_steps if steps is None else int(steps)
+        which = tuple(c for c in CRITICS if c in _parts(critics, CRITICS, "critics"))
         if (demo_images is None) != (demo_actions is None):
             raise ValueError("pretrain needs demo_images and demo_actions together")
         result: dict[str, float] = {}
@@ -261,11 +336,12 @@ class Learner:
                     result["policy_loss"] = float(np.mean(tail[-20:]))
             if transitions is not None:
                 self.transitions.add(transitions)
-                tail_c = [self._critic_update()
-                          for _ in _ticks("critics", critic_total, progress)]
-                for key in ("safety_loss", "goal_loss"):
-                    if tail_c:
-                        result[key] = float(np.mean([d[key] for d in tail_c[-20:]]))
+                if which:
+                    tail_c = [self._critic_update(which)
+                              for _ in _ticks("critics", critic_total, progress)]
+                    for key in (f"{c}_loss" for c in which):
+                        if tail_c:
+                            result[key] = float(np.mean([d[key] for d in tail_c[-20:]]))
         return result
 
     def reseed(self, seed: int) -> None:
@@ -295,7 +371,8 @@ class Learner:
                 "policy_data": self.policy_data.state_dict(),
                 "transitions": self.transitions.state_dict(),
                 "sampler": self._sampler.get_state(),
-                "counters": [self.policy_updates, self.critic_updates],
+                "counters": [self.policy_updates, self.critic_updates,
+                             self.safety_updates, self.goal_updates],
             }
 
     def save(self, path: str | Path) -> Path:
@@ -311,10 +388,14 @@ class Learner:
         *,
         impl: EnsembleImpl = "auto",
         num_threads: int | None = None,
+        train: Iterable[str] | None = None,
+        read: Iterable[str] | None = None,
     ) -> Learner:
         """A learner from a checkpoint. ``cfg`` defaults to the saved one; a given one
         may change the training knobs (lr, batch size, gradient steps, device) but not the
-        ensemble size or the augmentation factor, which shape the saved state."""
+        ensemble size or the augmentation factor, which shape the saved state. Both
+        critics are always loaded (whatever trained them); ``train`` / ``read`` as for
+        the constructor (the parts are not saved: the caller's algorithm decides)."""
         state = checkpoint.load(path)
         saved = LearningConfig.model_validate(state["cfg"])
         cfg = saved if cfg is None else cfg
@@ -324,7 +405,8 @@ class Learner:
                     f"{path}: checkpoint has learning.{field} = {getattr(saved, field)}, "
                     f"config asks for {getattr(cfg, field)}; use the checkpoint's value"
                 )
-        learner = cls(cfg, int(state["seed"]), impl=impl, num_threads=num_threads)
+        learner = cls(cfg, int(state["seed"]), impl=impl, num_threads=num_threads,
+                      train=train, read=read)
         learner.policy.load_state_dict(state["policy"])
         learner.policy_optimizer.load_state_dict(state["policy_optimizer"])
         learner.safety.load_state_dict(state["safety"])
@@ -341,5 +423,9 @@ class Learner:
             )
         learner.transitions.load_state_dict(state["transitions"])
         learner._sampler.set_state(state["sampler"])
-        learner.policy_updates, learner.critic_updates = (int(c) for c in state["counters"])
+        counters = [int(c) for c in state["counters"]]
+        if len(counters) == 2:  # before per-critic counters every critic step trained both
+            counters += [counters[1], counters[1]]
+        (learner.policy_updates, learner.critic_updates, learner.safety_updates,
+         learner.goal_updates) = counters
         return learner
