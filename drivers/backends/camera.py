@@ -4,10 +4,14 @@ Why a wrapper: a live camera hands out frames from a queue, so the next frame ma
 older than the last push. A device drops ``flush_frames`` queued frames first (its
 driver queue is a few frames deep). A network camera (``http://``, ``https://``,
 ``rtsp://``: a lab IP camera, or the hardware twin's MJPEG stream) queues in the
-sockets and in FFmpeg, so ``read`` drains it: it grabs until a grab has to wait for the
-camera (longer than half a frame interval), bounded, so the frame returned was produced
-after the call started. It is opened with FFmpeg open/read timeouts, so a dead camera
-is an error, never a hang. A video file (tests, replays) loops at its end instead of
+sockets and in FFmpeg whenever nobody reads it, so a :class:`StreamReader` thread reads
+it all the time (nothing queues up) and ``read`` takes the first frame the reader had
+to WAIT for after the call started: that frame was produced after the call. (A first
+version drained the queue only when asked; after a push the queue held several frames,
+and under CPU load one of them took longer than the "waited" threshold to decode and
+was taken as fresh: the rehearsal caught stale pictures, so success was seen a step
+late.) It is opened with FFmpeg open/read timeouts, so a dead camera is an error,
+never a hang. A video file (tests, replays) loops at its end instead of
 running dry. Every failure is a :class:`~drivers.errors.BackendError` of one line that
 names the source.
 """
@@ -16,6 +20,8 @@ from __future__ import annotations
 
 import os
 import re
+import statistics
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -62,10 +68,9 @@ class Camera(Protocol):
 class VideoCaptureCamera:
     """``cv2.VideoCapture`` on a device index ("0"), a video file path or a stream URL.
 
-    ``fps``: a network camera's real frame rate, when its stream does not say (FFmpeg
-    reports 25 for an MJPEG-over-HTTP stream whatever it runs at); it sets the "a grab
-    waited" threshold of the drain. ``max_drain_s`` bounds a drain (a camera faster
-    than its decoding is never waited for).
+    ``fps``: a network camera's real frame rate, if known (FFmpeg reports 25 for an
+    MJPEG-over-HTTP stream whatever it runs at); otherwise the stream reader measures it.
+    ``max_drain_s`` is kept for compatibility and unused.
     """
 
     def __init__(self, source: str | int, *, flush_frames: int | None = None,
@@ -93,6 +98,10 @@ class VideoCaptureCamera:
         self._wait_s = 0.5 / rate
         w = int(self._cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         h = int(self._cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        self._reader: StreamReader | None = None
+        if self._url:
+            self._reader = StreamReader(self._cap, self._open, str(self._source),
+                                        self._read_timeout_s, fixed_fps=fps)
         if w <= 0 or h <= 0:
             frame = self.read()
             h, w = frame.shape[:2]
@@ -149,8 +158,9 @@ class VideoCaptureCamera:
     def read(self) -> npt.NDArray[np.uint8]:
         import cv2
 
-        if self._url:
-            ok, frame = self._drain_and_read()
+        if self._reader is not None:
+            ok, frame = self._reader.fresh_frame(self._read_timeout_s)
+            self.drained = self._reader.skipped
         else:
             for _ in range(self._flush):
                 self._cap.grab()
@@ -164,27 +174,117 @@ class VideoCaptureCamera:
             raise BackendError(f"camera {self._source!r} gave no frame{what}")
         return np.ascontiguousarray(frame, dtype=np.uint8)
 
-    def _drain_and_read(self) -> tuple[bool, Any]:
-        """Grab until one grab waited for the camera (its frame is newer than this call),
-        then decode that one. A stream that broke is reopened once (a restarted camera)."""
-        for attempt in range(2):
-            t0 = time.monotonic()
-            grabbed = 0
-            while True:
-                t = time.monotonic()
-                if not self._cap.grab():
-                    if time.monotonic() - t >= 0.9 * self._read_timeout_s:
-                        return False, None  # silent for the whole read timeout: dead
-                    break  # the stream ended (a restarted camera?)
-                grabbed += 1
-                now = time.monotonic()
-                if now - t > self._wait_s or now - t0 > self._max_drain_s:
-                    self.drained = grabbed - 1
-                    return self._cap.retrieve()
-            if attempt == 0:  # the stream ended: one fresh connection, then give up
-                self._cap.release()
-                self._cap = self._open()
-        return False, None
-
     def close(self) -> None:
-        self._cap.release()
+        if self._reader is not None:
+            self._reader.stop()  # it owns the capture: it releases it
+        else:
+            self._cap.release()
+
+
+class StreamReader:
+    """Reads a network camera's stream all the time, in a thread of its own, so that no
+    frame queues up in the sockets or in FFmpeg; hands out the first frame it had to wait
+    for after a request started.
+
+    Why a thread: a stream nobody reads fills every buffer on its way, and then telling
+    a fresh frame from a queued one by timing alone fails under CPU load (a queued frame
+    that is slow to decode looks like one the camera was waited for). Read continuously,
+    the queue at any moment is at most the frame in flight, and a frame the reader had to
+    wait for ("waited": its grab took longer than half the camera's measured frame
+    interval) was sent after the wait began. Cost: decoding every frame the camera sends
+    (~3 ms per 640x480 JPEG here, ~5 % of a core at 15 fps).
+
+    Only this thread touches the ``cv2.VideoCapture`` (it is not thread-safe): it grabs,
+    and retrieves (colour conversion) only the frame that answers a request. A broken
+    stream is reopened once (a restarted camera); then every request fails.
+    """
+
+    def __init__(self, cap: Any, reopen: Any, name: str, read_timeout_s: float,
+                 fixed_fps: float | None = None) -> None:
+        self._cap = cap
+        self._reopen = reopen
+        self._read_timeout_s = read_timeout_s
+        self._fixed_interval = None if fixed_fps is None else 1.0 / fixed_fps
+        self._cond = threading.Condition()
+        self._intervals: list[float] = []
+        self._last_arrival: float | None = None
+        self._want_after: float | None = None
+        self._result: tuple[bool, Any] | None = None
+        self._failed = False
+        self._stopping = False
+        self.skipped = 0
+        """Frames grabbed during the last request that did not count as fresh."""
+        self._thread = threading.Thread(target=self._run, name=f"camera {name}", daemon=True)
+        self._thread.start()
+
+    def _interval(self) -> float:
+        if self._fixed_interval is not None:
+            return self._fixed_interval
+        if len(self._intervals) < 3:
+            return 1.0 / 30.0  # until measured: a fast camera's (a stricter "waited")
+        return statistics.median(self._intervals)
+
+    def _run(self) -> None:
+        reopened = False
+        try:
+            while not self._stopping:
+                t = time.monotonic()
+                ok = self._cap.grab()
+                now = time.monotonic()
+                if self._stopping:
+                    return
+                if not ok:
+                    if reopened or now - t >= 0.9 * self._read_timeout_s:
+                        break  # silent for the whole read timeout, or broken twice: dead
+                    reopened = True
+                    self._cap.release()
+                    self._cap = self._reopen()
+                    self._last_arrival = None
+                    continue
+                waited = now - t > 0.5 * self._interval()
+                if waited and self._last_arrival is not None:
+                    self._intervals = [*self._intervals[-15:], now - self._last_arrival]
+                self._last_arrival = now
+                with self._cond:
+                    want = self._want_after
+                if want is None:
+                    continue
+                if t >= want and waited:
+                    result = self._cap.retrieve()
+                    with self._cond:
+                        self._result = result
+                        self._want_after = None
+                        self._cond.notify_all()
+                else:
+                    self.skipped += 1
+        except Exception:  # a capture that raises is a dead camera: requests fail
+            pass
+        finally:
+            with self._cond:
+                self._failed = True
+                self._cond.notify_all()
+            self._cap.release()
+
+    def fresh_frame(self, timeout_s: float) -> tuple[bool, Any]:
+        """The first frame the reader waits for after now: (ok, BGR image)."""
+        with self._cond:
+            if self._failed:
+                return False, None
+            self.skipped = 0
+            self._result = None
+            self._want_after = time.monotonic()
+            deadline = self._want_after + timeout_s
+            while self._result is None and not self._failed:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    self._want_after = None
+                    return False, None
+                self._cond.wait(left)
+            result, self._result = self._result, None
+            return result if result is not None else (False, None)
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopping = True
+        # the grab in progress returns with the next frame (or the read timeout)
+        self._thread.join(self._read_timeout_s + 1.0)

@@ -49,11 +49,39 @@ def test_stream_read_returns_a_frame_made_after_the_call() -> None:
             frame = cam.read()
             latencies.append(time.monotonic() - t0)
             assert server.produced[frame_number(frame)] > t0, (pause, cam.drained)
-            if pause >= 0.6:
-                assert cam.drained >= 3  # it did drop the queued frames
         cam.close()
-        # about one frame interval (67 ms) plus the queue's decode: never seconds
+        # about one frame interval (67 ms): never seconds
         assert max(latencies) < 0.5, latencies
+
+
+def _hog(stop_at: float) -> None:
+    while time.monotonic() < stop_at:
+        pass
+
+
+def test_stream_frames_stay_fresh_with_every_core_busy() -> None:
+    """The rehearsal caught it: a camera drained only when asked returned a frame queued
+    before a push when the machine was loaded (a slow decode looked like a wait)."""
+    import multiprocessing as mp
+
+    with MjpegCamera(fps=15, size=(640, 480)) as server:
+        cam = VideoCaptureCamera(server.url, open_timeout_s=3, read_timeout_s=3)
+        stop_at = time.monotonic() + 30
+        hogs = [mp.get_context("fork").Process(target=_hog, args=(stop_at,), daemon=True)
+                for _ in range(4 * (os.cpu_count() or 2))]
+        for h in hogs:
+            h.start()
+        try:
+            rng = np.random.default_rng(0)
+            for _ in range(12):
+                time.sleep(float(rng.uniform(0.0, 0.8)))  # a push, a training step...
+                t0 = time.monotonic()
+                frame = cam.read()
+                assert server.produced[frame_number(frame)] > t0
+        finally:
+            for h in hogs:
+                h.kill()
+            cam.close()
 
 
 def test_a_dead_camera_is_an_error_not_a_hang() -> None:
