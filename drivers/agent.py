@@ -178,6 +178,12 @@ def serve(reader: p.FrameReader, write: Callable[[bytes], None],
                 write(p.encode_frame({"type": "bye_ok", "id": mid}))
                 return EXIT_OK
             write(_dispatch(backend, req, started))
+            prepare = getattr(backend, "prepare", None)
+            if req.type in ("push", "reset") and prepare is not None:
+                try:  # the next observation, while the controller is busy elsewhere
+                    prepare()
+                except Exception:  # observe will try again and report it
+                    log.exception("preparing the next observation")
     except (BrokenPipeError, ConnectionError) as exc:
         log.error("cannot write to the controller: %s; exiting without moving the arms", exc)
         return EXIT_LINK

@@ -2,20 +2,27 @@
 
 ::
 
-    observe (all hosts at once) --> signals (learner.act) --> keys (priority)
-        --> Allocator --> humans.act --> execute (all hosts at once) --> log (fsync)
-                               \\__ training step runs here, in a thread, overlapped __/
+    observe (all hosts at once) --> signals (act) --> keys (priority) --> Allocator
+        --> humans.act --> execute (all hosts at once) --> log (fsync)
+           \\__ training step runs here, in a thread, from observe to log __/
 
-The training step of timestep t starts as soon as the step's actions are known and
-runs while the humans answer and the arms push; it is joined before the step is
-logged. So the policy used at t+1 is always the one after exactly t training steps,
-whatever the timing: a twin trial with scripted humans is reproducible, overlap
-included. The loop owns no hardware and no GUI: it talks to a ``HostFleet``-like
-object, a ``Humans`` and a ``Learner`` only through their small APIs.
+The training step of timestep t starts as soon as its data is in (right after the
+observation, which completes the last step's transitions) and runs while the learner
+acts, the humans answer and the arms push; it is joined before the step is logged.
+``act`` reads a copy of the networks brought up to date just before the training step
+starts (``ActingCopy``), so the policy used at t is always the one after exactly t
+training steps, whatever the timing: a twin trial with scripted humans is
+reproducible, overlap included, and its records are those of the serial order (act,
+then train). At N = 100 arms the policy's forward pass is a large part of a step;
+overlapping it with training makes the step cost the training step, not the sum
+(docs/notes/fleet.md). The loop owns no hardware and no GUI: it talks to a
+``HostFleet``-like object, a ``Humans`` and a ``Learner`` only through their small APIs.
 """
 
 from __future__ import annotations
 
+import copy
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -71,6 +78,82 @@ class LearnerLike(Protocol):
     def train_step(self) -> dict[str, float]: ...
 
 
+class ActingCopy:
+    """``act`` of a learner on a copy of its networks, so ``train_step`` can run beside it.
+
+    Made for ``testbed.learning.Learner``: a shallow copy of it whose policy and
+    critics' online networks are deep copies (the data, the optimisers and the targets
+    are shared, and ``act`` reads none of them), with a lock of its own. ``sync()``
+    copies the weights (about 6 MB at 5 members: a millisecond or two) and the other
+    attributes (``read_critics``...) from the learner; call it only while no training
+    step runs. ``make`` returns None for a learner of another shape (test fakes, or a
+    learner holding networks other than these three): the loop then acts on the learner
+    itself, before the training step starts (the serial order). It belongs in
+    ``Learner`` (an ``acting_copy()``) once that module is free to change.
+    """
+
+    _NETS = ("policy", "safety.net", "goal.net")
+
+    def __init__(self, learner: Any) -> None:
+        self.learner = learner
+        shadow = copy.copy(learner)
+        for name in ("safety", "goal"):
+            setattr(shadow, name, copy.copy(getattr(learner, name)))
+        for path in self._NETS:
+            owner, attr = self._owner(shadow, path)
+            setattr(owner, attr, copy.deepcopy(getattr(owner, attr)).requires_grad_(False))
+        shadow._lock = threading.RLock()
+        self.shadow = shadow
+        self._own = {k: v for k, v in vars(shadow).items() if k in ("policy", "safety",
+                                                                      "goal", "_lock")}
+        self.sync()
+
+    @staticmethod
+    def _owner(obj: Any, path: str) -> tuple[Any, str]:
+        *heads, attr = path.split(".")
+        for h in heads:
+            obj = getattr(obj, h)
+        return obj, attr
+
+    @classmethod
+    def make(cls, learner: Any) -> ActingCopy | None:
+        try:
+            import torch
+        except ImportError:  # pragma: no cover - torch is a dependency
+            return None
+        for path in cls._NETS:
+            try:
+                owner, attr = cls._owner(learner, path)
+                if not isinstance(getattr(owner, attr), torch.nn.Module):
+                    return None
+            except AttributeError:
+                return None
+        if not hasattr(learner, "_lock") or not callable(getattr(learner, "act", None)):
+            return None
+        # Any other network on the learner (a compiled or converted copy, a new head)
+        # would be shared with the training step: act on the learner itself then.
+        others = [k for k, v in vars(learner).items() if k not in ("policy", "safety", "goal")
+                  and (isinstance(v, torch.nn.Module)
+                       or isinstance(getattr(v, "net", None), torch.nn.Module))]
+        return None if others else cls(learner)
+
+    def sync(self) -> None:
+        import torch
+
+        vars(self.shadow).update({k: v for k, v in vars(self.learner).items()
+                                  if k not in self._own})
+        with torch.no_grad():
+            for path in self._NETS:
+                src = getattr(*self._owner(self.learner, path))
+                dst = getattr(*self._owner(self.shadow, path))
+                for d, s in zip(dst.state_dict().values(), src.state_dict().values(),
+                                strict=True):
+                    d.copy_(s)
+
+    def act(self, images: np.ndarray) -> Any:
+        return self.shadow.act(images)
+
+
 @dataclass
 class _Pending:
     """A push whose next observation is still to come (the critics need s')."""
@@ -79,6 +162,17 @@ class _Pending:
     action: int
     violation: bool
     success: bool
+
+
+@dataclass
+class _Decided:
+    out: Any
+    keys: np.ndarray
+    faulted: np.ndarray
+    pushes: dict[str, int]
+    resets: list[str]
+    modes: dict[str, Mode]
+    humans_of: dict[str, int | None]
 
 
 @dataclass
@@ -107,6 +201,7 @@ class FleetLoop:
         t_T: int,
         t_R: int,
         after_step: Callable[[int], None] | None = None,
+        overlap_act: bool = True,
     ) -> None:
         self.hosts = hosts
         self.humans = humans
@@ -122,6 +217,8 @@ class FleetLoop:
         self._pending: dict[str, _Pending] = {}
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
         self._after_step = after_step
+        self._actor: ActingCopy | None = (
+            ActingCopy.make(learner) if overlap_act and algorithm.learns else None)
         self.status = FleetStatus(t=0, steps=steps)
 
     # ---- counters -------------------------------------------------------------------
@@ -141,22 +238,11 @@ class FleetLoop:
         s.rohe = (self.num_humans / n) * s.successes / (1 + s.human_actions)
 
     # ---- one timestep ---------------------------------------------------------------
-    def step(self, t: int) -> StepOutcome:
-        started = time.monotonic()
-        observations = self.hosts.observe()
-        live = [r for r in self.robots if isinstance(observations.get(r), ArmObservation)]
-        self._add_transitions(observations)
-
-        n = len(self.robots)
-        images = np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
-        violating = np.zeros(n, dtype=bool)
-        for i, r in enumerate(self.robots):
-            o = observations.get(r)
-            if isinstance(o, ArmObservation):
-                images[i] = o.image
-                violating[i] = o.violating
-        out = self.learner.act(images)
-        faulted = np.array([r not in live for r in self.robots])
+    def _decide(self, t: int, observations: Mapping[str, ArmObservation | Fault],
+                images: np.ndarray, violating: np.ndarray, out: Any) -> _Decided:
+        """Keys, allocation, the humans' answers: what every arm does at step t."""
+        faulted = np.array([not isinstance(observations.get(r), ArmObservation)
+                            for r in self.robots])
         signals = PrioritySignals(
             t=t,
             violating=violating & ~faulted,
@@ -169,10 +255,6 @@ class FleetLoop:
         assignment = self.algorithm.step(signals)
         keys = np.asarray(self.algorithm.last_keys, dtype=float)
         kinds, served = self.allocator.kinds, self.allocator.served
-
-        training: Future[dict[str, float]] | None = None
-        if self.algorithm.learns:
-            training = self._executor.submit(self.learner.train_step)
 
         requests: list[HumanRequest] = []
         for i, r in enumerate(self.robots):
@@ -194,12 +276,7 @@ class FleetLoop:
                     | {"uncertainty": float(out.uncertainty[i]), "risk": float(out.risk[i])},
                 )
             )
-        try:
-            responses = self.humans.act(requests, t) if requests else {}
-        except BaseException:
-            if training is not None:
-                training.result()
-            raise
+        responses = self.humans.act(requests, t) if requests else {}
 
         pushes: dict[str, int] = {}
         resets: list[str] = []
@@ -224,10 +301,39 @@ class FleetLoop:
             else:
                 modes[r] = Mode.AUTONOMOUS
                 pushes[r] = int(out.actions[i])
+        return _Decided(out, keys, faulted, pushes, resets, modes, humans_of)
 
-        results = self.hosts.execute(pushes, resets)
+    def step(self, t: int) -> StepOutcome:
+        started = time.monotonic()
+        observations = self.hosts.observe()
+        self._add_transitions(observations)  # training step t's last data
+        n = len(self.robots)
+        images = np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
+        violating = np.zeros(n, dtype=bool)
+        for i, r in enumerate(self.robots):
+            o = observations.get(r)
+            if isinstance(o, ArmObservation):
+                images[i] = o.image
+                violating[i] = o.violating
+
+        training: Future[dict[str, float]] | None = None
+        if self._actor is not None:  # train beside act: act reads the up-to-date copy
+            self._actor.sync()
+            training = self._executor.submit(self.learner.train_step)
+        try:
+            out = (self._actor or self.learner).act(images)
+            if training is None and self.algorithm.learns:  # serial: after act
+                training = self._executor.submit(self.learner.train_step)
+            d = self._decide(t, observations, images, violating, out)
+            results = self.hosts.execute(d.pushes, d.resets)
+        except BaseException:
+            if training is not None:
+                training.result()
+            raise
         train_info = training.result() if training is not None else {}
-        modes = self._final_modes(modes, results, pushes)
+        pushes, humans_of, faulted, out, keys = (d.pushes, d.humans_of, d.faulted, d.out,
+                                                 d.keys)
+        modes = self._final_modes(d.modes, results, pushes)
 
         row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
                        np.asarray(out.risk), keys, pushes)

@@ -97,6 +97,12 @@ class HostBackend(ABC):
         """Release the hardware; idempotent."""
 
     # -- optional capabilities (a backend that lacks one says so) ------------------------
+    def prepare(self) -> None:
+        """Called by the agent right after it answered a push or a reset: get the next
+        observation ready now, while the controller is busy elsewhere (the twin renders
+        it; the default does nothing, and a camera must not: its frame would be old)."""
+        return None
+
     def reseed(self, seed: int) -> None:
         """Start the host's task afresh from ``seed`` (twin: a new cell; YuMi: the goal
         stream), as a newly started agent with that seed would."""

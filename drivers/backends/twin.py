@@ -40,6 +40,7 @@ class TwinBackend(HostBackend):
         self._cell = self._new_cell(seed)
         self._pushed_since_rest = False
         self._closed = False
+        self._ready: dict[str, ArmView] | None = None  # prepare()'s views, until used
 
     def _new_cell(self, seed: int) -> Any:
         return self._factory(seed=seed, arms=self._arms, mirror=self._mirror,
@@ -48,6 +49,7 @@ class TwinBackend(HostBackend):
     def reseed(self, seed: int) -> None:
         """A new cell from ``seed``, exactly as a newly started agent would build it (so
         pretraining on a host, then reseeding, gives the trial a fresh start)."""
+        self._ready = None
         old, self._cell = self._cell, self._new_cell(seed)
         self._pushed_since_rest = False
         old.close()
@@ -60,7 +62,21 @@ class TwinBackend(HostBackend):
     def mirror(self) -> tuple[bool, ...]:
         return self._mirror
 
+    def prepare(self) -> None:
+        """Render and read the next views now (after a push or reset, while the controller
+        waits for the other hosts, trains and logs); ``observe`` returns them unless the
+        world changes first. The same calls in the same order as ``observe`` makes: the
+        twin's observation never touches the physics, so the records are unchanged."""
+        self._ready = None
+        self._ready = self._views()
+
     def observe(self) -> dict[str, ArmView]:
+        if self._ready is not None:
+            views, self._ready = self._ready, None
+            return views
+        return self._views()
+
+    def _views(self) -> dict[str, ArmView]:
         if self._pushed_since_rest:
             # Never a picture with a pusher in view: rest first (cheap in the twin).
             self._cell.rest()
@@ -77,6 +93,7 @@ class TwinBackend(HostBackend):
 
     def push(self, faces: Mapping[str, int]) -> dict[str, ArmOutcome]:
         faces = self.check_faces(faces)
+        self._ready = None
         outcomes = self._cell.push(faces)
         self._pushed_since_rest = True
         return {arm: ArmOutcome(bool(outcomes[arm].success), bool(outcomes[arm].violation))
@@ -84,12 +101,14 @@ class TwinBackend(HostBackend):
 
     def reset(self, arms: Sequence[str]) -> dict[str, bool]:
         done: dict[str, bool] = {}
+        self._ready = None
         for arm in self.check_arms(arms):
             self._cell.hard_reset(arm)
             done[arm] = not bool(self._cell.arm_state(arm).violating)
         return done
 
     def rest(self) -> None:
+        self._ready = None
         self._cell.rest()
         self._pushed_since_rest = False
 

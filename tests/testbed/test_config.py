@@ -185,6 +185,14 @@ def test_shipped_protocols_are_valid(tmp_path: Path, monkeypatch: pytest.MonkeyP
     # One calibrated u_hat for the twin: the default trial and the twin protocol agree.
     assert twin.fleet.algorithm.u_hat == default_twin_config().algorithm.u_hat == 0.17
     assert phys.fleet.learning.critic_steps == 3000
+    # The seed's fleet size: N = 100 arms on 50 twin hosts, M = 10, t_T = t_R = 5, C.U.R.
+    scale = load_protocol(root / "twin-scale.toml")
+    f = scale.fleet
+    assert len(f.robot_names) == 100 and len(f.hosts) == 50 and f.humans.count == 10
+    assert (f.algorithm.t_T, f.algorithm.t_R, scale.algorithms) == (5, 5, ["cur"])
+    assert f.algorithm.u_hat == default_twin_config().algorithm.u_hat
+    assert (f.learning.batch_size, f.learning.gradient_steps, f.learning.ensemble_size) == (
+        256, 1, 5)
 
 
 def test_load_config_missing_file_is_config_error(tmp_path: Path) -> None:

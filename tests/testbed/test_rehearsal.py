@@ -282,6 +282,7 @@ def test_truth_recorder_writes_only_the_loops_steps(lab: tuple[HardwareTwinLab, 
 
     twin_lab, _ = lab
     fleet = _fleet(twin_lab)
+    twin_lab.reset_all()  # earlier drills may have left a cube out (a refused push)
     hosts = HostFleet(fleet.hosts[1:])
     rec = TruthRecorder(hosts, {"yumi-b": twin_lab.labs["yumi-b"]},
                         {r: v for r, v in arm_views(fleet).items() if r.startswith("yumi-b")},
