@@ -218,11 +218,14 @@ class StreamReader:
         self._thread.start()
 
     def _interval(self) -> float:
+        """The camera's frame interval: given, else measured, capped at 1/15 s. The cap
+        matters under CPU load: a starved reader sees frames in bursts, the measured
+        interval grows, and with it a "waited" threshold no real wait would pass."""
         if self._fixed_interval is not None:
             return self._fixed_interval
         if len(self._intervals) < 3:
             return 1.0 / 30.0  # until measured: a fast camera's (a stricter "waited")
-        return statistics.median(self._intervals)
+        return min(statistics.median(self._intervals), 1.0 / 15.0)
 
     def _run(self) -> None:
         reopened = False
