@@ -32,11 +32,10 @@ import numpy.typing as npt
 import pytest
 from synthetic_pushing import roc_auc
 
+import sim_twin.cell as cell_module
+import sim_twin.geometry as geometry
 from testbed.config import LearningConfig
 from testbed.learning import Learner, Transitions
-
-cell_module = pytest.importorskip("sim_twin.cell")
-geometry = pytest.importorskip("sim_twin.geometry")
 
 CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3, augmentation_factor=2)
 POLICY_STEPS = 100
