@@ -136,7 +136,7 @@ def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train
     def checkpoint(step: int) -> None:
         snapshot(step, learner, {"algorithm": algorithm.state_dict()})
 
-    # With training the loop gets the real learner, so it acts on its ActingCopy beside
+    # With training the loop gets the real learner, so it acts on its acting copy beside
     # the training step (as in run_trial); act is timed on that copy.
     loop = FleetLoop(hosts=TimedHosts(hosts, splits), humans=TimedHumans(ScriptedHumans(),
                      splits), learner=learner if train else NoTraining(learner, splits),

@@ -10,7 +10,7 @@ The training step of timestep t starts as soon as its data is in (right after th
 observation, which completes the last step's transitions) and runs while the learner
 acts, the humans answer and the arms push; it is joined before the step is logged.
 ``act`` reads a copy of the networks brought up to date just before the training step
-starts (``ActingCopy``), so the policy used at t is always the one after exactly t
+starts (``Learner.acting_copy()``), so the policy used at t is always the one after exactly t
 training steps, whatever the timing: a twin trial with scripted humans is
 reproducible, overlap included, and its records are those of the serial order (act,
 then train). At N = 100 arms the policy's forward pass is a large part of a step;
@@ -21,8 +21,6 @@ overlapping it with training makes the step cost the training step, not the sum
 
 from __future__ import annotations
 
-import copy
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -78,80 +76,12 @@ class LearnerLike(Protocol):
     def train_step(self) -> dict[str, float]: ...
 
 
-class ActingCopy:
-    """``act`` of a learner on a copy of its networks, so ``train_step`` can run beside it.
+class ActorLike(Protocol):
+    """What ``Learner.acting_copy()`` returns (``testbed.learning.actor.Actor``)."""
 
-    Made for ``testbed.learning.Learner``: a shallow copy of it whose policy and
-    critics' online networks are deep copies (the data, the optimisers and the targets
-    are shared, and ``act`` reads none of them), with a lock of its own. ``sync()``
-    copies the weights (about 6 MB at 5 members: a millisecond or two) and the other
-    attributes (``read_critics``...) from the learner; call it only while no training
-    step runs. ``make`` returns None for a learner of another shape (test fakes, or a
-    learner holding networks other than these three): the loop then acts on the learner
-    itself, before the training step starts (the serial order). It belongs in
-    ``Learner`` (an ``acting_copy()``) once that module is free to change.
-    """
+    def sync(self) -> None: ...
 
-    _NETS = ("policy", "safety.net", "goal.net")
-
-    def __init__(self, learner: Any) -> None:
-        self.learner = learner
-        shadow = copy.copy(learner)
-        for name in ("safety", "goal"):
-            setattr(shadow, name, copy.copy(getattr(learner, name)))
-        for path in self._NETS:
-            owner, attr = self._owner(shadow, path)
-            setattr(owner, attr, copy.deepcopy(getattr(owner, attr)).requires_grad_(False))
-        shadow._lock = threading.RLock()
-        self.shadow = shadow
-        self._own = {k: v for k, v in vars(shadow).items() if k in ("policy", "safety",
-                                                                      "goal", "_lock")}
-        self.sync()
-
-    @staticmethod
-    def _owner(obj: Any, path: str) -> tuple[Any, str]:
-        *heads, attr = path.split(".")
-        for h in heads:
-            obj = getattr(obj, h)
-        return obj, attr
-
-    @classmethod
-    def make(cls, learner: Any) -> ActingCopy | None:
-        try:
-            import torch
-        except ImportError:  # pragma: no cover - torch is a dependency
-            return None
-        for path in cls._NETS:
-            try:
-                owner, attr = cls._owner(learner, path)
-                if not isinstance(getattr(owner, attr), torch.nn.Module):
-                    return None
-            except AttributeError:
-                return None
-        if not hasattr(learner, "_lock") or not callable(getattr(learner, "act", None)):
-            return None
-        # Any other network on the learner (a compiled or converted copy, a new head)
-        # would be shared with the training step: act on the learner itself then.
-        others = [k for k, v in vars(learner).items() if k not in ("policy", "safety", "goal")
-                  and (isinstance(v, torch.nn.Module)
-                       or isinstance(getattr(v, "net", None), torch.nn.Module))]
-        return None if others else cls(learner)
-
-    def sync(self) -> None:
-        import torch
-
-        vars(self.shadow).update({k: v for k, v in vars(self.learner).items()
-                                  if k not in self._own})
-        with torch.no_grad():
-            for path in self._NETS:
-                src = getattr(*self._owner(self.learner, path))
-                dst = getattr(*self._owner(self.shadow, path))
-                for d, s in zip(dst.state_dict().values(), src.state_dict().values(),
-                                strict=True):
-                    d.copy_(s)
-
-    def act(self, images: np.ndarray) -> Any:
-        return self.shadow.act(images)
+    def act(self, images: np.ndarray) -> Any: ...
 
 
 @dataclass
@@ -217,8 +147,12 @@ class FleetLoop:
         self._pending: dict[str, _Pending] = {}
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
         self._after_step = after_step
-        self._actor: ActingCopy | None = (
-            ActingCopy.make(learner) if overlap_act and algorithm.learns else None)
+        # A learner without an acting copy (a test's fake) acts itself, before the
+        # training step starts: the serial order.
+        make_actor = getattr(learner, "acting_copy", None)
+        self._actor: ActorLike | None = (
+            make_actor() if overlap_act and algorithm.learns and callable(make_actor)
+            else None)
         self.status = FleetStatus(t=0, steps=steps)
 
     # ---- counters -------------------------------------------------------------------

@@ -63,6 +63,15 @@ def _combine(q: Tensor, how: Combine) -> Tensor:
     return q.amax(dim=1) if how == "max" else q.amin(dim=1)
 
 
+def q_values(net: nn.Module, combine: Combine, images: Tensor, actions: Tensor) -> Tensor:
+    """Conservative Q(s, a) in [0, 1], (B,), of a twin-Q network, no gradient (the
+    critic's ``values``, and the act-only copy's in ``actor.py``)."""
+    with torch.no_grad():
+        logits = net(images)
+        taken = logits.gather(2, actions.view(-1, 1, 1).expand(-1, 2, 1)).squeeze(2)
+        return _combine(torch.sigmoid(taken), combine)
+
+
 class Critic:
     """A twin-head Q network, its Polyak-averaged target and its Adam optimiser."""
 
@@ -74,10 +83,7 @@ class Critic:
 
     def values(self, images: Tensor, actions: Tensor) -> Tensor:
         """Conservative Q(s, a) in [0, 1], (B,), no gradient."""
-        with torch.no_grad():
-            logits = self.net(images)
-            taken = logits.gather(2, actions.view(-1, 1, 1).expand(-1, 2, 1)).squeeze(2)
-            return _combine(torch.sigmoid(taken), self.spec.combine)
+        return q_values(self.net, self.spec.combine, images, actions)
 
     def update(self, batch: CriticBatch) -> float:
         """One gradient step on the TD targets of ``batch``; returns the BCE loss."""

@@ -41,10 +41,10 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 import torch
-from torch import Tensor
 
 from testbed.config import LearningConfig
 from testbed.learning import checkpoint
+from testbed.learning.actor import Actor, infer
 from testbed.learning.api import (
     EnsembleImpl,
     PolicyOutput,
@@ -66,7 +66,6 @@ from testbed.learning.runtime import (
     resolve_device,
     resolve_impl,
 )
-from testbed.types import NUM_ACTIONS
 
 CRITICS: Final[tuple[str, ...]] = ("safety", "goal")
 """The critics, in the order they are updated on a shared minibatch."""
@@ -174,38 +173,23 @@ class Learner:
                 "goal_updates": self.goal_updates,
             }
 
+    def critics(self) -> dict[str, Critic]:
+        """The critics by name (``CRITICS`` order)."""
+        return {"safety": self.safety, "goal": self.goal}
+
     def act(self, images: npt.ArrayLike) -> PolicyOutput:
         """Actions and priority signals for uint8 images (N, 64, 64, 3).
 
         ``risk`` / ``goal_risk`` are zeros when their critic is not in ``read_critics``
         (the algorithm does not read it: the critic's forward pass is skipped)."""
-        arr = check_images(images)
-        n = arr.shape[0]
-        if n == 0:
-            empty = np.zeros(0, dtype=np.float32)
-            return PolicyOutput(np.zeros(0, dtype=np.int64),
-                                np.zeros((0, NUM_ACTIONS), dtype=np.float32),
-                                empty, empty.copy(), empty.copy(), empty.copy())
-        with self._lock, torch.no_grad():
-            x = torch.from_numpy(arr).to(self.device)
-            signals = ensemble_signals(self.policy(x))
-            actions = signals["actions"]
-            risk = (self.safety.values(x, actions) if "safety" in self.read_critics
-                    else torch.zeros(n, device=self.device))
-            goal_risk = (1.0 - self.goal.values(x, actions) if "goal" in self.read_critics
-                         else torch.zeros(n, device=self.device))
+        nets = {name: (c.net, c.spec.combine) for name, c in self.critics().items()}
+        with self._lock:
+            return infer(self.policy, nets, self.read_critics, self.device, images)
 
-        def out(t: Tensor) -> np.ndarray:
-            return t.float().cpu().numpy()
-
-        return PolicyOutput(
-            actions=actions.cpu().numpy().astype(np.int64),
-            probs=out(signals["probs"]),
-            uncertainty=out(signals["uncertainty"]),
-            risk=out(risk),
-            goal_risk=out(goal_risk.clamp(0.0, 1.0)),
-            novelty=out(signals["novelty"]),
-        )
+    def acting_copy(self) -> Actor:
+        """An ``Actor``: ``act`` on copies of these networks, brought up to date by its
+        ``sync()``, so that act can run while ``train_step`` does (the fleet loop)."""
+        return Actor(self)
 
     def critic_values(self, images: npt.ArrayLike, actions: npt.ArrayLike
                       ) -> dict[str, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Training beside act (``FleetLoop`` with ``ActingCopy``) records what the serial order
+"""Training beside act (``FleetLoop`` with ``Learner.acting_copy()``) records what the serial order
 (act, then train) records, and leaves the learner in the same state.
 
 A real (small) learner on fake hosts whose pictures and outcomes are a seeded function
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ import numpy as np
 import torch
 
 from testbed.config import AlgorithmConfig, LearningConfig
-from testbed.fleet import ActingCopy, FleetLoop
+from testbed.fleet import FleetLoop
 from testbed.humans import ScriptedHumans
 from testbed.learning import Learner
 from testbed.priorities import get_algorithm
@@ -99,17 +100,28 @@ def test_training_beside_act_records_what_the_serial_order_records(tmp_path: Pat
 
 def test_acting_copy_follows_the_learner_and_shares_no_weights() -> None:
     learner = Learner(LearningConfig(ensemble_size=2, batch_size=8), seed=1, num_threads=1)
-    copy = ActingCopy.make(learner)
-    assert copy is not None
+    actor = learner.acting_copy()
     imgs = np.random.default_rng(1).integers(0, 256, (5, IMAGE_SIZE, IMAGE_SIZE, 3),
                                              dtype=np.uint8)
     before = learner.act(imgs)
+    for name, got in asdict(actor.act(imgs)).items():
+        np.testing.assert_array_equal(got, getattr(before, name), err_msg=name)
     with torch.no_grad():
-        for p in learner.policy.parameters():
-            p.add_(0.05)
-    np.testing.assert_array_equal(copy.act(imgs).probs, before.probs)  # not synced yet
-    copy.sync()
-    np.testing.assert_array_equal(copy.act(imgs).probs, learner.act(imgs).probs)
-    assert ActingCopy.make(object()) is None  # another shape of learner: the serial order
-    learner.extra = torch.nn.Linear(2, 2)  # a network the copy would not know: serial
-    assert ActingCopy.make(learner) is None
+        for net in (learner.policy, learner.safety.net, learner.goal.net):
+            for p in net.parameters():
+                p.add_(0.05)
+    stale = actor.act(imgs)  # not synced yet: the old weights
+    for name in ("probs", "risk", "goal_risk"):
+        np.testing.assert_array_equal(getattr(stale, name), getattr(before, name))
+    actor.sync()
+    now = learner.act(imgs)
+    for name, got in asdict(actor.act(imgs)).items():
+        np.testing.assert_array_equal(got, getattr(now, name), err_msg=name)
+    assert not np.array_equal(now.risk, before.risk)
+    learner.set_parts(read=())  # the parts follow the learner at the next sync
+    actor.sync()
+    assert not actor.act(imgs).risk.any() and not actor.act(imgs).goal_risk.any()
+    # and nothing is shared: training the learner leaves the actor's weights alone
+    ids = {id(p) for net in (learner.policy, learner.safety.net, learner.goal.net)
+           for p in net.parameters()}
+    assert not ids & {id(p) for p in actor._policy.parameters()}

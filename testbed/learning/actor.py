@@ -1,0 +1,116 @@
+"""Acting: the policy's decision and the priority signals, and an act-only copy of them.
+
+Why a copy: at the seed's fleet size (N = 100 arms) ``act`` is 0.2-0.4 s of forward
+passes on this CPU, as long as a large part of the training step. The fleet loop runs
+``act`` of step t beside ``train_step`` of step t, so the step costs the training step,
+not the sum (docs/notes/fleet.md). Both cannot use the same networks: the optimiser
+changes them in place while act reads them. ``Actor`` holds copies of the networks
+``act`` reads (the policy members and the online nets of the critics; no optimiser, no
+target, no data), brought up to date by ``sync()`` before the training step starts, so
+the policy used at t is always the one after exactly t training steps: a twin trial
+stays reproducible whatever the timing.
+
+``infer`` is the one implementation of the maths of ``act``, shared by ``Learner.act``
+(on the learner's own networks) and ``Actor.act`` (on the copies).
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from torch import Tensor, nn
+
+from testbed.learning.api import PolicyOutput, check_images
+from testbed.learning.critics import Combine, q_values
+from testbed.learning.policy import ensemble_signals
+from testbed.types import NUM_ACTIONS
+
+if TYPE_CHECKING:
+    from testbed.learning.learner import Learner
+
+CriticNets = Mapping[str, tuple[nn.Module, Combine]]
+"""Critic name -> (its online twin-Q network, how its heads combine)."""
+
+
+def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
+          device: torch.device, images: npt.ArrayLike) -> PolicyOutput:
+    """Actions and signals for uint8 images (N, 64, 64, 3); critics not in ``read`` give
+    zeros (their forward pass is skipped). The caller holds whatever lock guards the
+    networks."""
+    arr = check_images(images)
+    n = arr.shape[0]
+    if n == 0:
+        empty = np.zeros(0, dtype=np.float32)
+        return PolicyOutput(np.zeros(0, dtype=np.int64),
+                            np.zeros((0, NUM_ACTIONS), dtype=np.float32),
+                            empty, empty.copy(), empty.copy(), empty.copy())
+    with torch.no_grad():
+        x = torch.from_numpy(arr).to(device)
+        signals = ensemble_signals(policy(x))
+        actions = signals["actions"]
+        zeros = torch.zeros(n, device=device)
+        risk = q_values(*critics["safety"], x, actions) if "safety" in read else zeros
+        goal_risk = (1.0 - q_values(*critics["goal"], x, actions) if "goal" in read
+                     else zeros)
+
+    def out(t: Tensor) -> np.ndarray:
+        return t.float().cpu().numpy()
+
+    return PolicyOutput(
+        actions=actions.cpu().numpy().astype(np.int64),
+        probs=out(signals["probs"]),
+        uncertainty=out(signals["uncertainty"]),
+        risk=out(risk),
+        goal_risk=out(goal_risk.clamp(0.0, 1.0)),
+        novelty=out(signals["novelty"]),
+    )
+
+
+class Actor:
+    """``act`` of a learner on copies of its networks; ``sync()`` brings them up to date.
+
+    Made by ``Learner.acting_copy()``. ``sync`` copies the weights (about 6 MB at 5
+    members: a millisecond or two) and the learner's ``read_critics`` under the
+    learner's lock; call it while no training step runs (the fleet loop calls it just
+    before submitting one). ``act`` takes only the actor's own lock, so it runs while
+    the learner trains.
+    """
+
+    def __init__(self, learner: Learner) -> None:
+        self._learner = learner
+        self._lock = threading.Lock()
+        with learner._lock:
+            self._policy = copy.deepcopy(learner.policy).requires_grad_(False)
+            self._critics: dict[str, tuple[nn.Module, Combine]] = {
+                name: (copy.deepcopy(critic.net).requires_grad_(False), critic.spec.combine)
+                for name, critic in learner.critics().items()
+            }
+            self.read: frozenset[str] = learner.read_critics
+            self.device = learner.device
+
+    def _pairs(self) -> list[tuple[nn.Module, nn.Module]]:
+        """(copy, source) for every network the actor holds."""
+        sources = self._learner.critics()
+        return [(self._policy, self._learner.policy),
+                *((net, sources[name].net) for name, (net, _) in self._critics.items())]
+
+    def sync(self) -> None:
+        """Copy the learner's current weights and parts into this actor."""
+        with self._learner._lock, self._lock, torch.no_grad():
+            for dst, src in self._pairs():
+                for d, s in zip(dst.parameters(), src.parameters(), strict=True):
+                    d.copy_(s)
+                for d, s in zip(dst.buffers(), src.buffers(), strict=True):
+                    d.copy_(s)
+            self.read = self._learner.read_critics
+
+    def act(self, images: npt.ArrayLike) -> PolicyOutput:
+        """As ``Learner.act``, on the weights of the last ``sync``."""
+        with self._lock:
+            return infer(self._policy, self._critics, self.read, self.device, images)
