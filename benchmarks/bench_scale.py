@@ -85,10 +85,12 @@ class TimedHumans:
 
 
 class NoTraining:
-    """The real learner (act and the data calls timed), but ``train_step`` does nothing."""
+    """The real learner (its acting copy, compiled as the protocol says, and the data
+    calls timed), but ``train_step`` does nothing."""
 
     def __init__(self, learner: Any, splits: Splits) -> None:
         self.act = splits.timed("act", learner.act)
+        self.acting_copy = learner.acting_copy
         self.add_human = splits.timed("data", learner.add_human)
         self.add_transitions = splits.timed("data", learner.add_transitions)
 
@@ -136,17 +138,16 @@ def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train
     def checkpoint(step: int) -> None:
         snapshot(step, learner, {"algorithm": algorithm.state_dict()})
 
-    # With training the loop gets the real learner, so it acts on its acting copy beside
-    # the training step (as in run_trial); act is timed on that copy.
+    # The loop acts on the learner's acting copy (as in run_trial): beside the training
+    # step when there is one; act is timed on that copy.
     loop = FleetLoop(hosts=TimedHosts(hosts, splits), humans=TimedHumans(ScriptedHumans(),
                      splits), learner=learner if train else NoTraining(learner, splits),
                      algorithm=TimedAlgorithm(algorithm, splits),  # type: ignore[arg-type]
                      writer=TimedWriter(writer, splits),  # type: ignore[arg-type]
                      steps=t0 + warmup + steps, num_humans=cfg.humans.count,
                      t_T=cfg.algorithm.t_T, t_R=cfg.algorithm.t_R, after_step=checkpoint)
-    if train:
-        assert loop._actor is not None, "the loop should act beside the training step"
-        loop._actor.act = splits.timed("act", loop._actor.act)  # type: ignore[method-assign]
+    assert loop._actor is not None, "the loop should act on the learner's acting copy"
+    loop._actor.act = splits.timed("act", loop._actor.act)  # type: ignore[method-assign]
     walls: list[float] = []
     parts: list[dict[str, float]] = []
     try:
@@ -200,8 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     n, m = len(cfg.robot_names), cfg.humans.count
     print(f"fleet: {len(cfg.hosts)} twin hosts (one agent process each) = {n} arms, "
           f"{m} scripted humans, C.U.R., batch {cfg.learning.batch_size}, "
-          f"{cfg.learning.ensemble_size} members; {os.cpu_count()} cores; load {_load()}",
-          flush=True)
+          f"{cfg.learning.ensemble_size} members, compile_act "
+          f"{cfg.learning.compile_act}; {os.cpu_count()} cores; load {_load()}", flush=True)
 
     hosts = build_hosts(cfg, SEED)
     s = time.perf_counter()

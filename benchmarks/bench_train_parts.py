@@ -9,18 +9,28 @@ no critic). ``legacy_step`` below is today's ``_one_step`` verbatim, run on the 
 learner internals; the benchmark first checks it gives bit-identical weights to the new
 code with every part on (so it is a faithful "today").
 
-Both are timed in the same run, interleaved (new, old, old, new, ...: the order flips
-every repeat so that a load spike from other processes hits both alike), at the thread
-count the learner sets itself; medians and minima are printed, and the ratio of the
-medians (old / new: how many times faster). ``act`` for one step's 4 images likewise
-(the critics nobody reads are skipped).
+Today's code also ran torch on half the cores (1 thread on this 2-core machine, with
+OpenMP's spinning wait); the new default is every core with a passive wait
+(``testbed/learning/runtime.py``). So each algorithm is timed twice:
+
+1. parts only: new step vs ``legacy_step``, both at the new thread count;
+2. the whole change: new step at the new thread count vs ``legacy_step`` at today's
+   (``--old-threads``, default half the cores). OpenMP's wait policy is fixed for the
+   process when torch loads; at 1 thread it does not matter (no worker waits).
+
+Both sides are timed in the same run, interleaved (new, old, old, new, ...: the order
+flips every repeat so that a load spike from other processes hits both alike); medians
+and minima are printed, and the ratio of the medians (old / new: how many times
+faster). ``act`` for one step's 4 images likewise (the critics nobody reads are skipped).
 
     .venv/bin/python benchmarks/bench_train_parts.py [--repeats 9] [--members 5] [--batch 256]
+        [--old-threads N]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -75,6 +85,15 @@ def weights(learner: Learner) -> list[torch.Tensor]:
     return [p.detach().clone() for m in mods for p in m.parameters()]
 
 
+def at_threads(threads: int, fn: Callable[[], object]) -> Callable[[], object]:
+    """``fn`` run with torch at ``threads`` intra-op threads (set before each call: the
+    two sides of a comparison alternate in one process)."""
+    def call() -> object:
+        torch.set_num_threads(threads)
+        return fn()
+    return call
+
+
 def timed(fn: Callable[[], object]) -> float:
     start = time.perf_counter()
     fn()
@@ -111,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--old-threads", type=int, default=None,
+                        help="today's torch threads (default: half the cores, at least 1)")
     args = parser.parse_args(argv)
     cfg = LearningConfig(ensemble_size=args.members, batch_size=args.batch, device=args.device)
 
@@ -130,27 +151,44 @@ def main(argv: list[str] | None = None) -> int:
     del a, b
 
     images = np.zeros(0)
+    new_threads = Learner(cfg, args.seed).num_threads
+    old_threads = args.old_threads or max(1, (os.cpu_count() or 2) // 2)
+    print(f"threads: new {new_threads} (OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}), "
+          f"today's {old_threads}")
     ratios: dict[str, float] = {}
+    whole: dict[str, float] = {}
     for name in ("cur", "fleet-ed"):
         spec = ALGORITHMS[name]
         new = Learner(cfg, args.seed, train=spec.train_parts, read=spec.critics)
         old = Learner(cfg, args.seed)
         for learner in (new, old):
             images = fill(learner, args.seed)
-        new.train_step()  # warm-up: oneDNN primitives, allocator
-        legacy_step(old)
+        new_step = at_threads(new_threads, new.train_step)
+        old_step = partial(legacy_step, old)
+        new_step()  # warm-up: oneDNN primitives, allocator
+        at_threads(old_threads, old_step)()
+        at_threads(new_threads, old_step)()
         parts = ", ".join(sorted(spec.train_parts))
-        ts_new, ts_old = interleaved(new.train_step, partial(legacy_step, old), args.repeats)
-        ratios[name] = report(f"{name:8s} train step ({parts}) vs today's (policy, safety, "
-                              "goal)", ts_new, ts_old)
+        ts_new, ts_old = interleaved(new_step, at_threads(new_threads, old_step),
+                                     args.repeats)
+        ratios[name] = report(f"{name:8s} 1. parts: train step ({parts}) vs today's "
+                              f"(policy, safety, goal), both at {new_threads} threads",
+                              ts_new, ts_old)
+        ts_new, ts_old = interleaved(new_step, at_threads(old_threads, old_step),
+                                     args.repeats)
+        whole[name] = report(f"{name:8s} 2. whole: train step ({parts}) at {new_threads} "
+                             f"threads vs today's at {old_threads}", ts_new, ts_old)
+        torch.set_num_threads(new_threads)
         batch = images[:4]
         act_new, act_old = interleaved(partial(new.act, batch), partial(old.act, batch),
                                        max(20, args.repeats))
         report(f"{name:8s} act, 4 images (critics read: "
                f"{', '.join(sorted(spec.critics)) or 'none'}) vs today's (both)",
                act_new, act_old)
-    print("speed-up of one training step (median, today / new): "
+    print("speed-up of one training step (median, today / new), parts only: "
           + ", ".join(f"{k} {v:.2f}x" for k, v in ratios.items()))
+    print("speed-up of one training step (median, today / new), parts and threads "
+          "(target >= 2x): " + ", ".join(f"{k} {v:.2f}x" for k, v in whole.items()))
     return 0
 
 

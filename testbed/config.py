@@ -295,6 +295,10 @@ class LearningConfig(_Strict):
     gamma_safe: float = Field(0.5, ge=0, le=1)
     gamma_goal: float = Field(0.999, ge=0, le=1)
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    compile_act: bool = Field(
+        False, description="run the fleet loop's forward pass through torch.compile: "
+        "1.65x faster at 100 arms on 2 CPU cores, ~20 s to compile, needs a C compiler "
+        "(falls back to eager with a warning); not worth it for a few arms")
 
     @property
     def critic_steps(self) -> int:

@@ -147,12 +147,12 @@ class FleetLoop:
         self._pending: dict[str, _Pending] = {}
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
         self._after_step = after_step
-        # A learner without an acting copy (a test's fake) acts itself, before the
-        # training step starts: the serial order.
+        # Act on the learner's acting copy (beside the training step when the algorithm
+        # learns; compiled when learning.compile_act). A learner without one (a test's
+        # fake) acts itself, before the training step starts: the serial order.
         make_actor = getattr(learner, "acting_copy", None)
         self._actor: ActorLike | None = (
-            make_actor() if overlap_act and algorithm.learns and callable(make_actor)
-            else None)
+            make_actor() if overlap_act and callable(make_actor) else None)
         self.status = FleetStatus(t=0, steps=steps)
 
     # ---- counters -------------------------------------------------------------------
@@ -253,7 +253,8 @@ class FleetLoop:
         training: Future[dict[str, float]] | None = None
         if self._actor is not None:  # train beside act: act reads the up-to-date copy
             self._actor.sync()
-            training = self._executor.submit(self.learner.train_step)
+            if self.algorithm.learns:
+                training = self._executor.submit(self.learner.train_step)
         try:
             out = (self._actor or self.learner).act(images)
             if training is None and self.algorithm.learns:  # serial: after act

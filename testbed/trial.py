@@ -255,6 +255,9 @@ def run_trial(
                                                 critics=critics)
             # whatever theta_0 had trained: from here on only what this algorithm reads
             learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
+            if callable(getattr(learner, "numerics", None)):  # threads etc., for the lab
+                run_meta["numerics"] = learner.numerics()
+                run.write_meta(run_meta)
         except HumansStopRequested as stop:  # Esc while the demos were being collected
             LOG.warning("trial stopped by the operator before step %d: %s", start, stop)
             stopped_at = start

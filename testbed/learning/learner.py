@@ -173,6 +173,14 @@ class Learner:
                 "goal_updates": self.goal_updates,
             }
 
+    def numerics(self) -> dict[str, Any]:
+        """What decides this learner's numbers besides the seed (for run.json): the same
+        seed gives the same weights only with the same torch, thread count, device and
+        ``compile_act`` (reductions split differently across threads)."""
+        return {"torch": torch.__version__, "threads": self.num_threads,
+                "device": str(self.device), "impl": self.impl,
+                "compile_act": self.cfg.compile_act}
+
     def critics(self) -> dict[str, Critic]:
         """The critics by name (``CRITICS`` order)."""
         return {"safety": self.safety, "goal": self.goal}
@@ -188,8 +196,9 @@ class Learner:
 
     def acting_copy(self) -> Actor:
         """An ``Actor``: ``act`` on copies of these networks, brought up to date by its
-        ``sync()``, so that act can run while ``train_step`` does (the fleet loop)."""
-        return Actor(self)
+        ``sync()``, so that act can run while ``train_step`` does (the fleet loop);
+        compiled when ``cfg.compile_act``."""
+        return Actor(self, compile=self.cfg.compile_act)
 
     def critic_values(self, images: npt.ArrayLike, actions: npt.ArrayLike
                       ) -> dict[str, np.ndarray]:

@@ -119,6 +119,10 @@ def test_same_seed_same_records_cold_then_warm_one_agent_per_host(workdir: Path)
             agents.append(_agents_of(proc))
         assert proc.wait(timeout=10) == 0, err.read_text()[-3000:]
     assert [len(a) for a in agents] == [2, 2]  # 2 hosts: pretraining reused the trial's
+    # at the default threads: every core this process may use, OpenMP passive
+    numerics = json.loads((workdir / "cold" / "r1" / "run.json").read_text())["numerics"]
+    assert numerics["threads"] == len(os.sched_getaffinity(0)), numerics
+    assert numerics["compile_act"] is False
     a = (workdir / "cold" / "r1" / "steps.jsonl").read_text()
     b = (workdir / "cold" / "r2" / "steps.jsonl").read_text()
     assert '"wall_time":' in a and a != b
