@@ -132,6 +132,10 @@ def trial_options(cfg: FleetConfig, args: argparse.Namespace, **over: Any) -> Tr
     for k, v in over.items():
         setattr(opts, k, v)
     _check_algorithm(opts.algorithm)
+    if opts.algorithm == "random" and cfg.algorithm.budget_match is not None:
+        raise ConfigError(f"algorithm.random_budget = {cfg.algorithm.random_budget!r} is "
+                          "resolved by a protocol (from the matched run of the same trial); "
+                          "give a number in [0, 1] for a trial alone")
     check_name(opts.name)
     check_out_dir("--out (or trial.out)", opts.out)
     check_device(cfg)

@@ -265,6 +265,10 @@ class HumansConfig(_Strict):
     kind: Literal["scripted", "gui"] = "scripted"
 
 
+MATCH_BUDGET = re.compile(r"match:[a-z0-9][a-z0-9-]*")
+"""``random_budget = "match:<algorithm>"``: Random gets the human effort of that algorithm."""
+
+
 class AlgorithmConfig(_Strict):
     """Allocation hyperparameters (seed 8.3, Table 1; DESIGN.md section 4)."""
 
@@ -276,8 +280,27 @@ class AlgorithmConfig(_Strict):
     r_hat: float = Field(0.5, ge=0.0, le=1.0, description="risk threshold")
     thrifty_alpha: float = Field(0.5, ge=0.0, le=1.0)
     thrifty_threshold: float = 0.0
-    random_budget: float = Field(0.3, ge=0.0, le=1.0,
-                                 description="Random: mean fraction of humans busy")
+    random_budget: float | str = Field(
+        0.3, description="Random: the mean fraction of humans busy, or 'match:<algorithm>' "
+        "(in a protocol: the fraction that algorithm's run of the same trial used)")
+
+    @field_validator("random_budget")
+    @classmethod
+    def _budget(cls, v: float | str) -> float | str:
+        if isinstance(v, str):
+            if not MATCH_BUDGET.fullmatch(v):
+                raise ValueError("a number in [0, 1] or 'match:<algorithm>', e.g. 'match:cur'")
+            return v
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"the fraction of humans busy must be in [0, 1], got {v}")
+        return float(v)
+
+    @property
+    def budget_match(self) -> str | None:
+        """The algorithm Random's budget matches (``match:<algorithm>``), else None."""
+        if isinstance(self.random_budget, str):
+            return self.random_budget.split(":", 1)[1]
+        return None
 
 
 class LearningConfig(_Strict):

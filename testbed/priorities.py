@@ -511,6 +511,9 @@ def _thrifty(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
 @_reading(RandomPriority.reads)
 def _random(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
             allocator: Allocator) -> PriorityFunction:
+    if isinstance(p.random_budget, str):  # a protocol resolves it before the run starts
+        raise ValueError(f"random_budget = {p.random_budget!r} is resolved by a protocol "
+                         "from the matched algorithm's run; give a number for a trial alone")
     return RandomPriority(n, m, budget=p.random_budget, seed=seed, allocator=allocator)
 
 

@@ -82,6 +82,12 @@ class Protocol(BaseModel):
             raise ValueError(f"unknown algorithm {bad[0]!r}; use {', '.join(ALGORITHM_NAMES)}")
         if self.seeds is not None and len(self.seeds) != self.trials:
             raise ValueError("seeds must have one seed per trial")
+        match = self.fleet.algorithm.budget_match
+        if (match is not None and "random" in self.algorithms
+                and (match not in self.algorithms or match == "random")):
+            raise ValueError(
+                f"fleet.algorithm.random_budget = 'match:{match}': {match!r} must be "
+                "another of the protocol's algorithms (its run sets Random's budget)")
         return self
 
     def seed(self, k: int) -> int:
@@ -97,7 +103,7 @@ class Protocol(BaseModel):
         rerun of the protocol gets the same orders.
         """
         if self.order == "fixed" or len(self.algorithms) < 2:
-            return list(self.algorithms)
+            return self._matched_first(list(self.algorithms))
         import numpy as np
 
         n = len(self.algorithms)
@@ -107,7 +113,19 @@ class Protocol(BaseModel):
         row_order = rng.permutation(len(rows))
         label = rng.permutation(n)
         row = rows[int(row_order[k % len(rows)])]
-        return [self.algorithms[int(label[j])] for j in row]
+        return self._matched_first([self.algorithms[int(label[j])] for j in row])
+
+    def _matched_first(self, order: list[str]) -> list[str]:
+        """With ``random_budget = "match:<a>"``: Random moved right after ``a`` when it
+        would run first (its budget is read from a's run of the same trial)."""
+        match = self.fleet.algorithm.budget_match
+        if match is None or "random" not in order or match not in order:
+            return order
+        if order.index("random") > order.index(match):
+            return order
+        order.remove("random")
+        order.insert(order.index(match) + 1, "random")
+        return order
 
 
 def pretrain_critics(algorithms: list[str]) -> list[str]:
@@ -215,8 +233,16 @@ def run_protocol(
             )
             if run.path.exists() and resume is None:
                 _discard(run.path)
-            meta = {"protocol": {"name": proto.name, "trial": k, "position": position,
-                                 "order": order, "ordering": proto.order}}
+            meta: dict[str, Any] = {
+                "protocol": {"name": proto.name, "trial": k, "position": position,
+                             "order": order, "ordering": proto.order}}
+            run_cfg = cfg
+            if algorithm == "random" and cfg.algorithm.budget_match is not None:
+                matched = f"{cfg.algorithm.budget_match}-t{k}"
+                budget = matched_budget(folder / matched, cfg.humans.count)
+                meta["budget_matched"] = {"run": matched, "random_budget": budget}
+                run_cfg = cfg.model_copy(update={"algorithm": cfg.algorithm.model_copy(
+                    update={"random_budget": budget})})
             with TrialProgress(proto.steps, cfg.humans.count, len(cfg.robot_names),
                                label=name) as bar:
 
@@ -226,7 +252,7 @@ def run_protocol(
                         on_step(outcome)
 
                 _, summary = run_trial(
-                    cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
+                    run_cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
                     humans=humans(name) if humans is not None else None, meta=meta,
                     host_configs=cfg.hosts if resume is not None else None,
                     wrap_hosts=wrap_hosts)
@@ -239,6 +265,23 @@ def run_protocol(
                 except ConfigError:  # nothing finished yet
                     return Report(folder, note + "\n", [], [note])
     return write_report([folder], folder)
+
+
+def matched_budget(run: Path, num_humans: int) -> float:
+    """The fraction of humans busy in a finished run: human actions (teleop and reset
+    arm-steps) / (humans x steps), read from its steps.jsonl. Random given it as its
+    budget spends the same human effort (``RandomPriority`` keeps its effort on budget)."""
+    from testbed.config import ConfigError
+    from testbed.records import read_steps
+    from testbed.runs import RunDir
+
+    rd = RunDir(run)
+    if not rd.summary.exists():
+        raise ConfigError(f"random_budget 'match:': {run} has not finished; the matched "
+                          "algorithm runs before Random in each trial")
+    rows = list(read_steps(rd.steps))
+    human = sum(r["mode"] in ("teleop", "reset") for row in rows for r in row["robots"])
+    return min(1.0, human / (num_humans * len(rows))) if rows and num_humans else 0.0
 
 
 def _discard(path: Path) -> None:
@@ -255,5 +298,5 @@ def _prompt(text: str) -> None:
     input(f"{text} ")
 
 
-__all__: list[Any] = ["Protocol", "load_protocol", "pretrain_critics", "run_protocol",
-                     "williams_square"]
+__all__: list[Any] = ["Protocol", "load_protocol", "matched_budget", "pretrain_critics",
+                     "run_protocol", "williams_square"]

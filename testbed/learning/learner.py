@@ -32,6 +32,7 @@ seed and the same calls give the same weights on CPU, also across save/load.
 
 from __future__ import annotations
 
+import copy
 import threading
 import warnings
 from collections.abc import Iterable, Iterator
@@ -367,6 +368,17 @@ class Learner:
                 "counters": [self.policy_updates, self.critic_updates,
                              self.safety_updates, self.goal_updates],
             }
+
+    def snapshot(self) -> dict[str, Any]:
+        """``state_dict()`` with every tensor its own copy, for a checkpoint written in a
+        thread while training goes on. The data's state is already a fresh copy, so only
+        the rest (weights, optimisers: tensors that training changes in place) is
+        deep-copied: one copy of the data per checkpoint, not two (at N = 100 arms the
+        data grows ~2.5 MB a step and this copy is in the loop's thread)."""
+        with self._lock:
+            state = self.state_dict()
+            fresh = {k: state.pop(k) for k in ("policy_data", "transitions")}
+            return {**copy.deepcopy(state), **fresh}
 
     def save(self, path: str | Path) -> Path:
         """Write a checkpoint atomically (temp file, fsync, os.replace)."""

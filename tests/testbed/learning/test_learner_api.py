@@ -125,6 +125,27 @@ def test_save_load_round_trip_continues_exactly(tmp_path: Path) -> None:
     assert [p.name for p in tmp_path.iterdir()] == ["ckpt.pt"]  # no temp file left
 
 
+def test_snapshot_is_the_state_now_whatever_training_does_next(tmp_path: Path) -> None:
+    """The checkpoint's snapshot shares no tensor with the learner: a checkpoint written
+    while training and data go on holds the state of the step it was taken at."""
+    learner = filled()
+    learner.train_step()
+    snap = learner.snapshot()
+    ckpt.save_atomic(learner.state_dict(), tmp_path / "now.pt")
+    more = transitions(5, np.random.default_rng(4))
+    learner.add_human(more.images, more.actions)
+    learner.add_transitions(more.images, more.actions, more.next_images, more.violation,
+                            more.success)
+    learner.train_step()
+    ckpt.save_atomic(snap, tmp_path / "snap.pt")
+    a, b = Learner.load(tmp_path / "now.pt"), Learner.load(tmp_path / "snap.pt")
+    assert same(params(a), params(b))
+    assert a.stats() == b.stats() != learner.stats()
+    opt_a = a.policy_optimizer.state_dict()["state"]
+    opt_b = b.policy_optimizer.state_dict()["state"]
+    assert all(torch.equal(opt_a[k]["exp_avg"], opt_b[k]["exp_avg"]) for k in opt_a)
+
+
 def test_load_checks_the_shape_defining_config(tmp_path: Path) -> None:
     path = filled().save(tmp_path / "c.pt")
     with pytest.raises(LearningError, match="ensemble_size"):
