@@ -18,6 +18,7 @@ The machine may be shared: the load average (``os.getloadavg``) is printed at ea
 phase; the start-up of the 50 agents is timed apart and warm-up steps are dropped.
 
     .venv/bin/python benchmarks/bench_scale.py [--steps 20] [--warmup 5] [--train 8]
+        [--compile-act on|off] [--no-checkpoint]
 """
 
 from __future__ import annotations
@@ -114,17 +115,21 @@ class TimedWriter:
         self.write_step = splits.timed("log", writer.write_step)
 
 
-def _config(pretrain_steps: int) -> FleetConfig:
+def _config(pretrain_steps: int, compile_act: bool | None) -> FleetConfig:
     """The protocol's fleet; theta_0 smaller than the protocol's (the step does not
     depend on how good the policy is, only on the trial's hyperparameters, kept)."""
     cfg = load_fleet(PROTOCOL)
-    learning = cfg.learning.model_copy(update={
-        "pretrain_steps": pretrain_steps, "demos": 200, "critic_transitions": 200})
+    update: dict[str, Any] = {
+        "pretrain_steps": pretrain_steps, "demos": 200, "critic_transitions": 200}
+    if compile_act is not None:
+        update["compile_act"] = compile_act
+    learning = cfg.learning.model_copy(update=update)
     return cfg.model_copy(update={"learning": learning})
 
 
 def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train: bool,
-             warmup: int, steps: int, t0: int) -> tuple[list[float], list[dict[str, float]]]:
+             warmup: int, steps: int, t0: int, checkpoint_every_step: bool = True,
+             ) -> tuple[list[float], list[dict[str, float]]]:
     """``warmup + steps`` loop steps as run_trial runs them; the measured steps' wall
     times and splits."""
     splits = Splits()
@@ -145,7 +150,8 @@ def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train
                      algorithm=TimedAlgorithm(algorithm, splits),  # type: ignore[arg-type]
                      writer=TimedWriter(writer, splits),  # type: ignore[arg-type]
                      steps=t0 + warmup + steps, num_humans=cfg.humans.count,
-                     t_T=cfg.algorithm.t_T, t_R=cfg.algorithm.t_R, after_step=checkpoint)
+                     t_T=cfg.algorithm.t_T, t_R=cfg.algorithm.t_R,
+                     after_step=checkpoint if checkpoint_every_step else None)
     assert loop._actor is not None, "the loop should act on the learner's acting copy"
     loop._actor.act = splits.timed("act", loop._actor.act)  # type: ignore[method-assign]
     walls: list[float] = []
@@ -193,10 +199,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--train", type=int, default=8,
                     help="training steps alone, before and after the loop with training")
     ap.add_argument("--pretrain-steps", type=int, default=20)
+    ap.add_argument("--no-checkpoint", action="store_true",
+                    help="no per-step checkpoint (to see what its background write costs)")
+    ap.add_argument("--compile-act", choices=["on", "off"], default=None,
+                    help="override the protocol's learning.compile_act")
     ap.add_argument("--out", default=None, help="work folder (keeps theta_0 cached); "
                     "default: a fresh temp folder")
     args = ap.parse_args(argv)
-    cfg = _config(args.pretrain_steps)
+    cfg = _config(args.pretrain_steps,
+                  None if args.compile_act is None else args.compile_act == "on")
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench-scale-"))
     n, m = len(cfg.robot_names), cfg.humans.count
     print(f"fleet: {len(cfg.hosts)} twin hosts (one agent process each) = {n} arms, "
@@ -222,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
         # 1. without training
         load1 = _load()
         walls, parts = run_loop(cfg, hosts, learner, out / "no-training", train=False,
-                                warmup=args.warmup, steps=args.steps, t0=0)
+                                warmup=args.warmup, steps=args.steps, t0=0,
+                                checkpoint_every_step=not args.no_checkpoint)
         step = statistics.median(walls) * 1e3
         print(f"1. loop step WITHOUT training (median of {args.steps}, load {load1}): "
               f"{step:.0f} ms; ratio to the {TARGET_MS:.0f} ms target {step / TARGET_MS:.2f}")
@@ -238,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         load2 = _load()
         walls, parts = run_loop(cfg, hosts, learner, out / "training", train=True,
                                 warmup=args.warmup, steps=args.steps,
-                                t0=args.warmup + args.steps)
+                                t0=args.warmup + args.steps,
+                                checkpoint_every_step=not args.no_checkpoint)
         alone += train_alone(learner, args.train)
         train = statistics.median(alone) * 1e3
         step = statistics.median(walls) * 1e3

@@ -77,7 +77,10 @@ def find_runs(dirs: list[Path]) -> list[Path]:
 def load_run(path: Path) -> RunRecord:
     meta = json.loads((path / "run.json").read_text()) if (path / "run.json").exists() else {}
     opts = meta.get("options", {})
-    algorithm = opts.get("algorithm") or path.name.split("-t")[0]
+    # an evaluation's label (eval:<algorithm>) keeps it out of the training rows; runs
+    # from before labels: an evaluation is marked by its options' "evaluate"
+    algorithm = (opts.get("label") or ("eval:policy" if opts.get("evaluate") else None)
+                 or opts.get("algorithm") or path.name.split("-t")[0])
     num_humans = _num_humans(path)
     steps = read_steps(path / "steps.jsonl")
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)

@@ -57,6 +57,10 @@ class TrialOptions:
     policy: str | None = None
     evaluate: bool = False
     name: str | None = None
+    label: str | None = None
+    """What the records call the run's algorithm (summary.json, the report's row);
+    None: ``algorithm``. An evaluation is ``eval:<the evaluated run's algorithm>``, so
+    it never lands in a training algorithm's row (it allocates as ``bc`` does)."""
     pretrain_critics: list[str] | None = None
     """The critics theta_0 is pretrained with (``"safety"``, ``"goal"``): a protocol
     sets the union over its algorithms, so they all share one theta_0. The trial's own
@@ -320,10 +324,10 @@ def run_trial(
         run_meta.update(status=STOPPED, stopped_at=stopped_at, stopped_time=time.time())
         run.write_meta(run_meta)
         summary = summarize(read_steps(run.steps) if run.steps.exists() else [],
-                            algorithm=opts.algorithm, num_humans=cfg.humans.count,
-                            num_robots=num_robots)
+                            algorithm=opts.label or opts.algorithm,
+                            num_humans=cfg.humans.count, num_robots=num_robots)
         return run, {**summary, "status": STOPPED, "stopped_at": stopped_at}
-    summary = write_summary(run, opts.algorithm, cfg.humans.count, num_robots)
+    summary = write_summary(run, opts.label or opts.algorithm, cfg.humans.count, num_robots)
     run_meta.update(status=COMPLETE, finished=time.time())
     run.write_meta(run_meta)
     return run, {**summary, "status": COMPLETE}

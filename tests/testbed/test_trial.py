@@ -229,9 +229,17 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert len(steps) == 5
     assert all(r["mode"] in ("autonomous", "reset", "idle") for s in steps for r in s["robots"])
 
+    meta = json.loads((workdir / "evals" / "e" / "run.json").read_text())
+    assert meta["evaluates"] == {"policy": str(out / "cur-t0" / "learner.pt"),
+                                 "run": "cur-t0", "algorithm": "cur"}
+    summary = json.loads((workdir / "evals" / "e" / "summary.json").read_text())
+    assert summary["algorithm"] == "eval:cur"
+
     rep = _cli("report", str(out), str(workdir / "evals"), "--out", "both", cwd=workdir)
     assert rep.returncode == 0, rep.stderr[-3000:]
-    assert (workdir / "both" / "report.md").exists()
+    md = (workdir / "both" / "report.md").read_text()
+    # the evaluation has its own row: the training rows still hold their 2 trials each
+    assert "| eval:cur | 1 |" in md and "| bc | 2 |" in md and "| cur | 2 |" in md
 
 
 def test_check_preflights_every_arm_and_writes_a_mosaic(workdir: Path) -> None:
