@@ -193,7 +193,8 @@ def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = No
              for h in cfg.hosts]
     which = critic_set(critics)
     fields: dict[str, Any] = {
-        "learning": cfg.learning.model_dump(mode="json"),
+        # compile_act changes how act runs, not what theta_0 is
+        "learning": cfg.learning.model_dump(mode="json", exclude={"compile_act"}),
         "hosts": hosts,
         "t_R": cfg.algorithm.t_R,
         "seed": seed,

@@ -496,6 +496,9 @@ def _ordered(order: str, *, initial_period: bool) -> PriorityFactory:
     def build(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
               allocator: Allocator) -> PriorityFunction:
         del m, seed, allocator
+        if isinstance(p.u_hat, str) or isinstance(p.r_hat, str):
+            raise ValueError("u_hat / r_hat given as quantiles are resolved on theta_0 by "
+                             "the trial (testbed/thresholds.py) before the algorithm is built")
         return OrderedPriority(order, n, initial_period=p.t_I if initial_period else 0,
                                u_hat=p.u_hat, r_hat=p.r_hat)
     return build

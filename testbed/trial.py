@@ -228,8 +228,12 @@ def run_trial(
         cfg = _with_hosts(cfg, host_configs, run.path)
     num_robots = len(cfg.robot_names)
 
+    # Thresholds given as quantiles are resolved on theta_0 below: until then the
+    # algorithm is built with placeholders (its spec is all that pretraining needs).
+    pending = cfg.algorithm.quantile_thresholds
     algorithm = get_algorithm(
-        opts.algorithm, cfg.algorithm, num_robots, cfg.humans.count, opts.seed
+        opts.algorithm, cfg.algorithm.model_copy(update=dict.fromkeys(pending, 0.0)),
+        num_robots, cfg.humans.count, opts.seed
     )
     if humans is None:
         humans = make_humans(opts.humans, cfg.humans.count)
@@ -257,6 +261,15 @@ def run_trial(
                 learner, _ = pretrained_learner(cfg, humans, Path(opts.out), progress,
                                                 hosts=hosts, trial_seed=opts.seed,
                                                 critics=critics)
+            if pending:  # a new run (a resumed one reads the resolved config back)
+                from testbed.thresholds import resolve_thresholds
+
+                cfg, resolved = resolve_thresholds(cfg, learner)
+                run.write_config(cfg)
+                run_meta["thresholds"] = resolved
+                run.write_meta(run_meta)
+                algorithm = get_algorithm(opts.algorithm, cfg.algorithm, num_robots,
+                                          cfg.humans.count, opts.seed)
             # whatever theta_0 had trained: from here on only what this algorithm reads
             learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
             if callable(getattr(learner, "numerics", None)):  # threads etc., for the lab

@@ -124,6 +124,10 @@ class PolicyData:
         copy = torch.randint(self.factor, index.shape, generator=gen)
         return self._store["images"][index, copy], self._store["actions"][index]
 
+    def originals(self) -> np.ndarray:
+        """The labelled images as they were added (uint8 (N, 64, 64, 3), a copy)."""
+        return self._store["images"][:, 0].numpy().copy()
+
     def state_dict(self) -> dict[str, Any]:
         """Originals, weights and per-chunk (size, seed, digest of the copies): the copies
         themselves are re-made on load (a checkpoint ~10x smaller, no hashing at save)."""

@@ -201,6 +201,25 @@ class Learner:
         compiled when ``cfg.compile_act``."""
         return Actor(self, compile=self.cfg.compile_act)
 
+    def signals_on_data(self, limit: int = 2000) -> dict[str, np.ndarray]:
+        """``uncertainty`` and ``risk`` (the safety critic at pi(s)) on the states of this
+        learner's transitions (theta_0's: its pretraining rollouts, the states the robots
+        visit at first), or of its labelled images when it has no transition; the first
+        ``limit``. Empty arrays without data. For thresholds given as quantiles."""
+        with self._lock:
+            if len(self.transitions):
+                images = self.transitions.gather(torch.arange(min(limit, len(
+                    self.transitions))))["images"].numpy()
+            else:
+                images = self.policy_data.originals()[:limit]
+            if len(images) == 0:
+                return {"uncertainty": np.zeros(0, np.float32), "risk": np.zeros(0, np.float32)}
+            nets = {name: (c.net, c.spec.combine) for name, c in self.critics().items()}
+            out = [infer(self.policy, nets, frozenset({"safety"}), self.device,
+                         images[i:i + 256]) for i in range(0, len(images), 256)]
+        return {"uncertainty": np.concatenate([o.uncertainty for o in out]),
+                "risk": np.concatenate([o.risk for o in out])}
+
     def critic_values(self, images: npt.ArrayLike, actions: npt.ArrayLike
                       ) -> dict[str, np.ndarray]:
         """The critics at given actions (diagnostics, tests): ``risk`` = Q_risk(s, a),
