@@ -522,12 +522,13 @@ in C.U.R. runs (the seed's 0.05 made 55% of the twin's arm-steps eligible)."""
 def default_twin_config() -> FleetConfig:
     """2 twin hosts x 2 arms, 2 scripted humans, local transport, 250 steps, C.U.R.
 
-    Pretraining is sized so that README command 1 (setup, pretraining and the 250-step
-    trial at the paper's batch 256) finishes within 10 minutes on a 2-core machine: 60
-    policy + 60 critic steps (~2 min). 120 steps evaluated no better within the noise of
-    ``testbed evaluate`` (docs/notes/fleet.md, issue 13); the paper-scale pretraining
-    lives in ``protocols/*.toml``. u_hat is the twin's calibrated 0.17, as in
-    ``protocols/twin.toml`` (docs/notes/fleet.md).
+    Pretraining is sized for README command 1's 10-minute target (setup, pretraining
+    and the 250-step trial at the paper's batch 256, on a 2-core machine): 60 policy +
+    60 critic steps (~2 min; the trial's training steps are the rest). 120 steps
+    evaluated no better within the noise of ``testbed evaluate`` (docs/notes/fleet.md,
+    issue 13); the paper-scale pretraining lives in ``protocols/*.toml``. u_hat is the
+    twin's 0.17: the 75th percentile of the uncertainty in C.U.R. runs, measured before
+    quantile thresholds existed (the protocols now give ``"q0.75"``).
     """
     return FleetConfig(algorithm=AlgorithmConfig(u_hat=TWIN_U_HAT),
                        learning=LearningConfig(pretrain_steps=60, critic_transitions=400))

@@ -10,8 +10,8 @@ The training step of timestep t starts as soon as its data is in (right after th
 observation, which completes the last step's transitions) and runs while the learner
 acts, the humans answer and the arms push; it is joined before the step is logged.
 ``act`` reads a copy of the networks brought up to date just before the training step
-starts (``Learner.acting_copy()``), so the policy used at t is always the one after exactly t
-training steps, whatever the timing: a twin trial with scripted humans is
+starts (``Learner.acting_copy()``), so the policy used at t is always the one after
+exactly t training steps, whatever the timing: a twin trial with scripted humans is
 reproducible, overlap included, and its records are those of the serial order (act,
 then train). At N = 100 arms the policy's forward pass is a large part of a step;
 overlapping it with training makes the step cost the training step, not the sum

@@ -205,6 +205,7 @@ def run_trial(
     if resume is not None:
         run = RunDir(resume)
         cfg = run.read_config()
+        written = cfg
         run_meta = run.read_meta()
         opts = TrialOptions(**run_meta["options"])
         if not run.state.exists():
@@ -220,6 +221,7 @@ def run_trial(
     else:
         run = new_run_dir(opts.out, opts.name or f"{opts.algorithm}-s{opts.seed}")
         run.write_config(cfg)
+        written = cfg  # config.toml: the fleet as given (not host_configs' rewrite)
         run_meta = {**(meta or {}), "options": opts.__dict__, "created": time.time(),
                     "status": RUNNING}
         run.write_meta(run_meta)
@@ -265,7 +267,7 @@ def run_trial(
                 from testbed.thresholds import resolve_thresholds
 
                 cfg, resolved = resolve_thresholds(cfg, learner)
-                run.write_config(cfg)
+                run.write_config(written.model_copy(update={"algorithm": cfg.algorithm}))
                 run_meta["thresholds"] = resolved
                 run.write_meta(run_meta)
                 algorithm = get_algorithm(opts.algorithm, cfg.algorithm, num_robots,

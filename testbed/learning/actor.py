@@ -15,8 +15,8 @@ stays reproducible whatever the timing.
 
 ``learning.compile_act``: the actor's copies run through ``torch.compile`` (inductor).
 Measured on this 2-core CPU (``benchmarks/bench_act.py``): act on 100 images, 5 members
-+ the safety critic, 2 threads: eager ~205 ms, compiled ~125 ms (inductor fuses each
-ELU into its convolution's output; ELU's expm1 was a third of the eager time), ~20 s to
++ the safety critic, 2 threads: eager 183 ms, compiled 110 ms (inductor fuses each ELU
+into its convolution's output; ELU's expm1 was a third of the eager time), 11-20 s to
 compile once per trial. For training, compiling lost (policy step 1008 vs 892 ms), and
 at the default trial's 4 arms act is ~14 ms: so it is off by default and on in
 ``protocols/twin-scale.toml``. Compiled numbers differ from eager in the last bits, so a
