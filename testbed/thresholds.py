@@ -16,6 +16,7 @@ says what fraction of early states count as uncertain, which does.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -25,11 +26,12 @@ from testbed.config import ConfigError, FleetConfig
 SIGNAL = {"u_hat": "uncertainty", "r_hat": "risk"}
 
 
-def resolve_thresholds(cfg: FleetConfig, learner: Any) -> tuple[FleetConfig, dict[str, Any]]:
-    """``cfg`` with every quantile threshold replaced by its value on ``learner``'s data,
-    and what was resolved (name -> quantile, value, signal, states). Unchanged when every
-    threshold is a number."""
-    wanted = cfg.algorithm.quantile_thresholds
+def resolve_thresholds(cfg: FleetConfig, learner: Any, only: Mapping[str, float] | None = None,
+                       ) -> tuple[FleetConfig, dict[str, Any]]:
+    """``cfg`` with the quantile thresholds (``only`` those, e.g. the ones the run's
+    algorithm reads) replaced by their values on ``learner``'s data, and what was
+    resolved (name -> quantile, value, signal, states). Unchanged when none is left."""
+    wanted = cfg.algorithm.quantile_thresholds if only is None else dict(only)
     if not wanted:
         return cfg, {}
     signals = learner.signals_on_data()

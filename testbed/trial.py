@@ -34,7 +34,7 @@ from testbed.offline import (
     pretrain_key,
     save_transitions,
 )
-from testbed.priorities import get_algorithm
+from testbed.priorities import ALGORITHMS, get_algorithm
 from testbed.records import (
     RunWriter,
     atomic_write_json,
@@ -43,6 +43,7 @@ from testbed.records import (
     truncate_torn_tail,
 )
 from testbed.runs import RunDir, new_run_dir
+from testbed.thresholds import SIGNAL, resolve_thresholds
 
 LOG = logging.getLogger(__name__)
 
@@ -230,11 +231,14 @@ def run_trial(
         cfg = _with_hosts(cfg, host_configs, run.path)
     num_robots = len(cfg.robot_names)
 
-    # Thresholds given as quantiles are resolved on theta_0 below: until then the
-    # algorithm is built with placeholders (its spec is all that pretraining needs).
-    pending = cfg.algorithm.quantile_thresholds
+    # Thresholds given as quantiles are resolved on theta_0 below, those the algorithm
+    # reads (BC reads neither): until then it is built with placeholders (its spec is
+    # all that pretraining needs). Unread ones stay as given in config.toml.
+    quantiles = cfg.algorithm.quantile_thresholds
+    reads = ALGORITHMS[opts.algorithm].reads if opts.algorithm in ALGORITHMS else frozenset()
+    pending = {k: q for k, q in quantiles.items() if SIGNAL[k] in reads}
     algorithm = get_algorithm(
-        opts.algorithm, cfg.algorithm.model_copy(update=dict.fromkeys(pending, 0.0)),
+        opts.algorithm, cfg.algorithm.model_copy(update=dict.fromkeys(quantiles, 0.0)),
         num_robots, cfg.humans.count, opts.seed
     )
     if humans is None:
@@ -264,14 +268,14 @@ def run_trial(
                                                 hosts=hosts, trial_seed=opts.seed,
                                                 critics=critics)
             if pending:  # a new run (a resumed one reads the resolved config back)
-                from testbed.thresholds import resolve_thresholds
-
-                cfg, resolved = resolve_thresholds(cfg, learner)
+                cfg, resolved = resolve_thresholds(cfg, learner, only=pending)
                 run.write_config(written.model_copy(update={"algorithm": cfg.algorithm}))
                 run_meta["thresholds"] = resolved
                 run.write_meta(run_meta)
-                algorithm = get_algorithm(opts.algorithm, cfg.algorithm, num_robots,
-                                          cfg.humans.count, opts.seed)
+                algorithm = get_algorithm(
+                    opts.algorithm, cfg.algorithm.model_copy(update=dict.fromkeys(
+                        cfg.algorithm.quantile_thresholds, 0.0)),
+                    num_robots, cfg.humans.count, opts.seed)
             # whatever theta_0 had trained: from here on only what this algorithm reads
             learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
             if callable(getattr(learner, "numerics", None)):  # threads etc., for the lab

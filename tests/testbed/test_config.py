@@ -182,8 +182,12 @@ def test_shipped_protocols_are_valid(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert phys.fleet.humans.kind == "gui" and phys.prompt_when == "before_each_run"
     assert all(h.transport == "ssh" and h.backend == "yumi" for h in phys.fleet.hosts)
     assert all(h.key_file == str(home / ".ssh/fleet_ed25519") for h in phys.fleet.hosts)
-    # One calibrated u_hat for the twin: the default trial and the twin protocol agree.
-    assert twin.fleet.algorithm.u_hat == default_twin_config().algorithm.u_hat == 0.17
+    # Thresholds and Random's budget from data in both protocols (issue 12): u_hat is the
+    # 75th percentile on theta_0, the quantile the default trial's 0.17 was measured at
+    for p in (twin, phys):
+        assert p.fleet.algorithm.u_hat == "q0.75", p.name
+        assert p.fleet.algorithm.random_budget == "match:cur", p.name
+    assert default_twin_config().algorithm.u_hat == 0.17
     assert phys.fleet.learning.critic_steps == 3000
     # The seed's fleet size: N = 100 arms on 50 twin hosts, M = 10, t_T = t_R = 5, C.U.R.
     scale = load_protocol(root / "twin-scale.toml")

@@ -51,7 +51,7 @@ def test_quantiles_resolve_on_the_learners_rollout_states() -> None:
 @pytest.mark.slow
 def test_protocol_runs_share_the_thresholds_resolved_on_their_theta0(tmp_path: Path) -> None:
     proto = Protocol.model_validate({
-        "name": "q", "trials": 2, "algorithms": ["cur"], "steps": 3, "seeds": [1, 2],
+        "name": "q", "trials": 2, "algorithms": ["bc", "cur"], "steps": 3, "seeds": [1, 2],
         "out": str(tmp_path / "proto"),
         "fleet": {"hosts": [{"name": "cell0"}], "humans": {"count": 1},
                   "algorithm": {"u_hat": "q0.75", "r_hat": "q0.9"},
@@ -61,14 +61,21 @@ def test_protocol_runs_share_the_thresholds_resolved_on_their_theta0(tmp_path: P
     run_protocol(proto, ask=False)
     out = tmp_path / "proto"
     values = []
+    states: list[int] = []
     for k in range(2):
         cfg = tomllib.loads((out / f"cur-t{k}" / "config.toml").read_text())["algorithm"]
         meta = json.loads((out / f"cur-t{k}" / "run.json").read_text())["thresholds"]
         assert isinstance(cfg["u_hat"], float) and isinstance(cfg["r_hat"], float)
         assert meta["u_hat"]["value"] == cfg["u_hat"] and meta["u_hat"]["quantile"] == 0.75
-        assert meta["r_hat"]["states"] == 12
+        states.append(meta["r_hat"]["states"])
         values.append((cfg["u_hat"], cfg["r_hat"]))
+        # BC reads neither signal: nothing resolved, its config keeps what was given
+        bc = tomllib.loads((out / f"bc-t{k}" / "config.toml").read_text())["algorithm"]
+        assert bc["u_hat"] == "q0.75"
+        assert "thresholds" not in json.loads((out / f"bc-t{k}" / "run.json").read_text())
     assert values[0] == values[1]  # one theta_0, one resolution
     theta0 = Learner.load(next((out / ".pretrained").glob("*/learner.pt")))
-    u = float(np.quantile(theta0.signals_on_data()["uncertainty"], 0.75))
-    assert values[0][0] == pytest.approx(u)
+    signals = theta0.signals_on_data()
+    assert states == [len(signals["uncertainty"])] * 2 and states[0] > 0
+    assert values[0][0] == pytest.approx(float(np.quantile(signals["uncertainty"], 0.75)))
+    assert values[0][1] == pytest.approx(float(np.quantile(signals["risk"], 0.9)))
