@@ -121,4 +121,6 @@ def test_goal_critic_auc_on_twin(
         trained: tuple[Learner, Transitions, npt.NDArray[np.float64]]) -> None:
     learner, held, _ = trained
     goal_risk = learner.critic_values(held.images, held.actions)["goal_risk"]
-    assert roc_auc(-goal_risk, held.success) >= 0.8
+    auc = roc_auc(-goal_risk, held.success)
+    print(f"goal critic AUC {auc:.3f}")
+    assert auc >= 0.85  # issue 12, item 7: goals anywhere in the workspace
