@@ -6,6 +6,11 @@ of the five cumulative curves (successes, hard resets, idle time, human actions,
 with one line per algorithm, mean +- std over trials as in the seed's figures 6-9.
 Only finished runs count: a run whose run.json says ``stopped`` (Esc) or ``running``
 (in progress, or killed) is left out, and the report says so in one line.
+
+Evaluations (``testbed evaluate``: rows ``eval:<algorithm>``) are the seed's Table 2, not
+its learning curves: they get a second table (successes, hard resets, idle time; no
+human effort to weigh, humans only reset) in report.md and ``report-eval.csv``, and stay
+out of the learning table, its CSV and the curves.
 """
 
 from __future__ import annotations
@@ -22,6 +27,9 @@ import numpy as np
 from testbed.records import atomic_write_bytes, cumulative, read_steps, summarize
 
 METRICS = ("successes", "hard_resets", "idle_time", "human_actions", "rohe")
+EVAL_METRICS = ("successes", "hard_resets", "idle_time")
+EVAL_PREFIX = "eval:"
+"""The row label of an evaluation run (``TrialOptions.label``)."""
 TITLES = {
     "successes": "Cumulative successes",
     "hard_resets": "Cumulative hard resets",
@@ -97,18 +105,18 @@ def _num_humans(path: Path) -> int:
     return 2
 
 
-def _table(runs: list[RunRecord]) -> tuple[str, str]:
+def _table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS) -> tuple[str, str]:
     groups: dict[str, list[RunRecord]] = {}
     for r in runs:
         groups.setdefault(r.algorithm, []).append(r)
-    header = ["algorithm", "trials", *METRICS]
+    header = ["algorithm", "trials", *metrics]
     md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["algorithm", "trials"] + [f"{m}_{s}" for m in METRICS for s in ("mean", "std")])
+    w.writerow(["algorithm", "trials"] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")])
     for alg, rs in groups.items():
         cells, row = [], [alg, len(rs)]
-        for m in METRICS:
+        for m in metrics:
             v = np.array([float(r.summary[m]) for r in rs])
             mean, std = float(v.mean()), float(v.std(ddof=0))
             fmt = "{:.4f}" if m == "rohe" else "{:.1f}"
@@ -170,9 +178,18 @@ def write_report(dirs: list[Path], out: Path) -> Report:
     if not runs:
         raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no finished run; {notes[0]}")
     out.mkdir(parents=True, exist_ok=True)
-    md, csv_text = _table(runs)
+    learning = [r for r in runs if not r.algorithm.startswith(EVAL_PREFIX)]
+    evaluations = [r for r in runs if r.algorithm.startswith(EVAL_PREFIX)]
+    md = ""
+    if learning:
+        md, csv_text = _table(learning)
+        atomic_write_bytes(out / "report.csv", csv_text.encode())
+    if evaluations:
+        eval_md, eval_csv = _table(evaluations, EVAL_METRICS)
+        md += ("\n" if md else "") + ("Evaluation (seed 8.3.4, Table 2): each final policy "
+                                       "alone, humans for hard resets only\n\n") + eval_md
+        atomic_write_bytes(out / "report-eval.csv", eval_csv.encode())
     md += "".join(f"\n{n}\n" for n in notes)
     atomic_write_bytes(out / "report.md", md.encode())
-    atomic_write_bytes(out / "report.csv", csv_text.encode())
-    _plot(runs, out / "curves.png")
+    _plot(learning or evaluations, out / "curves.png")
     return Report(out, md, runs, notes)

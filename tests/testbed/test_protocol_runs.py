@@ -115,6 +115,27 @@ def test_report_leaves_unfinished_runs_out_and_says_so_in_one_line(tmp_path: Pat
         write_report([only], only)
 
 
+def test_an_evaluation_never_lands_in_a_training_algorithms_row(tmp_path: Path) -> None:
+    _fake_run(tmp_path / "cur-t0", "complete", 4)
+    _fake_run(tmp_path / "cur-t1", "complete", 4)
+    ev = _fake_run(tmp_path / "eval-cur-t0-s0", "complete", 6)
+    old = _fake_run(tmp_path / "eval-x-s0", "complete", 2)  # before labels: evaluate only
+    for run, options in ((ev, {"algorithm": "bc", "evaluate": True, "label": "eval:cur"}),
+                         (old, {"algorithm": "bc", "evaluate": True})):
+        meta = json.loads((run / "run.json").read_text())
+        (run / "run.json").write_text(json.dumps(meta | {"options": options}))
+    report = write_report([tmp_path], tmp_path / "rep")
+    learning, _, evaluation = report.markdown.partition("Evaluation (seed 8.3.4")
+    assert "| cur | 2 |" in learning and "eval" not in learning and "| bc |" not in learning
+    assert "| eval:cur | 1 |" in evaluation and "| eval:policy | 1 |" in evaluation
+    assert evaluation.splitlines()[2].startswith("| algorithm | trials | successes | "
+                                                 "hard_resets | idle_time |")
+    rows = (tmp_path / "rep" / "report.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["cur"]
+    rows = (tmp_path / "rep" / "report-eval.csv").read_text().splitlines()
+    assert sorted(r.split(",")[:2] for r in rows[1:]) == [["eval:cur", "1"], ["eval:policy", "1"]]
+
+
 # ------------------------------------------------------------------ refused pushes
 class _Hosts:
     """Two arms; the host refuses every push of ``h/a`` (its cube is not in the picture)."""
