@@ -59,6 +59,10 @@ class Protocol(BaseModel):
     order: Literal["fixed", "counterbalanced"] = "fixed"
     """``fixed``: every trial runs ``algorithms`` in the given order; ``counterbalanced``:
     each trial a row of a Williams Latin square seeded from ``seeds`` (see run_order)."""
+    evaluate_steps: int = Field(200, ge=0)
+    """The seed's evaluation (8.3.4, Table 2): after each run, its final policy alone for
+    this many steps, humans for hard resets only, as run ``eval-<algorithm>-t<k>``
+    (report row ``eval:<algorithm>``, the report's second table). 0: none."""
     fleet: FleetConfig = FleetConfig()
 
     @model_validator(mode="before")
@@ -264,7 +268,39 @@ def run_protocol(
                     return write_report([folder], folder)  # it names the stopped run
                 except ConfigError:  # nothing finished yet
                     return Report(folder, note + "\n", [], [note])
+    for k in range(proto.trials):  # the seed's evaluation of every final policy
+        for algorithm in proto.run_order(k):
+            _evaluate_run(proto, folder, algorithm, k, humans, wrap_hosts)
     return write_report([folder], folder)
+
+
+def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
+                  humans: Callable[[str], Humans] | None,
+                  wrap_hosts: Callable[[Any, RunDir], Any] | None) -> None:
+    """``eval-<algorithm>-t<k>``: the final policy of ``<algorithm>-t<k>`` alone for
+    ``proto.evaluate_steps`` steps, C-prioritised hard resets only (``testbed evaluate``);
+    skipped when done or disabled, redone when it died before finishing."""
+    from testbed.progress import TrialProgress
+    from testbed.trial import TrialOptions, run_trial
+
+    source = RunDir(folder / f"{algorithm}-t{k}")
+    name = f"eval-{algorithm}-t{k}"
+    run = RunDir(folder / name)
+    if proto.evaluate_steps == 0 or run.summary.exists() or not source.learner.exists():
+        return
+    if run.path.exists():
+        _discard(run.path)
+    opts = TrialOptions(algorithm="bc", steps=proto.evaluate_steps, seed=proto.seed(k),
+                        out=str(folder), humans=proto.humans, policy=str(source.learner),
+                        evaluate=True, name=name, label=f"eval:{algorithm}")
+    meta = {"evaluates": {"policy": str(source.learner), "run": source.path.name,
+                          "algorithm": algorithm},
+            "protocol": {"name": proto.name, "trial": k, "evaluation": True}}
+    cfg = proto.fleet
+    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names), label=name) as bar:
+        run_trial(cfg, opts, on_step=bar.on_step, progress=bar.on_phase,
+                  humans=humans(name) if humans is not None else None, meta=meta,
+                  wrap_hosts=wrap_hosts)
 
 
 def matched_budget(run: Path, num_humans: int) -> float:

@@ -115,7 +115,7 @@ def test_protocol_gives_random_the_effort_cur_spent_in_the_same_trial(
     steps = 24
     proto = Protocol.model_validate({
         "name": "match", "trials": 2, "algorithms": ["random", "cur"], "steps": steps,
-        "seeds": [3, 4], "out": str(tmp_path / "proto"),
+        "seeds": [3, 4], "out": str(tmp_path / "proto"), "evaluate_steps": 0,
         "fleet": {"hosts": [{"name": "cell0"}, {"name": "cell1"}], "humans": {"count": 2},
                   "algorithm": {"random_budget": "match:cur", "u_hat": 0.0, "t_T": 2,
                                 "t_R": 2, "t_I": 0},

@@ -227,7 +227,7 @@ def test_protocol_prompts_every_run_counterbalances_and_resumes_a_stopped_run(
     proto = Protocol.model_validate({
         "name": "mini", "trials": 2, "algorithms": ["bc", "cur"], "steps": 4,
         "seeds": [5, 6], "out": str(tmp_path / "proto"), "prompt_when": "before_each_run",
-        "order": "counterbalanced", "fleet": FLEET,
+        "order": "counterbalanced", "fleet": FLEET, "evaluate_steps": 0,
     })
     orders = [proto.run_order(k) for k in range(2)]
     assert orders[0] == orders[1][::-1]  # 2 algorithms: each runs first once

@@ -52,7 +52,7 @@ def test_quantiles_resolve_on_the_learners_rollout_states() -> None:
 def test_protocol_runs_share_the_thresholds_resolved_on_their_theta0(tmp_path: Path) -> None:
     proto = Protocol.model_validate({
         "name": "q", "trials": 2, "algorithms": ["bc", "cur"], "steps": 3, "seeds": [1, 2],
-        "out": str(tmp_path / "proto"),
+        "out": str(tmp_path / "proto"), "evaluate_steps": 0,
         "fleet": {"hosts": [{"name": "cell0"}], "humans": {"count": 1},
                   "algorithm": {"u_hat": "q0.75", "r_hat": "q0.9"},
                   "learning": {"ensemble_size": 2, "batch_size": 16, "demos": 16,

@@ -203,6 +203,7 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
         "steps": 6,
         "seeds": [5, 6],
         "out": "proto",
+        "evaluate_steps": 4,
         "fleet": SMALL,
     }
     (workdir / "mini.toml").write_text(tomli_w.dumps(proto))
@@ -210,8 +211,23 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = workdir / "proto"
     runs = sorted(p.name for p in out.iterdir() if (p / "steps.jsonl").exists())
-    assert runs == ["bc-t0", "bc-t1", "cur-t0", "cur-t1"]
+    assert runs == ["bc-t0", "bc-t1", "cur-t0", "cur-t1", "eval-bc-t0", "eval-bc-t1",
+                    "eval-cur-t0", "eval-cur-t1"]
+    # the seed's evaluation: each final policy alone, resets only, named by its run
+    for k in range(2):
+        ev = out / f"eval-cur-t{k}"
+        source = json.loads((ev / "run.json").read_text())["evaluates"]
+        assert (workdir / source.pop("policy")).resolve() == (
+            out / f"cur-t{k}" / "learner.pt").resolve()
+        assert source == {"run": f"cur-t{k}", "algorithm": "cur"}
+        steps = read_steps(ev / "steps.jsonl")
+        assert len(steps) == 4
+        assert all(r["mode"] in ("autonomous", "reset", "idle")
+                   for s in steps for r in s["robots"])
     md = (out / "report.md").read_text()
+    learning, _, evaluation = md.partition("Evaluation (seed 8.3.4")
+    assert "| eval:bc | 2 |" in evaluation and "| eval:cur | 2 |" in evaluation
+    assert "eval" not in learning
     rows = [ln for ln in md.splitlines() if ln.startswith("| bc ") or ln.startswith("| cur ")]
     assert len(rows) == 2 and all("| 2 |" in r for r in rows)
     csv_lines = (out / "report.csv").read_text().splitlines()
@@ -239,7 +255,7 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert rep.returncode == 0, rep.stderr[-3000:]
     md = (workdir / "both" / "report.md").read_text()
     # the evaluation has its own row: the training rows still hold their 2 trials each
-    assert "| eval:cur | 1 |" in md and "| bc | 2 |" in md and "| cur | 2 |" in md
+    assert "| eval:cur | 3 |" in md and "| bc | 2 |" in md and "| cur | 2 |" in md
 
 
 def test_check_preflights_every_arm_and_writes_a_mosaic(workdir: Path) -> None:
