@@ -100,7 +100,13 @@ def test_click_on_each_face(
         call = ActCall(lambda k=k, img=img: console.act(
             [make_request("cell1/left", 1, image=img)], 10 + k))
         console.wait_for_prompt(1)
-        click(windows[1], *console.face_click_point(1, k), display=xvfb.display)
+        # xdotool's synthetic click was lost once in ~30 full-suite runs (the window got
+        # no button event); a person clicks again, and so does the test, up to 3 times
+        for _ in range(3):
+            click(windows[1], *console.face_click_point(1, k), display=xvfb.display)
+            call.thread.join(3.0)
+            if not call.thread.is_alive():
+                break
         assert call.join()["cell1/left"].action == k
 
 
