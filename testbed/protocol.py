@@ -63,6 +63,9 @@ class Protocol(BaseModel):
     """The seed's evaluation (8.3.4, Table 2): after each run, its final policy alone for
     this many steps, humans for hard resets only, as run ``eval-<algorithm>-t<k>``
     (report row ``eval:<algorithm>``, the report's second table). 0: none."""
+    evaluate_expert: bool = True
+    """With ``evaluate_steps``: also ``eval-expert-t<k>``, every arm driven by the twin's
+    scripted expert (the seed's expert row; twin hosts only)."""
     fleet: FleetConfig = FleetConfig()
 
     @model_validator(mode="before")
@@ -271,6 +274,8 @@ def run_protocol(
     for k in range(proto.trials):  # the seed's evaluation of every final policy
         for algorithm in proto.run_order(k):
             _evaluate_run(proto, folder, algorithm, k, humans, wrap_hosts)
+        if proto.evaluate_expert and all(h.backend == "twin" for h in cfg.hosts):
+            _evaluate_run(proto, folder, "expert", k, humans, wrap_hosts)
     return write_report([folder], folder)
 
 
@@ -283,17 +288,20 @@ def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
     from testbed.progress import TrialProgress
     from testbed.trial import TrialOptions, run_trial
 
+    expert = algorithm == "expert"  # the twin's scripted expert: no run, no policy file
     source = RunDir(folder / f"{algorithm}-t{k}")
     name = f"eval-{algorithm}-t{k}"
     run = RunDir(folder / name)
-    if proto.evaluate_steps == 0 or run.summary.exists() or not source.learner.exists():
+    if (proto.evaluate_steps == 0 or run.summary.exists()
+            or not (expert or source.learner.exists())):
         return
     if run.path.exists():
         _discard(run.path)
+    policy = None if expert else str(source.learner)
     opts = TrialOptions(algorithm="bc", steps=proto.evaluate_steps, seed=proto.seed(k),
-                        out=str(folder), humans=proto.humans, policy=str(source.learner),
-                        evaluate=True, name=name, label=f"eval:{algorithm}")
-    meta = {"evaluates": {"policy": str(source.learner), "run": source.path.name,
+                        out=str(folder), humans=proto.humans, policy=policy,
+                        evaluate=True, name=name, label=f"eval:{algorithm}", expert=expert)
+    meta = {"evaluates": {"policy": policy, "run": None if expert else source.path.name,
                           "algorithm": algorithm},
             "protocol": {"name": proto.name, "trial": k, "evaluation": True}}
     cfg = proto.fleet

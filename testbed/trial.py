@@ -58,6 +58,9 @@ class TrialOptions:
     policy: str | None = None
     evaluate: bool = False
     name: str | None = None
+    expert: bool = False
+    """Every arm driven by the twin's scripted expert (the evaluation's expert row,
+    ``testbed/expert.py``); with ``evaluate`` and algorithm ``bc``."""
     label: str | None = None
     """What the records call the run's algorithm (summary.json, the report's row);
     None: ``algorithm``. An evaluation is ``eval:<the evaluated run's algorithm>``, so
@@ -257,7 +260,14 @@ def run_trial(
         if own_hosts:
             hosts.start()
         try:
-            if state is not None:
+            if opts.expert:  # the expert row: the twin's expert acts, nothing is learned
+                from testbed.expert import ExpertHosts, ExpertPolicy
+
+                hosts = ExpertHosts(hosts)
+                learner = ExpertPolicy(hosts)
+                if state is not None:
+                    algorithm.load_state_dict(state["algorithm"])
+            elif state is not None:
                 learner = load_learner(cfg, run.path / state["learner"])
                 algorithm.load_state_dict(state["algorithm"])
             elif opts.policy is not None:

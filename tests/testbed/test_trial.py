@@ -212,7 +212,11 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     out = workdir / "proto"
     runs = sorted(p.name for p in out.iterdir() if (p / "steps.jsonl").exists())
     assert runs == ["bc-t0", "bc-t1", "cur-t0", "cur-t1", "eval-bc-t0", "eval-bc-t1",
-                    "eval-cur-t0", "eval-cur-t1"]
+                    "eval-cur-t0", "eval-cur-t1", "eval-expert-t0", "eval-expert-t1"]
+    expert = read_steps(out / "eval-expert-t0" / "steps.jsonl")
+    assert len(expert) == 4 and all(
+        r["mode"] in ("autonomous", "reset", "idle") and r["uncertainty"] == 0.0
+        for s in expert for r in s["robots"])
     # the seed's evaluation: each final policy alone, resets only, named by its run
     for k in range(2):
         ev = out / f"eval-cur-t{k}"
@@ -227,6 +231,7 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     md = (out / "report.md").read_text()
     learning, _, evaluation = md.partition("Evaluation (seed 8.3.4")
     assert "| eval:bc | 2 |" in evaluation and "| eval:cur | 2 |" in evaluation
+    assert "| eval:expert | 2 |" in evaluation
     assert "eval" not in learning
     rows = [ln for ln in md.splitlines() if ln.startswith("| bc ") or ln.startswith("| cur ")]
     assert len(rows) == 2 and all("| 2 |" in r for r in rows)
