@@ -90,7 +90,7 @@ class NoTraining:
     calls timed), but ``train_step`` does nothing."""
 
     def __init__(self, learner: Any, splits: Splits) -> None:
-        self.act = splits.timed("act", learner.act)
+        self.act = learner.act  # not called: the loop acts on the copy, timed in run_loop
         self.acting_copy = learner.acting_copy
         self.add_human = splits.timed("data", learner.add_human)
         self.add_transitions = splits.timed("data", learner.add_transitions)

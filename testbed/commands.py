@@ -189,29 +189,16 @@ def cmd_trial(args: argparse.Namespace) -> int:
     return 0
 
 
-def evaluated(policy: Path) -> dict[str, str | None]:
-    """What a policy file is: the run it ends (``<run>/learner.pt`` with a run.json) and
-    that run's algorithm, else just the file. Names the evaluation's run and its row."""
-    meta_path = policy.parent / "run.json"
-    algorithm = run = None
-    if meta_path.exists():
-        try:
-            options = json.loads(meta_path.read_text()).get("options", {})
-            algorithm = options.get("label") or options.get("algorithm")
-            run = policy.parent.name
-        except (OSError, ValueError, AttributeError):
-            pass
-    return {"policy": str(policy), "run": run, "algorithm": algorithm}
-
-
 def cmd_evaluate(args: argparse.Namespace) -> int:
     cfg = _config(args)
     args.algorithm = "bc"  # C-prioritised hard resets, no teleop, no learning (seed 8.3.4)
     opts = trial_options(cfg, args, evaluate=True)
+    from testbed.runs import evaluated, evaluation_label
+
     source = evaluated(Path(args.policy))
     opts.name = args.name or f"eval-{Path(args.policy).parent.name or 'policy'}-s{opts.seed}"
     # the report's row: never the allocation's "bc", but what was evaluated
-    opts.label = f"eval:{source['algorithm'] or 'policy'}"
+    opts.label = evaluation_label(source["algorithm"])
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
         run, summary = run_trial(cfg, opts, on_step=bar.on_step, progress=bar.on_phase,
                                  meta={"evaluates": source})

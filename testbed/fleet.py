@@ -148,8 +148,9 @@ class FleetLoop:
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
         self._after_step = after_step
         # Act on the learner's acting copy (beside the training step when the algorithm
-        # learns; compiled when learning.compile_act). A learner without one (a test's
-        # fake) acts itself, before the training step starts: the serial order.
+        # learns, synced before it; made now, from the weights the trial starts with, for
+        # one that does not; compiled when learning.compile_act). A learner without one
+        # (a test's fake) acts itself, before the training step starts: the serial order.
         make_actor = getattr(learner, "acting_copy", None)
         self._actor: ActorLike | None = (
             make_actor() if overlap_act and callable(make_actor) else None)
@@ -251,10 +252,9 @@ class FleetLoop:
                 violating[i] = o.violating
 
         training: Future[dict[str, float]] | None = None
-        if self._actor is not None:  # train beside act: act reads the up-to-date copy
-            self._actor.sync()
-            if self.algorithm.learns:
-                training = self._executor.submit(self.learner.train_step)
+        if self._actor is not None and self.algorithm.learns:
+            self._actor.sync()  # train beside act: act reads the up-to-date copy
+            training = self._executor.submit(self.learner.train_step)
         try:
             out = (self._actor or self.learner).act(images)
             if training is None and self.algorithm.learns:  # serial: after act

@@ -35,7 +35,7 @@ from testbed.config import (
 )
 from testbed.priorities import ALGORITHM_NAMES, ALGORITHMS
 from testbed.report import Report, write_report
-from testbed.runs import RunDir
+from testbed.runs import RunDir, evaluated, evaluation_label
 
 if TYPE_CHECKING:
     from testbed.fleet import StepOutcome
@@ -297,12 +297,13 @@ def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
         return
     if run.path.exists():
         _discard(run.path)
-    policy = None if expert else str(source.learner)
+    evaluates = ({"policy": None, "run": None, "algorithm": "expert"} if expert
+                 else evaluated(source.learner))
     opts = TrialOptions(algorithm="bc", steps=proto.evaluate_steps, seed=proto.seed(k),
-                        out=str(folder), humans=proto.humans, policy=policy,
-                        evaluate=True, name=name, label=f"eval:{algorithm}", expert=expert)
-    meta = {"evaluates": {"policy": policy, "run": None if expert else source.path.name,
-                          "algorithm": algorithm},
+                        out=str(folder), humans=proto.humans, policy=evaluates["policy"],
+                        evaluate=True, name=name, label=evaluation_label(algorithm),
+                        expert=expert)
+    meta = {"evaluates": evaluates,
             "protocol": {"name": proto.name, "trial": k, "evaluation": True}}
     cfg = proto.fleet
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names), label=name) as bar:
@@ -316,16 +317,15 @@ def matched_budget(run: Path, num_humans: int) -> float:
     arm-steps) / (humans x steps), read from its steps.jsonl. Random given it as its
     budget spends the same human effort (``RandomPriority`` keeps its effort on budget)."""
     from testbed.config import ConfigError
-    from testbed.records import read_steps
-    from testbed.runs import RunDir
+    from testbed.records import read_steps, summarize
 
     rd = RunDir(run)
     if not rd.summary.exists():
         raise ConfigError(f"random_budget 'match:': {run} has not finished; the matched "
                           "algorithm runs before Random in each trial")
-    rows = list(read_steps(rd.steps))
-    human = sum(r["mode"] in ("teleop", "reset") for row in rows for r in row["robots"])
-    return min(1.0, human / (num_humans * len(rows))) if rows and num_humans else 0.0
+    summary = summarize(read_steps(rd.steps), algorithm="", num_humans=num_humans)
+    effort = num_humans * summary["steps"]
+    return min(1.0, summary["human_actions"] / effort) if effort else 0.0
 
 
 def _discard(path: Path) -> None:

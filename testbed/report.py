@@ -25,11 +25,10 @@ from typing import Any
 import numpy as np
 
 from testbed.records import atomic_write_bytes, cumulative, read_steps, summarize
+from testbed.runs import EVAL_PREFIX, evaluation_label
 
 METRICS = ("successes", "hard_resets", "idle_time", "human_actions", "rohe")
 EVAL_METRICS = ("successes", "hard_resets", "idle_time")
-EVAL_PREFIX = "eval:"
-"""The row label of an evaluation run (``TrialOptions.label``)."""
 TITLES = {
     "successes": "Cumulative successes",
     "hard_resets": "Cumulative hard resets",
@@ -87,7 +86,7 @@ def load_run(path: Path) -> RunRecord:
     opts = meta.get("options", {})
     # an evaluation's label (eval:<algorithm>) keeps it out of the training rows; runs
     # from before labels: an evaluation is marked by its options' "evaluate"
-    algorithm = (opts.get("label") or ("eval:policy" if opts.get("evaluate") else None)
+    algorithm = (opts.get("label") or (evaluation_label(None) if opts.get("evaluate") else None)
                  or opts.get("algorithm") or path.name.split("-t")[0])
     num_humans = _num_humans(path)
     steps = read_steps(path / "steps.jsonl")

@@ -86,3 +86,27 @@ def new_run_dir(out: str | Path, name: str) -> RunDir:
         k += 1
     p.mkdir(parents=True)
     return RunDir(p)
+
+
+EVAL_PREFIX = "eval:"
+"""What the records call an evaluation's algorithm: ``eval:<the evaluated algorithm>``."""
+
+
+def evaluation_label(algorithm: str | None) -> str:
+    """The report row of an evaluation of ``algorithm``'s policy (never a training row)."""
+    return f"{EVAL_PREFIX}{algorithm or 'policy'}"
+
+
+def evaluated(policy: Path) -> dict[str, str | None]:
+    """What a policy file is: the run it ends (``<run>/learner.pt`` with a run.json) and
+    that run's algorithm, else just the file (run.json ``evaluates`` of an evaluation)."""
+    meta_path = policy.parent / META
+    algorithm = run = None
+    if meta_path.exists():
+        try:
+            options = json.loads(meta_path.read_text()).get("options", {})
+            algorithm = options.get("label") or options.get("algorithm")
+            run = policy.parent.name
+        except (OSError, ValueError, AttributeError):
+            pass
+    return {"policy": str(policy), "run": run, "algorithm": algorithm}

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from testbed.checkpoints import CheckpointWriter
-from testbed.config import ConfigError, FleetConfig, HostConfig
+from testbed.config import AlgorithmConfig, ConfigError, FleetConfig, HostConfig
 from testbed.fleet import FleetLoop, StepOutcome
 from testbed.humans import Humans, HumansStopRequested, make_humans
 from testbed.interrupts import critical
@@ -34,7 +34,7 @@ from testbed.offline import (
     pretrain_key,
     save_transitions,
 )
-from testbed.priorities import ALGORITHMS, get_algorithm
+from testbed.priorities import get_algorithm
 from testbed.records import (
     RunWriter,
     atomic_write_json,
@@ -237,13 +237,10 @@ def run_trial(
     # Thresholds given as quantiles are resolved on theta_0 below, those the algorithm
     # reads (BC reads neither): until then it is built with placeholders (its spec is
     # all that pretraining needs). Unread ones stay as given in config.toml.
-    quantiles = cfg.algorithm.quantile_thresholds
-    reads = ALGORITHMS[opts.algorithm].reads if opts.algorithm in ALGORITHMS else frozenset()
-    pending = {k: q for k, q in quantiles.items() if SIGNAL[k] in reads}
-    algorithm = get_algorithm(
-        opts.algorithm, cfg.algorithm.model_copy(update=dict.fromkeys(quantiles, 0.0)),
-        num_robots, cfg.humans.count, opts.seed
-    )
+    algorithm = get_algorithm(opts.algorithm, _placeholders(cfg.algorithm), num_robots,
+                              cfg.humans.count, opts.seed)
+    pending = {k: q for k, q in cfg.algorithm.quantile_thresholds.items()
+               if SIGNAL[k] in algorithm.spec.reads}
     if humans is None:
         humans = make_humans(opts.humans, cfg.humans.count)
     own_hosts = hosts is None
@@ -282,10 +279,8 @@ def run_trial(
                 run.write_config(written.model_copy(update={"algorithm": cfg.algorithm}))
                 run_meta["thresholds"] = resolved
                 run.write_meta(run_meta)
-                algorithm = get_algorithm(
-                    opts.algorithm, cfg.algorithm.model_copy(update=dict.fromkeys(
-                        cfg.algorithm.quantile_thresholds, 0.0)),
-                    num_robots, cfg.humans.count, opts.seed)
+                algorithm = get_algorithm(opts.algorithm, _placeholders(cfg.algorithm),
+                                          num_robots, cfg.humans.count, opts.seed)
             # whatever theta_0 had trained: from here on only what this algorithm reads
             learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
             if callable(getattr(learner, "numerics", None)):  # threads etc., for the lab
@@ -360,6 +355,12 @@ def run_trial(
     run_meta.update(status=COMPLETE, finished=time.time())
     run.write_meta(run_meta)
     return run, {**summary, "status": COMPLETE}
+
+
+def _placeholders(params: AlgorithmConfig) -> AlgorithmConfig:
+    """``params`` with every threshold still given as a quantile set to 0.0: one the
+    algorithm does not read, or one not resolved yet (the algorithm is rebuilt then)."""
+    return params.model_copy(update=dict.fromkeys(params.quantile_thresholds, 0.0))
 
 
 def _with_hosts(cfg: FleetConfig, hosts: Sequence[HostConfig], where: Path) -> FleetConfig:

@@ -54,7 +54,7 @@ from testbed.learning.api import (
     check_actions,
     check_images,
 )
-from testbed.learning.critics import Critic, CriticBatch, CriticSpec
+from testbed.learning.critics import Combine, Critic, CriticBatch, CriticSpec
 from testbed.learning.data import PolicyData, TransitionBuffer
 from testbed.learning.policy import PolicyEnsemble, ensemble_signals
 from testbed.learning.runtime import (
@@ -186,14 +186,18 @@ class Learner:
         """The critics by name (``CRITICS`` order)."""
         return {"safety": self.safety, "goal": self.goal}
 
+    def _critic_nets(self) -> dict[str, tuple[torch.nn.Module, Combine]]:
+        """What ``infer`` reads of the critics: each online net and its combination."""
+        return {name: (c.net, c.spec.combine) for name, c in self.critics().items()}
+
     def act(self, images: npt.ArrayLike) -> PolicyOutput:
         """Actions and priority signals for uint8 images (N, 64, 64, 3).
 
         ``risk`` / ``goal_risk`` are zeros when their critic is not in ``read_critics``
         (the algorithm does not read it: the critic's forward pass is skipped)."""
-        nets = {name: (c.net, c.spec.combine) for name, c in self.critics().items()}
         with self._lock:
-            return infer(self.policy, nets, self.read_critics, self.device, images)
+            return infer(self.policy, self._critic_nets(), self.read_critics, self.device,
+                         images)
 
     def acting_copy(self) -> Actor:
         """An ``Actor``: ``act`` on copies of these networks, brought up to date by its
@@ -214,7 +218,7 @@ class Learner:
                 images = self.policy_data.originals()[:limit]
             if len(images) == 0:
                 return {"uncertainty": np.zeros(0, np.float32), "risk": np.zeros(0, np.float32)}
-            nets = {name: (c.net, c.spec.combine) for name, c in self.critics().items()}
+            nets = self._critic_nets()
             out = [infer(self.policy, nets, frozenset({"safety"}), self.device,
                          images[i:i + 256]) for i in range(0, len(images), 256)]
         return {"uncertainty": np.concatenate([o.uncertainty for o in out]),
