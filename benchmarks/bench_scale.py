@@ -9,7 +9,8 @@ Printed, all measured in this one run:
    data and records, but a learner whose ``train_step`` does nothing (``NoTraining``:
    act and the data calls go to the real learner). Median step against the 150 ms
    target (ratio = step / target), and where the time goes: observe, act, allocate,
-   humans, execute, log, checkpoint snapshot, the rest (the loop's own Python).
+   humans, execute, store (the run's data store: 100 frames, fsynced), log (steps.jsonl),
+   data (the learner's), checkpoint snapshot, the rest (the loop's own Python).
 2. The loop step WITH training (the real ``train_step`` in the loop's thread) against
    one training step alone, same learner and data, measured before and after it:
    ratio = step / training step (target <= 1.2).
@@ -42,6 +43,7 @@ from testbed.fleet import FleetLoop
 from testbed.humans import ScriptedHumans
 from testbed.priorities import get_algorithm
 from testbed.records import RunWriter
+from testbed.rundata import RunDataWriter
 from testbed.trial import build_hosts, pretrained_learner
 
 PROTOCOL = Path(__file__).resolve().parents[1] / "protocols" / "twin-scale.toml"
@@ -137,6 +139,9 @@ def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train
     algorithm = get_algorithm("cur", cfg.algorithm, n, cfg.humans.count, SEED)
     run_dir.mkdir(parents=True, exist_ok=True)
     writer = RunWriter(run_dir)
+    data = RunDataWriter(run_dir, cfg.robot_names)
+    data.steps = t0  # phase 2 goes on counting from phase 1, in a folder of its own
+    data.append = splits.timed("store", data.append)  # type: ignore[method-assign]
     checkpoints = CheckpointWriter(run_dir)
     snapshot = splits.timed("checkpoint", checkpoints.submit)
 
@@ -151,7 +156,8 @@ def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train
                      writer=TimedWriter(writer, splits),  # type: ignore[arg-type]
                      steps=t0 + warmup + steps, num_humans=cfg.humans.count,
                      t_T=cfg.algorithm.t_T, t_R=cfg.algorithm.t_R,
-                     after_step=checkpoint if checkpoint_every_step else None)
+                     after_step=checkpoint if checkpoint_every_step else None,
+                     data=data)
     assert loop._actor is not None, "the loop should act on the learner's acting copy"
     loop._actor.act = splits.timed("act", loop._actor.act)  # type: ignore[method-assign]
     walls: list[float] = []
@@ -169,6 +175,7 @@ def run_loop(cfg: FleetConfig, hosts: Any, learner: Any, run_dir: Path, *, train
         checkpoints.wait()
         loop.close()
         writer.close()
+        data.close()
     return walls, parts
 
 
@@ -186,8 +193,8 @@ def _load() -> str:
 
 
 def _parts_line(parts: Sequence[Mapping[str, float]]) -> str:
-    names = ["observe", "act", "allocate", "humans", "execute", "log", "data", "checkpoint",
-             "rest"]
+    names = ["observe", "act", "allocate", "humans", "execute", "store", "log", "data",
+             "checkpoint", "rest"]
     med = {k: statistics.median(p.get(k, 0.0) for p in parts) * 1e3 for k in names}
     return ", ".join(f"{k} {v:.1f}" for k, v in med.items())
 

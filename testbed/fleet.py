@@ -29,11 +29,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from testbed import rundata
 from testbed.allocation import Allocator
 from testbed.humans import Humans
 from testbed.interrupts import critical
 from testbed.priorities import Algorithm, PrioritySignals
 from testbed.records import RunWriter
+from testbed.rundata import RunDataWriter
 from testbed.types import (
     IMAGE_SIZE,
     ArmObservation,
@@ -85,16 +87,6 @@ class ActorLike(Protocol):
 
 
 @dataclass
-class _Pending:
-    """A push whose next observation is still to come (the critics need s')."""
-
-    image: np.ndarray
-    action: int
-    violation: bool
-    success: bool
-
-
-@dataclass
 class _Decided:
     out: Any
     keys: np.ndarray
@@ -132,6 +124,8 @@ class FleetLoop:
         t_R: int,
         after_step: Callable[[int], None] | None = None,
         overlap_act: bool = True,
+        data: RunDataWriter | None = None,
+        session: int = 0,
     ) -> None:
         self.hosts = hosts
         self.humans = humans
@@ -144,7 +138,9 @@ class FleetLoop:
         self.t_T = t_T
         self.t_R = t_R
         self.robots = list(hosts.robot_names)
-        self._pending: dict[str, _Pending] = {}
+        self.data = data
+        self.session = session
+        self._last: np.ndarray | None = None  # the last step's frames (its pushes)
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
         self._after_step = after_step
         # Act on the learner's acting copy (beside the training step when the algorithm
@@ -241,15 +237,20 @@ class FleetLoop:
     def step(self, t: int) -> StepOutcome:
         started = time.monotonic()
         observations = self.hosts.observe()
-        self._add_transitions(observations)  # training step t's last data
         n = len(self.robots)
         images = np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
         violating = np.zeros(n, dtype=bool)
+        observed = np.zeros(n, dtype=bool)
+        goals = np.full((n, 2), np.nan, dtype=np.float32)
         for i, r in enumerate(self.robots):
             o = observations.get(r)
             if isinstance(o, ArmObservation):
                 images[i] = o.image
                 violating[i] = o.violating
+                observed[i] = True
+                goals[i] = o.goal
+        if self.algorithm.learns and self._last is not None:  # training step t's last data
+            rundata.add_transitions(self.learner, self._last, observed, images)
 
         training: Future[dict[str, float]] | None = None
         if self._actor is not None and self.algorithm.learns:
@@ -276,12 +277,15 @@ class FleetLoop:
         # row that differs between two runs of the same seed.
         row["wall_time"] = time.time()
         row["duration_s"] = time.monotonic() - started
-        with critical():
+        frames = rundata.build_frames(t, self.session, row, images, observed, goals)
+        with critical():  # the data first: a step in steps.jsonl always has its frames
+            if self.data is not None:
+                self.data.append(frames)
             self.writer.write_step(row)
         self._count(row)
-        self._remember(observations, modes, results, pushes, images)
+        self._last = frames
         if self.algorithm.learns:
-            self._add_human_labels(modes, pushes, images)
+            rundata.add_labels(self.learner, frames)
         self.status.t = t + 1
         self.status.robots = [
             RobotStatus(r, modes[r], images[i] if not faulted[i] else None, humans_of[r])
@@ -343,46 +347,6 @@ class FleetLoop:
         if faults:
             row["faults"] = faults
         return row
-
-    # ---- data for the learner ---------------------------------------------------------
-    def _remember(
-        self,
-        observations: Mapping[str, ArmObservation | Fault],
-        modes: Mapping[str, Mode],
-        results: Mapping[str, PushResult | Fault],
-        pushes: Mapping[str, int],
-        images: np.ndarray,
-    ) -> None:
-        self._pending = {}
-        for i, r in enumerate(self.robots):
-            res = results.get(r)
-            if r in pushes and isinstance(res, PushResult) and res.refused is None:
-                self._pending[r] = _Pending(images[i], pushes[r], res.violation, res.success)
-
-    def _add_transitions(self, observations: Mapping[str, ArmObservation | Fault]) -> None:
-        if not self.algorithm.learns or not self._pending:
-            self._pending = {}
-            return
-        done = [r for r in self._pending if isinstance(observations.get(r), ArmObservation)]
-        if done:
-            p = [self._pending[r] for r in done]
-            self.learner.add_transitions(
-                np.stack([x.image for x in p]),
-                np.array([x.action for x in p], dtype=np.int64),
-                np.stack([observations[r].image for r in done]),  # type: ignore[union-attr]
-                np.array([x.violation for x in p], dtype=bool),
-                np.array([x.success for x in p], dtype=bool),
-            )
-        self._pending = {}
-
-    def _add_human_labels(
-        self, modes: Mapping[str, Mode], pushes: Mapping[str, int], images: np.ndarray
-    ) -> None:
-        idx = [i for i, r in enumerate(self.robots) if modes[r] is Mode.TELEOP and r in pushes]
-        if idx:
-            self.learner.add_human(
-                images[idx], np.array([pushes[self.robots[i]] for i in idx], dtype=np.int64)
-            )
 
     def close(self) -> None:
         self._executor.shutdown(wait=True)

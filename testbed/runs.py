@@ -1,10 +1,14 @@
 """The folder of one run: its resolved config, its records, its checkpoint.
 
 ``runs/<name>/`` holds ``config.toml`` (the resolved config, so a run can be resumed or
-repeated without the original file), ``steps.jsonl`` and ``summary.json`` (DESIGN.md
-section 5), ``state.json`` + ``learner.pt`` (the checkpoint of the last complete step,
-written atomically) and ``human_data.npz`` (the human-labelled data). A step is
-*complete* once it is in steps.jsonl and in the checkpoint; resume starts after it.
+repeated without the original file), ``run.json`` (how it was started, its status),
+``steps.jsonl`` and ``summary.json`` (DESIGN.md section 5), ``data/`` (every arm's
+frame of every step: ``testbed.rundata``), ``learner-start.pt`` (the learner the run
+started from, its data included), ``state.json`` + ``learner-0.pt`` / ``learner-1.pt``
+(the checkpoint of the last complete step: weights, optimisers, RNG, counters; its data
+is replayed from ``data/``) and, once finished, ``learner.pt`` (the trained learner,
+data included: ``testbed evaluate --policy``). A step is *complete* once it is in
+data/, steps.jsonl and the checkpoint; resume starts after it.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ STEPS = "steps.jsonl"
 SUMMARY = "summary.json"
 STATE = "state.json"
 LEARNER = "learner.pt"
+START_LEARNER = "learner-start.pt"
 META = "run.json"
 
 
@@ -56,6 +61,10 @@ class RunDir:
     @property
     def learner(self) -> Path:
         return self.path / LEARNER
+
+    @property
+    def start_learner(self) -> Path:
+        return self.path / START_LEARNER
 
     def write_config(self, cfg: FleetConfig) -> None:
         data = _drop_none(cfg.model_dump(mode="json"))

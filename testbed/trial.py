@@ -42,6 +42,7 @@ from testbed.records import (
     summarize,
     truncate_torn_tail,
 )
+from testbed.rundata import RunDataWriter
 from testbed.runs import RunDir, new_run_dir
 from testbed.thresholds import SIGNAL, resolve_thresholds
 
@@ -92,6 +93,27 @@ def load_learner(cfg: FleetConfig, path: Path) -> Any:
     from testbed.learning import Learner
 
     return Learner.load(path, cfg.learning)
+
+
+def resume_learner(cfg: FleetConfig, run: RunDir, state: Mapping[str, Any], *,
+                   learns: bool = True) -> Any:
+    """The learner as it was after step ``state["t"]`` of ``run``: the run's starting
+    learner (theta_0 and its data, reseeded), the run's data replayed onto it as the
+    loop gave it (``testbed.rundata.replay``; nothing for an algorithm that does not
+    learn), then the step's weights, optimisers, sampler and counters. A checkpoint of
+    the old format (the whole learner, data included) is loaded as it is."""
+    from testbed.learning import checkpoint as ckpt_format
+    from testbed.rundata import RunData, replay
+
+    path = run.path / state["learner"]
+    saved = ckpt_format.load_any(path)
+    if saved["format"] == ckpt_format.FORMAT:
+        return load_learner(cfg, path)
+    learner = load_learner(cfg, run.start_learner)
+    if learns:
+        replay(learner, RunData.of_run(run.path), int(state["t"]) + 1)
+    learner.load_training_state(saved, where=str(path))
+    return learner
 
 
 PRETRAIN_SEED = 0
@@ -252,6 +274,7 @@ def run_trial(
     loop: FleetLoop | None = None
     checkpoints: CheckpointWriter | None = None
     writer: RunWriter | None = None
+    data: RunDataWriter | None = None
     stopped_at: int | None = None
     try:
         if own_hosts:
@@ -265,7 +288,7 @@ def run_trial(
                 if state is not None:
                     algorithm.load_state_dict(state["algorithm"])
             elif state is not None:
-                learner = load_learner(cfg, run.path / state["learner"])
+                learner = resume_learner(cfg, run, state, learns=algorithm.learns)
                 algorithm.load_state_dict(state["algorithm"])
             elif opts.policy is not None:
                 learner = load_learner(cfg, Path(opts.policy))
@@ -292,6 +315,10 @@ def run_trial(
         if stopped_at is None:
             if state is None:  # the trial seed, not theta_0's, drives sampling from here on
                 learner.reseed(opts.seed)
+                if not opts.expert:  # what resume replays the run's data onto
+                    with critical():
+                        learner.save(run.start_learner)
+            data = RunDataWriter(run.path, cfg.robot_names, keep_steps=start)
             writer = RunWriter(run.path)
 
             checkpoints = CheckpointWriter(run.path)
@@ -310,6 +337,8 @@ def run_trial(
                 t_T=cfg.algorithm.t_T,
                 t_R=cfg.algorithm.t_R,
                 after_step=checkpoint,
+                data=data,
+                session=len(run_meta.get("resumed", [])),
             )
             loop.restore_counters(prior_rows)
             for t in range(start, opts.steps):
@@ -325,6 +354,7 @@ def run_trial(
                 if on_step is not None:
                     on_step(outcome)
             checkpoints.wait()
+            run_meta["checkpoint"] = checkpoints.stats()
             if stopped_at is not None and stopped_at >= opts.steps:
                 stopped_at = None  # the stop came after the last step: nothing is left
             if stopped_at is None:
@@ -338,6 +368,8 @@ def run_trial(
             loop.close()
         if writer is not None:
             writer.close()
+        if data is not None:
+            data.close()
         if own_hosts:
             try:
                 hosts.rest()

@@ -20,6 +20,9 @@ import torch
 from testbed.records import atomic_write_bytes
 
 FORMAT = "testbed.learning.Learner/1"
+"""A whole learner: weights, optimisers, sampler, counters and data."""
+TRAINING_FORMAT = "testbed.learning.Learner.training/1"
+"""A trial's per-step checkpoint: the same without the data (``Learner.training_state``)."""
 
 
 def save_atomic(state: dict[str, Any], path: str | os.PathLike[str]) -> Path:
@@ -30,9 +33,18 @@ def save_atomic(state: dict[str, Any], path: str | os.PathLike[str]) -> Path:
     return Path(path)
 
 
-def load(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read a checkpoint written by ``save_atomic`` (tensors on the CPU)."""
+def load_any(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A checkpoint of either format (its ``format`` key says which)."""
     state = torch.load(Path(path), map_location="cpu", weights_only=True)
-    if not isinstance(state, dict) or state.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a learner checkpoint (expected format {FORMAT})")
+    if not isinstance(state, dict) or state.get("format") not in (FORMAT, TRAINING_FORMAT):
+        raise ValueError(f"{path}: not a learner checkpoint")
+    return state
+
+
+def load(path: str | os.PathLike[str], kind: str = FORMAT) -> dict[str, Any]:
+    """Read a checkpoint written by ``save_atomic`` (tensors on the CPU) of format
+    ``kind`` (``FORMAT`` or ``TRAINING_FORMAT``)."""
+    state = torch.load(Path(path), map_location="cpu", weights_only=True)
+    if not isinstance(state, dict) or state.get("format") != kind:
+        raise ValueError(f"{path}: not a learner checkpoint (expected format {kind})")
     return state

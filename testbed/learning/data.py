@@ -92,6 +92,11 @@ class PolicyData:
     def __len__(self) -> int:
         return self._store.size
 
+    @property
+    def num_chunks(self) -> int:
+        """``add`` calls so far (each chunk's augmentation seed follows from its index)."""
+        return len(self._chunks)
+
     def add(self, images: np.ndarray, actions: np.ndarray, chunk_seed: int | None = None
             ) -> None:
         """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,). The copies

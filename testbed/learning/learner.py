@@ -375,9 +375,14 @@ class Learner:
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict[str, Any]:
-        """Everything a resumed trial needs to continue exactly."""
+        """Everything a trial needs to continue exactly, its data included (theta_0, a
+        run's final policy, ``testbed pretrain``)."""
+        return self.state_dict_parts(data=True)
+
+    def state_dict_parts(self, *, data: bool) -> dict[str, Any]:
+        """``state_dict()``, with or without the data (``training_state``)."""
         with self._lock:
-            return {
+            state = {
                 "format": checkpoint.FORMAT,
                 "cfg": self.cfg.model_dump(),
                 "seed": self.seed,
@@ -385,23 +390,63 @@ class Learner:
                 "policy_optimizer": self.policy_optimizer.state_dict(),
                 "safety": self.safety.state_dict(),
                 "goal": self.goal.state_dict(),
-                "policy_data": self.policy_data.state_dict(),
-                "transitions": self.transitions.state_dict(),
                 "sampler": self._sampler.get_state(),
                 "counters": [self.policy_updates, self.critic_updates,
                              self.safety_updates, self.goal_updates],
             }
+            if data:
+                state["policy_data"] = self.policy_data.state_dict()
+                state["transitions"] = self.transitions.state_dict()
+            return state
 
-    def snapshot(self) -> dict[str, Any]:
-        """``state_dict()`` with every tensor its own copy, for a checkpoint written in a
-        thread while training goes on. The data's state is already a fresh copy, so only
-        the rest (weights, optimisers: tensors that training changes in place) is
-        deep-copied: one copy of the data per checkpoint, not two (at N = 100 arms the
-        data grows ~2.5 MB a step and this copy is in the loop's thread)."""
+    def data_sizes(self) -> dict[str, int]:
+        """How much data the learner holds: labelled images, their ``add`` chunks (the
+        augmentation seeds follow the chunk count) and transitions."""
         with self._lock:
-            state = self.state_dict()
-            fresh = {k: state.pop(k) for k in ("policy_data", "transitions")}
-            return {**copy.deepcopy(state), **fresh}
+            return {"policy": len(self.policy_data), "chunks": self.policy_data.num_chunks,
+                    "transitions": len(self.transitions)}
+
+    def training_state(self) -> dict[str, Any]:
+        """``state_dict()`` without the data: weights, optimisers, the sampler, the
+        counters and the data's sizes, every tensor its own copy. The per-step
+        checkpoint: a resumed trial gets its data back from the run's data store
+        (``testbed.rundata.replay``), so this stays ~the weights' size however long the
+        run (the whole state grew ~0.3 MB a step at 4 arms, ~2.5 MB at 100)."""
+        with self._lock:
+            state = self.state_dict_parts(data=False)
+            return {**copy.deepcopy(state), "format": checkpoint.TRAINING_FORMAT,
+                    "data_sizes": self.data_sizes()}
+
+    snapshot = training_state
+    """What ``CheckpointWriter`` takes each step (in the loop's thread; written in one)."""
+
+    def load_training_state(self, state: dict[str, Any], where: str = "checkpoint") -> None:
+        """Weights, optimisers, sampler and counters from ``training_state()``; the data
+        must already be back (replayed) and match the sizes the state was taken at."""
+        with self._lock:
+            have, want = self.data_sizes(), dict(state["data_sizes"])
+            if have != want:
+                raise LearningError(f"{where}: the learner's data {have} is not the data "
+                                    f"the checkpoint was taken with {want}")
+            self._load_training(state)
+
+    def _load_training(self, state: dict[str, Any]) -> None:
+        self.seed = int(state["seed"])
+        self.policy_data.seed = self.seed
+        self.policy.load_state_dict(state["policy"])
+        self.policy_optimizer.load_state_dict(state["policy_optimizer"])
+        self.safety.load_state_dict(state["safety"])
+        self.goal.load_state_dict(state["goal"])
+        for group in self.policy_optimizer.param_groups:
+            group["lr"] = self.cfg.lr
+        self.safety.set_lr(self.cfg.lr)
+        self.goal.set_lr(self.cfg.lr)
+        self._sampler.set_state(state["sampler"])
+        counters = [int(c) for c in state["counters"]]
+        if len(counters) == 2:  # before per-critic counters every critic step trained both
+            counters += [counters[1], counters[1]]
+        (self.policy_updates, self.critic_updates, self.safety_updates,
+         self.goal_updates) = counters
 
     def save(self, path: str | Path) -> Path:
         """Write a checkpoint atomically (temp file, fsync, os.replace)."""
@@ -435,14 +480,6 @@ class Learner:
                 )
         learner = cls(cfg, int(state["seed"]), impl=impl, num_threads=num_threads,
                       train=train, read=read)
-        learner.policy.load_state_dict(state["policy"])
-        learner.policy_optimizer.load_state_dict(state["policy_optimizer"])
-        learner.safety.load_state_dict(state["safety"])
-        learner.goal.load_state_dict(state["goal"])
-        for group in learner.policy_optimizer.param_groups:
-            group["lr"] = cfg.lr
-        learner.safety.set_lr(cfg.lr)
-        learner.goal.set_lr(cfg.lr)
         if not learner.policy_data.load_state_dict(state["policy_data"]):
             warnings.warn(
                 f"{path}: the re-made augmented copies differ from the saved run's "
@@ -450,10 +487,5 @@ class Learner:
                 RuntimeWarning, stacklevel=2,
             )
         learner.transitions.load_state_dict(state["transitions"])
-        learner._sampler.set_state(state["sampler"])
-        counters = [int(c) for c in state["counters"]]
-        if len(counters) == 2:  # before per-critic counters every critic step trained both
-            counters += [counters[1], counters[1]]
-        (learner.policy_updates, learner.critic_updates, learner.safety_updates,
-         learner.goal_updates) = counters
+        learner._load_training(state)
         return learner

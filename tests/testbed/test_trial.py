@@ -17,8 +17,13 @@ from pathlib import Path
 
 import pytest
 import tomli_w
+import torch
 
+from testbed.learning import Learner
 from testbed.records import read_steps, summarize, validate_step
+from testbed.rundata import RunData
+from testbed.runs import RunDir
+from testbed.trial import resume_learner
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -129,6 +134,26 @@ def test_same_seed_same_records_cold_then_warm_one_agent_per_host(workdir: Path)
     assert _without_timing(a) == _without_timing(b)
 
 
+def _assert_same_learner(a: Learner, b: Learner) -> None:
+    """Weights, optimiser moments, data, sampler and counters all equal."""
+    sa, sb = a.state_dict(), b.state_dict()
+    for part in ("policy", "safety", "goal"):
+        assert set(sa[part]) == set(sb[part])
+        for k in sa[part]:
+            va, vb = sa[part][k], sb[part][k]
+            if isinstance(va, torch.Tensor):
+                assert torch.equal(va, vb), (part, k)
+    for part in ("policy_data", "transitions"):
+        for k, va in sa[part].items():
+            vb = sb[part][k]
+            assert torch.equal(va, vb) if isinstance(va, torch.Tensor) else va == vb, (part, k)
+    assert torch.equal(sa["sampler"], sb["sampler"])
+    assert sa["counters"] == sb["counters"] and a.stats() == b.stats()
+    opt_a, opt_b = a.policy_optimizer.state_dict()["state"], b.policy_optimizer.state_dict()[
+        "state"]
+    assert all(torch.equal(opt_a[k]["exp_avg_sq"], opt_b[k]["exp_avg_sq"]) for k in opt_a)
+
+
 @pytest.mark.slow
 def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
     # warm the pretraining cache first so the kill lands in the loop
@@ -153,11 +178,28 @@ def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
     before = read_steps(run / "steps.jsonl")
     assert 10 <= len(before) < 40
     state = json.loads((run / "state.json").read_text())
+    # the data store holds at least every checkpointed step (a torn record is not one)
+    assert state["t"] + 1 <= RunData.of_run(run).num_steps <= len(before) + 1
+
+    # the learner resume rebuilds (start + the data replayed + the step's weights) is
+    # the learner of a run of the same seed that ended at that step, exactly
+    rebuilt = resume_learner(RunDir(run).read_config(), RunDir(run), state)
+    ref = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", "k-ref",
+               "--steps", str(state["t"] + 1), cwd=workdir)
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    _assert_same_learner(rebuilt, Learner.load(workdir / "runs" / "k-ref" / "learner.pt"))
+    saved = torch.load(run / state["learner"], weights_only=True)  # no data in it
+    assert "policy_data" not in saved and "transitions" not in saved
+    assert saved["data_sizes"] == rebuilt.data_sizes()
 
     done = _cli("trial", "--resume", str(run), cwd=workdir)
     assert done.returncode == 0, done.stderr[-3000:]
     steps = read_steps(run / "steps.jsonl")
     assert [s["t"] for s in steps] == list(range(40))
+    data = RunData.of_run(run)
+    assert data.num_steps == 40  # the record and the data agree
+    assert [int(t) for t in data.frames()["t"][::4]] == list(range(40))
+    assert set(data.frames()["session"][4 * (state["t"] + 1):].tolist()) == {1}
     for s in steps:
         validate_step(s)
     # nothing finished was lost: every checkpointed step is still there, unchanged

@@ -126,11 +126,13 @@ def test_save_load_round_trip_continues_exactly(tmp_path: Path) -> None:
 
 
 def test_snapshot_is_the_state_now_whatever_training_does_next(tmp_path: Path) -> None:
-    """The checkpoint's snapshot shares no tensor with the learner: a checkpoint written
-    while training and data go on holds the state of the step it was taken at."""
+    """The checkpoint's snapshot (the training state: no data) shares no tensor with the
+    learner: written while training and data go on, it holds the step it was taken at,
+    and restores it onto a learner holding that step's data, and no other."""
     learner = filled()
     learner.train_step()
     snap = learner.snapshot()
+    assert "policy_data" not in snap and "transitions" not in snap
     ckpt.save_atomic(learner.state_dict(), tmp_path / "now.pt")
     more = transitions(5, np.random.default_rng(4))
     learner.add_human(more.images, more.actions)
@@ -138,12 +140,18 @@ def test_snapshot_is_the_state_now_whatever_training_does_next(tmp_path: Path) -
                             more.success)
     learner.train_step()
     ckpt.save_atomic(snap, tmp_path / "snap.pt")
-    a, b = Learner.load(tmp_path / "now.pt"), Learner.load(tmp_path / "snap.pt")
+    a, b = Learner.load(tmp_path / "now.pt"), Learner.load(tmp_path / "now.pt")
+    b.train_step()  # b moves on; the snapshot takes it back to the step
+    assert not same(params(a), params(b))
+    b.load_training_state(ckpt.load(tmp_path / "snap.pt", ckpt.TRAINING_FORMAT))
     assert same(params(a), params(b))
     assert a.stats() == b.stats() != learner.stats()
     opt_a = a.policy_optimizer.state_dict()["state"]
     opt_b = b.policy_optimizer.state_dict()["state"]
     assert all(torch.equal(opt_a[k]["exp_avg"], opt_b[k]["exp_avg"]) for k in opt_a)
+    assert a.train_step() == b.train_step()  # the sampler too
+    with pytest.raises(LearningError, match="data"):  # the learner now has more data
+        learner.load_training_state(ckpt.load(tmp_path / "snap.pt", ckpt.TRAINING_FORMAT))
 
 
 def test_load_checks_the_shape_defining_config(tmp_path: Path) -> None:

@@ -1,0 +1,187 @@
+"""The run's data store (``testbed.rundata``): frames on disk, torn tails, chunks, resume
+cuts, and the replay that gives a resumed learner exactly what the loop gave it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from testbed import rundata
+from testbed.config import AlgorithmConfig
+from testbed.fleet import FleetLoop
+from testbed.humans import ScriptedHumans
+from testbed.learning.api import PolicyOutput
+from testbed.priorities import get_algorithm
+from testbed.records import RunWriter, read_steps
+from testbed.rundata import FRAME_DTYPE, RunData, RunDataError, RunDataWriter
+from testbed.types import IMAGE_SIZE, ArmObservation, Fault, PushResult
+
+ARMS = ["a/left", "a/right", "b/left", "b/right"]
+
+
+def _step(t: int, n: int = 4, session: int = 0) -> np.ndarray:
+    f = np.zeros(n, FRAME_DTYPE)
+    f["t"], f["arm"], f["session"] = t, np.arange(n), session
+    f["image"] = (np.arange(n)[:, None, None, None] * 10 + t) % 256
+    f["action"] = t % 4
+    return f
+
+
+def test_frames_round_trip_across_chunks_and_a_torn_record_is_dropped(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(rundata, "CHUNK_BYTES", 3 * 4 * FRAME_DTYPE.itemsize)  # 3 steps
+    w = RunDataWriter(tmp_path, ARMS)
+    assert w.steps_per_chunk == 3
+    written = [_step(t) for t in range(8)]
+    for f in written:
+        w.append(f)
+    w.close()
+    assert sorted(p.name for p in (tmp_path / "data").glob("frames-*.bin")) == [
+        "frames-00000.bin", "frames-00001.bin", "frames-00002.bin"]
+    data = RunData.of_run(tmp_path)
+    assert data.num_steps == 8 and data.robots == ARMS
+    assert np.array_equal(data.frames(), np.concatenate(written))
+    assert [t for t, _ in data.iter_steps(2, 7)] == [2, 3, 4, 5, 6]
+    assert np.array_equal(data.frames(4, 6), np.concatenate(written[4:6]))
+    # numpy alone reads a chunk, with the dtype from meta.json
+    raw = np.fromfile(tmp_path / "data" / "frames-00001.bin",
+                      dtype=rundata.dtype_of(rundata.read_meta(tmp_path / "data")))
+    assert np.array_equal(raw, np.concatenate(written[3:6]))
+    # a crash in the middle of step 8's write: the step does not count
+    with open(tmp_path / "data" / "frames-00002.bin", "ab") as f:
+        f.write(_step(8).tobytes()[: FRAME_DTYPE.itemsize * 2 + 100])
+    assert RunData.of_run(tmp_path).num_steps == 8
+
+
+def test_resume_cuts_the_store_back_to_the_checkpoint_and_appends_in_order(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(rundata, "CHUNK_BYTES", 3 * 4 * FRAME_DTYPE.itemsize)
+    w = RunDataWriter(tmp_path, ARMS)
+    for t in range(8):
+        w.append(_step(t))
+    w.close()
+    with pytest.raises(RunDataError, match="robots"):
+        RunDataWriter(tmp_path, ARMS[:2])
+    w = RunDataWriter(tmp_path, ARMS, keep_steps=2)  # the checkpoint holds steps 0..1
+    assert w.steps == 2 and not (tmp_path / "data" / "frames-00001.bin").exists()
+    with pytest.raises(RunDataError, match="step 5 written after 2"):
+        w.append(_step(5))
+    for t in range(2, 5):
+        w.append(_step(t, session=1))
+    w.close()
+    data = RunData.of_run(tmp_path)
+    assert data.num_steps == 5
+    assert list(data.frames()["session"][::4]) == [0, 0, 1, 1, 1]
+
+
+class _World:
+    """Pictures seeded by (arm, pushes so far); arm 0 unseen at step 3, arm 1's host
+    fails at step 4, arm 2's push refused at step 2: every mode a frame can have."""
+
+    def __init__(self) -> None:
+        self.robot_names = list(ARMS)
+        self.n = dict.fromkeys(ARMS, 0)
+        self.t = 0
+        self.violating = dict.fromkeys(ARMS, False)
+
+    def observe(self) -> dict[str, ArmObservation | Fault]:
+        out: dict[str, ArmObservation | Fault] = {}
+        for k, r in enumerate(ARMS):
+            if (self.t, k) == (3, 0):
+                out[r] = Fault(r, "camera lost")
+                continue
+            img = np.random.default_rng([k, self.n[r]]).integers(
+                0, 256, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
+            out[r] = ArmObservation(r, img, self.violating[r], (0.1 * k, 0.5), (k + self.t) % 4)
+        return out
+
+    def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, r in enumerate(ARMS):
+            if r in resets:
+                self.violating[r] = False
+            if (self.t, k) == (4, 1):
+                out[r] = Fault(r, "host lost")
+            elif (self.t, k) == (2, 2) and r in pushes:
+                out[r] = PushResult(r, None, False, False, refused="cube not found")
+            elif r in pushes:
+                self.n[r] += 1
+                roll = (self.n[r] * 7 + k * 3 + pushes[r]) % 11
+                self.violating[r] = roll == 0
+                out[r] = PushResult(r, pushes[r], roll in (3, 5), roll == 0)
+            else:
+                out[r] = PushResult(r, None, False, False)
+        self.t += 1
+        return out
+
+
+class _Recorder:
+    """A learner that acts by a fixed rule and records the data it is given."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, list[np.ndarray]]] = []
+
+    def act(self, images: np.ndarray) -> PolicyOutput:
+        n = len(images)
+        u = (images.reshape(n, -1)[:, 0] / 255.0).astype(np.float32)
+        probs = np.full((n, 4), 0.25, np.float32)
+        z = np.zeros(n, np.float32)
+        return PolicyOutput(images.reshape(n, -1)[:, 1].astype(np.int64) % 4, probs, u, z, z, z)
+
+    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
+        self.calls.append(("human", [np.array(images), np.array(actions)]))
+
+    def add_transitions(self, *columns: np.ndarray) -> None:
+        self.calls.append(("transitions", [np.array(c) for c in columns]))
+
+    def train_step(self) -> dict[str, float]:
+        return {}
+
+
+def _same_calls(a: _Recorder, b: _Recorder) -> bool:
+    return [k for k, _ in a.calls] == [k for k, _ in b.calls] and all(
+        all(np.array_equal(x, y) for x, y in zip(ca, cb, strict=True))
+        for (_, ca), (_, cb) in zip(a.calls, b.calls, strict=True))
+
+
+def test_replay_gives_what_the_loop_gave_its_learner_across_a_resume(tmp_path: Path) -> None:
+    live = _Recorder()
+    world = _World()
+    params = AlgorithmConfig(t_I=0, u_hat=0.3, t_T=2, t_R=2)
+    for session, (first, last) in enumerate([(0, 5), (5, 9)]):  # a resume after step 4
+        data = RunDataWriter(tmp_path, ARMS, keep_steps=first)
+        with RunWriter(tmp_path) as writer:
+            loop = FleetLoop(hosts=world, humans=ScriptedHumans(), learner=live,
+                             algorithm=get_algorithm("cur", params, 4, 2, 0), writer=writer,
+                             steps=9, num_humans=2, t_T=2, t_R=2, data=data,
+                             session=session)
+            for t in range(first, last):
+                loop.step(t)
+            loop.close()
+        data.close()
+    rows = read_steps(tmp_path / "steps.jsonl")
+    stored = RunData.of_run(tmp_path)
+    assert stored.num_steps == len(rows) == 9
+    frames = stored.frames()
+    assert {rundata.MODES.index(m) for m in ("autonomous", "teleop", "fault", "refused")} \
+        <= set(frames["mode"].tolist())
+    for row, (t, f) in zip(rows, stored.iter_steps(), strict=True):
+        assert row["t"] == t
+        assert [rundata.MODES[m] for m in f["mode"]] == [r["mode"] for r in row["robots"]]
+        assert [None if a < 0 else int(a) for a in f["action"]] == \
+            [r["action"] for r in row["robots"]]
+        assert list(f["success"]) == [r["success"] for r in row["robots"]]
+        assert f["wall_time"][0] == row["wall_time"]
+    assert not frames["observed"][3 * 4 + 0] and frames["image"][3 * 4 + 0].max() == 0
+    assert np.allclose(frames["goal"][4 * 4 + 1], (0.1, 0.5))
+    kinds = [k for k, _ in live.calls]
+    assert "human" in kinds and "transitions" in kinds
+    replayed = _Recorder()
+    rundata.replay(replayed, stored, 9)
+    assert _same_calls(live, replayed)  # with no transition from step 4 into step 5
+    with pytest.raises(RunDataError, match="9 steps on disk"):
+        rundata.replay(_Recorder(), stored, 10)
