@@ -96,7 +96,13 @@ def main(argv: list[str] | None = None) -> int:
             learner = _learner(case["demos"], case["transitions"], case["labels"])
             b_snap, b_write, b_size = _time(lambda lr=learner: _before(lr),
                                             work / "before.pt", args.repeat)
-            a_snap, a_write, a_size = _time(learner.snapshot, work / "after.pt", args.repeat)
+            held: list[dict[str, Any] | None] = [None]
+
+            def after(lr: Learner = learner, held: list[Any] = held) -> dict[str, Any]:
+                held[0] = lr.training_state(into=held[0])  # as CheckpointWriter does
+                return held[0]
+
+            a_snap, a_write, a_size = _time(after, work / "after.pt", args.repeat)
             store = RunDataWriter(work / name.split()[0], [f"r{i}" for i in range(case["arms"])])
             frames = np.zeros(case["arms"], FRAME_DTYPE)
             appends = []

@@ -7,8 +7,9 @@ allocator and priority state). The loop takes a snapshot (a copy in memory) and 
 thread writes it while the next step runs. Two alternating learner files and
 ``state.json`` written last keep every pair on disk consistent whenever the process
 dies: resume starts after the step ``state.json`` names. At most one write is in
-flight; the next snapshot waits for it. Each write's size and time are kept
-(``stats()``: run.json ``checkpoint``).
+flight; the next snapshot waits for it, then overwrites the last one's tensors in place
+(``Learner.training_state(into=...)``: no fresh memory in the loop's thread). Each
+write's size and time are kept (``stats()``: run.json ``checkpoint``).
 """
 
 from __future__ import annotations
@@ -29,12 +30,16 @@ class CheckpointWriter:
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
         self._writes: list[tuple[int, float]] = []  # (bytes, seconds) per checkpoint
+        self._buffer: dict[str, Any] | None = None  # the last snapshot, once written
 
     def submit(self, t: int, learner: Any, state: dict[str, Any]) -> None:
         """Snapshot now, write in the background (after the previous write finished)."""
         self.wait()
-        take = getattr(learner, "snapshot", None)  # the Learner's training state
-        snapshot = take() if callable(take) else copy.deepcopy(learner.state_dict())
+        take = getattr(learner, "training_state", None)
+        if callable(take):  # the last snapshot is on disk: its tensors are reused
+            snapshot = self._buffer = take(into=self._buffer)
+        else:
+            snapshot = copy.deepcopy(learner.state_dict())
         name = f"learner-{t % 2}.pt"
         record = {"t": t, "learner": name, **state}
 

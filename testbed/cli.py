@@ -69,6 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="override the protocol's output folder")
     p.add_argument("--yes", action="store_true", help="do not prompt between trials")
 
+    p = sub.add_parser("sweep", help="a grid over config fields x seeds, then its figure",
+                       description="Run every grid point x seed of a sweep file (e.g. "
+                       "protocols/sweeps/humans.toml), then report: one line per value, "
+                       "mean +- std over seeds, as the seed's figures 6-9.")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--out", metavar="DIR", help="override the sweep's output folder")
+
     p = sub.add_parser("report", help="tables and plots of runs or protocol folders",
                        description="Mean +- std per algorithm, Markdown + CSV, PNG curves.")
     p.add_argument("dirs", nargs="+", metavar="RUN_OR_PROTOCOL_DIR")

@@ -220,6 +220,21 @@ def cmd_protocol(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from testbed.sweep import load_sweep, run_sweep
+
+    sweep = load_sweep(Path(args.file))
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    for run in sweep.runs():
+        check_device(run.fleet)
+        check_humans(sweep.humans, run.fleet)
+    report = run_sweep(sweep, out=args.out)
+    print(report.markdown)
+    print(f"report: {report.folder} (figure: curves.png)")
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from testbed.report import write_report
 
@@ -352,6 +367,7 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "trial": cmd_trial,
     "evaluate": cmd_evaluate,
     "protocol": cmd_protocol,
+    "sweep": cmd_sweep,
     "report": cmd_report,
     "check": cmd_check,
     "collect": cmd_collect,

@@ -38,8 +38,10 @@ from testbed.report import Report, write_report
 from testbed.runs import RunDir, evaluated, evaluation_label
 
 if TYPE_CHECKING:
+    from testbed.config import HostConfig
     from testbed.fleet import StepOutcome
     from testbed.humans import Humans
+    from testbed.trial import TrialOptions
 
 
 class Protocol(BaseModel):
@@ -202,8 +204,7 @@ def run_protocol(
     resumes it.
     """
     from testbed.config import ConfigError
-    from testbed.progress import TrialProgress
-    from testbed.trial import STOPPED, TrialOptions, run_trial
+    from testbed.trial import STOPPED, TrialOptions
 
     folder = Path(out or proto.out)
     folder.mkdir(parents=True, exist_ok=True)
@@ -238,8 +239,6 @@ def run_protocol(
                 name=name,
                 pretrain_critics=critics,
             )
-            if run.path.exists() and resume is None:
-                _discard(run.path)
             meta: dict[str, Any] = {
                 "protocol": {"name": proto.name, "trial": k, "position": position,
                              "order": order, "ordering": proto.order}}
@@ -250,19 +249,10 @@ def run_protocol(
                 meta["budget_matched"] = {"run": matched, "random_budget": budget}
                 run_cfg = cfg.model_copy(update={"algorithm": cfg.algorithm.model_copy(
                     update={"random_budget": budget})})
-            with TrialProgress(proto.steps, cfg.humans.count, len(cfg.robot_names),
-                               label=name) as bar:
-
-                def tick(outcome: StepOutcome, bar: TrialProgress = bar) -> None:
-                    bar.on_step(outcome)
-                    if on_step is not None:
-                        on_step(outcome)
-
-                _, summary = run_trial(
-                    run_cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
-                    humans=humans(name) if humans is not None else None, meta=meta,
-                    host_configs=cfg.hosts if resume is not None else None,
-                    wrap_hosts=wrap_hosts)
+            summary = run_named(run_cfg, opts, folder, meta=meta,
+                                humans=humans(name) if humans is not None else None,
+                                wrap_hosts=wrap_hosts, on_step=on_step,
+                                host_configs=cfg.hosts)
             if summary.get("status") == STOPPED:
                 note = (f"protocol stopped: {name} was stopped at step "
                         f"{summary.get('stopped_at')}; run the protocol again to resume it")
@@ -277,6 +267,40 @@ def run_protocol(
         if proto.evaluate_expert and all(h.backend == "twin" for h in cfg.hosts):
             _evaluate_run(proto, folder, "expert", k, humans, wrap_hosts)
     return write_report([folder], folder)
+
+
+def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,
+              meta: dict[str, Any], humans: Humans | None = None,
+              wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
+              on_step: Callable[[StepOutcome], None] | None = None,
+              host_configs: list[HostConfig] | None = None) -> dict[str, Any]:
+    """The run ``folder/opts.name`` of a protocol or a sweep, under a progress bar:
+    skipped when finished (``{"status": "complete", "skipped": True}``), resumed when it
+    has a checkpoint (driving ``host_configs``, default the run's own hosts), else
+    started afresh (a folder that died before its first checkpoint is discarded).
+    Returns the trial's summary."""
+    from testbed.progress import TrialProgress
+    from testbed.trial import COMPLETE, run_trial
+
+    run = RunDir(folder / (opts.name or opts.algorithm))
+    if run.summary.exists():
+        return {"status": COMPLETE, "skipped": True}
+    resume = run.path if run.state.exists() else None
+    if run.path.exists() and resume is None:
+        _discard(run.path)
+    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names),
+                       label=run.path.name) as bar:
+
+        def tick(outcome: StepOutcome) -> None:
+            bar.on_step(outcome)
+            if on_step is not None:
+                on_step(outcome)
+
+        _, summary = run_trial(cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
+                               humans=humans, meta=meta,
+                               host_configs=host_configs if resume is not None else None,
+                               wrap_hosts=wrap_hosts)
+    return summary
 
 
 def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
@@ -343,4 +367,4 @@ def _prompt(text: str) -> None:
 
 
 __all__: list[Any] = ["Protocol", "load_protocol", "matched_budget", "pretrain_critics",
-                     "run_protocol", "williams_square"]
+                     "run_named", "run_protocol", "williams_square"]

@@ -45,6 +45,12 @@ class RunRecord:
     num_humans: int
     summary: dict[str, Any]
     curves: dict[str, np.ndarray]
+    group: str = ""
+    """The table's row and the figure's line: the algorithm, or a sweep's point
+    (run.json ``sweep.point``: ``humans.count-2``)."""
+
+    def __post_init__(self) -> None:
+        self.group = self.group or self.algorithm
 
 
 @dataclass
@@ -92,7 +98,8 @@ def load_run(path: Path) -> RunRecord:
     steps = read_steps(path / "steps.jsonl")
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)
     curves = cumulative(steps, num_humans=num_humans)
-    return RunRecord(path, algorithm, num_humans, summary, curves)
+    point = meta.get("sweep", {}).get("point", "")
+    return RunRecord(path, algorithm, num_humans, summary, curves, group=point)
 
 
 def _num_humans(path: Path) -> int:
@@ -104,15 +111,22 @@ def _num_humans(path: Path) -> int:
     return 2
 
 
-def _table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS) -> tuple[str, str]:
+def _groups(runs: list[RunRecord]) -> dict[str, list[RunRecord]]:
+    """Runs by row/line, in the order they come (a sweep's file order)."""
     groups: dict[str, list[RunRecord]] = {}
     for r in runs:
-        groups.setdefault(r.algorithm, []).append(r)
-    header = ["algorithm", "trials", *metrics]
+        groups.setdefault(r.group, []).append(r)
+    return groups
+
+
+def _table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS) -> tuple[str, str]:
+    groups = _groups(runs)
+    first = "point" if any(r.group != r.algorithm for r in runs) else "algorithm"
+    header = [first, "trials", *metrics]
     md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["algorithm", "trials"] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")])
+    w.writerow([first, "trials"] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")])
     for alg, rs in groups.items():
         cells, row = [], [alg, len(rs)]
         for m in metrics:
@@ -132,9 +146,7 @@ def _plot(runs: list[RunRecord], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups: dict[str, list[RunRecord]] = {}
-    for r in runs:
-        groups.setdefault(r.algorithm, []).append(r)
+    groups = _groups(runs)
     fig, axes = plt.subplots(1, len(METRICS), figsize=(4.2 * len(METRICS), 3.6))
     for ax, m in zip(axes, METRICS, strict=True):
         for alg, rs in groups.items():

@@ -90,6 +90,39 @@ def _parts(value: Iterable[str] | None, allowed: tuple[str, ...], what: str
     return parts
 
 
+def _copy_into(dst: Any, src: Any) -> bool:
+    """Copy ``src``'s tensors into ``dst``'s of the same place, shape and dtype, and its
+    other values over; False (``dst`` then half-written: drop it) where the two differ
+    in layout."""
+    if isinstance(src, dict):
+        if not isinstance(dst, dict) or dst.keys() != src.keys():
+            return False
+        for k, v in src.items():
+            if isinstance(v, torch.Tensor | dict | list):
+                if not _copy_into(dst[k], v):
+                    return False
+            else:
+                dst[k] = copy.deepcopy(v)
+        return True
+    if isinstance(src, list):
+        if not isinstance(dst, list) or len(dst) != len(src):
+            return False
+        for i, v in enumerate(src):
+            if isinstance(v, torch.Tensor | dict | list):
+                if not _copy_into(dst[i], v):
+                    return False
+            else:
+                dst[i] = copy.deepcopy(v)
+        return True
+    if isinstance(src, torch.Tensor):
+        if (not isinstance(dst, torch.Tensor) or dst.shape != src.shape
+                or dst.dtype != src.dtype or dst.device != src.device):
+            return False
+        dst.copy_(src)
+        return True
+    return False
+
+
 def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]:
     """range(total) that reports each finished step to ``progress``."""
     for i in range(total):
@@ -406,19 +439,24 @@ class Learner:
             return {"policy": len(self.policy_data), "chunks": self.policy_data.num_chunks,
                     "transitions": len(self.transitions)}
 
-    def training_state(self) -> dict[str, Any]:
+    def training_state(self, into: dict[str, Any] | None = None) -> dict[str, Any]:
         """``state_dict()`` without the data: weights, optimisers, the sampler, the
         counters and the data's sizes, every tensor its own copy. The per-step
         checkpoint: a resumed trial gets its data back from the run's data store
         (``testbed.rundata.replay``), so this stays ~the weights' size however long the
-        run (the whole state grew ~0.3 MB a step at 4 arms, ~2.5 MB at 100)."""
+        run (the whole state grew ~0.3 MB a step at 4 arms, ~2.5 MB at 100).
+
+        ``into``: an earlier ``training_state()`` that nobody reads any more (the
+        checkpoint writer's, once written): its tensors are overwritten in place and it
+        is returned, 7 ms instead of 45 ms for the paper's learner (fresh memory is what
+        costs, in the loop's thread); a fresh copy if its layout no longer matches."""
         with self._lock:
             state = self.state_dict_parts(data=False)
-            return {**copy.deepcopy(state), "format": checkpoint.TRAINING_FORMAT,
-                    "data_sizes": self.data_sizes()}
-
-    snapshot = training_state
-    """What ``CheckpointWriter`` takes each step (in the loop's thread; written in one)."""
+            state["format"] = checkpoint.TRAINING_FORMAT
+            state["data_sizes"] = self.data_sizes()
+            if into is not None and _copy_into(into, state):
+                return into
+            return copy.deepcopy(state)
 
     def load_training_state(self, state: dict[str, Any], where: str = "checkpoint") -> None:
         """Weights, optimisers, sampler and counters from ``training_state()``; the data

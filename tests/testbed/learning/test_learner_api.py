@@ -131,7 +131,7 @@ def test_snapshot_is_the_state_now_whatever_training_does_next(tmp_path: Path) -
     and restores it onto a learner holding that step's data, and no other."""
     learner = filled()
     learner.train_step()
-    snap = learner.snapshot()
+    snap = learner.training_state()
     assert "policy_data" not in snap and "transitions" not in snap
     ckpt.save_atomic(learner.state_dict(), tmp_path / "now.pt")
     more = transitions(5, np.random.default_rng(4))
@@ -308,3 +308,33 @@ def test_loads_checkpoints_that_stored_chunk_sizes_only(tmp_path: Path) -> None:
     for x in (learner, loaded):
         x.train_step()
     assert same(params(learner), params(loaded))
+
+
+def test_training_state_into_an_old_one_reuses_its_tensors_and_equals_a_fresh_one() -> None:
+    learner = Learner(SMALL, seed=0)
+    empty = learner.training_state()  # before any step: the optimisers hold no moments
+    data = transitions(8, np.random.default_rng(1))
+    learner.add_human(data.images, data.actions)
+    learner.add_transitions(data.images, data.actions, data.next_images, data.violation,
+                            data.success)
+    learner.train_step()
+    first = learner.training_state(into=empty)  # another layout: a fresh copy
+    assert first is not empty and first["policy_optimizer"]["state"]
+    counters = list(first["counters"])
+    learner.train_step()
+    again = learner.training_state(into=first)
+    assert again is first  # the same tensors, overwritten in place
+    fresh = learner.training_state()
+    for part in ("policy", "safety", "goal"):
+        flat_a, flat_b = again[part], fresh[part]
+        for k, v in flat_b.items():
+            if isinstance(v, torch.Tensor):
+                assert torch.equal(flat_a[k], v), (part, k)
+    assert torch.equal(again["sampler"], fresh["sampler"])
+    assert again["counters"] == fresh["counters"] != counters
+    assert again["data_sizes"] == fresh["data_sizes"]
+    p = next(iter(learner.policy.parameters()))
+    with torch.no_grad():
+        p.add_(1.0)  # the learner's weights move on; the snapshot does not
+    assert not torch.equal(learner.training_state()["policy"][next(iter(fresh["policy"]))],
+                           again["policy"][next(iter(fresh["policy"]))])
