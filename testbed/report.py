@@ -7,6 +7,11 @@ with one line per algorithm, mean +- std over trials as in the seed's figures 6-
 Only finished runs count: a run whose run.json says ``stopped`` (Esc) or ``running``
 (in progress, or killed) is left out, and the report says so in one line.
 
+After the table, ROHE with its parts (``rohe_section``): successes split by who pushed,
+human actions, the policy's successes and violations per push, and a paragraph for
+each algorithm that is not below C.U.R. by ROHE (the seed's ordering broken) naming
+the part that decides it.
+
 Evaluations (``testbed evaluate``: rows ``eval:<algorithm>``) are the seed's Table 2, not
 its learning curves: they get a second table (successes, hard resets, idle time; no
 human effort to weigh, humans only reset) in report.md and ``report-eval.csv``, and stay
@@ -45,6 +50,8 @@ class RunRecord:
     num_humans: int
     summary: dict[str, Any]
     curves: dict[str, np.ndarray]
+    parts: dict[str, int] = field(default_factory=dict)
+    """Who made the successes and the violations (``rohe_parts``)."""
     group: str = ""
     """The table's row and the figure's line: the algorithm, or a sweep's point
     (run.json ``sweep.point``: ``humans.count-2``)."""
@@ -99,7 +106,92 @@ def load_run(path: Path) -> RunRecord:
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)
     curves = cumulative(steps, num_humans=num_humans)
     point = meta.get("sweep", {}).get("point", "")
-    return RunRecord(path, algorithm, num_humans, summary, curves, group=point)
+    return RunRecord(path, algorithm, num_humans, summary, curves, rohe_parts(steps),
+                     group=point)
+
+
+def rohe_parts(steps: list[dict[str, Any]]) -> dict[str, int]:
+    """ROHE's numerator split by who pushed: the policy's pushes (autonomous), the
+    humans' (teleop), the successes and violations of each."""
+    out = dict.fromkeys(("policy_pushes", "policy_successes", "policy_violations",
+                         "human_pushes", "human_successes", "human_violations"), 0)
+    for step in steps:
+        for r in step["robots"]:
+            who = {"autonomous": "policy", "teleop": "human"}.get(r["mode"])
+            if who is None or r["action"] is None:
+                continue
+            out[f"{who}_pushes"] += 1
+            out[f"{who}_successes"] += bool(r["success"])
+            out[f"{who}_violations"] += bool(r["violation"])
+    return out
+
+
+PAPER_FIRST = "cur"
+"""The seed reports C.U.R. first by ROHE against every baseline (its Table 1)."""
+
+
+def _mean(rs: list[RunRecord], get: Any) -> float:
+    return float(np.mean([get(r) for r in rs]))
+
+
+def _rate(rs: list[RunRecord], num: str, den: str) -> float:
+    d = sum(r.parts[den] for r in rs)
+    return sum(r.parts[num] for r in rs) / d if d else 0.0
+
+
+def rohe_section(runs: list[RunRecord]) -> str:
+    """Markdown: per algorithm, ROHE and its parts (successes by who pushed, human
+    actions, the policy's successes and violations per push); then, for each
+    algorithm whose ROHE is not below C.U.R.'s (the seed's ordering broken), one
+    paragraph that says which part decides it, from these measurements: ROHE's ratio
+    is (successes ratio) x ((1 + C.U.R.'s human actions) / (1 + its own)), and the
+    larger factor decides."""
+    groups = _groups(runs)
+    head = ("| algorithm | ROHE | successes (policy + humans) | human actions | "
+            "policy successes / push | policy violations / push | "
+            "human successes / push |\n|---|---|---|---|---|---|---|\n")
+    lines = []
+    for alg, rs in groups.items():
+        lines.append(
+            f"| {alg} | {_mean(rs, lambda r: r.summary['rohe']):.4f} | "
+            f"{_mean(rs, lambda r: r.summary['successes']):.1f} "
+            f"({_mean(rs, lambda r: r.parts['policy_successes']):.1f} + "
+            f"{_mean(rs, lambda r: r.parts['human_successes']):.1f}) | "
+            f"{_mean(rs, lambda r: r.summary['human_actions']):.1f} | "
+            f"{_rate(rs, 'policy_successes', 'policy_pushes'):.3f} | "
+            f"{_rate(rs, 'policy_violations', 'policy_pushes'):.3f} | "
+            f"{_rate(rs, 'human_successes', 'human_pushes'):.3f} |")
+    text = ("ROHE and its parts (mean over trials; per push: pooled)\n\n" + head
+            + "\n".join(lines) + "\n")
+    if PAPER_FIRST not in groups:
+        return text
+    cur = groups[PAPER_FIRST]
+    c_rohe = _mean(cur, lambda r: r.summary["rohe"])
+    c_succ = _mean(cur, lambda r: r.summary["successes"])
+    c_hum = _mean(cur, lambda r: r.summary["human_actions"])
+    for alg, rs in groups.items():
+        rohe = _mean(rs, lambda r: r.summary["rohe"])
+        if alg == PAPER_FIRST or rohe < c_rohe:
+            continue
+        succ = _mean(rs, lambda r: r.summary["successes"])
+        hum = _mean(rs, lambda r: r.summary["human_actions"])
+        s_factor = succ / c_succ if c_succ else float("inf")
+        h_factor = (1 + c_hum) / (1 + hum)
+        decides = ("human actions" if abs(np.log(max(h_factor, 1e-9)))
+                   >= abs(np.log(max(s_factor, 1e-9))) else "successes")
+        text += (
+            f"\n{alg} is not below C.U.R. by ROHE ({rohe:.4f} against {c_rohe:.4f}), "
+            f"the reverse of the seed's ordering. Its successes are {s_factor:.2f}x "
+            f"C.U.R.'s ({succ:.1f} against {c_succ:.1f}) and its human actions "
+            f"{hum:.1f} against {c_hum:.1f}, a factor {h_factor:.2f} in its favour in "
+            f"ROHE's denominator: {decides} decide it. Per push, its policy succeeds "
+            f"{_rate(rs, 'policy_successes', 'policy_pushes'):.3f} and violates "
+            f"{_rate(rs, 'policy_violations', 'policy_pushes'):.3f} (C.U.R.'s "
+            f"{_rate(cur, 'policy_successes', 'policy_pushes'):.3f} and "
+            f"{_rate(cur, 'policy_violations', 'policy_pushes'):.3f}); the humans' "
+            f"teleop pushes succeed {_rate(cur, 'human_successes', 'human_pushes'):.3f} "
+            f"per push under C.U.R.\n")
+    return text
 
 
 def _num_humans(path: Path) -> int:
@@ -195,6 +287,8 @@ def write_report(dirs: list[Path], out: Path) -> Report:
     if learning:
         md, csv_text = _table(learning)
         atomic_write_bytes(out / "report.csv", csv_text.encode())
+    if learning and all(r.group == r.algorithm for r in learning):  # not for sweeps
+        md += "\n" + rohe_section(learning)
     if evaluations:
         eval_md, eval_csv = _table(evaluations, EVAL_METRICS)
         md += ("\n" if md else "") + ("Evaluation (seed 8.3.4, Table 2): each final policy "
