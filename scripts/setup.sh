@@ -9,7 +9,7 @@ cd "$(dirname "$0")/.."
 extras="console"
 apt_pkgs=(openssh-client)
 case "${1:-}" in
-  --dev) extras="console,yumi,dev"; apt_pkgs+=(openssh-server xvfb xauth xdotool) ;;
+  --dev) extras="console,yumi,ray,dev"; apt_pkgs+=(openssh-server xvfb xauth xdotool) ;;
   --host) extras="headless,yumi" ;;
   "") ;;
   *) echo "usage: scripts/setup.sh [--dev|--host]" >&2; exit 2 ;;
@@ -32,9 +32,12 @@ for c in python3.11 python3; do
 done
 [ -n "$py" ] || { echo "Python 3.11 is required (pybullet ships wheels for 3.11 only)" >&2; exit 2; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
+# --no-compile: pip byte-compiles every module it installs (torch alone: 40 s against
+# 12 s here); Python compiles the ones a run imports, once, on first import.
+pip=(.venv/bin/python -m pip install -q --no-compile --disable-pip-version-check)
 # torch first and pinned: a bare "torch" would pull a CUDA build of several GB.
-.venv/bin/python -m pip install -q --disable-pip-version-check "torch==2.13.0"
+"${pip[@]}" "torch==2.13.0"
 # The other OpenCV build must go before this one is installed: both own cv2/.
 other="opencv-python-headless"; [ "$extras" = "headless,yumi" ] && other="opencv-python"
 .venv/bin/python -m pip uninstall -q -y "$other" >/dev/null 2>&1 || true
-.venv/bin/python -m pip install -q --disable-pip-version-check -e ".[${extras}]"
+"${pip[@]}" -e ".[${extras}]"

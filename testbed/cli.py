@@ -53,6 +53,18 @@ def _trial_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", help="run folder name (default: ALGORITHM-sSEED)")
 
 
+def _fanout_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=_positive, metavar="N",
+                   help="run the trials on a local Ray with N CPUs (twin fleets only; "
+                   'needs the "ray" extra)')
+    g.add_argument("--ray", metavar="ADDRESS",
+                   help="run the trials on the Ray cluster at ADDRESS; the output folder "
+                   "must be on storage every worker sees")
+    p.add_argument("--cpus-per-trial", type=_positive, default=1, metavar="C",
+                   help="with --workers/--ray: CPUs (and torch threads) per trial")
+
+
 def build_parser() -> argparse.ArgumentParser:
     root = _Parser(prog="testbed", description="Fleet-DAgger testbed: a fleet of pushing arms, "
                    "remote humans, online behaviour cloning.")
@@ -68,6 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE")
     p.add_argument("--out", metavar="DIR", help="override the protocol's output folder")
     p.add_argument("--yes", action="store_true", help="do not prompt between trials")
+    _fanout_args(p)
 
     p = sub.add_parser("sweep", help="a grid over config fields x seeds, then its figure",
                        description="Run every grid point x seed of a sweep file (e.g. "
@@ -75,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "mean +- std over seeds, as the seed's figures 6-9.")
     p.add_argument("file", metavar="FILE")
     p.add_argument("--out", metavar="DIR", help="override the sweep's output folder")
+    _fanout_args(p)
 
     p = sub.add_parser("report", help="tables and plots of runs or protocol folders",
                        description="Mean +- std per algorithm, Markdown + CSV, PNG curves.")

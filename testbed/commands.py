@@ -214,7 +214,16 @@ def cmd_protocol(args: argparse.Namespace) -> int:
         check_out_dir("--out", args.out)
     check_device(proto.fleet)
     check_humans(proto.humans, proto.fleet)
-    report = run_protocol(proto, out=args.out, ask=not args.yes)
+    if args.workers is not None or args.ray is not None:
+        from testbed.fanout import run_protocol_on_ray
+        from testbed.report import write_report
+
+        folder = Path(args.out or proto.out)
+        run_protocol_on_ray(proto, folder, address=args.ray, workers=args.workers,
+                            cpus_per_trial=args.cpus_per_trial)
+        report = write_report([folder], folder)
+    else:
+        report = run_protocol(proto, out=args.out, ask=not args.yes)
     print(report.markdown)
     print(f"report: {report.folder}")
     return 0
@@ -229,7 +238,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     for run in sweep.runs():
         check_device(run.fleet)
         check_humans(sweep.humans, run.fleet)
-    report = run_sweep(sweep, out=args.out)
+    if args.workers is not None or args.ray is not None:
+        from testbed.fanout import run_sweep_on_ray
+
+        run_sweep_on_ray(sweep, Path(args.out) if args.out else sweep.folder,
+                         address=args.ray, workers=args.workers,
+                         cpus_per_trial=args.cpus_per_trial)
+    report = run_sweep(sweep, out=args.out)  # every run finished: skipped, then the report
     print(report.markdown)
     print(f"report: {report.folder} (figure: curves.png)")
     return 0

@@ -204,18 +204,17 @@ def run_protocol(
     resumes it.
     """
     from testbed.config import ConfigError
-    from testbed.trial import STOPPED, TrialOptions
+    from testbed.trial import STOPPED
 
     folder = Path(out or proto.out)
     folder.mkdir(parents=True, exist_ok=True)
     cfg = proto.fleet
     total = proto.trials * len(proto.algorithms)
-    critics = pretrain_critics(proto.algorithms)
     index = 0
     for k in range(proto.trials):
         order = proto.run_order(k)
         first_in_trial = True
-        for position, algorithm in enumerate(order):
+        for algorithm in order:
             index += 1
             name = f"{algorithm}-t{k}"
             run = RunDir(folder / name)
@@ -230,29 +229,9 @@ def run_protocol(
                               and first_in_trial)):
                 _prompt(f"run {index}/{total} ({what} {name}): {proto.prompt}")
             first_in_trial = False
-            opts = TrialOptions(
-                algorithm=algorithm,
-                steps=proto.steps,
-                seed=proto.seed(k),
-                out=str(folder),
-                humans=proto.humans,
-                name=name,
-                pretrain_critics=critics,
-            )
-            meta: dict[str, Any] = {
-                "protocol": {"name": proto.name, "trial": k, "position": position,
-                             "order": order, "ordering": proto.order}}
-            run_cfg = cfg
-            if algorithm == "random" and cfg.algorithm.budget_match is not None:
-                matched = f"{cfg.algorithm.budget_match}-t{k}"
-                budget = matched_budget(folder / matched, cfg.humans.count)
-                meta["budget_matched"] = {"run": matched, "random_budget": budget}
-                run_cfg = cfg.model_copy(update={"algorithm": cfg.algorithm.model_copy(
-                    update={"random_budget": budget})})
-            summary = run_named(run_cfg, opts, folder, meta=meta,
-                                humans=humans(name) if humans is not None else None,
-                                wrap_hosts=wrap_hosts, on_step=on_step,
-                                host_configs=cfg.hosts)
+            summary = run_protocol_run(proto, folder, k, algorithm,
+                                       humans=humans(name) if humans is not None else None,
+                                       wrap_hosts=wrap_hosts, on_step=on_step)
             if summary.get("status") == STOPPED:
                 note = (f"protocol stopped: {name} was stopped at step "
                         f"{summary.get('stopped_at')}; run the protocol again to resume it")
@@ -267,6 +246,38 @@ def run_protocol(
         if proto.evaluate_expert and all(h.backend == "twin" for h in cfg.hosts):
             _evaluate_run(proto, folder, "expert", k, humans, wrap_hosts)
     return write_report([folder], folder)
+
+
+def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
+                     humans: Humans | None = None,
+                     wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
+                     on_step: Callable[[StepOutcome], None] | None = None,
+                     meta: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Run ``<algorithm>-t<k>`` of ``proto`` in ``folder`` (``run_named``: skipped when
+    finished, resumed when checkpointed), Random's budget matched from its run of the
+    same trial. ``meta``: extra run.json keys. The serial loop and a Ray task both
+    call this."""
+    from testbed.trial import TrialOptions
+
+    cfg = proto.fleet
+    order = proto.run_order(k)
+    opts = TrialOptions(algorithm=algorithm, steps=proto.steps, seed=proto.seed(k),
+                        out=str(folder), humans=proto.humans, name=f"{algorithm}-t{k}",
+                        pretrain_critics=pretrain_critics(proto.algorithms))
+    run_meta: dict[str, Any] = {
+        **(meta or {}),
+        "protocol": {"name": proto.name, "trial": k, "position": order.index(algorithm),
+                     "order": order, "ordering": proto.order}}
+    run_cfg = cfg
+    if (algorithm == "random" and cfg.algorithm.budget_match is not None
+            and not RunDir(folder / opts.name).summary.exists()):
+        matched = f"{cfg.algorithm.budget_match}-t{k}"
+        budget = matched_budget(folder / matched, cfg.humans.count)
+        run_meta["budget_matched"] = {"run": matched, "random_budget": budget}
+        run_cfg = cfg.model_copy(update={"algorithm": cfg.algorithm.model_copy(
+            update={"random_budget": budget})})
+    return run_named(run_cfg, opts, folder, meta=run_meta, humans=humans,
+                     wrap_hosts=wrap_hosts, on_step=on_step, host_configs=cfg.hosts)
 
 
 def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,

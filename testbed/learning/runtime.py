@@ -75,6 +75,8 @@ def configure_torch(num_threads: int | None = None) -> int:
     cores). So the thread count follows what is free without being told.
     Deterministic algorithms are warn-only: CPU ops here are deterministic anyway; on
     CUDA it picks deterministic kernels where they exist."""
+    if num_threads is None and os.environ.get("TESTBED_THREADS", "").isdigit():
+        num_threads = int(os.environ["TESTBED_THREADS"])  # a Ray trial: its CPUs
     if num_threads is None:
         try:
             cores = len(os.sched_getaffinity(0))
