@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
+import shutil
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -294,9 +296,10 @@ def run_trial(
                 learner = load_learner(cfg, Path(opts.policy))
             else:
                 critics = algorithm.spec.critics | set(opts.pretrain_critics or ())
-                learner, _ = pretrained_learner(cfg, humans, Path(opts.out), progress,
-                                                hosts=hosts, trial_seed=opts.seed,
-                                                critics=critics)
+                learner, theta_0 = pretrained_learner(cfg, humans, Path(opts.out), progress,
+                                                      hosts=hosts, trial_seed=opts.seed,
+                                                      critics=critics)
+                keep_demos(theta_0.parent / "demos.npz", run)
             if pending:  # a new run (a resumed one reads the resolved config back)
                 cfg, resolved = resolve_thresholds(cfg, learner, only=pending)
                 run.write_config(written.model_copy(update={"algorithm": cfg.algorithm}))
@@ -387,6 +390,23 @@ def run_trial(
     run_meta.update(status=COMPLETE, finished=time.time())
     run.write_meta(run_meta)
     return run, {**summary, "status": COMPLETE}
+
+
+def keep_demos(demos: Path, run: RunDir) -> None:
+    """The offline demonstrations theta_0 learned from, beside the run's data
+    (``data/demos.npz``, ``testbed.offline.save_transitions``' format: a hard link to the
+    pretraining cache's file where the file system allows), so that the run's folder
+    alone holds every label its policy saw (``testbed export``)."""
+    if not demos.exists():
+        return
+    target = run.path / "data" / "demos.npz"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if target.exists():
+        return
+    try:
+        os.link(demos, target)
+    except OSError:
+        shutil.copyfile(demos, target)
 
 
 def _placeholders(params: AlgorithmConfig) -> AlgorithmConfig:
