@@ -9,7 +9,7 @@ cd "$(dirname "$0")/.."
 extras="console"
 apt_pkgs=(openssh-client)
 case "${1:-}" in
-  --dev) extras="console,yumi,ray,dev"; apt_pkgs+=(openssh-server xvfb xauth xdotool) ;;
+  --dev) extras="console,yumi,ray,dev,export"; apt_pkgs+=(openssh-server xvfb xauth xdotool) ;;
   --host) extras="headless,yumi" ;;
   "") ;;
   *) echo "usage: scripts/setup.sh [--dev|--host]" >&2; exit 2 ;;

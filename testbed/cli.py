@@ -173,6 +173,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR")
     p.add_argument("--humans", choices=["scripted", "gui"])
     p.add_argument("--name")
+
+    p = sub.add_parser("export", help="runs' frames as a LeRobot v3 dataset or numpy arrays",
+                       description="Cut the runs' data stores into episodes (one arm, one "
+                       "goal) with every label (who acted, intervention, success, "
+                       "violation, uncertainty, risk) and theta_0's demonstrations, and "
+                       "write them as a LeRobot v3 dataset or one npz.")
+    p.add_argument("dirs", nargs="+", metavar="RUN_OR_PROTOCOL_DIR")
+    p.add_argument("--format", choices=["lerobot", "npz"], default="lerobot",
+                   help="lerobot (default; needs the export extra) or npz (numpy only)")
+    p.add_argument("--out", required=True, metavar="DIR_OR_FILE",
+                   help="lerobot: a new or empty folder; npz: a .npz file, or a folder "
+                   "to hold frames.npz")
+    p.add_argument("--images", choices=["png", "video"],
+                   help="lerobot only: png (default: lossless, PNG bytes in the parquet) "
+                   "or video (H.264 MP4, smaller for camera images, lossy)")
+
+    p = sub.add_parser("train", help="pretrain a learner from exported data",
+                       description="Pretrain policy and critics from exported datasets "
+                       "(testbed export's npz or LeRobot folders, or run folders; several "
+                       "are merged): the human-labelled frames and the demonstrations for "
+                       "the policy, every push with its next frame for the critics; "
+                       "write learner.pt (testbed evaluate --policy).")
+    _common(p)
+    p.add_argument("--data", required=True, nargs="+", metavar="DIR")
+    p.add_argument("--steps", type=int,
+                   help="gradient steps of each phase, policy and critics (default: config)")
+    p.add_argument("--out", default="learner.pt", metavar="PT")
     return root
 
 

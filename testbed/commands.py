@@ -378,6 +378,64 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from testbed.export import export
+
+    out = Path(args.out)
+    if args.format == "npz":
+        if args.images is not None:
+            raise ConfigError("--images: only for --format lerobot (npz keeps the raw "
+                              "uint8 images)")
+        if out.suffix == ".npz":
+            check_out_file("--out", args.out)
+        else:
+            check_out_dir("--out", args.out)
+    elif out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ConfigError(f"--out: {args.out!r} exists and is not an empty folder; a "
+                          "LeRobot dataset goes to a new folder")
+    result = export([Path(d) for d in args.dirs], args.format, out, args.images or "png")
+    print(f"{result.frames} frames, {result.episodes} episodes ({result.demo_episodes} of "
+          f"offline demonstrations) from {result.runs} run(s) -> {result.path}")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from testbed.export import DEMO_FIELDS, TrainingData, load_frames, training_data
+    from testbed.trial import PRETRAIN_SEED, new_learner
+
+    cfg = _config(args)
+    if args.steps is not None:
+        if args.steps < 0:
+            raise ConfigError("--steps: must be >= 0")
+        cfg = cfg.model_copy(
+            update={"learning": cfg.learning.model_copy(
+                update={"pretrain_steps": args.steps, "critic_pretrain_steps": None})}
+        )
+    check_out_file("--out", args.out)
+    check_device(cfg)
+    for d in args.data:
+        if not Path(d).exists():
+            raise ConfigError(f"--data: no such file or folder {d!r}")
+    data = TrainingData.merge([training_data(load_frames(Path(d))) for d in args.data])
+    if len(data.actions) == 0:
+        raise ConfigError(f"--data: no human-labelled frame in {', '.join(args.data)}; "
+                          "nothing to train the policy on")
+    from testbed.learning import Transitions
+
+    transitions = Transitions.build(*(data.transitions[k] for k in DEMO_FIELDS))
+    learner = new_learner(cfg, PRETRAIN_SEED)
+    with TrialProgress(cfg.learning.pretrain_steps, 0, 0, label="train") as bar:
+        # both critics, as testbed pretrain: this learner.pt may serve any algorithm
+        learner.pretrain(data.images, data.actions,
+                         transitions=transitions if len(transitions) else None,
+                         progress=lambda phase, done, total: bar.on_phase(
+                             f"train {phase}", done, total))
+    learner.save(Path(args.out))
+    print(f"{len(data.actions)} labelled frames, {len(transitions)} transitions -> "
+          f"learner {args.out}")
+    return 0
+
+
 VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "trial": cmd_trial,
     "evaluate": cmd_evaluate,
@@ -389,4 +447,6 @@ VERBS: dict[str, Callable[[argparse.Namespace], int]] = {
     "pretrain": cmd_pretrain,
     "calibrate": cmd_calibrate,
     "rehearse": cmd_rehearse,
+    "export": cmd_export,
+    "train": cmd_train,
 }

@@ -44,6 +44,8 @@ from testbed.records import (
     summarize,
     truncate_torn_tail,
 )
+from testbed.rundata import FOLDER as DATA_FOLDER
+from testbed.rundata import META as DATA_META
 from testbed.rundata import RunDataWriter
 from testbed.runs import RunDir, new_run_dir
 from testbed.thresholds import SIGNAL, resolve_thresholds
@@ -321,7 +323,11 @@ def run_trial(
                 if not opts.expert:  # what resume replays the run's data onto
                     with critical():
                         learner.save(run.start_learner)
-            data = RunDataWriter(run.path, cfg.robot_names, keep_steps=start)
+            if state is None or (run.path / DATA_FOLDER / DATA_META).exists():
+                data = RunDataWriter(run.path, cfg.robot_names, keep_steps=start)
+            else:  # a run from before the data store: it goes on without one
+                LOG.warning("%s has no data/ (an older run): resumed without a data store",
+                            run.path)
             writer = RunWriter(run.path)
 
             checkpoints = CheckpointWriter(run.path)
