@@ -297,21 +297,24 @@ def cmd_collect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _with_pretrain_steps(cfg: FleetConfig, steps: int | None) -> FleetConfig:
+    """``--steps`` of ``testbed pretrain`` / ``train``: both phases take that many."""
+    if steps is None:
+        return cfg
+    if steps < 0:
+        raise ConfigError("--steps: must be >= 0")
+    return cfg.model_copy(update={"learning": cfg.learning.model_copy(
+        update={"pretrain_steps": steps, "critic_pretrain_steps": None})})
+
+
 def cmd_pretrain(args: argparse.Namespace) -> int:
     from testbed.humans import make_humans
     from testbed.offline import load_transitions, pretrain
     from testbed.trial import PRETRAIN_SEED, build_hosts, new_learner
 
-    cfg = _config(args)
+    cfg = _with_pretrain_steps(_config(args), args.steps)
     if not Path(args.demos).is_file():
         raise ConfigError(f"--demos: no such file {args.demos!r}; run testbed collect first")
-    if args.steps is not None:
-        if args.steps < 0:
-            raise ConfigError("--steps: must be >= 0")
-        cfg = cfg.model_copy(
-            update={"learning": cfg.learning.model_copy(
-                update={"pretrain_steps": args.steps, "critic_pretrain_steps": None})}
-        )
     check_out_file("--out", args.out)
     check_device(cfg)
     check_humans(args.humans or cfg.humans.kind, cfg, teleop=False)
@@ -403,14 +406,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from testbed.export import DEMO_FIELDS, TrainingData, load_frames, training_data
     from testbed.trial import PRETRAIN_SEED, new_learner
 
-    cfg = _config(args)
-    if args.steps is not None:
-        if args.steps < 0:
-            raise ConfigError("--steps: must be >= 0")
-        cfg = cfg.model_copy(
-            update={"learning": cfg.learning.model_copy(
-                update={"pretrain_steps": args.steps, "critic_pretrain_steps": None})}
-        )
+    cfg = _with_pretrain_steps(_config(args), args.steps)
     check_out_file("--out", args.out)
     check_device(cfg)
     for d in args.data:
