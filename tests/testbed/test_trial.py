@@ -275,8 +275,10 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert "| eval:bc | 2 |" in evaluation and "| eval:cur | 2 |" in evaluation
     assert "| eval:expert | 2 |" in evaluation
     assert "eval" not in learning
-    rows = [ln for ln in md.splitlines() if ln.startswith("| bc ") or ln.startswith("| cur ")]
+    table, _, parts = learning.partition("ROHE and its parts")
+    rows = [ln for ln in table.splitlines() if ln.startswith(("| bc ", "| cur "))]
     assert len(rows) == 2 and all("| 2 |" in r for r in rows)
+    assert len([ln for ln in parts.splitlines() if ln.startswith(("| bc ", "| cur "))]) == 2
     csv_lines = (out / "report.csv").read_text().splitlines()
     assert csv_lines[0].startswith("algorithm,trials,successes_mean,successes_std")
     png = (out / "curves.png").read_bytes()
