@@ -120,18 +120,10 @@ def _evaluation(proto: Protocol, folder: str, k: int, algorithm: str, threads: i
 
 
 def _sweep_run(sweep: Sweep, folder: str, index: int, threads: int, *after: Any) -> str:
-    from testbed.protocol import pretrain_critics, run_named
-    from testbed.trial import TrialOptions
+    from testbed.sweep import run_sweep_run
 
     _threads(threads)
-    runs = sweep.runs()
-    run = runs[index]
-    opts = TrialOptions(algorithm=run.algorithm, steps=sweep.steps, seed=run.seed,
-                        out=folder, humans=sweep.humans, name=run.name,
-                        pretrain_critics=pretrain_critics(sorted({r.algorithm for r in runs})))
-    meta = {"sweep": {"name": sweep.name, "point": run.point.label,
-                      "values": run.point.values, "seed": run.seed}, **_worker_meta()}
-    return str(run_named(run.fleet, opts, Path(folder), meta=meta).get("status"))
+    return str(run_sweep_run(sweep, Path(folder), index, meta=_worker_meta()).get("status"))
 
 
 def _remote(ray: Any, fn: Callable[..., Any], cpus: int) -> Any:
@@ -181,14 +173,14 @@ def run_sweep_on_ray(sweep: Sweep, folder: Path, *, address: str | None = None,
                      workers: int | None = None, cpus_per_trial: int = 1) -> None:
     """Every (point, seed) of ``sweep`` as a Ray task, each distinct theta_0 first."""
     from testbed.offline import critic_set, pretrain_key
-    from testbed.protocol import pretrain_critics
+    from testbed.sweep import pretrain_critics_of
     from testbed.trial import PRETRAIN_SEED
 
     check_fanout(sweep.fleet, sweep.humans, f"sweep {sweep.name!r}")
     runs = sweep.runs()
     for run in runs:
         check_fanout(run.fleet, sweep.humans, f"sweep {sweep.name!r}")
-    critics = pretrain_critics(sorted({r.algorithm for r in runs}))
+    critics = pretrain_critics_of(sweep)
     ray = _init(address, workers)
     try:
         pre = _remote(ray, _pretrain, _cpus(ray))

@@ -300,12 +300,12 @@ def replay(sink: DataSink, data: RunData, steps: int) -> None:
     """Give ``sink`` what the fleet loop gave its learner over steps [0, steps): in the
     same order and chunks (so the augmentation seeds and bootstrap weights are the
     same), no transition across a resume (a new session: the world may have moved)."""
+    if data.num_steps < steps:  # before any call: the sink is left untouched
+        raise RunDataError(f"{data.folder}: {data.num_steps} steps on disk, "
+                           f"the checkpoint needs {steps}")
     prev: np.ndarray | None = None
     for _, frames in data.iter_steps(0, steps):
         if prev is not None and prev["session"][0] == frames["session"][0]:
             add_transitions(sink, prev, frames["observed"], frames["image"])
         add_labels(sink, frames)
         prev = frames
-    if data.num_steps < steps:
-        raise RunDataError(f"{data.folder}: {data.num_steps} steps on disk, "
-                           f"the checkpoint needs {steps}")

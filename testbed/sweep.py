@@ -163,22 +163,38 @@ def load_sweep(path: Path) -> Sweep:
     return sweep
 
 
+def pretrain_critics_of(sweep: Sweep) -> list[str]:
+    """theta_0's critics: every one any of the grid's algorithms reads (one per fleet)."""
+    from testbed.protocol import pretrain_critics
+
+    return pretrain_critics(sorted({r.algorithm for r in sweep.runs()}))
+
+
+def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
+                  meta: dict[str, Any] | None = None,
+                  on_step: Callable[[StepOutcome], None] | None = None) -> dict[str, Any]:
+    """Run ``sweep.runs()[index]`` in ``folder`` (``run_named``: skipped when finished,
+    resumed when checkpointed); ``meta``: extra run.json keys. The serial loop and a Ray
+    task both call this."""
+    from testbed.protocol import run_named
+    from testbed.trial import TrialOptions
+
+    run = sweep.runs()[index]
+    opts = TrialOptions(algorithm=run.algorithm, steps=sweep.steps, seed=run.seed,
+                        out=str(folder), humans=sweep.humans, name=run.name,
+                        pretrain_critics=pretrain_critics_of(sweep))
+    run_meta = {**(meta or {}), "sweep": {"name": sweep.name, "point": run.point.label,
+                                          "values": run.point.values, "seed": run.seed}}
+    return run_named(run.fleet, opts, folder, meta=run_meta, on_step=on_step)
+
+
 def run_sweep(sweep: Sweep, out: str | None = None, *,
               on_step: Callable[[StepOutcome], None] | None = None) -> Report:
     """Run every (point, seed) not finished yet, then the report (figure: curves.png)."""
-    from testbed.protocol import pretrain_critics, run_named
     from testbed.report import write_report
-    from testbed.trial import TrialOptions
 
     folder = Path(out) if out is not None else sweep.folder
     folder.mkdir(parents=True, exist_ok=True)
-    runs = sweep.runs()
-    critics = pretrain_critics(sorted({r.algorithm for r in runs}))  # one theta_0 per fleet
-    for run in runs:
-        opts = TrialOptions(algorithm=run.algorithm, steps=sweep.steps, seed=run.seed,
-                            out=str(folder), humans=sweep.humans, name=run.name,
-                            pretrain_critics=critics)
-        meta = {"sweep": {"name": sweep.name, "point": run.point.label,
-                          "values": run.point.values, "seed": run.seed}}
-        run_named(run.fleet, opts, folder, meta=meta, on_step=on_step)
+    for index in range(len(sweep.runs())):
+        run_sweep_run(sweep, folder, index, on_step=on_step)
     return write_report([folder], folder)

@@ -94,25 +94,19 @@ def _copy_into(dst: Any, src: Any) -> bool:
     """Copy ``src``'s tensors into ``dst``'s of the same place, shape and dtype, and its
     other values over; False (``dst`` then half-written: drop it) where the two differ
     in layout."""
-    if isinstance(src, dict):
-        if not isinstance(dst, dict) or dst.keys() != src.keys():
+    if isinstance(src, dict | list):
+        if type(dst) is not type(src) or len(dst) != len(src):
             return False
-        for k, v in src.items():
+        keys = list(src) if isinstance(src, dict) else range(len(src))
+        if isinstance(src, dict) and dst.keys() != src.keys():
+            return False
+        for k in keys:
+            v = src[k]
             if isinstance(v, torch.Tensor | dict | list):
                 if not _copy_into(dst[k], v):
                     return False
             else:
                 dst[k] = copy.deepcopy(v)
-        return True
-    if isinstance(src, list):
-        if not isinstance(dst, list) or len(dst) != len(src):
-            return False
-        for i, v in enumerate(src):
-            if isinstance(v, torch.Tensor | dict | list):
-                if not _copy_into(dst[i], v):
-                    return False
-            else:
-                dst[i] = copy.deepcopy(v)
         return True
     if isinstance(src, torch.Tensor):
         if (not isinstance(dst, torch.Tensor) or dst.shape != src.shape
