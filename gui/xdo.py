@@ -134,8 +134,13 @@ def press(window: str, key: str, *, display: str | None = None) -> None:
 
 
 def click(window: str, x: int, y: int, *, display: str | None = None) -> None:
-    """Left click at window coordinates (x, y): move the pointer there, then click."""
-    _xdotool("mousemove", "--window", window, str(x), str(y), "click", "1", display=display)
+    """Left click at window coordinates (x, y): move the pointer there, then click.
+
+    ``--sync`` waits until the pointer is there, so the press does not reach the window
+    before the pointer has entered it.
+    """
+    _xdotool("mousemove", "--sync", "--window", window, str(x), str(y), "click", "1",
+             display=display)
 
 
 # ---- driving a console in another process (``testbed trial --humans gui``) ----------
