@@ -10,13 +10,36 @@ console, built lazily by ``make_humans`` so ``import testbed`` never pulls in a 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
 
 from testbed.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
 
 
 class HumansStopRequested(Exception):
     """A human asked for a graceful stop of the trial (Esc, confirmed, on the console)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Presence:
+    """Which humans can take an intervention this step (the web console's away humans).
+
+    Humans on their own devices come and go: a human whose console page is closed is
+    away. The fleet loop asks ``Humans.presence()`` (optional: humans without it are all
+    present, always) before each allocation and hands ``available`` to the allocator,
+    which never newly assigns an away human. A held intervention of an away human goes
+    on for the console's grace period (the page may be back in a moment, a reload); a
+    human away longer is in ``gone``, and the loop ends that human's intervention and
+    records it (the step row's ``released``).
+    """
+
+    available: npt.NDArray[np.bool_]
+    """(M,) True for a human who may be assigned this step."""
+    gone: frozenset[int] = field(default_factory=frozenset)
+    """Humans away past the grace period: any intervention they hold ends now."""
 
 
 @runtime_checkable
@@ -59,6 +82,12 @@ class ScriptedHumans:
 
     def close(self) -> None:
         return None
+
+
+def presence_of(humans: Humans) -> Presence | None:
+    """``humans.presence()`` if that kind of humans can be away, else None (all present)."""
+    get = getattr(humans, "presence", None)
+    return get() if callable(get) else None
 
 
 def make_humans(kind: str, count: int) -> Humans:
