@@ -85,3 +85,34 @@ def action_for_click(
     x, y = point
     dists = [(mx - x) ** 2 + (my - y) ** 2 for mx, my in markers]
     return min(range(len(dists)), key=dists.__getitem__)
+
+
+BROWSER_KEYS: Final[dict[str, int]] = {
+    # KeyboardEvent.key names -> the X keysyms above, so a page's key means what the
+    # same key means in an OpenCV window (one table: PUSH_KEYS and friends)
+    "ArrowUp": 0xFF52, "ArrowLeft": 0xFF51, "ArrowDown": 0xFF54, "ArrowRight": 0xFF53,
+    "Up": 0xFF52, "Left": 0xFF51, "Down": 0xFF54, "Right": 0xFF53,  # old Edge/IE names
+    "Enter": 0xFF0D, "Escape": 0xFF1B, "Esc": 0xFF1B, "Spacebar": ord(" "),
+}
+BUTTONS: Final[dict[str, KeyCommand]] = {
+    # the page's buttons (touch screens have no keys)
+    "confirm": KeyCommand(Command.CONFIRM),
+    "pause": KeyCommand(Command.PAUSE),
+    "stop": KeyCommand(Command.STOP),
+    "yes": KeyCommand(Command.YES),
+    "no": KeyCommand(Command.OTHER),
+    **{f"push{k}": KeyCommand(Command.PUSH, k) for k in range(4)},
+}
+
+
+def decode_browser_key(key: str) -> KeyCommand | None:
+    """What a page's ``KeyboardEvent.key`` means (the same as the key in a window).
+
+    None for named keys that are not the console's (Shift, F5...); any other single
+    character is ``OTHER`` (it answers "stop the trial?" with no, as in a window).
+    """
+    if key in BROWSER_KEYS:
+        return decode_key(BROWSER_KEYS[key])
+    if len(key) == 1:
+        return decode_key(ord(key))
+    return None

@@ -1,0 +1,204 @@
+// The web console's pages (gui/web/server.py has the wire). No framework, no build step:
+// the page draws the PNG frames the server renders with the OpenCV console's own drawing
+// code, and sends back what the human did with the number of the frame on screen.
+"use strict";
+const TestbedConsole = (() => {
+  const token = new URLSearchParams(location.search).get("token") || "";
+  const state = { shownSeq: 0, head: null, replies: [], painted: 0, open: false,
+                  latencies: [], points: [] };
+  window.consoleState = state;  // read by tests and the latency benchmark
+  let ws = null;
+  let nextId = 1;
+
+  function wsUrl(path) {
+    const scheme = location.protocol === "https:" ? "wss://" : "ws://";
+    return scheme + location.host + path + "?token=" + encodeURIComponent(token);
+  }
+
+  function send(msg) {
+    if (ws && ws.readyState === WebSocket.OPEN) {
+      msg.id = nextId++;
+      ws.send(JSON.stringify(msg));
+    }
+  }
+
+  function parseFrame(buf) {
+    const n = new DataView(buf).getUint32(0);
+    const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+    return [head, new Blob([new Uint8Array(buf, 4 + n)], { type: "image/png" })];
+  }
+
+  function status(text) { document.getElementById("status").textContent = text; }
+
+  function setConn(open) {
+    state.open = open;
+    const el = document.getElementById("conn");
+    el.textContent = open ? "connected" : "disconnected: reconnecting";
+    el.className = open ? "here" : "away";
+  }
+
+  // Frames are drawn one at a time, newest first: a frame that arrives while another is
+  // being decoded replaces it (a human wants the present, not a backlog).
+  function frameDrawer(canvas, onDrawn) {
+    const ctx = canvas.getContext("2d");
+    let waiting = null;
+    let busy = false;
+    async function drain() {
+      busy = true;
+      while (waiting) {
+        const [head, blob] = waiting;
+        waiting = null;
+        const bitmap = await createImageBitmap(blob);
+        if (canvas.width !== bitmap.width || canvas.height !== bitmap.height) {
+          canvas.width = bitmap.width;
+          canvas.height = bitmap.height;
+        }
+        ctx.drawImage(bitmap, 0, 0);
+        bitmap.close();
+        onDrawn(head);
+        // The next animation frame comes once this drawing is committed for paint:
+        // the page's own timing of "painted".
+        requestAnimationFrame(() => {
+          const t = performance.timeOrigin + performance.now();
+          state.painted += 1;
+          state.latencies.push([head.seq, t - head.t_sent]);
+          send({ type: "painted", seq: head.seq, t_sent: head.t_sent, t_painted: t });
+        });
+      }
+      busy = false;
+    }
+    return (head, blob) => { waiting = [head, blob]; if (!busy) drain(); };
+  }
+
+  function connect(path, onFrame, onText) {
+    ws = new WebSocket(wsUrl(path));
+    ws.binaryType = "arraybuffer";
+    ws.onopen = () => setConn(true);
+    ws.onmessage = (ev) => {
+      if (typeof ev.data === "string") onText(JSON.parse(ev.data));
+      else onFrame(...parseFrame(ev.data));
+    };
+    ws.onclose = (ev) => {
+      setConn(false);
+      if (ev.code === 1008 || ev.code === 1006 && !state.everOpen) {
+        status("this console's token was refused");
+      }
+      setTimeout(() => connect(path, onFrame, onText), 1000);
+    };
+    ws.addEventListener("open", () => { state.everOpen = true; });
+  }
+
+  function wireButtons() {
+    for (const b of document.querySelectorAll("button[data-button]")) {
+      b.addEventListener("click", () => {
+        send({ type: "button", name: b.dataset.button, seq: state.shownSeq });
+      });
+    }
+  }
+
+  function showFlags(head) {
+    document.getElementById("pause").textContent = head.paused ? "Resume" : "Pause";
+    document.getElementById("confirm").style.display = head.confirming_stop ? "flex" : "none";
+  }
+
+  function onReply(msg) {
+    if (msg.type === "input") {
+      state.replies.push(msg);
+      status(msg.taken ? "sent" : "not taken: " + msg.why);
+    } else if (msg.type === "error") {
+      state.replies.push(msg);
+      status("error: " + msg.why);
+    } else if (msg.type === "history") {
+      state.points = msg.points;
+    }
+  }
+
+  const KEYS = new Set(["ArrowUp", "ArrowLeft", "ArrowDown", "ArrowRight", "Enter",
+                        "Escape", " "]);
+
+  function humanPage() {
+    const canvas = document.getElementById("frame");
+    const draw = frameDrawer(canvas, (head) => {
+      state.shownSeq = head.seq;
+      state.head = head;
+      document.getElementById("reset").disabled = head.phase !== "reset";
+      for (const b of document.querySelectorAll("#pushes button")) {
+        b.disabled = head.phase !== "choose";
+      }
+      showFlags(head);
+    });
+    connect("/ws", draw, onReply);
+    wireButtons();
+    document.addEventListener("keydown", (e) => {
+      if (e.repeat || e.ctrlKey || e.metaKey || e.altKey) return;
+      if (!KEYS.has(e.key) && e.key.length !== 1) return;
+      e.preventDefault();  // arrows must not scroll, space must not press a button
+      send({ type: "key", key: e.key, seq: state.shownSeq });
+    });
+    // A click or a tap on the image: the push of the nearest face marker (server side,
+    // gui.keys.action_for_click), in the frame's own pixels whatever the page's zoom.
+    canvas.addEventListener("pointerdown", (e) => {
+      const r = canvas.getBoundingClientRect();
+      const x = (e.clientX - r.left) * canvas.width / r.width;
+      const y = (e.clientY - r.top) * canvas.height / r.height;
+      send({ type: "click", x, y, seq: state.shownSeq });
+    });
+  }
+
+  const CURVES = [["successes", "#50d050"], ["human_actions", "#ff9a30"],
+                  ["hard_resets", "#ff4040"], ["idle", "#a0a0a0"]];
+
+  function drawCurves(canvas, points) {
+    const ctx = canvas.getContext("2d");
+    const w = canvas.width, h = canvas.height, pad = 28;
+    ctx.fillStyle = "#282828";
+    ctx.fillRect(0, 0, w, h);
+    if (points.length === 0) return;
+    const tMax = Math.max(1, points[points.length - 1].t);
+    let yMax = 1;
+    for (const p of points) for (const [k] of CURVES) yMax = Math.max(yMax, p[k]);
+    ctx.font = "12px sans-serif";
+    CURVES.forEach(([k, colour], i) => {
+      ctx.strokeStyle = colour;
+      ctx.beginPath();
+      points.forEach((p, j) => {
+        const x = pad + (w - 2 * pad) * p.t / tMax;
+        const y = h - pad - (h - 2 * pad) * p[k] / yMax;
+        if (j === 0) ctx.moveTo(x, y); else ctx.lineTo(x, y);
+      });
+      ctx.stroke();
+      ctx.fillStyle = colour;
+      ctx.fillText(k.replace("_", " ") + " " + points[points.length - 1][k], pad + i * 140, 14);
+    });
+    ctx.fillStyle = "#aaa";
+    ctx.fillText("t = " + tMax, w - pad - 50, h - 8);
+    ctx.fillText(String(yMax), 2, pad);
+  }
+
+  function overviewPage() {
+    const curves = document.getElementById("curves");
+    const draw = frameDrawer(document.getElementById("mosaic"), (head) => {
+      state.shownSeq = head.seq;
+      state.head = head;
+      if (head.point && (state.points.length === 0
+          || state.points[state.points.length - 1].t !== head.point.t)) {
+        state.points.push(head.point);
+      }
+      const last = state.points[state.points.length - 1];
+      if (last) {
+        document.getElementById("counters").textContent =
+          `t ${last.t}  successes ${last.successes}  hard resets ${last.hard_resets}  ` +
+          `human actions ${last.human_actions}  idle ${last.idle}  ROHE ${last.rohe}`;
+      }
+      document.getElementById("humans").innerHTML = (head.humans || []).map((x) =>
+        `<span class="${x.present ? "here" : "away"}">human ${x.human}: ` +
+        `${x.present ? x.phase : "away"}</span>`).join(" &middot; ");
+      showFlags(head);
+      drawCurves(curves, state.points);
+    });
+    connect("/ws/overview", draw, (msg) => { onReply(msg); drawCurves(curves, state.points); });
+    wireButtons();
+  }
+
+  return { humanPage, overviewPage };
+})();
