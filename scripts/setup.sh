@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # Set up this checkout on a fresh Debian/Ubuntu machine: system packages (when missing)
 # and the Python 3.11 virtual environment in .venv with the project installed.
-#   scripts/setup.sh            operator machine: GUI OpenCV (console), twin, SSH
-#   scripts/setup.sh --dev      the same plus the test tools
+#   scripts/setup.sh            operator machine: GUI OpenCV (console), web console, twin, SSH
+#   scripts/setup.sh --dev      the same plus the test tools (Xvfb, Chromium and its driver)
 #   scripts/setup.sh --host     a robot host: headless OpenCV and the YuMi client only
 set -euo pipefail
 cd "$(dirname "$0")/.."
-extras="console"
+extras="console,web"
 apt_pkgs=(openssh-client)
 case "${1:-}" in
-  --dev) extras="console,yumi,ray,dev,export"; apt_pkgs+=(openssh-server xvfb xauth xdotool) ;;
+  --dev) extras="console,web,yumi,ray,dev,export"
+         apt_pkgs+=(openssh-server xvfb xauth xdotool chromium chromium-driver) ;;
   --host) extras="headless,yumi" ;;
   "") ;;
   *) echo "usage: scripts/setup.sh [--dev|--host]" >&2; exit 2 ;;

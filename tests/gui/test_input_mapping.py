@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gui.keys import Command, action_for_click, decode_key
+from gui.keys import BUTTONS, Command, action_for_click, decode_browser_key, decode_key
 
 
 @pytest.mark.parametrize(
@@ -50,3 +50,31 @@ def test_click_picks_the_nearest_marker() -> None:
     assert action_for_click((300, 120), markers) == 3
     with pytest.raises(ValueError):
         action_for_click((0, 0), [])
+
+
+@pytest.mark.parametrize(
+    ("key", "code"),
+    [("w", ord("w")), ("A", ord("A")), ("x", ord("x")), ("d", ord("d")),
+     ("ArrowUp", 0xFF52), ("ArrowLeft", 0xFF51), ("ArrowDown", 0xFF54),
+     ("ArrowRight", 0xFF53), ("Enter", 0xFF0D), ("Escape", 0xFF1B), (" ", ord(" ")),
+     ("p", ord("p")), ("y", ord("y")), ("n", ord("n"))],
+)
+def test_a_browser_key_means_what_the_window_key_means(key: str, code: int) -> None:
+    """One mapping for both consoles: the page's KeyboardEvent.key goes through the
+    window's table, so w, the arrows, Enter, Esc, p and y mean the same everywhere."""
+    assert decode_browser_key(key) == decode_key(code)
+
+
+def test_browser_keys_that_are_not_the_consoles() -> None:
+    assert decode_browser_key("Shift") is None
+    assert decode_browser_key("F5") is None
+    assert decode_browser_key("") is None
+
+
+def test_buttons() -> None:
+    assert BUTTONS["confirm"].command is Command.CONFIRM
+    assert BUTTONS["pause"].command is Command.PAUSE
+    assert BUTTONS["stop"].command is Command.STOP
+    assert BUTTONS["yes"].command is Command.YES
+    assert BUTTONS["no"].command is Command.OTHER
+    assert [BUTTONS[f"push{k}"].action for k in range(4)] == [0, 1, 2, 3]

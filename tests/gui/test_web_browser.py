@@ -1,0 +1,324 @@
+"""The web console in a real browser: Debian's Chromium, headless, driven by Selenium.
+
+First, pages against a ``WebHumans`` in this process: the page paints the very pixels
+the OpenCV console draws, a page without a token shows nothing, a key on one page and a
+tap on the other push their own human's arms.
+
+Then end to end, ``testbed trial --humans web`` on the twin: the trial runs in its own
+process; two headless Chromium windows open the two humans' URLs and answer as people
+would: human 0 presses ``w`` on the keyboard (push up, action 0), human 1 clicks face
+marker 3 on the image (push right), and both press the "Reset done" button on a
+hard-reset frame. Midway, human 1's page is closed. The records must show exactly those
+pushes on the arms each human held, hard resets completed by the button, and after the
+close: human 1 away, never newly assigned, and the trial going on to its last step.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import tomli_w
+from selenium.webdriver.common.keys import Keys
+
+from gui.core import OVERVIEW
+from gui.desk import Desk
+from gui.draw import render_console
+from gui.web import WebHumans
+from gui.web.browser import (
+    browser_missing,
+    chromium,
+    click_frame_point,
+    open_console,
+    page_state,
+    press_key,
+)
+from testbed.records import read_steps
+
+pytestmark = pytest.mark.browser
+
+ROOT = Path(__file__).resolve().parents[2]
+TOKENS = ["human0-token-for-the-browser-test", "human1-token-for-the-browser-test"]
+STEPS = 24
+CLOSE_AFTER_STEP = 12
+PUSH_OF_HUMAN = {0: 0, 1: 3}
+
+
+@pytest.fixture(scope="module")
+def pages() -> Iterator[tuple[Any, Any]]:
+    if browser_missing():
+        pytest.fail(f"missing {', '.join(browser_missing())}: apt-get install -y chromium "
+                    "chromium-driver (scripts/setup.sh --dev does it)")
+    with chromium() as a, chromium() as b:
+        yield a, b
+
+
+@pytest.fixture
+def web() -> Iterator[WebHumans]:
+    with WebHumans(2, port=0, announce=None, away_timeout_s=30.0) as console:
+        yield console
+
+
+CANVAS_SHA256 = """
+const done = arguments[arguments.length - 1];
+const c = document.getElementById(arguments[0]);
+const rgba = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+const rgb = new Uint8Array(c.width * c.height * 3);
+for (let i = 0, j = 0; i < rgba.length; i += 4, j += 3) {
+  rgb[j] = rgba[i]; rgb[j + 1] = rgba[i + 1]; rgb[j + 2] = rgba[i + 2];
+}
+crypto.subtle.digest("SHA-256", rgb).then((h) => done([c.width, c.height,
+  Array.from(new Uint8Array(h)).map((b) => b.toString(16).padStart(2, "0")).join("")]));
+"""
+
+
+def _wait(cond: Any, what: str, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.02)
+
+
+def test_the_page_paints_the_opencv_consoles_pixels(
+    web: WebHumans, pages: tuple[Any, Any], make_request: Any
+) -> None:
+    page = pages[0]
+    open_console(page, web.urls[0])
+    call = _Act(web, [make_request("cell0/left", 0)], 0)
+    state = web.wait_for_prompt(0)
+    _wait(lambda: page_state(page).get("shownSeq") == state.seq_posted, "frame not shown")
+    with web._cond:  # the frame the OpenCV window would show for this view
+        view = Desk.with_flags(web._desks[0].view(), **web._flags(0))
+        expected = render_console(view, web.layout)
+    w, h, digest = page.execute_async_script(CANVAS_SHA256, "frame")
+    assert (h, w) == expected.shape[:2]
+    assert digest == hashlib.sha256(
+        np.ascontiguousarray(expected[:, :, ::-1]).tobytes()).hexdigest()
+    press_key(page, "d")
+    assert call.join()["cell0/left"].action == 3
+
+
+def test_no_token_no_page(web: WebHumans, pages: tuple[Any, Any]) -> None:
+    from selenium.webdriver.common.by import By
+
+    page = pages[0]
+    for url in (web.base_url + "/", web.base_url + "/?token=not-a-token-of-anyone",
+                web.base_url + "/overview"):
+        page.get(url)
+        assert "401" in page.find_element(By.TAG_NAME, "body").text
+        assert not page.find_elements(By.TAG_NAME, "canvas")
+        assert page.execute_script("return window.consoleState || null") is None
+    assert not web.presence().available.any()
+
+
+def test_a_key_and_a_tap_push_their_own_humans_arms(
+    web: WebHumans, pages: tuple[Any, Any], make_request: Any
+) -> None:
+    for h, page in enumerate(pages):
+        open_console(page, web.urls[h])
+    _wait(lambda: bool(web.presence().available.all()), "both humans present")
+    call = _Act(web, [make_request("cell0/left", 0), make_request("cell1/right", 1)], 0)
+    for h in range(2):
+        web.wait_for_prompt(h)
+    press_key(pages[1], Keys.ARROW_LEFT)  # human 1: push left
+    _wait(lambda: web.snapshot(1).phase.value == "sent", "human 1's key was not taken")
+    assert web.snapshot(0).phase.value == "choose", "human 1's key reached human 0"
+    x, y = web.face_click_point(0, 2)
+    click_frame_point(pages[0], x, y)  # human 0: a tap on the down face
+    out = call.join()
+    assert out["cell1/right"].action == 1
+    assert out["cell0/left"].action == 2
+    # the overview opens with a human's token; human 0's page left for it, so human 0
+    # is away now, and the overview says so
+    open_console(pages[0], web.overview_url)
+    _wait(lambda: [x["present"] for x in (page_state(pages[0]).get("head") or {})
+                   .get("humans", [])] == [False, True], "overview shows who is here")
+    assert web.presence().available.tolist() == [False, True]
+    assert web._posted[OVERVIEW] > 0
+
+
+class _Act:
+    """``act`` in a thread, as the fleet loop calls it."""
+
+    def __init__(self, console: WebHumans, requests: list[Any], t: int) -> None:
+        self.result: Any = None
+        self.error: BaseException | None = None
+
+        def run() -> None:
+            try:
+                self.result = console.act(requests, t)
+            except BaseException as exc:  # handed to the test
+                self.error = exc
+
+        self.thread = threading.Thread(target=run, daemon=True)
+        self.thread.start()
+
+    def join(self, timeout_s: float = 10.0) -> Any:
+        self.thread.join(timeout_s)
+        assert not self.thread.is_alive(), "act() did not return"
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _config(port: int) -> dict[str, Any]:
+    return {
+        "trial": {"steps": STEPS, "seed": 3},
+        # every arm eligible for teleop: the test needs teleops, whatever the policy
+        "algorithm": {"u_hat": 0.0},
+        "learning": {"ensemble_size": 2, "batch_size": 32, "demos": 40,
+                     "critic_transitions": 40, "pretrain_steps": 5},
+        "humans": {"count": 2, "kind": "web",
+                   "web": {"port": port, "tokens": TOKENS, "grace_s": 1.0,
+                           "away_timeout_s": 0.5}},
+    }
+
+
+class BrowserHuman:
+    """A person at one console page: answers each new prompt once, in a thread."""
+
+    def __init__(self, driver: Any, human: int) -> None:
+        self.driver = driver
+        self.human = human
+        self.answers: list[tuple[str, str | None, int]] = []
+        """(phase, robot, seq) of every prompt answered."""
+        self.errors: list[BaseException] = []
+        self._stop = threading.Event()
+        self._done: set[int] = set()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> BrowserHuman:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.03):
+            try:
+                self._answer_once()
+            except Exception as exc:  # the page closed under us, or the trial ended
+                if not self._stop.is_set():
+                    self.errors.append(exc)
+                return
+
+    def _answer_once(self) -> None:
+        from selenium.webdriver.common.by import By
+
+        st = page_state(self.driver)
+        head = st.get("head") or {}
+        seq = int(st.get("shownSeq", 0))
+        phase = head.get("phase")
+        if seq in self._done or phase not in ("choose", "reset") or head.get("paused"):
+            return
+        if phase == "choose":
+            if self.human == 0:
+                press_key(self.driver, "w")
+            else:
+                x, y = head["markers"][PUSH_OF_HUMAN[1]]
+                click_frame_point(self.driver, x, y)
+        else:
+            self.driver.find_element(By.ID, "reset").click()
+        self._done.add(seq)
+        self.answers.append((phase, head.get("robot"), seq))
+
+
+def _steps_done(run: Path) -> int:
+    try:
+        return sum(1 for _ in (run / "steps.jsonl").open())
+    except OSError:
+        return 0
+
+
+@pytest.mark.slow
+def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
+    if browser_missing():
+        pytest.fail(f"missing {', '.join(browser_missing())}: apt-get install -y chromium "
+                    "chromium-driver (scripts/setup.sh --dev does it)")
+    port = _free_port()
+    (tmp_path / "web.toml").write_text(tomli_w.dumps(_config(port)))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "testbed.cli", "trial", "--config", "web.toml", "--out", "runs",
+         "--name", "web"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    run = tmp_path / "runs" / "web"
+    urls = [f"http://127.0.0.1:{port}/?token={tok}" for tok in TOKENS]
+    closed_at_step: int | None = None
+    try:
+        with chromium() as page0, chromium() as page1:
+            open_console(page0, urls[0], timeout_s=120)
+            open_console(page1, urls[1], timeout_s=120)
+            h0, h1 = BrowserHuman(page0, 0).start(), BrowserHuman(page1, 1).start()
+            try:
+                deadline = time.monotonic() + 240
+                while proc.poll() is None and time.monotonic() < deadline:
+                    done = _steps_done(run)
+                    if closed_at_step is None and done >= CLOSE_AFTER_STEP:
+                        h1.stop()
+                        page1.get("about:blank")  # the page is closed: its socket goes
+                        closed_at_step = done
+                    time.sleep(0.1)
+            finally:
+                h0.stop()
+                h1.stop()
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err[-3000:]
+    assert not h0.errors and not h1.errors, (h0.errors, h1.errors)
+    assert closed_at_step is not None, "the trial ended before human 1's page was closed"
+    assert "web console: human 0:" in err, "the URLs are printed once at start"
+
+    steps = read_steps(run / "steps.jsonl")
+    assert len(steps) == STEPS
+    pushed = {0: 0, 1: 0}
+    for row in (r for s in steps for r in s["robots"] if r["mode"] == "teleop"):
+        if row["action"] is not None:  # None: an away human's step passed
+            assert row["action"] == PUSH_OF_HUMAN[row["human"]], row
+            pushed[row["human"]] += 1
+    assert pushed[0] > 0 and pushed[1] > 0, f"a human's page pushed nothing: {pushed}"
+
+    # the reset button completed a hard reset: the arm went back to work
+    assert any(a[0] == "reset" for a in h0.answers + h1.answers), "no reset button pressed"
+    completed = 0
+    for i in range(len(steps[0]["robots"])):
+        modes = [s["robots"][i]["mode"] for s in steps]
+        completed += any(a == "reset" and b in ("autonomous", "teleop")
+                         for a, b in pairwise(modes))
+    assert completed >= 1, "no hard reset was completed by the button"
+
+    # the closed page: human 1 away, never newly assigned, the trial went on
+    away_rows = [s for s in steps if 1 in s.get("away", [])]
+    assert away_rows, "human 1's closed page was never recorded as away"
+    first_away = away_rows[0]["t"]
+    assert all(1 in s.get("away", []) for s in steps if s["t"] >= first_away)
+    held: set[str] = {r["robot"] for r in steps[first_away - 1]["robots"] if r["human"] == 1}
+    for s in steps[first_away:]:
+        mine = {r["robot"] for r in s["robots"] if r["human"] == 1}
+        assert mine <= held, f"away human 1 newly assigned at t={s['t']}: {mine - held}"
+        held = mine
+    released = [x for s in steps for x in s.get("released", [])]
+    assert all(x["human"] == 1 and x["why"] == "away" for x in released), released
