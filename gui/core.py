@@ -316,9 +316,9 @@ class ConsoleCore:
             if cmd.command is Command.YES:
                 self._stop_reason = f"stop confirmed by {self.surface_name(wid)}"
                 self._redraw_all()
-                taken = True
-            else:
+            else:  # "go on": the question is answered all the same
                 self._redraw(wid)
+            taken = True
         elif cmd.command is Command.STOP:
             self._confirming.add(wid)
             self._redraw(wid)

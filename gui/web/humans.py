@@ -261,7 +261,7 @@ class WebHumans(ConsoleCore):
                 else:
                     return {"type": "error", "why": f"unknown message {kind!r}"}
                 why = None if taken else self._why_refused(wid, seq)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             return {"type": "error", "why": f"malformed {kind!r} message ({exc})"}
         return {"type": "input", "seq": seq, "taken": taken, "why": why,
                 "id": msg.get("id")}

@@ -31,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import logging
 import socket
 import struct
 import threading
@@ -49,6 +50,11 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from gui.core import OVERVIEW
 from gui.errors import ConsoleUnavailable
 
+log = logging.getLogger(__name__)
+
+PING_S = 5.0
+"""WebSocket ping interval and timeout: a page whose network vanished without closing
+(dropped Wi-Fi) is seen gone within about two of these, and its human marked away."""
 NO_STORE = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer",
             "X-Content-Type-Options": "nosniff"}
 UNAUTHORIZED = "401: this console needs a valid token (the URL printed at start)\n"
@@ -121,6 +127,18 @@ class FrameHub:
         self._subs.discard(sub)
 
 
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number a console sends")
+
+
+def parse_message(text: str) -> Any:
+    """A page's JSON message, or None if it is not one (never raises)."""
+    try:
+        return json.loads(text, parse_constant=_no_constant)
+    except (ValueError, RecursionError):
+        return None
+
+
 def frame_message(payload: bytes, header: dict[str, Any]) -> bytes:
     """One binary WebSocket message: u32 big-endian header length, JSON header, PNG."""
     head = json.dumps(header | {"t_sent": time.time() * 1e3}).encode()
@@ -171,10 +189,14 @@ def build_app(owner: Owner, hub: FrameHub) -> Starlette:
             try:
                 while True:
                     try:
-                        msg = json.loads(await ws.receive_text())
-                    except (ValueError, KeyError):
+                        msg = parse_message(await ws.receive_text())
+                    except KeyError:  # a binary message
                         msg = None
-                    reply = await asyncio.to_thread(owner.handle, wid, msg)
+                    try:
+                        reply = await asyncio.to_thread(owner.handle, wid, msg)
+                    except Exception as exc:  # an input must never drop the page
+                        log.exception("web console: a message from %s failed", wid)
+                        reply = {"type": "error", "why": f"the console failed on it ({exc})"}
                     if reply is not None:
                         sub.texts.append(json.dumps(reply))
                         sub.wake.set()
@@ -222,6 +244,7 @@ class WebServer:
         config = uvicorn.Config(
             app, log_level="warning", access_log=False, lifespan="off", ws="websockets-sansio",
             ssl_certfile=certfile, ssl_keyfile=keyfile, timeout_graceful_shutdown=2,
+            ws_ping_interval=PING_S, ws_ping_timeout=PING_S,
         )
         self._server = uvicorn.Server(config)
         self._thread = threading.Thread(target=self._run, name="web-console", daemon=True)
