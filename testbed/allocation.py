@@ -11,7 +11,7 @@ algorithms is about priorities, not about bookkeeping.
 
 One step (DESIGN.md section 4)::
 
-    humans' state at t-1 (arm, kind, served)         keys (N, K), violating (N,)
+    humans' state at t-1 (arm, kind, served)     keys (N, K), violating (N,), available (M,)
           │                                                 │
           ▼                                                 │
     served += 1; teleop on a violating arm ─► reset, served = 0
@@ -19,12 +19,21 @@ One step (DESIGN.md section 4)::
     held = teleop & served < t_T                            │
          | reset  & (served < t_R | arm violating)          │
           │                                                 ▼
-          ├──► held humans stay ──────────────┐   candidates = not held & key >lex 0
-          │                                   │   lexsort by key (desc), seeded random ties
-          └──► free humans ──► top-F candidates (a free human whose arm is among them
-                                keeps it; the rest pair up in order)
-                                              ▼
+          ├──► held humans stay (away or not) ─┐  candidates = not held & key >lex 0
+          │                                    │  lexsort by key (desc), seeded random ties
+          ├──► free, away humans ──► no arm    │  (their arms are candidates again)
+          │                                    │
+          └──► free, available humans ──► top-F candidates (F = their number; one whose
+                                arm is among them keeps it; the rest pair up in order)
+                                               ▼
                       assignment (N,): human index or -1;  kinds / served per arm
+
+``available`` (optional, bool (M,)) says which humans are present this step (the web
+console's away humans, DESIGN.md section 9). An away human is never newly assigned and
+does not keep an arm it is no longer held on; a *held* intervention of an away human
+goes on, because ending it is the console's call (its grace period): the fleet loop
+then frees that human with :meth:`Allocator.release_human`. Without the mask every
+human is available, exactly as before the mask existed (same RNG stream, same records).
 
 ``served`` counts the earlier consecutive timesteps a human has spent on the current
 intervention; it starts at 0 on the first timestep. A kind change restarts it: the
@@ -178,15 +187,30 @@ class Allocator:
         mask[self._human_arm[held]] = True
         return mask
 
+    def held_humans(self, violating: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(M,) humans who would be held at the next step, given ``violating``.
+
+        Changes nothing; the human-side twin of :meth:`held_mask`, so that the Random
+        baseline can count the free humans that are present (``available`` & not held).
+        """
+        viol = self._check_violating(violating)
+        _, _, held = self._carry_over(viol)
+        return held
+
     # ------------------------------------------------------------------- update
-    def step(self, keys: npt.ArrayLike, violating: npt.ArrayLike) -> npt.NDArray[np.int64]:
+    def step(self, keys: npt.ArrayLike, violating: npt.ArrayLike,
+             available: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
         """Allocate for one timestep; return (N,) human index per arm, -1 for none.
 
         ``keys`` is (N, K) (a 1-D (N,) array is read as K = 1), compared
         lexicographically, larger first; NaN is refused. ``violating`` is bool (N,).
+        ``available`` is bool (M,) or ``None`` (every human available): a human who is
+        not available gets no new arm and keeps no arm it is not held on, but stays on
+        a held intervention (:meth:`release_human` ends that).
         """
         key_arr = self._check_keys(keys)
         viol = self._check_violating(violating)
+        avail = self._check_available(available)
         n, m = self.num_robots, self.num_humans
         # Drawn every step whatever the keys, so the stream (and resume) is key-independent.
         tie = self._rng.random(n)
@@ -198,7 +222,9 @@ class Allocator:
 
         arm_held = np.zeros(n, dtype=bool)
         arm_held[prev_arm[held]] = True
-        free = ~held
+        # Only the free humans who are present take arms; a free away human ends up on
+        # none (new_arm -1 below) and its arm, not held, is a candidate like any other.
+        free = ~held & avail
         num_free = int(np.count_nonzero(free))
 
         new_arm = np.where(held, prev_arm, -1)
@@ -254,6 +280,24 @@ class Allocator:
         self._human_kind[j] = KIND_NONE
         self._human_served[j] = 0
         return j
+
+    def release_human(self, human: int) -> int | None:
+        """Free human ``human`` now, whatever it holds (e.g. away past the console's
+        grace period). Returns the arm it was on, or ``None`` if it had none. The arm
+        is a candidate at the next step like any other; the human, once available
+        again, is free like any other.
+        """
+        if (isinstance(human, bool) or not isinstance(human, int | np.integer)
+                or not 0 <= human < self.num_humans):
+            raise ValueError(f"human index {human!r} out of range [0, {self.num_humans})")
+        j = int(human)
+        arm = int(self._human_arm[j])
+        if arm < 0:
+            return None
+        self._human_arm[j] = -1
+        self._human_kind[j] = KIND_NONE
+        self._human_served[j] = 0
+        return arm
 
     # ------------------------------------------------------------------ resume
     def state_dict(self) -> dict[str, Any]:
@@ -343,6 +387,18 @@ class Allocator:
             raise ValueError(f"violating must be a bool array, got dtype {arr.dtype}")
         if arr.shape != (self.num_robots,):
             raise ValueError(f"violating must have shape ({self.num_robots},), "
+                             f"got {arr.shape}")
+        return arr
+
+    def _check_available(self, available: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
+        """The (M,) mask of humans present this step; ``None`` means all of them."""
+        if available is None:
+            return np.ones(self.num_humans, dtype=bool)
+        arr = np.asarray(available)
+        if arr.dtype != np.bool_:
+            raise ValueError(f"available must be a bool array, got dtype {arr.dtype}")
+        if arr.shape != (self.num_humans,):
+            raise ValueError(f"available must have shape ({self.num_humans},), "
                              f"got {arr.shape}")
         return arr
 

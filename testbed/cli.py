@@ -47,7 +47,9 @@ def _trial_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=_positive, metavar="T", help="timesteps (default: config)")
     p.add_argument("--seed", type=int, metavar="S", help="trial seed (default: config)")
     p.add_argument("--out", metavar="DIR", help="folder of runs (default: config, runs/)")
-    p.add_argument("--humans", choices=["scripted", "gui"], help="who helps (default: config)")
+    p.add_argument("--humans", choices=["scripted", "gui", "web"],
+                   help="who helps: scripted (twin), gui (the OpenCV console), web (the "
+                   "browser console, [humans.web] of the config) (default: config)")
     p.add_argument("--policy", metavar="FILE", help="start from this trained learner.pt "
                    "instead of pretraining")
     p.add_argument("--name", help="run folder name (default: ALGORITHM-sSEED)")
@@ -135,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trials", type=_positive, metavar="N", help="trials (default 1)")
     p.add_argument("--steps", type=_positive, metavar="T", help="steps per run "
                    "(default: the protocol's)")
-    p.add_argument("--humans", choices=["scripted", "gui"], default="scripted")
+    p.add_argument("--humans", choices=["scripted", "gui", "web"], default="scripted")
     p.add_argument("--quick", action="store_true", help="the default twin trial's learning "
                    "sizes instead of the protocol's (the report says so)")
     p.add_argument("--algorithms", metavar="A,B", help="a subset of the protocol's algorithms")
@@ -149,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Humans drive every arm; keep the state-action pairs.")
     _common(p)
     p.add_argument("--count", type=_positive, help="pairs (default: config learning.demos)")
-    p.add_argument("--humans", choices=["scripted", "gui"])
+    p.add_argument("--humans", choices=["scripted", "gui", "web"])
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="demos.npz", metavar="NPZ")
 
@@ -158,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "data, train the critics; write learner.pt.")
     _common(p)
     p.add_argument("--demos", required=True, metavar="NPZ")
-    p.add_argument("--humans", choices=["scripted", "gui"])
+    p.add_argument("--humans", choices=["scripted", "gui", "web"])
     p.add_argument("--steps", type=int,
                    help="gradient steps of each phase, policy and critics (default: config)")
     p.add_argument("--out", default="learner.pt", metavar="PT")
@@ -171,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=_positive, default=250, metavar="K")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", metavar="DIR")
-    p.add_argument("--humans", choices=["scripted", "gui"])
+    p.add_argument("--humans", choices=["scripted", "gui", "web"])
     p.add_argument("--name")
 
     p = sub.add_parser("export", help="runs' frames as a LeRobot v3 dataset or numpy arrays",

@@ -42,9 +42,16 @@ def check_device(cfg: FleetConfig) -> None:
                           'machine; set it to "auto" (CUDA when present) or "cpu"')
 
 
+WEB_EXTRA = ("starlette", "uvicorn", "websockets")
+"""The modules of pyproject's ``web`` extra (``--humans web``): checked before anything
+starts, so a missing one is one line, not an ImportError after pretraining."""
+
+
 def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
-    """The humans can work here: the console can open its windows (``gui``), or the
-    scripted expert has a twin to read its pushes from (``scripted`` with ``teleop``).
+    """The humans can work here: the console can open its windows (``gui``), the browser
+    console has someone to serve (``web``; its address, port, tokens and TLS files are
+    checked with the config), or the scripted expert has a twin to read its pushes from
+    (``scripted`` with ``teleop``).
 
     A yumi host whose controller is the hardware twin (``twin+http://``) has one: a
     rehearsal's scripted humans read it over the twin's side channel.
@@ -61,12 +68,24 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
             check_window_system([default_display()] * cfg.humans.count)
         except ConsoleUnavailable as exc:
             raise ConfigError(f"{where} gui: {exc}") from None
+    elif kind == "web":
+        if cfg.humans.count < 1:
+            raise ConfigError("humans.count: the browser console needs at least one person; "
+                              "set humans.count >= 1")
+        import importlib.util
+
+        missing = [m for m in WEB_EXTRA if importlib.util.find_spec(m) is None]
+        if missing:
+            raise ConfigError(f"{where} web: the browser console needs the web extra "
+                              f"({', '.join(missing)} not installed); pip install -e "
+                              '".[web]"')
     elif kind == "scripted" and teleop:
         real = [h.name for h in cfg.hosts if h.backend != "twin"
                 and not str(getattr(h, "controller_url", "")).startswith("twin+")]
         if real:
             raise ConfigError(f"{where} scripted: scripted humans teleoperate from the twin's "
-                              f"expert and host {real[0]} is a physical robot; use --humans gui")
+                              f"expert and host {real[0]} is a physical robot; use --humans gui "
+                              "(or web)")
 
 
 def check_policy(path: str, cfg: FleetConfig) -> None:
@@ -283,7 +302,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     count = args.count or cfg.learning.demos
     check_out_file("--out", args.out)
     check_humans(args.humans or cfg.humans.kind, cfg)
-    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count)
+    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web)
     hosts = build_hosts(cfg, args.seed)
     try:
         hosts.start()
@@ -326,7 +345,7 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
         why = " ".join(str(exc).split())[:160]
         raise ConfigError(f"--demos: {args.demos} is not a demonstrations file ({why}); "
                           "give the .npz of testbed collect") from None
-    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count)
+    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web)
     hosts = build_hosts(cfg, PRETRAIN_SEED)
     learner = new_learner(cfg, PRETRAIN_SEED)
     try:

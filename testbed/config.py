@@ -260,9 +260,101 @@ HostConfig = Annotated[
 """One host of the fleet: a ``TwinHost`` or a ``YumiHost``, chosen by ``backend``."""
 
 
+TOKEN_PATTERN = re.compile(r"[A-Za-z0-9_-]{16,}")
+"""A web console token: at least 16 characters, URL-safe (it travels in the link)."""
+
+_HOSTNAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?")
+
+
+class WebConsoleConfig(_Strict):
+    """The browser console (``humans.kind = "web"``, TOML ``[humans.web]``).
+
+    Humans on their own devices come and go: ``grace_s`` and ``away_timeout_s`` bound
+    what an away human costs the fleet (``testbed.humans.Presence``). The server binds
+    to loopback unless ``host`` says otherwise: exposing it is a decision the config
+    must state, never a default. Without ``tokens`` each human gets a random token at
+    start (printed as their link). Tokens are credentials: a run's config.toml is
+    written without them (``RunDir.write_config``), so a resumed run makes new ones
+    unless its operator gives the config that has them.
+    """
+
+    host: str = "127.0.0.1"
+    """Bind address (an IP address or a host name); anything but loopback only when set."""
+    port: int = Field(8765, ge=0, le=65535)
+    """TCP port; 0 picks a free one at start."""
+    tokens: list[str] = Field(default_factory=list)
+    """One secret per human (``humans.count`` of them, unique, each >= 16 characters of
+    A-Z a-z 0-9 _ -); empty: a random one per human, made at start."""
+    certfile: str | None = None
+    """TLS certificate (PEM) for https; with ``keyfile``. Expands ``~`` and ``$VARS``."""
+    keyfile: str | None = None
+    """TLS private key (PEM) for https; with ``certfile``. Expands ``~`` and ``$VARS``."""
+    grace_s: float = Field(10.0, ge=0, allow_inf_nan=False)
+    """How long an away human's held intervention goes on before it is released."""
+    away_timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
+    """The longest the fleet waits on an away human's teleop answer in a step."""
+    teleop_timeout_s: float | None = Field(None, gt=0, allow_inf_nan=False)
+    """The longest it waits on a present human's answer (None: as long as it takes)."""
+
+    @field_validator("host")
+    @classmethod
+    def _host(cls, v: str) -> str:
+        import ipaddress
+
+        v = v.strip()
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            if not _HOSTNAME.fullmatch(v) or len(v) > 253:
+                raise ValueError("give an IP address or a host name to bind to, e.g. "
+                                 "127.0.0.1 (this machine only) or 0.0.0.0 (every "
+                                 "interface)") from None
+        return v
+
+    @model_validator(mode="after")
+    def _tokens_and_tls(self, info: ValidationInfo) -> Self:
+        for i, token in enumerate(self.tokens):
+            if not TOKEN_PATTERN.fullmatch(token):
+                # the token itself is a secret: named by its position, never echoed
+                raise FieldProblem(f"tokens[{i}]", f"a token of {len(token)} characters; "
+                                   "each needs >= 16 characters of A-Z a-z 0-9 _ - (e.g. "
+                                   "python -c 'import secrets; print(secrets."
+                                   "token_urlsafe(24))')")
+        if len(set(self.tokens)) != len(self.tokens):
+            raise FieldProblem("tokens", "two humans have the same token; give each "
+                               "human their own")
+        if (self.certfile is None) != (self.keyfile is None):
+            given, missing = (("certfile", "keyfile") if self.keyfile is None
+                              else ("keyfile", "certfile"))
+            raise FieldProblem(missing, f"{given} is set but {missing} is not; https "
+                               "needs both (or neither, for plain http)")
+        for name in ("certfile", "keyfile"):
+            raw = getattr(self, name)
+            if raw is None:
+                continue
+            path = expand_path(raw, name)
+            if _checking_files(info) and not Path(path).is_file():
+                shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
+                raise FieldProblem(name, f"no such file {shown}; fix the path or create it")
+            object.__setattr__(self, name, path)  # frozen: only while validating
+        return self
+
+
 class HumansConfig(_Strict):
     count: int = Field(2, ge=0, le=1000)
-    kind: Literal["scripted", "gui"] = "scripted"
+    kind: Literal["scripted", "gui", "web"] = "scripted"
+    web: WebConsoleConfig = WebConsoleConfig()
+    """The browser console's settings (TOML ``[humans.web]``), read when kind is web."""
+
+    @model_validator(mode="after")
+    def _one_token_per_human(self) -> Self:
+        tokens = self.web.tokens
+        if tokens and len(tokens) != self.count:
+            given = f"{len(tokens)} token{'s' if len(tokens) != 1 else ''}"
+            raise FieldProblem("web.tokens", f"{given} for humans.count = {self.count}; "
+                               "give one per human, or none (random ones are made at "
+                               "start)")
+        return self
 
 
 QUANTILE = re.compile(r"q(0(\.\d+)?|1(\.0*)?|\.\d+)")

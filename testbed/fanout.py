@@ -28,8 +28,9 @@ numbers of a run depend on its thread count (run.json ``numerics``): a fanned-ou
 protocol gives the serial run's records when both use the same thread count.
 
 Physical fleets are refused: arms are not interchangeable workers (a trial's arms
-are on its hosts, wherever the task would run), and a person at the console cannot
-be fanned out either (``humans = "gui"``).
+are on its hosts, wherever the task would run), and a person at a console cannot
+be fanned out either (``humans = "gui"`` or ``"web"``: only scripted humans run on
+workers).
 """
 
 from __future__ import annotations

@@ -17,6 +17,16 @@ then train). At N = 100 arms the policy's forward pass is a large part of a step
 overlapping it with training makes the step cost the training step, not the sum
 (docs/notes/fleet.md). The loop owns no hardware and no GUI: it talks to a
 ``HostFleet``-like object, a ``Humans`` and a ``Learner`` only through their small APIs.
+
+Humans who come and go (the web console, ``testbed.humans.Presence``): right before
+each allocation the loop asks ``presence_of(humans)``. Humans in ``gone`` (away past
+the console's grace period) lose the arm they are on (``Allocator.release_human``),
+and the row says so (``"released": [{"robot", "human", "why": "away"}]``); every
+human not available is handed to the allocator as such, which gives them no new
+intervention, and the row lists them (``"away": [human, ...]``). Both keys appear only
+when non-empty, so humans without ``presence()`` (scripted, the OpenCV console) write
+the rows they always wrote. How long the fleet waits on an away human's answer is the
+console's business (its timeout inside ``act``), not the loop's.
 """
 
 from __future__ import annotations
@@ -31,7 +41,7 @@ import numpy as np
 
 from testbed import rundata
 from testbed.allocation import Allocator
-from testbed.humans import Humans
+from testbed.humans import Humans, presence_of
 from testbed.interrupts import critical
 from testbed.priorities import Algorithm, PrioritySignals
 from testbed.records import RunWriter
@@ -95,6 +105,10 @@ class _Decided:
     resets: list[str]
     modes: dict[str, Mode]
     humans_of: dict[str, int | None]
+    away: list[int] = field(default_factory=list)
+    """Humans not available at this step's allocation (sorted)."""
+    released: list[dict[str, Any]] = field(default_factory=list)
+    """Interventions ended before the allocation: ``{"robot", "human", "why"}``."""
 
 
 @dataclass
@@ -174,6 +188,7 @@ class FleetLoop:
         """Keys, allocation, the humans' answers: what every arm does at step t."""
         faulted = np.array([not isinstance(observations.get(r), ArmObservation)
                             for r in self.robots])
+        available, away, released = self._presence()
         signals = PrioritySignals(
             t=t,
             violating=violating & ~faulted,
@@ -182,6 +197,7 @@ class FleetLoop:
             goal_risk=np.asarray(out.goal_risk, dtype=float),
             novelty=np.asarray(out.novelty, dtype=float),
             faulted=faulted,
+            available=available,
         )
         assignment = self.algorithm.step(signals)
         keys = np.asarray(self.algorithm.last_keys, dtype=float)
@@ -232,7 +248,35 @@ class FleetLoop:
             else:
                 modes[r] = Mode.AUTONOMOUS
                 pushes[r] = int(out.actions[i])
-        return _Decided(out, keys, faulted, pushes, resets, modes, humans_of)
+        return _Decided(out, keys, faulted, pushes, resets, modes, humans_of, away, released)
+
+    def _presence(self) -> tuple[np.ndarray | None, list[int], list[dict[str, Any]]]:
+        """Who may be assigned at this step: (available mask or None, away, released).
+
+        Humans without ``presence()`` give ``(None, [], [])``: the allocation and the row
+        of a run without away humans. A human in ``gone`` is away whatever ``available``
+        says, and the arm it is on is freed now, before the allocation, so a present
+        human may take that arm at this very step.
+        """
+        p = presence_of(self.humans)
+        if p is None:
+            return None, [], []
+        given = np.asarray(p.available)
+        if given.dtype != np.bool_ or given.shape != (self.num_humans,):
+            raise ValueError(f"humans.presence().available must be bool with shape "
+                             f"({self.num_humans},), got {given.dtype} {given.shape}")
+        available = given.copy()
+        released: list[dict[str, Any]] = []
+        for h in sorted(p.gone):
+            if not 0 <= h < self.num_humans:
+                raise ValueError(f"humans.presence().gone has human {h}, not in "
+                                 f"[0, {self.num_humans})")
+            available[h] = False
+            arm = self.allocator.release_human(h)
+            if arm is not None:
+                released.append({"robot": self.robots[arm], "human": int(h), "why": "away"})
+        away = [int(h) for h in np.flatnonzero(~available)]
+        return available, away, released
 
     def step(self, t: int) -> StepOutcome:
         started = time.monotonic()
@@ -273,6 +317,10 @@ class FleetLoop:
 
         row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
                        np.asarray(out.risk), keys, pushes)
+        if d.away:  # only when someone is away: rows of runs without are as they were
+            row["away"] = d.away
+        if d.released:
+            row["released"] = d.released
         # Timing rides along for the lab (DESIGN.md section 9): it is the one part of a
         # row that differs between two runs of the same seed.
         row["wall_time"] = time.time()

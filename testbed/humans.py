@@ -4,19 +4,24 @@ The fleet loop never knows who its humans are. Each timestep it hands the alloca
 interventions to ``Humans.act`` and gets one answer per arm: a push for teleoperation,
 or whether a hard reset is complete. ``ScriptedHumans`` is the twin's "algorithmic
 human" (the seed's simulated experts); ``gui.console.ConsoleHumans`` is the operator
-console, built lazily by ``make_humans`` so ``import testbed`` never pulls in a GUI.
+console and ``gui.web.WebHumans`` the browser console (humans on their own devices, who
+may be away: ``Presence``), both built lazily by ``make_humans`` so ``import testbed``
+never pulls in a GUI or a web server.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
 
 from testbed.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
+
+if TYPE_CHECKING:
+    from testbed.config import WebConsoleConfig
 
 
 class HumansStopRequested(Exception):
@@ -90,12 +95,24 @@ def presence_of(humans: Humans) -> Presence | None:
     return get() if callable(get) else None
 
 
-def make_humans(kind: str, count: int) -> Humans:
-    """Build the humans of a trial; the console is imported only when asked for."""
+def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None) -> Humans:
+    """Build the humans of a trial; a console is imported only when asked for.
+
+    ``web``: the browser console's settings (``humans.web`` of the config), read only
+    for ``kind = "web"`` (default: ``WebConsoleConfig()``, loopback, random tokens).
+    """
     if kind == "scripted":
         return ScriptedHumans()
     if kind == "gui":
         from gui.console import ConsoleHumans
 
         return ConsoleHumans(num_humans=count)
-    raise ValueError(f"unknown humans kind {kind!r}; use scripted or gui")
+    if kind == "web":
+        from gui.web import WebHumans
+
+        from testbed.config import WebConsoleConfig
+
+        humans: Humans = WebHumans.from_config(count, web if web is not None
+                                               else WebConsoleConfig())
+        return humans
+    raise ValueError(f"unknown humans kind {kind!r}; use scripted, gui or web")

@@ -8,11 +8,12 @@ command line picks one with ``get_algorithm(name, ...)``.
 
 ::
 
-    learner.act ─► PrioritySignals(t, violating, uncertainty, risk, goal_risk, novelty)
+    learner.act ─► PrioritySignals(t, violating, uncertainty, risk, goal_risk, novelty,
+                   faulted, available)
                                    │
                    Algorithm.priority.keys(signals) ─► keys (N, K), names[K]
                                    │
-                   Algorithm.allocator.step(keys, violating) ─► human per arm
+                   Algorithm.allocator.step(keys, violating, available) ─► human per arm
 
 A key is compared lexicographically, larger first; only keys > 0 (first non-zero entry
 positive) can receive a new human (DESIGN.md section 4). ``names`` labels the entries
@@ -49,6 +50,9 @@ Decisions beyond the seed's text (also in docs/notes/core.md):
   budget ``random_budget * M * steps`` minus the human-steps spent, so the
   cumulative human effort tracks the budget even though teleops are held t_T steps.
 * Arms marked ``faulted`` (host unreachable) get an all-zero key: never a new human.
+* Humans not ``available`` (away from the web console) are never newly assigned (the
+  allocator's rule); Random sizes its new arms to the free humans who are present, so
+  its effort count never includes arms no one could take.
 
 What an algorithm reads decides what the learner trains (issue 13): each priority class
 declares the learned signals its keys read (``reads``: a subset of uncertainty, risk,
@@ -118,6 +122,9 @@ class PrioritySignals:
     """Fleet-TD's novelty."""
     faulted: npt.ArrayLike | None = None
     """Bool (N,): the arm's host is unreachable this step (``None``: none are)."""
+    available: npt.ArrayLike | None = None
+    """Bool (M,), per human: present this step (``None``: all are). Away humans (web
+    console) get no new intervention (``Allocator.step``'s ``available``)."""
 
     def violating_array(self, n: int) -> BoolArray:
         arr = np.asarray(self.violating)
@@ -132,6 +139,16 @@ class PrioritySignals:
         arr = np.asarray(self.faulted)
         if arr.dtype != np.bool_ or arr.shape != (n,):
             raise ValueError(f"signals.faulted must be bool with shape ({n},), "
+                             f"got {arr.dtype} {arr.shape}")
+        return arr
+
+    def available_array(self, m: int) -> BoolArray:
+        """The (m,) mask of present humans, checked; all True when ``available`` is None."""
+        if self.available is None:
+            return np.ones(m, dtype=bool)
+        arr = np.asarray(self.available)
+        if arr.dtype != np.bool_ or arr.shape != (m,):
+            raise ValueError(f"signals.available must be bool with shape ({m},), "
                              f"got {arr.dtype} {arr.shape}")
         return arr
 
@@ -325,6 +342,12 @@ class RandomPriority:
     and the bound allocator must be the one that allocates, once after each
     :meth:`keys` (checked: ``RuntimeError`` otherwise). Unbound, it assumes nobody is
     held.
+
+    Away humans (``signals.available``): the new arms are at most the free humans who
+    are present, so an arm made eligible always gets a human and ``effort`` counts only
+    human-steps that happen; the budget's deficit then catches up when they are back.
+    With every human present the cap is M - held, never binding: the draws and keys
+    are those of a run without the mask.
     """
 
     names: tuple[str, ...] = ("c", "x")
@@ -349,6 +372,7 @@ class RandomPriority:
         _check_t(s.t)
         viol = s.violating_array(n)
         faulted = s.faulted_array(n)
+        present = s.available_array(m)
         if self.allocator is not None and self.allocator.steps != self.steps:
             raise RuntimeError(
                 "RandomPriority: its allocator has stepped "
@@ -358,6 +382,9 @@ class RandomPriority:
         held = (self.allocator.held_mask(viol) if self.allocator is not None
                 else np.zeros(n, dtype=bool))
         num_held = int(held.sum())
+        held_humans = (self.allocator.held_humans(viol) if self.allocator is not None
+                       else np.zeros(m, dtype=bool))
+        free_present = int(np.count_nonzero(present & ~held_humans))
 
         self.steps += 1
         deficit = self.budget * m * self.steps - self.effort
@@ -370,7 +397,7 @@ class RandomPriority:
         open_arms = ~held & ~faulted
         ranked = order[open_arms[order]]
         ranked = np.concatenate([ranked[viol[ranked]], ranked[~viol[ranked]]])
-        chosen = ranked[: max(busy - num_held, 0)]
+        chosen = ranked[: min(max(busy - num_held, 0), free_present)]
         self.effort += num_held + chosen.size
 
         keys = np.zeros((n, 2), dtype=np.float64)
@@ -459,7 +486,10 @@ class Algorithm:
     def step(self, signals: PrioritySignals) -> npt.NDArray[np.int64]:
         """Compute the keys and allocate; returns (N,) human per arm, -1 for none."""
         keys = self.priority.keys(signals)
-        assignment = self.allocator.step(keys, signals.violating_array(self.allocator.num_robots))
+        available = (None if signals.available is None
+                     else signals.available_array(self.allocator.num_humans))
+        assignment = self.allocator.step(
+            keys, signals.violating_array(self.allocator.num_robots), available)
         self.last_keys = keys
         return assignment
 

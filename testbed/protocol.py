@@ -53,7 +53,7 @@ class Protocol(BaseModel):
     steps: int = Field(250, ge=1)
     seeds: list[int] | None = None
     out: str = "runs/protocol"
-    humans: Literal["scripted", "gui"] = "scripted"
+    humans: Literal["scripted", "gui", "web"] = "scripted"
     prompt_when: Literal["never", "between_trials", "before_each_run"] = "never"
     """When the operator is asked to put the cubes back (``prompt``): never, before
     each trial but the first, or before every run (algorithm x trial)."""

@@ -16,6 +16,12 @@ the trial can never disagree, and ROHE is computed one way only: the paper's
                                                                       │
                                            summary.json ◄── atomic_write_json
 
+A row's optional fields beyond DESIGN.md section 5: ``wall_time`` and ``duration_s``
+(section 9), ``faults``, and, only in runs whose humans can be away (the web console),
+``away`` (the humans not available at that step's allocation) and ``released`` (the
+interventions ended before it because their human was gone: ``{"robot", "human",
+"why"}``). Absent means none, so the rows of other runs are unchanged.
+
 Everything else a run keeps (summary, config, checkpoints) is replaced atomically
 (temp file in the same folder, fsync, ``os.replace``, fsync the folder), so a reader
 sees either the old or the new file, never half of one.
@@ -85,7 +91,9 @@ def validate_step(obj: object) -> None:
     autonomous and idle arms have none, teleop and reset arms have one, a refused arm
     may have one (a teleop push the host refused) and says why in ``refused``.
     ``wall_time`` and ``duration_s`` (DESIGN.md section 9) are optional, so records
-    written before them still read, but must be finite numbers >= 0 when present.
+    written before them still read, but must be finite numbers >= 0 when present; so
+    are ``away`` (a list of human indices) and ``released`` (a list of ``{"robot": one
+    of the row's robots, "human": int >= 0, "why": str}``).
     """
     if not isinstance(obj, dict):
         raise RecordError(f"step must be a JSON object, got {type(obj).__name__}")
@@ -142,6 +150,27 @@ def validate_step(obj: object) -> None:
         key = row.get("key")
         if not isinstance(key, list) or not all(_is_number(k) for k in key):
             raise RecordError(f"{where}.key must be a list of finite numbers, got {key!r}")
+    _validate_presence(obj, seen)
+
+
+def _validate_presence(obj: dict[str, Any], robots: set[str]) -> None:
+    """The optional ``away`` and ``released`` of a step row (away humans, web console)."""
+    if "away" in obj:
+        away = obj["away"]
+        if not isinstance(away, list) or not all(_is_int(h) and h >= 0 for h in away):
+            raise RecordError(f"away must be a list of human indices (ints >= 0), got {away!r}")
+    if "released" in obj:
+        released = obj["released"]
+        if not isinstance(released, list):
+            raise RecordError(f"released must be a list, got {type(released).__name__}")
+        for i, entry in enumerate(released):
+            ok = (isinstance(entry, dict) and isinstance(entry.get("robot"), str)
+                  and entry["robot"] in robots
+                  and _is_int(entry.get("human")) and entry["human"] >= 0
+                  and isinstance(entry.get("why"), str) and entry["why"] != "")
+            if not ok:
+                raise RecordError(f"released[{i}] must be {{robot: one of the row's robots, "
+                                  f"human: int >= 0, why: str}}, got {entry!r}")
 
 
 # ------------------------------------------------------------------------ writing

@@ -703,7 +703,7 @@ def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
         recorders: list[TruthRecorder] = []
 
         def humans(_name: str) -> Any:
-            inner = make_humans(kind, fleet.humans.count)
+            inner = make_humans(kind, fleet.humans.count, fleet.humans.web)
             return TwinLabHumans(inner, lab.labs, views, expert=kind == "scripted")
 
         def wrap_hosts(hosts: Any, run: Any) -> Any:

@@ -68,7 +68,14 @@ class RunDir:
         return self.path / START_LEARNER
 
     def write_config(self, cfg: FleetConfig) -> None:
+        """config.toml, without the web console's tokens: a run folder is data a lab
+        keeps, exports and shares, and a token is a credential. A resumed run makes
+        new tokens (printed once), unless its operator passes the config that has them.
+        """
         data = _drop_none(cfg.model_dump(mode="json"))
+        web = data.get("humans", {}).get("web", {})
+        if web.get("tokens"):
+            web["tokens"] = []
         atomic_write_bytes(self.path / CONFIG, tomli_w.dumps(data).encode())
 
     def read_config(self) -> FleetConfig:

@@ -64,7 +64,7 @@ class Sweep(BaseModel):
     seeds: list[int] = Field(default_factory=lambda: [0, 1], min_length=1)
     out: str | None = None
     """Default ``runs/sweep-<name>``."""
-    humans: Literal["scripted", "gui"] = "scripted"
+    humans: Literal["scripted", "gui", "web"] = "scripted"
     grid: dict[str, list[Any]] = Field(min_length=1)
     fleet: FleetConfig = FleetConfig()
 

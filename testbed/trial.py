@@ -216,8 +216,9 @@ def run_trial(
 ) -> tuple[RunDir, dict[str, Any]]:
     """Run (or resume) a trial; return its folder and its summary.
 
-    ``humans``: who answers the interventions (default: ``make_humans(opts.humans)``);
-    the trial closes it. ``meta``: extra keys for a new run's run.json (a protocol's
+    ``humans``: who answers the interventions (default: ``make_humans`` of
+    ``opts.humans`` and the config's ``humans``, ``[humans.web]`` included); the trial
+    closes it. ``meta``: extra keys for a new run's run.json (a protocol's
     trial index and algorithm order). ``host_configs``: drive these hosts instead of
     the run's (same host and arm names): a resumed protocol run takes the protocol's
     current fleet, e.g. the fresh ports of a rehearsal or a lab's edited addresses.
@@ -268,7 +269,7 @@ def run_trial(
     pending = {k: q for k, q in cfg.algorithm.quantile_thresholds.items()
                if SIGNAL[k] in algorithm.spec.reads}
     if humans is None:
-        humans = make_humans(opts.humans, cfg.humans.count)
+        humans = make_humans(opts.humans, cfg.humans.count, cfg.humans.web)
     own_hosts = hosts is None
     if own_hosts:
         hosts = build_hosts(cfg, opts.seed + (start * 7919 if start else 0),

@@ -4,7 +4,10 @@ Two kinds of checks: the rules stated as invariants (more than M arms never
 assisted, held interventions last as long as the rules say, new arms are the top
 eligible ones, no needless switch, ...), and an exact comparison with a slow reference
 written as plain loops straight from Algorithm 1. Hypothesis drives both with random
-sequences of keys and violations (well over 10,000 sequences in all).
+sequences of keys and violations (well over 10,000 sequences in all), half of them with
+a random availability mask per step (the web console's away humans, some of them gone
+and released before the step), the other half without one, checked step by step
+against an allocator given an all-True mask (same assignments, same RNG stream).
 """
 
 from __future__ import annotations
@@ -49,7 +52,14 @@ class RefAllocator:
         self.rng = np.random.default_rng(seed)
         self.humans: list[RefIntervention | None] = [None] * m
 
-    def step(self, keys: list[list[float]], violating: list[bool]) -> list[int]:
+    def release_human(self, j: int) -> int | None:
+        prev = self.humans[j]
+        self.humans[j] = None
+        return None if prev is None else prev.arm
+
+    def step(self, keys: list[list[float]], violating: list[bool],
+             available: list[bool] | None = None) -> list[int]:
+        present = available if available is not None else [True] * self.m
         draws = [float(x) for x in self.rng.random(self.n)]
         # Lines 4-10: keep the held interventions.
         held: dict[int, RefIntervention] = {}
@@ -64,7 +74,8 @@ class RefAllocator:
                     kind == "teleop" and served < self.t_teleop):
                 held[j] = RefIntervention(prev.arm, kind, served)
         held_arms = {iv.arm for iv in held.values()}
-        free = [j for j in range(self.m) if j not in held]
+        # Away humans take no new arm and keep none they are not held on.
+        free = [j for j in range(self.m) if j not in held and present[j]]
         # Line 13: robots with positive priority, not held, highest first.
         candidates = [i for i in range(self.n)
                       if i not in held_arms and ref_lex_positive(keys[i])]
@@ -114,6 +125,8 @@ class Scenario:
     keys: list[list[list[float]]]  # per step (N, K)
     violating: list[list[bool]]  # per step (N,)
     split: int  # step at which a resumed allocator takes over
+    available: list[list[bool]] | None = None  # per step (M,); None: no mask at all
+    gone: list[list[int]] | None = None  # per step: away humans released before it
 
 
 # Few distinct values: plenty of ties, zeros and negative leads. Drawn as bytes (one
@@ -137,8 +150,16 @@ def scenarios(draw: st.DrawFn, *, sticky: bool) -> Scenario:
     raw_flags = draw(st.binary(min_size=steps * n, max_size=steps * n))
     period = 4 if sticky else 2
     flags = [[raw_flags[s * n + i] % period == 1 for i in range(n)] for s in range(steps)]
+    available: list[list[bool]] | None = None
+    gone: list[list[int]] | None = None
+    if draw(st.booleans()):
+        # Per step and human: 0, 1 away; 2 away and gone (released first); else present.
+        raw = draw(st.binary(min_size=steps * m, max_size=steps * m))
+        codes = [[raw[s * m + j] % 6 for j in range(m)] for s in range(steps)]
+        available = [[c > 2 for c in row] for row in codes]
+        gone = [[j for j, c in enumerate(row) if c == 2] for row in codes]
     return Scenario(n, m, t_teleop, t_reset, draw(st.integers(0, 2**32 - 1)), keys, flags,
-                    draw(st.integers(0, steps)))
+                    draw(st.integers(0, steps)), available, gone)
 
 
 def lex_gt(a: list[float], b: list[float]) -> bool:
@@ -153,9 +174,16 @@ def check_step(
     keys: list[list[float]],
     violating: list[bool],
     assign: np.ndarray,
+    available: list[bool] | None = None,
 ) -> None:
-    """The contract's invariants for one step, from the outside only."""
+    """The contract's invariants for one step, from the outside only.
+
+    With ``available``: an away human is never newly assigned: after the step it is on
+    no arm, or on the arm it was on with the same intervention carried on (the held
+    rules), and only while held; the present free humans fill the top candidates.
+    """
     n, m = alloc.num_robots, alloc.num_humans
+    present = available if available is not None else [True] * m
     kinds, served = alloc.kinds, alloc.served
     # One arm per human, at most M arms, valid indices.
     humans = assign[assign >= 0]
@@ -190,7 +218,19 @@ def check_step(
             held_arms.add(i)
             free_humans.discard(j)
 
-    # New assignments: the top eligible non-held arms, as many as free humans allow.
+    # Away humans: held (checked above, same arm and intervention carried on) or off.
+    for j in range(m):
+        if present[j]:
+            continue
+        on = np.flatnonzero(assign == j)
+        if on.size:
+            i = int(on[0])
+            assert i in held_arms and int(prev_assign[i]) == j, \
+                f"away human {j} was newly assigned to arm {i}"
+        free_humans.discard(j)  # never a candidate for a new arm
+
+    # New assignments: the top eligible non-held arms, as many as present free humans
+    # allow (the arm of a free away human is a candidate like any other).
     candidates = [i for i in range(n) if i not in held_arms and ref_lex_positive(keys[i])]
     newly = [i for i in range(n) if assign[i] >= 0 and i not in held_arms]
     assert len(newly) == min(len(free_humans), len(candidates))
@@ -219,6 +259,9 @@ def check_step(
 def run_scenario(sc: Scenario, *, sticky: bool) -> None:
     alloc = Allocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, seed=sc.seed)
     ref = RefAllocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, sc.seed)
+    # Without a mask: the same allocator given an all-True one must be indistinguishable.
+    full = (Allocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, seed=sc.seed)
+            if sc.available is None else None)
     resumed: Allocator | None = None
     violating_now = [False] * sc.n
     for step, keys in enumerate(sc.keys):
@@ -232,16 +275,30 @@ def run_scenario(sc: Scenario, *, sticky: bool) -> None:
         if step == sc.split:
             resumed = Allocator(sc.n, sc.m, sc.t_teleop, sc.t_reset, seed=None)
             resumed.load_state_dict(json.loads(json.dumps(alloc.state_dict())))
+        avail = sc.available[step] if sc.available is not None else None
+        for j in sc.gone[step] if sc.gone is not None else ():
+            # Gone past the grace period: the loop frees the human before the allocation.
+            on = alloc.assignment.tolist()
+            arm = alloc.release_human(j)
+            assert arm == (on.index(j) if j in on else None)
+            assert ref.release_human(j) == arm
+            if resumed is not None:
+                assert resumed.release_human(j) == arm
         prev = (alloc.assignment, alloc.kinds, alloc.served)
         key_arr = np.asarray(keys, dtype=float)
         viol_arr = np.asarray(violating, dtype=bool)
-        assign = alloc.step(key_arr, viol_arr)
-        check_step(alloc, *prev, keys, violating, assign)
-        assert assign.tolist() == ref.step(keys, violating)
+        avail_arr = None if avail is None else np.asarray(avail, dtype=bool).reshape(sc.m)
+        assign = alloc.step(key_arr, viol_arr, avail_arr)
+        check_step(alloc, *prev, keys, violating, assign, avail)
+        assert assign.tolist() == ref.step(keys, violating, avail)
         assert [(None if k is None else str(k), int(s)) for k, s in alloc.held_kinds()] \
             == ref.per_arm()
+        if full is not None:
+            assert full.step(key_arr, viol_arr, np.ones(sc.m, dtype=bool)).tolist() \
+                == assign.tolist()
+            assert full.state_dict() == alloc.state_dict()  # the RNG stream included
         if resumed is not None:
-            assert resumed.step(key_arr, viol_arr).tolist() == assign.tolist()
+            assert resumed.step(key_arr, viol_arr, avail_arr).tolist() == assign.tolist()
             assert resumed.state_dict() == alloc.state_dict()
         if sticky:
             kinds, served = alloc.kinds, alloc.served
@@ -404,6 +461,96 @@ def test_release_frees_the_human() -> None:
     assert alloc.assignment.tolist() == [-1, -1]
     with pytest.raises(ValueError, match="out of range"):
         alloc.release(2)
+
+
+# ------------------------------------------------------------------ away humans
+
+ALL = np.ones(2, dtype=bool)
+
+
+def test_an_away_human_gets_no_new_arm_and_a_present_one_fills_the_top_arm() -> None:
+    alloc = Allocator(3, 2, min_teleop_steps=1, hard_reset_steps=1, seed=0)
+    away0 = np.array([False, True])
+    assert alloc.step(_keys(3, 2, 1), NO_VIOLATION, away0).tolist() == [1, -1, -1]
+    both_away = np.array([False, False])
+    assert alloc.step(_keys(3, 2, 1), NO_VIOLATION, both_away).tolist() == [-1, -1, -1]
+    assert alloc.step(_keys(3, 2, 1), NO_VIOLATION, ALL).tolist() == [0, 1, -1]  # back
+
+
+def test_a_free_away_human_does_not_keep_its_arm() -> None:
+    alloc = Allocator(2, 2, min_teleop_steps=1, hard_reset_steps=1, seed=0)
+    assert alloc.step(_keys(2, 1), np.zeros(2, bool)).tolist() == [0, 1]
+    # t_T = 1: nobody is held. Human 0 is away: its arm (still the top one) goes to
+    # human 1, who leaves arm 1 for it (the keep rule is for present humans only).
+    assert alloc.step(_keys(2, 1), np.zeros(2, bool), np.array([False, True])).tolist() \
+        == [1, -1]
+    assert alloc.served.tolist() == [0, 0]
+
+
+def test_a_held_intervention_of_an_away_human_goes_on_until_released() -> None:
+    alloc = Allocator(2, 2, min_teleop_steps=3, hard_reset_steps=2, seed=0)
+    one = np.array([True, False])
+    assert alloc.step(_keys(2, 0), np.zeros(2, bool), one).tolist() == [0, -1]
+    away = np.array([False, True])
+    for served in (1, 2):  # held for t_T = 3 steps whatever the presence
+        assert alloc.step(_keys(2, 1), np.zeros(2, bool), away).tolist() == [0, 1]
+        assert alloc.held_kinds()[0] == (InterventionKind.TELEOP, served)
+    # Hold over, still away: human 0 drops off; present human 1 keeps its own arm.
+    assert alloc.step(_keys(2, 1), np.zeros(2, bool), away).tolist() == [-1, 1]
+    # A held reset of an away human, released before the step: the arm is free again.
+    alloc = Allocator(2, 2, min_teleop_steps=1, hard_reset_steps=5, seed=0)
+    viol = np.array([True, False])
+    alloc.step(_keys(1, 0), viol, one)
+    assert alloc.step(_keys(1, 0), viol, away).tolist() == [0, -1]  # held: t_R, violating
+    assert alloc.held_mask(viol).tolist() == [True, False]
+    assert alloc.release_human(0) == 0
+    assert alloc.held_mask(viol).tolist() == [False, False]
+    assert alloc.step(_keys(1, 0), viol, away).tolist() == [1, -1]  # another takes it
+    assert alloc.held_kinds()[0] == (InterventionKind.RESET, 0)
+
+
+def test_no_mask_and_an_all_true_mask_are_the_same_allocation_and_stream() -> None:
+    a, b = Allocator(4, 2, 2, 3, seed=11), Allocator(4, 2, 2, 3, seed=11)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        keys = rng.integers(-1, 3, size=(4, 2)).astype(float)
+        viol = rng.random(4) < 0.3
+        assert a.step(keys, viol).tolist() == b.step(keys, viol, np.ones(2, bool)).tolist()
+        assert a.state_dict() == b.state_dict()
+
+
+def test_release_human_frees_the_human_and_returns_its_arm() -> None:
+    alloc = Allocator(3, 2, min_teleop_steps=4, hard_reset_steps=1, seed=0)
+    alloc.step(_keys(0, 2, 1), NO_VIOLATION)
+    assert alloc.assignment.tolist() == [-1, 0, 1]
+    before = alloc.steps
+    assert alloc.release_human(0) == 1
+    assert alloc.release_human(0) is None  # nothing left to release
+    assert alloc.assignment.tolist() == [-1, -1, 1] and alloc.steps == before
+    assert alloc.held_kinds()[1] == (None, 0)
+    # Free at the next step like any other (and the arm, not held, is a candidate).
+    assert alloc.step(_keys(0, 2, 1), NO_VIOLATION).tolist() == [-1, 0, 1]
+    assert alloc.held_kinds()[1] == (InterventionKind.TELEOP, 0)
+    for bad in (-1, 2, True, 1.0):
+        with pytest.raises(ValueError, match="human index"):
+            alloc.release_human(bad)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("available", "match"),
+    [
+        (np.ones(2, int), "available must be a bool array"),
+        ([1, 0], "available must be a bool array"),
+        (np.ones(3, bool), r"available must have shape \(2,\)"),
+        (np.ones((2, 1), bool), r"available must have shape \(2,\)"),
+    ],
+)
+def test_bad_available_masks_are_clear_value_errors(available: object, match: str) -> None:
+    alloc = Allocator(3, 2, 1, 1, seed=0)
+    before = alloc.state_dict()
+    with pytest.raises(ValueError, match=match):
+        alloc.step(_keys(1, 1, 1), NO_VIOLATION, available)  # type: ignore[arg-type]
+    assert alloc.steps == 0 and alloc.state_dict() == before  # no draw: stream unchanged
 
 
 def test_state_dict_round_trips_through_json_and_checks_shape() -> None:

@@ -159,6 +159,48 @@ def test_gui_humans_need_someone(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "humans.count" in line
 
 
+@pytest.mark.parametrize("how", ["flag", "config", "protocol"])
+def test_web_humans_need_someone(how: str, tmp_path: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    # Without the check: a web server with no page to serve, and a trial no one can help.
+    nobody = write(tmp_path / "f.toml", "[humans]\ncount = 0\n")
+    out = tmp_path / "out"
+    argv = {
+        "flag": ["trial", "--humans", "web", "--config", str(nobody), "--out", str(out)],
+        "config": ["trial", "--config", str(write(tmp_path / "w.toml", '[humans]\ncount = 0\n'
+                                                  'kind = "web"\n')), "--out", str(out)],
+        "protocol": ["protocol", str(write(tmp_path / "p.toml", 'name = "p"\ntrials = 1\n'
+                                           'humans = "web"\n[fleet.humans]\ncount = 0\n')),
+                     "--out", str(out)],
+    }[how]
+    line = one_line(argv, capsys)
+    assert "humans.count" in line and "browser console" in line
+    assert not out.exists()
+
+
+def test_web_humans_without_the_web_extra(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    # Without the check: an ImportError deep in gui.web after pretraining.
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "uvicorn" else real(name, *a))
+    out = tmp_path / "out"
+    line = one_line(["trial", "--humans", "web", "--out", str(out)], capsys)
+    assert "web extra" in line and "uvicorn" in line and 'pip install -e ".[web]"' in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("verb", [
+    ["trial"], ["evaluate", "--policy", "p.pt"], ["collect"], ["pretrain", "--demos", "d.npz"],
+    ["rehearse"]])
+def test_every_humans_flag_offers_web(verb: list[str]) -> None:
+    from testbed.cli import build_parser
+
+    assert build_parser().parse_args([*verb, "--humans", "web"]).humans == "web"
+
+
 def test_scripted_humans_cannot_teleoperate_a_physical_robot(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cfg = write(tmp_path / "f.toml", YUMI.format(url="http://192.0.2.1"))

@@ -90,6 +90,30 @@ MALFORMED: list[tuple[str, str, str]] = [
     ("unset-var", HOST + 'key_file = "$T1_SURELY_UNSET_VAR/k"\n', "$T1_SURELY_UNSET_VAR"),
     ("unset-var-local-workdir", HOST + 'workdir = "${T1_SURELY_UNSET_VAR}/x"\n',
      "hosts[0].workdir"),
+    # The browser console ([humans.web]).
+    ("web-kind", '[humans]\nkind = "webb"\n', "humans.kind"),
+    ("web-tokens-count", f'[humans.web]\ntokens = ["{"a" * 16}"]\n',
+     "humans.web.tokens: 1 token for humans.count = 2"),
+    ("web-token-short", f'[humans.web]\ntokens = ["{"a" * 16}", "short"]\n',
+     "humans.web.tokens[1]: a token of 5 characters"),
+    ("web-token-chars", f'[humans.web]\ntokens = ["{"a" * 16}", "{"b" * 15}/"]\n',
+     "humans.web.tokens[1]"),
+    ("web-tokens-same", f'[humans.web]\ntokens = ["{"a" * 16}", "{"a" * 16}"]\n',
+     "humans.web.tokens: two humans have the same token"),
+    ("web-certfile-alone", '[humans.web]\ncertfile = "/etc/cert.pem"\n',
+     "humans.web.keyfile: certfile is set but keyfile is not"),
+    ("web-keyfile-alone", '[humans.web]\nkeyfile = "/etc/key.pem"\n', "humans.web.certfile"),
+    ("web-certfile-missing", '[humans.web]\ncertfile = "/no/such/cert.pem"\n'
+     'keyfile = "/no/such/key.pem"\n', "humans.web.certfile: no such file"),
+    ("web-grace-negative", "[humans.web]\ngrace_s = -1\n", "humans.web.grace_s"),
+    ("web-grace-nan", "[humans.web]\ngrace_s = nan\n", "humans.web.grace_s"),
+    ("web-away-timeout-zero", "[humans.web]\naway_timeout_s = 0\n",
+     "humans.web.away_timeout_s"),
+    ("web-teleop-timeout-negative", "[humans.web]\nteleop_timeout_s = -2.5\n",
+     "humans.web.teleop_timeout_s"),
+    ("web-port", "[humans.web]\nport = 65536\n", "humans.web.port"),
+    ("web-host", '[humans.web]\nhost = "http://lab-pc"\n', "humans.web.host"),
+    ("web-unknown-key", '[humans.web]\ntoken = "x"\n', "humans.web.token: unknown key"),
 ]
 
 
@@ -258,3 +282,32 @@ def test_load_fleet_reads_a_protocol_fleet(tmp_path: Path) -> None:
     fleet = tmp_path / "fleet.toml"
     fleet.write_text(HOST)
     assert file_kind(tomllib.loads(HOST)) == "fleet" and load_fleet(fleet).hosts[0].name == "cell0"
+
+
+def test_web_console_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    web = default_twin_config().humans.web
+    assert (web.host, web.port, web.tokens, web.certfile, web.keyfile) == (
+        "127.0.0.1", 8765, [], None, None)  # loopback unless the config says otherwise
+    assert (web.grace_s, web.away_timeout_s, web.teleop_timeout_s) == (10.0, 5.0, None)
+    home = lab_home(tmp_path, monkeypatch)
+    (home / "tls").mkdir()
+    for name in ("cert.pem", "key.pem"):
+        (home / "tls" / name).write_text("x\n")
+    monkeypatch.setenv("TLS", str(home / "tls"))
+    tokens = ["A" * 16, "b-_9" * 6, "c" * 40]
+    cfg = parse_config({"humans": {"count": 3, "kind": "web", "web": {
+        "host": "0.0.0.0", "port": 0, "tokens": tokens, "certfile": "~/tls/cert.pem",
+        "keyfile": "$TLS/key.pem", "grace_s": 0, "away_timeout_s": 0.5,
+        "teleop_timeout_s": 30}}})
+    web = cfg.humans.web
+    assert (cfg.humans.kind, web.host, web.port, web.tokens) == ("web", "0.0.0.0", 0, tokens)
+    assert (web.certfile, web.keyfile) == (f"{home}/tls/cert.pem", f"{home}/tls/key.pem")
+    assert parse_config(cfg.model_dump(mode="json")) == cfg  # a run's config.toml
+    # A rehearsal loads without checking files: the paths are still expanded.
+    lax = parse_config({"humans": {"web": {"certfile": "~/none.pem", "keyfile": "~/k.pem"}}},
+                       check_files=False)
+    assert lax.humans.web.certfile == f"{home}/none.pem"
+    # A bad token is named by its place, never echoed: it is a secret.
+    with pytest.raises(ConfigError) as err:
+        parse_config({"humans": {"count": 1, "web": {"tokens": ["my pass word, do not show"]}}})
+    assert "humans.web.tokens[0]" in str(err.value) and "pass word" not in str(err.value)

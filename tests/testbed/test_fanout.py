@@ -52,8 +52,9 @@ def test_physical_fleets_and_console_humans_are_refused() -> None:
         check_fanout(physical.fleet, "scripted", "protocol 'physical'")
     twin = load_protocol(ROOT / "protocols" / "twin.toml")
     check_fanout(twin.fleet, "scripted", "protocol 'twin'")
-    with pytest.raises(ConfigError, match="only scripted humans"):
-        check_fanout(twin.fleet, "gui", "protocol 'twin'")
+    for console in ("gui", "web"):  # a person at a console (OpenCV or browser) stays put
+        with pytest.raises(ConfigError, match=f"humans = '{console}'.*only scripted humans"):
+            check_fanout(twin.fleet, console, "protocol 'twin'")
 
 
 @pytest.mark.slow

@@ -175,16 +175,26 @@ def test_thrifty_needs_its_signals_and_ignores_faulted_arms_in_its_statistics() 
 # ------------------------------------------------------------------------- Random
 
 
-def _random_run(budget: float, steps: int, seed: int, n: int = 20, m: int = 5
-                ) -> tuple[float, list[np.ndarray]]:
+def _random_run(budget: float, steps: int, seed: int, n: int = 20, m: int = 5,
+                away: float = 0.0) -> tuple[float, list[np.ndarray]]:
+    """Random over ``steps``; with ``away`` > 0 each human is away with that chance per
+    step (an independent stream, so ``away = 0`` is the run without a mask)."""
     params = PARAMS.model_copy(update={"random_budget": budget, "t_T": 3, "t_R": 4})
     alg = get_algorithm("random", params, n, m, seed=seed)
     rng = np.random.default_rng(seed)
+    presence = np.random.default_rng([seed, 1])
     violating = np.zeros(n, bool)
     busy, history = 0, []
     for t in range(steps):
         violating |= rng.random(n) < 0.02
-        assign = alg.step(PrioritySignals(t=t, violating=violating.copy()))
+        available = presence.random(m) >= away if away else None
+        before = alg.allocator.assignment
+        assign = alg.step(PrioritySignals(t=t, violating=violating.copy(),
+                                          available=available))
+        if available is not None:  # an away human is on no arm, or on its held one
+            for j in np.flatnonzero(~available):
+                on = np.flatnonzero(assign == j)
+                assert on.size == 0 or before[on[0]] == j
         history.append(assign)
         busy += int((assign >= 0).sum())
         # The reset ends at the end of its t_R-th step.
@@ -200,6 +210,16 @@ def _random_run(budget: float, steps: int, seed: int, n: int = 20, m: int = 5
 def test_random_matches_its_human_effort_budget(budget: float) -> None:
     fraction, _ = _random_run(budget, steps=2000, seed=3)
     assert fraction == pytest.approx(budget, abs=0.02)
+
+
+def test_random_with_away_humans_counts_only_the_humans_present() -> None:
+    # Every arm Random makes eligible gets a human (effort == busy, checked in the run),
+    # none of them away, and the budget's deficit catches up while others are present.
+    fraction, _ = _random_run(0.3, steps=2000, seed=3, away=0.4)
+    assert fraction == pytest.approx(0.3, abs=0.03)
+    # Everybody away most of the time: far below budget, but never a phantom human.
+    fraction, _ = _random_run(0.6, steps=300, seed=4, away=0.9)
+    assert fraction < 0.6
 
 
 def test_random_with_zero_budget_assigns_nobody() -> None:
@@ -250,6 +270,35 @@ def test_every_algorithm_runs_resumes_identically_and_zeroes_faulted_arms(name: 
     for s in sigs[20:]:
         assert alg.step(s).tolist() == twin.step(s).tolist()
         np.testing.assert_array_equal(alg.last_keys, twin.last_keys)
+
+
+@pytest.mark.parametrize("name", ALGORITHM_NAMES)
+def test_every_algorithm_takes_an_availability_mask(name: str) -> None:
+    n, m = 6, 3
+    rng = np.random.default_rng(7)
+    sigs = [PrioritySignals(t=t, violating=rng.random(n) < 0.2, uncertainty=rng.random(n),
+                            risk=rng.random(n), goal_risk=rng.random(n),
+                            novelty=rng.random(n)) for t in range(40)]
+    masks = rng.random((40, m)) < 0.6
+    plain, full, masked = (get_algorithm(name, PARAMS, n, m, seed=3) for _ in range(3))
+    for s, mask in zip(sigs, masks, strict=True):
+        # no mask and an all-True mask: the same allocation, the same state (streams)
+        all_in = PrioritySignals(**{**{f: getattr(s, f) for f in s.__slots__},
+                                    "available": np.ones(m, bool)})
+        assert plain.step(s).tolist() == full.step(all_in).tolist()
+        assert json.dumps(plain.state_dict()) == json.dumps(full.state_dict())
+        before = masked.allocator.assignment
+        away_in = PrioritySignals(**{**{f: getattr(s, f) for f in s.__slots__},
+                                     "available": mask})
+        after = masked.step(away_in)
+        for j in np.flatnonzero(~mask):  # an away human is never newly assigned
+            on = np.flatnonzero(after == j)
+            assert on.size == 0 or before[on[0]] == j
+    with pytest.raises(ValueError, match=r"signals.available must be bool with shape \(3,\)"):
+        masked.step(PrioritySignals(t=40, violating=np.zeros(n, bool),
+                                    uncertainty=np.zeros(n), risk=np.zeros(n),
+                                    goal_risk=np.zeros(n), novelty=np.zeros(n),
+                                    available=np.ones(2, bool)))
 
 
 def test_registry_names_and_unknown_names() -> None:
