@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 from bench_console import LoopThread, bench_console, pct, request, twin_like_image
-from websockets.sync.client import connect
+from websockets.sync.client import ClientConnection, connect
 
 from gui.web import WebHumans
 from gui.web.browser import chromium, open_console
@@ -44,8 +44,8 @@ TARGET_MS = 50.0
 class Hand:
     """A second socket of one human that pushes "d" on the frame the page painted."""
 
-    def __init__(self, ws_url: str) -> None:
-        self.ws = connect(ws_url)
+    def __init__(self, ws: ClientConnection) -> None:
+        self.ws = ws
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._drain, daemon=True)
         self._thread.start()
@@ -64,7 +64,6 @@ class Hand:
 
     def close(self) -> None:
         self._stop.set()
-        self.ws.close()
         self._thread.join(2)
 
 
@@ -78,7 +77,7 @@ def bench_web(n: int, humans: int, seed: int) -> tuple[list[float], list[float]]
         for h, page in enumerate(pages):
             open_console(page, console.urls[h])
         ws_base = console.base_url.replace("http", "ws", 1)
-        hands = [Hand(f"{ws_base}/ws?token={console.tokens.token(h)}")
+        hands = [Hand(stack.enter_context(connect(f"{ws_base}/ws?token={console.tokens.token(h)}")))
                  for h in range(humans)]
         loop = LoopThread(console)
         try:
