@@ -87,9 +87,13 @@ def open_console(driver: Any, url: str, timeout_s: float = 60.0) -> None:
         time.sleep(0.05)
 
 
-def click_frame_point(driver: Any, x: float, y: float) -> None:
-    """Click the page's frame canvas at frame pixel (x, y), as a person's click or tap."""
+def click_frame_point(driver: Any, x: float, y: float, *, touch: bool = False) -> None:
+    """Click (or, ``touch``, tap with a finger) the page's frame canvas at frame pixel
+    (x, y), whatever the page's zoom."""
     from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.actions import interaction
+    from selenium.webdriver.common.actions.action_builder import ActionBuilder
+    from selenium.webdriver.common.actions.pointer_input import PointerInput
     from selenium.webdriver.common.by import By
 
     canvas = driver.find_element(By.ID, "frame")
@@ -98,7 +102,12 @@ def click_frame_point(driver: Any, x: float, y: float) -> None:
     scale = rect["width"] / natural_w
     dx = round(x * scale - rect["width"] / 2)  # Selenium 4: offsets from the centre
     dy = round(y * scale - rect["height"] / 2)
-    ActionChains(driver).move_to_element_with_offset(canvas, dx, dy).click().perform()
+    if not touch:
+        ActionChains(driver).move_to_element_with_offset(canvas, dx, dy).click().perform()
+        return
+    finger = ActionBuilder(driver, mouse=PointerInput(interaction.POINTER_TOUCH, "finger"))
+    finger.pointer_action.move_to(canvas, dx, dy).pointer_down().pointer_up()
+    finger.perform()
 
 
 def press_key(driver: Any, key: str) -> None:

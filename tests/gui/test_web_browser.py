@@ -135,7 +135,7 @@ def test_a_key_and_a_tap_push_their_own_humans_arms(
     _wait(lambda: web.snapshot(1).phase.value == "sent", "human 1's key was not taken")
     assert web.snapshot(0).phase.value == "choose", "human 1's key reached human 0"
     x, y = web.face_click_point(0, 2)
-    click_frame_point(pages[0], x, y)  # human 0: a tap on the down face
+    click_frame_point(pages[0], x, y, touch=True)  # human 0: a finger taps the down face
     out = call.join()
     assert out["cell1/right"].action == 1
     assert out["cell0/left"].action == 2
@@ -276,9 +276,12 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
                     done = _steps_done(run)
                     if closed_at_step is None and done >= CLOSE_AFTER_STEP:
                         h1.stop()
-                        page1.get("about:blank")  # the page is closed: its socket goes
+                        # human 1's page is closed (its socket goes); the same browser
+                        # opens the fleet overview, mid-trial
+                        page1.get(f"http://127.0.0.1:{port}/overview?token={TOKENS[1]}")
                         closed_at_step = done
                     time.sleep(0.1)
+                overview = page_state(page1)
             finally:
                 h0.stop()
                 h1.stop()
@@ -320,5 +323,11 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
         mine = {r["robot"] for r in s["robots"] if r["human"] == 1}
         assert mine <= held, f"away human 1 newly assigned at t={s['t']}: {mine - held}"
         held = mine
+    # the overview, opened mid-trial, got the curve's points so far, then one per step
+    points = overview.get("points") or []
+    assert [p["t"] for p in points] == list(range(1, STEPS + 1)), points[-3:]
+    last = steps[-1]
+    assert points[-1]["modes"] == [r["mode"] for r in last["robots"]]
+    assert [x["present"] for x in overview["head"]["humans"]] == [True, False]
     released = [x for s in steps for x in s.get("released", [])]
     assert all(x["human"] == 1 and x["why"] == "away" for x in released), released
