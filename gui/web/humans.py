@@ -45,6 +45,8 @@ from testbed.types import FleetStatus
 if TYPE_CHECKING:
     from testbed.config import WebConsoleConfig
 
+_ANNOUNCED: set[tuple[str, ...]] = set()
+"""The URLs printed so far by this process (each set once)."""
 HISTORY_MAX = 100_000
 """Overview curve points kept for a page that opens mid-trial (one per step)."""
 
@@ -71,7 +73,9 @@ class WebHumans(ConsoleCore):
 
     ``WebHumans(2)`` starts the server and prints each human's URL once (to
     ``announce``, stderr by default); ``urls`` has them too. Use it as a context
-    manager or call ``close()``.
+    manager or call ``close()``. Without ``tokens``, every console of this process uses
+    the same random ones, so a protocol's trials keep their URLs (a fixed ``port``
+    too: the pages reconnect by themselves between trials).
     """
 
     def __init__(
@@ -92,7 +96,7 @@ class WebHumans(ConsoleCore):
         super().__init__(num_humans, scale=scale, teleop_timeout_s=teleop_timeout_s)
         if (certfile is None) != (keyfile is None):
             raise ValueError("humans.web: give both certfile and keyfile, or neither")
-        self.tokens = TokenBook(tokens) if tokens else TokenBook.generate(num_humans)
+        self.tokens = TokenBook(tokens) if tokens else TokenBook.for_session(num_humans)
         if len(self.tokens) != num_humans:
             raise ValueError(f"humans.web.tokens: need {num_humans} tokens (one per human), "
                              f"got {len(self.tokens)}")
@@ -111,7 +115,8 @@ class WebHumans(ConsoleCore):
         self.urls = [f"{self.base_url}/?token={self.tokens.token(h)}"
                      for h in range(num_humans)]
         self.overview_url = f"{self.base_url}/overview?token={self.tokens.token(0)}"
-        if announce is not None:
+        if announce is not None and (self.base_url, *self.urls) not in _ANNOUNCED:
+            _ANNOUNCED.add((self.base_url, *self.urls))  # once: a protocol's next trial
             lines = [f"web console: human {h}: {u}" for h, u in enumerate(self.urls)]
             lines.append(f"web console: fleet overview: {self.overview_url}")
             print("\n".join(lines), file=announce, flush=True)

@@ -17,6 +17,7 @@ from typing import Final
 
 TOKEN_RE: Final = re.compile(r"[A-Za-z0-9_-]{16,}")
 TOKEN_BYTES: Final = 24
+_SESSION: dict[int, TokenBook] = {}
 
 
 class TokenBook:
@@ -35,6 +36,18 @@ class TokenBook:
     @classmethod
     def generate(cls, count: int) -> TokenBook:
         return cls([secrets.token_urlsafe(TOKEN_BYTES) for _ in range(count)])
+
+    @classmethod
+    def for_session(cls, count: int) -> TokenBook:
+        """Random tokens made once per controller process and kept for its later trials.
+
+        A protocol runs a dozen trials, each with its own console: the humans keep their
+        URLs (with the same port, their pages reconnect by themselves) instead of being
+        handed new links between trials.
+        """
+        if count not in _SESSION:
+            _SESSION[count] = cls.generate(count)
+        return _SESSION[count]
 
     def __len__(self) -> int:
         return len(self._tokens)

@@ -712,3 +712,21 @@ def test_a_taken_port_is_one_line(web: WebHumans) -> None:
     assert f"127.0.0.1:{web.port}" in msg
     assert len([t for t in threading.enumerate() if t.name == "web-console"]) == 1
     assert http_get(web.urls[0])[0] == 200  # the running console is untouched
+
+
+def test_a_protocols_next_console_keeps_the_urls_and_says_them_once() -> None:
+    """Each trial of a protocol opens its own console: without configured tokens, the
+    process's random ones are reused, so with a fixed port every URL stays valid (the
+    page reconnects by itself), and the URLs are printed once, not once a trial."""
+    import io
+
+    with WebHumans(2, port=0, announce=None) as first:
+        port = first.port
+        urls = list(first.urls)
+    out = io.StringIO()
+    with WebHumans(2, port=port, announce=out) as second:
+        assert second.urls == urls
+    with WebHumans(2, port=port, announce=out) as third:
+        assert third.urls == urls
+    assert out.getvalue().count("web console: human 0:") == 1
+    assert len(set(urls)) == 2, "each human has a token of their own"
