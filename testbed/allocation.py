@@ -276,9 +276,7 @@ class Allocator:
         if hit.size == 0:
             return None
         j = int(hit[0])
-        self._human_arm[j] = -1
-        self._human_kind[j] = KIND_NONE
-        self._human_served[j] = 0
+        self._free(j)
         return j
 
     def release_human(self, human: int) -> int | None:
@@ -294,10 +292,13 @@ class Allocator:
         arm = int(self._human_arm[j])
         if arm < 0:
             return None
+        self._free(j)
+        return arm
+
+    def _free(self, j: int) -> None:
         self._human_arm[j] = -1
         self._human_kind[j] = KIND_NONE
         self._human_served[j] = 0
-        return arm
 
     # ------------------------------------------------------------------ resume
     def state_dict(self) -> dict[str, Any]:
