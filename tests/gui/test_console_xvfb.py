@@ -8,50 +8,20 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
-from console_helpers import RequestFactory, arm_image
+from console_helpers import ActCall, RequestFactory, arm_image
 
 from gui import StopRequested
 from gui.console import ConsoleHumans
 from gui.view import Phase
 from gui.xdo import Xvfb, click, find_window, press
-from testbed.types import FleetStatus, HumanResponse, Mode, RobotStatus
+from testbed.types import FleetStatus, Mode, RobotStatus
 
 pytestmark = pytest.mark.xvfb
-
-
-class ActCall:
-    """``console.act`` in a thread, as the fleet loop would call it."""
-
-    def __init__(self, fn: Callable[[], dict[str, HumanResponse]]) -> None:
-        self.result: dict[str, HumanResponse] | None = None
-        self.error: BaseException | None = None
-
-        def run() -> None:
-            try:
-                self.result = fn()
-            except BaseException as exc:  # handed to the test
-                self.error = exc
-
-        self.thread = threading.Thread(target=run, daemon=True)
-        self.thread.start()
-
-    def join(self, timeout: float = 10.0) -> dict[str, HumanResponse]:
-        self.thread.join(timeout)
-        assert not self.thread.is_alive(), "act() did not return"
-        if self.error is not None:
-            raise self.error
-        assert self.result is not None
-        return self.result
-
-    @property
-    def waiting(self) -> bool:
-        return self.thread.is_alive()
 
 
 def until_taken(send: Callable[[], None], taken: Callable[[], bool], tries: int = 3) -> None:

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import pytest
 import tomli_w
+from console_helpers import ActCall
 from selenium.webdriver.common.keys import Keys
 
 from gui.core import OVERVIEW
@@ -95,7 +96,7 @@ def test_the_page_paints_the_opencv_consoles_pixels(
 ) -> None:
     page = pages[0]
     open_console(page, web.urls[0])
-    call = _Act(web, [make_request("cell0/left", 0)], 0)
+    call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 0))
     state = web.wait_for_prompt(0)
     _wait(lambda: page_state(page).get("shownSeq") == state.seq_posted, "frame not shown")
     with web._cond:  # the frame the OpenCV window would show for this view
@@ -128,7 +129,8 @@ def test_a_key_and_a_tap_push_their_own_humans_arms(
     for h, page in enumerate(pages):
         open_console(page, web.urls[h])
     _wait(lambda: bool(web.presence().available.all()), "both humans present")
-    call = _Act(web, [make_request("cell0/left", 0), make_request("cell1/right", 1)], 0)
+    call = ActCall(lambda: web.act([make_request("cell0/left", 0),
+                                    make_request("cell1/right", 1)], 0))
     for h in range(2):
         web.wait_for_prompt(h)
     press_key(pages[1], Keys.ARROW_LEFT)  # human 1: push left
@@ -146,30 +148,6 @@ def test_a_key_and_a_tap_push_their_own_humans_arms(
                    .get("humans", [])] == [False, True], "overview shows who is here")
     assert web.presence().available.tolist() == [False, True]
     assert web._posted[OVERVIEW] > 0
-
-
-class _Act:
-    """``act`` in a thread, as the fleet loop calls it."""
-
-    def __init__(self, console: WebHumans, requests: list[Any], t: int) -> None:
-        self.result: Any = None
-        self.error: BaseException | None = None
-
-        def run() -> None:
-            try:
-                self.result = console.act(requests, t)
-            except BaseException as exc:  # handed to the test
-                self.error = exc
-
-        self.thread = threading.Thread(target=run, daemon=True)
-        self.thread.start()
-
-    def join(self, timeout_s: float = 10.0) -> Any:
-        self.thread.join(timeout_s)
-        assert not self.thread.is_alive(), "act() did not return"
-        if self.error is not None:
-            raise self.error
-        return self.result
 
 
 def _free_port() -> int:

@@ -46,14 +46,14 @@ from typing import Any
 
 import pytest
 import trustme
-from console_helpers import RequestFactory, arm_image
+from console_helpers import ActCall, RequestFactory, arm_image
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from gui import ConsoleUnavailable, StopRequested
 from gui.view import Phase
 from gui.web.humans import WebHumans
-from testbed.types import FleetStatus, HumanResponse, Mode, RobotStatus
+from testbed.types import FleetStatus, Mode, RobotStatus
 
 TOKENS = ["human0-token-aaaaaaaaaaaa", "human1-token-bbbbbbbbbbbb"]
 GRACE_S = 0.5
@@ -222,38 +222,6 @@ class FakePage:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-class ActCall:
-    """``humans.act`` in a thread, as the fleet loop calls it (it blocks for pushes)."""
-
-    def __init__(self, fn: Callable[[], dict[str, HumanResponse]]) -> None:
-        self.result: dict[str, HumanResponse] | None = None
-        self.error: BaseException | None = None
-        self.t_end: float | None = None
-
-        def run() -> None:
-            try:
-                self.result = fn()
-            except BaseException as exc:  # handed to the test
-                self.error = exc
-            finally:
-                self.t_end = time.monotonic()
-
-        self.thread = threading.Thread(target=run, name="act-call", daemon=True)
-        self.thread.start()
-
-    def join(self, timeout: float = WAIT_S) -> dict[str, HumanResponse]:
-        self.thread.join(timeout)
-        assert not self.thread.is_alive(), "act() did not return"
-        if self.error is not None:
-            raise self.error
-        assert self.result is not None
-        return self.result
-
-    @property
-    def waiting(self) -> bool:
-        return self.thread.is_alive()
 
 
 def wait_until(cond: Callable[[], bool], what: str, timeout: float = WAIT_S) -> float:
