@@ -109,7 +109,6 @@ def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None) -> H
         return ConsoleHumans(num_humans=count)
     if kind == "web":
         from gui.web import WebHumans
-
         from testbed.config import WebConsoleConfig
 
         humans: Humans = WebHumans.from_config(count, web if web is not None
