@@ -136,11 +136,10 @@ def press(window: str, key: str, *, display: str | None = None) -> None:
 def click(window: str, x: int, y: int, *, display: str | None = None) -> None:
     """Left click at window coordinates (x, y): move the pointer there, then click.
 
-    ``--sync`` waits until the pointer is there, so the press does not reach the window
-    before the pointer has entered it.
+    (Not ``mousemove --sync``: it waits for a motion event, and when the pointer is
+    already there, a second click on the same marker, none comes: xdotool hung.)
     """
-    _xdotool("mousemove", "--sync", "--window", window, str(x), str(y), "click", "1",
-             display=display)
+    _xdotool("mousemove", "--window", window, str(x), str(y), "click", "1", display=display)
 
 
 # ---- driving a console in another process (``testbed trial --humans gui``) ----------
@@ -206,26 +205,33 @@ class Autopilot:
 
     def _run(self) -> None:
         while not self._stop.wait(self.period_s):
-            doc = read_console_state(self.state_path)
-            windows = doc.get("windows") if doc else None
-            if not isinstance(windows, list) or (doc or {}).get("paused"):
+            try:
+                self._answer_prompts()
+            except (subprocess.SubprocessError, OSError, LookupError):
+                continue  # xdotool hung or a window is not up yet: a person tries again
+
+    def _answer_prompts(self) -> None:
+        """Answer each prompt on screen not answered yet (one pass)."""
+        doc = read_console_state(self.state_path)
+        windows = doc.get("windows") if doc else None
+        if not isinstance(windows, list) or (doc or {}).get("paused"):
+            return
+        for w in windows:
+            human, seq = int(w["human"]), int(w["seq_shown"])
+            if not w.get("on_screen") or (human, seq) in self._done:
                 continue
-            for w in windows:
-                human, seq = int(w["human"]), int(w["seq_shown"])
-                if not w.get("on_screen") or (human, seq) in self._done:
-                    continue
-                if w["phase"] == "choose":
-                    answer = self.teleop(human)
-                    wid = self._window(w["window"])
-                    if answer[0] == "click":
-                        x, y = w["markers"][int(answer[1])]
-                        click(wid, int(x), int(y), display=self.display)
-                    else:
-                        press(wid, str(answer[1]), display=self.display)
-                elif w["phase"] == "reset":
-                    answer = ("key", "Return")
-                    press(self._window(w["window"]), "Return", display=self.display)
+            if w["phase"] == "choose":
+                answer = self.teleop(human)
+                wid = self._window(w["window"])
+                if answer[0] == "click":
+                    x, y = w["markers"][int(answer[1])]
+                    click(wid, int(x), int(y), display=self.display)
                 else:
-                    continue
-                self._done.add((human, seq))
-                self.answers.append((human, str(w["robot"]), str(w["phase"]), answer))
+                    press(wid, str(answer[1]), display=self.display)
+            elif w["phase"] == "reset":
+                answer = ("key", "Return")
+                press(self._window(w["window"]), "Return", display=self.display)
+            else:
+                continue
+            self._done.add((human, seq))
+            self.answers.append((human, str(w["robot"]), str(w["phase"]), answer))
