@@ -116,7 +116,6 @@ class ConsoleCore:
         self._desks = [Desk(h, self.layout) for h in range(num_humans)]
         self._seq = 0
         self._serial = 0
-        self._t_act = 0.0
         self._posted: dict[int, int] = defaultdict(int)
         self._shown: dict[int, int] = defaultdict(int)
         self._paused = False
@@ -156,7 +155,6 @@ class ConsoleCore:
         with self._cond:
             self._raise_if_stopped()
             self._serial += 1
-            self._t_act = t_act
             went_idle = []
             for h, desk in enumerate(self._desks):
                 if desk.has_request() and h not in groups:
