@@ -149,11 +149,8 @@ class ConsoleHumans(ConsoleCore):
 
     def close(self) -> None:
         """Close every window; safe to call twice."""
-        with self._cond:
-            if self._closed:
-                return
-            self._closed = True
-            self._cond.notify_all()
+        if not self._mark_closed():
+            return
         if self._pump.is_alive() and self._pump is not threading.current_thread():
             self._pump.join(2.0)
         self._close_windows()

@@ -145,6 +145,16 @@ class ConsoleCore:
     def surface_name(self, wid: int) -> str:
         return "fleet overview" if wid == OVERVIEW else f"human {wid}"
 
+    def _mark_closed(self) -> bool:
+        """Mark the console closed (``act``/``show`` raise from now on); False if it
+        already was, so a subclass's ``close`` is safe to call twice."""
+        with self._cond:
+            if self._closed:
+                return False
+            self._closed = True
+            self._cond.notify_all()
+            return True
+
     # ---- Humans protocol -------------------------------------------------------------
     def act(self, requests: Sequence[HumanRequest], t: int) -> dict[str, HumanResponse]:
         """Show each human their request; return when every teleop request has a push."""

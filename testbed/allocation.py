@@ -383,25 +383,23 @@ class Allocator:
         return arr
 
     def _check_violating(self, violating: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-        arr = np.asarray(violating)
-        if arr.dtype != np.bool_:
-            raise ValueError(f"violating must be a bool array, got dtype {arr.dtype}")
-        if arr.shape != (self.num_robots,):
-            raise ValueError(f"violating must have shape ({self.num_robots},), "
-                             f"got {arr.shape}")
-        return arr
+        return _bool_mask("violating", violating, self.num_robots)
 
     def _check_available(self, available: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
         """The (M,) mask of humans present this step; ``None`` means all of them."""
         if available is None:
             return np.ones(self.num_humans, dtype=bool)
-        arr = np.asarray(available)
-        if arr.dtype != np.bool_:
-            raise ValueError(f"available must be a bool array, got dtype {arr.dtype}")
-        if arr.shape != (self.num_humans,):
-            raise ValueError(f"available must have shape ({self.num_humans},), "
-                             f"got {arr.shape}")
-        return arr
+        return _bool_mask("available", available, self.num_humans)
+
+
+def _bool_mask(name: str, value: npt.ArrayLike, size: int) -> npt.NDArray[np.bool_]:
+    """``value`` as a bool (size,) array, or a ValueError naming ``name``."""
+    arr = np.asarray(value)
+    if arr.dtype != np.bool_:
+        raise ValueError(f"{name} must be a bool array, got dtype {arr.dtype}")
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
+    return arr
 
 
 def rng_state_json(rng: np.random.Generator) -> dict[str, Any]:

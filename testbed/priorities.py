@@ -127,28 +127,23 @@ class PrioritySignals:
     console) get no new intervention (``Allocator.step``'s ``available``)."""
 
     def violating_array(self, n: int) -> BoolArray:
-        arr = np.asarray(self.violating)
-        if arr.dtype != np.bool_ or arr.shape != (n,):
-            raise ValueError(f"signals.violating must be bool with shape ({n},), "
-                             f"got {arr.dtype} {arr.shape}")
-        return arr
+        return self._mask("violating", n, None)
 
     def faulted_array(self, n: int) -> BoolArray:
-        if self.faulted is None:
-            return np.zeros(n, dtype=bool)
-        arr = np.asarray(self.faulted)
-        if arr.dtype != np.bool_ or arr.shape != (n,):
-            raise ValueError(f"signals.faulted must be bool with shape ({n},), "
-                             f"got {arr.dtype} {arr.shape}")
-        return arr
+        return self._mask("faulted", n, False)
 
     def available_array(self, m: int) -> BoolArray:
         """The (m,) mask of present humans, checked; all True when ``available`` is None."""
-        if self.available is None:
-            return np.ones(m, dtype=bool)
-        arr = np.asarray(self.available)
-        if arr.dtype != np.bool_ or arr.shape != (m,):
-            raise ValueError(f"signals.available must be bool with shape ({m},), "
+        return self._mask("available", m, True)
+
+    def _mask(self, name: str, size: int, default: bool | None) -> BoolArray:
+        """Field ``name`` as a checked bool (size,) array; ``default`` fills a None."""
+        value = getattr(self, name)
+        if value is None and default is not None:
+            return np.full(size, default, dtype=bool)
+        arr = np.asarray(value)
+        if arr.dtype != np.bool_ or arr.shape != (size,):
+            raise ValueError(f"signals.{name} must be bool with shape ({size},), "
                              f"got {arr.dtype} {arr.shape}")
         return arr
 

@@ -27,6 +27,7 @@ and key are given.
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from importlib import resources
@@ -66,6 +67,16 @@ def _encode_png(frame: Frame) -> bytes:
     if not ok:
         raise RuntimeError("PNG encoding of a console frame failed")
     return buf.tobytes()
+
+
+@functools.cache
+def _page_template(overview: bool) -> str:
+    """A page with its script and style inlined (so nothing is served without a token),
+    read from the package once."""
+    static = resources.files("gui.web").joinpath("static")
+    html = static.joinpath("overview.html" if overview else "human.html").read_text()
+    return (html.replace("/*CONSOLE_JS*/", static.joinpath("console.js").read_text())
+            .replace("/*CONSOLE_CSS*/", static.joinpath("console.css").read_text()))
 
 
 class WebHumans(ConsoleCore):
@@ -217,12 +228,8 @@ class WebHumans(ConsoleCore):
         return self.tokens.human_of(token)
 
     def page(self, wid: int) -> str:
-        name = "overview.html" if wid == OVERVIEW else "human.html"
-        html = resources.files("gui.web").joinpath("static", name).read_text()
-        js = resources.files("gui.web").joinpath("static", "console.js").read_text()
-        css = resources.files("gui.web").joinpath("static", "console.css").read_text()
-        return (html.replace("/*CONSOLE_JS*/", js).replace("/*CONSOLE_CSS*/", css)
-                .replace("HUMAN_INDEX", "" if wid == OVERVIEW else str(wid)))
+        overview = wid == OVERVIEW
+        return _page_template(overview).replace("HUMAN_INDEX", "" if overview else str(wid))
 
     def connected(self, wid: int) -> list[dict[str, Any]]:
         with self._cond:
@@ -290,12 +297,8 @@ class WebHumans(ConsoleCore):
 
     def close(self) -> None:
         """Stop the server (every page sees the socket close); safe to call twice."""
-        with self._cond:
-            if self._closed:
-                return
-            self._closed = True
-            self._cond.notify_all()
-        self._server.stop()
+        if self._mark_closed():
+            self._server.stop()
 
     def __enter__(self) -> WebHumans:
         return self
