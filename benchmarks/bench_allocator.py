@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.allocation import Allocator
+from testbed.fleet.allocator import Allocator
 
 N, M, K = 1000, 100, 3
 T_TELEOP, T_RESET = 5, 5  # the seed's simulation values (appendix 8.3)

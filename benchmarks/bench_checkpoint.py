@@ -33,11 +33,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
+from testbed.core.types import IMAGE_SIZE
 from testbed.learning import Learner
 from testbed.learning.checkpoint import save_atomic
-from testbed.rundata import FRAME_DTYPE, RunDataWriter
-from testbed.types import IMAGE_SIZE
+from testbed.records.store import FRAME_DTYPE, RunDataWriter
 
 CASES = {
     "default twin trial, step 250 (4 arms)": dict(demos=375, transitions=400 + 1000,

@@ -31,7 +31,7 @@ from gui.console import ConsoleHumans
 from gui.draw import render_console
 from gui.layout import ConsoleLayout
 from gui.xdo import Xvfb, find_window, press
-from testbed.types import (
+from testbed.core.types import (
     ArmObservation,
     HumanRequest,
     HumanResponse,

@@ -33,10 +33,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim_twin import TwinCell
-from testbed import export as ex
-from testbed.lerobot_format import VideoCodec, read_dataset
-from testbed.records import RunWriter
-from testbed.rundata import RunDataWriter, build_frames
+from testbed.datasets import episodes as ex
+from testbed.datasets.lerobot import VideoCodec, read_dataset
+from testbed.records.steps import RunWriter
+from testbed.records.store import RunDataWriter, build_frames
 
 os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1's banner: errors only
 

@@ -20,9 +20,15 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from testbed.config import FleetConfig, LearningConfig, TrialConfig, default_twin_config
-from testbed.priorities import ALGORITHMS
-from testbed.trial import TrialOptions, build_hosts, load_learner, pretrained_learner, run_trial
+from testbed.core.config import FleetConfig, LearningConfig, TrialConfig, default_twin_config
+from testbed.experiments.trial import (
+    TrialOptions,
+    build_hosts,
+    load_learner,
+    pretrained_learner,
+    run_trial,
+)
+from testbed.fleet.priorities import ALGORITHMS
 
 
 class SlowHosts:
@@ -71,7 +77,7 @@ def main() -> None:
     args = ap.parse_args()
     cfg = _cfg(args.batch, args.steps)
     out = Path(tempfile.mkdtemp(prefix="bench-fleet-"))
-    from testbed.humans import ScriptedHumans
+    from testbed.core.humans import ScriptedHumans
 
     _, ckpt = pretrained_learner(cfg, ScriptedHumans(), out, None)
 

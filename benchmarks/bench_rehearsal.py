@@ -42,11 +42,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.config import YumiHost
-from testbed.protocol import load_protocol
-from testbed.records import atomic_write_json
-from testbed.rehearsal import HardwareTwinLab, true_calibration
-from testbed.types import ArmObservation
+from testbed.core.config import YumiHost
+from testbed.core.types import ArmObservation
+from testbed.experiments.protocol import load_protocol
+from testbed.lab.rehearsal import HardwareTwinLab, true_calibration
+from testbed.records.steps import atomic_write_json
 
 PHYSICAL = Path(__file__).resolve().parents[1] / "protocols" / "physical.toml"
 Clock = defaultdict[str, float]
@@ -74,10 +74,10 @@ class Timed:
 
 
 def local_backend(host: YumiHost, clock: Clock) -> tuple[Any, Any]:
-    from drivers.backends.camera import VideoCaptureCamera
-    from drivers.backends.yumi import ArmCalibration, ArmSetup, YumiBackend
-    from drivers.backends.yumi_controller import make_controller
-    from testbed import perception
+    from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.yumi.camera import VideoCaptureCamera
+    from drivers.yumi.yumi_controller import make_controller
+    from testbed.perception import cube as perception
 
     setups = [ArmSetup(a.name, a.crop, a.mirror, ArmCalibration.load(a.calibration, a.name))
               for a in host.arms]  # type: ignore[arg-type]
@@ -95,7 +95,7 @@ def faces(rng: np.random.Generator, arms: list[str]) -> dict[str, int]:
 
 def run_fleet(host: YumiHost, steps: int, rng: np.random.Generator,
               reset: Callable[[], None], rtts: list[float]) -> list[float]:
-    from drivers.fleet import HostFleet
+    from drivers.host_fleet import HostFleet
 
     out: list[float] = []
     with HostFleet([host]) as fleet:

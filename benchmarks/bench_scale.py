@@ -37,14 +37,14 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.checkpoints import CheckpointWriter
-from testbed.config import FleetConfig, load_fleet
-from testbed.fleet import FleetLoop
-from testbed.humans import ScriptedHumans
-from testbed.priorities import get_algorithm
-from testbed.records import RunWriter
-from testbed.rundata import RunDataWriter
-from testbed.trial import build_hosts, pretrained_learner
+from testbed.core.config import FleetConfig, load_fleet
+from testbed.core.humans import ScriptedHumans
+from testbed.experiments.checkpointer import CheckpointWriter
+from testbed.experiments.trial import build_hosts, pretrained_learner
+from testbed.fleet.loop import FleetLoop
+from testbed.fleet.priorities import get_algorithm
+from testbed.records.steps import RunWriter
+from testbed.records.store import RunDataWriter
 
 PROTOCOL = Path(__file__).resolve().parents[1] / "protocols" / "twin-scale.toml"
 TARGET_MS = 150.0

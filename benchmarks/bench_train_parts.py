@@ -46,11 +46,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_training import fill
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
+from testbed.fleet.priorities import ALGORITHMS
 from testbed.learning import Learner
 from testbed.learning.critics import CriticBatch
 from testbed.learning.policy import ensemble_signals
-from testbed.priorities import ALGORITHMS
 
 
 def legacy_step(self: Learner) -> dict[str, float]:

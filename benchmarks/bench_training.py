@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
 from testbed.learning import Learner
 
 

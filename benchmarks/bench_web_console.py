@@ -36,7 +36,7 @@ from websockets.sync.client import ClientConnection, connect
 from gui.web import WebHumans
 from gui.web.browser import chromium, open_console
 from gui.xdo import Xvfb
-from testbed.types import InterventionKind
+from testbed.core.types import InterventionKind
 
 TARGET_MS = 50.0
 

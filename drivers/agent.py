@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 
 # Light imports only (numpy, json, zlib): nothing here prints to fd 1. The backends
 # (pybullet!) are imported in main(), after claim_stdout().
-from drivers import protocol as p
+from drivers import wire as p
 from drivers.backends.base import ArmView
 from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
 from drivers.hostlock import RobotBusy, RobotLock, default_lock_dir, lock_identity
@@ -204,7 +204,7 @@ def _observe_reply(backend: HostBackend, mid: int) -> bytes:
     """Views for the arms that have one; the others' errors (that arm alone faults).
 
     A backend says an arm has no view by leaving it out, or by giving an exception or a
-    :class:`~drivers.protocol.ArmFailed` in its place."""
+    :class:`~drivers.wire.ArmFailed` in its place."""
     got: dict[str, object] = dict(backend.observe())
     views: dict[str, ArmView] = {}
     errors: dict[str, str] = {}

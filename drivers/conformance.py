@@ -24,9 +24,9 @@ import numpy as np
 from drivers.backends.base import IMAGE_SHAPE, ArmOutcome, ArmView, HostBackend
 from drivers.errors import ConformanceError
 from drivers.png import decode_png
-from drivers.protocol import encode_image
-from testbed.config import NAME_PATTERN
-from testbed.types import NUM_ACTIONS
+from drivers.wire import encode_image
+from testbed.core.config import NAME_PATTERN
+from testbed.core.types import NUM_ACTIONS
 
 
 def _fail(rule: str) -> ConformanceError:

@@ -6,7 +6,7 @@ can no longer be trusted, so the link is dropped and rebuilt; a :class:`Deadline
 means the peer may be dead (paramiko's keepalive never notices), so the same; an
 :class:`AgentError` is a clean refusal from a healthy agent (a backend exception with its
 remote traceback), so the link stays up. Every one of them ends as a
-``testbed.types.Fault`` for the host's arms, never as a hang or a crash of the
+``testbed.core.types.Fault`` for the host's arms, never as a hang or a crash of the
 controller.
 """
 

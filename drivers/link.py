@@ -2,7 +2,7 @@
 
 Why separate from the transport and the worker: this is where bytes become checked
 messages. Every call has a deadline; every reply is checked against the request (type,
-id, arm set) by ``drivers.protocol``; when the stream breaks, the error carries what the
+id, arm set) by ``drivers.wire``; when the stream breaks, the error carries what the
 agent left behind (exit status, end of its stderr: e.g. the traceback of a crash at
 import), so the operator reads *why* and not a bare EOF.
 """
@@ -13,11 +13,11 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from drivers import protocol as p
+from drivers import wire as p
 from drivers.backends.base import ArmOutcome, ArmView
 from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError, TruncatedFrame
 from drivers.transport import Transport
-from testbed.config import HostConfig
+from testbed.core.config import HostConfig
 
 
 class AgentLink:

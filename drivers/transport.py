@@ -3,7 +3,7 @@
 Why two transports with one interface: the agent speaks the same frames either way, so
 twin mode needs no SSH server, and the tests can still run the lab path against a real
 OpenSSH on loopback. A transport only moves bytes with deadlines; framing and meaning
-live in ``drivers.protocol`` and ``drivers.link``.
+live in ``drivers.wire`` and ``drivers.link``.
 
 Rules kept here (DESIGN.md section 8):
 
@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import DeadlineExceeded, HostKeyError, LinkClosed, TransportError
-from testbed.config import HostConfig
+from testbed.core.config import HostConfig
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STDERR_KEEP = 8192

@@ -1,6 +1,6 @@
 """The OpenCV operator console: one window per human and a fleet overview.
 
-``ConsoleHumans`` implements ``testbed.humans.Humans`` for people: every timestep the
+``ConsoleHumans`` implements ``testbed.core.humans.Humans`` for people: every timestep the
 fleet loop hands it the interventions the allocator chose, each human answers in their
 own window (a push for teleop, Enter for a finished hard reset), and the overview shows
 the whole fleet. See ``docs/notes/gui.md`` for the threading model, keys and window

@@ -41,7 +41,7 @@ from multiprocessing.connection import wait as wait_connections
 from pathlib import Path
 from typing import Any, Final
 
-from gui.core import OVERVIEW, ConsoleCore, Frame, FrameLatency, WindowState
+from gui.console_core import OVERVIEW, ConsoleCore, Frame, FrameLatency, WindowState
 from gui.display import check_window_system, default_display, explain_window_failure
 from gui.errors import ConsoleUnavailable
 from gui.keys import decode_key

@@ -29,7 +29,7 @@ from gui.keys import action_for_click
 from gui.layout import ConsoleLayout, CubeMarker, Point
 from gui.scene import locate_cube
 from gui.view import ConsoleView, Phase
-from testbed.types import HumanRequest, HumanResponse, InterventionKind
+from testbed.core.types import HumanRequest, HumanResponse, InterventionKind
 
 ItemId = tuple[int, str, InterventionKind]
 """(act call serial, robot, kind): identifies what a frame showed."""

@@ -5,7 +5,7 @@ tests read overlays back at known pixels) and the window processes only ever sho
 finished arrays. Works with either OpenCV build: drawing is in both.
 
 Colours are BGR (what ``cv2.imshow`` expects); arm images arrive RGB
-(``testbed.types``) and are flipped once, here.
+(``testbed.core.types``) and are flipped once, here.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from gui.keys import ARROW_NAMES, KEY_NAMES
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.scene import workspace_polygon
 from gui.view import ConsoleView, Phase
-from testbed.types import SUCCESS_RADIUS, FleetStatus, InterventionKind, Mode, RobotStatus
+from testbed.core.types import SUCCESS_RADIUS, FleetStatus, InterventionKind, Mode, RobotStatus
 
 Frame = npt.NDArray[np.uint8]
 Colour = tuple[int, int, int]

@@ -6,13 +6,13 @@
   traceback from deep inside Qt.
 * ``StopRequested``: a human asked for a graceful stop (Esc, then ``y``), or a console
   window vanished. Raised by ``ConsoleHumans.act`` and ``.show``; it is a
-  ``testbed.humans.HumansStopRequested`` so the fleet loop catches it without
+  ``testbed.core.humans.HumansStopRequested`` so the fleet loop catches it without
   knowing the GUI exists.
 """
 
 from __future__ import annotations
 
-from testbed.humans import HumansStopRequested
+from testbed.core.humans import HumansStopRequested
 
 
 class ConsoleUnavailable(RuntimeError):

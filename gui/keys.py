@@ -7,7 +7,7 @@ virtual-key codes shifted left by 16; both are accepted, as are the keypad arrow
 
 The push keys follow the lab's earlier code: ``w``/``a``/``x``/``d`` sit around ``s``
 on the keyboard as up/left/down/right sit around the cube, so a push key names the
-direction the cube moves in the canonical frame (``testbed.types.FACE_DIRECTIONS``).
+direction the cube moves in the canonical frame (``testbed.core.types.FACE_DIRECTIONS``).
 """
 
 from __future__ import annotations

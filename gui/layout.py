@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from testbed.types import FACE_DIRECTIONS, IMAGE_SIZE
+from testbed.core.types import FACE_DIRECTIONS, IMAGE_SIZE
 
 Point = tuple[int, int]
 

@@ -1,6 +1,6 @@
 """What the console needs to know about an arm's image: the cube and the workspace.
 
-Perception (``testbed.perception``) is another part's module, written in parallel and
+Perception (``testbed.perception.cube``) is another part's module, written in parallel and
 free to change; the console must never fail because of it. So it is imported lazily
 and any failure degrades to "cube not found" (the face markers then sit around the
 image centre) and to the workspace hexagon of DESIGN.md section 3.
@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gui.layout import DEFAULT_CUBE_HALF, CubeMarker
-from testbed.types import IMAGE_SIZE
+from testbed.core.types import IMAGE_SIZE
 
 FALLBACK_WORKSPACE: npt.NDArray[np.float64] = np.array(
     [(0.275, 0.075), (0.925, 0.075), (0.925, 0.725), (0.725, 0.925), (0.075, 0.925),
@@ -27,7 +27,7 @@ FALLBACK_WORKSPACE: npt.NDArray[np.float64] = np.array(
 
 def _perception() -> Any | None:
     try:
-        import testbed.perception as perception  # lazy and optional
+        import testbed.perception.cube as perception  # lazy and optional
     except Exception:  # a half-written module must not take the console down
         return None
     return perception

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 from gui.layout import CubeMarker, Point
-from testbed.types import HumanRequest
+from testbed.core.types import HumanRequest
 
 
 class Phase(StrEnum):

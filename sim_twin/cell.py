@@ -25,7 +25,6 @@ from types import TracebackType
 import numpy as np
 import numpy.typing as npt
 
-from sim_twin.camera import CellCamera, draw_goal
 from sim_twin.constants import (
     CUBE_M,
     GOAL_MARGIN,
@@ -36,6 +35,7 @@ from sim_twin.constants import (
     SUCCESS_RADIUS,
 )
 from sim_twin.geometry import depth_inside, push_direction, reduce_yaw
+from sim_twin.overhead_camera import CellCamera, draw_goal
 from sim_twin.supervisor import expert_face
 from sim_twin.world import CubeParams, TwinWorld
 

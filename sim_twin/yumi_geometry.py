@@ -157,7 +157,7 @@ class CameraModel:
     def image_yaw(self, world_yaw: float) -> float:
         """The angle, in image axes (u right, v down), of the world direction at
         ``world_yaw`` about z, reduced modulo a quarter turn to [-pi/4, pi/4) (a cube's
-        yaw as ``testbed.perception`` reports it)."""
+        yaw as ``testbed.perception.cube`` reports it)."""
         d = self.R[:2, :2] @ np.array([math.cos(world_yaw), math.sin(world_yaw)])
         q = math.pi / 2
         return (math.atan2(d[1], d[0]) + q / 2) % q - q / 2

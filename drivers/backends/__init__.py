@@ -28,7 +28,7 @@ def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed
             return CannedTwinBackend(seed, arms, mirror)
         return TwinBackend(seed, arms, mirror)
     if kind == "yumi":
-        from drivers.backends.yumi import build_yumi_backend
+        from drivers.yumi.backend import build_yumi_backend
 
         return build_yumi_backend(arms, mirror, crops or {}, calibrations or {}, camera,
                                   controller_url, seed, calibrating=tuple(calibrating))

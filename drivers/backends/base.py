@@ -3,7 +3,7 @@
 Why an ABC (as LeRobot's ``Robot``): the agent, the conformance check and the tests talk
 to a twin cell and to a real ABB YuMi through the same five calls, so a new robot is a
 new subclass and nothing else changes. The backend works in the arms' *canonical*
-frame (right-arm crops mirrored, ``testbed.types``); the agent puts its answers on the
+frame (right-arm crops mirrored, ``testbed.core.types``); the agent puts its answers on the
 wire unchanged.
 
 Semantics (DESIGN.md section 3, ARCHITECTURE.md ``TwinCell``):
@@ -28,7 +28,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from testbed.types import IMAGE_SIZE, NUM_ACTIONS
+from testbed.core.types import IMAGE_SIZE, NUM_ACTIONS
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
-from testbed.types import IMAGE_SIZE
+from testbed.core.types import IMAGE_SIZE
 
 
 class TwinBackend(HostBackend):
@@ -140,7 +140,7 @@ class CannedTwinBackend(HostBackend):
 
     def __init__(self, seed: int, arms: Sequence[str] = ("left", "right"),
                  mirror: Sequence[bool] = (False, True)) -> None:
-        from drivers.protocol import encode_image
+        from drivers.wire import encode_image
 
         self._arms = tuple(arms)
         self._mirror = tuple(bool(m) for m in mirror)

@@ -47,7 +47,7 @@ from starlette.responses import HTMLResponse, PlainTextResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from gui.core import OVERVIEW
+from gui.console_core import OVERVIEW
 from gui.errors import ConsoleUnavailable
 
 log = logging.getLogger(__name__)

@@ -36,10 +36,10 @@ import numpy.typing as npt
 import torch
 from torch import Tensor, nn
 
+from testbed.core.types import NUM_ACTIONS
 from testbed.learning.api import PolicyOutput, check_images
 from testbed.learning.critics import Combine, q_values
 from testbed.learning.policy import ensemble_signals
-from testbed.types import NUM_ACTIONS
 
 if TYPE_CHECKING:
     from testbed.learning.learner import Learner

@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from testbed.types import IMAGE_SIZE, NUM_ACTIONS
+from testbed.core.types import IMAGE_SIZE, NUM_ACTIONS
 
 EnsembleImpl = Literal["auto", "loop", "vmap"]
 """How the policy ensemble's members are evaluated: a Python loop over the members, or

@@ -30,10 +30,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from testbed.core.types import IMAGE_SIZE
 from testbed.learning.api import Transitions
 from testbed.learning.augment import augment_copies
 from testbed.learning.runtime import STREAM_AUGMENT, derive_seed
-from testbed.types import IMAGE_SIZE
 
 IMAGE_SHAPE = (IMAGE_SIZE, IMAGE_SIZE, 3)
 POSITIVE_FRACTION = 0.25

@@ -43,7 +43,7 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
 from testbed.learning import checkpoint
 from testbed.learning.actor import Actor, infer
 from testbed.learning.api import (
@@ -437,7 +437,7 @@ class Learner:
         """``state_dict()`` without the data: weights, optimisers, the sampler, the
         counters and the data's sizes, every tensor its own copy. The per-step
         checkpoint: a resumed trial gets its data back from the run's data store
-        (``testbed.rundata.replay``), so this stays ~the weights' size however long the
+        (``testbed.records.store.replay``), so this stays ~the weights' size however long the
         run (the whole state grew ~0.3 MB a step at 4 arms, ~2.5 MB at 100).
 
         ``into``: an earlier ``training_state()`` that nobody reads any more (the

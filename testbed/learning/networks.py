@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from testbed.types import NUM_ACTIONS
+from testbed.core.types import NUM_ACTIONS
 
 TRUNK_FEATURES = 64
 HIDDEN = 256

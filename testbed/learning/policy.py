@@ -32,8 +32,8 @@ import torch
 from torch import Tensor, nn
 from torch.func import functional_call, vmap
 
+from testbed.core.types import NUM_ACTIONS
 from testbed.learning.networks import lab_network
-from testbed.types import NUM_ACTIONS
 
 Impl = Literal["loop", "vmap"]
 

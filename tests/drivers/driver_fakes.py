@@ -26,10 +26,10 @@ from drivers.agent import fd_reader, serve
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from drivers.backends.twin import CannedTwinBackend
 from drivers.errors import DeadlineExceeded
-from drivers.protocol import FrameReader
 from drivers.testing.sshd import SshServer
 from drivers.transport import Transport
-from testbed.config import HostConfig, TwinHost, YumiHost
+from drivers.wire import FrameReader
+from testbed.core.config import HostConfig, TwinHost, YumiHost
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -334,9 +334,9 @@ def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,
     """A YumiBackend on a FakeYumiController and a video file of ``pictures``."""
     import json
 
-    from drivers.backends.camera import VideoCaptureCamera
-    from drivers.backends.yumi import ArmCalibration, ArmSetup, YumiBackend
-    from drivers.backends.yumi_controller import FakeYumiController
+    from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.yumi.camera import VideoCaptureCamera
+    from drivers.yumi.yumi_controller import FakeYumiController
 
     video = write_video(tmp_path / f"{name}.avi", list(pictures))
     setups = []

@@ -15,7 +15,7 @@ import pytest
 from driver_fakes import ExplodingBackend
 
 from drivers import agent
-from drivers import protocol as p
+from drivers import wire as p
 from drivers.backends.base import ArmView
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -7,7 +7,7 @@ import numpy as np
 from driver_fakes import RecordingBackend
 
 from drivers import agent
-from drivers import protocol as p
+from drivers import wire as p
 from drivers.backends.base import ArmOutcome, ArmView
 
 

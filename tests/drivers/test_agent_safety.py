@@ -16,7 +16,7 @@ import pytest
 from driver_fakes import RecordingBackend, wait_until
 
 from drivers import agent
-from drivers import protocol as p
+from drivers import wire as p
 from drivers.errors import DeadlineExceeded
 from drivers.hostlock import lock_identity, lock_path, normalise_url
 

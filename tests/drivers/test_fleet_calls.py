@@ -15,10 +15,10 @@ from driver_fakes import RecordingBackend, ThreadAgentTransport, local_host, wai
 
 import drivers.session
 from drivers.backends.base import ArmOutcome
-from drivers.fleet import HostCallError, HostFleet, derive_seed
+from drivers.host_fleet import HostCallError, HostFleet, derive_seed
 from drivers.transport import make_transport
-from testbed.config import HostConfig
-from testbed.types import ArmObservation, Fault, PushResult
+from testbed.core.config import HostConfig
+from testbed.core.types import ArmObservation, Fault, PushResult
 
 
 def with_backends(monkeypatch: pytest.MonkeyPatch,

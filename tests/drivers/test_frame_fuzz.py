@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 from driver_fakes import RecordingBackend, ThreadAgentTransport, local_host, wait_until
 
-import drivers.fleet
+import drivers.host_fleet
 import drivers.session
-from drivers import protocol as p
-from drivers.fleet import HostCallError, HostFleet
+from drivers import wire as p
+from drivers.host_fleet import HostCallError, HostFleet
 from drivers.png import encode_png
-from testbed.config import HostConfig
-from testbed.types import ArmObservation, Fault, PushResult
+from testbed.core.config import HostConfig
+from testbed.core.types import ArmObservation, Fault, PushResult
 
 CASES = int(os.environ.get("FUZZ_CASES", "1000"))
 DEADLINE_S = 0.4
@@ -277,7 +277,7 @@ def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict
         return t
 
     monkeypatch.setattr(drivers.session, "make_transport", transport)
-    monkeypatch.setattr(drivers.fleet, "KEEPER_PERIOD_S", 0.002)
+    monkeypatch.setattr(drivers.host_fleet, "KEEPER_PERIOD_S", 0.002)
     hosts = [local_host("bad", deadline_s=DEADLINE_S, heartbeat_s=600),
              local_host("good", deadline_s=DEADLINE_S, heartbeat_s=600)]
     seen: dict[str, int] = {}

@@ -12,10 +12,10 @@ import pytest
 from driver_fakes import ExplodingBackend, ThreadAgentTransport, local_host, wait_until
 
 import drivers.session
-from drivers.fleet import HostFleet, derive_seed
+from drivers.host_fleet import HostFleet, derive_seed
 from drivers.transport import LocalTransport, make_transport
-from testbed.config import HostConfig, TwinHost, YumiHost
-from testbed.types import ArmObservation, Fault, PushResult
+from testbed.core.config import HostConfig, TwinHost, YumiHost
+from testbed.core.types import ArmObservation, Fault, PushResult
 
 
 def alive(pid: int) -> bool:

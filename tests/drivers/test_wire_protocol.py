@@ -1,4 +1,4 @@
-"""The frame format and the messages (drivers.protocol, drivers.png)."""
+"""The frame format and the messages (drivers.wire, drivers.png)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers import protocol as p
+from drivers import wire as p
 from drivers.backends.base import ArmOutcome, ArmView
 from drivers.errors import AgentError, LinkClosed, ProtocolError
 from drivers.png import decode_png, encode_png

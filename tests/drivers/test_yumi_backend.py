@@ -25,12 +25,12 @@ from driver_fakes import (
 )
 
 from drivers.backends.base import ArmOutcome
-from drivers.backends.yumi import ArmCalibration, ArmSetup, plan_push
-from drivers.backends.yumi_controller import ArmPose, RwsYumiController, Waypoint
 from drivers.errors import BackendError
-from drivers.fleet import HostFleet
-from testbed.config import ArmConfig
-from testbed.types import MIN_GOAL_DISTANCE, ArmObservation, Fault
+from drivers.host_fleet import HostFleet
+from drivers.yumi.backend import ArmCalibration, ArmSetup, plan_push
+from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, Waypoint
+from testbed.core.config import ArmConfig
+from testbed.core.types import MIN_GOAL_DISTANCE, ArmObservation, Fault
 
 
 def setup(arm: str) -> ArmSetup:
@@ -155,7 +155,7 @@ def test_success_is_judged_from_the_picture_and_gives_a_new_goal(tmp_path: Path)
 
 
 def test_goal_is_drawn_into_the_image_like_the_twin(tmp_path: Path) -> None:
-    from testbed import perception
+    from testbed.perception import cube as perception
 
     backend, _ = make_yumi(tmp_path, [twin_picture(4)])
     v = backend.observe()["right"]
@@ -227,7 +227,7 @@ def test_a_push_point_off_the_homography_is_an_error_not_a_clipped_waypoint() ->
 
 
 def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> None:
-    from drivers.backends.yumi import CALIBRATION_BOX_MM, YumiBackend, build_yumi_backend
+    from drivers.yumi.backend import CALIBRATION_BOX_MM, YumiBackend, build_yumi_backend
 
     video = str(write_video(tmp_path / "cam.avi", [twin_picture(0)]))
     right = tmp_path / "right.json"

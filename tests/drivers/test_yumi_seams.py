@@ -22,9 +22,9 @@ import pytest
 from driver_fakes import twin_picture, write_video
 from mjpeg_fixture import MjpegCamera, frame_number
 
-from drivers.backends.camera import VideoCaptureCamera
-from drivers.backends.yumi_controller import ArmPose, RwsYumiController, make_controller
 from drivers.errors import BackendError
+from drivers.yumi.camera import VideoCaptureCamera
+from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, make_controller
 
 # --- the camera seam: a network camera ------------------------------------------------
 
@@ -132,7 +132,7 @@ def test_file_paths_expand_home_and_variables(tmp_path: Path,
 
 # --- the controller seam: chosen from the URL -------------------------------------------
 def test_make_controller_chooses_from_the_url() -> None:
-    from drivers.backends.twin_controller import TwinControllerClient
+    from drivers.yumi.twin_controller import TwinControllerClient
 
     pose = ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135))
     twin = make_controller("twin+http://127.0.0.1:1", {"left": None, "right": None})
@@ -269,9 +269,9 @@ def cal_files(twin: Twin, d: Path, **override: dict[str, Any]) -> dict[str, str]
 def test_backend_observes_and_pushes_the_twin(twin: Twin, tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     from drivers.backends.base import ArmOutcome
-    from drivers.backends.yumi import build_yumi_backend
-    from testbed import perception
-    from testbed.types import FACE_DIRECTIONS
+    from drivers.yumi.backend import build_yumi_backend
+    from testbed.core.types import FACE_DIRECTIONS
+    from testbed.perception import cube as perception
 
     twin.fresh()
     cal_files(twin, tmp_path)
@@ -315,8 +315,8 @@ def test_backend_observes_and_pushes_the_twin(twin: Twin, tmp_path: Path,
 
 def test_refused_and_per_arm_errors_leave_the_sibling_pushing(twin: Twin,
                                                               tmp_path: Path) -> None:
-    from drivers.backends.twin_controller import TwinControllerClient
-    from drivers.backends.yumi import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.yumi.twin_controller import TwinControllerClient
 
     class JammedSetup(ArmSetup):  # one arm's planning fails (as a bad pose or model would)
         def canonical_to_table(self, c: Any) -> tuple[float, float]:
@@ -356,7 +356,7 @@ def test_refused_and_per_arm_errors_leave_the_sibling_pushing(twin: Twin,
 def test_calibration_mode_moves_the_tcp_shows_the_marker_and_saves(
         twin: Twin, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from drivers.backends import make_backend
-    from drivers.backends.yumi import ArmCalibration
+    from drivers.yumi.backend import ArmCalibration
 
     twin.fresh()
     box = twin.model["workspaces_mm"]["left"]

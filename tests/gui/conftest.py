@@ -9,7 +9,7 @@ import pytest
 from console_helpers import RequestFactory, arm_image
 
 from gui.xdo import Xvfb, tools_missing
-from testbed.types import ArmObservation, HumanRequest, InterventionKind
+from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
 
 
 @pytest.fixture

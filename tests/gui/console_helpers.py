@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from testbed.types import HumanRequest, HumanResponse
+from testbed.core.types import HumanRequest, HumanResponse
 
 RequestFactory = Callable[..., HumanRequest]
 CUBE_RGB = (220, 40, 20)

@@ -10,7 +10,7 @@ from gui import draw
 from gui.desk import Desk
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.view import ConsoleView, Phase
-from testbed.types import SUCCESS_RADIUS, FleetStatus, Mode, RobotStatus
+from testbed.core.types import SUCCESS_RADIUS, FleetStatus, Mode, RobotStatus
 
 LAYOUT = ConsoleLayout(scale=6)
 CUBE = CubeMarker((28 / 64, 36 / 64), 0.0, 4 / 64)  # arm_image()'s cube

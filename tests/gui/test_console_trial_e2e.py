@@ -19,7 +19,7 @@ import pytest
 import tomli_w
 
 from gui.xdo import Autopilot, Xvfb
-from testbed.records import read_steps
+from testbed.records.steps import read_steps
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = {

@@ -10,7 +10,7 @@ import pytest
 import gui.display
 from gui import ConsoleUnavailable, StopRequested
 from gui.console import ConsoleHumans
-from testbed.humans import HumansStopRequested
+from testbed.core.humans import HumansStopRequested
 
 
 def one_line(exc: pytest.ExceptionInfo[ConsoleUnavailable]) -> str:

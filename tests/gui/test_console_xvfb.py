@@ -19,7 +19,7 @@ from gui import StopRequested
 from gui.console import ConsoleHumans
 from gui.view import Phase
 from gui.xdo import Xvfb, click, find_window, press
-from testbed.types import FleetStatus, Mode, RobotStatus
+from testbed.core.types import FleetStatus, Mode, RobotStatus
 
 pytestmark = pytest.mark.xvfb
 

@@ -33,7 +33,7 @@ import tomli_w
 from console_helpers import ActCall
 from selenium.webdriver.common.keys import Keys
 
-from gui.core import OVERVIEW
+from gui.console_core import OVERVIEW
 from gui.desk import Desk
 from gui.draw import render_console
 from gui.web import WebHumans
@@ -45,7 +45,7 @@ from gui.web.browser import (
     page_state,
     press_key,
 )
-from testbed.records import read_steps
+from testbed.records.steps import read_steps
 
 pytestmark = pytest.mark.browser
 

@@ -52,8 +52,8 @@ from websockets.sync.client import connect
 
 from gui import ConsoleUnavailable, StopRequested
 from gui.view import Phase
-from gui.web.humans import WebHumans
-from testbed.types import FleetStatus, Mode, RobotStatus
+from gui.web.web_humans import WebHumans
+from testbed.core.types import FleetStatus, Mode, RobotStatus
 
 TOKENS = ["human0-token-aaaaaaaaaaaa", "human1-token-bbbbbbbbbbbb"]
 GRACE_S = 0.5

@@ -24,7 +24,7 @@ from sim_twin.constants import (
     TABLE_RGB,
 )
 from sim_twin.geometry import depth_inside, push_direction, reduce_yaw
-from testbed import types
+from testbed.core import types
 
 
 @pytest.fixture

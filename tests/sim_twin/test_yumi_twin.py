@@ -23,7 +23,7 @@ import pytest
 
 from sim_twin.yumi_cell import RESET_NOISE, YumiTwinCell
 from sim_twin.yumi_geometry import WORKSPACE_MM, workspace_mm
-from testbed.perception import find_cube
+from testbed.perception.cube import find_cube
 
 Waypoint = dict[str, Any]
 ROOT = Path(__file__).resolve().parents[2]
@@ -44,7 +44,7 @@ def push_x(cube: list[float], dy: float = 0.0, stroke: float = 60.0) -> list[Way
 
 def crop(frame: npt.NDArray[np.uint8], box: tuple[int, int, int, int], mirror: bool
          ) -> npt.NDArray[np.uint8]:
-    """As drivers/backends/yumi.py ``_crop``: INTER_AREA to 64x64, RGB, mirrored."""
+    """As drivers/yumi/backend.py ``_crop``: INTER_AREA to 64x64, RGB, mirrored."""
     x0, y0, x1, y1 = box
     img = cv2.resize(frame[y0:y1, x0:x1], (64, 64), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(img[:, ::-1, ::-1] if mirror else img[:, :, ::-1])

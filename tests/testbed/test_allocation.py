@@ -20,8 +20,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from testbed.allocation import Allocator, lex_positive
-from testbed.types import InterventionKind
+from testbed.core.types import InterventionKind
+from testbed.fleet.allocator import Allocator, lex_positive
 
 # ------------------------------------------------------------------ the reference
 

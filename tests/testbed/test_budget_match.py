@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from testbed.config import ConfigError, parse_config
-from testbed.protocol import Protocol, matched_budget, run_protocol
-from testbed.records import RunWriter, read_steps
-from testbed.runs import RunDir
+from testbed.core.config import ConfigError, parse_config
+from testbed.experiments.protocol import Protocol, matched_budget, run_protocol
+from testbed.records.run_dir import RunDir
+from testbed.records.steps import RunWriter, read_steps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -79,7 +79,7 @@ def test_random_runs_after_the_algorithm_it_matches_in_every_order() -> None:
 ])
 def test_bad_budgets_are_one_line_config_errors(fleet: dict[str, object],
                                                 algorithms: list[str], field: str) -> None:
-    from testbed.protocol import load_protocol
+    from testbed.experiments.protocol import load_protocol
 
     with pytest.raises(ConfigError, match=field) as err:
         path = Path(os.environ.get("TMPDIR", "/tmp")) / f"budget-{os.getpid()}.toml"

@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.backends.yumi import ArmCalibration
-from testbed import calibration as cal
+from drivers.yumi.backend import ArmCalibration
 from testbed.cli import main
+from testbed.perception import homography as cal
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 60.0, "max_speed_mm_s": 400.0,
@@ -235,7 +235,7 @@ def test_no_safe_box_anywhere_is_exit_2(lab: Path, tmp_path: Path,
 
 
 def test_report_names_rejected_points_and_applies_the_thresholds() -> None:
-    from testbed.calibrate_cmd import CalibrateOptions, CalibrationOutcome, Sighting, report
+    from testbed.lab.calibrate import CalibrateOptions, CalibrationOutcome, Sighting, report
 
     h_true = np.array([[0.0, -0.9, 500.0], [-0.9, 0.0, 600.0], [0.0, 0.0, 1.0]])  # mm -> px
     box = (240.0, 30.0, 560.0, 350.0)
@@ -263,8 +263,8 @@ def test_the_existing_file_is_read_on_the_host_over_real_ssh(tmp_path: Path) -> 
     """Over SSH the calibration file lives on the robot host: it is read there (same key
     and known_hosts as the agent), with ``~``/``$VARS`` expanded by the host."""
     from drivers.testing.sshd import SshServer, sshd_available
-    from testbed.calibrate_cmd import read_host_file
-    from testbed.config import TwinHost
+    from testbed.core.config import TwinHost
+    from testbed.lab.calibrate import read_host_file
 
     if not sshd_available():
         pytest.skip("needs /usr/sbin/sshd and ssh-keygen (Debian: openssh-server)")

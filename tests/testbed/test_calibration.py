@@ -1,4 +1,4 @@
-"""testbed.calibration on frames rendered through a KNOWN homography: recover it.
+"""testbed.perception.homography on frames rendered through a KNOWN homography: recover it.
 
 Each frame is a grey table with sensor noise and one ArUco marker (DICT_4X4_50) on a
 white cap, warped into the picture by a chosen table-mm -> pixel homography with a real
@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.backends.yumi import ArmCalibration
-from testbed import calibration as cal
-from testbed.perception import WORKSPACE_POLYGON
+from drivers.yumi.backend import ArmCalibration
+from testbed.perception import homography as cal
+from testbed.perception.cube import WORKSPACE_POLYGON
 
 W, H = 640, 480
 # Table mm -> pixel: ~0.95 px/mm, u along -y, v along +x, a mild perspective (tilted camera).

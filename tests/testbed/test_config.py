@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from testbed.cli import main
-from testbed.config import (
+from testbed.core.config import (
     ConfigError,
     TwinHost,
     YumiHost,
@@ -195,7 +195,7 @@ def lab_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 
 def test_shipped_protocols_are_valid(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from testbed.protocol import load_protocol
+    from testbed.experiments.protocol import load_protocol
 
     home = lab_home(tmp_path, monkeypatch)
     root = Path(__file__).resolve().parents[2] / "protocols"

@@ -8,8 +8,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from testbed.expert import ExpertHosts, ExpertPolicy
-from testbed.types import IMAGE_SIZE, ArmObservation, Fault
+from testbed.core.types import IMAGE_SIZE, ArmObservation, Fault
+from testbed.experiments.expert import ExpertHosts, ExpertPolicy
 
 
 class _Hosts:

@@ -23,11 +23,11 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
-from testbed import export as ex
 from testbed.cli import main
-from testbed.records import RunWriter
-from testbed.rundata import FRAME_DTYPE, MODES, RunData, RunDataWriter, build_frames, replay
-from testbed.types import IMAGE_SIZE
+from testbed.core.types import IMAGE_SIZE
+from testbed.datasets import episodes as ex
+from testbed.records.steps import RunWriter
+from testbed.records.store import FRAME_DTYPE, MODES, RunData, RunDataWriter, build_frames, replay
 
 ROBOTS = ["a/left", "a/right"]
 G1, G2, G4, G5 = (0.12, 0.30), (0.70, 0.25), (0.40, 0.80), (0.55, 0.45)
@@ -362,8 +362,8 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
 
 
 def test_train_on_exports_and_a_merge(run: Path, tmp_path: Path) -> None:
-    from testbed.commands import check_policy
-    from testbed.config import load_fleet
+    from testbed.cli.verbs import check_policy
+    from testbed.core.config import load_fleet
     from testbed.learning import Learner
 
     ex.export([run], "npz", tmp_path / "a.npz")

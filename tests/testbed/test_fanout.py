@@ -15,10 +15,10 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from testbed.config import ConfigError
-from testbed.fanout import check_fanout
-from testbed.protocol import load_protocol
-from testbed.records import read_steps
+from testbed.core.config import ConfigError
+from testbed.experiments.fanout import check_fanout
+from testbed.experiments.protocol import load_protocol
+from testbed.records.steps import read_steps
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -15,13 +15,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from testbed.config import AlgorithmConfig, LearningConfig
-from testbed.fleet import FleetLoop
-from testbed.humans import ScriptedHumans
+from testbed.core.config import AlgorithmConfig, LearningConfig
+from testbed.core.humans import ScriptedHumans
+from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
+from testbed.fleet.loop import FleetLoop
+from testbed.fleet.priorities import get_algorithm
 from testbed.learning import Learner
-from testbed.priorities import get_algorithm
-from testbed.records import RunWriter
-from testbed.types import IMAGE_SIZE, ArmObservation, PushResult
+from testbed.records.steps import RunWriter
 
 ARMS = [f"h{i}/{a}" for i in range(3) for a in ("left", "right")]
 

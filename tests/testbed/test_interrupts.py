@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from testbed.interrupts import INTERRUPTS, critical
+from testbed.core.interrupts import INTERRUPTS, critical
 
 
 @pytest.fixture

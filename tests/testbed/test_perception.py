@@ -9,12 +9,12 @@ import pytest
 
 import sim_twin
 from sim_twin import TwinCell
-from sim_twin.camera import draw_goal as twin_draw_goal
 from sim_twin.constants import GOAL_RADIUS as TWIN_GOAL_RADIUS
 from sim_twin.constants import GOAL_RGB as TWIN_GOAL_RGB
 from sim_twin.constants import TABLE_RGB
-from testbed import perception as P
-from testbed.types import SUCCESS_RADIUS
+from sim_twin.overhead_camera import draw_goal as twin_draw_goal
+from testbed.core.types import SUCCESS_RADIUS
+from testbed.perception import cube as P
 
 
 def test_workspace_polygon_is_the_twins() -> None:

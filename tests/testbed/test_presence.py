@@ -19,12 +19,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.config import AlgorithmConfig, WebConsoleConfig
-from testbed.fleet import FleetLoop
-from testbed.humans import Humans, Presence, ScriptedHumans, make_humans, presence_of
-from testbed.priorities import get_algorithm
-from testbed.records import RecordError, RunWriter, read_steps, validate_step
-from testbed.types import (
+from testbed.core.config import AlgorithmConfig, WebConsoleConfig
+from testbed.core.humans import Humans, Presence, ScriptedHumans, make_humans, presence_of
+from testbed.core.types import (
     IMAGE_SIZE,
     ArmObservation,
     FleetStatus,
@@ -33,6 +30,9 @@ from testbed.types import (
     InterventionKind,
     PushResult,
 )
+from testbed.fleet.loop import FleetLoop
+from testbed.fleet.priorities import get_algorithm
+from testbed.records.steps import RecordError, RunWriter, read_steps, validate_step
 
 ARMS = ["h/a", "h/b", "h/c"]
 M = 2

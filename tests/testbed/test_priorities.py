@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from testbed.config import AlgorithmConfig
-from testbed.priorities import (
+from testbed.core.config import AlgorithmConfig
+from testbed.fleet.priorities import (
     ALGORITHM_NAMES,
     ALGORITHMS,
     OrderedPriority,

@@ -8,10 +8,10 @@ import re
 import pytest
 from rich.console import Console
 
-from testbed.config import ConfigError
-from testbed.fleet import StepOutcome
-from testbed.progress import ENV, TrialProgress, progress_mode
-from testbed.types import FleetStatus
+from testbed.core.config import ConfigError
+from testbed.core.types import FleetStatus
+from testbed.experiments.progress import ENV, TrialProgress, progress_mode
+from testbed.fleet.loop import StepOutcome
 
 STAMP = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d ")
 CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")  # ANSI escapes, \r, ...

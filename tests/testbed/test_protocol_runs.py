@@ -22,14 +22,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.config import AlgorithmConfig, ConfigError
-from testbed.fleet import FleetLoop
-from testbed.humans import HumansStopRequested, ScriptedHumans
-from testbed.priorities import get_algorithm
-from testbed.protocol import Protocol, run_protocol, williams_square
-from testbed.records import RunWriter, read_steps, validate_step
-from testbed.report import write_report
-from testbed.types import IMAGE_SIZE, ArmObservation, FleetStatus, PushResult
+from testbed.core.config import AlgorithmConfig, ConfigError
+from testbed.core.humans import HumansStopRequested, ScriptedHumans
+from testbed.core.types import IMAGE_SIZE, ArmObservation, FleetStatus, PushResult
+from testbed.experiments.protocol import Protocol, run_protocol, williams_square
+from testbed.experiments.report import write_report
+from testbed.fleet.loop import FleetLoop
+from testbed.fleet.priorities import get_algorithm
+from testbed.records.steps import RunWriter, read_steps, validate_step
 
 ROOT = Path(__file__).resolve().parents[2]
 ALGOS = ["bc", "random", "fleet-ed", "cur"]

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.records import (
+from testbed.records.steps import (
     STEPS_FILE,
     RecordError,
     RunWriter,

@@ -20,10 +20,9 @@ import pytest
 
 from drivers.testing.sshd import sshd_available
 from testbed.cli import main
-from testbed.config import FleetConfig
-from testbed.protocol import load_protocol
-from testbed.records import atomic_write_json, read_steps
-from testbed.rehearsal import (
+from testbed.core.config import FleetConfig
+from testbed.experiments.protocol import load_protocol
+from testbed.lab.rehearsal import (
     HardwareTwinLab,
     TruthRecorder,
     TwinLabHumans,
@@ -32,6 +31,7 @@ from testbed.rehearsal import (
     true_model_error,
     truth_agreement,
 )
+from testbed.records.steps import atomic_write_json, read_steps
 
 pytestmark = [
     pytest.mark.slow,
@@ -158,7 +158,7 @@ def _fleet(lab: HardwareTwinLab) -> FleetConfig:
 
 def test_a_second_agent_for_a_held_robot_is_refused_naming_the_holder(
         lab: tuple[HardwareTwinLab, Path]) -> None:
-    from drivers.fleet import HostFleet
+    from drivers.host_fleet import HostFleet
 
     twin_lab, _ = lab
     host = _fleet(twin_lab).hosts[0]
@@ -184,9 +184,9 @@ def test_a_second_agent_for_a_held_robot_is_refused_naming_the_holder(
 
 def test_the_lab_hand_completes_a_hard_reset_and_the_expert_pushes_towards_the_goal(
         lab: tuple[HardwareTwinLab, Path]) -> None:
-    from drivers.fleet import HostFleet
-    from testbed.humans import ScriptedHumans
-    from testbed.types import ArmObservation, HumanRequest, InterventionKind
+    from drivers.host_fleet import HostFleet
+    from testbed.core.humans import ScriptedHumans
+    from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
 
     twin_lab, _ = lab
     fleet = _fleet(twin_lab)
@@ -238,8 +238,8 @@ def test_the_lab_hand_completes_a_hard_reset_and_the_expert_pushes_towards_the_g
 
 def test_agent_and_sshd_killed_mid_trial_fault_only_their_host_and_come_back(
         lab: tuple[HardwareTwinLab, Path]) -> None:
-    from testbed.humans import ScriptedHumans
-    from testbed.trial import TrialOptions, run_trial
+    from testbed.core.humans import ScriptedHumans
+    from testbed.experiments.trial import TrialOptions, run_trial
 
     twin_lab, root = lab
     fleet = _fleet(twin_lab)
@@ -278,7 +278,7 @@ def test_agent_and_sshd_killed_mid_trial_fault_only_their_host_and_come_back(
 
 def test_truth_recorder_writes_only_the_loops_steps(lab: tuple[HardwareTwinLab, Path],
                                                     tmp_path: Path) -> None:
-    from drivers.fleet import HostFleet
+    from drivers.host_fleet import HostFleet
 
     twin_lab, _ = lab
     fleet = _fleet(twin_lab)

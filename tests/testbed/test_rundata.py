@@ -1,4 +1,4 @@
-"""The run's data store (``testbed.rundata``): frames on disk, torn tails, chunks, resume
+"""The run's data store (``testbed.records.store``): frames on disk, torn tails, chunks, resume
 cuts, and the replay that gives a resumed learner exactly what the loop gave it."""
 
 from __future__ import annotations
@@ -10,15 +10,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed import rundata
-from testbed.config import AlgorithmConfig
-from testbed.fleet import FleetLoop
-from testbed.humans import ScriptedHumans
+from testbed.core.config import AlgorithmConfig
+from testbed.core.humans import ScriptedHumans
+from testbed.core.types import IMAGE_SIZE, ArmObservation, Fault, PushResult
+from testbed.fleet.loop import FleetLoop
+from testbed.fleet.priorities import get_algorithm
 from testbed.learning.api import PolicyOutput
-from testbed.priorities import get_algorithm
-from testbed.records import RunWriter, read_steps
-from testbed.rundata import FRAME_DTYPE, RunData, RunDataError, RunDataWriter
-from testbed.types import IMAGE_SIZE, ArmObservation, Fault, PushResult
+from testbed.records import store as rundata
+from testbed.records.steps import RunWriter, read_steps
+from testbed.records.store import FRAME_DTYPE, RunData, RunDataError, RunDataWriter
 
 ARMS = ["a/left", "a/right", "b/left", "b/right"]
 

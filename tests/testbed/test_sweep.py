@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from testbed.config import ConfigError
-from testbed.records import RunWriter, read_steps
-from testbed.report import write_report
-from testbed.sweep import load_sweep
+from testbed.core.config import ConfigError
+from testbed.experiments.report import write_report
+from testbed.experiments.sweep import load_sweep
+from testbed.records.steps import RunWriter, read_steps
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,10 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.config import AlgorithmConfig, ConfigError, FleetConfig, LearningConfig, parse_config
+from testbed.core.config import (
+    AlgorithmConfig,
+    ConfigError,
+    FleetConfig,
+    LearningConfig,
+    parse_config,
+)
+from testbed.experiments.protocol import Protocol, run_protocol
+from testbed.fleet.thresholds import resolve_thresholds
 from testbed.learning import Learner, Transitions
-from testbed.protocol import Protocol, run_protocol
-from testbed.thresholds import resolve_thresholds
 
 
 @pytest.mark.parametrize("bad", ["q2", "0.75", "q", "quartile", "q-0.1"])

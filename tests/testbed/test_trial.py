@@ -19,11 +19,11 @@ import pytest
 import tomli_w
 import torch
 
+from testbed.experiments.trial import resume_learner
 from testbed.learning import Learner
-from testbed.records import read_steps, summarize, validate_step
-from testbed.rundata import RunData
-from testbed.runs import RunDir
-from testbed.trial import resume_learner
+from testbed.records.run_dir import RunDir
+from testbed.records.steps import read_steps, summarize, validate_step
+from testbed.records.store import RunData
 
 ROOT = Path(__file__).resolve().parents[2]
 

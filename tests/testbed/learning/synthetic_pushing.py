@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from testbed.types import FACE_DIRECTIONS, SUCCESS_RADIUS
+from testbed.core.types import FACE_DIRECTIONS, SUCCESS_RADIUS
 
 LO, HI = 0.075, 0.925  # the workspace square (the twin cuts two corners; not needed here)
 STEP = 0.1

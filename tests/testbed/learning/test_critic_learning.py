@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from synthetic_pushing import Batch, roc_auc, transitions
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
 from testbed.learning import Learner, Transitions
 
 CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3)

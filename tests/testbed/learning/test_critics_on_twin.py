@@ -34,7 +34,7 @@ from synthetic_pushing import roc_auc
 
 import sim_twin.cell as cell_module
 import sim_twin.geometry as geometry
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
 from testbed.learning import Learner, Transitions
 
 CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3, augmentation_factor=2)

@@ -14,7 +14,7 @@ import pytest
 import torch
 from synthetic_pushing import transitions
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
 from testbed.learning import Learner, LearningError, PolicyOutput, Transitions
 from testbed.learning import checkpoint as ckpt
 
@@ -238,7 +238,7 @@ def test_cuda_request_without_cuda_is_a_clear_error() -> None:
 
 
 def test_import_testbed_does_not_import_torch() -> None:
-    code = ("import sys, testbed, testbed.config, testbed.types; "
+    code = ("import sys, testbed, testbed.core.config, testbed.core.types; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
 

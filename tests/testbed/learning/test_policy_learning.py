@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from synthetic_pushing import HI, LO, expert, render, roc_auc
 
-from testbed.config import LearningConfig
+from testbed.core.config import LearningConfig
 from testbed.learning import Learner
 
 CENTRE = np.array([0.5, 0.5])

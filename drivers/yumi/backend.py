@@ -1,0 +1,576 @@
+"""The ABB YuMi (IRB 14000) host: two arms, one overhead camera, one controller.
+
+Why it looks like this: the policy acts in the arm's canonical 64x64 image frame, the
+robot moves in millimetres in its base frame. A per-arm calibration file holds the
+image-to-table homography that joins the two, plus the safety envelope (a table box
+every waypoint is clipped into, a speed cap, push and travel heights) and the rest pose
+out of the camera's view. The task bookkeeping the twin does in simulation (goal drawn
+into the image, success, violation, soft reset after success or 50 pushes) is done
+here from the picture, with ``testbed.perception.cube`` (imported lazily: the agent on a
+robot host needs numpy and cv2 only).
+
+One push, per arm (all arms' programs run at once, MultiMove)::
+
+    canonical face k, cube pose (perception) --start/end in canonical units-->
+    crop pixel --(mirror, crop box)--> camera pixel --homography--> table mm
+    --clip to the table box--> waypoints: above start, down, stroke, up, rest pose
+
+A picture is only taken with every TCP outside the camera's view; if an arm is in view
+(before or after the shot) it is sent to rest and the picture is taken again.
+
+A push the backend cannot make is *refused* with the reason (the cube not found in this
+picture, the arm violating), never reported as a push; a push that cannot be planned for
+one arm is that arm's *error* while the other arms' programs still run. Which controller
+client drives the arms (the real controller's RWS, the hardware twin) is chosen from the
+controller URL in :func:`~drivers.yumi.yumi_controller.make_controller`, so nothing
+here knows the twin.
+
+Calibration mode (``build_yumi_backend(..., calibrating=[arm])``): that arm may have no
+calibration file yet, or one without a homography; it gets a provisional calibration,
+and only ``frame``, ``move_tcp``, ``rest`` and ``save_calibration`` work (observe, push
+and reset need the homography, so they are errors naming the arm).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import logging
+import math
+import os
+import tempfile
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from drivers.backends.base import ArmOutcome, ArmView, HostBackend
+from drivers.errors import BackendError
+from drivers.yumi.camera import Camera, expand_path, is_url
+from drivers.yumi.yumi_controller import ArmPose, Waypoint, YumiControllerClient
+from testbed.core.types import (
+    FACE_DIRECTIONS,
+    IMAGE_SIZE,
+    MAX_PUSHES_PER_GOAL,
+    MIN_GOAL_DISTANCE,
+)
+
+GOAL_RGB = (40, 200, 40)
+"""Same goal disc as the twin (sim_twin.constants.GOAL_RGB, GOAL_RADIUS = 3/64)."""
+GOAL_RADIUS = 3.0 / 64.0
+GOAL_MARGIN = 0.12
+CUBE_HALF = 4.0 / 64.0
+CALIBRATION_BOX_MM = (-1000.0, -1000.0, 1000.0, 1000.0)
+"""Table box of an arm being calibrated whose file has none: wide on purpose; the
+calibration command supplies the safe box it drives in (``move_tcp`` refuses outside)."""
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ArmCalibration:
+    """One arm's calibration file (JSON), validated on load."""
+
+    homography: npt.NDArray[np.float64]
+    """3x3: camera pixel (u, v, 1) -> table point in the robot base frame (x, y, w), mm."""
+    table_box_mm: tuple[float, float, float, float]
+    """(x_min, y_min, x_max, y_max): every waypoint's (x, y) is clipped into it."""
+    z_push_mm: float = 10.0
+    z_travel_mm: float = 80.0
+    max_speed_mm_s: float = 150.0
+    push_speed_mm_s: float = 50.0
+    start_offset: float = 8.0 / 64.0
+    """Push start, canonical units outside the chosen face (as the twin)."""
+    stroke: float = 0.15
+    """Push stroke length, canonical units past the start (cube moves ~ stroke - offset)."""
+    pose: ArmPose | None = None
+
+    @classmethod
+    def load(cls, path: str | Path, arm: str) -> ArmCalibration:
+        p = Path(path)
+        try:
+            d = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise BackendError(f"arm {arm}: cannot read calibration {p}: {exc}") from None
+        return cls.from_dict(d, arm, str(p))
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], arm: str, source: str = "calibration"
+                  ) -> ArmCalibration:
+        def bad(msg: str) -> BackendError:
+            return BackendError(f"arm {arm}: {source}: {msg}")
+
+        try:
+            h = np.asarray(d["homography"], dtype=np.float64)
+            box = tuple(float(v) for v in d["table_box_mm"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise bad(f"needs 'homography' (3x3) and 'table_box_mm' (4 numbers): {exc}") from None
+        if h.shape != (3, 3) or not np.all(np.isfinite(h)) or abs(np.linalg.det(h)) < 1e-12:
+            raise bad("'homography' must be an invertible 3x3 matrix")
+        if len(box) != 4 or box[0] >= box[2] or box[1] >= box[3]:
+            raise bad("'table_box_mm' must be (x_min, y_min, x_max, y_max)")
+        known = {"homography", "table_box_mm", "z_push_mm", "z_travel_mm", "max_speed_mm_s",
+                 "push_speed_mm_s", "start_offset", "stroke", "task", "mechunit",
+                 "rest_joints_deg", "tool_quat_wxyz", "robconf", "arm_angle_deg", "tool_z_mm"}
+        if extra := set(d) - known:
+            raise bad(f"unknown key(s) {sorted(extra)}")
+        nums = {k: float(d[k]) for k in ("z_push_mm", "z_travel_mm", "max_speed_mm_s",
+                                         "push_speed_mm_s", "start_offset", "stroke") if k in d}
+        cal = cls(h, box, **nums)  # type: ignore[arg-type]
+        if not 0 < cal.push_speed_mm_s <= cal.max_speed_mm_s <= 1000:
+            raise bad("need 0 < push_speed_mm_s <= max_speed_mm_s <= 1000")
+        if cal.z_push_mm >= cal.z_travel_mm:
+            raise bad("z_push_mm must be below z_travel_mm")
+        pose = None
+        if "rest_joints_deg" in d:
+            joints = tuple(float(v) for v in d["rest_joints_deg"])
+            if len(joints) != 7:
+                raise bad("'rest_joints_deg' needs 7 angles (axis 7 last)")
+            side = "L" if arm.startswith("l") else "R"
+            pose = ArmPose(task=str(d.get("task", f"T_ROB_{side}")),
+                           mechunit=str(d.get("mechunit", f"ROB_{side}")),
+                           rest_joints_deg=joints,
+                           tool_quat_wxyz=tuple(d.get("tool_quat_wxyz", (0, 0, 1, 0))),
+                           robconf=tuple(d.get("robconf", (0, 0, 0, 4))),
+                           arm_angle_deg=float(d.get("arm_angle_deg", 0.0)),
+                           tool_z_mm=float(d.get("tool_z_mm", 0.0)))
+        return cls(h, box, **nums, pose=pose)  # type: ignore[arg-type]
+
+    def pixel_to_table(self, u: float, v: float) -> tuple[float, float]:
+        x, y, w = self.homography @ np.array([u, v, 1.0])
+        return (float(x / w), float(y / w))
+
+    def table_to_pixel(self, x: float, y: float) -> tuple[float, float]:
+        u, v, w = np.linalg.solve(self.homography, np.array([x, y, 1.0]))
+        return (float(u / w), float(v / w))
+
+
+@dataclass(frozen=True, slots=True)
+class ArmSetup:
+    name: str
+    crop: tuple[int, int, int, int]
+    """(x0, y0, x1, y1) of the arm's workspace in the camera picture."""
+    mirror: bool
+    calibration: ArmCalibration
+
+    def canonical_to_pixel(self, c: Sequence[float]) -> tuple[float, float]:
+        x0, y0, x1, y1 = self.crop
+        cx = 1.0 - c[0] if self.mirror else c[0]
+        # OpenCV's pixel centres are at integers: the crop's edge is half a pixel before
+        # x0, so canonical 0 is at x0 - 0.5 (the calibration's homography uses centres).
+        return (x0 - 0.5 + cx * (x1 - x0), y0 - 0.5 + c[1] * (y1 - y0))
+
+    def canonical_to_table(self, c: Sequence[float]) -> tuple[float, float]:
+        return self.calibration.pixel_to_table(*self.canonical_to_pixel(c))
+
+
+def plan_push(arm: ArmSetup, centre: Sequence[float], yaw: float, face: int) -> list[Waypoint]:
+    """Waypoints of one push: face ``face`` of a cube at ``centre`` (canonical), ``yaw`` rad.
+
+    Object-centric: the pusher comes in along the face's real normal, the canonical face
+    direction turned by the cube's yaw. Every point is clipped into the table box and
+    every speed capped; the program ends in the rest pose, out of the camera's view.
+    """
+    cal = arm.calibration
+    dx, dy = FACE_DIRECTIONS[face]
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = (c * dx - s * dy, s * dx + c * dy)
+    back = CUBE_HALF + cal.start_offset
+    start = (centre[0] - d[0] * back, centre[1] - d[1] * back)
+    end = (start[0] + d[0] * cal.stroke, start[1] + d[1] * cal.stroke)
+    bx0, by0, bx1, by1 = cal.table_box_mm
+
+    def table(p: Sequence[float], z: float) -> tuple[float, float, float]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = arm.canonical_to_table(p)
+        if not (math.isfinite(x) and math.isfinite(y)):  # clipping would hide a bad homography
+            raise BackendError(f"arm {arm.name}: push point {tuple(p)} maps to a non-finite "
+                               f"table point; check the calibration's homography")
+        return (min(max(x, bx0), bx1), min(max(y, by0), by1), z)
+
+    vmax = cal.max_speed_mm_s
+    vpush = min(cal.push_speed_mm_s, vmax)
+    return [
+        Waypoint("move_j", table(start, cal.z_travel_mm), vmax, fine=False),
+        Waypoint("move_l", table(start, cal.z_push_mm), min(vmax, 2 * vpush)),
+        Waypoint("move_l", table(end, cal.z_push_mm), vpush),
+        Waypoint("move_l", table(end, cal.z_travel_mm), min(vmax, 2 * vpush), fine=False),
+        Waypoint("rest", None, vmax),
+    ]
+
+
+class YumiBackend(HostBackend):
+    """Two YuMi arms under one camera; the controller client is injected."""
+
+    kind = "yumi"
+
+    def __init__(self, arms: Sequence[ArmSetup], camera: Camera,
+                 controller: YumiControllerClient, *, seed: int = 0,
+                 perception: Any = None, retakes: int = 3,
+                 calibration_paths: Mapping[str, str] | None = None,
+                 calibrating: Collection[str] = ()) -> None:
+        if not arms:
+            raise BackendError("a YuMi host needs at least one arm")
+        self._arms = {a.name: a for a in arms}
+        if unknown := sorted(set(calibrating) - set(self._arms)):
+            raise BackendError(f"cannot calibrate arm(s) {unknown}: this host has "
+                               f"{list(self._arms)}")
+        self._calibrating = frozenset(calibrating)
+        self._cal_paths = dict(calibration_paths or {})
+        self._camera = camera
+        self._controller = controller
+        self._perception = perception
+        self._retakes = retakes
+        self._rng = np.random.default_rng(seed)
+        self._goal: dict[str, tuple[float, float] | None] = dict.fromkeys(self._arms, None)
+        self._violating: dict[str, bool | None] = dict.fromkeys(self._arms, None)
+        self._pushes = dict.fromkeys(self._arms, 0)
+        self._pose: dict[str, Any] = dict.fromkeys(self._arms, None)
+        self._closed = False
+        self.retaken = 0
+        """Pictures taken again because an arm was in view (for tests and logs)."""
+
+    @property
+    def arm_names(self) -> tuple[str, ...]:
+        return tuple(self._arms)
+
+    @property
+    def mirror(self) -> tuple[bool, ...]:
+        return tuple(a.mirror for a in self._arms.values())
+
+    @property
+    def perception(self) -> Any:
+        if self._perception is None:
+            self._perception = importlib.import_module("testbed.perception.cube")
+        return self._perception
+
+    def _require_calibrated(self) -> None:
+        """Pictures need every arm's homography (an arm's TCP in view is judged with it)."""
+        for arm in self._arms:
+            if arm in self._calibrating:
+                err = BackendError(f"arm {arm} is being calibrated: observe, push and reset "
+                                   f"work once the agent restarts with its new calibration")
+                err.arm = arm  # type: ignore[attr-defined]
+                raise err
+
+    # -- pictures --------------------------------------------------------------------
+    def _arms_in_view(self) -> list[str]:
+        w, h = self._camera.size
+        tcp = self._controller.tcp_xyz()
+        out = []
+        for name, arm in self._arms.items():
+            u, v = arm.calibration.table_to_pixel(*tcp[name][:2])
+            if -0.02 * w <= u <= 1.02 * w and -0.02 * h <= v <= 1.02 * h:
+                out.append(name)
+        return out
+
+    def _picture(self) -> npt.NDArray[np.uint8]:
+        for _ in range(self._retakes + 1):
+            if in_view := self._arms_in_view():
+                self._controller.execute({a: [Waypoint("rest", None, self._arms[
+                    a].calibration.max_speed_mm_s)] for a in in_view})
+                self.retaken += 1
+                continue
+            frame = self._camera.read()
+            if self._arms_in_view():  # something moved into view during the shot
+                self.retaken += 1
+                continue
+            return frame
+        raise BackendError(f"no picture without an arm in view after {self._retakes + 1} "
+                           f"tries; check the rest poses and the calibration")
+
+    def _crop(self, frame: npt.NDArray[np.uint8], arm: ArmSetup) -> npt.NDArray[np.uint8]:
+        import cv2
+
+        x0, y0, x1, y1 = arm.crop
+        fh, fw = frame.shape[:2]
+        if x1 > fw or y1 > fh:
+            raise BackendError(f"arm {arm.name}: crop {arm.crop} exceeds the {fw}x{fh} picture")
+        img = cv2.resize(frame[y0:y1, x0:x1], (IMAGE_SIZE, IMAGE_SIZE),
+                         interpolation=cv2.INTER_AREA)
+        img = img[:, ::-1, ::-1] if arm.mirror else img[:, :, ::-1]
+        return np.ascontiguousarray(img)
+
+    def _look(self) -> dict[str, npt.NDArray[np.uint8]]:
+        frame = self._picture()
+        crops: dict[str, npt.NDArray[np.uint8]] = {}
+        for name, arm in self._arms.items():
+            crops[name] = self._crop(frame, arm)
+            self._pose[name] = self.perception.find_cube(crops[name])
+        return crops
+
+    def _out(self, arm: str) -> bool:
+        pose = self._pose[arm]
+        return pose is None or bool(self.perception.is_violation(pose))
+
+    def _new_goal(self, arm: str) -> None:
+        import cv2
+
+        poly = np.asarray(self.perception.WORKSPACE_POLYGON, np.float32).reshape(-1, 1, 2)
+        pose = self._pose[arm]
+        cube = np.asarray(pose.centre if pose is not None else (0.5, 0.5))
+        lo, hi = poly.reshape(-1, 2).min(0), poly.reshape(-1, 2).max(0)
+        for _ in range(500):
+            g = self._rng.uniform(lo, hi)
+            inside = cv2.pointPolygonTest(poly, (float(g[0]), float(g[1])), True) >= GOAL_MARGIN
+            if inside and np.hypot(*(g - cube)) >= MIN_GOAL_DISTANCE:
+                self._goal[arm] = (float(g[0]), float(g[1]))
+                self._pushes[arm] = 0
+                return
+        raise BackendError(f"arm {arm}: no goal found in the workspace")
+
+    def _draw_goal(self, img: npt.NDArray[np.uint8], goal: tuple[float, float]
+                   ) -> npt.NDArray[np.uint8]:
+        import cv2
+
+        out = img.copy()
+        k = 16  # 4 sub-pixel bits
+        cv2.circle(out, (round(goal[0] * IMAGE_SIZE * k), round(goal[1] * IMAGE_SIZE * k)),
+                   round(GOAL_RADIUS * IMAGE_SIZE * k), GOAL_RGB, -1, cv2.LINE_AA, 4)
+        return out
+
+    # -- HostBackend -----------------------------------------------------------------
+    def observe(self) -> dict[str, ArmView]:
+        self._require_calibrated()
+        crops = self._look()
+        views: dict[str, ArmView] = {}
+        for arm in self._arms:
+            if self._violating[arm] is None:  # first look since start: judge the picture
+                self._violating[arm] = self._out(arm)
+            goal = self._goal[arm]
+            if goal is None:
+                self._new_goal(arm)
+                goal = self._goal[arm]
+            assert goal is not None
+            views[arm] = ArmView(self._draw_goal(crops[arm], goal), bool(self._violating[arm]),
+                                 goal, None)
+        return views
+
+    def push(self, faces: Mapping[str, int]) -> dict[str, ArmOutcome]:
+        faces = self.check_faces(faces)
+        self._require_calibrated()
+        if any(self._pose[a] is None and self._violating[a] is None for a in faces):
+            self.observe()
+        moving = {a: f for a, f in faces.items()
+                  if not self._violating[a] and self._pose[a] is not None}
+        programs: dict[str, list[Waypoint]] = {}
+        errors: dict[str, str] = {}
+        for name, arm in self._arms.items():
+            if name in moving:
+                pose = self._pose[name]
+                try:
+                    programs[name] = plan_push(arm, pose.centre, float(pose.yaw), moving[name])
+                    continue
+                except Exception as exc:  # this arm only: its siblings still push
+                    errors[name] = f"cannot plan the push: {type(exc).__name__}: {exc}"
+                    log.warning("arm %s: %s", name, errors[name])
+                    del moving[name]
+            programs[name] = [Waypoint("rest", None, arm.calibration.max_speed_mm_s)]
+        if moving:
+            self._controller.execute(programs)
+            self._look()
+        out: dict[str, ArmOutcome] = {}
+        for arm in faces:
+            if arm in errors:
+                out[arm] = ArmOutcome(False, False, error=errors[arm])
+                continue
+            if arm not in moving:  # refused: no cube seen, or violating: nothing moved
+                out[arm] = ArmOutcome(False, False, refused=self._refusal(arm))
+                continue
+            if self._out(arm):
+                self._violating[arm] = True
+                out[arm] = ArmOutcome(False, True)
+                continue
+            goal = self._goal[arm]
+            success = goal is not None and bool(self.perception.is_success(self._pose[arm], goal))
+            self._pushes[arm] += 1
+            if success or self._pushes[arm] >= MAX_PUSHES_PER_GOAL:
+                self._new_goal(arm)  # soft reset: no human needed
+            out[arm] = ArmOutcome(success, False)
+        return out
+
+    def _refusal(self, arm: str) -> str:
+        if self._pose[arm] is None:
+            return "cube not found"
+        return "arm is violating: waiting for a hard reset"
+
+    def reset(self, arms: Sequence[str]) -> dict[str, bool]:
+        arms = self.check_arms(arms)
+        self._require_calibrated()
+        self._look()  # the human put the cube back; believe the picture, not the human
+        done: dict[str, bool] = {}
+        for arm in arms:
+            ok = not self._out(arm)
+            if ok:
+                self._violating[arm] = False
+                self._new_goal(arm)
+            done[arm] = ok
+        return done
+
+    def rest(self) -> None:
+        self._controller.execute({name: [Waypoint("rest", None, a.calibration.max_speed_mm_s)]
+                                  for name, a in self._arms.items()})
+
+    def reseed(self, seed: int) -> None:
+        """A fresh goal stream from ``seed``, as a newly started agent would have: goals,
+        push counts and violations are forgotten and judged again at the next observe."""
+        self._rng = np.random.default_rng(seed)
+        for arm in self._arms:
+            self._goal[arm] = None
+            self._violating[arm] = None
+            self._pose[arm] = None
+            self._pushes[arm] = 0
+
+    def frame(self) -> npt.NDArray[np.uint8]:
+        return self._camera.read()
+
+    def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
+        """Calibration: above the point at travel height, then straight down to it.
+
+        A point outside the arm's table box is refused (ValueError), never clipped: the
+        calibration fit needs the TCP where it was asked to be. An arm low over the table
+        is lifted straight up first, so its joint move does not sweep the table.
+        """
+        if arm not in self._arms:
+            raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
+        try:
+            x, y, z = (float(v) for v in xyz_mm)
+        except (TypeError, ValueError):
+            raise ValueError(f"arm {arm}: xyz_mm must be 3 numbers, got {xyz_mm!r}") from None
+        if not all(math.isfinite(v) for v in (x, y, z)):
+            raise ValueError(f"arm {arm}: xyz_mm must be finite, got {(x, y, z)}")
+        cal = self._arms[arm].calibration
+        bx0, by0, bx1, by1 = cal.table_box_mm
+        if not (bx0 <= x <= bx1 and by0 <= y <= by1):
+            raise ValueError(f"arm {arm}: ({x:g}, {y:g}) mm is outside its table box "
+                             f"{cal.table_box_mm}; refusing to move there")
+        if z < 0:
+            raise ValueError(f"arm {arm}: z = {z:g} mm is below the table top (z = 0)")
+        vmax = cal.max_speed_mm_s
+        vslow = min(vmax, 2 * cal.push_speed_mm_s)
+        program: list[Waypoint] = []
+        cx, cy, cz = self._controller.tcp_xyz()[arm]
+        if cz < cal.z_travel_mm and bx0 <= cx <= bx1 and by0 <= cy <= by1:
+            program.append(Waypoint("move_l", (cx, cy, cal.z_travel_mm), vslow, fine=False))
+        program += [Waypoint("move_j", (x, y, cal.z_travel_mm), vmax, fine=False),
+                    Waypoint("move_l", (x, y, z), vslow)]
+        self._controller.execute({arm: program})
+        return self._controller.tcp_xyz()[arm]
+
+    def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
+        """Validate ``data`` as ``arm``'s calibration and replace its file atomically (a
+        crash leaves the old file or the new one, never half of one). The running backend
+        keeps its calibration: the new one is used from the agent's next start."""
+        if arm not in self._arms:
+            raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
+        path = self._cal_paths.get(arm)
+        if path is None:
+            raise BackendError(f"arm {arm}: no calibration file configured for it")
+        if not isinstance(data, Mapping):
+            raise ValueError(f"arm {arm}: calibration data must be an object, got "
+                             f"{type(data).__name__}")
+        try:
+            ArmCalibration.from_dict(data, arm, path)
+        except BackendError as exc:
+            raise ValueError(str(exc)) from None
+        write_atomic(Path(path), json.dumps(dict(data), indent=2) + "\n")
+        return path
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            try:
+                self._camera.close()
+            finally:
+                self._controller.close()
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Temp file in the same folder, fsync, ``os.replace``, fsync the folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fchmod(f.fileno(), mode)
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    with contextlib.suppress(OSError):  # the rename itself durable (not on every FS)
+        dfd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+
+
+def provisional_calibration(path: str, arm: str) -> ArmCalibration:
+    """An arm being calibrated: the file's speeds, heights, table box and rest pose when
+    it has them, an identity homography (unused: pictures are off in calibration mode)
+    and, without a table box in the file, the wide :data:`CALIBRATION_BOX_MM`."""
+    p = Path(path)
+    d: dict[str, Any] = {}
+    if p.exists():
+        try:
+            d = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise BackendError(f"arm {arm}: cannot read calibration {p}: {exc}") from None
+        if not isinstance(d, dict):
+            raise BackendError(f"arm {arm}: calibration {p} is not a JSON object")
+    d = {**d, "homography": np.eye(3).tolist()}
+    d.setdefault("table_box_mm", list(CALIBRATION_BOX_MM))
+    return ArmCalibration.from_dict(d, arm, str(p))
+
+
+def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
+                       crops: Mapping[str, tuple[int, int, int, int]],
+                       calibrations: Mapping[str, str], camera: str | None,
+                       controller_url: str | None, seed: int = 0,
+                       calibrating: Collection[str] = ()) -> YumiBackend:
+    """The agent's ``--backend yumi``: its camera, its controller (real or twin).
+
+    Paths (calibration files, a video-file camera) are host paths: ``~`` and ``$VARS``
+    are expanded here, on the host. ``calibrating``: arms in calibration mode (see the
+    module docstring).
+    """
+    from drivers.yumi.camera import VideoCaptureCamera
+    from drivers.yumi.yumi_controller import make_controller
+
+    if camera is None:
+        raise BackendError("--backend yumi needs --camera (device index, video file or "
+                           "http(s)/rtsp URL)")
+    if controller_url is None:
+        raise BackendError("--backend yumi needs --controller-url (the controller's RWS URL, "
+                           "or twin+http://HOST:PORT)")
+    if unknown := [a for a in calibrating if a not in arms]:
+        raise BackendError(f"--calibrate {unknown[0]}: no such arm; this host has {list(arms)}")
+    setups: list[ArmSetup] = []
+    paths: dict[str, str] = {}
+    for name, m in zip(arms, mirror, strict=True):
+        if name not in crops:
+            raise BackendError(f"arm {name}: --crop {name}=x0,y0,x1,y1 is required for yumi")
+        if name not in calibrations:
+            raise BackendError(f"arm {name}: --calibration {name}=FILE is required for yumi")
+        paths[name] = expand_path(calibrations[name], f"arm {name}: calibration")
+        cal = (provisional_calibration(paths[name], name) if name in calibrating
+               else ArmCalibration.load(paths[name], name))
+        setups.append(ArmSetup(name, crops[name], m, cal))
+    ctrl = make_controller(controller_url, {s.name: s.calibration.pose for s in setups})
+    try:
+        if not camera.isdigit() and not is_url(camera):
+            camera = expand_path(camera, "camera")
+        cam = VideoCaptureCamera(camera)
+    except Exception:
+        ctrl.close()
+        raise
+    return YumiBackend(setups, cam, ctrl, seed=seed, calibration_paths=paths,
+                       calibrating=calibrating)

@@ -1,0 +1,307 @@
+"""``WebHumans``: the fleet's humans, each at a console page on their own device.
+
+Why a browser console beside the OpenCV one: the seed's robots stand half a mile
+apart. A hard reset needs a person at that robot, a teleop only a screen anywhere, so
+every human needs a console on their own phone or laptop, not a window on the
+controller's desktop. The page shows the very frames the OpenCV window shows (rendered
+here by ``gui.draw`` through ``gui.console_core.ConsoleCore``) and its keys, clicks, taps and
+buttons mean what they mean there (``gui.keys``).
+
+::
+
+    fleet loop thread            ConsoleCore (lock)            server thread (asyncio)
+    act / show  --render, PNG-->  FrameHub.post  --wake-->  send loop --> each page
+    presence()  <-- who is connected, since when <-- connect / close of a page
+                <-- handle(key, click, button, painted) <-- page (worker thread)
+
+Humans come and go. A human with no open page is away: ``presence()`` marks them
+unavailable, so the allocator gives them nothing new; ``act`` waits for an away
+human's push at most ``away_timeout_s`` (then the arm's step passes with no push); a
+held intervention goes on through ``grace_s`` (a reload, a dropped Wi-Fi) and then
+``presence().gone`` tells the loop to end it, which the step row records.
+
+Security: the server listens on loopback unless ``host`` says otherwise; every page,
+frame and input needs its human's token (``gui.web.tokens``); TLS when a certificate
+and key are given.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from importlib import resources
+from typing import TYPE_CHECKING, Any, TextIO
+
+import numpy as np
+
+from gui.console_core import OVERVIEW, ConsoleCore, Frame
+from gui.keys import BUTTONS, decode_browser_key
+from gui.view import Phase
+from gui.web.server import FrameHub, WebServer, build_app
+from gui.web.tokens import TokenBook
+from testbed.core.humans import Presence
+from testbed.core.types import FleetStatus
+
+if TYPE_CHECKING:
+    from testbed.core.config import WebConsoleConfig
+
+_ANNOUNCED: set[tuple[str, ...]] = set()
+"""The URLs printed so far by this process (each set once)."""
+HISTORY_MAX = 100_000
+"""Overview curve points kept for a page that opens mid-trial (one per step)."""
+
+
+def _encode_png(frame: Frame) -> bytes:
+    """Lossless, so the page shows the OpenCV window's very pixels (the tests compare).
+
+    Run-length deflate: 5 ms for a console frame against 7 ms at the default strategy
+    (JPEG would take 0.6 ms but blurs the 1-pixel overlays; PNG decodes off the page's
+    main thread in ``createImageBitmap``). About 30 KB a frame.
+    """
+    import cv2  # either OpenCV build: encoding is in both
+
+    ok, buf = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 1,
+                                           cv2.IMWRITE_PNG_STRATEGY,
+                                           cv2.IMWRITE_PNG_STRATEGY_RLE])
+    if not ok:
+        raise RuntimeError("PNG encoding of a console frame failed")
+    return buf.tobytes()
+
+
+@functools.cache
+def _page_template(overview: bool) -> str:
+    """A page with its script and style inlined (so nothing is served without a token),
+    read from the package once."""
+    static = resources.files("gui.web").joinpath("static")
+    html = static.joinpath("overview.html" if overview else "human.html").read_text()
+    return (html.replace("/*CONSOLE_JS*/", static.joinpath("console.js").read_text())
+            .replace("/*CONSOLE_CSS*/", static.joinpath("console.css").read_text()))
+
+
+class WebHumans(ConsoleCore):
+    """M people answering the fleet's interventions from console pages in browsers.
+
+    ``WebHumans(2)`` starts the server and prints each human's URL once (to
+    ``announce``, stderr by default); ``urls`` has them too. Use it as a context
+    manager or call ``close()``. Without ``tokens``, every console of this process uses
+    the same random ones, so a protocol's trials keep their URLs (a fixed ``port``
+    too: the pages reconnect by themselves between trials).
+    """
+
+    def __init__(
+        self,
+        num_humans: int,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        tokens: list[str] | None = None,
+        certfile: str | None = None,
+        keyfile: str | None = None,
+        grace_s: float = 10.0,
+        away_timeout_s: float = 5.0,
+        teleop_timeout_s: float | None = None,
+        scale: int = 6,
+        announce: TextIO | None = sys.stderr,
+    ) -> None:
+        super().__init__(num_humans, scale=scale, teleop_timeout_s=teleop_timeout_s)
+        if (certfile is None) != (keyfile is None):
+            raise ValueError("humans.web: give both certfile and keyfile, or neither")
+        self.tokens = TokenBook(tokens) if tokens else TokenBook.for_session(num_humans)
+        if len(self.tokens) != num_humans:
+            raise ValueError(f"humans.web.tokens: need {num_humans} tokens (one per human), "
+                             f"got {len(self.tokens)}")
+        self.grace_s = grace_s
+        self.away_timeout_s = away_timeout_s
+        now = time.monotonic()
+        self._pages = [0] * num_humans
+        self._away_since: list[float] = [now] * num_humans
+        """Per human: when their last page closed (start: never opened yet)."""
+        self._overview_pages = 0
+        self._history: list[dict[str, Any]] = []
+        self._hub = FrameHub()
+        self._server = WebServer(build_app(self, self._hub), host, port,
+                                 certfile=certfile, keyfile=keyfile)
+        self._server.start()
+        self.urls = [f"{self.base_url}/?token={self.tokens.token(h)}"
+                     for h in range(num_humans)]
+        self.overview_url = f"{self.base_url}/overview?token={self.tokens.token(0)}"
+        if announce is not None and (self.base_url, *self.urls) not in _ANNOUNCED:
+            _ANNOUNCED.add((self.base_url, *self.urls))  # once: a protocol's next trial
+            lines = [f"web console: human {h}: {u}" for h, u in enumerate(self.urls)]
+            lines.append(f"web console: fleet overview: {self.overview_url}")
+            print("\n".join(lines), file=announce, flush=True)
+        with self._cond:
+            self._redraw_all()
+
+    @classmethod
+    def from_config(cls, count: int, cfg: WebConsoleConfig | None = None) -> WebHumans:
+        """Built from ``[humans.web]`` (``testbed.core.config.WebConsoleConfig``)."""
+        if cfg is None:
+            from testbed.core.config import WebConsoleConfig
+
+            cfg = WebConsoleConfig()
+        return cls(
+            count, host=cfg.host, port=cfg.port, tokens=list(cfg.tokens) or None,
+            certfile=cfg.certfile, keyfile=cfg.keyfile, grace_s=cfg.grace_s,
+            away_timeout_s=cfg.away_timeout_s, teleop_timeout_s=cfg.teleop_timeout_s,
+        )
+
+    @property
+    def base_url(self) -> str:
+        return self._server.base_url
+
+    @property
+    def port(self) -> int:
+        return self._server.port
+
+    # ---- who is here -------------------------------------------------------------------
+    def presence(self) -> Presence:
+        """Humans with a page open are available; away past ``grace_s``: gone."""
+        with self._cond:
+            now = time.monotonic()
+            here = np.array([n > 0 for n in self._pages], dtype=bool)
+            gone = frozenset(h for h in range(self.num_humans)
+                             if not here[h] and now - self._away_since[h] >= self.grace_s)
+            return Presence(here, gone)
+
+    def present(self, human: int) -> bool:
+        with self._cond:
+            return self._pages[human] > 0
+
+    def wait_for_humans(self, timeout_s: float) -> bool:
+        """Block until every human has a page open (True) or ``timeout_s`` passed."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while not all(self._pages):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.1))
+            return True
+
+    def _gave_up(self, human: int, t_act: float, now: float) -> bool:
+        if self._pages[human] > 0:
+            return False
+        return now - max(self._away_since[human], t_act) >= self.away_timeout_s
+
+    # ---- ConsoleCore's surfaces: pages -------------------------------------------------
+    def surface_name(self, wid: int) -> str:
+        return "the fleet overview page" if wid == OVERVIEW else f"human {wid}'s page"
+
+    def _has_surface(self, wid: int) -> bool:
+        return not self._closed
+
+    def _post(self, wid: int, seq: int, frame: Frame) -> None:
+        header: dict[str, Any] = {"seq": seq, "paused": self._paused,
+                                  "confirming_stop": wid in self._confirming,
+                                  "stop_requested": self._stop_reason is not None}
+        if wid == OVERVIEW:
+            header["humans"] = [{"human": h, "present": self._pages[h] > 0,
+                                 "phase": self._desks[h].view().phase.value}
+                                for h in range(self.num_humans)]
+            if self._history:
+                header["point"] = self._history[-1]
+        else:
+            view = self._desks[wid].view()
+            req = view.request
+            header |= {"human": wid, "phase": view.phase.value,
+                       "robot": req.robot if req else None,
+                       "kind": req.kind.value if req else None,
+                       "markers": [list(p) for p in view.markers]
+                       if view.phase is Phase.CHOOSE else []}
+        self._hub.post(wid, _encode_png(frame), header)
+
+    def show(self, t: int, status: FleetStatus) -> None:
+        with self._cond:
+            self._history.append({
+                "t": status.t, "successes": status.successes,
+                "hard_resets": status.hard_resets, "human_actions": status.human_actions,
+                "idle": status.idle_time, "rohe": round(status.rohe, 5),
+                "modes": [str(r.mode) for r in status.robots],
+            })
+            del self._history[:-HISTORY_MAX]
+        super().show(t, status)
+
+    # ---- the server's calls (worker threads) -------------------------------------------
+    def human_of(self, token: str | None) -> int | None:
+        return self.tokens.human_of(token)
+
+    def page(self, wid: int) -> str:
+        overview = wid == OVERVIEW
+        return _page_template(overview).replace("HUMAN_INDEX", "" if overview else str(wid))
+
+    def connected(self, wid: int) -> list[dict[str, Any]]:
+        with self._cond:
+            if wid == OVERVIEW:
+                self._overview_pages += 1
+                return [{"type": "history", "points": list(self._history)}]
+            self._pages[wid] += 1
+            self._redraw(OVERVIEW)  # the overview shows who is here
+            self._cond.notify_all()
+            return []
+
+    def disconnected(self, wid: int) -> None:
+        with self._cond:
+            if wid == OVERVIEW:
+                self._overview_pages -= 1
+                return
+            self._pages[wid] -= 1
+            if self._pages[wid] == 0:
+                self._away_since[wid] = time.monotonic()
+            if not self._closed:
+                self._redraw(OVERVIEW)
+            self._cond.notify_all()
+
+    def handle(self, wid: int, msg: Any) -> dict[str, Any] | None:
+        """One message from a page; the reply says whether an input was taken."""
+        if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+            return {"type": "error", "why": "not a console message"}
+        kind = msg["type"]
+        try:
+            seq = int(msg.get("seq", -1))
+            if kind == "painted":
+                self._painted(wid, seq, float(msg["t_sent"]), float(msg["t_painted"]))
+                return None
+            with self._cond:
+                if kind == "key":
+                    taken = self._on_command(wid, seq, decode_browser_key(str(msg["key"])))
+                elif kind == "button" and str(msg.get("name")) in BUTTONS:
+                    taken = self._on_command(wid, seq, BUTTONS[str(msg["name"])])
+                elif kind == "click":
+                    taken = self._on_click(wid, seq, float(msg["x"]), float(msg["y"]))
+                else:
+                    return {"type": "error", "why": f"unknown message {kind!r}"}
+                why = None if taken else self._why_refused(wid, seq)
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            return {"type": "error", "why": f"malformed {kind!r} message ({exc})"}
+        return {"type": "input", "seq": seq, "taken": taken, "why": why,
+                "id": msg.get("id")}
+
+    def _why_refused(self, wid: int, seq: int) -> str:
+        if self._stop_reason is not None:
+            return "the trial is stopping"
+        if self._paused:
+            return "paused"
+        if wid != OVERVIEW and seq < self._posted[wid]:
+            return "stale: that frame's request is over"
+        return "nothing to answer on that frame"
+
+    def _painted(self, wid: int, seq: int, t_sent_ms: float, t_painted_ms: float) -> None:
+        """The page's own clock (epoch ms) -> this process's monotonic clock."""
+        offset = time.time() - time.monotonic()
+        with self._cond:
+            if seq > self._posted[wid]:
+                return  # a page cannot report a frame not yet sent
+            self._on_shown(wid, seq, t_sent_ms / 1e3 - offset, t_painted_ms / 1e3 - offset)
+
+    def close(self) -> None:
+        """Stop the server (every page sees the socket close); safe to call twice."""
+        if self._mark_closed():
+            self._server.stop()
+
+    def __enter__(self) -> WebHumans:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,626 @@
+"""The fleet configuration: a TOML file validated by pydantic, unknown keys rejected.
+
+Why pydantic: it gives typed, nested validation with the failing field's path for free,
+so every bad config becomes one line that names the field (DESIGN.md section 8) instead
+of a traceback deep inside a driver. ``load_config`` is the only way a config enters
+the program; ``default_twin_config`` is the built-in 2 x 2-arm twin fleet that
+``testbed trial`` runs with no ``--config``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal, Self
+from urllib.parse import urlsplit
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
+
+
+class ConfigError(ValueError):
+    """A config or argument that cannot be used; ``str()`` is the one line to print."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ArmConfig(_Strict):
+    name: Name
+    crop: tuple[int, int, int, int] | None = None
+    """Pixel box (x0, y0, x1, y1) of this arm's workspace in the host camera image."""
+    mirror: bool = False
+    """Mirror the crop left-right into the canonical frame (the right arm)."""
+    calibration: str | None = None
+    """Path (on the host) of the image-to-table homography file (YuMi backend)."""
+
+    @model_validator(mode="after")
+    def _crop_is_a_box(self) -> ArmConfig:
+        if self.crop is not None:
+            x0, y0, x1, y1 = self.crop
+            if min(self.crop) < 0 or x1 <= x0 or y1 <= y0:
+                raise ValueError("crop must be (x0, y0, x1, y1) with 0 <= x0 < x1, 0 <= y0 < y1")
+        return self
+
+
+class FieldProblem(ValueError):
+    """A model-level check that is about one field: ``field`` joins the error's location,
+    so the one-line error names it (``hosts[0].key_file: ...``), not just the host."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+CHECK_FILES = "check_files"
+"""Validation-context key: ``False`` skips the existence check of key_file/known_hosts
+(for tools that load a protocol to rewrite its hosts, e.g. a rehearsal; paths are still
+expanded)."""
+
+
+def validation_context(check_files: bool = True) -> dict[str, Any]:
+    """The pydantic ``context`` for ``model_validate`` of a fleet or a protocol."""
+    return {CHECK_FILES: check_files}
+
+
+def _checking_files(info: ValidationInfo) -> bool:
+    ctx = info.context
+    return not (isinstance(ctx, dict) and ctx.get(CHECK_FILES) is False)
+
+
+_VAR = re.compile(r"\$(?:\{(?P<braced>[A-Za-z_][A-Za-z0-9_]*)\}|(?P<plain>[A-Za-z_][A-Za-z0-9_]*))")
+
+
+def expand_path(text: str, field: str) -> str:
+    """``~`` and ``$VAR``/``${VAR}`` expanded as a shell would; an unset variable is an
+    error naming it (``os.path.expandvars`` would leave ``$VAR`` in the path silently)."""
+
+    def value(m: re.Match[str]) -> str:
+        name = m.group("braced") or m.group("plain")
+        if name not in os.environ:
+            raise FieldProblem(field, f"${name} is not set (in {text!r}); set it or write "
+                               "the path out")
+        return os.environ[name]
+
+    return _VAR.sub(value, os.path.expanduser(text))
+
+
+class _HostBase(_Strict):
+    """What every host has, whatever its backend: where it is and how to reach it.
+
+    Paths are expanded (``~``, ``$VARS``) when the config is loaded: ``key_file`` and
+    ``known_hosts`` always (they are read on this machine, and a missing one is an
+    error here, before anything starts), ``python``, ``workdir``, a YuMi ``camera``
+    path and the arms' ``calibration`` only for ``transport = "local"``. Over ssh those
+    are paths on the robot host: they are passed as written and the agent expands them
+    there.
+    """
+
+    name: Name
+    transport: Literal["local", "ssh"] = "local"
+    address: str = "127.0.0.1"
+    port: int = Field(22, ge=1, le=65535)
+    user: str | None = None
+    key_file: str | None = None
+    known_hosts: str | None = None
+    python: str = "python3"
+    """Interpreter that runs the agent; over SSH it must be an absolute path."""
+    workdir: str | None = None
+    """Project checkout on the host (over SSH); the agent runs with it as PYTHONPATH."""
+    deadline_s: float = Field(10.0, gt=0, le=600)
+    """Per-call deadline for a push or an observation on this host."""
+    heartbeat_s: float = Field(2.0, gt=0, le=600)
+    """Idle time after which the controller checks the agent is alive (application
+    heartbeat: SSH keepalives do not notice a dead peer)."""
+    connect_timeout_s: float = Field(20.0, gt=0, le=600)
+    """Budget to (re)connect: SSH handshake, agent start, backend start, hello."""
+    arms: list[ArmConfig] = Field(default_factory=lambda: [ArmConfig(name="left"),
+                                                          ArmConfig(name="right", mirror=True)])
+
+    @model_validator(mode="after")
+    def _transport_fields(self, info: ValidationInfo) -> Self:
+        if self.transport == "ssh":
+            missing = [f for f in ("user", "key_file", "known_hosts") if getattr(self, f) is None]
+            if missing:
+                raise ValueError(f"ssh transport needs {', '.join(missing)}")
+            if not self.python.startswith("/"):
+                raise ValueError("python must be an absolute interpreter path over ssh")
+        names = [a.name for a in self.arms]
+        if len(set(names)) != len(names):
+            raise ValueError("arm names must be unique within a host")
+        if not self.arms:
+            raise ValueError("a host needs at least one arm")
+        self._expand_paths(_checking_files(info))
+        return self
+
+    def _set(self, field: str, value: Any) -> None:
+        object.__setattr__(self, field, value)  # frozen: only while validating
+
+    def _expand_paths(self, check_files: bool) -> None:
+        for field in ("key_file", "known_hosts"):
+            raw = getattr(self, field)
+            if raw is None:
+                continue
+            path = expand_path(raw, field)
+            if check_files and not Path(path).is_file():
+                shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
+                raise FieldProblem(field, f"no such file {shown}; fix the path or create it")
+            self._set(field, path)
+        if self.transport != "local":
+            return
+        self._set("python", expand_path(self.python, "python"))  # "python3" stays as is
+        if self.workdir is not None:
+            self._set("workdir", expand_path(self.workdir, "workdir"))
+        self._set("arms", [
+            a if a.calibration is None else a.model_copy(update={
+                "calibration": expand_path(a.calibration, f"arms[{i}].calibration")})
+            for i, a in enumerate(self.arms)
+        ])
+
+
+class TwinHost(_HostBase):
+    """A PyBullet twin cell (``drivers/backends/twin.py``)."""
+
+    backend: Literal["twin"] = "twin"
+    seed: int | None = None
+    """The cell's world seed (default: derived from the trial seed)."""
+    physics: bool = True
+    """False runs the agent's no-physics mode (canned images; benchmarks)."""
+
+
+CONTROLLER_SCHEMES = ("http", "https", "twin+http")
+CAMERA_SCHEMES = ("http", "https", "rtsp")
+
+
+def _camera_text(value: Any) -> Any:
+    """TOML ``camera = 0`` (an integer) means device 0, as ``camera = "0"``."""
+    return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
+
+
+class YumiHost(_HostBase):
+    """An ABB YuMi (IRB 14000) with an overhead camera (``drivers/yumi/backend.py``).
+
+    Everything the agent needs is checked here, at load time, so a typo is one line
+    before anything starts rather than a traceback on the host after pretraining.
+    """
+
+    backend: Literal["yumi"] = "yumi"
+    camera: Annotated[str, BeforeValidator(_camera_text)]
+    """A device index ("0"), a video file path, or a lab IP camera URL (http(s), rtsp)."""
+    controller_url: str
+    """The controller: http(s)://HOST (Robot Web Services) or twin+http://HOST:PORT (the
+    hardware twin)."""
+
+    @field_validator("camera")
+    @classmethod
+    def _camera_kind(cls, v: str) -> str:
+        v = v.strip()
+        if not v:
+            raise ValueError("camera is empty; give a device index, a video file or a URL")
+        if "://" in v:
+            url = urlsplit(v)
+            if url.scheme not in CAMERA_SCHEMES or not url.netloc:
+                raise ValueError(f"camera URL must be {', '.join(CAMERA_SCHEMES)}://HOST/...")
+        return v
+
+    @field_validator("controller_url")
+    @classmethod
+    def _controller_kind(cls, v: str) -> str:
+        url = urlsplit(v.strip())
+        if url.scheme not in CONTROLLER_SCHEMES or not url.hostname:
+            raise ValueError("controller_url must be http(s)://HOST (Robot Web Services) or "
+                             "twin+http://HOST:PORT (the hardware twin)")
+        return v.strip()
+
+    @model_validator(mode="after")
+    def _yumi_arms(self) -> Self:
+        for i, a in enumerate(self.arms):
+            if a.crop is None:
+                raise FieldProblem(f"arms[{i}].crop", f"arm {a.name} of a yumi host needs "
+                                   "its crop box (x0, y0, x1, y1) in the camera image")
+            if a.calibration is None or not a.calibration.endswith(".json"):
+                raise FieldProblem(f"arms[{i}].calibration", f"arm {a.name} of a yumi host "
+                                   "needs its calibration file (a path ending .json)")
+        if self.transport == "local" and "://" not in self.camera and not self.camera.isdigit():
+            self._set("camera", expand_path(self.camera, "camera"))
+        return self
+
+
+HOST_MODELS: dict[str, type[_HostBase]] = {"twin": TwinHost, "yumi": YumiHost}
+
+
+def _backend_of(value: Any) -> str:
+    """The union's tag: ``backend``, ``"twin"`` when the key is absent."""
+    backend = (value.get("backend", "twin") if isinstance(value, dict)
+               else getattr(value, "backend", "twin"))
+    return backend if isinstance(backend, str) else repr(backend)
+
+
+HostConfig = Annotated[
+    Annotated[TwinHost, Tag("twin")] | Annotated[YumiHost, Tag("yumi")],
+    Discriminator(_backend_of, custom_error_type="unknown_backend",
+                  custom_error_message="unknown backend"),
+]
+"""One host of the fleet: a ``TwinHost`` or a ``YumiHost``, chosen by ``backend``."""
+
+
+TOKEN_PATTERN = re.compile(r"[A-Za-z0-9_-]{16,}")
+"""A web console token: at least 16 characters, URL-safe (it travels in the link)."""
+
+_HOSTNAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?")
+
+
+class WebConsoleConfig(_Strict):
+    """The browser console (``humans.kind = "web"``, TOML ``[humans.web]``).
+
+    Humans on their own devices come and go: ``grace_s`` and ``away_timeout_s`` bound
+    what an away human costs the fleet (``testbed.core.humans.Presence``). The server binds
+    to loopback unless ``host`` says otherwise: exposing it is a decision the config
+    must state, never a default. Without ``tokens`` each human gets a random token at
+    start (printed as their link). Tokens are credentials: a run's config.toml is
+    written without them (``RunDir.write_config``), so a resumed run makes new ones
+    unless its operator gives the config that has them.
+    """
+
+    host: str = "127.0.0.1"
+    """Bind address (an IP address or a host name); anything but loopback only when set."""
+    port: int = Field(8765, ge=0, le=65535)
+    """TCP port; 0 picks a free one at start."""
+    tokens: list[str] = Field(default_factory=list)
+    """One secret per human (``humans.count`` of them, unique, each >= 16 characters of
+    A-Z a-z 0-9 _ -); empty: a random one per human, made at start."""
+    certfile: str | None = None
+    """TLS certificate (PEM) for https; with ``keyfile``. Expands ``~`` and ``$VARS``."""
+    keyfile: str | None = None
+    """TLS private key (PEM) for https; with ``certfile``. Expands ``~`` and ``$VARS``."""
+    grace_s: float = Field(10.0, ge=0, allow_inf_nan=False)
+    """How long an away human's held intervention goes on before it is released."""
+    away_timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
+    """The longest the fleet waits on an away human's teleop answer in a step."""
+    teleop_timeout_s: float | None = Field(None, gt=0, allow_inf_nan=False)
+    """The longest it waits on a present human's answer (None: as long as it takes)."""
+
+    @field_validator("host")
+    @classmethod
+    def _host(cls, v: str) -> str:
+        import ipaddress
+
+        v = v.strip()
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            if not _HOSTNAME.fullmatch(v) or len(v) > 253:
+                raise ValueError("give an IP address or a host name to bind to, e.g. "
+                                 "127.0.0.1 (this machine only) or 0.0.0.0 (every "
+                                 "interface)") from None
+        return v
+
+    @model_validator(mode="after")
+    def _tokens_and_tls(self, info: ValidationInfo) -> Self:
+        for i, token in enumerate(self.tokens):
+            if not TOKEN_PATTERN.fullmatch(token):
+                # the token itself is a secret: named by its position, never echoed
+                raise FieldProblem(f"tokens[{i}]", f"a token of {len(token)} characters; "
+                                   "each needs >= 16 characters of A-Z a-z 0-9 _ - (e.g. "
+                                   "python -c 'import secrets; print(secrets."
+                                   "token_urlsafe(24))')")
+        if len(set(self.tokens)) != len(self.tokens):
+            raise FieldProblem("tokens", "two humans have the same token; give each "
+                               "human their own")
+        if (self.certfile is None) != (self.keyfile is None):
+            given, missing = (("certfile", "keyfile") if self.keyfile is None
+                              else ("keyfile", "certfile"))
+            raise FieldProblem(missing, f"{given} is set but {missing} is not; https "
+                               "needs both (or neither, for plain http)")
+        for name in ("certfile", "keyfile"):
+            raw = getattr(self, name)
+            if raw is None:
+                continue
+            path = expand_path(raw, name)
+            if _checking_files(info) and not Path(path).is_file():
+                shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
+                raise FieldProblem(name, f"no such file {shown}; fix the path or create it")
+            object.__setattr__(self, name, path)  # frozen: only while validating
+        return self
+
+
+class HumansConfig(_Strict):
+    count: int = Field(2, ge=0, le=1000)
+    kind: Literal["scripted", "gui", "web"] = "scripted"
+    web: WebConsoleConfig = WebConsoleConfig()
+    """The browser console's settings (TOML ``[humans.web]``), read when kind is web."""
+
+    @model_validator(mode="after")
+    def _one_token_per_human(self) -> Self:
+        tokens = self.web.tokens
+        if tokens and len(tokens) != self.count:
+            given = f"{len(tokens)} token{'s' if len(tokens) != 1 else ''}"
+            raise FieldProblem("web.tokens", f"{given} for humans.count = {self.count}; "
+                               "give one per human, or none (random ones are made at "
+                               "start)")
+        return self
+
+
+QUANTILE = re.compile(r"q(0(\.\d+)?|1(\.0*)?|\.\d+)")
+
+
+def quantile_of(value: object) -> float | None:
+    """p of a threshold given as ``"q<p>"`` (``"q0.75"`` -> 0.75), else None."""
+    if isinstance(value, str) and QUANTILE.fullmatch(value):
+        return float(value[1:])
+    return None
+
+
+MATCH_BUDGET = re.compile(r"match:[a-z0-9][a-z0-9-]*")
+"""``random_budget = "match:<algorithm>"``: Random gets the human effort of that algorithm."""
+
+
+class AlgorithmConfig(_Strict):
+    """Allocation hyperparameters (seed 8.3, Table 1; DESIGN.md section 4)."""
+
+    name: str = "cur"
+    t_T: int = Field(3, ge=1, description="minimum teleoperation time")
+    t_R: int = Field(5, ge=1, description="hard reset time")
+    t_I: int = Field(10, ge=0, description="C.U.R. initial period")
+    u_hat: float | str = Field(
+        0.05, description="uncertainty threshold in [0, 1], or 'q<p>' (e.g. 'q0.75'): that "
+        "quantile of theta_0's uncertainty on its pretraining rollouts, resolved when the "
+        "run starts and written into its config.toml")
+    r_hat: float | str = Field(0.5, description="risk threshold, as u_hat")
+    thrifty_alpha: float = Field(0.5, ge=0.0, le=1.0)
+    thrifty_threshold: float = 0.0
+    random_budget: float | str = Field(
+        0.3, description="Random: the mean fraction of humans busy, or 'match:<algorithm>' "
+        "(in a protocol: the fraction that algorithm's run of the same trial used)")
+
+    @field_validator("u_hat", "r_hat")
+    @classmethod
+    def _threshold(cls, v: float | str) -> float | str:
+        if isinstance(v, str):
+            if quantile_of(v) is None:
+                raise ValueError("a number in [0, 1] or a quantile 'q<p>' with p in [0, 1], "
+                                 "e.g. 'q0.75'")
+            return v
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"must be in [0, 1], got {v}")
+        return float(v)
+
+    @property
+    def quantile_thresholds(self) -> dict[str, float]:
+        """The thresholds given as quantiles: name -> p (empty when all are numbers)."""
+        out: dict[str, float] = {}
+        for name in ("u_hat", "r_hat"):
+            q = quantile_of(getattr(self, name))
+            if q is not None:
+                out[name] = q
+        return out
+
+    @field_validator("random_budget")
+    @classmethod
+    def _budget(cls, v: float | str) -> float | str:
+        if isinstance(v, str):
+            if not MATCH_BUDGET.fullmatch(v):
+                raise ValueError("a number in [0, 1] or 'match:<algorithm>', e.g. 'match:cur'")
+            return v
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"the fraction of humans busy must be in [0, 1], got {v}")
+        return float(v)
+
+    @property
+    def budget_match(self) -> str | None:
+        """The algorithm Random's budget matches (``match:<algorithm>``), else None."""
+        if isinstance(self.random_budget, str):
+            return self.random_budget.split(":", 1)[1]
+        return None
+
+
+class LearningConfig(_Strict):
+    ensemble_size: int = Field(5, ge=1, le=32)
+    batch_size: int = Field(256, ge=1, le=65536)
+    lr: float = Field(3e-4, gt=0, lt=1)
+    augmentation_factor: int = Field(10, ge=1, le=100)
+    gradient_steps: int = Field(1, ge=0, le=100, description="per timestep")
+    demos: int = Field(375, ge=1, description="offline state-action pairs")
+    critic_transitions: int = Field(1000, ge=0, description="BC rollouts for the critics")
+    pretrain_steps: int = Field(300, ge=0)
+    critic_pretrain_steps: int | None = Field(
+        None, ge=0, description="critics' offline steps; None: pretrain_steps. The seed "
+        "trains them 3000 steps; the goal critic needs ~600 at batch 64 (docs/notes/learning.md)")
+    gamma_safe: float = Field(0.5, ge=0, le=1)
+    gamma_goal: float = Field(0.999, ge=0, le=1)
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    compile_act: bool = Field(
+        False, description="run the fleet loop's forward pass through torch.compile: "
+        "1.65x faster at 100 arms on 2 CPU cores, ~20 s to compile, needs a C compiler "
+        "(falls back to eager with a warning); not worth it for a few arms")
+
+    @property
+    def critic_steps(self) -> int:
+        """The critics' offline gradient steps (``critic_pretrain_steps`` if set)."""
+        return self.pretrain_steps if self.critic_pretrain_steps is None else (
+            self.critic_pretrain_steps)
+
+
+class TrialConfig(_Strict):
+    steps: int = Field(250, ge=1, le=1_000_000)
+    seed: int = 0
+    out: str = "runs"
+
+
+class FleetConfig(_Strict):
+    name: Name = "twin"
+    trial: TrialConfig = TrialConfig()
+    humans: HumansConfig = HumansConfig()
+    algorithm: AlgorithmConfig = AlgorithmConfig()
+    learning: LearningConfig = LearningConfig()
+    hosts: list[HostConfig] = Field(default_factory=lambda: [TwinHost(name="cell0"),
+                                                             TwinHost(name="cell1")])
+
+    @model_validator(mode="after")
+    def _unique_hosts(self) -> FleetConfig:
+        names = [h.name for h in self.hosts]
+        if len(set(names)) != len(names):
+            raise ValueError("host names must be unique")
+        if not self.hosts:
+            raise ValueError("a fleet needs at least one host")
+        return self
+
+    @property
+    def robot_names(self) -> list[str]:
+        return [f"{h.name}/{a.name}" for h in self.hosts for a in h.arms]
+
+
+def _where(loc: tuple[int | str, ...]) -> tuple[list[int | str], str | None]:
+    """The error's location without the union's tag (``hosts.0.yumi.camera`` ->
+    ``hosts[0].camera``), and that tag (the host's backend) if there was one."""
+    parts: list[int | str] = []
+    tag = None
+    for k, p in enumerate(loc):
+        if (p in HOST_MODELS and k >= 2 and isinstance(loc[k - 1], int)
+                and loc[k - 2] == "hosts"):
+            tag = str(p)
+            continue
+        parts.append(p)
+    return parts, tag
+
+
+def _one_line(err: ValidationError, source: str, prefix: tuple[str, ...] = ()) -> str:
+    """The first error as ``SOURCE: FIELD.PATH: what is wrong; the fix (+N more)``."""
+    first = err.errors()[0]
+    parts, tag = _where(prefix + tuple(first["loc"]))
+    msg = first["msg"].removeprefix("Value error, ")
+    problem = first.get("ctx", {}).get("error")
+    if isinstance(problem, FieldProblem):
+        parts.append(problem.field)
+    got = first.get("input")
+    if first["type"] == "extra_forbidden":
+        key = str(parts[-1])
+        other = [b for b, m in HOST_MODELS.items() if b != tag and key in m.model_fields]
+        if tag is not None and other and len(parts) >= 2 and isinstance(parts[-2], int):
+            msg = f"{key} is a {other[0]}-only field, not one of a {tag} host"
+            fix = f"remove it, or set backend = \"{other[0]}\""
+        else:
+            msg = "unknown key"
+            fix = "remove it or check its spelling (unknown keys are errors)"
+    elif first["type"] == "missing":
+        fix = f"add it (a {tag} host needs it)" if tag is not None else "add it"
+    elif first["type"] == "unknown_backend":
+        parts.append("backend")
+        got = got.get("backend") if isinstance(got, dict) else got
+        fix = f"got {got!r}; use {' or '.join(repr(b) for b in HOST_MODELS)}"
+    elif isinstance(problem, FieldProblem):
+        fix = ""  # its message says what to do
+    else:
+        fix = f"got {got!r}" if not isinstance(got, dict | list) else "see README, section Config"
+    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in parts)
+    loc = loc.replace(".[", "[") or "(top level)"
+    more = len(err.errors()) - 1
+    tail = f" (+{more} more)" if more else ""
+    return f"{source}: {loc}: {msg}{'; ' + fix if fix else ''}{tail}"
+
+
+def parse_config(data: dict[str, Any], source: str = "config", *,
+                 check_files: bool = True, prefix: tuple[str, ...] = ()) -> FleetConfig:
+    """Validate a dict into a FleetConfig, or raise ConfigError with one line.
+
+    ``prefix``: where the dict sits in its file (``("fleet",)`` for a protocol's fleet),
+    so the error names the field as the file spells it.
+    """
+    try:
+        return FleetConfig.model_validate(data, context=validation_context(check_files))
+    except ValidationError as err:
+        raise ConfigError(_one_line(err, source, prefix)) from None
+
+
+def read_toml(path: str | Path, what: str = "config") -> dict[str, Any]:
+    """A TOML file as a dict, or ConfigError naming the file and what is wrong with it."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the {what} file ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: the {what} file is not UTF-8 text") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+
+
+PROTOCOL_KEYS = ("algorithms", "trials")
+
+
+def file_kind(data: dict[str, Any]) -> Literal["fleet", "protocol"]:
+    """A protocol has top-level ``algorithms``/``trials`` or a ``[fleet]`` table; anything
+    else is read as a fleet config (and validated as one)."""
+    if isinstance(data.get("fleet"), dict) or any(k in data for k in PROTOCOL_KEYS):
+        return "protocol"
+    return "fleet"
+
+
+def require_protocol(data: dict[str, Any], path: str | Path) -> None:
+    """Name a fleet config given where a protocol is expected, in one line."""
+    if file_kind(data) == "fleet":
+        raise ConfigError(
+            f"{path} is a fleet config, not a protocol: run it with `testbed trial --config "
+            f"{path}`, or give a protocol file (top-level algorithms and trials, its fleet "
+            "in a [fleet] table)")
+
+
+def load_fleet(path: str | Path | None, *, check_files: bool = True) -> FleetConfig:
+    """The fleet of a fleet config or of a protocol file (its ``[fleet]`` table).
+
+    Every verb that takes a fleet reads it here, so ``testbed check --config
+    protocols/physical.toml`` checks the protocol's own hosts. ``None`` gives the
+    built-in twin fleet.
+    """
+    if path is None:
+        return default_twin_config()
+    data = read_toml(path)
+    if file_kind(data) == "protocol":
+        fleet = data.get("fleet", {})
+        if not isinstance(fleet, dict):
+            raise ConfigError(f"{path}: fleet: a protocol's fleet must be a [fleet] table")
+        return parse_config(fleet, str(path), check_files=check_files, prefix=("fleet",))
+    return parse_config(data, str(path), check_files=check_files)
+
+
+def load_config(path: str | Path | None) -> FleetConfig:
+    """Read and validate a fleet config (or a protocol's fleet): ``load_fleet``."""
+    return load_fleet(path)
+
+
+TWIN_U_HAT = 0.17
+"""The twin's uncertainty threshold: the 75th percentile of its ensemble's uncertainty
+in C.U.R. runs (the seed's 0.05 made 55% of the twin's arm-steps eligible)."""
+
+
+def default_twin_config() -> FleetConfig:
+    """2 twin hosts x 2 arms, 2 scripted humans, local transport, 250 steps, C.U.R.
+
+    Pretraining is sized for README command 1's 10-minute target (setup, pretraining
+    and the 250-step trial at the paper's batch 256, on a 2-core machine): 60 policy +
+    60 critic steps (~2 min; the trial's training steps are the rest). 120 steps
+    evaluated no better within the noise of ``testbed evaluate`` (docs/notes/fleet.md,
+    issue 13); the paper-scale pretraining lives in ``protocols/*.toml``. u_hat is the
+    twin's 0.17: the 75th percentile of the uncertainty in C.U.R. runs, measured before
+    quantile thresholds existed (the protocols now give ``"q0.75"``).
+    """
+    return FleetConfig(algorithm=AlgorithmConfig(u_hat=TWIN_U_HAT),
+                       learning=LearningConfig(pretrain_steps=60, critic_transitions=400))

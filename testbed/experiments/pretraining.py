@@ -1,0 +1,240 @@
+"""Offline data and pretraining (seed 8.3.2, 8.3.3): what a trial starts from.
+
+``collect_demos`` has the humans (the scripted expert in the twin, the console on
+hardware) drive every arm and keeps the state-action pairs and full transitions;
+``rollout_policy`` runs the pretrained BC policy (with a little noise, as the seed
+suggests, to meet violations) for the safety critic's data. ``pretrain`` chains them:
+demos -> policy steps -> BC rollouts -> critic steps, and ``cached_pretrain`` keeps
+the result under a key of everything that shaped it, so later trials (every
+algorithm of a protocol) start from the same theta_0 without paying for it again.
+
+Which critics are pretrained is part of that key (issue 13): a protocol pretrains the
+critics any of its algorithms reads, once; a lone trial its own algorithm's; ``testbed
+pretrain`` both (it does not know the algorithm). With no critic to pretrain, the BC
+rollouts (the critics' data) are not collected either.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from testbed.core.config import ConfigError, FleetConfig, LearningConfig
+from testbed.core.humans import Humans
+from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
+from testbed.fleet.loop import HostsLike
+from testbed.records.steps import atomic_write_bytes
+
+if TYPE_CHECKING:  # the learning package imports torch: only when data is really built
+    from testbed.learning.api import Transitions
+
+FIELDS = ("images", "actions", "next_images", "violation", "success")
+
+CRITICS = ("safety", "goal")
+"""The learner's critics (``testbed.learning.learner.CRITICS``, without importing torch)."""
+
+
+def critic_set(critics: Iterable[str] | None) -> tuple[str, ...]:
+    """``critics`` checked and in ``CRITICS`` order; None: both."""
+    if critics is None:
+        return CRITICS
+    if isinstance(critics, str):
+        raise TypeError(f"critics: expected a collection of names, got the string {critics!r}")
+    given = set(critics)
+    unknown = sorted(given - set(CRITICS))
+    if unknown:
+        raise ValueError(f"critics: unknown critic(s) {', '.join(map(repr, unknown))}; "
+                         f"use {', '.join(CRITICS)}")
+    return tuple(c for c in CRITICS if c in given)
+
+Progress = Callable[[str, int, int], None]
+
+
+def _transitions() -> type[Transitions]:
+    from testbed.learning.api import Transitions
+
+    return Transitions
+
+
+def save_transitions(t: Transitions, path: Path) -> None:
+    """Offline data as one compressed npz, written atomically."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: getattr(t, k) for k in FIELDS})
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_transitions(path: Path) -> Transitions:
+    with np.load(path) as z:
+        missing = [k for k in FIELDS if k not in z.files]
+        if missing:
+            raise ConfigError(f"{path}: not a transitions file (missing {', '.join(missing)})")
+        return _transitions().build(*(z[k] for k in FIELDS))
+
+
+def concat(*parts: Transitions) -> Transitions:
+    return _transitions().build(
+        *(np.concatenate([getattr(p, k) for p in parts]) for k in FIELDS)
+    )
+
+
+def _drive(
+    hosts: HostsLike,
+    count: int,
+    choose: Callable[[list[str], dict[str, ArmObservation], int], dict[str, int]],
+    humans: Humans,
+    t_R: int,
+    progress: Progress | None,
+    label: str,
+) -> Transitions:
+    """Push every healthy arm with ``choose`` until ``count`` transitions are kept.
+
+    Violating arms get a hard reset from the humans (t_R steps, as in a trial).
+    """
+    imgs, acts, nxt, vio, suc = [], [], [], [], []
+    reset_served: dict[str, int] = {}
+    prev: dict[str, tuple[np.ndarray, int]] = {}
+    pending_outcome: dict[str, tuple[bool, bool]] = {}
+    t = 0
+    while len(acts) < count:
+        obs = {r: o for r, o in hosts.observe().items() if isinstance(o, ArmObservation)}
+        if not obs:
+            raise RuntimeError("no arm answered: check the hosts (testbed check)")
+        for r, (img, a) in prev.items():
+            if r in obs and len(acts) < count:
+                v, s = pending_outcome[r]
+                imgs.append(img)
+                acts.append(a)
+                nxt.append(obs[r].image)
+                vio.append(v)
+                suc.append(s)
+        prev, pending_outcome = {}, {}
+        ready = [r for r, o in obs.items() if not o.violating]
+        requests = [
+            HumanRequest(r, i % 1_000_000, InterventionKind.RESET, o, reset_served.get(r, 0), t_R)
+            for i, (r, o) in enumerate(obs.items())
+            if o.violating
+        ]
+        answers = humans.act(requests, t) if requests else {}
+        resets = [r for r, a in answers.items() if a.reset_done]
+        for req in requests:
+            reset_served[req.robot] = 0 if req.robot in resets else req.served + 1
+        pushes = choose(ready, obs, t)
+        results = hosts.execute(pushes, resets)
+        for r, a in pushes.items():
+            res = results.get(r)
+            if res is not None and hasattr(res, "success"):
+                prev[r] = (obs[r].image, a)
+                pending_outcome[r] = (bool(res.violation), bool(res.success))  # type: ignore[union-attr]
+        t += 1
+        if progress is not None:
+            progress(label, min(len(acts), count), count)
+    return _transitions().build(
+        np.stack(imgs), np.array(acts, np.int64), np.stack(nxt), np.array(vio), np.array(suc)
+    )
+
+
+def collect_demos(
+    hosts: HostsLike, humans: Humans, count: int, t_R: int, progress: Progress | None = None
+) -> Transitions:
+    """``count`` human-driven pushes (every arm teleoperated)."""
+
+    def choose(ready: list[str], obs: dict[str, ArmObservation], t: int) -> dict[str, int]:
+        reqs = [
+            HumanRequest(r, i, InterventionKind.TELEOP, obs[r], 0, 1) for i, r in enumerate(ready)
+        ]
+        answers = humans.act(reqs, t) if reqs else {}
+        return {r: int(a.action) for r, a in answers.items() if a.action is not None}
+
+    return _drive(hosts, count, choose, humans, t_R, progress, "collect")
+
+
+def rollout_policy(
+    hosts: HostsLike,
+    humans: Humans,
+    learner: Any,
+    count: int,
+    t_R: int,
+    seed: int,
+    epsilon: float = 0.2,
+    progress: Progress | None = None,
+) -> Transitions:
+    """``count`` pushes of the current policy, with epsilon-random actions."""
+    rng = np.random.default_rng(seed)
+
+    def choose(ready: list[str], obs: dict[str, ArmObservation], t: int) -> dict[str, int]:
+        if not ready:
+            return {}
+        acts = learner.act(np.stack([obs[r].image for r in ready])).actions
+        noisy = rng.random(len(ready)) < epsilon
+        rand = rng.integers(0, 4, len(ready))
+        return {r: int(rand[i] if noisy[i] else acts[i]) for i, r in enumerate(ready)}
+
+    return _drive(hosts, count, choose, humans, t_R, progress, "rollout")
+
+
+_HOW_TO_REACH = frozenset({"transport", "address", "port", "user", "key_file", "known_hosts",
+                           "python", "workdir", "deadline_s", "heartbeat_s",
+                           "connect_timeout_s"})
+"""Host fields that say how a host is reached, not what it is: left out of the key, so a
+rehearsal's fresh ports or a lab's new address do not throw theta_0 away."""
+
+
+def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = None) -> str:
+    """What shaped theta_0: the learning config, the fleet's robots, the seed, and the
+    critics pretrained (None: both). Both critics keep the key of before the critics
+    were a choice, so caches made then stay valid (they pretrained both)."""
+    hosts = [{k: v for k, v in h.model_dump(mode="json").items() if k not in _HOW_TO_REACH}
+             for h in cfg.hosts]
+    which = critic_set(critics)
+    fields: dict[str, Any] = {
+        # compile_act changes how act runs, not what theta_0 is
+        "learning": cfg.learning.model_dump(mode="json", exclude={"compile_act"}),
+        "hosts": hosts,
+        "t_R": cfg.algorithm.t_R,
+        "seed": seed,
+        "v": 2,
+    }
+    if which != CRITICS:
+        fields["critics"] = list(which)
+    blob = json.dumps(fields, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def pretrain(
+    learner: Any,
+    lc: LearningConfig,
+    demos: Transitions,
+    hosts: HostsLike,
+    humans: Humans,
+    t_R: int,
+    seed: int,
+    progress: Progress | None = None,
+    critics: Iterable[str] | None = None,
+) -> Transitions:
+    """Policy on the demos; then ``critics`` (None: both) on the expert's and the BC
+    rollouts' pushes. Returns the transitions added to the learner.
+
+    The safety critic needs violations, which the expert almost never makes: the
+    rollouts of the pretrained (noisy) BC policy supply them (seed 8.3.2). With no
+    critic to pretrain no rollout is made and only the demos' pushes are added.
+    """
+    which = critic_set(critics)
+    def phase(name: str) -> Progress | None:
+        if progress is None:
+            return None
+        return lambda _p, done, total: progress(f"pretrain {name}", done, total)
+
+    learner.pretrain(demos.images, demos.actions, steps=lc.pretrain_steps,
+                     progress=phase("policy"))
+    rollouts = rollout_policy(hosts, humans, learner, lc.critic_transitions, t_R, seed,
+                              progress=progress) if which and lc.critic_transitions > 0 else None
+    data = demos if rollouts is None else concat(demos, rollouts)
+    learner.pretrain(transitions=data, steps=lc.critic_steps, progress=phase("critics"),
+                     critics=which)
+    return data

@@ -1,0 +1,381 @@
+"""Protocols: trials x algorithms x steps, run end to end, then reported.
+
+A protocol file (``protocols/*.toml``) names the fleet (an inline ``[fleet]`` table,
+validated like any config), the algorithms, the number of trials, their seeds and
+steps. Runs go to ``<out>/<algorithm>-t<k>``; a run that already has its summary is
+skipped and one without it is resumed, so a protocol interrupted on day one goes on
+on day two with ``testbed protocol FILE`` again.
+
+For the lab (``protocols/physical.toml``): ``prompt_when = "before_each_run"`` asks the
+operator to put the cubes back before EVERY run (a caller such as ``testbed rehearse``
+passes ``before_run`` instead of a person), and ``order = "counterbalanced"`` runs the
+algorithms in a different, balanced order in each trial (a seeded Williams Latin
+square), so no algorithm always meets the freshest cubes or the most tired operator.
+Each run's run.json records its trial, its position and the trial's order. A run the
+operator stopped with Esc stays ``stopped`` (no summary, left out of the report); the
+protocol stops there and goes on from it when run again.
+"""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from testbed.core.config import (
+    ConfigError,
+    FleetConfig,
+    _one_line,
+    require_protocol,
+    validation_context,
+)
+from testbed.experiments.report import Report, write_report
+from testbed.fleet.priorities import ALGORITHM_NAMES, ALGORITHMS
+from testbed.records.run_dir import RunDir, evaluated, evaluation_label
+
+if TYPE_CHECKING:
+    from testbed.core.config import HostConfig
+    from testbed.core.humans import Humans
+    from testbed.experiments.trial import TrialOptions
+    from testbed.fleet.loop import StepOutcome
+
+
+class Protocol(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    trials: int = Field(3, ge=1, le=100)
+    algorithms: list[str] = Field(default_factory=lambda: ["bc", "random", "fleet-ed", "cur"])
+    steps: int = Field(250, ge=1)
+    seeds: list[int] | None = None
+    out: str = "runs/protocol"
+    humans: Literal["scripted", "gui", "web"] = "scripted"
+    prompt_when: Literal["never", "between_trials", "before_each_run"] = "never"
+    """When the operator is asked to put the cubes back (``prompt``): never, before
+    each trial but the first, or before every run (algorithm x trial)."""
+    prompt: str = "Put every cube back near the centre of its workspace, then press Enter."
+    order: Literal["fixed", "counterbalanced"] = "fixed"
+    """``fixed``: every trial runs ``algorithms`` in the given order; ``counterbalanced``:
+    each trial a row of a Williams Latin square seeded from ``seeds`` (see run_order)."""
+    evaluate_steps: int = Field(200, ge=0)
+    """The seed's evaluation (8.3.4, Table 2): after each run, its final policy alone for
+    this many steps, humans for hard resets only, as run ``eval-<algorithm>-t<k>``
+    (report row ``eval:<algorithm>``, the report's second table). 0: none."""
+    evaluate_expert: bool = True
+    """With ``evaluate_steps``: also ``eval-expert-t<k>``, every arm driven by the twin's
+    scripted expert (the seed's expert row; twin hosts only)."""
+    fleet: FleetConfig = FleetConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy_prompt(cls, data: Any) -> Any:
+        """``prompt_between_trials = true`` (older protocol files) still works."""
+        if isinstance(data, dict) and "prompt_between_trials" in data:
+            data = dict(data)
+            legacy = data.pop("prompt_between_trials")
+            if not isinstance(legacy, bool):
+                raise ValueError("prompt_between_trials must be true or false; "
+                                 "prefer prompt_when")
+            if legacy and "prompt_when" not in data:
+                data["prompt_when"] = "between_trials"
+        return data
+
+    @model_validator(mode="after")
+    def _check(self) -> Protocol:
+        bad = [a for a in self.algorithms if a not in ALGORITHM_NAMES]
+        if bad:
+            raise ValueError(f"unknown algorithm {bad[0]!r}; use {', '.join(ALGORITHM_NAMES)}")
+        if self.seeds is not None and len(self.seeds) != self.trials:
+            raise ValueError("seeds must have one seed per trial")
+        match = self.fleet.algorithm.budget_match
+        if (match is not None and "random" in self.algorithms
+                and (match not in self.algorithms or match == "random")):
+            raise ValueError(
+                f"fleet.algorithm.random_budget = 'match:{match}': {match!r} must be "
+                "another of the protocol's algorithms (its run sets Random's budget)")
+        return self
+
+    def seed(self, k: int) -> int:
+        return self.seeds[k] if self.seeds is not None else k
+
+    def run_order(self, k: int) -> list[str]:
+        """The algorithms of trial ``k`` in the order they run.
+
+        Counterbalanced: trial k takes row k of a Williams Latin square over the
+        algorithms (rows shuffled and algorithms relabelled by an RNG seeded from the
+        protocol's trial seeds), so over each block of rows every algorithm runs once
+        in every position and, for an even count, follows every other one once; a
+        rerun of the protocol gets the same orders.
+        """
+        if self.order == "fixed" or len(self.algorithms) < 2:
+            return self._matched_first(list(self.algorithms))
+        import numpy as np
+
+        n = len(self.algorithms)
+        rows = williams_square(n)
+        seeds = [self.seed(j) & 0xFFFFFFFF for j in range(self.trials)]
+        rng = np.random.default_rng(np.random.SeedSequence([0xC0B1A5, n, *seeds]))
+        row_order = rng.permutation(len(rows))
+        label = rng.permutation(n)
+        row = rows[int(row_order[k % len(rows)])]
+        return self._matched_first([self.algorithms[int(label[j])] for j in row])
+
+    def _matched_first(self, order: list[str]) -> list[str]:
+        """With ``random_budget = "match:<a>"``: Random moved right after ``a`` when it
+        would run first (its budget is read from a's run of the same trial)."""
+        match = self.fleet.algorithm.budget_match
+        if match is None or "random" not in order or match not in order:
+            return order
+        if order.index("random") > order.index(match):
+            return order
+        order.remove("random")
+        order.insert(order.index(match) + 1, "random")
+        return order
+
+
+def pretrain_critics(algorithms: list[str]) -> list[str]:
+    """The critics theta_0 is pretrained with: every one that any of ``algorithms``
+    reads (one theta_0 for the whole protocol, no critic pretrained for nobody)."""
+    read = set().union(*(ALGORITHMS[a].critics for a in algorithms))
+    return sorted(read)
+
+
+def williams_square(n: int) -> list[list[int]]:
+    """A Williams design: rows of a Latin square in which, for even ``n``, each symbol
+    follows each other one exactly once; for odd ``n`` the square and its mirror (2n
+    rows) together balance it."""
+    first = [0]
+    lo, hi = 1, n - 1
+    for j in range(1, n):
+        if j % 2:
+            first.append(lo)
+            lo += 1
+        else:
+            first.append(hi)
+            hi -= 1
+    rows = [[(v + i) % n for v in first] for i in range(n)]
+    if n % 2:
+        rows += [list(reversed(r)) for r in rows]
+    return rows
+
+
+def load_protocol(path: Path, *, check_files: bool = True) -> Protocol:
+    """``check_files=False``: expand but do not require the hosts' key_file/known_hosts
+    (a caller that rewrites the hosts, e.g. a rehearsal)."""
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the protocol file ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    require_protocol(data, path)
+    try:
+        return Protocol.model_validate(data, context=validation_context(check_files))
+    except ValidationError as err:
+        raise ConfigError(_one_line(err, str(path))) from None
+
+
+def run_protocol(
+    proto: Protocol,
+    out: str | None = None,
+    ask: bool = True,
+    *,
+    before_run: Callable[[str], None] | None = None,
+    humans: Callable[[str], Humans] | None = None,
+    wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
+    on_step: Callable[[StepOutcome], None] | None = None,
+) -> Report:
+    """Run every (trial, algorithm) of ``proto`` not yet complete, then the report.
+
+    ``proto.fleet`` is the fleet driven (a caller may rewrite it with ``model_copy``;
+    a resumed run drives it too). ``ask``: show the console prompt (``prompt_when``).
+    ``before_run(name)``: called before every run that starts or resumes, in place of
+    the console prompt (the rehearsal's lab hand puts every cube back). ``humans(name)``:
+    the run's humans (default from ``proto.humans``). ``wrap_hosts(hosts, run)``: wraps
+    each run's ``HostFleet`` (it must pass start/rest/close/reseed through).
+    ``on_step``: called after each step, beside the progress bar.
+
+    A run the operator stops (Esc) ends the protocol: the report then covers the
+    finished runs and says which one is stopped; ``testbed protocol FILE`` again
+    resumes it.
+    """
+    from testbed.core.config import ConfigError
+    from testbed.experiments.trial import STOPPED
+
+    folder = Path(out or proto.out)
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg = proto.fleet
+    total = proto.trials * len(proto.algorithms)
+    index = 0
+    for k in range(proto.trials):
+        order = proto.run_order(k)
+        first_in_trial = True
+        for algorithm in order:
+            index += 1
+            name = f"{algorithm}-t{k}"
+            run = RunDir(folder / name)
+            if run.summary.exists():
+                continue
+            resume = run.path if run.state.exists() else None
+            what = "resume" if resume is not None else "start"
+            if before_run is not None:
+                before_run(name)
+            elif ask and (proto.prompt_when == "before_each_run"
+                          or (proto.prompt_when == "between_trials" and k > 0
+                              and first_in_trial)):
+                _prompt(f"run {index}/{total} ({what} {name}): {proto.prompt}")
+            first_in_trial = False
+            summary = run_protocol_run(proto, folder, k, algorithm,
+                                       humans=humans(name) if humans is not None else None,
+                                       wrap_hosts=wrap_hosts, on_step=on_step)
+            if summary.get("status") == STOPPED:
+                note = (f"protocol stopped: {name} was stopped at step "
+                        f"{summary.get('stopped_at')}; run the protocol again to resume it")
+                sys.stderr.write(note + "\n")
+                try:
+                    return write_report([folder], folder)  # it names the stopped run
+                except ConfigError:  # nothing finished yet
+                    return Report(folder, note + "\n", [], [note])
+    for k in range(proto.trials):  # the seed's evaluation of every final policy
+        for algorithm in proto.run_order(k):
+            _evaluate_run(proto, folder, algorithm, k, humans, wrap_hosts)
+        if proto.evaluate_expert and all(h.backend == "twin" for h in cfg.hosts):
+            _evaluate_run(proto, folder, "expert", k, humans, wrap_hosts)
+    return write_report([folder], folder)
+
+
+def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
+                     humans: Humans | None = None,
+                     wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
+                     on_step: Callable[[StepOutcome], None] | None = None,
+                     meta: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Run ``<algorithm>-t<k>`` of ``proto`` in ``folder`` (``run_named``: skipped when
+    finished, resumed when checkpointed), Random's budget matched from its run of the
+    same trial. ``meta``: extra run.json keys. The serial loop and a Ray task both
+    call this."""
+    from testbed.experiments.trial import TrialOptions
+
+    cfg = proto.fleet
+    order = proto.run_order(k)
+    opts = TrialOptions(algorithm=algorithm, steps=proto.steps, seed=proto.seed(k),
+                        out=str(folder), humans=proto.humans, name=f"{algorithm}-t{k}",
+                        pretrain_critics=pretrain_critics(proto.algorithms))
+    run_meta: dict[str, Any] = {
+        **(meta or {}),
+        "protocol": {"name": proto.name, "trial": k, "position": order.index(algorithm),
+                     "order": order, "ordering": proto.order}}
+    run_cfg = cfg
+    if (algorithm == "random" and cfg.algorithm.budget_match is not None
+            and not RunDir(folder / opts.name).summary.exists()):
+        matched = f"{cfg.algorithm.budget_match}-t{k}"
+        budget = matched_budget(folder / matched, cfg.humans.count)
+        run_meta["budget_matched"] = {"run": matched, "random_budget": budget}
+        run_cfg = cfg.model_copy(update={"algorithm": cfg.algorithm.model_copy(
+            update={"random_budget": budget})})
+    return run_named(run_cfg, opts, folder, meta=run_meta, humans=humans,
+                     wrap_hosts=wrap_hosts, on_step=on_step, host_configs=cfg.hosts)
+
+
+def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,
+              meta: dict[str, Any], humans: Humans | None = None,
+              wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
+              on_step: Callable[[StepOutcome], None] | None = None,
+              host_configs: list[HostConfig] | None = None) -> dict[str, Any]:
+    """The run ``folder/opts.name`` of a protocol or a sweep, under a progress bar:
+    skipped when finished (``{"status": "complete", "skipped": True}``), resumed when it
+    has a checkpoint (driving ``host_configs``, default the run's own hosts), else
+    started afresh (a folder that died before its first checkpoint is discarded).
+    Returns the trial's summary."""
+    from testbed.experiments.progress import TrialProgress
+    from testbed.experiments.trial import COMPLETE, run_trial
+
+    run = RunDir(folder / (opts.name or opts.algorithm))
+    if run.summary.exists():
+        return {"status": COMPLETE, "skipped": True}
+    resume = run.path if run.state.exists() else None
+    if run.path.exists() and resume is None:
+        _discard(run.path)
+    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names),
+                       label=run.path.name) as bar:
+
+        def tick(outcome: StepOutcome) -> None:
+            bar.on_step(outcome)
+            if on_step is not None:
+                on_step(outcome)
+
+        _, summary = run_trial(cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
+                               humans=humans, meta=meta,
+                               host_configs=host_configs if resume is not None else None,
+                               wrap_hosts=wrap_hosts)
+    return summary
+
+
+def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
+                  humans: Callable[[str], Humans] | None,
+                  wrap_hosts: Callable[[Any, RunDir], Any] | None) -> None:
+    """``eval-<algorithm>-t<k>``: the final policy of ``<algorithm>-t<k>`` alone for
+    ``proto.evaluate_steps`` steps, C-prioritised hard resets only (``testbed evaluate``);
+    skipped when done or disabled, redone when it died before finishing."""
+    from testbed.experiments.progress import TrialProgress
+    from testbed.experiments.trial import TrialOptions, run_trial
+
+    expert = algorithm == "expert"  # the twin's scripted expert: no run, no policy file
+    source = RunDir(folder / f"{algorithm}-t{k}")
+    name = f"eval-{algorithm}-t{k}"
+    run = RunDir(folder / name)
+    if (proto.evaluate_steps == 0 or run.summary.exists()
+            or not (expert or source.learner.exists())):
+        return
+    if run.path.exists():
+        _discard(run.path)
+    evaluates = ({"policy": None, "run": None, "algorithm": "expert"} if expert
+                 else evaluated(source.learner))
+    opts = TrialOptions(algorithm="bc", steps=proto.evaluate_steps, seed=proto.seed(k),
+                        out=str(folder), humans=proto.humans, policy=evaluates["policy"],
+                        evaluate=True, name=name, label=evaluation_label(algorithm),
+                        expert=expert)
+    meta = {"evaluates": evaluates,
+            "protocol": {"name": proto.name, "trial": k, "evaluation": True}}
+    cfg = proto.fleet
+    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names), label=name) as bar:
+        run_trial(cfg, opts, on_step=bar.on_step, progress=bar.on_phase,
+                  humans=humans(name) if humans is not None else None, meta=meta,
+                  wrap_hosts=wrap_hosts)
+
+
+def matched_budget(run: Path, num_humans: int) -> float:
+    """The fraction of humans busy in a finished run: human actions (teleop and reset
+    arm-steps) / (humans x steps), read from its steps.jsonl. Random given it as its
+    budget spends the same human effort (``RandomPriority`` keeps its effort on budget)."""
+    from testbed.core.config import ConfigError
+    from testbed.records.steps import read_steps, summarize
+
+    rd = RunDir(run)
+    if not rd.summary.exists():
+        raise ConfigError(f"random_budget 'match:': {run} has not finished; the matched "
+                          "algorithm runs before Random in each trial")
+    summary = summarize(read_steps(rd.steps), algorithm="", num_humans=num_humans)
+    effort = num_humans * summary["steps"]
+    return min(1.0, summary["human_actions"] / effort) if effort else 0.0
+
+
+def _discard(path: Path) -> None:
+    """A run folder that died before its first checkpoint holds nothing worth keeping."""
+    import shutil
+
+    shutil.rmtree(path)
+
+
+def _prompt(text: str) -> None:
+    if not sys.stdin.isatty():
+        sys.stderr.write(f"{text} (no terminal: going on)\n")
+        return
+    input(f"{text} ")
+
+
+__all__: list[Any] = ["Protocol", "load_protocol", "matched_budget", "pretrain_critics",
+                     "run_named", "run_protocol", "williams_square"]

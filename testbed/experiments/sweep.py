@@ -1,0 +1,200 @@
+"""Sweeps: a grid over config fields x seeds, run to the end, reported as the seed's
+figures 6-9 (appendix 8.4).
+
+A sweep file (``protocols/sweeps/*.toml``) is a protocol-like file: a ``[fleet]``
+table (the base fleet), the ``algorithm``, ``steps`` and ``seeds``, and a ``[grid]``
+table whose keys are config fields as dotted paths into the fleet (``humans.count``,
+``algorithm.t_T``, ``algorithm.t_R``, ``learning.batch_size`` ...) or ``algorithm``
+itself (the seed's ablations: ``["cur", "cur-i", "c", "u", "cu"]``), each with its
+list of values::
+
+    name = "humans"
+    algorithm = "cur"
+    steps = 250
+    seeds = [0, 1]
+    [grid]
+    "humans.count" = [1, 2, 3, 4]
+    [fleet]
+    ...
+
+The grid expands to every combination (``Sweep.points()``, in the file's order) x
+every seed; each is one run ``<out>/<point>-s<seed>`` (``humans.count-2-s0``) whose
+run.json ``sweep`` names its point, so ``testbed report`` groups the runs by point:
+one line per value in each panel (cumulative successes, hard resets, idle time, human
+actions, ROHE over timesteps), shading one standard deviation over the seeds. Runs
+that finished are skipped and one that died is resumed, as in a protocol. Every value
+is validated up front: a bad field or value exits 2 naming it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from testbed.core.config import (
+    ConfigError,
+    FleetConfig,
+    _one_line,
+    parse_config,
+    read_toml,
+    validation_context,
+)
+from testbed.fleet.priorities import ALGORITHM_NAMES
+
+if TYPE_CHECKING:
+    from testbed.experiments.report import Report
+    from testbed.fleet.loop import StepOutcome
+
+ALGORITHM_KEY = "algorithm"
+"""The grid key that varies the algorithm (an ablation study) instead of a field."""
+
+
+class Sweep(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    algorithm: str = "cur"
+    steps: int = Field(250, ge=1)
+    seeds: list[int] = Field(default_factory=lambda: [0, 1], min_length=1)
+    out: str | None = None
+    """Default ``runs/sweep-<name>``."""
+    humans: Literal["scripted", "gui", "web"] = "scripted"
+    grid: dict[str, list[Any]] = Field(min_length=1)
+    fleet: FleetConfig = FleetConfig()
+
+    @model_validator(mode="after")
+    def _check(self) -> Sweep:
+        for a in [self.algorithm, *self.grid.get(ALGORITHM_KEY, [])]:
+            if a not in ALGORITHM_NAMES:
+                raise ValueError(f"unknown algorithm {a!r}; use {', '.join(ALGORITHM_NAMES)}")
+        for key, values in self.grid.items():
+            if not values:
+                raise ValueError(f"grid.{key}: give at least one value")
+        return self
+
+    @property
+    def folder(self) -> Path:
+        return Path(self.out or f"runs/sweep-{self.name}")
+
+    def points(self) -> list[SweepPoint]:
+        """Every combination of the grid's values, the first key varying slowest."""
+        keys = list(self.grid)
+        return [SweepPoint(dict(zip(keys, combo, strict=True)))
+                for combo in itertools.product(*(self.grid[k] for k in keys))]
+
+    def runs(self) -> list[SweepRun]:
+        """Every (point, seed): its run name, algorithm and fleet config."""
+        return [SweepRun(f"{p.label}-s{seed}", p, seed, p.algorithm(self.algorithm),
+                         p.apply(self.fleet)) for p in self.points() for seed in self.seeds]
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    values: dict[str, Any]
+
+    @property
+    def label(self) -> str:
+        """``humans.count-2`` (keys joined by ``_``): the report's line and the run's name."""
+        text = "_".join(f"{k}-{v}" for k, v in self.values.items())
+        return re.sub(r"[^A-Za-z0-9_.+-]", "", text)
+
+    def algorithm(self, default: str) -> str:
+        return str(self.values.get(ALGORITHM_KEY, default))
+
+    def apply(self, fleet: FleetConfig) -> FleetConfig:
+        """``fleet`` with this point's fields set, validated as a config file would be."""
+        data = fleet.model_dump(mode="json", exclude_none=True)
+        for key, value in self.values.items():
+            if key == ALGORITHM_KEY:
+                continue
+            *path, last = key.split(".")
+            node = data
+            for part in path:
+                if not isinstance(node.get(part), dict):
+                    raise ConfigError(f"grid.{key}: no such config field (fleet.{key})")
+                node = node[part]
+            if last not in node and last not in _fields_at(path):
+                raise ConfigError(f"grid.{key}: no such config field (fleet.{key})")
+            node[last] = value
+        return parse_config(data, f"grid point {self.label}", check_files=False,
+                            prefix=("fleet",))
+
+
+def _fields_at(path: list[str]) -> set[str]:
+    """The field names of the config section at ``path`` (optional ones unset too)."""
+    model: Any = FleetConfig
+    for part in path:
+        info = model.model_fields.get(part)
+        if info is None or not isinstance(info.annotation, type):
+            return set()
+        model = info.annotation
+    return set(getattr(model, "model_fields", {}))
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    name: str
+    point: SweepPoint
+    seed: int
+    algorithm: str
+    fleet: FleetConfig
+
+
+def load_sweep(path: Path) -> Sweep:
+    """A sweep file, every grid point validated (ConfigError: one line naming the field)."""
+    data = read_toml(path, "sweep")
+    if "grid" not in data:
+        raise ConfigError(f"{path}: grid: a sweep file needs a [grid] table of config "
+                          "fields and their values")
+    try:
+        sweep = Sweep.model_validate(data, context=validation_context(True))
+    except ValidationError as err:
+        raise ConfigError(_one_line(err, str(path))) from None
+    try:
+        sweep.runs()
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None
+    return sweep
+
+
+def pretrain_critics_of(sweep: Sweep) -> list[str]:
+    """theta_0's critics: every one any of the grid's algorithms reads (one per fleet)."""
+    from testbed.experiments.protocol import pretrain_critics
+
+    return pretrain_critics(sorted({r.algorithm for r in sweep.runs()}))
+
+
+def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
+                  meta: dict[str, Any] | None = None,
+                  on_step: Callable[[StepOutcome], None] | None = None) -> dict[str, Any]:
+    """Run ``sweep.runs()[index]`` in ``folder`` (``run_named``: skipped when finished,
+    resumed when checkpointed); ``meta``: extra run.json keys. The serial loop and a Ray
+    task both call this."""
+    from testbed.experiments.protocol import run_named
+    from testbed.experiments.trial import TrialOptions
+
+    run = sweep.runs()[index]
+    opts = TrialOptions(algorithm=run.algorithm, steps=sweep.steps, seed=run.seed,
+                        out=str(folder), humans=sweep.humans, name=run.name,
+                        pretrain_critics=pretrain_critics_of(sweep))
+    run_meta = {**(meta or {}), "sweep": {"name": sweep.name, "point": run.point.label,
+                                          "values": run.point.values, "seed": run.seed}}
+    return run_named(run.fleet, opts, folder, meta=run_meta, on_step=on_step)
+
+
+def run_sweep(sweep: Sweep, out: str | None = None, *,
+              on_step: Callable[[StepOutcome], None] | None = None) -> Report:
+    """Run every (point, seed) not finished yet, then the report (figure: curves.png)."""
+    from testbed.experiments.report import write_report
+
+    folder = Path(out) if out is not None else sweep.folder
+    folder.mkdir(parents=True, exist_ok=True)
+    for index in range(len(sweep.runs())):
+        run_sweep_run(sweep, folder, index, on_step=on_step)
+    return write_report([folder], folder)

@@ -1,0 +1,431 @@
+"""Which arm gets which human this timestep: Algorithm 1 of Fleet-DAgger, vectorised.
+
+Why this module exists: the allocation policy is the part of interactive fleet learning
+that turns "which robots need help most" (the priority keys) into "who helps whom",
+while honouring the two physical facts the priority function cannot see: a human who
+starts teleoperating stays long enough for the data to be useful (t_T), and a hard
+reset takes real time and cannot be abandoned while the cube is still out (t_R). Every
+algorithm of the testbed (BC, Random, Fleet-ED, Fleet-TD, C.U.R. and the ablations)
+shares this one allocator and differs only in its keys, so the comparison between
+algorithms is about priorities, not about bookkeeping.
+
+One step (DESIGN.md section 4)::
+
+    humans' state at t-1 (arm, kind, served)     keys (N, K), violating (N,), available (M,)
+          │                                                 │
+          ▼                                                 │
+    served += 1; teleop on a violating arm ─► reset, served = 0
+          │                                                 │
+    held = teleop & served < t_T                            │
+         | reset  & (served < t_R | arm violating)          │
+          │                                                 ▼
+          ├──► held humans stay (away or not) ─┐  candidates = not held & key >lex 0
+          │                                    │  lexsort by key (desc), seeded random ties
+          ├──► free, away humans ──► no arm    │  (their arms are candidates again)
+          │                                    │
+          └──► free, available humans ──► top-F candidates (F = their number; one whose
+                                arm is among them keeps it; the rest pair up in order)
+                                               ▼
+                      assignment (N,): human index or -1;  kinds / served per arm
+
+``available`` (optional, bool (M,)) says which humans are present this step (the web
+console's away humans, DESIGN.md section 9). An away human is never newly assigned and
+does not keep an arm it is no longer held on; a *held* intervention of an away human
+goes on, because ending it is the console's call (its grace period): the fleet loop
+then frees that human with :meth:`Allocator.release_human`. Without the mask every
+human is available, exactly as before the mask existed (same RNG stream, same records).
+
+``served`` counts the earlier consecutive timesteps a human has spent on the current
+intervention; it starts at 0 on the first timestep. A kind change restarts it: the
+contract's teleop-to-reset conversion, and (our decision) a finished reset whose arm
+is chosen again for teleoperation, so that the new teleop is held its full t_T.
+
+Tie-breaking draws ``rng.random(N)`` once per step (always, so the stream does not
+depend on the keys); among equal keys the larger draw goes first. The state, RNG
+included, round-trips through JSON (``state_dict``) so a crashed trial resumes with
+the same future allocations.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from testbed.core.types import InterventionKind
+
+__all__ = [
+    "KIND_NONE",
+    "KIND_RESET",
+    "KIND_TELEOP",
+    "Allocator",
+    "lex_positive",
+    "rng_from_state",
+    "rng_state_json",
+]
+
+KIND_NONE: Final = 0
+KIND_TELEOP: Final = 1
+KIND_RESET: Final = 2
+_KIND_TO_ENUM: Final[dict[int, InterventionKind | None]] = {
+    KIND_NONE: None,
+    KIND_TELEOP: InterventionKind.TELEOP,
+    KIND_RESET: InterventionKind.RESET,
+}
+_KIND_TO_STR: Final[dict[int, str | None]] = {
+    KIND_NONE: None,
+    KIND_TELEOP: "teleop",
+    KIND_RESET: "reset",
+}
+_STR_TO_KIND: Final[dict[str | None, int]] = {v: k for k, v in _KIND_TO_STR.items()}
+_STATE_VERSION: Final = 1
+
+
+def lex_positive(keys: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.bool_]:
+    """Per row of ``keys`` (N, K): is the row lexicographically greater than zero?
+
+    That is: its first non-zero entry is positive. An all-zero row is not.
+    """
+    nonzero = keys != 0
+    first = np.argmax(nonzero, axis=1)
+    lead = keys[np.arange(keys.shape[0]), first]
+    return lead > 0
+
+
+class Allocator:
+    """Assign humans to arms each timestep (Algorithm 1; DESIGN.md section 4).
+
+    After :meth:`step`, per arm: :attr:`assignment` (human or -1), :attr:`kinds`
+    (``InterventionKind`` or ``None``), :attr:`served` (earlier consecutive timesteps
+    of the current intervention, 0 on its first); :meth:`held_kinds` gives both as
+    tuples for the fleet loop and the console.
+    """
+
+    def __init__(
+        self,
+        num_robots: int,
+        num_humans: int,
+        min_teleop_steps: int,
+        hard_reset_steps: int,
+        seed: int | None = None,
+    ) -> None:
+        for name, value, low in (
+            ("num_robots", num_robots, 1),
+            ("num_humans", num_humans, 0),
+            ("min_teleop_steps", min_teleop_steps, 1),
+            ("hard_reset_steps", hard_reset_steps, 1),
+        ):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise ValueError(f"{name} must be an int, got {value!r}")
+            if value < low:
+                raise ValueError(f"{name} must be >= {low}, got {value}")
+        self.num_robots: Final[int] = int(num_robots)
+        self.num_humans: Final[int] = int(num_humans)
+        self.min_teleop_steps: Final[int] = int(min_teleop_steps)
+        self.hard_reset_steps: Final[int] = int(hard_reset_steps)
+        self._rng = np.random.default_rng(seed)
+        # Per human: the arm of the last step (-1: none), its kind code, its served count.
+        self._human_arm = np.full(self.num_humans, -1, dtype=np.int64)
+        self._human_kind = np.zeros(self.num_humans, dtype=np.int8)
+        self._human_served = np.zeros(self.num_humans, dtype=np.int64)
+        self._steps = 0
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def steps(self) -> int:
+        """How many times :meth:`step` has run."""
+        return self._steps
+
+    @property
+    def assignment(self) -> npt.NDArray[np.int64]:
+        """(N,) human index per arm after the last step, -1 for none (a copy)."""
+        out = np.full(self.num_robots, -1, dtype=np.int64)
+        busy = self._human_arm >= 0
+        out[self._human_arm[busy]] = np.flatnonzero(busy)
+        return out
+
+    @property
+    def kind_codes(self) -> npt.NDArray[np.int8]:
+        """(N,) ``KIND_NONE`` / ``KIND_TELEOP`` / ``KIND_RESET`` per arm (a copy)."""
+        out = np.zeros(self.num_robots, dtype=np.int8)
+        busy = self._human_arm >= 0
+        out[self._human_arm[busy]] = self._human_kind[busy]
+        return out
+
+    @property
+    def kinds(self) -> list[InterventionKind | None]:
+        """Per arm, the kind of its intervention after the last step, or ``None``."""
+        return [_KIND_TO_ENUM[int(c)] for c in self.kind_codes]
+
+    @property
+    def served(self) -> npt.NDArray[np.int64]:
+        """(N,) per arm, earlier consecutive steps of its intervention (0 if none)."""
+        out = np.zeros(self.num_robots, dtype=np.int64)
+        busy = self._human_arm >= 0
+        out[self._human_arm[busy]] = self._human_served[busy]
+        return out
+
+    def held_kinds(self) -> list[tuple[InterventionKind | None, int]]:
+        """Per arm ``(kind, served)`` after the last step; ``(None, 0)`` for no human."""
+        return [(_KIND_TO_ENUM[int(k)], int(s))
+                for k, s in zip(self.kind_codes, self.served, strict=True)]
+
+    def min_steps(self, kind: InterventionKind | str) -> int:
+        """t_T for a teleop, t_R for a hard reset (``HumanRequest.min_steps``)."""
+        kind = InterventionKind(kind)
+        return self.min_teleop_steps if kind is InterventionKind.TELEOP else self.hard_reset_steps
+
+    def held_mask(self, violating: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(N,) arms whose intervention would be held at the next step, given ``violating``.
+
+        Changes nothing; the Random baseline uses it to size its new assignments.
+        """
+        viol = self._check_violating(violating)
+        _, _, held = self._carry_over(viol)
+        mask = np.zeros(self.num_robots, dtype=bool)
+        mask[self._human_arm[held]] = True
+        return mask
+
+    def held_humans(self, violating: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """(M,) humans who would be held at the next step, given ``violating``.
+
+        Changes nothing; the human-side twin of :meth:`held_mask`, so that the Random
+        baseline can count the free humans that are present (``available`` & not held).
+        """
+        viol = self._check_violating(violating)
+        _, _, held = self._carry_over(viol)
+        return held
+
+    # ------------------------------------------------------------------- update
+    def step(self, keys: npt.ArrayLike, violating: npt.ArrayLike,
+             available: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
+        """Allocate for one timestep; return (N,) human index per arm, -1 for none.
+
+        ``keys`` is (N, K) (a 1-D (N,) array is read as K = 1), compared
+        lexicographically, larger first; NaN is refused. ``violating`` is bool (N,).
+        ``available`` is bool (M,) or ``None`` (every human available): a human who is
+        not available gets no new arm and keeps no arm it is not held on, but stays on
+        a held intervention (:meth:`release_human` ends that).
+        """
+        key_arr = self._check_keys(keys)
+        viol = self._check_violating(violating)
+        avail = self._check_available(available)
+        n, m = self.num_robots, self.num_humans
+        # Drawn every step whatever the keys, so the stream (and resume) is key-independent.
+        tie = self._rng.random(n)
+        self._steps += 1
+
+        prev_arm = self._human_arm
+        had_arm = prev_arm >= 0
+        kind, served, held = self._carry_over(viol)
+
+        arm_held = np.zeros(n, dtype=bool)
+        arm_held[prev_arm[held]] = True
+        # Only the free humans who are present take arms; a free away human ends up on
+        # none (new_arm -1 below) and its arm, not held, is a candidate like any other.
+        free = ~held & avail
+        num_free = int(np.count_nonzero(free))
+
+        new_arm = np.where(held, prev_arm, -1)
+        new_kind = np.where(held, kind, KIND_NONE).astype(np.int8)
+        new_served = np.where(held, served, 0)
+
+        if num_free and m:
+            candidates = np.flatnonzero(~arm_held & lex_positive(key_arr))
+            if candidates.size:
+                # np.lexsort's LAST row is the primary key: key column 0, then 1, ...,
+                # then the tie draw; negated for a descending order.
+                sort_rows = np.vstack([tie[candidates], key_arr[candidates, ::-1].T])
+                order = np.lexsort(-sort_rows)
+                chosen = candidates[order[:num_free]]
+
+                chosen_mask = np.zeros(n, dtype=bool)
+                chosen_mask[chosen] = True
+                # A free human whose last arm is chosen again keeps it: no needless switch.
+                keep = free & had_arm & chosen_mask[np.maximum(prev_arm, 0)]
+                keep_arms = prev_arm[keep]
+                kept_kind = np.where(viol[keep_arms], KIND_RESET, KIND_TELEOP).astype(np.int8)
+                same = kept_kind == kind[keep]
+                new_arm[keep] = keep_arms
+                new_kind[keep] = kept_kind
+                new_served[keep] = np.where(same, served[keep], 0)
+
+                taken = np.zeros(n, dtype=bool)
+                taken[keep_arms] = True
+                rest_arms = chosen[~taken[chosen]]  # still in key order
+                rest_humans = np.flatnonzero(free & ~keep)[: rest_arms.size]
+                new_arm[rest_humans] = rest_arms
+                new_kind[rest_humans] = np.where(viol[rest_arms], KIND_RESET, KIND_TELEOP)
+                new_served[rest_humans] = 0
+
+        self._human_arm = new_arm.astype(np.int64)
+        self._human_kind = new_kind
+        self._human_served = new_served.astype(np.int64)
+        return self.assignment
+
+    def release(self, robot: int) -> int | None:
+        """Free the human on arm ``robot`` now (e.g. its host faulted for good).
+
+        Returns the human's index, or ``None`` if the arm had none. The human is free
+        at the next step like any other.
+        """
+        if not 0 <= robot < self.num_robots:
+            raise ValueError(f"robot index {robot} out of range [0, {self.num_robots})")
+        hit = np.flatnonzero(self._human_arm == robot)
+        if hit.size == 0:
+            return None
+        j = int(hit[0])
+        self._free(j)
+        return j
+
+    def release_human(self, human: int) -> int | None:
+        """Free human ``human`` now, whatever it holds (e.g. away past the console's
+        grace period). Returns the arm it was on, or ``None`` if it had none. The arm
+        is a candidate at the next step like any other; the human, once available
+        again, is free like any other.
+        """
+        if (isinstance(human, bool) or not isinstance(human, int | np.integer)
+                or not 0 <= human < self.num_humans):
+            raise ValueError(f"human index {human!r} out of range [0, {self.num_humans})")
+        j = int(human)
+        arm = int(self._human_arm[j])
+        if arm < 0:
+            return None
+        self._free(j)
+        return arm
+
+    def _free(self, j: int) -> None:
+        self._human_arm[j] = -1
+        self._human_kind[j] = KIND_NONE
+        self._human_served[j] = 0
+
+    # ------------------------------------------------------------------ resume
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to continue identically, as JSON-serialisable data."""
+        return {
+            "version": _STATE_VERSION,
+            "num_robots": self.num_robots,
+            "num_humans": self.num_humans,
+            "min_teleop_steps": self.min_teleop_steps,
+            "hard_reset_steps": self.hard_reset_steps,
+            "steps": self._steps,
+            "human_arm": [int(a) for a in self._human_arm],
+            "human_kind": [_KIND_TO_STR[int(k)] for k in self._human_kind],
+            "human_served": [int(s) for s in self._human_served],
+            "rng": rng_state_json(self._rng),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict`'s output; the fleet shape and t_T, t_R must match."""
+        try:
+            if state["version"] != _STATE_VERSION:
+                raise ValueError(f"allocator state version {state['version']!r} is not "
+                                 f"{_STATE_VERSION}")
+            for name in ("num_robots", "num_humans", "min_teleop_steps", "hard_reset_steps"):
+                if state[name] != getattr(self, name):
+                    raise ValueError(f"allocator state has {name}={state[name]!r}, this "
+                                     f"allocator has {getattr(self, name)!r}")
+            m = self.num_humans
+            arm = np.asarray(state["human_arm"], dtype=np.int64).reshape(m)
+            kind = np.asarray([_STR_TO_KIND[k] for k in state["human_kind"]],
+                              dtype=np.int8).reshape(m)
+            served = np.asarray(state["human_served"], dtype=np.int64).reshape(m)
+            steps = int(state["steps"])
+            rng_state = state["rng"]
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"allocator state is malformed ({exc!r})") from None
+        busy = arm >= 0
+        if (np.any(arm >= self.num_robots) or np.any(arm < -1) or np.any(served < 0)
+                or np.any((kind == KIND_NONE) == busy)
+                or np.unique(arm[busy]).size != int(busy.sum())):
+            raise ValueError("allocator state is inconsistent (arms, kinds, served)")
+        try:
+            self._rng = rng_from_state(rng_state)
+        except ValueError as exc:
+            raise ValueError(f"allocator state: {exc}") from None
+        self._human_arm, self._human_kind, self._human_served = arm, kind, served
+        self._steps = steps
+
+    # ---------------------------------------------------------------- internals
+    def _carry_over(
+        self, viol: npt.NDArray[np.bool_]
+    ) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        """Per human: (kind, served, held) at this step, before new assignments."""
+        arm = self._human_arm
+        had = arm >= 0
+        arm_viol = np.zeros(self.num_humans, dtype=bool)
+        arm_viol[had] = viol[arm[had]]
+        served = np.where(had, self._human_served + 1, 0)
+        kind = self._human_kind.copy()
+        convert = had & (kind == KIND_TELEOP) & arm_viol
+        kind[convert] = KIND_RESET
+        served[convert] = 0
+        held = had & (
+            ((kind == KIND_TELEOP) & (served < self.min_teleop_steps))
+            | ((kind == KIND_RESET) & ((served < self.hard_reset_steps) | arm_viol))
+        )
+        return kind, served, held
+
+    def _check_keys(self, keys: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        try:
+            arr = np.asarray(keys, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"keys must be a float array (N, K): {exc}") from None
+        if arr.ndim == 1:
+            arr = arr[:, None]
+        if arr.ndim != 2 or arr.shape[0] != self.num_robots or arr.shape[1] < 1:
+            raise ValueError(f"keys must have shape ({self.num_robots}, K) with K >= 1, "
+                             f"got {np.shape(keys)}")
+        if np.isnan(arr).any():
+            bad = sorted({int(i) for i in np.flatnonzero(np.isnan(arr).any(axis=1))})
+            raise ValueError(f"keys contain NaN for arm(s) {bad}")
+        return arr
+
+    def _check_violating(self, violating: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        return _bool_mask("violating", violating, self.num_robots)
+
+    def _check_available(self, available: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
+        """The (M,) mask of humans present this step; ``None`` means all of them."""
+        if available is None:
+            return np.ones(self.num_humans, dtype=bool)
+        return _bool_mask("available", available, self.num_humans)
+
+
+def _bool_mask(name: str, value: npt.ArrayLike, size: int) -> npt.NDArray[np.bool_]:
+    """``value`` as a bool (size,) array, or a ValueError naming ``name``."""
+    arr = np.asarray(value)
+    if arr.dtype != np.bool_:
+        raise ValueError(f"{name} must be a bool array, got dtype {arr.dtype}")
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
+    return arr
+
+
+def rng_state_json(rng: np.random.Generator) -> dict[str, Any]:
+    """A Generator's bit-generator state as plain JSON data (for ``state_dict``)."""
+    state: dict[str, Any] = _jsonable(rng.bit_generator.state)
+    return state
+
+
+def rng_from_state(state: dict[str, Any]) -> np.random.Generator:
+    """The inverse of :func:`rng_state_json`; a bad state raises ``ValueError``."""
+    rng = np.random.default_rng()
+    try:
+        rng.bit_generator.state = state
+    except (TypeError, ValueError, KeyError) as exc:
+        raise ValueError(f"bad RNG state ({exc})") from None
+    return rng
+
+
+def _jsonable(obj: Any) -> Any:
+    """numpy scalars and nested dicts -> plain JSON types (RNG states hold numpy ints)."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    return obj

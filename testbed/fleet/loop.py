@@ -1,0 +1,400 @@
+"""The fleet loop: one Fleet-DAgger timestep after another (DESIGN.md section 3).
+
+::
+
+    observe (all hosts at once) --> signals (act) --> keys (priority) --> Allocator
+        --> humans.act --> execute (all hosts at once) --> log (fsync)
+           \\__ training step runs here, in a thread, from observe to log __/
+
+The training step of timestep t starts as soon as its data is in (right after the
+observation, which completes the last step's transitions) and runs while the learner
+acts, the humans answer and the arms push; it is joined before the step is logged.
+``act`` reads a copy of the networks brought up to date just before the training step
+starts (``Learner.acting_copy()``), so the policy used at t is always the one after
+exactly t training steps, whatever the timing: a twin trial with scripted humans is
+reproducible, overlap included, and its records are those of the serial order (act,
+then train). At N = 100 arms the policy's forward pass is a large part of a step;
+overlapping it with training makes the step cost the training step, not the sum
+(docs/notes/fleet.md). The loop owns no hardware and no GUI: it talks to a
+``HostFleet``-like object, a ``Humans`` and a ``Learner`` only through their small APIs.
+
+Humans who come and go (the web console, ``testbed.core.humans.Presence``): right before
+each allocation the loop asks ``presence_of(humans)``. Humans in ``gone`` (away past
+the console's grace period) lose the arm they are on (``Allocator.release_human``),
+and the row says so (``"released": [{"robot", "human", "why": "away"}]``); every
+human not available is handed to the allocator as such, which gives them no new
+intervention, and the row lists them (``"away": [human, ...]``). Both keys appear only
+when non-empty, so humans without ``presence()`` (scripted, the OpenCV console) write
+the rows they always wrote. How long the fleet waits on an away human's answer is the
+console's business (its timeout inside ``act``), not the loop's.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from testbed.core.humans import Humans, presence_of
+from testbed.core.interrupts import critical
+from testbed.core.types import (
+    IMAGE_SIZE,
+    ArmObservation,
+    Fault,
+    FleetStatus,
+    HumanRequest,
+    InterventionKind,
+    Mode,
+    PushResult,
+    RobotStatus,
+)
+from testbed.fleet.allocator import Allocator
+from testbed.fleet.priorities import Algorithm, PrioritySignals
+from testbed.records import store as rundata
+from testbed.records.steps import RunWriter
+from testbed.records.store import RunDataWriter
+
+
+class HostsLike(Protocol):
+    """What the loop needs of ``drivers.host_fleet.HostFleet`` (kept structural for tests)."""
+
+    robot_names: list[str]
+
+    def observe(self) -> Mapping[str, ArmObservation | Fault]: ...
+
+    def execute(
+        self, pushes: Mapping[str, int], resets: Sequence[str]
+    ) -> Mapping[str, PushResult | Fault]: ...
+
+
+class LearnerLike(Protocol):
+    def act(self, images: np.ndarray) -> Any: ...
+
+    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None: ...
+
+    def add_transitions(
+        self,
+        images: np.ndarray,
+        actions: np.ndarray,
+        next_images: np.ndarray,
+        violation: np.ndarray,
+        success: np.ndarray,
+    ) -> None: ...
+
+    def train_step(self) -> dict[str, float]: ...
+
+
+class ActorLike(Protocol):
+    """What ``Learner.acting_copy()`` returns (``testbed.learning.actor.Actor``)."""
+
+    def sync(self) -> None: ...
+
+    def act(self, images: np.ndarray) -> Any: ...
+
+
+@dataclass
+class _Decided:
+    out: Any
+    keys: np.ndarray
+    faulted: np.ndarray
+    pushes: dict[str, int]
+    resets: list[str]
+    modes: dict[str, Mode]
+    humans_of: dict[str, int | None]
+    away: list[int] = field(default_factory=list)
+    """Humans not available at this step's allocation (sorted)."""
+    released: list[dict[str, Any]] = field(default_factory=list)
+    """Interventions ended before the allocation: ``{"robot", "human", "why"}``."""
+
+
+@dataclass
+class StepOutcome:
+    """Everything one timestep produced, for the caller's progress display."""
+
+    t: int
+    row: dict[str, Any]
+    status: FleetStatus
+    train_info: dict[str, float] = field(default_factory=dict)
+
+
+class FleetLoop:
+    """Runs timesteps of one trial; the caller owns setup, records' folder and teardown."""
+
+    def __init__(
+        self,
+        *,
+        hosts: HostsLike,
+        humans: Humans,
+        learner: LearnerLike,
+        algorithm: Algorithm,
+        writer: RunWriter,
+        steps: int,
+        num_humans: int,
+        t_T: int,
+        t_R: int,
+        after_step: Callable[[int], None] | None = None,
+        overlap_act: bool = True,
+        data: RunDataWriter | None = None,
+        session: int = 0,
+    ) -> None:
+        self.hosts = hosts
+        self.humans = humans
+        self.learner = learner
+        self.algorithm = algorithm
+        self.allocator: Allocator = algorithm.allocator
+        self.writer = writer
+        self.steps = steps
+        self.num_humans = num_humans
+        self.t_T = t_T
+        self.t_R = t_R
+        self.robots = list(hosts.robot_names)
+        self.data = data
+        self.session = session
+        self._last: np.ndarray | None = None  # the last step's frames (its pushes)
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="train")
+        self._after_step = after_step
+        # Act on the learner's acting copy (beside the training step when the algorithm
+        # learns, synced before it; made now, from the weights the trial starts with, for
+        # one that does not; compiled when learning.compile_act). A learner without one
+        # (a test's fake) acts itself, before the training step starts: the serial order.
+        make_actor = getattr(learner, "acting_copy", None)
+        self._actor: ActorLike | None = (
+            make_actor() if overlap_act and callable(make_actor) else None)
+        self.status = FleetStatus(t=0, steps=steps)
+
+    # ---- counters -------------------------------------------------------------------
+    def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Rebuild the live counters from the records of a resumed trial."""
+        for row in rows:
+            self._count(row)
+
+    def _count(self, row: Mapping[str, Any]) -> None:
+        s = self.status
+        for r in row["robots"]:
+            s.successes += bool(r["success"])
+            s.hard_resets += bool(r["violation"])
+            s.idle_time += r["mode"] in (Mode.IDLE, Mode.RESET)
+            s.human_actions += r["mode"] in (Mode.TELEOP, Mode.RESET)
+        n = max(len(self.robots), 1)
+        s.rohe = (self.num_humans / n) * s.successes / (1 + s.human_actions)
+
+    # ---- one timestep ---------------------------------------------------------------
+    def _decide(self, t: int, observations: Mapping[str, ArmObservation | Fault],
+                images: np.ndarray, violating: np.ndarray, out: Any) -> _Decided:
+        """Keys, allocation, the humans' answers: what every arm does at step t."""
+        faulted = np.array([not isinstance(observations.get(r), ArmObservation)
+                            for r in self.robots])
+        available, away, released = self._presence()
+        signals = PrioritySignals(
+            t=t,
+            violating=violating & ~faulted,
+            uncertainty=np.asarray(out.uncertainty, dtype=float),
+            risk=np.asarray(out.risk, dtype=float),
+            goal_risk=np.asarray(out.goal_risk, dtype=float),
+            novelty=np.asarray(out.novelty, dtype=float),
+            faulted=faulted,
+            available=available,
+        )
+        assignment = self.algorithm.step(signals)
+        keys = np.asarray(self.algorithm.last_keys, dtype=float)
+        kinds, served = self.allocator.kinds, self.allocator.served
+
+        requests: list[HumanRequest] = []
+        for i, r in enumerate(self.robots):
+            h = int(assignment[i])
+            if h < 0 or faulted[i]:
+                continue
+            kind = kinds[i]
+            assert kind is not None
+            requests.append(
+                HumanRequest(
+                    robot=r,
+                    human=h,
+                    kind=kind,
+                    observation=observations[r],  # type: ignore[arg-type]
+                    served=int(served[i]),
+                    min_steps=self.t_T if kind is InterventionKind.TELEOP else self.t_R,
+                    key=tuple(float(k) for k in keys[i]),
+                    reason=self.algorithm.reason(i)
+                    | {"uncertainty": float(out.uncertainty[i]), "risk": float(out.risk[i])},
+                )
+            )
+        responses = self.humans.act(requests, t) if requests else {}
+
+        pushes: dict[str, int] = {}
+        resets: list[str] = []
+        modes: dict[str, Mode] = {}
+        humans_of: dict[str, int | None] = {}
+        for i, r in enumerate(self.robots):
+            h = int(assignment[i])
+            humans_of[r] = h if h >= 0 else None
+            if faulted[i]:
+                modes[r] = Mode.FAULT
+            elif h >= 0 and kinds[i] is InterventionKind.RESET:
+                modes[r] = Mode.RESET
+                if responses.get(r) is not None and responses[r].reset_done:
+                    resets.append(r)
+            elif violating[i]:
+                modes[r] = Mode.IDLE
+            elif h >= 0:
+                modes[r] = Mode.TELEOP
+                answer = responses.get(r)
+                if answer is not None and answer.action is not None:
+                    pushes[r] = int(answer.action)  # else the human let the step pass
+            else:
+                modes[r] = Mode.AUTONOMOUS
+                pushes[r] = int(out.actions[i])
+        return _Decided(out, keys, faulted, pushes, resets, modes, humans_of, away, released)
+
+    def _presence(self) -> tuple[np.ndarray | None, list[int], list[dict[str, Any]]]:
+        """Who may be assigned at this step: (available mask or None, away, released).
+
+        Humans without ``presence()`` give ``(None, [], [])``: the allocation and the row
+        of a run without away humans. A human in ``gone`` is away whatever ``available``
+        says, and the arm it is on is freed now, before the allocation, so a present
+        human may take that arm at this very step.
+        """
+        p = presence_of(self.humans)
+        if p is None:
+            return None, [], []
+        given = np.asarray(p.available)
+        if given.dtype != np.bool_ or given.shape != (self.num_humans,):
+            raise ValueError(f"humans.presence().available must be bool with shape "
+                             f"({self.num_humans},), got {given.dtype} {given.shape}")
+        available = given.copy()
+        released: list[dict[str, Any]] = []
+        for h in sorted(p.gone):
+            if not 0 <= h < self.num_humans:
+                raise ValueError(f"humans.presence().gone has human {h}, not in "
+                                 f"[0, {self.num_humans})")
+            available[h] = False
+            arm = self.allocator.release_human(h)
+            if arm is not None:
+                released.append({"robot": self.robots[arm], "human": int(h), "why": "away"})
+        away = [int(h) for h in np.flatnonzero(~available)]
+        return available, away, released
+
+    def step(self, t: int) -> StepOutcome:
+        started = time.monotonic()
+        observations = self.hosts.observe()
+        n = len(self.robots)
+        images = np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
+        violating = np.zeros(n, dtype=bool)
+        observed = np.zeros(n, dtype=bool)
+        goals = np.full((n, 2), np.nan, dtype=np.float32)
+        for i, r in enumerate(self.robots):
+            o = observations.get(r)
+            if isinstance(o, ArmObservation):
+                images[i] = o.image
+                violating[i] = o.violating
+                observed[i] = True
+                goals[i] = o.goal
+        if self.algorithm.learns and self._last is not None:  # training step t's last data
+            rundata.add_transitions(self.learner, self._last, observed, images)
+
+        training: Future[dict[str, float]] | None = None
+        if self._actor is not None and self.algorithm.learns:
+            self._actor.sync()  # train beside act: act reads the up-to-date copy
+            training = self._executor.submit(self.learner.train_step)
+        try:
+            out = (self._actor or self.learner).act(images)
+            if training is None and self.algorithm.learns:  # serial: after act
+                training = self._executor.submit(self.learner.train_step)
+            d = self._decide(t, observations, images, violating, out)
+            results = self.hosts.execute(d.pushes, d.resets)
+        except BaseException:
+            if training is not None:
+                training.result()
+            raise
+        train_info = training.result() if training is not None else {}
+        pushes, humans_of, faulted, out, keys = (d.pushes, d.humans_of, d.faulted, d.out,
+                                                 d.keys)
+        modes = self._final_modes(d.modes, results, pushes)
+
+        row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
+                       np.asarray(out.risk), keys, pushes)
+        if d.away:  # only when someone is away: rows of runs without are as they were
+            row["away"] = d.away
+        if d.released:
+            row["released"] = d.released
+        # Timing rides along for the lab (DESIGN.md section 9): it is the one part of a
+        # row that differs between two runs of the same seed.
+        row["wall_time"] = time.time()
+        row["duration_s"] = time.monotonic() - started
+        frames = rundata.build_frames(t, self.session, row, images, observed, goals)
+        with critical():  # the data first: a step in steps.jsonl always has its frames
+            if self.data is not None:
+                self.data.append(frames)
+            self.writer.write_step(row)
+        self._count(row)
+        self._last = frames
+        if self.algorithm.learns:
+            rundata.add_labels(self.learner, frames)
+        self.status.t = t + 1
+        self.status.robots = [
+            RobotStatus(r, modes[r], images[i] if not faulted[i] else None, humans_of[r])
+            for i, r in enumerate(self.robots)
+        ]
+        if self._after_step is not None:  # checkpoint first: a stop in show keeps step t
+            self._after_step(t)
+        self.humans.show(t, self.status)
+        return StepOutcome(t, row, self.status, train_info)
+
+    def _final_modes(self, modes: Mapping[str, Mode],
+                     results: Mapping[str, PushResult | Fault],
+                     pushes: Mapping[str, int]) -> dict[str, Mode]:
+        """The modes the row records: a host's fault wins, then a push it refused."""
+        final = dict(modes)
+        for r in self.robots:
+            res = results.get(r)
+            if isinstance(res, Fault):
+                final[r] = Mode.FAULT
+            elif r in pushes and isinstance(res, PushResult) and res.refused is not None:
+                final[r] = Mode.REFUSED
+        return final
+
+    def _row(
+        self,
+        t: int,
+        modes: Mapping[str, Mode],
+        humans_of: Mapping[str, int | None],
+        results: Mapping[str, PushResult | Fault],
+        uncertainty: np.ndarray,
+        risk: np.ndarray,
+        keys: np.ndarray,
+        pushes: Mapping[str, int],
+    ) -> dict[str, Any]:
+        rows = []
+        for i, r in enumerate(self.robots):
+            res = results.get(r)
+            mode = modes[r]
+            ok = isinstance(res, PushResult)
+            faulted = mode is Mode.FAULT
+            entry: dict[str, Any] = {
+                "robot": r,
+                "mode": str(mode),
+                "human": humans_of[r],
+                "action": pushes.get(r) if not faulted else None,
+                "success": bool(ok and res.success),  # type: ignore[union-attr]
+                "violation": bool(ok and res.violation),  # type: ignore[union-attr]
+                "uncertainty": None if faulted else float(uncertainty[i]),
+                "risk": None if faulted else float(risk[i]),
+                "key": [float(k) for k in keys[i]],
+            }
+            if mode is Mode.REFUSED:
+                entry["refused"] = str(res.refused)  # type: ignore[union-attr]
+            rows.append(entry)
+        faults = {
+            r: res.reason for r, res in results.items() if isinstance(res, Fault)
+        }
+        row: dict[str, Any] = {"t": t, "robots": rows}
+        if faults:
+            row["faults"] = faults
+        return row
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=True)

@@ -1,0 +1,586 @@
+"""Priority functions and the registry of allocation algorithms, by name.
+
+Why this module exists: in Fleet-DAgger an algorithm *is* a priority function (plus
+two flags: does the policy learn, may humans teleoperate). The allocator is shared
+(:mod:`testbed.fleet.allocator`), so everything that distinguishes BC, Random, Fleet-ED,
+Fleet-TD, C.U.R. and the seed's ablations (appendix 8.4, figure 6) lives here, and the
+command line picks one with ``get_algorithm(name, ...)``.
+
+::
+
+    learner.act ─► PrioritySignals(t, violating, uncertainty, risk, goal_risk, novelty,
+                   faulted, available)
+                                   │
+                   Algorithm.priority.keys(signals) ─► keys (N, K), names[K]
+                                   │
+                   Algorithm.allocator.step(keys, violating, available) ─► human per arm
+
+A key is compared lexicographically, larger first; only keys > 0 (first non-zero entry
+positive) can receive a new human (DESIGN.md section 4). ``names`` labels the entries
+so the console can say why an arm was chosen (``reason``).
+
+The keys per algorithm (``c`` = 1 if the arm is violating):
+
+=============  ===========================================================
+``cur``        (c, u, r); c = -1 instead of 1 while t < t_I (initial period)
+``cur-i``      (c, u, r) without the initial period
+ablations      ``c u r cu cr ur uc ru cru``: those entries in that order, no t_I
+``fleet-ed``   (u, c)  -- Fleet-EnsembleDAgger
+``fleet-td``   (s, c)  -- Fleet-ThriftyDAgger; s = thrifty score margin
+``random``     (c, x)  -- random arms, sized to a human-effort budget
+``bc``         (c,)    -- hard resets only; no teleop, no learning
+=============  ===========================================================
+
+u = uncertainty if uncertainty >= u_hat else 0; r = risk if risk >= r_hat else 0.
+
+Decisions beyond the seed's text (also in docs/notes/core.md):
+
+* During C.U.R.'s initial period a violating arm's key starts with -1, so by the
+  contract's eligibility rule it gets no human at all until t_I (the seed's code let
+  such an arm through behind all others when its u or r was positive).
+* Fleet-TD follows the seed's code: key (s, c). s = z - threshold where
+  z = alpha * z(goal_risk) + (1 - alpha) * z(novelty) exceeds ``thrifty_threshold``,
+  else 0; z() standardises with running (Welford) mean and std over every value seen
+  so far, this step's included. Violating arms come after every arm above the
+  threshold, but still get their reset. (s is the margin, not z itself, so a
+  negative threshold still makes "above threshold" mean "eligible".)
+* Random keeps the seed's scheme (busy humans drawn per step, the held ones kept,
+  violating arms first, then arms at random) but draws the count with feedback on the
+  effort used so far: busy ~ Binomial(M, clip(deficit / M, 0, 1)), deficit = the
+  budget ``random_budget * M * steps`` minus the human-steps spent, so the
+  cumulative human effort tracks the budget even though teleops are held t_T steps.
+* Arms marked ``faulted`` (host unreachable) get an all-zero key: never a new human.
+* Humans not ``available`` (away from the web console) are never newly assigned (the
+  allocator's rule); Random sizes its new arms to the free humans who are present, so
+  its effort count never includes arms no one could take.
+
+What an algorithm reads decides what the learner trains (issue 13): each priority class
+declares the learned signals its keys read (``reads``: a subset of uncertainty, risk,
+goal_risk, novelty), its registry factory carries the same set, and
+``AlgorithmSpec.critics`` maps it to the critics behind it (risk -> the safety critic,
+goal_risk -> the goal critic). The trial trains online, and ``act`` computes, only those
+(``AlgorithmSpec.train_parts``); a test checks that every algorithm's keys work with
+exactly the signals it declares.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Final, Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
+
+from testbed.core.config import AlgorithmConfig
+from testbed.fleet.allocator import Allocator, rng_from_state, rng_state_json
+
+__all__ = [
+    "ALGORITHMS",
+    "ALGORITHM_NAMES",
+    "CRITIC_OF_SIGNAL",
+    "LEARNED_SIGNALS",
+    "Algorithm",
+    "AlgorithmSpec",
+    "OrderedPriority",
+    "PriorityFunction",
+    "PrioritySignals",
+    "RandomPriority",
+    "RunningStats",
+    "ThriftyPriority",
+    "get_algorithm",
+]
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+LEARNED_SIGNALS: Final = frozenset({"uncertainty", "risk", "goal_risk", "novelty"})
+"""The signals that come from the learner (``violating`` comes from the arms)."""
+
+CRITIC_OF_SIGNAL: Final[dict[str, str]] = {"risk": "safety", "goal_risk": "goal"}
+"""Which critic a signal comes from; uncertainty and novelty come from the policy."""
+
+
+@dataclass(frozen=True, slots=True)
+class PrioritySignals:
+    """Per-arm signals at timestep ``t``; every array is (N,).
+
+    A signal an algorithm does not use may be ``None``; one it needs raises
+    ``ValueError``. Faulted arms may carry any finite placeholder (0): their keys are
+    zeroed. NaN is refused.
+    """
+
+    t: int
+    violating: npt.ArrayLike
+    uncertainty: npt.ArrayLike | None = None
+    """Ensemble disagreement of the policy (Fleet-ED, C.U.R.'s u)."""
+    risk: npt.ArrayLike | None = None
+    """Safety-critic estimate of a future constraint violation (C.U.R.'s r)."""
+    goal_risk: npt.ArrayLike | None = None
+    """1 - goal-critic value (Fleet-TD's risk)."""
+    novelty: npt.ArrayLike | None = None
+    """Fleet-TD's novelty."""
+    faulted: npt.ArrayLike | None = None
+    """Bool (N,): the arm's host is unreachable this step (``None``: none are)."""
+    available: npt.ArrayLike | None = None
+    """Bool (M,), per human: present this step (``None``: all are). Away humans (web
+    console) get no new intervention (``Allocator.step``'s ``available``)."""
+
+    def violating_array(self, n: int) -> BoolArray:
+        return self._mask("violating", n, None)
+
+    def faulted_array(self, n: int) -> BoolArray:
+        return self._mask("faulted", n, False)
+
+    def available_array(self, m: int) -> BoolArray:
+        """The (m,) mask of present humans, checked; all True when ``available`` is None."""
+        return self._mask("available", m, True)
+
+    def _mask(self, name: str, size: int, default: bool | None) -> BoolArray:
+        """Field ``name`` as a checked bool (size,) array; ``default`` fills a None."""
+        value = getattr(self, name)
+        if value is None and default is not None:
+            return np.full(size, default, dtype=bool)
+        arr = np.asarray(value)
+        if arr.dtype != np.bool_ or arr.shape != (size,):
+            raise ValueError(f"signals.{name} must be bool with shape ({size},), "
+                             f"got {arr.dtype} {arr.shape}")
+        return arr
+
+    def signal(self, name: str, n: int) -> FloatArray:
+        """The float signal ``name`` as (n,), checked: present, right shape, no NaN."""
+        value = getattr(self, name)
+        if value is None:
+            raise ValueError(f"signals.{name} is required by this priority function")
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"signals.{name} must be numeric: {exc}") from None
+        if arr.shape != (n,):
+            raise ValueError(f"signals.{name} must have shape ({n},), got {arr.shape}")
+        if np.isnan(arr).any():
+            raise ValueError(f"signals.{name} has NaN for arm(s) "
+                             f"{np.flatnonzero(np.isnan(arr)).tolist()}")
+        return arr
+
+
+@runtime_checkable
+class PriorityFunction(Protocol):
+    """Maps per-arm signals to lexicographic keys (N, K)."""
+
+    names: tuple[str, ...]
+
+    def keys(self, s: PrioritySignals) -> FloatArray: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+
+def _check_t(t: int) -> int:
+    if isinstance(t, bool) or not isinstance(t, int | np.integer):
+        raise ValueError(f"signals.t must be an int, got {t!r}")
+    return int(t)
+
+
+class OrderedPriority:
+    """C.U.R., its ablations, Fleet-ED and BC: a tuple of c, u, r in a given order.
+
+    ``order`` is a string over ``"cur"`` (``"uc"`` is Fleet-ED, ``"c"`` is BC).
+    ``initial_period`` t_I: for t < t_I a violating arm's c is -1 instead of 1.
+    """
+
+    SIGNAL_OF_LETTER: Final = {"u": "uncertainty", "r": "risk"}
+
+    @classmethod
+    def reads_of(cls, order: str) -> frozenset[str]:
+        """The learned signals the keys of ``order`` read (``c`` reads none)."""
+        return frozenset(cls.SIGNAL_OF_LETTER[x] for x in order if x in cls.SIGNAL_OF_LETTER)
+
+    def __init__(self, order: str, num_robots: int, *, initial_period: int = 0,
+                 u_hat: float = 0.0, r_hat: float = 0.0) -> None:
+        if not order or set(order) - set("cur") or len(set(order)) != len(order):
+            raise ValueError(f"order must be distinct letters of 'cur', got {order!r}")
+        self.reads: frozenset[str] = self.reads_of(order)
+        if initial_period < 0:
+            raise ValueError(f"initial_period must be >= 0, got {initial_period}")
+        self.order: Final[str] = order
+        self.names: tuple[str, ...] = tuple(order)
+        self.num_robots: Final[int] = num_robots
+        self.initial_period: Final[int] = int(initial_period)
+        self.u_hat: Final[float] = float(u_hat)
+        self.r_hat: Final[float] = float(r_hat)
+
+    def keys(self, s: PrioritySignals) -> FloatArray:
+        n = self.num_robots
+        t = _check_t(s.t)
+        viol = s.violating_array(n)
+        cols: list[FloatArray] = []
+        for letter in self.order:
+            if letter == "c":
+                c_value = -1.0 if t < self.initial_period else 1.0
+                cols.append(np.where(viol, c_value, 0.0))
+            elif letter == "u":
+                u = s.signal("uncertainty", n)
+                cols.append(np.where(u >= self.u_hat, u, 0.0))
+            else:
+                r = s.signal("risk", n)
+                cols.append(np.where(r >= self.r_hat, r, 0.0))
+        keys = np.stack(cols, axis=1)
+        keys[s.faulted_array(n)] = 0.0
+        return keys
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        del state  # stateless
+
+
+class RunningStats:
+    """Welford/Chan running mean and (population) variance over batches of values."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.mean = 0.0
+        self.m2 = 0.0
+
+    def update(self, values: FloatArray) -> None:
+        k = int(values.size)
+        if k == 0:
+            return
+        b_mean = float(values.mean())
+        b_m2 = float(((values - b_mean) ** 2).sum())
+        total = self.count + k
+        delta = b_mean - self.mean
+        self.mean += delta * k / total
+        self.m2 += b_m2 + delta * delta * self.count * k / total
+        self.count = total
+
+    @property
+    def std(self) -> float:
+        return float(np.sqrt(self.m2 / self.count)) if self.count else 0.0
+
+    def standardise(self, values: FloatArray, eps: float = 1e-8) -> FloatArray:
+        return (values - self.mean) / (self.std + eps)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"count": self.count, "mean": self.mean, "m2": self.m2}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.count = int(state["count"])
+        self.mean = float(state["mean"])
+        self.m2 = float(state["m2"])
+
+
+class ThriftyPriority:
+    """Fleet-ThriftyDAgger: key (s, c), s = margin of the thrifty score over a threshold.
+
+    score = alpha * z(goal_risk) + (1 - alpha) * z(novelty), standardised by running
+    statistics that include this step's (non-faulted) values, as the seed's code does.
+    """
+
+    names: tuple[str, ...] = ("s", "c")
+    reads: frozenset[str] = frozenset({"goal_risk", "novelty"})
+
+    def __init__(self, num_robots: int, *, alpha: float = 0.5, threshold: float = 0.0,
+                 eps: float = 1e-8) -> None:
+        if not 0.0 <= alpha <= 1.0:
+            raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+        self.num_robots: Final[int] = num_robots
+        self.alpha: Final[float] = float(alpha)
+        self.threshold: Final[float] = float(threshold)
+        self.eps: Final[float] = float(eps)
+        self.risk_stats = RunningStats()
+        self.novelty_stats = RunningStats()
+
+    def scores(self, s: PrioritySignals, *, update: bool = True) -> FloatArray:
+        """The raw thrifty score per arm (updating the running statistics first)."""
+        n = self.num_robots
+        risk = s.signal("goal_risk", n)
+        novelty = s.signal("novelty", n)
+        ok = ~s.faulted_array(n)
+        if update:
+            self.risk_stats.update(risk[ok])
+            self.novelty_stats.update(novelty[ok])
+        return (self.alpha * self.risk_stats.standardise(risk, self.eps)
+                + (1.0 - self.alpha) * self.novelty_stats.standardise(novelty, self.eps))
+
+    def keys(self, s: PrioritySignals) -> FloatArray:
+        n = self.num_robots
+        _check_t(s.t)
+        viol = s.violating_array(n)
+        score = self.scores(s)
+        margin = np.where(score > self.threshold, score - self.threshold, 0.0)
+        keys = np.stack([margin, viol.astype(np.float64)], axis=1)
+        keys[s.faulted_array(n)] = 0.0
+        return keys
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"risk": self.risk_stats.state_dict(),
+                "novelty": self.novelty_stats.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.risk_stats.load_state_dict(state["risk"])
+        self.novelty_stats.load_state_dict(state["novelty"])
+
+
+class RandomPriority:
+    """The Random baseline: random arms get humans, at a budgeted human effort.
+
+    Each step it draws how many humans should be busy, keeps the held ones (they must
+    stay), and makes exactly ``busy - held`` other arms eligible: violating arms first
+    (their resets are due), then arms at random. Key (c, x): c = 1 for a chosen
+    violating arm, x in (0, 1] for every chosen arm, (0, 0) otherwise.
+
+    It needs the allocator's held set to size the draw; :func:`get_algorithm` binds it,
+    and the bound allocator must be the one that allocates, once after each
+    :meth:`keys` (checked: ``RuntimeError`` otherwise). Unbound, it assumes nobody is
+    held.
+
+    Away humans (``signals.available``): the new arms are at most the free humans who
+    are present, so an arm made eligible always gets a human and ``effort`` counts only
+    human-steps that happen; the budget's deficit then catches up when they are back.
+    With every human present the cap is M - held, never binding: the draws and keys
+    are those of a run without the mask.
+    """
+
+    names: tuple[str, ...] = ("c", "x")
+    reads: frozenset[str] = frozenset()
+
+    def __init__(self, num_robots: int, num_humans: int, *, budget: float,
+                 seed: int | np.random.SeedSequence | None = None,
+                 allocator: Allocator | None = None) -> None:
+        if not 0.0 <= budget <= 1.0:
+            raise ValueError(f"budget must be in [0, 1], got {budget}")
+        self.num_robots: Final[int] = num_robots
+        self.num_humans: Final[int] = num_humans
+        self.budget: Final[float] = float(budget)
+        self.allocator = allocator
+        self._rng = np.random.default_rng(seed)
+        self.steps = 0
+        self.effort = 0
+        """Human-steps spent so far (busy humans summed over steps)."""
+
+    def keys(self, s: PrioritySignals) -> FloatArray:
+        n, m = self.num_robots, self.num_humans
+        _check_t(s.t)
+        viol = s.violating_array(n)
+        faulted = s.faulted_array(n)
+        present = s.available_array(m)
+        if self.allocator is not None and self.allocator.steps != self.steps:
+            raise RuntimeError(
+                "RandomPriority: its allocator has stepped "
+                f"{self.allocator.steps} times but keys() ran {self.steps} times; allocate "
+                "with the algorithm's own allocator (Algorithm.allocator or Algorithm.step), "
+                "once per keys() call, or the human-effort budget cannot be kept")
+        held = (self.allocator.held_mask(viol) if self.allocator is not None
+                else np.zeros(n, dtype=bool))
+        num_held = int(held.sum())
+        held_humans = (self.allocator.held_humans(viol) if self.allocator is not None
+                       else np.zeros(m, dtype=bool))
+        free_present = int(np.count_nonzero(present & ~held_humans))
+
+        self.steps += 1
+        deficit = self.budget * m * self.steps - self.effort
+        p = min(max(deficit / m, 0.0), 1.0) if m else 0.0
+        busy = max(int(self._rng.binomial(m, p)), num_held)
+        # Drawn every step, so the stream does not depend on the signals.
+        order = self._rng.permutation(n)
+        x = 1.0 - self._rng.random(n)  # in (0, 1]
+
+        open_arms = ~held & ~faulted
+        ranked = order[open_arms[order]]
+        ranked = np.concatenate([ranked[viol[ranked]], ranked[~viol[ranked]]])
+        chosen = ranked[: min(max(busy - num_held, 0), free_present)]
+        self.effort += num_held + chosen.size
+
+        keys = np.zeros((n, 2), dtype=np.float64)
+        keys[chosen, 0] = viol[chosen].astype(np.float64)
+        keys[chosen, 1] = x[chosen]
+        return keys
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"steps": self.steps, "effort": self.effort, "rng": rng_state_json(self._rng)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self._rng = rng_from_state(state["rng"])
+        self.steps = int(state["steps"])
+        self.effort = int(state["effort"])
+
+
+# ---------------------------------------------------------------------- registry
+PriorityFactory = Callable[[AlgorithmConfig, int, int, np.random.SeedSequence, Allocator],
+                           PriorityFunction]
+
+
+@dataclass(frozen=True, slots=True)
+class AlgorithmSpec:
+    """One named algorithm: how to build its priority function, and its two flags.
+
+    What it reads and trains is derived from its factory's ``reads`` (the priority
+    class's own declaration); a factory without one is taken to read every signal.
+    """
+
+    name: str
+    priority: PriorityFactory = field(repr=False)
+    learns: bool = True
+    """Human labels are added to the data and the policy trains online (BC: False)."""
+    teleop: bool = True
+    """Humans may teleoperate (BC: False; its keys only ever pick violating arms)."""
+    description: str = ""
+
+    @property
+    def reads(self) -> frozenset[str]:
+        """The learned signals its keys read (subset of ``LEARNED_SIGNALS``)."""
+        declared = getattr(self.priority, "reads", None)
+        return LEARNED_SIGNALS if declared is None else frozenset(declared)
+
+    @property
+    def critics(self) -> frozenset[str]:
+        """The critics behind what it reads: ``"safety"`` (risk), ``"goal"`` (goal_risk)."""
+        return frozenset(CRITIC_OF_SIGNAL[s] for s in self.reads if s in CRITIC_OF_SIGNAL)
+
+    @property
+    def train_parts(self) -> frozenset[str]:
+        """What the learner trains online for it: the policy and the critics it reads,
+        or nothing for an algorithm that does not learn (BC)."""
+        return frozenset({"policy", *self.critics}) if self.learns else frozenset()
+
+
+@dataclass(slots=True)
+class Algorithm:
+    """A ready-to-run algorithm: its spec, priority function and its own allocator.
+
+    Use :meth:`step` (keys then allocation) so that priority functions that look at
+    the allocator (Random) see the same allocator that allocates.
+    """
+
+    spec: AlgorithmSpec
+    priority: PriorityFunction
+    allocator: Allocator
+    params: AlgorithmConfig
+    last_keys: FloatArray | None = None
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.priority.names
+
+    @property
+    def learns(self) -> bool:
+        return self.spec.learns
+
+    @property
+    def teleop(self) -> bool:
+        return self.spec.teleop
+
+    def step(self, signals: PrioritySignals) -> npt.NDArray[np.int64]:
+        """Compute the keys and allocate; returns (N,) human per arm, -1 for none."""
+        keys = self.priority.keys(signals)
+        available = (None if signals.available is None
+                     else signals.available_array(self.allocator.num_humans))
+        assignment = self.allocator.step(
+            keys, signals.violating_array(self.allocator.num_robots), available)
+        self.last_keys = keys
+        return assignment
+
+    def reason(self, robot: int) -> dict[str, float]:
+        """The named key entries of arm ``robot`` at the last step (``HumanRequest.reason``)."""
+        if self.last_keys is None:
+            return {}
+        return {n: float(v) for n, v in zip(self.names, self.last_keys[robot], strict=True)}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "allocator": self.allocator.state_dict(),
+                "priority": self.priority.state_dict(),
+                "last_keys": None if self.last_keys is None else self.last_keys.tolist()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("name") != self.name:
+            raise ValueError(f"state is for algorithm {state.get('name')!r}, not {self.name!r}")
+        self.allocator.load_state_dict(state["allocator"])
+        self.priority.load_state_dict(state["priority"])
+        lk = state.get("last_keys")
+        self.last_keys = None if lk is None else np.asarray(lk, dtype=np.float64)
+
+
+def _reading(reads: frozenset[str]) -> Callable[[PriorityFactory], PriorityFactory]:
+    """Mark a factory with what its priority function reads (``AlgorithmSpec.reads``)."""
+    def mark(factory: PriorityFactory) -> PriorityFactory:
+        factory.reads = reads  # type: ignore[attr-defined]
+        return factory
+    return mark
+
+
+def _ordered(order: str, *, initial_period: bool) -> PriorityFactory:
+    @_reading(OrderedPriority.reads_of(order))
+    def build(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
+              allocator: Allocator) -> PriorityFunction:
+        del m, seed, allocator
+        if isinstance(p.u_hat, str) or isinstance(p.r_hat, str):
+            raise ValueError("u_hat / r_hat given as quantiles are resolved on theta_0 by "
+                             "the trial (testbed/fleet/thresholds.py) before the algorithm is "
+                             "built")
+        return OrderedPriority(order, n, initial_period=p.t_I if initial_period else 0,
+                               u_hat=p.u_hat, r_hat=p.r_hat)
+    return build
+
+
+@_reading(ThriftyPriority.reads)
+def _thrifty(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
+             allocator: Allocator) -> PriorityFunction:
+    del m, seed, allocator
+    return ThriftyPriority(n, alpha=p.thrifty_alpha, threshold=p.thrifty_threshold)
+
+
+@_reading(RandomPriority.reads)
+def _random(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
+            allocator: Allocator) -> PriorityFunction:
+    if isinstance(p.random_budget, str):  # a protocol resolves it before the run starts
+        raise ValueError(f"random_budget = {p.random_budget!r} is resolved by a protocol "
+                         "from the matched algorithm's run; give a number for a trial alone")
+    return RandomPriority(n, m, budget=p.random_budget, seed=seed, allocator=allocator)
+
+
+ABLATIONS: Final = ("c", "u", "r", "cu", "cr", "ur", "uc", "ru", "cru")
+
+ALGORITHMS: Final[dict[str, AlgorithmSpec]] = {
+    "bc": AlgorithmSpec("bc", _ordered("c", initial_period=False), learns=False, teleop=False,
+                        description="behaviour cloning: hard resets only, no learning"),
+    "random": AlgorithmSpec("random", _random,
+                            description="random arms at a human-effort budget"),
+    "fleet-ed": AlgorithmSpec("fleet-ed", _ordered("uc", initial_period=False),
+                              description="Fleet-EnsembleDAgger: (u, c)"),
+    "fleet-td": AlgorithmSpec("fleet-td", _thrifty,
+                              description="Fleet-ThriftyDAgger: (thrifty score, c)"),
+    "cur": AlgorithmSpec("cur", _ordered("cur", initial_period=True),
+                         description="C.U.R.: (c, u, r) with the initial period t_I"),
+    "cur-i": AlgorithmSpec("cur-i", _ordered("cur", initial_period=False),
+                           description="C.U.R.(-i): no initial period"),
+    **{a: AlgorithmSpec(a, _ordered(a, initial_period=False),
+                        description=f"ablation: ({', '.join(a)}), no initial period")
+       for a in ABLATIONS},
+}
+ALGORITHM_NAMES: Final[tuple[str, ...]] = tuple(ALGORITHMS)
+
+
+def get_algorithm(name: str, params: AlgorithmConfig, num_robots: int, num_humans: int,
+                  seed: int | None) -> Algorithm:
+    """Build the algorithm ``name`` (its priority function and allocator) for a fleet.
+
+    ``seed`` seeds both the allocator's tie-breaks and the priority's own randomness
+    (independent streams). Unknown names raise ``ValueError`` listing the valid ones.
+    """
+    spec = ALGORITHMS.get(name.strip().lower()) if isinstance(name, str) else None
+    if spec is None:
+        raise ValueError(f"unknown algorithm {name!r}; valid names: "
+                         f"{', '.join(ALGORITHM_NAMES)}")
+    alloc_seed, prio_seed = np.random.SeedSequence(seed).spawn(2)
+    allocator = Allocator(num_robots, num_humans, params.t_T, params.t_R,
+                          seed=int(alloc_seed.generate_state(1, np.uint64)[0]))
+    priority = spec.priority(params, num_robots, num_humans, prio_seed, allocator)
+    return Algorithm(spec=spec, priority=priority, allocator=allocator, params=params)

@@ -1,0 +1,387 @@
+"""``testbed calibrate``: fit one arm's image-to-table homography with the arm itself.
+
+Why it looks like this: a lab calibrates an arm on day one and after anything moves
+(camera bumped, table shifted). The arm's pusher carries an ArUco marker 30 mm above
+its TCP; with the TCP at z = 10 mm the marker lies in the cube-top plane, which is the
+plane perception measures the cube in. So the command starts that host's agent in
+calibration mode (the arm may have no homography yet), moves the TCP over a grid inside
+a safe box, takes a full camera frame at each point, and fits pixel -> TCP (x, y) with
+RANSAC (``testbed.perception.homography``). It prints the reprojection errors, proposes the crop
+box and checks the rest pose is out of view, then writes the calibration file on the
+host (atomically, by the agent) keeping every other key of the existing file. Every arm
+goes to rest at the end, whatever happens.
+
+    load fleet -> host, arm, existing file (read through the host's own transport)
+    -> agent --calibrate ARM -> rest, frame (rest out of view?)
+    -> per grid point: move_tcp, frame, marker -> fit -> thresholds -> save -> rest
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from testbed.core.config import ConfigError, FleetConfig, HostConfig
+from testbed.perception import homography as cal
+from testbed.records.steps import atomic_write_json
+
+CUBE_TOP_MM = 40.0
+"""The plane perception sees the cube's centre in (a 40 mm cube's top face)."""
+EXIT_FAILED = 1
+
+
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """The parsed, validated arguments of one calibration."""
+
+    host: str
+    arm: str
+    box: cal.Box | None
+    grid: tuple[int, int] = (5, 4)
+    z_mm: float = 10.0
+    marker_above_tcp_mm: float = 30.0
+    marker_id: int = 0
+    out: Path | None = None
+    image: Path | None = None
+    max_px: float = 2.0
+    max_mm: float = 3.0
+    min_markers: int = cal.MIN_MARKERS
+
+
+@dataclass
+class Sighting:
+    index: int
+    """1-based number of the grid point (as printed)."""
+    target_mm: tuple[float, float, float]
+    tcp_mm: tuple[float, float, float] | None = None
+    pixel: tuple[float, float] | None = None
+    note: str = ""
+
+
+@dataclass
+class CalibrationOutcome:
+    """What a calibration found (also when it failed: ``error`` says why)."""
+
+    sightings: list[Sighting] = field(default_factory=list)
+    used: list[Sighting] = field(default_factory=list)
+    """The sightings the fit was given (marker found, TCP reported), in order."""
+    fit: cal.HomographyFit | None = None
+    box: cal.Box | None = None
+    crop: cal.PixelBox | None = None
+    frame_size: tuple[int, int] | None = None
+    rest_marker: tuple[float, float] | None = None
+    """Where the marker was seen with every arm at rest (None: out of view, as it must)."""
+    data: dict[str, Any] | None = None
+    saved_path: str | None = None
+    error: str | None = None
+    last_frame: Any = None
+
+
+# -- arguments ----------------------------------------------------------------------
+def resolve(cfg: FleetConfig, args: argparse.Namespace) -> tuple[HostConfig, CalibrateOptions]:
+    """The host and validated options, or ConfigError (exit 2) naming the argument."""
+    hosts = {h.name: h for h in cfg.hosts}
+    if args.host not in hosts:
+        raise ConfigError(f"--host: no host {args.host!r} in the fleet; it has "
+                          f"{', '.join(hosts)}")
+    host = hosts[args.host]
+    if host.backend != "yumi":
+        raise ConfigError(f"--host: host {host.name} runs the {host.backend} backend; only "
+                          f"yumi hosts are calibrated (the twin needs no calibration)")
+    arms = {a.name: a for a in host.arms}
+    if args.arm not in arms:
+        raise ConfigError(f"--arm: host {host.name} has no arm {args.arm!r}; it has "
+                          f"{', '.join(arms)}")
+    if not arms[args.arm].calibration:
+        raise ConfigError(f"--arm: arm {args.arm} of host {host.name} has no calibration "
+                          f"path in the config (arms[].calibration)")
+    try:
+        box = None if args.box is None else cal.parse_box(args.box)
+        grid = cal.parse_grid(args.grid)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    for flag, v in (("--z", args.z), ("--marker-above-tcp", args.marker_above_tcp)):
+        if not math.isfinite(v) or v < 0:
+            raise ConfigError(f"{flag}: must be a finite number >= 0, got {v}")
+    for flag, v in (("--max-px", args.max_px), ("--max-mm", args.max_mm)):
+        if not math.isfinite(v) or v <= 0:
+            raise ConfigError(f"{flag}: must be a finite number > 0, got {v}")
+    if grid[0] * grid[1] < cal.MIN_MARKERS:
+        raise ConfigError(f"--grid: {args.grid} gives {grid[0] * grid[1]} points; need at "
+                          f"least {cal.MIN_MARKERS}")
+    marker_id = args.marker_id
+    if marker_id is None:
+        if args.arm not in cal.DEFAULT_MARKER_IDS:
+            raise ConfigError(f"--marker-id: arm {args.arm!r} has no default marker id "
+                              f"(left 0, right 1); give --marker-id")
+        marker_id = cal.DEFAULT_MARKER_IDS[args.arm]
+    if not 0 <= marker_id < 50:
+        raise ConfigError(f"--marker-id: {marker_id} is not in {cal.MARKER_DICT} (0..49)")
+    return host, CalibrateOptions(
+        host=host.name, arm=args.arm, box=box, grid=grid, z_mm=float(args.z),
+        marker_above_tcp_mm=float(args.marker_above_tcp), marker_id=marker_id,
+        out=Path(args.out) if args.out else None, image=Path(args.image) if args.image else None,
+        max_px=float(args.max_px), max_mm=float(args.max_mm))
+
+
+# -- the host's existing file ------------------------------------------------------------
+_READ_SCRIPT = (
+    "import json, os, sys\n"
+    "p = os.path.expanduser(os.path.expandvars(sys.argv[1]))\n"
+    "try:\n"
+    "    t = open(p, encoding='utf-8').read()\n"
+    "except FileNotFoundError:\n"
+    "    t = None\n"
+    "sys.stdout.write(json.dumps({'path': p, 'text': t}))\n")
+
+
+def read_host_file(host: HostConfig, path: str, timeout_s: float = 20.0) -> tuple[str, str | None]:
+    """(expanded path, text or None if absent) of a file on ``host``.
+
+    Read through the host's own transport (a local subprocess, or one SSH exec channel
+    with the same key and known_hosts as the agent), so the lab's rest pose and speeds
+    survive a calibration over SSH too. Raises DriverError on a link failure.
+    """
+    from drivers.errors import TransportError
+    from drivers.transport import LocalTransport, make_transport
+
+    python = LocalTransport.python_for(host) if host.transport == "local" else host.python
+    t = make_transport(host)
+    t.open([python, "-c", _READ_SCRIPT, path], timeout_s)
+    buf = bytearray()
+    deadline = time.monotonic() + timeout_s
+    try:
+        while chunk := t.read(65536, deadline):
+            buf += chunk
+    finally:
+        t.close()
+    try:
+        reply = json.loads(buf.decode("utf-8"))
+        return str(reply["path"]), reply["text"]
+    except (ValueError, KeyError, TypeError):
+        raise TransportError(f"host {host.name}: cannot read {path}: "
+                             f"{t.stderr_tail().strip() or 'no answer'}") from None
+
+
+def existing_calibration(host: HostConfig, arm: str, say: Callable[[str], None]
+                         ) -> dict[str, Any] | None:
+    """The arm's current calibration file as a dict, None if there is none yet."""
+    path = next(a.calibration for a in host.arms if a.name == arm)
+    assert path is not None
+    where, text = read_host_file(host, path)
+    if text is None:
+        say(f"no calibration file yet at {where} on host {host.name}: a new one is written")
+        return None
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise ConfigError(f"{where} on host {host.name} is not JSON ({exc}); fix or remove "
+                          f"it first") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where} on host {host.name} is not a JSON object")
+    return data
+
+
+# -- the driving loop --------------------------------------------------------------------
+def _fmt(v: Any, nd: int = 1) -> str:
+    return "(" + ", ".join(f"{float(x):.{nd}f}" for x in v) + ")"
+
+
+def run_calibration(fleet: Any, opts: CalibrateOptions, box: cal.Box,
+                    existing: Mapping[str, Any] | None, say: Callable[[str], None]
+                    ) -> CalibrationOutcome:
+    """Drive the arm over the grid on a started ``fleet`` and fit; never raises for a
+    failure of the calibration itself (``outcome.error``), only for a dead host.
+
+    The caller sends every arm to rest afterwards (whatever happened here).
+    """
+    from drivers.host_fleet import HostCallError
+
+    out = CalibrationOutcome(box=box)
+    fleet.rest()
+    frame = fleet.frame(opts.host)
+    out.frame_size = (int(frame.shape[1]), int(frame.shape[0]))
+    out.rest_marker = cal.find_marker(frame, opts.marker_id)
+    out.last_frame = frame
+    points = cal.grid_points(box, opts.grid)
+    for k, (x, y) in enumerate(points, 1):
+        s = Sighting(k, (x, y, opts.z_mm))
+        out.sightings.append(s)
+        head = f"  point {k:2d}/{len(points)} {_fmt((x, y))} mm"
+        try:
+            tcp = fleet.move_tcp(opts.host, opts.arm, (x, y, opts.z_mm))
+        except HostCallError as exc:
+            if not fleet.host_status()[opts.host].connected:
+                raise  # the host is gone: no point in trying the other points
+            s.note = f"refused: {exc}"  # this point only (outside the host's box?)
+            say(f"{head}: {s.note}")
+            continue
+        s.tcp_mm = (float(tcp[0]), float(tcp[1]), float(tcp[2]))
+        frame = fleet.frame(opts.host)
+        out.last_frame = frame
+        s.pixel = cal.find_marker(frame, opts.marker_id)
+        off = math.dist(s.tcp_mm[:2], (x, y))
+        reached = f"tcp {_fmt(s.tcp_mm)}" + (f" ({off:.1f} mm off)" if off > 0.5 else "")
+        seen = f"marker {_fmt(s.pixel, 2)} px" if s.pixel else "marker NOT FOUND"
+        say(f"{head}: {reached}, {seen}")
+    good = [s for s in out.sightings if s.pixel is not None and s.tcp_mm is not None]
+    out.used = good
+    say(f"markers found: {len(good)}/{len(points)}")
+    if len(good) < opts.min_markers:
+        out.error = (f"only {len(good)} of {len(points)} points showed marker {opts.marker_id}"
+                     f" (need {opts.min_markers}); is the pusher's marker in the camera's view "
+                     f"over the box? check --box, --marker-id and the light")
+        return out
+    try:
+        out.fit = cal.fit_homography([s.pixel for s in good if s.pixel],
+                                     [s.tcp_mm[:2] for s in good if s.tcp_mm],
+                                     min_points=opts.min_markers)
+    except cal.CalibrationError as exc:
+        out.error = str(exc)
+        return out
+    fit = out.fit
+    out.crop = cal.propose_crop(fit.homography, box, out.frame_size)
+    out.data = cal.calibration_data(existing, fit, box)
+    return out
+
+
+def report(out: CalibrationOutcome, opts: CalibrateOptions, current_crop: Any,
+           say: Callable[[str], None]) -> bool:
+    """Print the fit's figures and proposals; True if within the thresholds."""
+    fit = out.fit
+    assert fit is not None and out.crop is not None and out.frame_size is not None
+    s = fit.summary()
+    if fit.n_outliers:
+        bad = [s.index for s, ok in zip(out.used, fit.inliers, strict=True) if not ok]
+        say(f"RANSAC rejected {fit.n_outliers} sighting(s) (points {bad}): a marker seen "
+            f"where no other point agrees, or a TCP that did not reach; {fit.n_inliers} kept")
+    say(f"reprojection error over {fit.n_inliers} points: median {s['median_px']:.2f} px / "
+        f"{s['median_mm']:.2f} mm, max {s['max_px']:.2f} px / {s['max_mm']:.2f} mm")
+    cur = "none" if current_crop is None else ",".join(str(v) for v in current_crop)
+    say(f"proposed crop for {opts.arm}: {','.join(str(v) for v in out.crop)} "
+        f"(config: {cur}) = the square around the box's projection")
+    if out.rest_marker is not None:
+        say(f"rest pose: IN VIEW (marker {opts.marker_id} seen at {_fmt(out.rest_marker)} px "
+            f"with every arm at rest); move the rest pose out of the camera's view")
+    else:
+        say("rest pose: out of view (marker not seen with every arm at rest)")
+    ok = s["max_px"] <= opts.max_px and s["max_mm"] <= opts.max_mm
+    if not ok:
+        say(f"FAILED: max error {s['max_px']:.2f} px / {s['max_mm']:.2f} mm is over "
+            f"--max-px {opts.max_px:g} / --max-mm {opts.max_mm:g}; nothing written")
+    return ok
+
+
+def _overlay(out: CalibrationOutcome, opts: CalibrateOptions, mirror: bool) -> Any:
+    from testbed.perception.cube import WORKSPACE_POLYGON
+
+    fit = out.fit
+    marks = np.array([s.pixel for s in out.sightings if s.pixel is not None]).reshape(-1, 2)
+    arm = cal.ArmOverlay(opts.arm, out.crop, mirror, WORKSPACE_POLYGON,
+                         cal.project_box(fit.homography, out.box) if fit is not None
+                         and out.box is not None else None, marks)
+    return cal.draw_overlays(out.last_frame, [arm])
+
+
+def _check_inside(box: cal.Box, table_box: Any, where: str) -> None:
+    """``--box`` must lie in the file's table box: the host refuses TCP points outside
+    the box it was started with, so say so now rather than at every point."""
+    try:
+        tb = cal.parse_box(",".join(str(v) for v in table_box), "table_box_mm")
+    except ValueError:
+        return  # the host's provisional calibration will say what is wrong with it
+    if box[0] < tb[0] or box[1] < tb[1] or box[2] > tb[2] or box[3] > tb[3]:
+        raise ConfigError(f"--box: {_fmt(box)} leaves the table box {_fmt(tb)} of {where}, "
+                          f"and the host refuses TCP points outside it; give a box inside it "
+                          f"or widen table_box_mm in that file on the host first")
+
+
+def make_fleet(host: HostConfig, arm: str) -> Any:
+    """A one-host fleet whose agent runs every arm of the host in calibration mode.
+
+    All of them, not only ``arm``: on day one the sibling has no homography yet either,
+    and calibration mode never observes or pushes, so the sibling loses nothing (it is
+    rested, and its file is read only for its box and rest pose).
+    """
+    from drivers.host_fleet import HostFleet
+
+    arms = [arm, *(a.name for a in host.arms if a.name != arm)]
+    return HostFleet([host], trial_seed=0, calibrating={host.name: arms})
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from testbed.core.config import load_fleet
+
+    cfg = load_fleet(args.config)
+    host, opts = resolve(cfg, args)
+    say = print
+    arm_cfg = next(a for a in host.arms if a.name == opts.arm)
+    existing = existing_calibration(host, opts.arm, say)
+    box = opts.box
+    if box is None:
+        if existing is None or "table_box_mm" not in existing:
+            raise ConfigError(f"--box: required, the arm's calibration ({arm_cfg.calibration})"
+                              f" has no table_box_mm to take the safe box from")
+        try:
+            box = cal.parse_box(",".join(str(v) for v in existing["table_box_mm"]),
+                                "table_box_mm")
+        except ValueError as exc:
+            raise ConfigError(f"{arm_cfg.calibration}: {exc}") from None
+    elif existing is not None and "table_box_mm" in existing:
+        _check_inside(box, existing["table_box_mm"], str(arm_cfg.calibration))
+    plane = opts.z_mm + opts.marker_above_tcp_mm
+    say(f"calibrate {host.name}/{opts.arm}: {opts.grid[0]}x{opts.grid[1]} points over box "
+        f"{_fmt(box)} mm at z = {opts.z_mm:g} mm; marker {cal.MARKER_DICT} id "
+        f"{opts.marker_id} in the plane z = {plane:g} mm")
+    if abs(plane - CUBE_TOP_MM) > 2.0:
+        say(f"warning: the marker plane (z = {plane:g} mm) is not the cube's top face "
+            f"(z = {CUBE_TOP_MM:g} mm); pixels of the cube will map with a parallax error")
+    say("keep the table clear of cubes under the grid: the pusher goes down to "
+        f"z = {opts.z_mm:g} mm at every point")
+    fleet = make_fleet(host, opts.arm)
+    try:
+        fleet.start()
+        status = fleet.host_status()[host.name]
+        if not status.connected:
+            say(f"FAILED: host {host.name} did not start: {status.error}")
+            return EXIT_FAILED
+        out = run_calibration(fleet, opts, box, existing, say)
+        if out.error is not None:
+            say(f"FAILED: {out.error}; nothing written")
+            return EXIT_FAILED
+        ok = report(out, opts, arm_cfg.crop, say)
+        if opts.image is not None and out.last_frame is not None:
+            import cv2
+
+            opts.image.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(opts.image), _overlay(out, opts, arm_cfg.mirror))
+            say(f"picture -> {opts.image}")
+        if not ok:
+            return EXIT_FAILED
+        assert out.data is not None
+        out.saved_path = str(fleet.save_calibration(host.name, opts.arm, out.data))
+        say(f"calibration -> {out.saved_path} (on host {host.name})")
+        if opts.out is not None:
+            atomic_write_json(opts.out, out.data)
+            say(f"copy -> {opts.out}")
+        return 0
+    except Exception as exc:
+        from drivers.errors import DriverError
+
+        if not isinstance(exc, DriverError):
+            raise
+        say(f"FAILED: {exc}")
+        return EXIT_FAILED
+    finally:
+        try:
+            fleet.rest()  # every arm, whatever happened
+        finally:
+            fleet.close()

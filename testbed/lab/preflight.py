@@ -1,0 +1,129 @@
+"""``testbed check``: before a trial, is every host, agent, camera and arm ready?
+
+A lab operator runs it before the 250-step trial: it reaches each host, lets the
+handshake check the agent's protocol version, takes one frame of every arm, reports
+each arm's state in one line, and writes a mosaic PNG of all arms' images so a glance
+shows a camera that is dark, a crop that is off, or a cube out of its workspace.
+
+A host with a real camera (yumi) also sends its FULL frame, written as
+``check-<host>.png`` beside the mosaic with each arm's crop box, its workspace (the
+task's canonical polygon mapped back through crop and mirror) and, when the arm's
+calibration file has a homography, its table box projected through it: a crop that
+does not sit on the calibrated table box is a bad crop or a stale calibration. Backends
+without a camera frame (the twin) are skipped with a line, not failed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from testbed.core.config import FleetConfig, HostConfig
+from testbed.core.types import ArmObservation, Fault
+
+
+def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], None]) -> bool:
+    import cv2
+
+    from testbed.experiments.trial import build_hosts, mosaic
+
+    hosts = build_hosts(cfg, cfg.trial.seed)
+    ok = True
+    images = []
+    try:
+        hosts.start()
+        obs = hosts.observe()
+        for robot in hosts.robot_names:
+            o = obs.get(robot)
+            if isinstance(o, ArmObservation):
+                state = "VIOLATING (needs a hard reset)" if o.violating else "ready"
+                mean = float(o.image.mean())
+                dark = " DARK IMAGE?" if mean < 10 else ""
+                print_line(f"ok    {robot}: frame {o.image.shape}, {state}{dark}")
+                images.append(o.image)
+            else:
+                ok = False
+                reason = o.reason if isinstance(o, Fault) else "no answer"
+                print_line(f"FAULT {robot}: {reason}")
+        hosts.rest()
+        for host in cfg.hosts:
+            ok = full_frame(hosts, host, mosaic_path.parent, print_line) and ok
+    finally:
+        hosts.close()
+    if images:
+        cv2.imwrite(str(mosaic_path), cv2.cvtColor(mosaic(images), cv2.COLOR_RGB2BGR))
+        print_line(f"mosaic of {len(images)} arms -> {mosaic_path}")
+    return ok
+
+
+def full_frame(hosts: Any, host: HostConfig, folder: Path,
+               print_line: Callable[[str], None]) -> bool:
+    """Write ``folder/check-<host>.png`` (full frame, crops, workspaces); False on a fault.
+
+    Only hosts whose backend has a camera frame are asked (yumi); a host that is down
+    was already reported by the observation, so it is not reported twice.
+    """
+    import cv2
+
+    from drivers.host_fleet import HostCallError
+    from testbed.perception import homography as cal
+
+    if host.backend != "yumi":
+        return True
+    if not hosts.host_status()[host.name].connected:
+        return True  # its arms are already FAULT lines
+    try:
+        frame = hosts.frame(host.name)
+    except HostCallError as exc:
+        print_line(f"FAULT {host.name}: no full camera frame: {exc}")
+        return False
+    size = (int(frame.shape[1]), int(frame.shape[0]))
+    overlays = []
+    for arm in host.arms:
+        box_px, note = _table_box_px(host, arm.name, arm.calibration)
+        overlays.append(cal.ArmOverlay(arm.name, arm.crop, arm.mirror,
+                                       _workspace(), box_px))
+        crop = "no crop" if arm.crop is None else f"crop {','.join(map(str, arm.crop))}"
+        if arm.crop is not None and (arm.crop[2] > size[0] or arm.crop[3] > size[1]):
+            crop += f" OUTSIDE the {size[0]}x{size[1]} frame"
+        print_line(f"      {host.name}/{arm.name}: {crop}; {note}")
+    path = folder / f"check-{host.name}.png"
+    cv2.imwrite(str(path), cal.draw_overlays(frame, overlays))
+    print_line(f"full frame {size[0]}x{size[1]} of host {host.name} with crops and "
+               f"workspaces -> {path}")
+    return True
+
+
+def _workspace() -> Any:
+    from testbed.perception.cube import WORKSPACE_POLYGON
+
+    return WORKSPACE_POLYGON
+
+
+def _table_box_px(host: HostConfig, arm: str, path: str | None) -> tuple[Any, str]:
+    """The arm's calibrated table box in the picture, read from its file on the host
+    (through the host's own transport); (None, why not) when there is none."""
+    import json
+
+    import numpy as np
+
+    from drivers.errors import DriverError
+    from testbed.lab.calibrate import read_host_file
+    from testbed.perception import homography as cal
+
+    if path is None:
+        return None, "no calibration path"
+    try:
+        where, text = read_host_file(host, path)
+    except DriverError as exc:
+        return None, f"calibration not read: {exc}"
+    if text is None:
+        return None, f"no calibration at {where}: run testbed calibrate"
+    try:
+        d = json.loads(text)
+        h = np.asarray(d["homography"], dtype=np.float64).reshape(3, 3)
+        box = cal.parse_box(",".join(str(v) for v in d["table_box_mm"]), "table_box_mm")
+        return cal.project_box(h, box), f"calibrated table box drawn ({where})"
+    except (ValueError, KeyError, TypeError, np.linalg.LinAlgError) as exc:
+        return None, f"calibration {where} has no usable homography/table_box_mm ({exc})"

@@ -1,0 +1,129 @@
+"""The folder of one run: its resolved config, its records, its checkpoint.
+
+``runs/<name>/`` holds ``config.toml`` (the resolved config, so a run can be resumed or
+repeated without the original file), ``run.json`` (how it was started, its status),
+``steps.jsonl`` and ``summary.json`` (DESIGN.md section 5), ``data/`` (every arm's
+frame of every step: ``testbed.records.store``; ``data/demos.npz``: theta_0's offline
+demonstrations), ``learner-start.pt`` (the learner the run
+started from, its data included), ``state.json`` + ``learner-0.pt`` / ``learner-1.pt``
+(the checkpoint of the last complete step: weights, optimisers, RNG, counters; its data
+is replayed from ``data/``) and, once finished, ``learner.pt`` (the trained learner,
+data included: ``testbed evaluate --policy``). A step is *complete* once it is in
+data/, steps.jsonl and the checkpoint; resume starts after it.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from testbed.core.config import ConfigError, FleetConfig, parse_config
+from testbed.records.steps import atomic_write_bytes, atomic_write_json
+
+CONFIG = "config.toml"
+STEPS = "steps.jsonl"
+SUMMARY = "summary.json"
+STATE = "state.json"
+LEARNER = "learner.pt"
+START_LEARNER = "learner-start.pt"
+META = "run.json"
+
+
+def _drop_none(obj: Any) -> Any:
+    """TOML has no null: leave unset optional fields out of the resolved config."""
+    if isinstance(obj, dict):
+        return {k: _drop_none(v) for k, v in obj.items() if v is not None}
+    if isinstance(obj, list | tuple):
+        return [_drop_none(v) for v in obj]
+    return obj
+
+
+@dataclass(frozen=True)
+class RunDir:
+    path: Path
+
+    @property
+    def steps(self) -> Path:
+        return self.path / STEPS
+
+    @property
+    def summary(self) -> Path:
+        return self.path / SUMMARY
+
+    @property
+    def state(self) -> Path:
+        return self.path / STATE
+
+    @property
+    def learner(self) -> Path:
+        return self.path / LEARNER
+
+    @property
+    def start_learner(self) -> Path:
+        return self.path / START_LEARNER
+
+    def write_config(self, cfg: FleetConfig) -> None:
+        """config.toml, without the web console's tokens: a run folder is data a lab
+        keeps, exports and shares, and a token is a credential. A resumed run makes
+        new tokens (printed once), unless its operator passes the config that has them.
+        """
+        data = _drop_none(cfg.model_dump(mode="json"))
+        web = data.get("humans", {}).get("web", {})
+        if web.get("tokens"):
+            web["tokens"] = []
+        atomic_write_bytes(self.path / CONFIG, tomli_w.dumps(data).encode())
+
+    def read_config(self) -> FleetConfig:
+        p = self.path / CONFIG
+        if not p.exists():
+            raise ConfigError(f"{self.path}: not a run folder (no {CONFIG}); check --resume")
+        return parse_config(tomllib.loads(p.read_text()), str(p))
+
+    def write_meta(self, meta: dict[str, Any]) -> None:
+        atomic_write_json(self.path / META, meta)
+
+    def read_meta(self) -> dict[str, Any]:
+        p = self.path / META
+        return json.loads(p.read_text()) if p.exists() else {}
+
+
+def new_run_dir(out: str | Path, name: str) -> RunDir:
+    """A fresh folder ``out/name`` (``name-2``, ``name-3``... if it is taken)."""
+    base = Path(out)
+    base.mkdir(parents=True, exist_ok=True)
+    p = base / name
+    k = 2
+    while p.exists():
+        p = base / f"{name}-{k}"
+        k += 1
+    p.mkdir(parents=True)
+    return RunDir(p)
+
+
+EVAL_PREFIX = "eval:"
+"""What the records call an evaluation's algorithm: ``eval:<the evaluated algorithm>``."""
+
+
+def evaluation_label(algorithm: str | None) -> str:
+    """The report row of an evaluation of ``algorithm``'s policy (never a training row)."""
+    return f"{EVAL_PREFIX}{algorithm or 'policy'}"
+
+
+def evaluated(policy: Path) -> dict[str, str | None]:
+    """What a policy file is: the run it ends (``<run>/learner.pt`` with a run.json) and
+    that run's algorithm, else just the file (run.json ``evaluates`` of an evaluation)."""
+    meta_path = policy.parent / META
+    algorithm = run = None
+    if meta_path.exists():
+        try:
+            options = json.loads(meta_path.read_text()).get("options", {})
+            algorithm = options.get("label") or options.get("algorithm")
+            run = policy.parent.name
+        except (OSError, ValueError, AttributeError):
+            pass
+    return {"policy": str(policy), "run": run, "algorithm": algorithm}
