@@ -21,13 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from testbed.core.config import FleetConfig, LearningConfig, TrialConfig, default_twin_config
-from testbed.experiments.trial import (
-    TrialOptions,
-    build_hosts,
-    load_learner,
-    pretrained_learner,
-    run_trial,
-)
+from testbed.experiments.build import build_hosts
+from testbed.experiments.trial import TrialOptions, load_learner, pretrained_learner, run_trial
 from testbed.fleet.priorities import ALGORITHMS
 
 
@@ -77,7 +72,7 @@ def main() -> None:
     args = ap.parse_args()
     cfg = _cfg(args.batch, args.steps)
     out = Path(tempfile.mkdtemp(prefix="bench-fleet-"))
-    from testbed.core.humans import ScriptedHumans
+    from testbed.experiments.scripted_humans import ScriptedHumans
 
     _, ckpt = pretrained_learner(cfg, ScriptedHumans(), out, None)
 

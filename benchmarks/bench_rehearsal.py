@@ -42,11 +42,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from testbed.core.atomic import atomic_write_json
 from testbed.core.config import YumiHost
 from testbed.core.types import ArmObservation
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.rehearsal import HardwareTwinLab, true_calibration
-from testbed.records.steps import atomic_write_json
 
 PHYSICAL = Path(__file__).resolve().parents[1] / "protocols" / "physical.toml"
 Clock = defaultdict[str, float]

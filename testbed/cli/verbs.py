@@ -294,9 +294,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from testbed.core.humans import make_humans
+    from testbed.experiments.build import build_hosts, make_humans
     from testbed.experiments.pretraining import collect_demos, save_transitions
-    from testbed.experiments.trial import build_hosts
 
     cfg = _config(args)
     count = args.count or cfg.learning.demos
@@ -327,9 +326,9 @@ def _with_pretrain_steps(cfg: FleetConfig, steps: int | None) -> FleetConfig:
 
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
-    from testbed.core.humans import make_humans
+    from testbed.experiments.build import build_hosts, make_humans
     from testbed.experiments.pretraining import load_transitions, pretrain
-    from testbed.experiments.trial import PRETRAIN_SEED, build_hosts, new_learner
+    from testbed.experiments.trial import PRETRAIN_SEED, new_learner
 
     cfg = _with_pretrain_steps(_config(args), args.steps)
     if not Path(args.demos).is_file():

@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from testbed.core.atomic import atomic_write_json
 from testbed.core.interrupts import critical
-from testbed.records.steps import atomic_write_json
 
 
 class CheckpointWriter:

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_json
 from testbed.core.types import NUM_ACTIONS, ArmObservation, Fault
-from testbed.records.steps import atomic_write_json
 
 
 class ExpertHosts:

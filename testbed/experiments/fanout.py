@@ -89,7 +89,7 @@ def _threads(n: int) -> None:
 
 def _pretrain(fleet: FleetConfig, folder: str, critics: list[str], threads: int) -> str:
     """theta_0 into ``folder/.pretrained`` (the cache every trial then reads)."""
-    from testbed.core.humans import ScriptedHumans
+    from testbed.experiments.scripted_humans import ScriptedHumans
     from testbed.experiments.trial import pretrained_learner
 
     _threads(threads)

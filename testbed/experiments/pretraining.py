@@ -25,11 +25,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_bytes
 from testbed.core.config import ConfigError, FleetConfig, LearningConfig
 from testbed.core.humans import Humans
 from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
 from testbed.fleet.loop import HostsLike
-from testbed.records.steps import atomic_write_bytes
 
 if TYPE_CHECKING:  # the learning package imports torch: only when data is really built
     from testbed.learning.api import Transitions

@@ -352,7 +352,8 @@ def matched_budget(run: Path, num_humans: int) -> float:
     arm-steps) / (humans x steps), read from its steps.jsonl. Random given it as its
     budget spends the same human effort (``RandomPriority`` keeps its effort on budget)."""
     from testbed.core.config import ConfigError
-    from testbed.records.steps import read_steps, summarize
+    from testbed.records.metrics import summarize
+    from testbed.records.steps import read_steps
 
     rd = RunDir(run)
     if not rd.summary.exists():

@@ -29,8 +29,10 @@ from typing import Any
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_bytes
+from testbed.records.metrics import cumulative, summarize
 from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
-from testbed.records.steps import atomic_write_bytes, cumulative, read_steps, summarize
+from testbed.records.steps import read_steps
 
 METRICS = ("successes", "hard_resets", "idle_time", "human_actions", "rohe")
 EVAL_METRICS = ("successes", "hard_resets", "idle_time")

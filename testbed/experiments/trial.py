@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_json
 from testbed.core.config import AlgorithmConfig, ConfigError, FleetConfig, HostConfig
-from testbed.core.humans import Humans, HumansStopRequested, make_humans
+from testbed.core.humans import Humans, HumansStopRequested
 from testbed.core.interrupts import critical
+from testbed.experiments.build import make_humans
 from testbed.experiments.checkpointer import CheckpointWriter
 from testbed.experiments.pretraining import (
     Progress,
@@ -38,14 +40,9 @@ from testbed.experiments.pretraining import (
 from testbed.fleet.loop import FleetLoop, StepOutcome
 from testbed.fleet.priorities import get_algorithm
 from testbed.fleet.thresholds import SIGNAL, resolve_thresholds
+from testbed.records.metrics import summarize
 from testbed.records.run_dir import RunDir, new_run_dir
-from testbed.records.steps import (
-    RunWriter,
-    atomic_write_json,
-    read_steps,
-    summarize,
-    truncate_torn_tail,
-)
+from testbed.records.steps import RunWriter, read_steps, truncate_torn_tail
 from testbed.records.store import FOLDER as DATA_FOLDER
 from testbed.records.store import META as DATA_META
 from testbed.records.store import RunDataWriter
@@ -436,7 +433,7 @@ def _with_hosts(cfg: FleetConfig, hosts: Sequence[HostConfig], where: Path) -> F
 
 def _rewrite_steps(path: Path, rows: list[dict[str, Any]]) -> None:
     """Drop the steps past the checkpoint (logged, but their checkpoint never landed)."""
-    from testbed.records.steps import atomic_write_bytes
+    from testbed.core.atomic import atomic_write_bytes
 
     text = "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows)
     atomic_write_bytes(path, text.encode())

@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_json
 from testbed.core.config import ConfigError, FleetConfig, HostConfig
 from testbed.perception import homography as cal
-from testbed.records.steps import atomic_write_json
 
 CUBE_TOP_MM = 40.0
 """The plane perception sees the cube's centre in (a 40 mm cube's top face)."""

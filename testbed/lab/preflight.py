@@ -26,7 +26,8 @@ from testbed.core.types import ArmObservation, Fault
 def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], None]) -> bool:
     import cv2
 
-    from testbed.experiments.trial import build_hosts, mosaic
+    from testbed.experiments.build import build_hosts
+    from testbed.experiments.trial import mosaic
 
     hosts = build_hosts(cfg, cfg.trial.seed)
     ok = True

@@ -565,7 +565,7 @@ def seed_calibration(lab: HardwareTwinLab, host: str, arm: str) -> Path:
     path = lab.calibration_path(host, arm)
     if path.exists():
         return path
-    from testbed.records.steps import atomic_write_json
+    from testbed.core.atomic import atomic_write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
     seed = true_calibration(cam, arm)
@@ -666,7 +666,7 @@ def true_model_error(cam: Mapping[str, Any], homography: Any, box_mm: Sequence[f
 
 def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
     """Run a physical protocol against hardware twins behind real sshds (see module doc)."""
-    from testbed.core.humans import make_humans
+    from testbed.experiments.build import make_humans
     from testbed.experiments.protocol import load_protocol, run_protocol
     from testbed.records.run_dir import RunDir
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import torch
 
-from testbed.records.steps import atomic_write_bytes
+from testbed.core.atomic import atomic_write_bytes
 
 FORMAT = "testbed.learning.Learner/1"
 """A whole learner: weights, optimisers, sampler, counters and data."""

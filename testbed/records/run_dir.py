@@ -22,8 +22,8 @@ from typing import Any
 
 import tomli_w
 
+from testbed.core.atomic import atomic_write_bytes, atomic_write_json
 from testbed.core.config import ConfigError, FleetConfig, parse_config
-from testbed.records.steps import atomic_write_bytes, atomic_write_json
 
 CONFIG = "config.toml"
 STEPS = "steps.jsonl"

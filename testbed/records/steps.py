@@ -1,4 +1,4 @@
-"""Run records: the per-step log, its schema, the metrics, and crash-safe writes.
+"""Run records: the per-step log (steps.jsonl), its schema, durable appends.
 
 Why this module exists: a trial's only ground truth is ``runs/<name>/steps.jsonl``
 (DESIGN.md section 5). Every number the project reports (the summary, the protocol
@@ -29,19 +29,15 @@ sees either the old or the new file, never half of one.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
-import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Final
 
-import numpy as np
-import numpy.typing as npt
-
+from testbed.core.atomic import atomic_write_json, fsync_dir, json_default
 from testbed.core.types import NUM_ACTIONS, Mode
 
 __all__ = [
@@ -49,12 +45,7 @@ __all__ = [
     "SUMMARY_FILE",
     "RecordError",
     "RunWriter",
-    "atomic_write_bytes",
-    "atomic_write_json",
-    "cumulative",
     "read_steps",
-    "rohe",
-    "summarize",
     "truncate_torn_tail",
     "validate_step",
 ]
@@ -62,9 +53,9 @@ __all__ = [
 STEPS_FILE: Final = "steps.jsonl"
 SUMMARY_FILE: Final = "summary.json"
 _MODES: Final = frozenset(m.value for m in Mode)
-_HUMAN_MODES: Final = frozenset({Mode.TELEOP.value, Mode.RESET.value})
-_IDLE_MODES: Final = frozenset({Mode.IDLE.value, Mode.RESET.value})
-_NO_HUMAN_MODES: Final = frozenset({Mode.AUTONOMOUS.value, Mode.IDLE.value})
+HUMAN_MODES: Final = frozenset({Mode.TELEOP.value, Mode.RESET.value})
+IDLE_MODES: Final = frozenset({Mode.IDLE.value, Mode.RESET.value})
+_NOHUMAN_MODES: Final = frozenset({Mode.AUTONOMOUS.value, Mode.IDLE.value})
 # A refused push (the host could not push, e.g. the cube was not found) counts as neither
 # autonomous nor human (DESIGN.md section 9); the human of a refused teleop step is kept.
 
@@ -124,9 +115,9 @@ def validate_step(obj: object) -> None:
         if human is ... or not (human is None or (_is_int(human) and human >= 0)):
             raise RecordError(f"{where}.human must be an int >= 0 or null, got "
                               f"{'nothing' if human is ... else repr(human)}")
-        if mode in _HUMAN_MODES and human is None:
+        if mode in HUMAN_MODES and human is None:
             raise RecordError(f"{where}: mode {mode!r} needs a human")
-        if mode in _NO_HUMAN_MODES and human is not None:
+        if mode in _NOHUMAN_MODES and human is not None:
             raise RecordError(f"{where}: mode {mode!r} cannot have a human")
         refused = row.get("refused")
         if mode == Mode.REFUSED.value and not (isinstance(refused, str) and refused):
@@ -174,53 +165,6 @@ def _validate_presence(obj: dict[str, Any], robots: set[str]) -> None:
 
 
 # ------------------------------------------------------------------------ writing
-def _fsync_dir(path: Path) -> None:
-    # Makes a create/rename in the folder durable; not every platform can open one.
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    """Replace ``path`` with ``data`` atomically: temp in the same folder, fsync, replace."""
-    target = Path(path)
-    folder = target.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp_name, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp_name)
-        raise
-    _fsync_dir(folder)
-
-
-def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> None:
-    """Atomically write ``obj`` as indented JSON (NaN/inf refused: they are not JSON)."""
-    text = json.dumps(obj, indent=2, allow_nan=False, default=_json_default) + "\n"
-    atomic_write_bytes(path, text.encode("utf-8"))
-
-
-def _json_default(obj: object) -> Any:
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating):
-        return float(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
 def truncate_torn_tail(path: str | os.PathLike[str]) -> int:
     """Cut a torn last line (bytes after the last newline) off a JSONL file.
 
@@ -272,7 +216,7 @@ class RunWriter:
         created = not self.path.exists()
         self._file = open(self.path, "a", encoding="utf-8")  # noqa: SIM115 (closed in close())
         if created:
-            _fsync_dir(self.run_dir)
+            fsync_dir(self.run_dir)
 
     def write_step(self, obj: Mapping[str, Any]) -> None:
         """Append ``obj`` as one line, then flush and fsync."""
@@ -280,7 +224,7 @@ class RunWriter:
             raise ValueError(f"{self.path}: the run writer is closed")
         if self.validate:
             validate_step(dict(obj))
-        line = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_json_default)
+        line = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=json_default)
         self._file.write(line + "\n")
         self._file.flush()
         os.fsync(self._file.fileno())
@@ -335,92 +279,3 @@ def read_steps(path: str | os.PathLike[str], *, validate: bool = True) -> list[d
     return steps
 
 
-# ------------------------------------------------------------------------ metrics
-def rohe(successes: float, human_actions: float, num_humans: int, num_robots: int) -> float:
-    """Return on human effort, the paper's formula: (M / N) * successes / (1 + actions)."""
-    if num_robots <= 0:
-        return 0.0
-    return (num_humans / num_robots) * successes / (1.0 + human_actions)
-
-
-def _per_step_counts(steps: Sequence[Mapping[str, Any]]) -> dict[str, npt.NDArray[np.int64]]:
-    n = len(steps)
-    out = {k: np.zeros(n, dtype=np.int64) for k in
-           ("t", "robots", "successes", "hard_resets", "idle_time", "human_actions",
-            "teleop_steps", "reset_steps", "fault_steps", "refused_steps")}
-    last_t: int | None = None
-    for i, step in enumerate(steps):
-        t = step["t"]
-        if last_t is not None and t <= last_t:
-            raise RecordError(f"step {i}: t={t} does not increase (previous t={last_t})")
-        last_t = t
-        out["t"][i] = t
-        rows: Iterable[Mapping[str, Any]] = step["robots"]
-        for row in rows:
-            mode = row["mode"]
-            out["robots"][i] += 1
-            out["successes"][i] += bool(row["success"])
-            out["hard_resets"][i] += bool(row["violation"])
-            out["idle_time"][i] += mode in _IDLE_MODES
-            out["human_actions"][i] += mode in _HUMAN_MODES
-            out["teleop_steps"][i] += mode == Mode.TELEOP.value
-            out["reset_steps"][i] += mode == Mode.RESET.value
-            out["fault_steps"][i] += mode == Mode.FAULT.value
-            out["refused_steps"][i] += mode == Mode.REFUSED.value
-    return out
-
-
-def summarize(steps: Sequence[Mapping[str, Any]], algorithm: str, num_humans: int,
-              num_robots: int | None = None) -> dict[str, Any]:
-    """Every metric of DESIGN.md section 5 from the step rows (the one place they are made).
-
-    ``num_robots`` defaults to the most robots any step lists. Extra keys beyond the
-    contract: ``teleop_steps``, ``reset_steps``, ``fault_steps``, ``refused_steps``
-    (arm-steps the host refused to push: counted in none of the contract's metrics),
-    ``last_t``.
-    """
-    counts = _per_step_counts(steps)
-    if num_robots is None:
-        num_robots = int(counts["robots"].max()) if len(steps) else 0
-    totals = {k: int(counts[k].sum()) for k in
-              ("successes", "hard_resets", "idle_time", "human_actions",
-               "teleop_steps", "reset_steps", "fault_steps", "refused_steps")}
-    return {
-        "algorithm": algorithm,
-        "steps": len(steps),
-        "num_robots": num_robots,
-        "num_humans": num_humans,
-        "successes": totals["successes"],
-        "hard_resets": totals["hard_resets"],
-        "idle_time": totals["idle_time"],
-        "human_actions": totals["human_actions"],
-        "rohe": rohe(totals["successes"], totals["human_actions"], num_humans, num_robots),
-        "teleop_steps": totals["teleop_steps"],
-        "reset_steps": totals["reset_steps"],
-        "fault_steps": totals["fault_steps"],
-        "refused_steps": totals["refused_steps"],
-        "last_t": int(counts["t"][-1]) if len(steps) else None,
-    }
-
-
-def cumulative(steps: Sequence[Mapping[str, Any]], num_humans: int | None = None,
-               num_robots: int | None = None) -> dict[str, npt.NDArray[Any]]:
-    """Cumulative curves over timesteps for the plots: one array entry per step.
-
-    Keys: ``t`` and cumulative ``successes``, ``hard_resets``, ``idle_time``,
-    ``human_actions``; with ``num_humans`` also ``rohe`` (each entry = the ROHE of the
-    run cut at that step). The last entries equal :func:`summarize`'s totals.
-    """
-    counts = _per_step_counts(steps)
-    out: dict[str, npt.NDArray[Any]] = {"t": counts["t"]}
-    for k in ("successes", "hard_resets", "idle_time", "human_actions"):
-        out[k] = np.cumsum(counts[k])
-    if num_humans is not None:
-        if num_robots is None:
-            num_robots = int(counts["robots"].max()) if len(steps) else 0
-        if num_robots > 0:
-            out["rohe"] = ((num_humans / num_robots) * out["successes"]
-                           / (1.0 + out["human_actions"]))
-        else:
-            out["rohe"] = np.zeros(len(steps))
-    return out

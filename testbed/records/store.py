@@ -39,8 +39,8 @@ from typing import Any, Final, Protocol
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_json, fsync_dir
 from testbed.core.types import IMAGE_SIZE, Mode
-from testbed.records.steps import _fsync_dir, atomic_write_json
 
 FORMAT: Final = "testbed.records.store/1"
 FOLDER: Final = "data"
@@ -204,7 +204,7 @@ class RunDataWriter:
                         f.truncate(size)
                         os.fsync(f.fileno())
             k += 1
-        _fsync_dir(self.folder)
+        fsync_dir(self.folder)
         return keep
 
     def append(self, frames: np.ndarray) -> None:
@@ -222,7 +222,7 @@ class RunDataWriter:
             self._file = open(path, "ab")  # noqa: SIM115 (closed in close())
             self._chunk = k
             if new:
-                _fsync_dir(self.folder)
+                fsync_dir(self.folder)
         self._file.write(frames.tobytes())
         self._file.flush()
         os.fsync(self._file.fileno())

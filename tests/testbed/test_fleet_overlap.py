@@ -16,8 +16,8 @@ import numpy as np
 import torch
 
 from testbed.core.config import AlgorithmConfig, LearningConfig
-from testbed.core.humans import ScriptedHumans
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
+from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.loop import FleetLoop
 from testbed.fleet.priorities import get_algorithm
 from testbed.learning import Learner

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from testbed.core.config import AlgorithmConfig, WebConsoleConfig
-from testbed.core.humans import Humans, Presence, ScriptedHumans, make_humans, presence_of
+from testbed.core.humans import Humans, Presence, presence_of
 from testbed.core.types import (
     IMAGE_SIZE,
     ArmObservation,
@@ -30,6 +30,8 @@ from testbed.core.types import (
     InterventionKind,
     PushResult,
 )
+from testbed.experiments.build import make_humans
+from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.loop import FleetLoop
 from testbed.fleet.priorities import get_algorithm
 from testbed.records.steps import RecordError, RunWriter, read_steps, validate_step

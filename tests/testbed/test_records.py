@@ -10,16 +10,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from testbed.core.atomic import atomic_write_bytes, atomic_write_json
+from testbed.records.metrics import cumulative, rohe, summarize
 from testbed.records.steps import (
     STEPS_FILE,
     RecordError,
     RunWriter,
-    atomic_write_bytes,
-    atomic_write_json,
-    cumulative,
     read_steps,
-    rohe,
-    summarize,
     truncate_torn_tail,
     validate_step,
 )

@@ -20,6 +20,7 @@ import pytest
 
 from drivers.testing.sshd import sshd_available
 from testbed.cli import main
+from testbed.core.atomic import atomic_write_json
 from testbed.core.config import FleetConfig
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.rehearsal import (
@@ -31,7 +32,7 @@ from testbed.lab.rehearsal import (
     true_model_error,
     truth_agreement,
 )
-from testbed.records.steps import atomic_write_json, read_steps
+from testbed.records.steps import read_steps
 
 pytestmark = [
     pytest.mark.slow,
@@ -185,8 +186,8 @@ def test_a_second_agent_for_a_held_robot_is_refused_naming_the_holder(
 def test_the_lab_hand_completes_a_hard_reset_and_the_expert_pushes_towards_the_goal(
         lab: tuple[HardwareTwinLab, Path]) -> None:
     from drivers.host_fleet import HostFleet
-    from testbed.core.humans import ScriptedHumans
     from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
+    from testbed.experiments.scripted_humans import ScriptedHumans
 
     twin_lab, _ = lab
     fleet = _fleet(twin_lab)
@@ -238,7 +239,7 @@ def test_the_lab_hand_completes_a_hard_reset_and_the_expert_pushes_towards_the_g
 
 def test_agent_and_sshd_killed_mid_trial_fault_only_their_host_and_come_back(
         lab: tuple[HardwareTwinLab, Path]) -> None:
-    from testbed.core.humans import ScriptedHumans
+    from testbed.experiments.scripted_humans import ScriptedHumans
     from testbed.experiments.trial import TrialOptions, run_trial
 
     twin_lab, root = lab

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from testbed.core.config import AlgorithmConfig
-from testbed.core.humans import ScriptedHumans
 from testbed.core.types import IMAGE_SIZE, ArmObservation, Fault, PushResult
+from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.loop import FleetLoop
 from testbed.fleet.priorities import get_algorithm
 from testbed.learning.api import PolicyOutput

@@ -21,8 +21,9 @@ import torch
 
 from testbed.experiments.trial import resume_learner
 from testbed.learning import Learner
+from testbed.records.metrics import summarize
 from testbed.records.run_dir import RunDir
-from testbed.records.steps import read_steps, summarize, validate_step
+from testbed.records.steps import read_steps, validate_step
 from testbed.records.store import RunData
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,0 +1,45 @@
+"""The hosts contract: what a trial asks of the fleet of robot hosts.
+
+Why here, in ``core``: the fleet loop (``testbed.fleet``) drives hosts it never builds,
+``drivers.host_fleet.HostFleet`` implements them, and wrappers (an evaluation's expert,
+a rehearsal's truth recorder: ``testbed.core.wrappers.HostsWrapper``) sit between the
+two. All three meet here, so none imports another.
+
+``LoopHosts`` is the part the loop itself calls each step (a test's double needs only
+that); ``Hosts`` adds the lifecycle that a trial's setup and teardown call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from typing import Protocol, runtime_checkable
+
+from testbed.core.types import ArmObservation, Fault, PushResult
+
+__all__ = ["Hosts", "LoopHosts"]
+
+
+@runtime_checkable
+class LoopHosts(Protocol):
+    """The calls of one timestep: look at every arm, then act on every arm at once."""
+
+    robot_names: list[str]
+    """``"host/arm"``, in config order."""
+
+    def observe(self) -> Mapping[str, ArmObservation | Fault]: ...
+
+    def execute(self, pushes: Mapping[str, int], resets: Collection[str]
+                ) -> Mapping[str, PushResult | Fault]: ...
+
+
+@runtime_checkable
+class Hosts(LoopHosts, Protocol):
+    """A trial's hosts, lifecycle included (``drivers.host_fleet.HostFleet``)."""
+
+    def start(self) -> None: ...
+
+    def rest(self) -> None: ...
+
+    def reseed(self, trial_seed: int) -> None: ...
+
+    def close(self) -> None: ...
