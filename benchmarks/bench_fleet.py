@@ -16,27 +16,26 @@ import argparse
 import statistics
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from testbed.core.config import FleetConfig, LearningConfig, TrialConfig, default_twin_config
+from testbed.core.wrappers import HostsWrapper
 from testbed.experiments.build import build_hosts
-from testbed.experiments.trial import TrialOptions, load_learner, pretrained_learner, run_trial
-from testbed.fleet.priorities import ALGORITHMS
+from testbed.experiments.hooks import TrialHooks
+from testbed.experiments.learners import load_learner, pretrained_learner
+from testbed.experiments.trial import TrialOptions, run_trial
+from testbed.fleet.algorithms import ALGORITHMS
 
 
-class SlowHosts:
+class SlowHosts(HostsWrapper):
     """The real hosts, but every execute takes at least ``delay`` seconds (a slow arm)."""
 
     def __init__(self, hosts: Any, delay: float) -> None:
-        self.hosts = hosts
+        super().__init__(hosts)
         self.delay = delay
-        self.robot_names = hosts.robot_names
         self.arm_times: list[float] = []
-
-    def observe(self) -> Any:
-        return self.hosts.observe()
 
     def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> Any:
         t0 = time.perf_counter()
@@ -47,11 +46,13 @@ class SlowHosts:
         self.arm_times.append(time.perf_counter() - t0)
         return out
 
-    def rest(self) -> None:
-        self.hosts.rest()
 
-    def close(self) -> None:
-        self.hosts.close()
+class _Tick(TrialHooks):
+    def __init__(self, tick: Callable[[Any], None]) -> None:
+        self.tick = tick
+
+    def on_step(self, outcome: Any) -> None:
+        self.tick(outcome)
 
 
 def _cfg(batch: int, steps: int) -> FleetConfig:
@@ -102,7 +103,7 @@ def main() -> None:
         last[0] = now
 
     t0 = time.perf_counter()
-    run_trial(cfg, opts, on_step=tick)
+    run_trial(cfg, opts, hooks=_Tick(tick))
     trial_wall = time.perf_counter() - t0
     loop_wall = sum(step_times[1:]) * args.steps / max(len(step_times) - 1, 1)
     print(f"training step alone: median {train_step * 1e3:.0f} ms (batch {args.batch}, "
@@ -119,7 +120,7 @@ def main() -> None:
     opts_b = TrialOptions(algorithm="cur", steps=args.steps, seed=1, out=str(out),
                           humans="scripted", policy=str(ckpt))
     try:
-        run_trial(cfg, opts_b, on_step=tick, hosts=hosts)
+        run_trial(cfg, opts_b, hooks=_Tick(tick), hosts=hosts)
     finally:
         hosts.rest()
         hosts.close()

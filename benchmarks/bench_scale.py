@@ -40,10 +40,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from testbed.core.config import FleetConfig, load_fleet
 from testbed.experiments.build import build_hosts
 from testbed.experiments.checkpointer import CheckpointWriter
+from testbed.experiments.learners import pretrained_learner
 from testbed.experiments.scripted_humans import ScriptedHumans
-from testbed.experiments.trial import pretrained_learner
+from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
-from testbed.fleet.priorities import get_algorithm
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter
 

@@ -19,7 +19,7 @@ from rich.console import Console
 from testbed.core.config import NAME_PATTERN, ConfigError, FleetConfig, load_fleet
 from testbed.experiments.progress import TrialProgress
 from testbed.experiments.trial import TrialOptions, run_trial
-from testbed.fleet.priorities import ALGORITHM_NAMES
+from testbed.fleet.algorithms import ALGORITHM_NAMES
 
 console = Console(stderr=True)
 
@@ -202,8 +202,7 @@ def cmd_trial(args: argparse.Namespace) -> int:
         cfg = _config(args)
         opts = trial_options(cfg, args)
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
-        run, summary = run_trial(cfg, opts, resume=resume, on_step=bar.on_step,
-                                 progress=bar.on_phase)
+        run, summary = run_trial(cfg, opts, resume=resume, hooks=bar)
     print_summary(run.path, summary)
     return 0
 
@@ -219,8 +218,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     # the report's row: never the allocation's "bc", but what was evaluated
     opts.label = evaluation_label(source["algorithm"])
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
-        run, summary = run_trial(cfg, opts, on_step=bar.on_step, progress=bar.on_phase,
-                                 meta={"evaluates": source})
+        run, summary = run_trial(cfg, opts, hooks=bar, meta={"evaluates": source})
     print_summary(run.path, summary)
     return 0
 
@@ -327,8 +325,8 @@ def _with_pretrain_steps(cfg: FleetConfig, steps: int | None) -> FleetConfig:
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
     from testbed.experiments.build import build_hosts, make_humans
+    from testbed.experiments.learners import PRETRAIN_SEED, new_learner
     from testbed.experiments.pretraining import load_transitions, pretrain
-    from testbed.experiments.trial import PRETRAIN_SEED, new_learner
 
     cfg = _with_pretrain_steps(_config(args), args.steps)
     if not Path(args.demos).is_file():
@@ -400,7 +398,7 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from testbed.datasets.episodes import export
+    from testbed.datasets.dataset_io import export
 
     out = Path(args.out)
     if args.format == "npz":
@@ -421,8 +419,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from testbed.datasets.episodes import DEMO_FIELDS, TrainingData, load_frames, training_data
-    from testbed.experiments.trial import PRETRAIN_SEED, new_learner
+    from testbed.datasets.dataset_io import load_frames
+    from testbed.datasets.sources import DEMO_FIELDS
+    from testbed.datasets.training import TrainingData, training_data
+    from testbed.experiments.learners import PRETRAIN_SEED, new_learner
 
     cfg = _with_pretrain_steps(_config(args), args.steps)
     check_out_file("--out", args.out)

@@ -1,4 +1,4 @@
-"""The expert row of the seed's evaluation (8.3.4, Table 2): every arm driven by the
+"""The expert row of the paper's evaluation (8.3.4, Table 2): every arm driven by the
 twin's scripted expert, humans for hard resets only.
 
 Why here and so small: the fleet loop acts from images alone, and only a twin host knows
@@ -11,35 +11,30 @@ otherwise an evaluation like any other (allocation as BC: C-prioritised resets).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from testbed.core.atomic import atomic_write_json
+from testbed.core.hosts import Hosts
 from testbed.core.types import NUM_ACTIONS, ArmObservation, Fault
+from testbed.core.wrappers import HostsWrapper
 
 
-class ExpertHosts:
+class ExpertHosts(HostsWrapper):
     """The hosts, passed through; remembers each arm's expert push at each observe."""
 
-    def __init__(self, hosts: Any) -> None:
-        self._hosts = hosts
-        self.robot_names: list[str] = list(hosts.robot_names)
+    def __init__(self, hosts: Hosts) -> None:
+        super().__init__(hosts)
         self.expert: dict[str, int] = {}
 
     def observe(self) -> Mapping[str, ArmObservation | Fault]:
-        observations = self._hosts.observe()
+        observations = self.hosts.observe()
         self.expert = {r: int(o.expert_action) for r, o in observations.items()
                        if isinstance(o, ArmObservation) and o.expert_action is not None}
         return observations
-
-    def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> Any:
-        return self._hosts.execute(pushes, resets)
-
-    def __getattr__(self, name: str) -> Any:  # start, rest, close, reseed, ...
-        return getattr(self._hosts, name)
 
 
 class ExpertPolicy:

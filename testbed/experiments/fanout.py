@@ -89,8 +89,8 @@ def _threads(n: int) -> None:
 
 def _pretrain(fleet: FleetConfig, folder: str, critics: list[str], threads: int) -> str:
     """theta_0 into ``folder/.pretrained`` (the cache every trial then reads)."""
+    from testbed.experiments.learners import pretrained_learner
     from testbed.experiments.scripted_humans import ScriptedHumans
-    from testbed.experiments.trial import pretrained_learner
 
     _threads(threads)
     _, path = pretrained_learner(fleet, ScriptedHumans(), Path(folder), None, critics=critics)
@@ -173,9 +173,9 @@ def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = 
 def run_sweep_on_ray(sweep: Sweep, folder: Path, *, address: str | None = None,
                      workers: int | None = None, cpus_per_trial: int = 1) -> None:
     """Every (point, seed) of ``sweep`` as a Ray task, each distinct theta_0 first."""
+    from testbed.experiments.learners import PRETRAIN_SEED
     from testbed.experiments.pretraining import critic_set, pretrain_key
     from testbed.experiments.sweep import pretrain_critics_of
-    from testbed.experiments.trial import PRETRAIN_SEED
 
     check_fanout(sweep.fleet, sweep.humans, f"sweep {sweep.name!r}")
     runs = sweep.runs()

@@ -37,6 +37,7 @@ from rich.progress import (
 )
 
 from testbed.core.config import ConfigError
+from testbed.experiments.hooks import TrialHooks
 
 if TYPE_CHECKING:
     from testbed.core.types import FleetStatus
@@ -209,8 +210,9 @@ class _PlainLines:
             self._end(ph, now, "interrupted" if failed else "stopped")
 
 
-class TrialProgress:
-    """The trial's display: a rich bar in a terminal, plain lines elsewhere.
+class TrialProgress(TrialHooks):
+    """The trial's display: a rich bar in a terminal, plain lines elsewhere (a
+    ``TrialHooks``: ``on_phase`` and ``on_step``).
 
     ``console``: where to show it (default: stderr); ``mode``: ``plain`` or ``bar``
     (default: ``TESTBED_PROGRESS``, else by whether the console is a terminal);

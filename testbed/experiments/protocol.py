@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import sys
 import tomllib
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -33,8 +32,10 @@ from testbed.core.config import (
     require_protocol,
     validation_context,
 )
+from testbed.core.hosts import Hosts
+from testbed.experiments.hooks import TrialHooks, as_hooks
 from testbed.experiments.report import Report, write_report
-from testbed.fleet.priorities import ALGORITHM_NAMES, ALGORITHMS
+from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 
 if TYPE_CHECKING:
@@ -179,25 +180,17 @@ def load_protocol(path: Path, *, check_files: bool = True) -> Protocol:
         raise ConfigError(_one_line(err, str(path))) from None
 
 
-def run_protocol(
-    proto: Protocol,
-    out: str | None = None,
-    ask: bool = True,
-    *,
-    before_run: Callable[[str], None] | None = None,
-    humans: Callable[[str], Humans] | None = None,
-    wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
-    on_step: Callable[[StepOutcome], None] | None = None,
-) -> Report:
+def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True, *,
+                 hooks: TrialHooks | None = None) -> Report:
     """Run every (trial, algorithm) of ``proto`` not yet complete, then the report.
 
     ``proto.fleet`` is the fleet driven (a caller may rewrite it with ``model_copy``;
     a resumed run drives it too). ``ask``: show the console prompt (``prompt_when``).
-    ``before_run(name)``: called before every run that starts or resumes, in place of
-    the console prompt (the rehearsal's lab hand puts every cube back). ``humans(name)``:
-    the run's humans (default from ``proto.humans``). ``wrap_hosts(hosts, run)``: wraps
-    each run's ``HostFleet`` (it must pass start/rest/close/reseed through).
-    ``on_step``: called after each step, beside the progress bar.
+    ``hooks`` (``testbed.experiments.hooks.TrialHooks``): ``before_run(name)`` before
+    every run that starts or resumes (True: the cubes are back, so no prompt: the
+    rehearsal's lab hand), each run's humans, a wrapper of each run's hosts (it must
+    pass start/rest/close/reseed through: a ``HostsWrapper``), and every step, beside
+    the progress bar.
 
     A run the operator stops (Esc) ends the protocol: the report then covers the
     finished runs and says which one is stopped; ``testbed protocol FILE`` again
@@ -206,32 +199,24 @@ def run_protocol(
     from testbed.core.config import ConfigError
     from testbed.experiments.trial import STOPPED
 
+    hooks = hooks if hooks is not None else TrialHooks()
     folder = Path(out or proto.out)
     folder.mkdir(parents=True, exist_ok=True)
-    cfg = proto.fleet
     total = proto.trials * len(proto.algorithms)
     index = 0
     for k in range(proto.trials):
-        order = proto.run_order(k)
         first_in_trial = True
-        for algorithm in order:
+        for algorithm in proto.run_order(k):
             index += 1
             name = f"{algorithm}-t{k}"
             run = RunDir(folder / name)
             if run.summary.exists():
                 continue
-            resume = run.path if run.state.exists() else None
-            what = "resume" if resume is not None else "start"
-            if before_run is not None:
-                before_run(name)
-            elif ask and (proto.prompt_when == "before_each_run"
-                          or (proto.prompt_when == "between_trials" and k > 0
-                              and first_in_trial)):
+            what = "resume" if run.state.exists() else "start"
+            if not hooks.before_run(name) and ask and _prompts(proto, k, first_in_trial):
                 _prompt(f"run {index}/{total} ({what} {name}): {proto.prompt}")
             first_in_trial = False
-            summary = run_protocol_run(proto, folder, k, algorithm,
-                                       humans=humans(name) if humans is not None else None,
-                                       wrap_hosts=wrap_hosts, on_step=on_step)
+            summary = run_protocol_run(proto, folder, k, algorithm, hooks=hooks)
             if summary.get("status") == STOPPED:
                 note = (f"protocol stopped: {name} was stopped at step "
                         f"{summary.get('stopped_at')}; run the protocol again to resume it")
@@ -240,18 +225,29 @@ def run_protocol(
                     return write_report([folder], folder)  # it names the stopped run
                 except ConfigError:  # nothing finished yet
                     return Report(folder, note + "\n", [], [note])
-    for k in range(proto.trials):  # the seed's evaluation of every final policy
-        for algorithm in proto.run_order(k):
-            _evaluate_run(proto, folder, algorithm, k, humans, wrap_hosts)
-        if proto.evaluate_expert and all(h.backend == "twin" for h in cfg.hosts):
-            _evaluate_run(proto, folder, "expert", k, humans, wrap_hosts)
+    _evaluate_all(proto, folder, hooks)
     return write_report([folder], folder)
 
 
+def _prompts(proto: Protocol, k: int, first_in_trial: bool) -> bool:
+    """Whether the operator is asked to put the cubes back before this run (the first
+    of trial ``k`` that runs: ``first_in_trial``)."""
+    if proto.prompt_when == "before_each_run":
+        return True
+    return proto.prompt_when == "between_trials" and k > 0 and first_in_trial
+
+
+def _evaluate_all(proto: Protocol, folder: Path, hooks: TrialHooks) -> None:
+    """The paper's evaluation of every final policy (and the expert row on twins)."""
+    for k in range(proto.trials):
+        for algorithm in proto.run_order(k):
+            _evaluate_run(proto, folder, algorithm, k, hooks)
+        if proto.evaluate_expert and all(h.backend == "twin" for h in proto.fleet.hosts):
+            _evaluate_run(proto, folder, "expert", k, hooks)
+
+
 def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
-                     humans: Humans | None = None,
-                     wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
-                     on_step: Callable[[StepOutcome], None] | None = None,
+                     hooks: TrialHooks | None = None,
                      meta: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run ``<algorithm>-t<k>`` of ``proto`` in ``folder`` (``run_named``: skipped when
     finished, resumed when checkpointed), Random's budget matched from its run of the
@@ -276,14 +272,12 @@ def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
         run_meta["budget_matched"] = {"run": matched, "random_budget": budget}
         run_cfg = cfg.model_copy(update={"algorithm": cfg.algorithm.model_copy(
             update={"random_budget": budget})})
-    return run_named(run_cfg, opts, folder, meta=run_meta, humans=humans,
-                     wrap_hosts=wrap_hosts, on_step=on_step, host_configs=cfg.hosts)
+    return run_named(run_cfg, opts, folder, meta=run_meta, hooks=hooks,
+                     host_configs=cfg.hosts)
 
 
 def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,
-              meta: dict[str, Any], humans: Humans | None = None,
-              wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
-              on_step: Callable[[StepOutcome], None] | None = None,
+              meta: dict[str, Any], hooks: TrialHooks | None = None,
               host_configs: list[HostConfig] | None = None) -> dict[str, Any]:
     """The run ``folder/opts.name`` of a protocol or a sweep, under a progress bar:
     skipped when finished (``{"status": "complete", "skipped": True}``), resumed when it
@@ -301,22 +295,14 @@ def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,
         _discard(run.path)
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names),
                        label=run.path.name) as bar:
-
-        def tick(outcome: StepOutcome) -> None:
-            bar.on_step(outcome)
-            if on_step is not None:
-                on_step(outcome)
-
-        _, summary = run_trial(cfg, opts, resume=resume, on_step=tick, progress=bar.on_phase,
-                               humans=humans, meta=meta,
-                               host_configs=host_configs if resume is not None else None,
-                               wrap_hosts=wrap_hosts)
+        _, summary = run_trial(cfg, opts, resume=resume, hooks=as_hooks(bar, hooks),
+                               meta=meta,
+                               host_configs=host_configs if resume is not None else None)
     return summary
 
 
 def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
-                  humans: Callable[[str], Humans] | None,
-                  wrap_hosts: Callable[[Any, RunDir], Any] | None) -> None:
+                  hooks: TrialHooks) -> None:
     """``eval-<algorithm>-t<k>``: the final policy of ``<algorithm>-t<k>`` alone for
     ``proto.evaluate_steps`` steps, C-prioritised hard resets only (``testbed evaluate``);
     skipped when done or disabled, redone when it died before finishing."""
@@ -342,9 +328,27 @@ def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
             "protocol": {"name": proto.name, "trial": k, "evaluation": True}}
     cfg = proto.fleet
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names), label=name) as bar:
-        run_trial(cfg, opts, on_step=bar.on_step, progress=bar.on_phase,
-                  humans=humans(name) if humans is not None else None, meta=meta,
-                  wrap_hosts=wrap_hosts)
+        run_trial(cfg, opts, hooks=_EvaluationHooks(bar, hooks), meta=meta)
+
+
+class _EvaluationHooks(TrialHooks):
+    """An evaluation's hooks: its humans and hosts from the protocol's hooks, its
+    progress on the bar; the protocol's ``on_step`` hears only the training runs."""
+
+    def __init__(self, bar: TrialHooks, hooks: TrialHooks) -> None:
+        self.bar, self.hooks = bar, hooks
+
+    def humans(self, name: str) -> Humans | None:
+        return self.hooks.humans(name)
+
+    def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:
+        return self.hooks.wrap_hosts(hosts, run)
+
+    def on_phase(self, name: str, done: int, total: int) -> None:
+        self.bar.on_phase(name, done, total)
+
+    def on_step(self, outcome: StepOutcome) -> None:
+        self.bar.on_step(outcome)
 
 
 def matched_budget(run: Path, num_humans: int) -> float:

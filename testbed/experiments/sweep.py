@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -45,11 +44,11 @@ from testbed.core.config import (
     read_toml,
     validation_context,
 )
-from testbed.fleet.priorities import ALGORITHM_NAMES
+from testbed.fleet.algorithms import ALGORITHM_NAMES
 
 if TYPE_CHECKING:
+    from testbed.experiments.hooks import TrialHooks
     from testbed.experiments.report import Report
-    from testbed.fleet.loop import StepOutcome
 
 ALGORITHM_KEY = "algorithm"
 """The grid key that varies the algorithm (an ablation study) instead of a field."""
@@ -172,10 +171,10 @@ def pretrain_critics_of(sweep: Sweep) -> list[str]:
 
 def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
                   meta: dict[str, Any] | None = None,
-                  on_step: Callable[[StepOutcome], None] | None = None) -> dict[str, Any]:
+                  hooks: TrialHooks | None = None) -> dict[str, Any]:
     """Run ``sweep.runs()[index]`` in ``folder`` (``run_named``: skipped when finished,
-    resumed when checkpointed); ``meta``: extra run.json keys. The serial loop and a Ray
-    task both call this."""
+    resumed when checkpointed); ``meta``: extra run.json keys; ``hooks``: as a
+    protocol's. The serial loop and a Ray task both call this."""
     from testbed.experiments.protocol import run_named
     from testbed.experiments.trial import TrialOptions
 
@@ -185,16 +184,16 @@ def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
                         pretrain_critics=pretrain_critics_of(sweep))
     run_meta = {**(meta or {}), "sweep": {"name": sweep.name, "point": run.point.label,
                                           "values": run.point.values, "seed": run.seed}}
-    return run_named(run.fleet, opts, folder, meta=run_meta, on_step=on_step)
+    return run_named(run.fleet, opts, folder, meta=run_meta, hooks=hooks)
 
 
 def run_sweep(sweep: Sweep, out: str | None = None, *,
-              on_step: Callable[[StepOutcome], None] | None = None) -> Report:
+              hooks: TrialHooks | None = None) -> Report:
     """Run every (point, seed) not finished yet, then the report (figure: curves.png)."""
     from testbed.experiments.report import write_report
 
     folder = Path(out) if out is not None else sweep.folder
     folder.mkdir(parents=True, exist_ok=True)
     for index in range(len(sweep.runs())):
-        run_sweep_run(sweep, folder, index, on_step=on_step)
+        run_sweep_run(sweep, folder, index, hooks=hooks)
     return write_report([folder], folder)

@@ -1,10 +1,21 @@
-"""One trial end to end: setup, pretraining (cached), the loop, records, teardown.
+"""One trial end to end: its run folder, its learner, the loop, its records, teardown.
 
 This is the thin script around ``FleetLoop`` (as LeRobot's record script around its
-robot): it builds the hosts, humans and learner from the config, runs the steps
-inside ``try/finally`` so that, whatever happens, the arms go to their rest pose and
-the records are closed, and it checkpoints every complete step so that
-``--resume`` continues where a crash or a kill left off.
+robot), in steps of one job each:
+
+1. ``_open_run``: the run's folder, new (config.toml, run.json) or resumed (the
+   checkpoint's step; steps.jsonl cut back to it);
+2. ``_prepare``: the algorithm and the learner the first step acts with (theta_0,
+   a trained policy, the resumed learner or the expert), thresholds given as
+   quantiles resolved on it;
+3. ``_run_steps``: the loop, one checkpoint per complete step, the records closed
+   whatever happens;
+4. ``_finish``: run.json's status, the summary.
+
+``run_trial`` builds the hosts and humans (``testbed.experiments.build``), runs those
+steps inside ``try/finally`` so that, whatever happens, the arms go to their rest pose
+and the humans are closed, and ``--resume`` continues where a crash or a kill left off.
+run.json is written three times: when the run opens, once it is prepared, at the end.
 """
 
 from __future__ import annotations
@@ -12,33 +23,28 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
-import shutil
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from testbed.core.atomic import atomic_write_json
-from testbed.core.config import AlgorithmConfig, ConfigError, FleetConfig, HostConfig
+from testbed.core.atomic import atomic_write_bytes, atomic_write_json
+from testbed.core.config import ConfigError, FleetConfig, HostConfig
+from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans, HumansStopRequested
 from testbed.core.interrupts import critical
-from testbed.experiments.build import make_humans
+from testbed.experiments.build import build_hosts, make_humans
 from testbed.experiments.checkpointer import CheckpointWriter
-from testbed.experiments.pretraining import (
-    Progress,
-    collect_demos,
-    critic_set,
-    load_transitions,
-    pretrain,
-    pretrain_key,
-    save_transitions,
+from testbed.experiments.hooks import TrialHooks
+from testbed.experiments.learners import (
+    keep_demos,
+    load_learner,
+    pretrained_learner,
+    resume_learner,
 )
-from testbed.fleet.loop import FleetLoop, StepOutcome
-from testbed.fleet.priorities import get_algorithm
+from testbed.fleet.algorithms import Algorithm, get_algorithm
+from testbed.fleet.loop import FleetLoop
 from testbed.fleet.thresholds import SIGNAL, resolve_thresholds
 from testbed.records.metrics import summarize
 from testbed.records.run_dir import RunDir, new_run_dir
@@ -48,6 +54,8 @@ from testbed.records.store import META as DATA_META
 from testbed.records.store import RunDataWriter
 
 LOG = logging.getLogger(__name__)
+
+__all__ = ["COMPLETE", "RUNNING", "STOPPED", "TrialOptions", "run_trial", "write_summary"]
 
 
 @dataclass
@@ -74,122 +82,6 @@ class TrialOptions:
     online only what its algorithm reads."""
 
 
-def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> Any:
-    """The fleet's ``HostFleet``; with ``log_dir`` each host's agent log and the
-    controller's events about it go to ``log_dir/<host>.log`` (DESIGN.md section 9)."""
-    from drivers.host_fleet import HostFleet
-
-    if log_dir is None:
-        return HostFleet(cfg.hosts, trial_seed=seed)
-    return HostFleet(cfg.hosts, trial_seed=seed, log_dir=log_dir)
-
-
-def new_learner(cfg: FleetConfig, seed: int) -> Any:
-    from testbed.learning import Learner
-
-    return Learner(cfg.learning, seed=seed)
-
-
-def load_learner(cfg: FleetConfig, path: Path) -> Any:
-    from testbed.learning import Learner
-
-    return Learner.load(path, cfg.learning)
-
-
-def resume_learner(cfg: FleetConfig, run: RunDir, state: Mapping[str, Any], *,
-                   learns: bool = True) -> Any:
-    """The learner as it was after step ``state["t"]`` of ``run``: the run's starting
-    learner (theta_0 and its data, reseeded), the run's data replayed onto it as the
-    loop gave it (``testbed.records.store.replay``; nothing for an algorithm that does not
-    learn), then the step's weights, optimisers, sampler and counters. A checkpoint of
-    the old format (the whole learner, data included) is loaded as it is."""
-    from testbed.learning import checkpoint as ckpt_format
-    from testbed.records.store import RunData, replay
-
-    path = run.path / state["learner"]
-    saved = ckpt_format.load_any(path)
-    if saved["format"] == ckpt_format.FORMAT:
-        return load_learner(cfg, path)
-    learner = load_learner(cfg, run.start_learner)
-    if learns:
-        replay(learner, RunData.of_run(run.path), int(state["t"]) + 1)
-    learner.load_training_state(saved, where=str(path))
-    return learner
-
-
-PRETRAIN_SEED = 0
-"""Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison)."""
-
-PRETRAIN_HOSTS_SEED = PRETRAIN_SEED + 104729
-"""The hosts' trial seed while pretraining: the same world whichever trial pretrains."""
-
-
-def pretrained_learner(
-    cfg: FleetConfig,
-    humans: Humans,
-    out: Path,
-    progress: Progress | None,
-    hosts: Any = None,
-    trial_seed: int | None = None,
-    critics: Iterable[str] | None = None,
-) -> tuple[Any, Path]:
-    """theta_0: from the cache if this exact pretraining was done before, else made now.
-
-    ``critics``: the critics to pretrain (None: both), part of the cache key. The
-    learner comes back with every part set to train; the caller narrows it
-    (``Learner.set_parts``) to what its algorithm reads.
-
-    A cold cache pretrains on the trial's own ``hosts`` (already started): one agent
-    per host, ever, which on hardware means one lock, one camera client, one SSH
-    session. They are reseeded to ``PRETRAIN_HOSTS_SEED`` first (theta_0 does not
-    depend on which trial happened to pretrain) and to ``trial_seed`` after, which
-    puts every host where a fresh start with that seed would; and the learner is
-    always reloaded from the checkpoint: so a trial is reproducible, cold cache or
-    warm. Without ``hosts`` (``testbed pretrain``-like callers, benchmarks) pretraining
-    builds and closes hosts of its own.
-    """
-    which = critic_set(critics)
-    cache = out / ".pretrained" / pretrain_key(cfg, PRETRAIN_SEED, which)
-    ckpt = cache / "learner.pt"
-    if not ckpt.exists():
-        cache.mkdir(parents=True, exist_ok=True)
-        if hosts is None:
-            own = build_hosts(cfg, PRETRAIN_HOSTS_SEED)
-            try:
-                own.start()
-                _pretrain_into(cfg, humans, cache, own, progress, which)
-            finally:
-                try:
-                    own.rest()
-                finally:
-                    own.close()
-        else:
-            if trial_seed is None:
-                raise ValueError("pretraining on the trial's hosts needs the trial seed")
-            hosts.reseed(PRETRAIN_HOSTS_SEED)
-            _pretrain_into(cfg, humans, cache, hosts, progress, which)
-            hosts.reseed(trial_seed)
-    return load_learner(cfg, ckpt), ckpt
-
-
-def _pretrain_into(
-    cfg: FleetConfig, humans: Humans, cache: Path, hosts: Any, progress: Progress | None,
-    critics: tuple[str, ...],
-) -> None:
-    """Collect the demos (unless cached), pretrain theta_0, write it to ``cache``."""
-    demos_path = cache / "demos.npz"
-    if demos_path.exists():
-        demos = load_transitions(demos_path)
-    else:
-        demos = collect_demos(hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress)
-        save_transitions(demos, demos_path)
-    learner = new_learner(cfg, PRETRAIN_SEED)
-    data = pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
-                    PRETRAIN_SEED, progress, critics=critics)
-    save_transitions(data, cache / "transitions.npz")
-    learner.save(cache / "learner.pt")
-
-
 COMPLETE = "complete"
 STOPPED = "stopped"
 RUNNING = "running"
@@ -198,175 +90,221 @@ leaves), ``stopped`` when the operator stopped it (Esc; resumable, no summary),
 ``complete`` when every step ran (summary.json written)."""
 
 
+@dataclass
+class _Run:
+    """A run's folder and what is known of it before its hosts start."""
+
+    dir: RunDir
+    cfg: FleetConfig
+    """The fleet driven (``host_configs`` applied, thresholds resolved once prepared)."""
+    written: FleetConfig
+    """The fleet of config.toml: as given, never ``host_configs``' rewrite."""
+    opts: TrialOptions
+    meta: dict[str, Any]
+    state: dict[str, Any] | None = None
+    """The checkpoint resumed from (None: a new run)."""
+    prior_rows: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def start(self) -> int:
+        return 0 if self.state is None else int(self.state["t"]) + 1
+
+    def save_meta(self, **update: Any) -> None:
+        self.meta.update(update)
+        self.dir.write_meta(self.meta)
+
+
 def run_trial(
     cfg: FleetConfig,
     opts: TrialOptions,
     *,
     resume: Path | None = None,
-    on_step: Callable[[StepOutcome], None] | None = None,
-    progress: Progress | None = None,
-    hosts: Any = None,
-    humans: Humans | None = None,
+    hooks: TrialHooks | None = None,
+    hosts: Hosts | None = None,
     meta: Mapping[str, Any] | None = None,
     host_configs: Sequence[HostConfig] | None = None,
-    wrap_hosts: Callable[[Any, RunDir], Any] | None = None,
 ) -> tuple[RunDir, dict[str, Any]]:
     """Run (or resume) a trial; return its folder and its summary.
 
-    ``humans``: who answers the interventions (default: ``make_humans`` of
-    ``opts.humans`` and the config's ``humans``, ``[humans.web]`` included); the trial
-    closes it. ``meta``: extra keys for a new run's run.json (a protocol's
-    trial index and algorithm order). ``host_configs``: drive these hosts instead of
-    the run's (same host and arm names): a resumed protocol run takes the protocol's
+    ``hooks``: the run's humans (``hooks.humans(name)``; default: ``make_humans`` of
+    ``opts.humans`` and the config's ``humans``), a wrapper of the hosts the trial
+    builds (``hooks.wrap_hosts``), pretraining's progress and every step
+    (``testbed.experiments.hooks``). The trial closes the humans. ``hosts``: drive
+    these, already started, instead of building the fleet's (benchmarks); the caller
+    closes them. ``meta``: extra keys for a new run's run.json (a protocol's trial
+    index and algorithm order). ``host_configs``: drive these hosts instead of the
+    run's (same host and arm names): a resumed protocol run takes the protocol's
     current fleet, e.g. the fresh ports of a rehearsal or a lab's edited addresses.
-    ``wrap_hosts(hosts, run)``: wraps the hosts the trial builds (a rehearsal's truth
-    recorder); the wrapper passes start/rest/close/reseed through.
 
     The summary has ``status``: ``complete`` (summary.json written) or ``stopped``
     (the operator pressed Esc: run.json says ``stopped`` and the step; resume it with
     ``testbed trial --resume`` or by rerunning the protocol; no summary.json until
     it is finished).
     """
-    num_robots = len(cfg.robot_names)
-    start = 0
-    prior_rows: list[dict[str, Any]] = []
-    if resume is not None:
-        run = RunDir(resume)
-        cfg = run.read_config()
-        written = cfg
-        run_meta = run.read_meta()
-        opts = TrialOptions(**run_meta["options"])
-        if not run.state.exists():
-            raise ConfigError(f"{resume}: no checkpoint yet (state.json); start a new trial")
-        state = json.loads(run.state.read_text())
-        truncate_torn_tail(run.steps)
-        prior_rows = [r for r in read_steps(run.steps) if r["t"] <= state["t"]]
-        _rewrite_steps(run.steps, prior_rows)
-        start = state["t"] + 1
-        run_meta.update(status=RUNNING, resumed=[*run_meta.get("resumed", []), time.time()])
-        run_meta.pop("stopped_at", None)
-        run.write_meta(run_meta)
-    else:
-        run = new_run_dir(opts.out, opts.name or f"{opts.algorithm}-s{opts.seed}")
-        run.write_config(cfg)
-        written = cfg  # config.toml: the fleet as given (not host_configs' rewrite)
-        run_meta = {**(meta or {}), "options": opts.__dict__, "created": time.time(),
-                    "status": RUNNING}
-        run.write_meta(run_meta)
-        state = None
-    if host_configs is not None:
-        cfg = _with_hosts(cfg, host_configs, run.path)
-    num_robots = len(cfg.robot_names)
-
-    # Thresholds given as quantiles are resolved on theta_0 below, those the algorithm
-    # reads (BC reads neither): until then it is built with placeholders (its spec is
-    # all that pretraining needs). Unread ones stay as given in config.toml.
-    algorithm = get_algorithm(opts.algorithm, _placeholders(cfg.algorithm), num_robots,
-                              cfg.humans.count, opts.seed)
-    pending = {k: q for k, q in cfg.algorithm.quantile_thresholds.items()
-               if SIGNAL[k] in algorithm.spec.reads}
+    hooks = hooks if hooks is not None else TrialHooks()
+    run = _open_run(cfg, opts, resume, meta, host_configs)
+    cfg, opts = run.cfg, run.opts
+    humans = hooks.humans(run.dir.path.name)
     if humans is None:
         humans = make_humans(opts.humans, cfg.humans.count, cfg.humans.web)
     own_hosts = hosts is None
-    if own_hosts:
-        hosts = build_hosts(cfg, opts.seed + (start * 7919 if start else 0),
-                            log_dir=run.path / "hosts")
-        if wrap_hosts is not None:
-            hosts = wrap_hosts(hosts, run)
+    if hosts is None:
+        built = build_hosts(cfg, opts.seed + (run.start * 7919 if run.start else 0),
+                            log_dir=run.dir.path / "hosts")
+        hosts = hooks.wrap_hosts(built, run.dir)
+    stopped_at: int | None = None
+    try:
+        if own_hosts:
+            hosts.start()
+        try:
+            algorithm, learner, driven = _prepare(run, hosts, humans, hooks)
+        except HumansStopRequested as stop:  # Esc while the demos were being collected
+            LOG.warning("trial stopped by the operator before step %d: %s", run.start, stop)
+            stopped_at = run.start
+        if stopped_at is None:
+            stopped_at = _run_steps(run, driven, humans, learner, algorithm, hooks)
+    finally:
+        if own_hosts:
+            try:
+                hosts.rest()
+            finally:
+                hosts.close()
+        humans.close()
+    return _finish(run, stopped_at)
+
+
+def _open_run(cfg: FleetConfig, opts: TrialOptions, resume: Path | None,
+              meta: Mapping[str, Any] | None,
+              host_configs: Sequence[HostConfig] | None) -> _Run:
+    """The run's folder: resumed from its checkpoint, or new; run.json says running."""
+    if resume is not None:
+        run = _resumed(resume)
+    else:
+        folder = new_run_dir(opts.out, opts.name or f"{opts.algorithm}-s{opts.seed}")
+        folder.write_config(cfg)
+        run = _Run(folder, cfg, cfg, opts,
+                   {**(meta or {}), "options": opts.__dict__, "created": time.time(),
+                    "status": RUNNING})
+        run.save_meta()
+    if host_configs is not None:
+        run.cfg = _with_hosts(run.cfg, host_configs, run.dir.path)
+    return run
+
+
+def _resumed(path: Path) -> _Run:
+    """A run folder with a checkpoint, its steps past the checkpoint dropped."""
+    folder = RunDir(path)
+    cfg = folder.read_config()
+    meta = folder.read_meta()
+    opts = TrialOptions(**meta["options"])
+    if not folder.state.exists():
+        raise ConfigError(f"{path}: no checkpoint yet (state.json); start a new trial")
+    state = json.loads(folder.state.read_text())
+    truncate_torn_tail(folder.steps)
+    prior = [r for r in read_steps(folder.steps) if r["t"] <= state["t"]]
+    _rewrite_steps(folder.steps, prior)
+    meta.update(status=RUNNING, resumed=[*meta.get("resumed", []), time.time()])
+    meta.pop("stopped_at", None)
+    run = _Run(folder, cfg, cfg, opts, meta, state, prior)
+    run.save_meta()
+    return run
+
+
+def _algorithm(run: _Run) -> Algorithm:
+    """The run's algorithm; thresholds still given as quantiles set to 0.0 (one the
+    algorithm does not read, or one not resolved yet: ``_prepare`` rebuilds it then)."""
+    params = run.cfg.algorithm
+    placeholders = params.model_copy(update=dict.fromkeys(params.quantile_thresholds, 0.0))
+    return get_algorithm(run.opts.algorithm, placeholders, len(run.cfg.robot_names),
+                         run.cfg.humans.count, run.opts.seed)
+
+
+def _prepare(run: _Run, hosts: Hosts, humans: Humans, hooks: TrialHooks
+             ) -> tuple[Algorithm, Any, Hosts]:
+    """The algorithm, the learner the first step acts with, and the hosts the loop
+    drives (the expert row wraps them). Thresholds given as quantiles are resolved on
+    the learner, those the algorithm reads (BC reads neither); unread ones stay as given
+    in config.toml. run.json gets the thresholds and the numerics (threads etc.)."""
+    algorithm = _algorithm(run)
+    pending = {k: q for k, q in run.cfg.algorithm.quantile_thresholds.items()
+               if SIGNAL[k] in algorithm.spec.reads}
+    hosts, learner = _starting_learner(run, algorithm, hosts, humans, hooks)
+    if pending:  # a new run (a resumed one reads the resolved config back)
+        run.cfg, resolved = resolve_thresholds(run.cfg, learner, only=pending)
+        run.dir.write_config(run.written.model_copy(update={"algorithm": run.cfg.algorithm}))
+        run.meta["thresholds"] = resolved
+        algorithm = _algorithm(run)
+    # whatever theta_0 had trained: from here on only what this algorithm reads
+    learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
+    if callable(getattr(learner, "numerics", None)):  # threads etc., for the lab
+        run.meta["numerics"] = learner.numerics()
+    run.save_meta()
+    return algorithm, learner, hosts
+
+
+def _starting_learner(run: _Run, algorithm: Algorithm, hosts: Hosts, humans: Humans,
+                      hooks: TrialHooks) -> tuple[Hosts, Any]:
+    """The expert (hosts wrapped), the resumed learner, a given policy, or theta_0."""
+    opts, state = run.opts, run.state
+    if opts.expert:  # the expert row: the twin's expert acts, nothing is learned
+        from testbed.experiments.expert import ExpertHosts, ExpertPolicy
+
+        expert_hosts = ExpertHosts(hosts)
+        if state is not None:
+            algorithm.load_state_dict(state["algorithm"])
+        return expert_hosts, ExpertPolicy(expert_hosts)
+    if state is not None:
+        learner = resume_learner(run.cfg, run.dir, state, learns=algorithm.learns)
+        algorithm.load_state_dict(state["algorithm"])
+        return hosts, learner
+    if opts.policy is not None:
+        return hosts, load_learner(run.cfg, Path(opts.policy))
+    critics = algorithm.spec.critics | set(opts.pretrain_critics or ())
+    learner, theta_0 = pretrained_learner(run.cfg, humans, Path(opts.out), hooks.on_phase,
+                                          hosts=hosts, trial_seed=opts.seed,
+                                          critics=critics)
+    keep_demos(theta_0.parent / "demos.npz", run.dir)
+    return hosts, learner
+
+
+def _run_steps(run: _Run, hosts: Hosts, humans: Humans, learner: Any, algorithm: Algorithm,
+               hooks: TrialHooks) -> int | None:
+    """The loop from the run's start to its last step; the step the operator stopped
+    at (Esc), or None when every step ran (the trained policy saved)."""
+    opts, cfg = run.opts, run.cfg
+    if run.state is None:  # the trial seed, not theta_0's, drives sampling from here on
+        learner.reseed(opts.seed)
+        if not opts.expert:  # what resume replays the run's data onto
+            with critical():
+                learner.save(run.dir.start_learner)
     loop: FleetLoop | None = None
     checkpoints: CheckpointWriter | None = None
     writer: RunWriter | None = None
     data: RunDataWriter | None = None
     stopped_at: int | None = None
     try:
-        if own_hosts:
-            hosts.start()
-        try:
-            if opts.expert:  # the expert row: the twin's expert acts, nothing is learned
-                from testbed.experiments.expert import ExpertHosts, ExpertPolicy
+        data = _data_writer(run)
+        writer = RunWriter(run.dir.path)
+        checkpoints = CheckpointWriter(run.dir.path)
+        ckpt = checkpoints
 
-                hosts = ExpertHosts(hosts)
-                learner = ExpertPolicy(hosts)
-                if state is not None:
-                    algorithm.load_state_dict(state["algorithm"])
-            elif state is not None:
-                learner = resume_learner(cfg, run, state, learns=algorithm.learns)
-                algorithm.load_state_dict(state["algorithm"])
-            elif opts.policy is not None:
-                learner = load_learner(cfg, Path(opts.policy))
-            else:
-                critics = algorithm.spec.critics | set(opts.pretrain_critics or ())
-                learner, theta_0 = pretrained_learner(cfg, humans, Path(opts.out), progress,
-                                                      hosts=hosts, trial_seed=opts.seed,
-                                                      critics=critics)
-                keep_demos(theta_0.parent / "demos.npz", run)
-            if pending:  # a new run (a resumed one reads the resolved config back)
-                cfg, resolved = resolve_thresholds(cfg, learner, only=pending)
-                run.write_config(written.model_copy(update={"algorithm": cfg.algorithm}))
-                run_meta["thresholds"] = resolved
-                run.write_meta(run_meta)
-                algorithm = get_algorithm(opts.algorithm, _placeholders(cfg.algorithm),
-                                          num_robots, cfg.humans.count, opts.seed)
-            # whatever theta_0 had trained: from here on only what this algorithm reads
-            learner.set_parts(train=algorithm.spec.train_parts, read=algorithm.spec.critics)
-            if callable(getattr(learner, "numerics", None)):  # threads etc., for the lab
-                run_meta["numerics"] = learner.numerics()
-                run.write_meta(run_meta)
-        except HumansStopRequested as stop:  # Esc while the demos were being collected
-            LOG.warning("trial stopped by the operator before step %d: %s", start, stop)
-            stopped_at = start
+        def checkpoint(step: int) -> None:
+            ckpt.submit(step, learner, {"algorithm": algorithm.state_dict()})
+
+        loop = FleetLoop(hosts=hosts, humans=humans, learner=learner, algorithm=algorithm,
+                         writer=writer, steps=opts.steps, num_humans=cfg.humans.count,
+                         t_T=cfg.algorithm.t_T, t_R=cfg.algorithm.t_R,
+                         after_step=checkpoint, data=data,
+                         session=len(run.meta.get("resumed", [])))
+        loop.restore_counters(run.prior_rows)
+        stopped_at = _steps(loop, run.start, opts.steps, hooks)
+        checkpoints.wait()
+        run.meta["checkpoint"] = checkpoints.stats()
+        if stopped_at is not None and stopped_at >= opts.steps:
+            stopped_at = None  # the stop came after the last step: nothing is left
         if stopped_at is None:
-            if state is None:  # the trial seed, not theta_0's, drives sampling from here on
-                learner.reseed(opts.seed)
-                if not opts.expert:  # what resume replays the run's data onto
-                    with critical():
-                        learner.save(run.start_learner)
-            if state is None or (run.path / DATA_FOLDER / DATA_META).exists():
-                data = RunDataWriter(run.path, cfg.robot_names, keep_steps=start)
-            else:  # a run from before the data store: it goes on without one
-                LOG.warning("%s has no data/ (an older run): resumed without a data store",
-                            run.path)
-            writer = RunWriter(run.path)
-
-            checkpoints = CheckpointWriter(run.path)
-
-            def checkpoint(step: int) -> None:
-                checkpoints.submit(step, learner, {"algorithm": algorithm.state_dict()})
-
-            loop = FleetLoop(
-                hosts=hosts,
-                humans=humans,
-                learner=learner,
-                algorithm=algorithm,
-                writer=writer,
-                steps=opts.steps,
-                num_humans=cfg.humans.count,
-                t_T=cfg.algorithm.t_T,
-                t_R=cfg.algorithm.t_R,
-                after_step=checkpoint,
-                data=data,
-                session=len(run_meta.get("resumed", [])),
-            )
-            loop.restore_counters(prior_rows)
-            for t in range(start, opts.steps):
-                try:
-                    outcome = loop.step(t)
-                except HumansStopRequested as stop:  # Esc + confirm on the console
-                    # From act: step t did not happen; from show: it did (logged and
-                    # checkpointed), and status.t is already t + 1. Resume starts there.
-                    stopped_at = max(t, loop.status.t)
-                    LOG.warning("trial stopped by the operator at step %d: %s", stopped_at,
-                                stop)
-                    break
-                if on_step is not None:
-                    on_step(outcome)
-            checkpoints.wait()
-            run_meta["checkpoint"] = checkpoints.stats()
-            if stopped_at is not None and stopped_at >= opts.steps:
-                stopped_at = None  # the stop came after the last step: nothing is left
-            if stopped_at is None:
-                with critical():
-                    learner.save(run.learner)  # the trained policy: testbed evaluate --policy
+            with critical():
+                learner.save(run.dir.learner)  # the trained policy: testbed evaluate --policy
     finally:
         if checkpoints is not None:
             with contextlib.suppress(RuntimeError):
@@ -377,47 +315,46 @@ def run_trial(
             writer.close()
         if data is not None:
             data.close()
-        if own_hosts:
-            try:
-                hosts.rest()
-            finally:
-                hosts.close()
-        humans.close()
+    return stopped_at
+
+
+def _steps(loop: FleetLoop, start: int, steps: int, hooks: TrialHooks) -> int | None:
+    """Steps ``start`` .. ``steps - 1``; the step to resume from if the operator stopped."""
+    for t in range(start, steps):
+        try:
+            outcome = loop.step(t)
+        except HumansStopRequested as stop:  # Esc + confirm on the console
+            # From act: step t did not happen; from show: it did (logged and
+            # checkpointed), and status.t is already t + 1. Resume starts there.
+            stopped_at = max(t, loop.status.t)
+            LOG.warning("trial stopped by the operator at step %d: %s", stopped_at, stop)
+            return stopped_at
+        hooks.on_step(outcome)
+    return None
+
+
+def _data_writer(run: _Run) -> RunDataWriter | None:
+    """The run's data store, appended from the run's start (None: a run from before
+    the data store, resumed without one)."""
+    if run.state is None or (run.dir.path / DATA_FOLDER / DATA_META).exists():
+        return RunDataWriter(run.dir.path, run.cfg.robot_names, keep_steps=run.start)
+    LOG.warning("%s has no data/ (an older run): resumed without a data store", run.dir.path)
+    return None
+
+
+def _finish(run: _Run, stopped_at: int | None) -> tuple[RunDir, dict[str, Any]]:
+    """run.json's last word and the summary: complete (summary.json written) or stopped."""
+    label = run.opts.label or run.opts.algorithm
+    num_humans, num_robots = run.cfg.humans.count, len(run.cfg.robot_names)
     if stopped_at is not None:
-        run_meta.update(status=STOPPED, stopped_at=stopped_at, stopped_time=time.time())
-        run.write_meta(run_meta)
-        summary = summarize(read_steps(run.steps) if run.steps.exists() else [],
-                            algorithm=opts.label or opts.algorithm,
-                            num_humans=cfg.humans.count, num_robots=num_robots)
-        return run, {**summary, "status": STOPPED, "stopped_at": stopped_at}
-    summary = write_summary(run, opts.label or opts.algorithm, cfg.humans.count, num_robots)
-    run_meta.update(status=COMPLETE, finished=time.time())
-    run.write_meta(run_meta)
-    return run, {**summary, "status": COMPLETE}
-
-
-def keep_demos(demos: Path, run: RunDir) -> None:
-    """The offline demonstrations theta_0 learned from, beside the run's data
-    (``data/demos.npz``, ``testbed.experiments.pretraining.save_transitions``' format:
-    a hard link to the pretraining cache's file where the file system allows), so that
-    the run's folder
-    alone holds every label its policy saw (``testbed export``)."""
-    if not demos.exists():
-        return
-    target = run.path / "data" / "demos.npz"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if target.exists():
-        return
-    try:
-        os.link(demos, target)
-    except OSError:
-        shutil.copyfile(demos, target)
-
-
-def _placeholders(params: AlgorithmConfig) -> AlgorithmConfig:
-    """``params`` with every threshold still given as a quantile set to 0.0: one the
-    algorithm does not read, or one not resolved yet (the algorithm is rebuilt then)."""
-    return params.model_copy(update=dict.fromkeys(params.quantile_thresholds, 0.0))
+        run.save_meta(status=STOPPED, stopped_at=stopped_at, stopped_time=time.time())
+        steps = read_steps(run.dir.steps) if run.dir.steps.exists() else []
+        summary = summarize(steps, algorithm=label, num_humans=num_humans,
+                            num_robots=num_robots)
+        return run.dir, {**summary, "status": STOPPED, "stopped_at": stopped_at}
+    summary = write_summary(run.dir, label, num_humans, num_robots)
+    run.save_meta(status=COMPLETE, finished=time.time())
+    return run.dir, {**summary, "status": COMPLETE}
 
 
 def _with_hosts(cfg: FleetConfig, hosts: Sequence[HostConfig], where: Path) -> FleetConfig:
@@ -433,8 +370,6 @@ def _with_hosts(cfg: FleetConfig, hosts: Sequence[HostConfig], where: Path) -> F
 
 def _rewrite_steps(path: Path, rows: list[dict[str, Any]]) -> None:
     """Drop the steps past the checkpoint (logged, but their checkpoint never landed)."""
-    from testbed.core.atomic import atomic_write_bytes
-
     text = "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in rows)
     atomic_write_bytes(path, text.encode())
 
@@ -444,17 +379,3 @@ def write_summary(run: RunDir, algorithm: str, num_humans: int, num_robots: int)
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans, num_robots=num_robots)
     atomic_write_json(run.summary, summary)
     return summary
-
-
-def mosaic(images: list[np.ndarray], cols: int = 4, scale: int = 4) -> np.ndarray:
-    """Tile arm images (upscaled) into one picture for ``testbed check``."""
-    if not images:
-        return np.zeros((64 * scale, 64 * scale, 3), np.uint8)
-    rows = (len(images) + cols - 1) // cols
-    h, w = images[0].shape[0] * scale, images[0].shape[1] * scale
-    out = np.zeros((rows * h, min(cols, len(images)) * w, 3), np.uint8)
-    for k, img in enumerate(images):
-        big = np.kron(img, np.ones((scale, scale, 1), np.uint8))
-        r, c = divmod(k, cols)
-        out[r * h : (r + 1) * h, c * w : (c + 1) * w] = big
-    return out

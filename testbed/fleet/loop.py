@@ -52,8 +52,9 @@ from testbed.core.types import (
     PushResult,
     RobotStatus,
 )
+from testbed.fleet.algorithms import Algorithm
 from testbed.fleet.allocator import Allocator
-from testbed.fleet.priorities import Algorithm, PrioritySignals
+from testbed.fleet.priorities import PrioritySignals
 from testbed.records import store as rundata
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter

@@ -19,6 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from testbed.core.config import FleetConfig, HostConfig
 from testbed.core.types import ArmObservation, Fault
 
@@ -27,7 +29,6 @@ def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], N
     import cv2
 
     from testbed.experiments.build import build_hosts
-    from testbed.experiments.trial import mosaic
 
     hosts = build_hosts(cfg, cfg.trial.seed)
     ok = True
@@ -128,3 +129,17 @@ def _table_box_px(host: HostConfig, arm: str, path: str | None) -> tuple[Any, st
         return cal.project_box(h, box), f"calibrated table box drawn ({where})"
     except (ValueError, KeyError, TypeError, np.linalg.LinAlgError) as exc:
         return None, f"calibration {where} has no usable homography/table_box_mm ({exc})"
+
+
+def mosaic(images: list[np.ndarray], cols: int = 4, scale: int = 4) -> np.ndarray:
+    """Tile arm images (upscaled) into one picture for ``testbed check``."""
+    if not images:
+        return np.zeros((64 * scale, 64 * scale, 3), np.uint8)
+    rows = (len(images) + cols - 1) // cols
+    h, w = images[0].shape[0] * scale, images[0].shape[1] * scale
+    out = np.zeros((rows * h, min(cols, len(images)) * w, 3), np.uint8)
+    for k, img in enumerate(images):
+        big = np.kron(img, np.ones((scale, scale, 1), np.uint8))
+        r, c = divmod(k, cols)
+        out[r * h : (r + 1) * h, c * w : (c + 1) * w] = big
+    return out

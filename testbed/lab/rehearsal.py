@@ -38,9 +38,16 @@ import urllib.request
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.hosts import Hosts
+from testbed.core.humans import Humans
+from testbed.experiments.hooks import TrialHooks
+from testbed.records.run_dir import RunDir
+
+if TYPE_CHECKING:
+    from testbed.fleet.loop import StepOutcome
 from testbed.core.types import (
     SUCCESS_RADIUS,
     ArmObservation,
@@ -666,9 +673,7 @@ def true_model_error(cam: Mapping[str, Any], homography: Any, box_mm: Sequence[f
 
 def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
     """Run a physical protocol against hardware twins behind real sshds (see module doc)."""
-    from testbed.experiments.build import make_humans
     from testbed.experiments.protocol import load_protocol, run_protocol
-    from testbed.records.run_dir import RunDir
 
     proto = load_protocol(opts.protocol, check_files=False)  # its keys are the lab's
     require_yumi(proto.fleet)
@@ -700,23 +705,8 @@ def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
         calibration = _calibrate_all(lab, fleet, fleet_file, say)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
         views = arm_views(fleet)
-        recorders: list[TruthRecorder] = []
-
-        def humans(_name: str) -> Any:
-            inner = make_humans(kind, fleet.humans.count, fleet.humans.web)
-            return TwinLabHumans(inner, lab.labs, views, expert=kind == "scripted")
-
-        def wrap_hosts(hosts: Any, run: Any) -> Any:
-            rec = TruthRecorder(hosts, lab.labs, views, run.path / "twin_truth.jsonl")
-            recorders.append(rec)
-            return rec
-
-        def on_step(outcome: Any) -> None:
-            if recorders:
-                recorders[-1].on_step(outcome.t)
-
-        report = run_protocol(run_proto, out=str(folder), ask=False, before_run=lab.reset_all,
-                              humans=humans, wrap_hosts=wrap_hosts, on_step=on_step)
+        hooks = _RehearsalHooks(lab, views, kind)
+        report = run_protocol(run_proto, out=str(folder), ask=False, hooks=hooks)
     agreement: dict[str, dict[str, Any]] = {}
     for run in sorted(p for p in folder.iterdir() if (p / "twin_truth.jsonl").exists()):
         agreement[run.name] = truth_agreement(run)
@@ -727,6 +717,35 @@ def rehearse(opts: RehearsalOptions, say: Any = print) -> RehearsalResult:
     markdown += "\n" + agreement_table(agreement)
     (folder / "rehearsal.md").write_text(markdown, encoding="utf-8")
     return RehearsalResult(folder, markdown, agreement, calibration)
+
+
+class _RehearsalHooks(TrialHooks):
+    """A rehearsal's runs: the lab hand puts every cube back before each run, the humans
+    get the lab around them, and each run's hosts get a truth recorder."""
+
+    def __init__(self, lab: HardwareTwinLab, views: Mapping[str, ArmView], kind: str) -> None:
+        self.lab, self.views, self.kind = lab, views, kind
+        self.recorders: list[TruthRecorder] = []
+
+    def before_run(self, name: str) -> bool:
+        self.lab.reset_all(name)
+        return True
+
+    def humans(self, name: str) -> Humans | None:
+        from testbed.experiments.build import make_humans
+
+        fleet = self.lab.fleet
+        inner = make_humans(self.kind, fleet.humans.count, fleet.humans.web)
+        return TwinLabHumans(inner, self.lab.labs, self.views, expert=self.kind == "scripted")
+
+    def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:
+        rec = TruthRecorder(hosts, self.lab.labs, self.views, run.path / "twin_truth.jsonl")
+        self.recorders.append(rec)
+        return rec
+
+    def on_step(self, outcome: StepOutcome) -> None:
+        if self.recorders:
+            self.recorders[-1].on_step(outcome.t)
 
 
 def agreement_table(agreement: Mapping[str, Mapping[str, Any]]) -> str:

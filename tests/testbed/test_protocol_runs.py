@@ -25,11 +25,12 @@ import pytest
 from testbed.core.config import AlgorithmConfig, ConfigError
 from testbed.core.humans import HumansStopRequested
 from testbed.core.types import IMAGE_SIZE, ArmObservation, FleetStatus, PushResult
+from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.protocol import Protocol, run_protocol, williams_square
 from testbed.experiments.report import write_report
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
-from testbed.fleet.priorities import get_algorithm
 from testbed.records.steps import RunWriter, read_steps, validate_step
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -237,13 +238,18 @@ def test_protocol_prompts_every_run_counterbalances_and_resumes_a_stopped_run(
     stops = [stop_in]  # the operator presses Esc once, in the second run
     asked: list[str] = []
 
-    def humans(name: str) -> ScriptedHumans:
-        if name in stops:
-            stops.remove(name)
-            return _StopAt(1)
-        return ScriptedHumans()
+    class Hooks(TrialHooks):
+        def before_run(self, name: str) -> bool:
+            asked.append(name)
+            return True
 
-    first = run_protocol(proto, ask=False, before_run=asked.append, humans=humans)
+        def humans(self, name: str) -> ScriptedHumans:
+            if name in stops:
+                stops.remove(name)
+                return _StopAt(1)
+            return ScriptedHumans()
+
+    first = run_protocol(proto, ask=False, hooks=Hooks())
     out = tmp_path / "proto"
     assert asked == plan[:2]  # the hook ran before each run, and the protocol stopped
     stopped = out / stop_in
@@ -254,7 +260,7 @@ def test_protocol_prompts_every_run_counterbalances_and_resumes_a_stopped_run(
     assert [r.path.name for r in first.runs] == [plan[0]]
     assert len(first.notes) == 1 and stop_in in first.notes[0]
 
-    final = run_protocol(proto, ask=False, before_run=asked.append, humans=humans)
+    final = run_protocol(proto, ask=False, hooks=Hooks())
     assert asked == plan[:2] + plan[1:]  # the stopped run was resumed, then the rest ran
     assert sorted(r.path.name for r in final.runs) == sorted(plan) and not final.notes
     steps = read_steps(stopped)

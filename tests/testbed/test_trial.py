@@ -19,7 +19,7 @@ import pytest
 import tomli_w
 import torch
 
-from testbed.experiments.trial import resume_learner
+from testbed.experiments.learners import resume_learner
 from testbed.learning import Learner
 from testbed.records.metrics import summarize
 from testbed.records.run_dir import RunDir

@@ -1,0 +1,157 @@
+"""The learner a run starts from: new, loaded, resumed, or theta_0 (pretrained, cached).
+
+Why apart from the trial: every entry point needs one of these (a trial, ``testbed
+pretrain``, ``testbed train``, the Ray fan-out's pretraining task, the benchmarks), and
+theta_0 has rules of its own: one per fleet (every algorithm and trial of a protocol
+starts from it: a fair comparison), cached under a key of everything that shaped it,
+and the same whichever trial happened to make it. torch is imported only when a learner
+is made.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from testbed.core.config import FleetConfig
+from testbed.core.hosts import Hosts
+from testbed.core.humans import Humans
+from testbed.experiments.build import build_hosts
+from testbed.experiments.pretraining import (
+    Progress,
+    collect_demos,
+    critic_set,
+    load_transitions,
+    pretrain,
+    pretrain_key,
+    save_transitions,
+)
+from testbed.records.run_dir import RunDir
+
+__all__ = ["PRETRAIN_HOSTS_SEED", "PRETRAIN_SEED", "keep_demos", "load_learner",
+           "new_learner", "pretrained_learner", "resume_learner"]
+
+PRETRAIN_SEED = 0
+"""Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison)."""
+
+PRETRAIN_HOSTS_SEED = PRETRAIN_SEED + 104729
+"""The hosts' trial seed while pretraining: the same world whichever trial pretrains."""
+
+
+def new_learner(cfg: FleetConfig, seed: int) -> Any:
+    from testbed.learning import Learner
+
+    return Learner(cfg.learning, seed=seed)
+
+
+def load_learner(cfg: FleetConfig, path: Path) -> Any:
+    from testbed.learning import Learner
+
+    return Learner.load(path, cfg.learning)
+
+
+def resume_learner(cfg: FleetConfig, run: RunDir, state: Mapping[str, Any], *,
+                   learns: bool = True) -> Any:
+    """The learner as it was after step ``state["t"]`` of ``run``: the run's starting
+    learner (theta_0 and its data, reseeded), the run's data replayed onto it as the
+    loop gave it (``testbed.records.store.replay``; nothing for an algorithm that does
+    not learn), then the step's weights, optimisers, sampler and counters. A checkpoint
+    of the old format (the whole learner, data included) is loaded as it is."""
+    from testbed.learning import checkpoint as ckpt_format
+    from testbed.records.store import RunData, replay
+
+    path = run.path / state["learner"]
+    saved = ckpt_format.load_any(path)
+    if saved["format"] == ckpt_format.FORMAT:
+        return load_learner(cfg, path)
+    learner = load_learner(cfg, run.start_learner)
+    if learns:
+        replay(learner, RunData.of_run(run.path), int(state["t"]) + 1)
+    learner.load_training_state(saved, where=str(path))
+    return learner
+
+
+def pretrained_learner(
+    cfg: FleetConfig,
+    humans: Humans,
+    out: Path,
+    progress: Progress | None,
+    hosts: Hosts | None = None,
+    trial_seed: int | None = None,
+    critics: Iterable[str] | None = None,
+) -> tuple[Any, Path]:
+    """theta_0: from the cache if this exact pretraining was done before, else made now.
+
+    ``critics``: the critics to pretrain (None: both), part of the cache key. The
+    learner comes back with every part set to train; the caller narrows it
+    (``Learner.set_parts``) to what its algorithm reads.
+
+    A cold cache pretrains on the trial's own ``hosts`` (already started): one agent
+    per host, ever, which on hardware means one lock, one camera client, one SSH
+    session. They are reseeded to ``PRETRAIN_HOSTS_SEED`` first (theta_0 does not
+    depend on which trial happened to pretrain) and to ``trial_seed`` after, which
+    puts every host where a fresh start with that seed would; and the learner is
+    always reloaded from the checkpoint: so a trial is reproducible, cold cache or
+    warm. Without ``hosts`` (``testbed pretrain``-like callers, benchmarks) pretraining
+    builds and closes hosts of its own.
+    """
+    which = critic_set(critics)
+    cache = out / ".pretrained" / pretrain_key(cfg, PRETRAIN_SEED, which)
+    ckpt = cache / "learner.pt"
+    if not ckpt.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        if hosts is None:
+            own = build_hosts(cfg, PRETRAIN_HOSTS_SEED)
+            try:
+                own.start()
+                _pretrain_into(cfg, humans, cache, own, progress, which)
+            finally:
+                try:
+                    own.rest()
+                finally:
+                    own.close()
+        else:
+            if trial_seed is None:
+                raise ValueError("pretraining on the trial's hosts needs the trial seed")
+            hosts.reseed(PRETRAIN_HOSTS_SEED)
+            _pretrain_into(cfg, humans, cache, hosts, progress, which)
+            hosts.reseed(trial_seed)
+    return load_learner(cfg, ckpt), ckpt
+
+
+def _pretrain_into(
+    cfg: FleetConfig, humans: Humans, cache: Path, hosts: Hosts, progress: Progress | None,
+    critics: tuple[str, ...],
+) -> None:
+    """Collect the demos (unless cached), pretrain theta_0, write it to ``cache``."""
+    demos_path = cache / "demos.npz"
+    if demos_path.exists():
+        demos = load_transitions(demos_path)
+    else:
+        demos = collect_demos(hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress)
+        save_transitions(demos, demos_path)
+    learner = new_learner(cfg, PRETRAIN_SEED)
+    data = pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
+                    PRETRAIN_SEED, progress, critics=critics)
+    save_transitions(data, cache / "transitions.npz")
+    learner.save(cache / "learner.pt")
+
+
+def keep_demos(demos: Path, run: RunDir) -> None:
+    """The offline demonstrations theta_0 learned from, beside the run's data
+    (``data/demos.npz``, ``testbed.experiments.pretraining.save_transitions``' format:
+    a hard link to the pretraining cache's file where the file system allows), so that
+    the run's folder alone holds every label its policy saw (``testbed export``)."""
+    if not demos.exists():
+        return
+    target = run.path / "data" / "demos.npz"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if target.exists():
+        return
+    try:
+        os.link(demos, target)
+    except OSError:
+        shutil.copyfile(demos, target)
