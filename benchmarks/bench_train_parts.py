@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_training import fill
 
 from testbed.core.config import LearningConfig
-from testbed.fleet.priorities import ALGORITHMS
+from testbed.fleet.algorithms import ALGORITHMS
 from testbed.learning import Learner
 from testbed.learning.critics import CriticBatch
 from testbed.learning.policy import ensemble_signals

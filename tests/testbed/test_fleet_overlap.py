@@ -18,8 +18,8 @@ import torch
 from testbed.core.config import AlgorithmConfig, LearningConfig
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
-from testbed.fleet.priorities import get_algorithm
 from testbed.learning import Learner
 from testbed.records.steps import RunWriter
 

@@ -32,8 +32,8 @@ from testbed.core.types import (
 )
 from testbed.experiments.build import make_humans
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
-from testbed.fleet.priorities import get_algorithm
 from testbed.records.steps import RecordError, RunWriter, read_steps, validate_step
 
 ARMS = ["h/a", "h/b", "h/c"]

@@ -8,16 +8,14 @@ import numpy as np
 import pytest
 
 from testbed.core.config import AlgorithmConfig
+from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS, get_algorithm
 from testbed.fleet.priorities import (
-    ALGORITHM_NAMES,
-    ALGORITHMS,
     OrderedPriority,
     PriorityFunction,
     PrioritySignals,
     RandomPriority,
     RunningStats,
     ThriftyPriority,
-    get_algorithm,
 )
 
 PARAMS = AlgorithmConfig(t_T=2, t_R=3, t_I=5, u_hat=0.1, r_hat=0.5, thrifty_alpha=0.25,
