@@ -1,6 +1,6 @@
 """How fast is a twin fleet? One timestep of 50 twin cells (100 arms), and images/s.
 
-Why this exists: twin mode and the seed-scale simulations (N = 100 arms) run the
+Why this exists: twin mode and the paper-scale simulations (N = 100 arms) run the
 PyBullet cells inside every timestep, so a timestep of the whole fleet -- every arm
 pushes, then every cell renders and reports its arms' images, ground truth and expert
 choice -- must stay within the target (150 ms on the 2-core dev machine) without

@@ -5,7 +5,7 @@ twin mode needs no SSH server, and the tests can still run the lab path against 
 OpenSSH on loopback. A transport only moves bytes with deadlines; framing and meaning
 live in ``drivers.wire`` and ``drivers.link``.
 
-Rules kept here (DESIGN.md section 8):
+Rules kept here (the security rules; docs/notes/drivers.md, "SSH"):
 
 * The agent's command line is a fixed argv built by :func:`agent_argv`; over SSH every
   word is quoted with ``shlex.quote`` (the remote side always runs a shell), so no config

@@ -1,10 +1,18 @@
-"""The OpenCV operator console: one window per human and a fleet overview.
+"""The operator consoles: where the fleet's humans see their requests and answer them.
 
-``ConsoleHumans`` implements ``testbed.core.humans.Humans`` for people: every timestep the
-fleet loop hands it the interventions the allocator chose, each human answers in their
-own window (a push for teleop, Enter for a finished hard reset), and the overview shows
-the whole fleet. See ``docs/notes/gui.md`` for the threading model, keys and window
-names.
+Two consoles implement ``testbed.core.humans.Humans`` for people, and behave the same:
+
+* ``ConsoleHumans`` (``gui.console``, ``--humans gui``): OpenCV windows on the
+  controller's desktop, one per human (a process each) and a fleet overview;
+* ``WebHumans`` (``gui.web``, ``--humans web``): the same console as a page in each
+  human's own browser, served by the controller.
+
+What they share: ``gui.console_core.ConsoleCore`` (the Humans calls, pause and stop, one
+``gui.desk.Desk`` per human deciding which request is shown and which input counts),
+the drawing (``gui.draw`` renders ``gui.view.ConsoleView`` data on the geometry of
+``gui.layout``, with the cube and workspace from ``gui.scene``) and the input mapping
+(``gui.keys``: keys, clicks and buttons to commands). See ``docs/notes/gui.md`` and
+``docs/notes/web.md``.
 
 ``ConsoleHumans`` is exported lazily so ``import gui`` (and the exceptions) cost no
 OpenCV import.

@@ -222,12 +222,6 @@ class ConsoleCore:
     def stop_requested(self) -> bool:
         return self._stop_reason is not None
 
-    def set_paused(self, paused: bool) -> None:
-        """Pause or resume as if a human pressed p (e.g. from the CLI)."""
-        with self._cond:
-            if self._paused != paused:
-                self._toggle_pause()
-
     def face_click_point(self, human: int, action: int) -> Point:
         """Frame coordinates to click for push ``action`` on the request on screen."""
         with self._cond:

@@ -2,8 +2,9 @@
 
 Why it exists: the fleet controller must be testable and runnable without robots. A
 ``TwinCell`` behaves like one lab host (two arms, one overhead camera, a cube each) and
-keeps the task semantics of DESIGN.md section 3; ``supervisor`` is the scripted human
-that teleoperates with ground truth. This package imports nothing of the project.
+keeps the task semantics (success, violation, the 50-push cap: ``sim_twin.constants``);
+``supervisor`` is the scripted human that teleoperates with ground truth. This package
+imports nothing of the project.
 """
 
 from __future__ import annotations

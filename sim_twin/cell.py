@@ -1,7 +1,7 @@
 """TwinCell: one bimanual pushing cell (one PyBullet world, one camera) with its task.
 
 Why: the twin stands in for a lab cell in tests and in twin mode, so it keeps the task
-semantics of DESIGN.md section 3 itself -- the host reports outcomes, as a lab host
+semantics (``sim_twin.constants``) itself -- the host reports outcomes, as a lab host
 would -- and is deterministic in its seed.
 
     push(faces) ──► plan a stroke per arm (face normal from the cube's real yaw,

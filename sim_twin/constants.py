@@ -1,8 +1,8 @@
 """Numbers that define the twin cell: task semantics, geometry, and randomisation ranges.
 
 Why a copy of the task constants lives here: ``sim_twin`` imports nothing of the
-project (DESIGN.md section 2), so it cannot read ``testbed.core.types``. The values are the
-same contract (DESIGN.md section 3) and a test compares the two copies.
+project (docs/ARCHITECTURE.md, "sim_twin"), so it cannot read ``testbed.core.types``. The
+values are the same task contract and a test compares the two copies.
 
 Lengths ending in ``_M`` are metres in the PyBullet world; everything else is in
 canonical image units (the arm's 64x64 crop is ``[0, 1]^2``, y down).
@@ -15,7 +15,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-# --- task semantics (DESIGN.md section 3, same values as testbed.core.types) -------------
+# --- task semantics (same values as testbed.core.types) ----------------------------------
 IMAGE_SIZE: Final = 64
 NUM_ACTIONS: Final = 4
 FACE_DIRECTIONS: Final[tuple[tuple[float, float], ...]] = (

@@ -66,9 +66,3 @@ def depth_inside(points: npt.ArrayLike, polygon: FloatArray | None = None) -> Fl
     p = np.asarray(points, dtype=np.float64)
     d = np.einsum("...j,ij->...i", p, normals) - np.sum(verts * normals, axis=1)
     return np.min(d, axis=-1)
-
-
-def inside_workspace(points: npt.ArrayLike, margin: float = 0.0) -> npt.NDArray[np.bool_]:
-    """Whether points lie in the workspace polygon (the boundary counts as inside),
-    at least ``margin`` from every edge."""
-    return depth_inside(points) >= margin

@@ -10,23 +10,22 @@ is safe it takes the one that ends deepest inside. The measured quality of this 
 is in docs/notes/sim_twin.md (and asserted by tests/sim_twin).
 
 The hard-reset half of the supervisor is ``TwinCell.hard_reset`` (the cube back near
-the centre); ``measure`` runs a cell under any policy with immediate hard resets.
+the centre); ``measure`` runs a cell under any policy with immediate hard resets. The
+cell is typed by :class:`SupervisedCell`, the few calls used here, so this module needs
+nothing of ``sim_twin.cell`` (which imports it for ``expert_face``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from sim_twin.constants import NUM_ACTIONS
 from sim_twin.geometry import depth_inside, push_direction
-
-if TYPE_CHECKING:
-    from sim_twin.cell import TwinCell
 
 NOMINAL_STEP = 0.106
 """Mean canonical displacement of one push (measured: 34 mm on a 320 mm workspace)."""
@@ -48,10 +47,31 @@ def expert_face(cube_xy: Sequence[float], yaw: float, goal_xy: Sequence[float],
     return int(np.argmax(depth))
 
 
-Policy = Callable[["TwinCell", str], int]
+class PushOutcome(Protocol):
+    """What ``measure`` reads of one arm's push (``sim_twin.cell.TwinOutcome``)."""
+
+    @property
+    def success(self) -> bool: ...
+    @property
+    def violation(self) -> bool: ...
+    @property
+    def soft_reset(self) -> bool: ...
 
 
-def expert_policy(cell: TwinCell, arm: str) -> int:
+class SupervisedCell(Protocol):
+    """The calls of a cell this module makes (``sim_twin.cell.TwinCell`` has them)."""
+
+    arm_names: tuple[str, ...]
+
+    def push(self, faces: Mapping[str, int]) -> Mapping[str, PushOutcome]: ...
+    def hard_reset(self, arm: str) -> None: ...
+    def expert_action(self, arm: str) -> int: ...
+
+
+Policy = Callable[[SupervisedCell, str], int]
+
+
+def expert_policy(cell: SupervisedCell, arm: str) -> int:
     return cell.expert_action(arm)
 
 
@@ -77,7 +97,7 @@ class PolicyReport:
         return 100.0 * self.violations / max(self.pushes, 1)
 
 
-def measure(cell: TwinCell, policy: Policy, timesteps: int) -> PolicyReport:
+def measure(cell: SupervisedCell, policy: Policy, timesteps: int) -> PolicyReport:
     """Every arm of the cell pushes by ``policy`` each timestep; a violating arm is
     hard-reset at once (so every timestep is a push for every arm)."""
     pushes = successes = violations = soft = 0

@@ -6,7 +6,7 @@ new subclass and nothing else changes. The backend works in the arms' *canonical
 frame (right-arm crops mirrored, ``testbed.core.types``); the agent puts its answers on the
 wire unchanged.
 
-Semantics (DESIGN.md section 3, ARCHITECTURE.md ``TwinCell``):
+Semantics (docs/ARCHITECTURE.md ``TwinCell``; the task constants in ``testbed.core.types``):
 
 * ``observe`` takes ONE picture for all arms (the host's camera is shared) with every
   pusher out of view, and reports per arm the 64x64 canonical crop with the goal drawn

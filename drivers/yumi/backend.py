@@ -22,7 +22,7 @@ A push the backend cannot make is *refused* with the reason (the cube not found 
 picture, the arm violating), never reported as a push; a push that cannot be planned for
 one arm is that arm's *error* while the other arms' programs still run. Which controller
 client drives the arms (the real controller's RWS, the hardware twin) is chosen from the
-controller URL in :func:`~drivers.yumi.yumi_controller.make_controller`, so nothing
+controller URL in :func:`~drivers.yumi.controllers.make_controller`, so nothing
 here knows the twin.
 
 Calibration mode (``build_yumi_backend(..., calibrating=[arm])``): that arm may have no
@@ -34,7 +34,6 @@ and reset need the homography, so they are errors naming the arm).
 from __future__ import annotations
 
 import contextlib
-import importlib
 import json
 import logging
 import math
@@ -245,7 +244,9 @@ class YumiBackend(HostBackend):
     @property
     def perception(self) -> Any:
         if self._perception is None:
-            self._perception = importlib.import_module("testbed.perception.cube")
+            from testbed.perception import cube  # lazy: see the module docstring
+
+            self._perception = cube
         return self._perception
 
     def _require_calibrated(self) -> None:
@@ -543,7 +544,7 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
     module docstring).
     """
     from drivers.yumi.camera import VideoCaptureCamera
-    from drivers.yumi.yumi_controller import make_controller
+    from drivers.yumi.controllers import make_controller
 
     if camera is None:
         raise BackendError("--backend yumi needs --camera (device index, video file or "

@@ -5,10 +5,10 @@ run in CI, so :class:`~drivers.yumi.backend.YumiBackend` talks to a small client
 protocol. :class:`RwsYumiController` implements it with ``abb-motion-program-exec``
 (MultiMove: both arms' programs start together, one RAPID task per arm, ``T_ROB_L`` and
 ``T_ROB_R``) and ``abb-robot-client`` (RWS reads of the TCP positions). The hardware twin's client
-(``drivers.yumi.twin_controller``) is the other real one; :func:`make_controller`
-picks one from the controller URL.
-:class:`FakeYumiController` implements it for tests and records every waypoint; it is a
-fake on purpose and says so in its name.
+(``drivers.yumi.twin_controller``) is the other real one;
+:func:`drivers.yumi.controllers.make_controller` picks one from the controller URL.
+:class:`drivers.testing.fake_yumi.FakeYumiController` implements it for tests and records
+every waypoint; it is a fake on purpose and says so in its name.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 from drivers.errors import BackendError
@@ -61,30 +61,6 @@ class YumiControllerClient(Protocol):
         ...
 
     def close(self) -> None: ...
-
-
-def make_controller(url: str, poses: Mapping[str, ArmPose | None], *,
-                    field_name: str = "controller_url") -> YumiControllerClient:
-    """The controller client that ``url`` names: ``twin+http://HOST:PORT`` the hardware
-    twin (:class:`~drivers.yumi.twin_controller.TwinControllerClient`), ``http(s)://``
-    the real controller's Robot Web Services. Here, so that ``yumi.py`` never knows which
-    one it drives. ``poses``: every arm (config order) with its pose from the calibration
-    file; the real controller needs each arm's rest pose, the twin knows its own."""
-    low = url.strip().lower()
-    if low.startswith("twin+http://"):
-        from drivers.yumi.twin_controller import TwinControllerClient
-
-        return TwinControllerClient(url.strip(), list(poses))
-    if low.startswith(("http://", "https://")):
-        if missing := [arm for arm, pose in poses.items() if pose is None]:
-            raise BackendError(
-                f"arm {missing[0]}: its calibration file has no 'rest_joints_deg' (7 angles): "
-                f"the YuMi controller (RWS) needs every arm's rest pose, also while "
-                f"calibrating" + (f" (arms without one: {missing})" if len(missing) > 1 else ""))
-        return RwsYumiController(url.strip(), {a: p for a, p in poses.items() if p is not None})
-    raise BackendError(f"{field_name}: {url!r} is not a controller URL; expected http(s)://HOST "
-                       f"(the YuMi's Robot Web Services) or twin+http://HOST:PORT (the "
-                       f"hardware twin)")
 
 
 class RwsYumiController:
@@ -174,57 +150,3 @@ class RwsYumiController:
     def close(self) -> None:
         with contextlib.suppress(Exception):  # best effort on the way out
             self._client.abb_client.logout()
-
-
-@dataclass
-class FakeYumiController:
-    """A FAKE IRB 14000 controller for tests: records programs, moves TCPs instantly.
-
-    ``park_in_view(arm, reads)`` makes the next ``reads`` TCP reads report the arm over
-    the table (until it is sent to rest), so the backend's "take the picture again" path
-    can be tested; an arm in ``stuck`` stays in view whatever it is told.
-    """
-
-    rest_xyz: dict[str, tuple[float, float, float]]
-    in_view_xyz: tuple[float, float, float] = (0.0, 0.0, 50.0)
-    stuck: set[str] = field(default_factory=set)
-    programs: list[dict[str, list[Waypoint]]] = field(default_factory=list)
-    closed: bool = False
-    _tcp: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    _in_view_reads: dict[str, int] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        self._tcp = dict(self.rest_xyz)
-
-    def park_in_view(self, arm: str, reads: int = 1) -> None:
-        self._in_view_reads[arm] = reads
-
-    def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
-        if self.closed:
-            raise BackendError("fake controller is closed")
-        unknown = set(programs) - set(self.rest_xyz)
-        if unknown:
-            raise BackendError(f"fake controller has no arm(s) {sorted(unknown)}")
-        self.programs.append({a: list(w) for a, w in programs.items()})
-        for arm, wps in programs.items():
-            for w in wps:
-                if w.speed_mm_s <= 0:
-                    raise BackendError(f"arm {arm}: non-positive speed {w.speed_mm_s}")
-                if w.kind == "rest":
-                    self._tcp[arm] = self.rest_xyz[arm]
-                    self._in_view_reads.pop(arm, None)
-                elif w.xyz_mm is not None:
-                    self._tcp[arm] = w.xyz_mm
-
-    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
-        out = dict(self._tcp)
-        for arm, n in list(self._in_view_reads.items()):
-            if n > 0:
-                out[arm] = self.in_view_xyz
-                self._in_view_reads[arm] = n - 1
-        for arm in self.stuck:
-            out[arm] = self.in_view_xyz
-        return out
-
-    def close(self) -> None:
-        self.closed = True

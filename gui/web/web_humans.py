@@ -1,6 +1,6 @@
 """``WebHumans``: the fleet's humans, each at a console page on their own device.
 
-Why a browser console beside the OpenCV one: the seed's robots stand half a mile
+Why a browser console beside the OpenCV one: the paper's robots stand half a mile
 apart. A hard reset needs a person at that robot, a teleop only a screen anywhere, so
 every human needs a console on their own phone or laptop, not a window on the
 controller's desktop. The page shows the very frames the OpenCV window shows (rendered
@@ -168,17 +168,6 @@ class WebHumans(ConsoleCore):
     def present(self, human: int) -> bool:
         with self._cond:
             return self._pages[human] > 0
-
-    def wait_for_humans(self, timeout_s: float) -> bool:
-        """Block until every human has a page open (True) or ``timeout_s`` passed."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while not all(self._pages):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(min(left, 0.1))
-            return True
 
     def _gave_up(self, human: int, t_act: float, now: float) -> bool:
         if self._pages[human] > 0:

@@ -334,9 +334,9 @@ def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,
     """A YumiBackend on a FakeYumiController and a video file of ``pictures``."""
     import json
 
+    from drivers.testing.fake_yumi import FakeYumiController
     from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
     from drivers.yumi.camera import VideoCaptureCamera
-    from drivers.yumi.yumi_controller import FakeYumiController
 
     video = write_video(tmp_path / f"{name}.avi", list(pictures))
     setups = []

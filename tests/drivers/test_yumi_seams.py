@@ -24,7 +24,8 @@ from mjpeg_fixture import MjpegCamera, frame_number
 
 from drivers.errors import BackendError
 from drivers.yumi.camera import VideoCaptureCamera
-from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, make_controller
+from drivers.yumi.controllers import make_controller
+from drivers.yumi.yumi_controller import ArmPose, RwsYumiController
 
 # --- the camera seam: a network camera ------------------------------------------------
 

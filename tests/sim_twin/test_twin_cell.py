@@ -195,7 +195,8 @@ def test_violation_through_a_cut_corner(cell: TwinCell) -> None:
 
 def test_outcomes_follow_the_ground_truth_exactly() -> None:
     """On many constructed states near goal and edge, each outcome is exactly what the
-    ground truth after the push says (DESIGN.md section 3)."""
+    ground truth after the push says (success within SUCCESS_RADIUS of the goal, violation
+    outside WORKSPACE_POLYGON)."""
     rng = np.random.default_rng(1)
     seen = {"success": 0, "violation": 0, "neither": 0}
     with TwinCell(3) as c:
