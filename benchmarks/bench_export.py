@@ -33,10 +33,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim_twin import TwinCell
-from testbed.datasets import episodes as ex
-from testbed.datasets.lerobot import VideoCodec, read_dataset
+from testbed.datasets.dataset_io import export
+from testbed.datasets.episodes import gather, iter_episodes
+from testbed.datasets.lerobot import read_dataset
+from testbed.datasets.npz import read_npz
+from testbed.datasets.sources import find_sources
+from testbed.datasets.video import VideoCodec
+from testbed.records.step_record import StepRecord
 from testbed.records.steps import RunWriter
-from testbed.records.store import RunDataWriter, build_frames
+from testbed.records.store import RunDataWriter
 
 os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1's banner: errors only
 
@@ -87,7 +92,8 @@ def make_run(folder: Path, steps: int, cells: int, noise: float) -> Path:
                 r.update(success=bool(o and o.success), violation=bool(o and o.violation),
                          uncertainty=0.1, risk=0.2, key=[0.0])
             row = {"t": t, "robots": rows, "wall_time": time.time()}
-            data.append(build_frames(t, 0, row, images, np.ones(len(arms), bool), goals))
+            record = StepRecord.from_row(row, 0, images, np.ones(len(arms), bool), goals)
+            data.append(record.to_frames())
             w.write_step(row)
     data.close()
     for c in twins:
@@ -111,7 +117,7 @@ def _size(path: Path) -> int:
 
 
 def bench(run: Path, work: Path) -> None:
-    exact = ex.gather(ex.iter_episodes(ex.find_sources([run])))
+    exact = gather(iter_episodes(find_sources([run])))
     n = len(exact)
     raw = work / "raw.bin"
     t_raw_w, _ = _timed(lambda: exact.images.tofile(raw))
@@ -123,12 +129,12 @@ def bench(run: Path, work: Path) -> None:
           f"{'x raw':>6s} {'decode f/s':>10s} {'x raw':>8s} {'PSNR min':>8s} {'|err|':>6s}")
     cases: list[tuple[str, Callable[[Path], Any], Callable[[Path], np.ndarray]]] = [
         ("npz (np.savez_compressed)",
-         lambda p: ex.export([run], "npz", p / "f.npz", note=_quiet),
-         lambda p: ex.read_npz(p / "f.npz").images)]
+         lambda p: export([run], "npz", p / "f.npz", note=_quiet),
+         lambda p: read_npz(p / "f.npz").images)]
     for name, opts in ENCODINGS.items():
         o = dict(opts)
         images = o.pop("images")
-        cases.append((name, lambda p, i=images, o=o: ex.export(
+        cases.append((name, lambda p, i=images, o=o: export(
             [run], "lerobot", p / "ds", i, note=_quiet, **o),
                       lambda p: read_dataset(p / "ds").images))
     for k, (name, write, read) in enumerate(cases):

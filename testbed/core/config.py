@@ -11,10 +11,17 @@ from __future__ import annotations
 
 import os
 import re
-import tomllib
+import sys
 from pathlib import Path
-from typing import Annotated, Any, Literal, Self
+from typing import Annotated, Any, Literal
 from urllib.parse import urlsplit
+
+from typing_extensions import Self
+
+if sys.version_info >= (3, 11):
+    import tomllib  # novermin (guarded: Python 3.10 reads TOML with tomli)
+else:  # a robot host's Python 3.10
+    import tomli as tomllib
 
 from pydantic import (
     BaseModel,

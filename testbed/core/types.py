@@ -20,7 +20,7 @@ Conventions shared by every part:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import StrEnum
+from enum import Enum
 from typing import Final
 
 import numpy as np
@@ -42,7 +42,18 @@ MIN_GOAL_DISTANCE: Final = 12.0 / 64.0
 MAX_PUSHES_PER_GOAL: Final = 50
 
 
-class Mode(StrEnum):
+class _Named(str, Enum):
+    """A str enum that prints and formats as its value, as ``enum.StrEnum`` (Python
+    3.11) does: ``core`` runs on a robot host's Python too, 3.10 included."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, format_spec: str) -> str:
+        return format(str(self.value), format_spec)
+
+
+class Mode(_Named):
     """What a robot did in a timestep (the ``mode`` field of steps.jsonl)."""
 
     AUTONOMOUS = "autonomous"
@@ -54,7 +65,7 @@ class Mode(StrEnum):
     """The host could not push (e.g. the cube not found): neither autonomous nor human."""
 
 
-class InterventionKind(StrEnum):
+class InterventionKind(_Named):
     TELEOP = "teleop"
     RESET = "reset"
 

@@ -47,6 +47,7 @@ from testbed.core.types import (
     Fault,
     FleetStatus,
     HumanRequest,
+    HumanResponse,
     InterventionKind,
     Mode,
     PushResult,
@@ -56,6 +57,7 @@ from testbed.fleet.algorithms import Algorithm
 from testbed.fleet.allocator import Allocator
 from testbed.fleet.priorities import PrioritySignals
 from testbed.records import store as rundata
+from testbed.records.step_record import ArmStep, StepRecord
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter
 
@@ -110,6 +112,15 @@ class _Decided:
     """Humans not available at this step's allocation (sorted)."""
     released: list[dict[str, Any]] = field(default_factory=list)
     """Interventions ended before the allocation: ``{"robot", "human", "why"}``."""
+
+
+@dataclass
+class _Observed:
+    observations: Mapping[str, ArmObservation | Fault]
+    images: np.ndarray
+    violating: np.ndarray
+    observed: np.ndarray
+    goals: np.ndarray
 
 
 @dataclass
@@ -185,7 +196,7 @@ class FleetLoop:
 
     # ---- one timestep ---------------------------------------------------------------
     def _decide(self, t: int, observations: Mapping[str, ArmObservation | Fault],
-                images: np.ndarray, violating: np.ndarray, out: Any) -> _Decided:
+                violating: np.ndarray, out: Any) -> _Decided:
         """Keys, allocation, the humans' answers: what every arm does at step t."""
         faulted = np.array([not isinstance(observations.get(r), ArmObservation)
                             for r in self.robots])
@@ -202,8 +213,17 @@ class FleetLoop:
         )
         assignment = self.algorithm.step(signals)
         keys = np.asarray(self.algorithm.last_keys, dtype=float)
-        kinds, served = self.allocator.kinds, self.allocator.served
+        requests = self._requests(observations, assignment, faulted, keys, out)
+        responses = self.humans.act(requests, t) if requests else {}
+        d = _Decided(out, keys, faulted, {}, [], {}, {}, away, released)
+        self._assign_modes(d, assignment, violating, responses)
+        return d
 
+    def _requests(self, observations: Mapping[str, ArmObservation | Fault],
+                  assignment: np.ndarray, faulted: np.ndarray, keys: np.ndarray,
+                  out: Any) -> list[HumanRequest]:
+        """One request per arm the allocator gave a human (faulted arms aside)."""
+        kinds, served = self.allocator.kinds, self.allocator.served
         requests: list[HumanRequest] = []
         for i, r in enumerate(self.robots):
             h = int(assignment[i])
@@ -224,32 +244,31 @@ class FleetLoop:
                     | {"uncertainty": float(out.uncertainty[i]), "risk": float(out.risk[i])},
                 )
             )
-        responses = self.humans.act(requests, t) if requests else {}
+        return requests
 
-        pushes: dict[str, int] = {}
-        resets: list[str] = []
-        modes: dict[str, Mode] = {}
-        humans_of: dict[str, int | None] = {}
+    def _assign_modes(self, d: _Decided, assignment: np.ndarray, violating: np.ndarray,
+                      responses: Mapping[str, HumanResponse]) -> None:
+        """Each arm's mode, human and push (or reset) from the allocation and answers."""
+        kinds = self.allocator.kinds
         for i, r in enumerate(self.robots):
             h = int(assignment[i])
-            humans_of[r] = h if h >= 0 else None
-            if faulted[i]:
-                modes[r] = Mode.FAULT
+            d.humans_of[r] = h if h >= 0 else None
+            if d.faulted[i]:
+                d.modes[r] = Mode.FAULT
             elif h >= 0 and kinds[i] is InterventionKind.RESET:
-                modes[r] = Mode.RESET
+                d.modes[r] = Mode.RESET
                 if responses.get(r) is not None and responses[r].reset_done:
-                    resets.append(r)
+                    d.resets.append(r)
             elif violating[i]:
-                modes[r] = Mode.IDLE
+                d.modes[r] = Mode.IDLE
             elif h >= 0:
-                modes[r] = Mode.TELEOP
+                d.modes[r] = Mode.TELEOP
                 answer = responses.get(r)
                 if answer is not None and answer.action is not None:
-                    pushes[r] = int(answer.action)  # else the human let the step pass
+                    d.pushes[r] = int(answer.action)  # else the human let the step pass
             else:
-                modes[r] = Mode.AUTONOMOUS
-                pushes[r] = int(out.actions[i])
-        return _Decided(out, keys, faulted, pushes, resets, modes, humans_of, away, released)
+                d.modes[r] = Mode.AUTONOMOUS
+                d.pushes[r] = int(d.out.actions[i])
 
     def _presence(self) -> tuple[np.ndarray | None, list[int], list[dict[str, Any]]]:
         """Who may be assigned at this step: (available mask or None, away, released).
@@ -279,54 +298,46 @@ class FleetLoop:
         away = [int(h) for h in np.flatnonzero(~available)]
         return available, away, released
 
-    def step(self, t: int) -> StepOutcome:
-        started = time.monotonic()
+    def _observe(self) -> _Observed:
+        """Every arm's observation, as the arrays the learner and the records take."""
         observations = self.hosts.observe()
         n = len(self.robots)
-        images = np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
-        violating = np.zeros(n, dtype=bool)
-        observed = np.zeros(n, dtype=bool)
-        goals = np.full((n, 2), np.nan, dtype=np.float32)
+        seen = _Observed(observations, np.zeros((n, IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8),
+                         np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
+                         np.full((n, 2), np.nan, dtype=np.float32))
         for i, r in enumerate(self.robots):
             o = observations.get(r)
             if isinstance(o, ArmObservation):
-                images[i] = o.image
-                violating[i] = o.violating
-                observed[i] = True
-                goals[i] = o.goal
-        if self.algorithm.learns and self._last is not None:  # training step t's last data
-            rundata.add_transitions(self.learner, self._last, observed, images)
+                seen.images[i] = o.image
+                seen.violating[i] = o.violating
+                seen.observed[i] = True
+                seen.goals[i] = o.goal
+        return seen
 
+    def step(self, t: int) -> StepOutcome:
+        started = time.monotonic()
+        seen = self._observe()
+        if self.algorithm.learns and self._last is not None:  # training step t's last data
+            rundata.add_transitions(self.learner, self._last, seen.observed, seen.images)
         training: Future[dict[str, float]] | None = None
         if self._actor is not None and self.algorithm.learns:
             self._actor.sync()  # train beside act: act reads the up-to-date copy
             training = self._executor.submit(self.learner.train_step)
         try:
-            out = (self._actor or self.learner).act(images)
+            out = (self._actor or self.learner).act(seen.images)
             if training is None and self.algorithm.learns:  # serial: after act
                 training = self._executor.submit(self.learner.train_step)
-            d = self._decide(t, observations, images, violating, out)
+            d = self._decide(t, seen.observations, seen.violating, out)
             results = self.hosts.execute(d.pushes, d.resets)
         except BaseException:
             if training is not None:
                 training.result()
             raise
         train_info = training.result() if training is not None else {}
-        pushes, humans_of, faulted, out, keys = (d.pushes, d.humans_of, d.faulted, d.out,
-                                                 d.keys)
-        modes = self._final_modes(d.modes, results, pushes)
-
-        row = self._row(t, modes, humans_of, results, np.asarray(out.uncertainty),
-                       np.asarray(out.risk), keys, pushes)
-        if d.away:  # only when someone is away: rows of runs without are as they were
-            row["away"] = d.away
-        if d.released:
-            row["released"] = d.released
-        # Timing rides along for the lab (DESIGN.md section 9): it is the one part of a
-        # row that differs between two runs of the same seed.
-        row["wall_time"] = time.time()
-        row["duration_s"] = time.monotonic() - started
-        frames = rundata.build_frames(t, self.session, row, images, observed, goals)
+        record = self._record(t, d, results, seen)
+        record.wall_time = time.time()
+        record.duration_s = time.monotonic() - started
+        row, frames = record.to_row(), record.to_frames()
         with critical():  # the data first: a step in steps.jsonl always has its frames
             if self.data is not None:
                 self.data.append(frames)
@@ -337,65 +348,43 @@ class FleetLoop:
             rundata.add_labels(self.learner, frames)
         self.status.t = t + 1
         self.status.robots = [
-            RobotStatus(r, modes[r], images[i] if not faulted[i] else None, humans_of[r])
-            for i, r in enumerate(self.robots)
+            RobotStatus(r, a.mode, seen.images[i] if not d.faulted[i] else None,
+                        d.humans_of[r])
+            for i, (r, a) in enumerate(zip(self.robots, record.arms, strict=True))
         ]
         if self._after_step is not None:  # checkpoint first: a stop in show keeps step t
             self._after_step(t)
         self.humans.show(t, self.status)
         return StepOutcome(t, row, self.status, train_info)
 
-    def _final_modes(self, modes: Mapping[str, Mode],
-                     results: Mapping[str, PushResult | Fault],
-                     pushes: Mapping[str, int]) -> dict[str, Mode]:
-        """The modes the row records: a host's fault wins, then a push it refused."""
-        final = dict(modes)
-        for r in self.robots:
-            res = results.get(r)
-            if isinstance(res, Fault):
-                final[r] = Mode.FAULT
-            elif r in pushes and isinstance(res, PushResult) and res.refused is not None:
-                final[r] = Mode.REFUSED
-        return final
-
-    def _row(
-        self,
-        t: int,
-        modes: Mapping[str, Mode],
-        humans_of: Mapping[str, int | None],
-        results: Mapping[str, PushResult | Fault],
-        uncertainty: np.ndarray,
-        risk: np.ndarray,
-        keys: np.ndarray,
-        pushes: Mapping[str, int],
-    ) -> dict[str, Any]:
-        rows = []
+    def _record(self, t: int, d: _Decided, results: Mapping[str, PushResult | Fault],
+                seen: _Observed) -> StepRecord:
+        """The step as the records keep it. The mode each arm's row records: a host's
+        fault wins, then a push it refused, then what was decided."""
+        uncertainty, risk = np.asarray(d.out.uncertainty), np.asarray(d.out.risk)
+        arms = []
         for i, r in enumerate(self.robots):
             res = results.get(r)
-            mode = modes[r]
+            mode = d.modes[r]
+            if isinstance(res, Fault):
+                mode = Mode.FAULT
+            elif r in d.pushes and isinstance(res, PushResult) and res.refused is not None:
+                mode = Mode.REFUSED
             ok = isinstance(res, PushResult)
             faulted = mode is Mode.FAULT
-            entry: dict[str, Any] = {
-                "robot": r,
-                "mode": str(mode),
-                "human": humans_of[r],
-                "action": pushes.get(r) if not faulted else None,
-                "success": bool(ok and res.success),  # type: ignore[union-attr]
-                "violation": bool(ok and res.violation),  # type: ignore[union-attr]
-                "uncertainty": None if faulted else float(uncertainty[i]),
-                "risk": None if faulted else float(risk[i]),
-                "key": [float(k) for k in keys[i]],
-            }
-            if mode is Mode.REFUSED:
-                entry["refused"] = str(res.refused)  # type: ignore[union-attr]
-            rows.append(entry)
-        faults = {
-            r: res.reason for r, res in results.items() if isinstance(res, Fault)
-        }
-        row: dict[str, Any] = {"t": t, "robots": rows}
-        if faults:
-            row["faults"] = faults
-        return row
+            arms.append(ArmStep(
+                robot=r, mode=mode, human=d.humans_of[r],
+                action=d.pushes.get(r) if not faulted else None,
+                success=bool(ok and res.success),  # type: ignore[union-attr]
+                violation=bool(ok and res.violation),  # type: ignore[union-attr]
+                uncertainty=None if faulted else float(uncertainty[i]),
+                risk=None if faulted else float(risk[i]),
+                key=tuple(float(k) for k in d.keys[i]),
+                refused=str(res.refused) if mode is Mode.REFUSED else None,  # type: ignore[union-attr]
+            ))
+        faults = {r: res.reason for r, res in results.items() if isinstance(res, Fault)}
+        return StepRecord(t, self.session, arms, seen.images, seen.observed, seen.goals,
+                          faults, d.away, d.released)
 
     def close(self) -> None:
         self._executor.shutdown(wait=True)

@@ -235,35 +235,6 @@ class RunDataWriter:
             self._chunk = -1
 
 
-def build_frames(
-    t: int,
-    session: int,
-    row: dict[str, Any],
-    images: np.ndarray,
-    observed: np.ndarray,
-    goals: np.ndarray,
-) -> np.ndarray:
-    """The frames of step ``t`` from its steps.jsonl ``row`` and the observed images."""
-    robots = row["robots"]
-    f = np.zeros(len(robots), FRAME_DTYPE)
-    f["t"] = t
-    f["arm"] = np.arange(len(robots))
-    f["session"] = session
-    f["observed"] = observed
-    f["image"] = images
-    f["goal"] = goals
-    f["wall_time"] = row.get("wall_time", 0.0)
-    for i, r in enumerate(robots):
-        f["mode"][i] = MODES.index(r["mode"])
-        f["human"][i] = -1 if r["human"] is None else r["human"]
-        f["action"][i] = -1 if r["action"] is None else r["action"]
-        f["success"][i] = r["success"]
-        f["violation"][i] = r["violation"]
-        f["uncertainty"][i] = np.nan if r["uncertainty"] is None else r["uncertainty"]
-        f["risk"][i] = np.nan if r["risk"] is None else r["risk"]
-    return f
-
-
 # ----------------------------------------------------------------- the learner's data
 class DataSink(Protocol):
     def add_human(self, images: np.ndarray, actions: np.ndarray) -> None: ...

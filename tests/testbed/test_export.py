@@ -9,6 +9,7 @@ and numpy alone (not through the exporter's reader) and compared with the store.
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import itertools
 import json
@@ -25,9 +26,13 @@ from PIL import Image
 
 from testbed.cli import main
 from testbed.core.types import IMAGE_SIZE
-from testbed.datasets import episodes as ex
+from testbed.datasets import dataset_io, episodes
+from testbed.datasets.npz import read_npz
+from testbed.datasets.sources import DEMO_FIELDS, find_sources
+from testbed.datasets.training import training_data
+from testbed.records.step_record import StepRecord
 from testbed.records.steps import RunWriter
-from testbed.records.store import FRAME_DTYPE, MODES, RunData, RunDataWriter, build_frames, replay
+from testbed.records.store import FRAME_DTYPE, MODES, RunData, RunDataWriter, replay
 
 ROBOTS = ["a/left", "a/right"]
 G1, G2, G4, G5 = (0.12, 0.30), (0.70, 0.25), (0.40, 0.80), (0.55, 0.45)
@@ -69,8 +74,8 @@ EXPECTED = [  # (source, robot, first step, length, task)
     (0, "a/right", 0, 6, "push the cube to (0.40, 0.80)"),
     (0, "a/right", 6, 3, "push the cube to (0.55, 0.45)"),
     (0, "a/right", 9, 3, "push the cube to (0.55, 0.45)"),
-    (1, "", 0, 4, ex.DEMO_TASK),  # chain a0 a1 a2 + its last next image
-    (1, "", 0, 3, ex.DEMO_TASK),  # chain b0 b1 + the violating image
+    (1, "", 0, 4, episodes.DEMO_TASK),  # chain a0 a1 a2 + its last next image
+    (1, "", 0, 3, episodes.DEMO_TASK),  # chain b0 b1 + the violating image
 ]
 TELEOP_LABELS, DEMOS = 3, 5
 
@@ -107,7 +112,7 @@ def _frames(t: int, session: int) -> np.ndarray:
     goals = np.array([p[t][5] or (np.nan, np.nan) for p in plans], np.float32)
     observed = np.array([p[t][5] is not None for p in plans])
     images = np.stack([picture(100 * k + t, p[t][5]) for k, p in enumerate(plans)])
-    return build_frames(t, session, _row(t), images, observed, goals)
+    return StepRecord.from_row(_row(t), session, images, observed, goals).to_frames()
 
 
 def demos() -> dict[str, np.ndarray]:
@@ -196,11 +201,11 @@ def check_frames(rows: list[dict[str, Any]], images: np.ndarray, run: Path,
     """Every exported frame equals its frame in the store (demos: the demos file)."""
     by_key = store(run)
     d = demos()
-    chain_images = {tuple(c): d for c in ex.demo_chains(d["images"], d["next_images"])}
+    chain_images = {tuple(c): d for c in episodes.demo_chains(d["images"], d["next_images"])}
     assert len(chain_images) == 2
     nan_equal: dict[str, Any] = {"equal_nan": True}
     for r, img in zip(rows, images, strict=True):
-        if r["intervention"] == ex.DEMO:
+        if r["intervention"] == episodes.DEMO:
             assert (r["source_index"], r["arm"], r["mode"]) == (1, -1, MODES.index("teleop"))
             continue
         f = by_key[(r["arm"], r["step"])]
@@ -211,13 +216,13 @@ def check_frames(rows: list[dict[str, Any]], images: np.ndarray, run: Path,
             assert np.allclose(r[name], f[name], **nan_equal), (name, r)
         assert np.allclose(np.asarray(r["goal"], np.float32), f["goal"], **nan_equal)
         human = MODES[f["mode"]] in ("teleop", "reset")
-        assert r["intervention"] == (ex.HUMAN if human else ex.POLICY)
+        assert r["intervention"] == (episodes.HUMAN if human else episodes.POLICY)
         if exact_images:
             assert np.array_equal(img, f["image"])
     if exact_images:  # demo frames: each demo push's image, then the chain's last next
-        demo_imgs = images[[r["intervention"] == ex.DEMO for r in rows]]
+        demo_imgs = images[[r["intervention"] == episodes.DEMO for r in rows]]
         want = np.concatenate([np.concatenate([d["images"][c], d["next_images"][c[-1:]]])
-                               for c in ex.demo_chains(d["images"], d["next_images"])])
+                               for c in episodes.demo_chains(d["images"], d["next_images"])])
         assert np.array_equal(demo_imgs, want)
 
 
@@ -234,16 +239,16 @@ def check_episodes(rows: list[dict[str, Any]], eps: list[dict[str, Any]],
         assert [r["frame_index"] for r in mine] == list(range(e["length"]))
         assert {r["episode_index"] for r in mine} == {e["episode_index"]}
         assert {tasks[r["task_index"]] for r in mine} == set(e["tasks"])
-        assert [r["timestamp"] for r in mine] == [float(k) / ex.FPS for k in range(len(mine))]
+        assert [r["timestamp"] for r in mine] == [float(k) / episodes.FPS for k in range(len(mine))]
         at += e["length"]
     assert [r["index"] for r in rows] == list(range(len(rows)))
-    demo = [r["intervention"] == ex.DEMO for r in rows]
+    demo = [r["intervention"] == episodes.DEMO for r in rows]
     assert sum(demo) == 7 and demo == sorted(demo)  # the demos: their own last episodes
 
 
 def check_meta(got: dict[str, Any], images: str) -> None:
     info, rows = got["info"], got["rows"]
-    assert info["codebase_version"] == "v3.0" and info["fps"] == ex.FPS
+    assert info["codebase_version"] == "v3.0" and info["fps"] == episodes.FPS
     assert info["total_frames"] == len(rows) == sum(e["length"] for e in got["episodes"])
     assert info["total_episodes"] == len(got["episodes"]) == len(EXPECTED)
     assert info["total_tasks"] == len(got["tasks"]) == len({e[4] for e in EXPECTED})
@@ -274,8 +279,8 @@ def check_meta(got: dict[str, Any], images: str) -> None:
 # ----------------------------------------------------------------- the tests
 def test_episode_starts_only_at_goal_changes_reset_ends_and_sessions(run: Path) -> None:
     f = RunData.of_run(run).frames(0, STEPS)
-    assert list(np.flatnonzero(ex.episode_starts(f[0::2]))) == [0, 3, 8, 9]
-    assert list(np.flatnonzero(ex.episode_starts(f[1::2]))) == [0, 6, 9]
+    assert list(np.flatnonzero(episodes.episode_starts(f[0::2]))) == [0, 3, 8, 9]
+    assert list(np.flatnonzero(episodes.episode_starts(f[1::2]))) == [0, 6, 9]
 
 
 def test_lerobot_png_is_the_run_frame_for_frame(run: Path, tmp_path: Path) -> None:
@@ -293,14 +298,14 @@ def test_lerobot_video_within_the_codecs_loss_and_files_roll_over(
     """H.264 4:4:4 at CRF 18 is x264's 'visually lossless' setting: every frame at least
     35 dB PSNR and a mean error under 2 of 255 levels (measured: 45.6 dB, 0.68)."""
     out = tmp_path / "ds"
-    ex.export([run], "lerobot", out, "video", data_file_mb=1e-4, video_file_mb=1e-4)
+    dataset_io.export([run], "lerobot", out, "video", data_file_mb=1e-4, video_file_mb=1e-4)
     got = read_lerobot(out)
     check_meta(got, "video")
     check_episodes(got["rows"], got["episodes"], got["tasks"])
     check_frames(got["rows"], got["images"], run, exact_images=False)
     assert len(got["files"]) == len(EXPECTED)  # a file per episode at these sizes
     assert len(list((out / "videos").rglob("*.mp4"))) > 1
-    exact = ex.gather(ex.iter_episodes(ex.find_sources([run])))
+    exact = episodes.gather(episodes.iter_episodes(find_sources([run])))
     err = got["images"].astype(np.float64) - exact.images
     mse = (err ** 2).reshape(len(err), -1).mean(axis=1)
     psnr = 10 * np.log10(255.0 ** 2 / np.maximum(mse, 1e-12))
@@ -331,7 +336,7 @@ def test_npz_has_the_same_frames_and_fields(run: Path, tmp_path: Path) -> None:
 
 
 def test_training_data_is_what_the_learner_had(run: Path) -> None:
-    """Labels: teleop pushes + demos; transitions: exactly rundata.replay's + the demos'."""
+    """Labels: teleop pushes + demos; transitions: exactly store.replay's + the demos'."""
 
     class Sink:
         def __init__(self) -> None:
@@ -346,7 +351,7 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
 
     sink = Sink()
     replay(sink, RunData.of_run(run), STEPS)
-    data = ex.training_data(ex.load_frames(run))
+    data = training_data(dataset_io.load_frames(run))
     assert len(data.actions) == TELEOP_LABELS + DEMOS == sum(map(len, sink.labels)) + DEMOS
 
     def keyed(images: np.ndarray, actions: np.ndarray, nxt: np.ndarray, v: np.ndarray,
@@ -357,7 +362,7 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
     t = data.transitions
     got = keyed(t["images"], t["actions"], t["next_images"], t["violation"], t["success"])
     want = [k for cols in sink.trans for k in keyed(*cols)]
-    want += keyed(*(demos()[k] for k in ex.DEMO_FIELDS))
+    want += keyed(*(demos()[k] for k in DEMO_FIELDS))
     assert got == sorted(want)
 
 
@@ -366,8 +371,8 @@ def test_train_on_exports_and_a_merge(run: Path, tmp_path: Path) -> None:
     from testbed.core.config import load_fleet
     from testbed.learning import Learner
 
-    ex.export([run], "npz", tmp_path / "a.npz")
-    ex.export([run], "lerobot", tmp_path / "lr", "png")
+    dataset_io.export([run], "npz", tmp_path / "a.npz")
+    dataset_io.export([run], "lerobot", tmp_path / "lr", "png")
     cfg = tmp_path / "small.toml"  # a small learner: a step of the default one takes seconds
     cfg.write_text("[learning]\nensemble_size = 2\nbatch_size = 8\n"
                    "augmentation_factor = 2\n")
@@ -379,7 +384,7 @@ def test_train_on_exports_and_a_merge(run: Path, tmp_path: Path) -> None:
     labelled = TELEOP_LABELS + DEMOS
     stats = Learner.load(one).stats()
     assert stats["human_samples"] == labelled and stats["policy_updates"] == 2
-    pushes = len(ex.training_data(ex.read_npz(tmp_path / "a.npz")).transitions["actions"])
+    pushes = len(training_data(read_npz(tmp_path / "a.npz")).transitions["actions"])
     assert stats["transitions"] == pushes > DEMOS
     merged = Learner.load(two).stats()
     assert (merged["human_samples"], merged["transitions"]) == (2 * labelled, 2 * pushes)
@@ -393,7 +398,7 @@ def test_demos_from_the_pretraining_cache_and_none(tmp_path: Path,
     make_run(proto / "r2", with_demos=False)
     (proto / ".pretrained" / "k").mkdir(parents=True)
     np.savez_compressed(proto / ".pretrained" / "k" / "demos.npz", **demos())
-    src = ex.find_sources([proto])
+    src = find_sources([proto])
     assert len(src.runs) == 2 and len(src.demos) == 1 and src.notes == []  # shared once
     (proto / ".pretrained" / "k2").mkdir()
     np.savez_compressed(proto / ".pretrained" / "k2" / "demos.npz", **demos())
@@ -402,9 +407,9 @@ def test_demos_from_the_pretraining_cache_and_none(tmp_path: Path,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no data/demos.npz" in err[0] and "2, not one" in err[0]
     with np.load(tmp_path / "x.npz") as z:
-        assert not (z["intervention"] == ex.DEMO).any()
+        assert not (z["intervention"] == episodes.DEMO).any()
     (proto / "r2" / "data" / "demos.npz").write_bytes(b"not a zip")
-    src = ex.find_sources([proto / "r2"])
+    src = find_sources([proto / "r2"])
     assert src.demos == [] and "unreadable" in src.notes[0]
 
 
@@ -426,8 +431,8 @@ def test_bad_input_is_one_line_and_exit_2(argv: list[str], tmp_path: Path,
 def test_without_the_export_extra_lerobot_is_one_line(
         run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
-    real = ex.importlib.util.find_spec
-    monkeypatch.setattr(ex.importlib.util, "find_spec",
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name, *a: None if name == "pyarrow" else real(name, *a))
     assert main(["export", str(run), "--out", str(tmp_path / "ds")]) == 2
     err = capsys.readouterr().err
@@ -447,9 +452,9 @@ def test_export_leaves_no_half_dataset_and_refuses_a_full_folder(
         raise RuntimeError("disk full")
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(ex, "demo_episodes", boom)
+        mp.setattr(episodes, "demo_episodes", boom)
         with pytest.raises(RuntimeError):
-            ex.export([run], "lerobot", tmp_path / "new", "png")
+            dataset_io.export([run], "lerobot", tmp_path / "new", "png")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
 
 
@@ -513,8 +518,8 @@ def test_lerobots_own_loader_reads_it(images: str, run: Path, tmp_path: Path,
         if not LEROBOT_HEAD_VIDEO.exists():
             pytest.skip(f"no LeRobot main checkout at {LEROBOT_HEAD_VIDEO} for its PyAV decoder")
         head = str(LEROBOT_HEAD_VIDEO)
-    ex.export([run], "lerobot", tmp_path / "ds", images, video_file_mb=1e-4)
-    ex.export([run], "npz", tmp_path / "want.npz")
+    dataset_io.export([run], "lerobot", tmp_path / "ds", images, video_file_mb=1e-4)
+    dataset_io.export([run], "npz", tmp_path / "want.npz")
     res = subprocess.run([str(lerobot_python), "-c", _LEROBOT_CHECK, str(tmp_path / "ds"),
                           str(tmp_path / "want.npz"), head], capture_output=True, text=True,
                          timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"})
@@ -527,5 +532,5 @@ def test_lerobots_own_loader_reads_it(images: str, run: Path, tmp_path: Path,
 
 def test_frame_dtype_fields_all_exported() -> None:
     """Every data store field has a column (t as step, image as the image)."""
-    cols = {n for n, _, _ in ex.COLUMNS}
+    cols = {n for n, _, _ in episodes.COLUMNS}
     assert set(FRAME_DTYPE.names or ()) - {"t", "image"} <= cols and "step" in cols

@@ -1,0 +1,128 @@
+"""One timestep as the records keep it: typed, then written twice from the same values.
+
+Why: a step lands in two places, a row of ``steps.jsonl`` (the trial's ground truth,
+``testbed.records.steps``) and one frame per arm in the data store
+(``testbed.records.store``: the images and labels the learner and ``testbed export``
+read). The loop fills one ``StepRecord`` from its typed arrays; ``to_row()`` and
+``to_frames()`` are the only two ways it is written, so neither store is parsed back
+from the other and both always say the same thing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from testbed.core.types import Mode
+from testbed.records.store import FRAME_DTYPE, MODES
+
+__all__ = ["ArmStep", "StepRecord"]
+
+
+@dataclass(frozen=True, slots=True)
+class ArmStep:
+    """What one arm did at one step: who acted, what, and what came of it."""
+
+    robot: str
+    mode: Mode
+    human: int | None
+    action: int | None
+    success: bool
+    violation: bool
+    uncertainty: float | None
+    """None when the arm faulted (the policy never saw it)."""
+    risk: float | None
+    key: tuple[float, ...]
+    refused: str | None = None
+    """Why the host did not push (``mode`` is then ``refused``)."""
+
+    def to_entry(self) -> dict[str, Any]:
+        entry: dict[str, Any] = {
+            "robot": self.robot,
+            "mode": str(self.mode),
+            "human": self.human,
+            "action": self.action,
+            "success": self.success,
+            "violation": self.violation,
+            "uncertainty": self.uncertainty,
+            "risk": self.risk,
+            "key": list(self.key),
+        }
+        if self.refused is not None:
+            entry["refused"] = self.refused
+        return entry
+
+
+@dataclass(slots=True)
+class StepRecord:
+    """Step ``t`` of a run: every arm's ``ArmStep`` and observation, the step's events."""
+
+    t: int
+    session: int
+    """0, then +1 at every resume (no critic transition crosses a session)."""
+    arms: list[ArmStep]
+    images: npt.NDArray[np.uint8]
+    """(N, 64, 64, 3): what each arm's policy saw (zeros when not observed)."""
+    observed: npt.NDArray[np.bool_]
+    goals: npt.NDArray[np.float32]
+    """(N, 2) canonical; NaN when not observed."""
+    faults: dict[str, str] = field(default_factory=dict)
+    away: list[int] = field(default_factory=list)
+    """Humans not available at this step's allocation (web console); absent if none."""
+    released: list[dict[str, Any]] = field(default_factory=list)
+    """Interventions ended before the allocation: ``{"robot", "human", "why"}``."""
+    wall_time: float = 0.0
+    duration_s: float = 0.0
+
+    def to_row(self) -> dict[str, Any]:
+        """The steps.jsonl row (its schema: ``testbed.records.steps.validate_step``)."""
+        row: dict[str, Any] = {"t": self.t, "robots": [a.to_entry() for a in self.arms]}
+        if self.faults:
+            row["faults"] = dict(self.faults)
+        if self.away:  # only when someone is away: rows of runs without are as they were
+            row["away"] = list(self.away)
+        if self.released:
+            row["released"] = list(self.released)
+        # Timing rides along for the lab: it is the one part of a row that differs
+        # between two runs of the same seed.
+        row["wall_time"] = self.wall_time
+        row["duration_s"] = self.duration_s
+        return row
+
+    def to_frames(self) -> np.ndarray:
+        """The data store's frames of this step, one per arm (``FRAME_DTYPE``)."""
+        n = len(self.arms)
+        f = np.zeros(n, FRAME_DTYPE)
+        f["t"] = self.t
+        f["arm"] = np.arange(n)
+        f["session"] = self.session
+        f["observed"] = self.observed
+        f["image"] = self.images
+        f["goal"] = self.goals
+        f["wall_time"] = self.wall_time
+        for i, a in enumerate(self.arms):
+            f["mode"][i] = MODES.index(str(a.mode))
+            f["human"][i] = -1 if a.human is None else a.human
+            f["action"][i] = -1 if a.action is None else a.action
+            f["success"][i] = a.success
+            f["violation"][i] = a.violation
+            f["uncertainty"][i] = np.nan if a.uncertainty is None else a.uncertainty
+            f["risk"][i] = np.nan if a.risk is None else a.risk
+        return f
+
+    @classmethod
+    def from_row(cls, row: dict[str, Any], session: int, images: np.ndarray,
+                 observed: np.ndarray, goals: np.ndarray) -> StepRecord:
+        """A record from a steps.jsonl row and the step's observation (tools and tests
+        that make data stores from rows)."""
+        arms = [ArmStep(r["robot"], Mode(r["mode"]), r["human"], r["action"],
+                        bool(r["success"]), bool(r["violation"]), r["uncertainty"],
+                        r["risk"], tuple(r.get("key", ())), r.get("refused"))
+                for r in row["robots"]]
+        return cls(int(row["t"]), session, arms, images, observed, goals,
+                   dict(row.get("faults", {})), list(row.get("away", [])),
+                   list(row.get("released", [])), float(row.get("wall_time", 0.0)),
+                   float(row.get("duration_s", 0.0)))

@@ -1,0 +1,212 @@
+"""The house rules of docs/ARCHITECTURE.md, checked: rooms, arrows, names, sizes.
+
+Why tests (besides ``lint-imports`` in scripts/test.sh): import-linter checks the
+contracts in pyproject.toml, and a planted violation below proves it would catch one;
+what a contract cannot say is checked here from the source itself: the arrows to
+``drivers``, ``gui`` and ``sim_twin`` are lazy (inside functions), no import hides
+behind ``importlib``, the rooms have no circle, no two product modules share a name,
+no product function is over 80 lines, and ``testbed.core`` stays Python 3.10 code.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import shutil
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("testbed", "drivers", "gui", "sim_twin")
+OUTSIDE = ("drivers", "gui", "sim_twin")
+"""What the core of testbed/ reaches only lazily: hosts, consoles, the twin."""
+BIN = Path(sys.executable).parent
+
+
+def _product_files() -> list[Path]:
+    return sorted(p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py"))
+
+
+def _module(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imported(node: ast.AST, here: str) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    if isinstance(node, ast.ImportFrom):
+        if node.level:
+            base = here.split(".")[: len(here.split(".")) - node.level + 1]
+            return [".".join([*base, node.module] if node.module else base)]
+        return [node.module or ""]
+    return []
+
+
+def _module_level_imports(path: Path) -> list[tuple[int, str]]:
+    """Imports run when the module is imported: not in a function, not TYPE_CHECKING."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found: list[tuple[int, str]] = []
+
+    def walk(body: list[ast.stmt]) -> None:
+        for node in body:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                walk(node.orelse)
+                continue
+            found.extend((node.lineno, m) for m in _imported(node, _module(path)))
+            for field in ("body", "orelse", "finalbody", "handlers"):
+                inner = getattr(node, field, None)
+                if isinstance(inner, list):
+                    walk([n for n in inner if isinstance(n, ast.stmt | ast.ExceptHandler)])
+
+    walk(tree.body)
+    return found
+
+
+def _lint_imports(cwd: Path, env: dict[str, str] | None = None
+                  ) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(BIN / "lint-imports"), "--no-cache"], cwd=cwd,
+                          capture_output=True, text=True, timeout=300, env=env)
+
+
+def test_the_import_contracts_hold() -> None:
+    proc = _lint_imports(ROOT)
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-2000:]
+    assert "broken" not in proc.stdout.lower().split("contracts:")[-1]
+
+
+def test_the_import_contracts_catch_a_planted_violation(tmp_path: Path) -> None:
+    """A copy of the tree with two planted arrows: the fleet loop importing the host
+    fleet, and core importing the fleet room. lint-imports must name both contracts."""
+    for pkg in PACKAGES:
+        shutil.copytree(ROOT / pkg, tmp_path / pkg,
+                        ignore=shutil.ignore_patterns("__pycache__", "static"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    loop = tmp_path / "testbed" / "fleet" / "loop.py"
+    loop.write_text(loop.read_text() + "\nimport drivers.host_fleet  # planted\n")
+    types = tmp_path / "testbed" / "core" / "types.py"
+    types.write_text(types.read_text() + "\nimport testbed.fleet.loop  # planted\n")
+    proc = _lint_imports(tmp_path, env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert proc.returncode != 0
+    out = " ".join(proc.stdout.split())
+    assert "testbed.fleet.loop -> drivers.host_fleet" in out
+    assert "testbed.core.types -> testbed.fleet.loop" in out
+    assert "testbed.core is not allowed to import testbed.fleet" in out  # the layers
+    assert "testbed.fleet is not allowed to import drivers" in out  # the reach rule
+
+
+def test_testbed_reaches_drivers_gui_and_the_twin_only_inside_functions() -> None:
+    eager = [f"{p.relative_to(ROOT)}:{line} imports {m}"
+             for p in _product_files() if p.relative_to(ROOT).parts[0] == "testbed"
+             for line, m in _module_level_imports(p) if m.split(".")[0] in OUTSIDE]
+    assert eager == []
+
+
+def test_importing_all_of_testbed_loads_no_driver_console_or_twin() -> None:
+    """The rule at run time: every module of testbed/ imported, nothing of the rooms
+    that talk to the world comes with it (nor torch, for the rooms that must not)."""
+    mods = [_module(p) for p in _product_files()
+            if p.relative_to(ROOT).parts[0] == "testbed" and p.name != "__main__.py"]
+    code = ("import importlib, sys, json\n"
+            f"for m in {mods!r}: importlib.import_module(m)\n"
+            "print(json.dumps(sorted({n.split('.')[0] for n in sys.modules})))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    loaded = set(proc.stdout.split("\n")[-2].strip('[]').replace('"', "").split(", "))
+    assert not loaded & set(OUTSIDE)
+
+
+def test_no_import_hides_behind_importlib() -> None:
+    hidden = []
+    for p in _product_files():
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call):
+                name = ast.unparse(node.func)
+                if name in ("importlib.import_module", "import_module", "__import__"):
+                    hidden.append(f"{p.relative_to(ROOT)}:{node.lineno} {name}")
+    assert hidden == []
+
+
+def test_the_rooms_have_no_import_circle() -> None:
+    """Every import (lazy and TYPE_CHECKING ones included) as an arrow between rooms
+    (testbed's sub-packages, drivers, gui, sim_twin): the room graph is acyclic."""
+
+    def room(module: str) -> str | None:
+        parts = module.split(".")
+        if parts[0] not in PACKAGES:
+            return None
+        return ".".join(parts[:2]) if parts[0] == "testbed" and len(parts) > 1 else parts[0]
+
+    arrows: dict[str, set[str]] = defaultdict(set)
+    for p in _product_files():
+        here = room(_module(p))
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            for m in _imported(node, _module(p)):
+                there = room(m)
+                if here and there and there != here and there != "testbed":
+                    arrows[here].add(there)
+    state: dict[str, int] = {}
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(arrows[node]):
+            if state.get(nxt) == 1:
+                raise AssertionError(" -> ".join([*path, node, nxt]))
+            if nxt not in state:
+                visit(nxt, [*path, node])
+        state[node] = 2
+
+    for node in sorted(arrows):
+        if node not in state:
+            visit(node, [])
+
+
+def test_no_two_product_modules_share_a_name() -> None:
+    allowed = {"__init__", "__main__", "errors"}
+    names: dict[str, list[str]] = defaultdict(list)
+    for p in _product_files():
+        if p.stem not in allowed:
+            names[p.stem].append(str(p.relative_to(ROOT)))
+        if p.name == "__init__.py" and p.parent != ROOT / p.parent.name:
+            names[p.parent.name].append(str(p.parent.relative_to(ROOT)) + "/")
+    assert {k: v for k, v in names.items() if len(v) > 1} == {}
+
+
+def test_no_product_function_is_over_80_lines() -> None:
+    exempt = {("drivers/agent.py", "serve")}  # the YuMi issue rewrites it whole
+    long = []
+    for p in _product_files():
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                where = (str(p.relative_to(ROOT)), node.name)
+                if n > 80 and where not in exempt:
+                    long.append(f"{where[0]}:{node.lineno} {node.name} ({n} lines)")
+    assert long == []
+
+
+def test_every_package_says_why_it_exists() -> None:
+    silent = [str(p.relative_to(ROOT)) for p in _product_files() if p.name == "__init__.py"
+              and ast.get_docstring(ast.parse(p.read_text(encoding="utf-8"))) is None]
+    assert silent == []
+
+
+def test_product_code_cites_only_files_that_exist() -> None:
+    """Comments and docstrings cite the project's own files, never a design document
+    that is not in the repository."""
+    cited = [f"{p.relative_to(ROOT)}:{n}" for p in _product_files()
+             for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+             if "DESIGN.md" in line or "../shared" in line]
+    assert cited == []
+
+
+def test_core_is_python_3_10_code() -> None:
+    proc = subprocess.run([str(BIN / "vermin"), "-t=3.10-", "--violations", "--no-tips",
+                           "--eval-annotations", str(ROOT / "testbed" / "core")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout[-3000:]
