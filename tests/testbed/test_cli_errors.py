@@ -1,7 +1,7 @@
 """Errors a user can cause, found before anything starts: exit 2, one line, no traceback.
 
 Each case runs the real ``testbed.cli.main`` (argument parsing, config loading, the
-checks in ``testbed.cli.verbs``) and asserts that nothing was started: no run folder,
+checks in ``testbed.cli.checks``) and asserts that nothing was started: no run folder,
 no output file. What the bad input would otherwise have done is said per test.
 """
 
@@ -212,7 +212,7 @@ def test_scripted_humans_cannot_teleoperate_a_physical_robot(
 def test_scripted_humans_may_drive_a_hardware_twin() -> None:
     # A rehearsal's yumi hosts run on the hardware twin, whose side channel the scripted
     # humans read: no error for them, nor for the twin fleet.
-    from testbed.cli.verbs import check_humans
+    from testbed.cli.checks import check_humans
     from testbed.core.config import default_twin_config, parse_config
 
     check_humans("scripted", parse_config(tomllib.loads(

@@ -1,0 +1,176 @@
+"""The verbs that run trials: ``trial``, ``evaluate``, ``protocol`` and ``sweep``.
+
+Each is one ``Verb`` (its arguments and its handler together). Imported for
+``testbed --help``, so the trial, torch and Ray are imported inside the handlers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from testbed.cli.arguments import (
+    HUMANS,
+    Verb,
+    add_config,
+    add_fanout_arguments,
+    add_trial_arguments,
+    positive,
+)
+from testbed.cli.checks import (
+    check_device,
+    check_humans,
+    check_out_dir,
+    load_config,
+    resume_options,
+    trial_options,
+)
+
+
+def print_summary(run_dir: Path, summary: dict[str, Any]) -> None:
+    """A finished run on stdout: its folder, then its summary as JSON."""
+    print(f"run: {run_dir}")
+    print(json.dumps(summary, indent=2))
+
+
+# ---- trial ------------------------------------------------------------------------------
+def _trial_arguments(p: argparse.ArgumentParser) -> None:
+    add_trial_arguments(p)
+    p.add_argument("--resume", metavar="DIR", help="continue a crashed or killed trial")
+
+
+def cmd_trial(args: argparse.Namespace) -> int:
+    from testbed.experiments.progress import TrialProgress
+    from testbed.experiments.trial import run_trial
+
+    if args.resume:
+        resume = Path(args.resume)
+        cfg, opts = resume_options(resume)
+    else:
+        resume = None
+        cfg = load_config(args)
+        opts = trial_options(cfg, args)
+    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
+        run, summary = run_trial(cfg, opts, resume=resume, hooks=bar)
+    print_summary(run.path, summary)
+    return 0
+
+
+TRIAL = Verb(
+    "trial", help="run one trial",
+    description="Run one trial (default: the built-in twin fleet, 4 arms, 2 scripted "
+    "humans, C.U.R., 250 steps).",
+    add_arguments=_trial_arguments, run=cmd_trial)
+
+
+# ---- evaluate ---------------------------------------------------------------------------
+def _evaluate_arguments(p: argparse.ArgumentParser) -> None:
+    add_config(p)
+    p.add_argument("--policy", required=True, metavar="FILE")
+    p.add_argument("--steps", type=positive, default=250, metavar="K")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", metavar="DIR")
+    p.add_argument("--humans", choices=HUMANS)
+    p.add_argument("--name")
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from testbed.experiments.progress import TrialProgress
+    from testbed.experiments.trial import run_trial
+
+    cfg = load_config(args)
+    # C-prioritised hard resets, no teleop, no learning (the paper's 8.3.4)
+    args.algorithm = "bc"
+    opts = trial_options(cfg, args, evaluate=True)
+    from testbed.records.run_dir import evaluated, evaluation_label
+
+    source = evaluated(Path(args.policy))
+    opts.name = args.name or f"eval-{Path(args.policy).parent.name or 'policy'}-s{opts.seed}"
+    # the report's row: never the allocation's "bc", but what was evaluated
+    opts.label = evaluation_label(source["algorithm"])
+    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
+        run, summary = run_trial(cfg, opts, hooks=bar, meta={"evaluates": source})
+    print_summary(run.path, summary)
+    return 0
+
+
+EVALUATE = Verb(
+    "evaluate", help="a trained policy alone, humans for hard resets only",
+    description="Run a trained policy for K steps with C-prioritised hard resets only "
+    "(the paper's 8.3.4); same records and report.",
+    add_arguments=_evaluate_arguments, run=cmd_evaluate)
+
+
+# ---- protocol ---------------------------------------------------------------------------
+def _protocol_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--out", metavar="DIR", help="override the protocol's output folder")
+    p.add_argument("--yes", action="store_true", help="do not prompt between trials")
+    add_fanout_arguments(p)
+
+
+def cmd_protocol(args: argparse.Namespace) -> int:
+    from testbed.experiments.protocol import load_protocol, run_protocol
+
+    proto = load_protocol(Path(args.file))
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    check_device(proto.fleet)
+    check_humans(proto.humans, proto.fleet)
+    if args.workers is not None or args.ray is not None:
+        from testbed.experiments.fanout import run_protocol_on_ray
+        from testbed.experiments.report import write_report
+
+        folder = Path(args.out or proto.out)
+        run_protocol_on_ray(proto, folder, address=args.ray, workers=args.workers,
+                            cpus_per_trial=args.cpus_per_trial)
+        report = write_report([folder], folder)
+    else:
+        report = run_protocol(proto, out=args.out, ask=not args.yes)
+    print(report.markdown)
+    print(f"report: {report.folder}")
+    return 0
+
+
+PROTOCOL = Verb(
+    "protocol", help="run a protocol file end to end, then its report",
+    description="Run trials x algorithms x steps of a protocol, then report.",
+    add_arguments=_protocol_arguments, run=cmd_protocol)
+
+
+# ---- sweep ------------------------------------------------------------------------------
+def _sweep_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--out", metavar="DIR", help="override the sweep's output folder")
+    add_fanout_arguments(p)
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from testbed.experiments.sweep import load_sweep, run_sweep
+
+    sweep = load_sweep(Path(args.file))
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    for run in sweep.runs():
+        check_device(run.fleet)
+        check_humans(sweep.humans, run.fleet)
+    if args.workers is not None or args.ray is not None:
+        from testbed.experiments.fanout import run_sweep_on_ray
+
+        run_sweep_on_ray(sweep, Path(args.out) if args.out else sweep.folder,
+                         address=args.ray, workers=args.workers,
+                         cpus_per_trial=args.cpus_per_trial)
+    report = run_sweep(sweep, out=args.out)  # every run finished: skipped, then the report
+    print(report.markdown)
+    print(f"report: {report.folder} (figure: curves.png)")
+    return 0
+
+
+SWEEP = Verb(
+    "sweep", help="a grid over config fields x seeds, then its figure",
+    description="Run every grid point x seed of a sweep file (e.g. "
+    "protocols/sweeps/humans.toml), then report: one line per value, mean +- std over "
+    "seeds, as the paper's figures 6-9.",
+    add_arguments=_sweep_arguments, run=cmd_sweep)
