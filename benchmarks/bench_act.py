@@ -1,4 +1,4 @@
-"""The forward pass of act at the seed's fleet size: eager, channels-last, torch.compile.
+"""The forward pass of act at the paper's fleet size: eager, channels-last, torch.compile.
 
 At N = 100 arms ``act`` runs 5 policy members and the safety critic (C.U.R.) on 100
 images every step: about 8 GFLOP, the largest part of a loop step without training

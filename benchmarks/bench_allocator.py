@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from testbed.fleet.allocator import Allocator
 
 N, M, K = 1000, 100, 3
-T_TELEOP, T_RESET = 5, 5  # the seed's simulation values (appendix 8.3)
+T_TELEOP, T_RESET = 5, 5  # the paper's simulation values (appendix 8.3)
 
 
 def make_inputs(steps: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:

@@ -1,4 +1,4 @@
-"""The seed's fleet size: one loop step at N = 100 arms, M = 10 humans (issue 13, item 4).
+"""The paper's fleet size: one loop step at N = 100 arms, M = 10 humans (issue 13, item 4).
 
 ``protocols/twin-scale.toml``'s fleet (50 twin cells of 2 arms, one agent process per
 cell, 10 scripted humans, C.U.R., batch 256, 5 members), driven by the real

@@ -1,7 +1,7 @@
 """Can this machine show the console? Answer before any window is tried, in one line.
 
 The two OpenCV wheels own the same ``cv2/`` folder and cannot coexist
-(``../shared/ENVIRONMENT.md``), so the project installs exactly one on purpose: the GUI
+(measured: docs/notes/gui.md), so the project installs exactly one on purpose: the GUI
 build on the operator's machine (extra ``console``), the headless build on robot hosts
 (extra ``headless``). Each way this can be wrong here gets its own fix in the message:
 

@@ -3,10 +3,10 @@
 Why a real sshd and not a paramiko server: the lab's path is OpenSSH on the robot host,
 and its quirks (the user's shell runs the exec command, Nagle on the server side,
 channel teardown when the server dies) are what the transport must survive. Recipe
-(../shared/ENVIRONMENT.md): ``sshd -D -e -f CONFIG`` with its own host key, its own
-authorized_keys, no passwords, no PAM, ``StrictModes no``, listening on 127.0.0.1 at a
-free port, as the current user. Debian package: ``openssh-server`` (it also brings
-``openssh-client`` for ``ssh-keygen``); sshd needs the folder ``/run/sshd``.
+(measured on these machines: docs/notes/rehearsal.md): ``sshd -D -e -f CONFIG`` with
+its own host key, its own authorized_keys, no passwords, no PAM, ``StrictModes no``,
+listening on 127.0.0.1 at a free port, as the current user. Debian package:
+``openssh-server`` (it also brings ``openssh-client`` for ``ssh-keygen``); sshd needs the folder ``/run/sshd``.
 
 The server can be killed (``stop``), frozen (``freeze``/``thaw``, SIGSTOP: a dead peer
 that never closes the TCP connection) and started again on the same port with the same

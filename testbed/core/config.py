@@ -1,7 +1,7 @@
 """The fleet configuration: a TOML file validated by pydantic, unknown keys rejected.
 
 Why pydantic: it gives typed, nested validation with the failing field's path for free,
-so every bad config becomes one line that names the field (DESIGN.md section 8) instead
+so every bad config becomes one line that names the field (the README's "Config") instead
 of a traceback deep inside a driver. ``load_config`` is the only way a config enters
 the program; ``default_twin_config`` is the built-in 2 x 2-arm twin fleet that
 ``testbed trial`` runs with no ``--config``.
@@ -379,7 +379,7 @@ MATCH_BUDGET = re.compile(r"match:[a-z0-9][a-z0-9-]*")
 
 
 class AlgorithmConfig(_Strict):
-    """Allocation hyperparameters (seed 8.3, Table 1; DESIGN.md section 4)."""
+    """Allocation hyperparameters (the paper's 8.3, Table 1; docs/notes/core.md)."""
 
     name: str = "cur"
     t_T: int = Field(3, ge=1, description="minimum teleoperation time")
@@ -615,7 +615,7 @@ def load_config(path: str | Path | None) -> FleetConfig:
 
 TWIN_U_HAT = 0.17
 """The twin's uncertainty threshold: the 75th percentile of its ensemble's uncertainty
-in C.U.R. runs (the seed's 0.05 made 55% of the twin's arm-steps eligible)."""
+in C.U.R. runs (the paper's 0.05 made 55% of the twin's arm-steps eligible)."""
 
 
 def default_twin_config() -> FleetConfig:

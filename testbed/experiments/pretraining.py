@@ -1,8 +1,8 @@
-"""Offline data and pretraining (seed 8.3.2, 8.3.3): what a trial starts from.
+"""Offline data and pretraining (the paper's 8.3.2, 8.3.3): what a trial starts from.
 
 ``collect_demos`` has the humans (the scripted expert in the twin, the console on
 hardware) drive every arm and keeps the state-action pairs and full transitions;
-``rollout_policy`` runs the pretrained BC policy (with a little noise, as the seed
+``rollout_policy`` runs the pretrained BC policy (with a little noise, as the paper
 suggests, to meet violations) for the safety critic's data. ``pretrain`` chains them:
 demos -> policy steps -> BC rollouts -> critic steps, and ``cached_pretrain`` keeps
 the result under a key of everything that shaped it, so later trials (every
@@ -221,7 +221,7 @@ def pretrain(
     rollouts' pushes. Returns the transitions added to the learner.
 
     The safety critic needs violations, which the expert almost never makes: the
-    rollouts of the pretrained (noisy) BC policy supply them (seed 8.3.2). With no
+    rollouts of the pretrained (noisy) BC policy supply them (the paper's 8.3.2). With no
     critic to pretrain no rollout is made and only the demos' pushes are added.
     """
     which = critic_set(critics)

@@ -63,12 +63,12 @@ class Protocol(BaseModel):
     """``fixed``: every trial runs ``algorithms`` in the given order; ``counterbalanced``:
     each trial a row of a Williams Latin square seeded from ``seeds`` (see run_order)."""
     evaluate_steps: int = Field(200, ge=0)
-    """The seed's evaluation (8.3.4, Table 2): after each run, its final policy alone for
+    """The paper's evaluation (8.3.4, Table 2): after each run, its final policy alone for
     this many steps, humans for hard resets only, as run ``eval-<algorithm>-t<k>``
     (report row ``eval:<algorithm>``, the report's second table). 0: none."""
     evaluate_expert: bool = True
     """With ``evaluate_steps``: also ``eval-expert-t<k>``, every arm driven by the twin's
-    scripted expert (the seed's expert row; twin hosts only)."""
+    scripted expert (the paper's expert row; twin hosts only)."""
     fleet: FleetConfig = FleetConfig()
 
     @model_validator(mode="before")

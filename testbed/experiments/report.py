@@ -1,18 +1,18 @@
-"""``testbed report``: the table and the curves of the seed's figures, from records only.
+"""``testbed report``: the table and the curves of the paper's figures, from records only.
 
 Every figure is recomputed from ``steps.jsonl`` (never from a summary someone may have
 edited), grouped by algorithm, and written as ``report.md``, ``report.csv`` and one PNG
 of the five cumulative curves (successes, hard resets, idle time, human actions, ROHE)
-with one line per algorithm, mean +- std over trials as in the seed's figures 6-9.
+with one line per algorithm, mean +- std over trials as in the paper's figures 6-9.
 Only finished runs count: a run whose run.json says ``stopped`` (Esc) or ``running``
 (in progress, or killed) is left out, and the report says so in one line.
 
 After the table, ROHE with its parts (``rohe_section``): successes split by who pushed,
 human actions, the policy's successes and violations per push, and a paragraph for
-each algorithm that is not below C.U.R. by ROHE (the seed's ordering broken) naming
+each algorithm that is not below C.U.R. by ROHE (the paper's ordering broken) naming
 the part that decides it.
 
-Evaluations (``testbed evaluate``: rows ``eval:<algorithm>``) are the seed's Table 2, not
+Evaluations (``testbed evaluate``: rows ``eval:<algorithm>``) are the paper's Table 2, not
 its learning curves: they get a second table (successes, hard resets, idle time; no
 human effort to weigh, humans only reset) in report.md and ``report-eval.csv``, and stay
 out of the learning table, its CSV and the curves.
@@ -144,7 +144,7 @@ def _rate(rs: list[RunRecord], num: str, den: str) -> float:
 def rohe_section(runs: list[RunRecord]) -> str:
     """Markdown: per algorithm, ROHE and its parts (successes by who pushed, human
     actions, the policy's successes and violations per push); then, for each
-    algorithm whose ROHE is not below C.U.R.'s (the seed's ordering broken), one
+    algorithm whose ROHE is not below C.U.R.'s (the paper's ordering broken), one
     paragraph that says which part decides it, from these measurements: ROHE's ratio
     is (successes ratio) x ((1 + C.U.R.'s human actions) / (1 + its own)), and the
     larger factor decides."""
@@ -183,7 +183,7 @@ def rohe_section(runs: list[RunRecord]) -> str:
                    >= abs(np.log(max(s_factor, 1e-9))) else "successes")
         text += (
             f"\n{alg} is not below C.U.R. by ROHE ({rohe:.4f} against {c_rohe:.4f}), "
-            f"the reverse of the seed's ordering. Its successes are {s_factor:.2f}x "
+            f"the reverse of the paper's ordering. Its successes are {s_factor:.2f}x "
             f"C.U.R.'s ({succ:.1f} against {c_succ:.1f}) and its human actions "
             f"{hum:.1f} against {c_hum:.1f}, a factor {h_factor:.2f} in its favour in "
             f"ROHE's denominator: {decides} decide it. Per push, its policy succeeds "
@@ -293,7 +293,7 @@ def write_report(dirs: list[Path], out: Path) -> Report:
         md += "\n" + rohe_section(learning)
     if evaluations:
         eval_md, eval_csv = _table(evaluations, EVAL_METRICS)
-        md += ("\n" if md else "") + ("Evaluation (seed 8.3.4, Table 2): each final policy "
+        md += ("\n" if md else "") + ("Evaluation (the paper's 8.3.4, Table 2): each final policy "
                                        "alone, humans for hard resets only\n\n") + eval_md
         atomic_write_bytes(out / "report-eval.csv", eval_csv.encode())
     md += "".join(f"\n{n}\n" for n in notes)

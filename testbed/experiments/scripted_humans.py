@@ -19,7 +19,7 @@ class ScriptedHumans:
 
     Teleop pushes the host's expert action (``ArmObservation.expert_action``, which only
     a twin host reports). A hard reset is done at the end of the ``t_R``-th step it was
-    served (DESIGN.md section 3), i.e. when ``served + 1 >= min_steps``.
+    served (docs/ARCHITECTURE.md, "The timestep"), i.e. when ``served + 1 >= min_steps``.
     """
 
     def act(self, requests: Sequence[HumanRequest], t: int) -> dict[str, HumanResponse]:

@@ -1,11 +1,11 @@
-"""Sweeps: a grid over config fields x seeds, run to the end, reported as the seed's
+"""Sweeps: a grid over config fields x seeds, run to the end, reported as the paper's
 figures 6-9 (appendix 8.4).
 
 A sweep file (``protocols/sweeps/*.toml``) is a protocol-like file: a ``[fleet]``
 table (the base fleet), the ``algorithm``, ``steps`` and ``seeds``, and a ``[grid]``
 table whose keys are config fields as dotted paths into the fleet (``humans.count``,
 ``algorithm.t_T``, ``algorithm.t_R``, ``learning.batch_size`` ...) or ``algorithm``
-itself (the seed's ablations: ``["cur", "cur-i", "c", "u", "cu"]``), each with its
+itself (the paper's ablations: ``["cur", "cur-i", "c", "u", "cu"]``), each with its
 list of values::
 
     name = "humans"

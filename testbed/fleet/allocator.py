@@ -9,7 +9,7 @@ algorithm of the testbed (BC, Random, Fleet-ED, Fleet-TD, C.U.R. and the ablatio
 shares this one allocator and differs only in its keys, so the comparison between
 algorithms is about priorities, not about bookkeeping.
 
-One step (DESIGN.md section 4)::
+One step (docs/notes/core.md, "Allocation rules")::
 
     humans' state at t-1 (arm, kind, served)     keys (N, K), violating (N,), available (M,)
           │                                                 │
@@ -29,7 +29,7 @@ One step (DESIGN.md section 4)::
                       assignment (N,): human index or -1;  kinds / served per arm
 
 ``available`` (optional, bool (M,)) says which humans are present this step (the web
-console's away humans, DESIGN.md section 9). An away human is never newly assigned and
+console's away humans, docs/notes/web.md). An away human is never newly assigned and
 does not keep an arm it is no longer held on; a *held* intervention of an away human
 goes on, because ending it is the console's call (its grace period): the fleet loop
 then frees that human with :meth:`Allocator.release_human`. Without the mask every
@@ -94,7 +94,7 @@ def lex_positive(keys: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.bool_]:
 
 
 class Allocator:
-    """Assign humans to arms each timestep (Algorithm 1; DESIGN.md section 4).
+    """Assign humans to arms each timestep (the paper's Algorithm 1; docs/notes/core.md).
 
     After :meth:`step`, per arm: :attr:`assignment` (human or -1), :attr:`kinds`
     (``InterventionKind`` or ``None``), :attr:`served` (earlier consecutive timesteps

@@ -1,4 +1,5 @@
-"""The fleet loop: one Fleet-DAgger timestep after another (DESIGN.md section 3).
+"""The fleet loop: one Fleet-DAgger timestep after another
+(docs/ARCHITECTURE.md, "The timestep").
 
 ::
 

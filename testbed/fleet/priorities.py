@@ -16,8 +16,8 @@ registry that names them (``get_algorithm(name, ...)``) is :mod:`testbed.fleet.a
                    Algorithm.allocator.step(keys, violating, available) ─► human per arm
 
 A key is compared lexicographically, larger first; only keys > 0 (first non-zero entry
-positive) can receive a new human (DESIGN.md section 4). ``names`` labels the entries
-so the console can say why an arm was chosen (``reason``).
+positive) can receive a new human (docs/notes/core.md, "Allocation rules"). ``names``
+labels the entries so the console can say why an arm was chosen (``reason``).
 
 The keys per algorithm (``c`` = 1 if the arm is violating):
 
@@ -33,18 +33,18 @@ ablations      ``c u r cu cr ur uc ru cru``: those entries in that order, no t_I
 
 u = uncertainty if uncertainty >= u_hat else 0; r = risk if risk >= r_hat else 0.
 
-Decisions beyond the seed's text (also in docs/notes/core.md):
+Decisions beyond the paper's text (also in docs/notes/core.md):
 
 * During C.U.R.'s initial period a violating arm's key starts with -1, so by the
-  contract's eligibility rule it gets no human at all until t_I (the seed's code let
+  contract's eligibility rule it gets no human at all until t_I (the paper's code let
   such an arm through behind all others when its u or r was positive).
-* Fleet-TD follows the seed's code: key (s, c). s = z - threshold where
+* Fleet-TD follows the paper's code: key (s, c). s = z - threshold where
   z = alpha * z(goal_risk) + (1 - alpha) * z(novelty) exceeds ``thrifty_threshold``,
   else 0; z() standardises with running (Welford) mean and std over every value seen
   so far, this step's included. Violating arms come after every arm above the
   threshold, but still get their reset. (s is the margin, not z itself, so a
   negative threshold still makes "above threshold" mean "eligible".)
-* Random keeps the seed's scheme (busy humans drawn per step, the held ones kept,
+* Random keeps the paper's scheme (busy humans drawn per step, the held ones kept,
   violating arms first, then arms at random) but draws the count with feedback on the
   effort used so far: busy ~ Binomial(M, clip(deficit / M, 0, 1)), deficit = the
   budget ``random_budget * M * steps`` minus the human-steps spent, so the
@@ -270,7 +270,7 @@ class ThriftyPriority:
     """Fleet-ThriftyDAgger: key (s, c), s = margin of the thrifty score over a threshold.
 
     score = alpha * z(goal_risk) + (1 - alpha) * z(novelty), standardised by running
-    statistics that include this step's (non-faulted) values, as the seed's code does.
+    statistics that include this step's (non-faulted) values, as the paper's code does.
     """
 
     names: tuple[str, ...] = ("s", "c")

@@ -10,7 +10,7 @@ and into run.json ``thresholds`` with the quantile and the number of states.
 
 Why: a threshold tuned on the seeds a report then shows is fitted to the report. The
 project's uncertainty is the ensemble's mutual information over log 4 (in [0, 1]), not
-the seed's measure, so the seed's numbers (u_hat 0.05) do not carry over; a quantile
+the paper's measure, so the paper's numbers (u_hat 0.05) do not carry over; a quantile
 says what fraction of early states count as uncertain, which does.
 """
 

@@ -2,7 +2,7 @@
 
 Why from the image: on the physical cell nothing else knows where the cube is, and the
 fleet loop must decide success and constraint violation the same way in twin and lab
-(DESIGN.md section 3, step 2). So this module sees only a canonical (H, W, 3) uint8
+(docs/ARCHITECTURE.md, "The timestep"). So this module sees only a canonical (H, W, 3) uint8
 RGB image -- the cube is the largest saturated red/orange blob, the goal the largest
 green one -- and uses numpy and cv2 only.
 

@@ -57,7 +57,8 @@ def _per_step_counts(steps: Sequence[Mapping[str, Any]]) -> dict[str, npt.NDArra
 
 def summarize(steps: Sequence[Mapping[str, Any]], algorithm: str, num_humans: int,
               num_robots: int | None = None) -> dict[str, Any]:
-    """Every metric of DESIGN.md section 5 from the step rows (the one place they are made).
+    """Every metric of the run-record schema (docs/ARCHITECTURE.md) from the step rows
+    (the one place they are made).
 
     ``num_robots`` defaults to the most robots any step lists. Extra keys beyond the
     contract: ``teleop_steps``, ``reset_steps``, ``fault_steps``, ``refused_steps``

@@ -2,11 +2,11 @@
 
 ``runs/<name>/`` holds ``config.toml`` (the resolved config, so a run can be resumed or
 repeated without the original file), ``run.json`` (how it was started, its status),
-``steps.jsonl`` and ``summary.json`` (DESIGN.md section 5), ``data/`` (every arm's
-frame of every step: ``testbed.records.store``; ``data/demos.npz``: theta_0's offline
-demonstrations), ``learner-start.pt`` (the learner the run
-started from, its data included), ``state.json`` + ``learner-0.pt`` / ``learner-1.pt``
-(the checkpoint of the last complete step: weights, optimisers, RNG, counters; its data
+``steps.jsonl`` and ``summary.json`` (the run-record schema: docs/ARCHITECTURE.md),
+``data/`` (every arm's frame of every step: ``testbed.records.store``;
+``data/demos.npz``: theta_0's offline demonstrations), ``learner-start.pt`` (the
+learner the run started from, its data included), ``state.json`` + ``learner-0.pt`` /
+``learner-1.pt`` (the checkpoint of the last complete step: weights, optimisers, RNG, counters; its data
 is replayed from ``data/``) and, once finished, ``learner.pt`` (the trained learner,
 data included: ``testbed evaluate --policy``). A step is *complete* once it is in
 data/, steps.jsonl and the checkpoint; resume starts after it.

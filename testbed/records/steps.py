@@ -1,11 +1,10 @@
 """Run records: the per-step log (steps.jsonl), its schema, durable appends.
 
 Why this module exists: a trial's only ground truth is ``runs/<name>/steps.jsonl``
-(DESIGN.md section 5). Every number the project reports (the summary, the protocol
-table, the cumulative plots, the live counters after a resume) is recomputed from it
-by the one function :func:`summarize` (curves: :func:`cumulative`), so the report and
-the trial can never disagree, and ROHE is computed one way only: the paper's
-``(M / N) * successes / (1 + human_actions)``.
+(schema: docs/ARCHITECTURE.md, "Run records"). Every number the project reports (the
+summary, the protocol table, the cumulative plots, the live counters after a resume)
+is recomputed from it by ``testbed.records.metrics``, so the report and the trial can
+never disagree.
 
 ::
 
@@ -16,7 +15,7 @@ the trial can never disagree, and ROHE is computed one way only: the paper's
                                                                       │
                                            summary.json ◄── atomic_write_json
 
-A row's optional fields beyond DESIGN.md section 5: ``wall_time`` and ``duration_s``
+A row's optional fields beyond the schema's required ones: ``wall_time`` and ``duration_s``
 (section 9), ``faults``, and, only in runs whose humans can be away (the web console),
 ``away`` (the humans not available at that step's allocation) and ``released`` (the
 interventions ended before it because their human was gone: ``{"robot", "human",
@@ -57,11 +56,11 @@ HUMAN_MODES: Final = frozenset({Mode.TELEOP.value, Mode.RESET.value})
 IDLE_MODES: Final = frozenset({Mode.IDLE.value, Mode.RESET.value})
 _NOHUMAN_MODES: Final = frozenset({Mode.AUTONOMOUS.value, Mode.IDLE.value})
 # A refused push (the host could not push, e.g. the cube was not found) counts as neither
-# autonomous nor human (DESIGN.md section 9); the human of a refused teleop step is kept.
+# autonomous nor human (docs/notes/core.md); the human of a refused teleop step is kept.
 
 
 class RecordError(ValueError):
-    """A run record that does not follow DESIGN.md section 5; the message says where."""
+    """A run record that does not follow the run-record schema; the message says where."""
 
 
 # ------------------------------------------------------------------------ schema
@@ -81,7 +80,7 @@ def validate_step(obj: object) -> None:
     with their types, robots must be unique, and the human must match the mode:
     autonomous and idle arms have none, teleop and reset arms have one, a refused arm
     may have one (a teleop push the host refused) and says why in ``refused``.
-    ``wall_time`` and ``duration_s`` (DESIGN.md section 9) are optional, so records
+    ``wall_time`` and ``duration_s`` (timing for the lab) are optional, so records
     written before them still read, but must be finite numbers >= 0 when present; so
     are ``away`` (a list of human indices) and ``released`` (a list of ``{"robot": one
     of the row's robots, "human": int >= 0, "why": str}``).

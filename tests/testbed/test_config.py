@@ -213,7 +213,7 @@ def test_shipped_protocols_are_valid(tmp_path: Path, monkeypatch: pytest.MonkeyP
         assert p.fleet.algorithm.random_budget == "match:cur", p.name
     assert default_twin_config().algorithm.u_hat == 0.17
     assert phys.fleet.learning.critic_steps == 3000
-    # The seed's fleet size: N = 100 arms on 50 twin hosts, M = 10, t_T = t_R = 5, C.U.R.
+    # The paper's fleet size: N = 100 arms on 50 twin hosts, M = 10, t_T = t_R = 5, C.U.R.
     scale = load_protocol(root / "twin-scale.toml")
     f = scale.fleet
     assert len(f.robot_names) == 100 and len(f.hosts) == 50 and f.humans.count == 10

@@ -127,7 +127,7 @@ def test_an_evaluation_never_lands_in_a_training_algorithms_row(tmp_path: Path) 
         meta = json.loads((run / "run.json").read_text())
         (run / "run.json").write_text(json.dumps(meta | {"options": options}))
     report = write_report([tmp_path], tmp_path / "rep")
-    learning, _, evaluation = report.markdown.partition("Evaluation (seed 8.3.4")
+    learning, _, evaluation = report.markdown.partition("Evaluation (the paper's 8.3.4")
     assert "| cur | 2 |" in learning and "eval" not in learning and "| bc |" not in learning
     assert "| eval:cur | 1 |" in evaluation and "| eval:policy | 1 |" in evaluation
     assert evaluation.splitlines()[2].startswith("| algorithm | trials | successes | "

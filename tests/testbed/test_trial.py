@@ -260,7 +260,7 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert len(expert) == 4 and all(
         r["mode"] in ("autonomous", "reset", "idle") and r["uncertainty"] == 0.0
         for s in expert for r in s["robots"])
-    # the seed's evaluation: each final policy alone, resets only, named by its run
+    # the paper's evaluation: each final policy alone, resets only, named by its run
     for k in range(2):
         ev = out / f"eval-cur-t{k}"
         source = json.loads((ev / "run.json").read_text())["evaluates"]
@@ -272,7 +272,7 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
         assert all(r["mode"] in ("autonomous", "reset", "idle")
                    for s in steps for r in s["robots"])
     md = (out / "report.md").read_text()
-    learning, _, evaluation = md.partition("Evaluation (seed 8.3.4")
+    learning, _, evaluation = md.partition("Evaluation (the paper's 8.3.4")
     assert "| eval:bc | 2 |" in evaluation and "| eval:cur | 2 |" in evaluation
     assert "| eval:expert | 2 |" in evaluation
     assert "eval" not in learning
