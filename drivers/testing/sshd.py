@@ -6,7 +6,8 @@ channel teardown when the server dies) are what the transport must survive. Reci
 (measured on these machines: docs/notes/rehearsal.md): ``sshd -D -e -f CONFIG`` with
 its own host key, its own authorized_keys, no passwords, no PAM, ``StrictModes no``,
 listening on 127.0.0.1 at a free port, as the current user. Debian package:
-``openssh-server`` (it also brings ``openssh-client`` for ``ssh-keygen``); sshd needs the folder ``/run/sshd``.
+``openssh-server`` (it also brings ``openssh-client`` for ``ssh-keygen``); sshd needs
+the folder ``/run/sshd``.
 
 The server can be killed (``stop``), frozen (``freeze``/``thaw``, SIGSTOP: a dead peer
 that never closes the TCP connection) and started again on the same port with the same
