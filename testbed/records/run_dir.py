@@ -7,8 +7,8 @@ repeated without the original file), ``run.json`` (how it was started, its statu
 ``data/demos.npz``: theta_0's offline demonstrations), ``learner-start.pt`` (the
 learner the run started from, its data included), ``state.json`` + ``learner-0.pt`` /
 ``learner-1.pt`` (the checkpoint of the last complete step: weights, optimisers, RNG,
-counters; its data is replayed from ``data/``) and, once finished, ``learner.pt`` (the trained learner,
-data included: ``testbed evaluate --policy``). A step is *complete* once it is in
+counters; its data is replayed from ``data/``) and, once finished, ``learner.pt`` (the
+trained learner, data included: ``testbed evaluate --policy``). A step is *complete* once it is in
 data/, steps.jsonl and the checkpoint; resume starts after it.
 """
 
