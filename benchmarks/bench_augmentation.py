@@ -3,7 +3,7 @@
 Why this exists: every labelled image is stored with 9 augmented copies (the paper's
 "10x"), offline for the 375 demonstrations and online for every human label. The target
 (issue 6) is at least 2x faster than imgaug's 570 ms per 1000 64x64 images measured on
-this machine (../shared/ENVIRONMENT.md; imgaug itself no longer installs next to numpy 2,
+this machine (docs/notes/learning.md; imgaug itself no longer installs next to numpy 2,
 so its figure is the recorded one). Three implementations of the same six ops, timed
 interleaved on the same images:
 

@@ -1,4 +1,4 @@
-"""The Allocator against Algorithm 1 and the rules of DESIGN.md section 4.
+"""The Allocator against Algorithm 1 and the rules of docs/notes/core.md ("Allocation rules").
 
 Two kinds of checks: the rules stated as invariants (more than M arms never
 assisted, held interventions last as long as the rules say, new arms are the top

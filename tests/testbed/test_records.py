@@ -301,7 +301,7 @@ def test_valid_rows_pass() -> None:
         validate_step(row)
     validate_step({"t": 0, "robots": [], "faults": {"h/a": "timeout"}})  # extras allowed
     validate_step({"t": 0, "robots": [robot("h/a", "fault", 1)]})
-    # DESIGN.md section 9: timing, and a push the host refused (with or without a human)
+    # Timing, and a push the host refused (with or without a human)
     validate_step({"t": 3, "wall_time": 1.7e9, "duration_s": 0.0, "robots": [
         robot("h/a", "refused", action=1) | {"refused": "cube not found"},
         robot("h/b", "refused", 0, action=1) | {"refused": "arm violating"}]})

@@ -103,7 +103,7 @@ def _agents_of(proc: subprocess.Popen[bytes], timeout_s: float = 240) -> set[int
 
 def _without_timing(text: str) -> str:
     """The log minus ``wall_time``/``duration_s``: the only fields two runs of a seed may
-    differ in (DESIGN.md section 9)."""
+    differ in (docs/ARCHITECTURE.md, "Run records")."""
     return re.sub(r',"wall_time":[^,}]*,"duration_s":[^,}]*', "", text)
 
 
