@@ -46,7 +46,8 @@ from testbed.core.atomic import atomic_write_json
 from testbed.core.config import YumiHost
 from testbed.core.types import ArmObservation
 from testbed.experiments.protocol import load_protocol
-from testbed.lab.rehearsal import HardwareTwinLab, true_calibration
+from testbed.lab.camera_model import true_calibration
+from testbed.lab.hardware_twin import HardwareTwinLab
 
 PHYSICAL = Path(__file__).resolve().parents[1] / "protocols" / "physical.toml"
 Clock = defaultdict[str, float]

@@ -23,8 +23,10 @@ of video, 1000 files a chunk. With ``--images png`` each frame's PNG bytes are i
 data parquet (LeRobot's ``image`` dtype: struct<bytes, path>); with ``--images video``
 every episode of a file is one run of frames of one MP4 stream, frame k of the file at
 pts k / fps, so an episode's frames are ``from_timestamp + timestamp``, as LeRobot reads
-them. The codec: H.264 4:4:4 at CRF 18, keyframe every 2 frames; why in data.md (4:2:0
-loses the 3-pixel goal marker of a 64x64 image).
+them. The codec and the MP4 files are ``testbed.datasets.video``'s, meta/stats.json's
+numbers ``testbed.datasets.stats``'; what goes in is ``testbed.datasets.episodes``'
+model. The verbs reach this module through ``testbed.datasets.dataset_io``, which
+imports it only once the ``export`` extra is known to be there.
 """
 
 from __future__ import annotations
@@ -36,12 +38,9 @@ import os
 import shutil
 import tempfile
 from collections.abc import Iterable
-from dataclasses import dataclass
-from fractions import Fraction
 from pathlib import Path
 from typing import Any, Final
 
-import av
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -56,6 +55,15 @@ from testbed.datasets.episodes import (
     Frames,
     Numbering,
 )
+from testbed.datasets.stats import Stats
+from testbed.datasets.video import (
+    VIDEO,
+    VideoCodec,
+    VideoFile,
+    check_codec,
+    decode_video,
+    video_info,
+)
 
 CODEBASE_VERSION: Final = "v3.0"
 IMAGE_KEY: Final = "observation.images.top"
@@ -67,35 +75,9 @@ TASKS_PATH: Final = "meta/tasks.parquet"
 CHUNKS_SIZE: Final = 1000
 DATA_FILE_MB: Final = 100
 VIDEO_FILE_MB: Final = 200
-QUANTILES: Final = (0.01, 0.10, 0.50, 0.90, 0.99)
 PNG_LEVEL: Final = 6
 """zlib level of the PNGs (LeRobot's for ``image`` features); bench_export.py."""
 NAMES: Final[dict[str, list[str]]] = {"action": ["face"], "goal": ["x", "y"]}
-
-
-@dataclass(frozen=True)
-class VideoCodec:
-    name: str = "libx264"
-    pix_fmt: str = "yuv444p"
-    crf: int = 18
-    g: int = 2
-    """Keyframe interval: LeRobot's default, so a random frame decodes from <= 1 other."""
-    extra: tuple[tuple[str, str], ...] = ()
-    """Codec-specific options (e.g. SVT-AV1's ``preset``)."""
-
-    def options(self) -> dict[str, str]:
-        return {"crf": str(self.crf), "g": str(self.g), **dict(self.extra)}
-
-
-VIDEO: Final = VideoCodec()
-
-
-def check_codec(codec: VideoCodec = VIDEO) -> None:
-    try:
-        av.codec.Codec(codec.name, "w")
-    except Exception:  # PyAV's UnknownCodecError and friends
-        raise ConfigError(f"--images video: this PyAV has no {codec.name} encoder; use "
-                          "--images png") from None
 
 
 # ----------------------------------------------------------------- the schema
@@ -157,123 +139,6 @@ def decode_png(data: bytes) -> np.ndarray:
         return np.asarray(im.convert("RGB"))
 
 
-class _Video:
-    """One MP4 file being written: frame k at pts k (time base 1/fps)."""
-
-    def __init__(self, path: Path, fps: int, codec: VideoCodec) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.path = path
-        self.fps = fps
-        self._out = av.open(str(path), "w")
-        self._stream = self._out.add_stream(codec.name, rate=fps, options=codec.options())
-        self._stream.width = IMAGE_SHAPE[1]
-        self._stream.height = IMAGE_SHAPE[0]
-        self._stream.pix_fmt = codec.pix_fmt
-        self.frames = 0
-        self.bytes = 0
-        """Bytes of the packets muxed so far (the file on disk lags behind its buffer)."""
-
-    def add(self, images: np.ndarray) -> None:
-        for img in images:
-            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="rgb24")
-            frame.pts = self.frames
-            frame.time_base = Fraction(1, self.fps)
-            self._mux(self._stream.encode(frame))
-            self.frames += 1
-
-    def _mux(self, packets: list[av.Packet]) -> None:
-        for packet in packets:
-            self.bytes += packet.size
-            self._out.mux(packet)
-
-    def close(self) -> None:
-        self._mux(self._stream.encode())
-        self._out.close()
-
-
-def video_info(path: Path, codec: VideoCodec = VIDEO) -> dict[str, Any]:
-    """A video feature's ``info``, probed from the file as LeRobot's get_video_info."""
-    with av.open(str(path)) as c:
-        s = c.streams.video[0]
-        info: dict[str, Any] = {
-            "video.height": s.height, "video.width": s.width,
-            "video.codec": s.codec_context.codec.canonical_name, "video.pix_fmt": s.pix_fmt,
-            "video.is_depth_map": False, "video.fps": int(s.base_rate or 0),
-            "video.channels": 3, "has_audio": bool(c.streams.audio)}
-    info.update({"video.g": codec.g, "video.crf": codec.crf, "is_depth_map": False})
-    return info
-
-
-def decode_video(path: Path, fps: int) -> np.ndarray:
-    """Every frame of an MP4, at its position pts * time_base * fps."""
-    with av.open(str(path)) as c:
-        s = c.streams.video[0]
-        got = [(round(float(f.pts * f.time_base) * fps), f.to_ndarray(format="rgb24"))
-               for f in c.decode(s)]
-    out = np.zeros((max((k for k, _ in got), default=-1) + 1, *IMAGE_SHAPE), np.uint8)
-    for k, img in got:
-        out[k] = img
-    return out
-
-
-# ----------------------------------------------------------------- stats
-class _Stats:
-    """Per-feature statistics as LeRobot's stats.json has them (exact quantiles: the
-    values are kept; images by a 256-bin histogram per channel, scaled to [0, 1])."""
-
-    def __init__(self) -> None:
-        self.values: dict[str, list[np.ndarray]] = {}
-        self.hist = np.zeros((3, 256), np.int64)
-        self.count = 0
-
-    def add(self, columns: dict[str, np.ndarray], images: np.ndarray) -> None:
-        for k, v in columns.items():
-            self.values.setdefault(k, []).append(v)
-        for ch in range(3):
-            self.hist[ch] += np.bincount(images[..., ch].reshape(-1), minlength=256)
-        self.count += len(images)
-
-    @staticmethod
-    def _of(v: np.ndarray) -> dict[str, list[float]]:
-        v = v.astype(np.float64).reshape(len(v), -1)
-        ok = np.isfinite(v)
-        cols = [v[ok[:, j], j] for j in range(v.shape[1])]
-
-        def each(fn: Any) -> list[float]:
-            return [float(fn(c)) if len(c) else 0.0 for c in cols]
-
-        out = {"min": each(np.min), "max": each(np.max), "mean": each(np.mean),
-               "std": each(np.std), "count": [len(v)]}
-        for q in QUANTILES:
-            out[f"q{round(q * 100):02d}"] = each(lambda c, q=q: np.quantile(c, q))
-        return out
-
-    def _image(self) -> dict[str, Any]:
-        levels = np.arange(256, dtype=np.float64) / 255.0
-        n = self.hist.sum(axis=1)
-        mean = (self.hist * levels).sum(axis=1) / np.maximum(n, 1)
-        var = (self.hist * (levels[None] - mean[:, None]) ** 2).sum(axis=1) / np.maximum(n, 1)
-        cum = np.cumsum(self.hist, axis=1)
-
-        def per_channel(values: Iterable[float]) -> list[list[list[float]]]:
-            return [[[float(x)]] for x in values]
-
-        out: dict[str, Any] = {
-            "min": per_channel(levels[np.argmax(self.hist > 0, axis=1)]),
-            "max": per_channel(levels[255 - np.argmax(self.hist[:, ::-1] > 0, axis=1)]),
-            "mean": per_channel(mean), "std": per_channel(np.sqrt(var)),
-            "count": [self.count]}
-        for q in QUANTILES:
-            at = [int(np.searchsorted(cum[ch], q * n[ch])) for ch in range(3)]
-            out[f"q{round(q * 100):02d}"] = per_channel(levels[at])
-        return out
-
-    def result(self) -> dict[str, Any]:
-        stats = {k: self._of(np.concatenate(v)) for k, v in self.values.items()}
-        stats[IMAGE_KEY] = self._image()
-        return stats
-
-
 # ----------------------------------------------------------------- writing
 def _next(chunk_file: tuple[int, int], chunks_size: int) -> tuple[int, int]:
     chunk, file = chunk_file
@@ -317,9 +182,9 @@ class _Writer:
         self.video_at = (0, 0)
         self._pq: pq.ParquetWriter | None = None
         self._data_bytes = 0
-        self._video: _Video | None = None
+        self._video: VideoFile | None = None
         self.first_video: Path | None = None
-        self.stats = _Stats()
+        self.stats = Stats()
         self.numbering = Numbering(fps)
         self.episodes: dict[str, list[Any]] = {}
 
@@ -375,7 +240,7 @@ class _Writer:
             self._video = None
             self.video_at = _next(self.video_at, self.chunks_size)
         if self._video is None:
-            self._video = _Video(self._path(VIDEO_PATH, self.video_at), self.fps, self.codec)
+            self._video = VideoFile(self._path(VIDEO_PATH, self.video_at), self.fps, self.codec)
             self.first_video = self.first_video or self._video.path
         start = self._video.frames
         self._video.add(images)
@@ -405,7 +270,7 @@ class _Writer:
             "splits": {"train": f"0:{self.numbering.episodes}"}, "data_path": DATA_PATH,
             "video_path": None if self.png else VIDEO_PATH,
             "features": features(self.png, vinfo)}
-        for name, obj in (("info.json", info), ("stats.json", self.stats.result()),
+        for name, obj in (("info.json", info), ("stats.json", self.stats.result(IMAGE_KEY)),
                           ("testbed.json", meta)):
             (self.root / "meta" / name).write_text(json.dumps(obj, indent=2) + "\n")
 

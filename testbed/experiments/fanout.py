@@ -72,7 +72,7 @@ def _init(address: str | None, workers: int | None) -> Any:
     except ImportError:
         raise ConfigError('--ray/--workers: Ray is not installed; pip install -e ".[ray]"'
                           ) from None
-    root = str(Path(__file__).resolve().parents[1])
+    root = str(Path(__file__).resolve().parents[2])
     env = {"PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH"))
                                          if p)}
     if address is not None:

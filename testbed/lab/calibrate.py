@@ -14,6 +14,10 @@ goes to rest at the end, whatever happens.
     load fleet -> host, arm, existing file (read through the host's own transport)
     -> agent --calibrate ARM -> rest, frame (rest out of view?)
     -> per grid point: move_tcp, frame, marker -> fit -> thresholds -> save -> rest
+
+``calibrate(cfg, opts, say)`` is the calibration itself; ``testbed calibrate``
+(``cmd_calibrate``) parses and checks its arguments into ``CalibrateOptions`` and calls
+it, and a rehearsal calls it for every arm with ``default_options(host, arm)``.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_json
-from testbed.core.config import ConfigError, FleetConfig, HostConfig
+from testbed.core.config import ArmConfig, ConfigError, FleetConfig, HostConfig
 from testbed.perception import homography as cal
 
 CUBE_TOP_MM = 40.0
@@ -86,23 +90,44 @@ class CalibrationOutcome:
 
 
 # -- arguments ----------------------------------------------------------------------
-def resolve(cfg: FleetConfig, args: argparse.Namespace) -> tuple[HostConfig, CalibrateOptions]:
-    """The host and validated options, or ConfigError (exit 2) naming the argument."""
+def calibration_target(cfg: FleetConfig, host_name: str, arm: str) -> HostConfig:
+    """The yumi host ``host_name`` of the fleet, checked to have ``arm`` with a
+    calibration path; ConfigError (exit 2) naming ``--host`` or ``--arm`` otherwise."""
     hosts = {h.name: h for h in cfg.hosts}
-    if args.host not in hosts:
-        raise ConfigError(f"--host: no host {args.host!r} in the fleet; it has "
+    if host_name not in hosts:
+        raise ConfigError(f"--host: no host {host_name!r} in the fleet; it has "
                           f"{', '.join(hosts)}")
-    host = hosts[args.host]
+    host = hosts[host_name]
     if host.backend != "yumi":
         raise ConfigError(f"--host: host {host.name} runs the {host.backend} backend; only "
                           f"yumi hosts are calibrated (the twin needs no calibration)")
     arms = {a.name: a for a in host.arms}
-    if args.arm not in arms:
-        raise ConfigError(f"--arm: host {host.name} has no arm {args.arm!r}; it has "
+    if arm not in arms:
+        raise ConfigError(f"--arm: host {host.name} has no arm {arm!r}; it has "
                           f"{', '.join(arms)}")
-    if not arms[args.arm].calibration:
-        raise ConfigError(f"--arm: arm {args.arm} of host {host.name} has no calibration "
+    if not arms[arm].calibration:
+        raise ConfigError(f"--arm: arm {arm} of host {host.name} has no calibration "
                           f"path in the config (arms[].calibration)")
+    return host
+
+
+def default_marker_id(arm: str) -> int:
+    """The ArUco id on ``arm``'s pusher when ``--marker-id`` is not given (left 0, right 1)."""
+    if arm not in cal.DEFAULT_MARKER_IDS:
+        raise ConfigError(f"--marker-id: arm {arm!r} has no default marker id "
+                          f"(left 0, right 1); give --marker-id")
+    return cal.DEFAULT_MARKER_IDS[arm]
+
+
+def default_options(host: str, arm: str) -> CalibrateOptions:
+    """What ``testbed calibrate --config FILE --host HOST --arm ARM`` runs: every other
+    argument at its default (the safe box from the arm's file, a 5x4 grid, ...)."""
+    return CalibrateOptions(host=host, arm=arm, box=None, marker_id=default_marker_id(arm))
+
+
+def resolve(cfg: FleetConfig, args: argparse.Namespace) -> tuple[HostConfig, CalibrateOptions]:
+    """The host and validated options, or ConfigError (exit 2) naming the argument."""
+    host = calibration_target(cfg, args.host, args.arm)
     try:
         box = None if args.box is None else cal.parse_box(args.box)
         grid = cal.parse_grid(args.grid)
@@ -117,12 +142,7 @@ def resolve(cfg: FleetConfig, args: argparse.Namespace) -> tuple[HostConfig, Cal
     if grid[0] * grid[1] < cal.MIN_MARKERS:
         raise ConfigError(f"--grid: {args.grid} gives {grid[0] * grid[1]} points; need at "
                           f"least {cal.MIN_MARKERS}")
-    marker_id = args.marker_id
-    if marker_id is None:
-        if args.arm not in cal.DEFAULT_MARKER_IDS:
-            raise ConfigError(f"--marker-id: arm {args.arm!r} has no default marker id "
-                              f"(left 0, right 1); give --marker-id")
-        marker_id = cal.DEFAULT_MARKER_IDS[args.arm]
+    marker_id = default_marker_id(args.arm) if args.marker_id is None else args.marker_id
     if not 0 <= marker_id < 50:
         raise ConfigError(f"--marker-id: {marker_id} is not in {cal.MARKER_DICT} (0..49)")
     return host, CalibrateOptions(
@@ -317,28 +337,28 @@ def make_fleet(host: HostConfig, arm: str) -> Any:
     return HostFleet([host], trial_seed=0, calibrating={host.name: arms})
 
 
-def cmd_calibrate(args: argparse.Namespace) -> int:
-    from testbed.core.config import load_fleet
+def _safe_box(opts: CalibrateOptions, existing: Mapping[str, Any] | None, where: str
+              ) -> cal.Box:
+    """``--box``, checked to lie in the file's table box, or the file's table box."""
+    if opts.box is not None:
+        if existing is not None and "table_box_mm" in existing:
+            _check_inside(opts.box, existing["table_box_mm"], where)
+        return opts.box
+    if existing is None or "table_box_mm" not in existing:
+        raise ConfigError(f"--box: required, the arm's calibration ({where})"
+                          f" has no table_box_mm to take the safe box from")
+    try:
+        return cal.parse_box(",".join(str(v) for v in existing["table_box_mm"]),
+                             "table_box_mm")
+    except ValueError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
-    cfg = load_fleet(args.config)
-    host, opts = resolve(cfg, args)
-    say = print
-    arm_cfg = next(a for a in host.arms if a.name == opts.arm)
-    existing = existing_calibration(host, opts.arm, say)
-    box = opts.box
-    if box is None:
-        if existing is None or "table_box_mm" not in existing:
-            raise ConfigError(f"--box: required, the arm's calibration ({arm_cfg.calibration})"
-                              f" has no table_box_mm to take the safe box from")
-        try:
-            box = cal.parse_box(",".join(str(v) for v in existing["table_box_mm"]),
-                                "table_box_mm")
-        except ValueError as exc:
-            raise ConfigError(f"{arm_cfg.calibration}: {exc}") from None
-    elif existing is not None and "table_box_mm" in existing:
-        _check_inside(box, existing["table_box_mm"], str(arm_cfg.calibration))
+
+def _announce(host: str, opts: CalibrateOptions, box: cal.Box, say: Callable[[str], None]
+              ) -> None:
+    """What is about to move, where, and what the person at the table must keep clear."""
     plane = opts.z_mm + opts.marker_above_tcp_mm
-    say(f"calibrate {host.name}/{opts.arm}: {opts.grid[0]}x{opts.grid[1]} points over box "
+    say(f"calibrate {host}/{opts.arm}: {opts.grid[0]}x{opts.grid[1]} points over box "
         f"{_fmt(box)} mm at z = {opts.z_mm:g} mm; marker {cal.MARKER_DICT} id "
         f"{opts.marker_id} in the plane z = {plane:g} mm")
     if abs(plane - CUBE_TOP_MM) > 2.0:
@@ -346,6 +366,49 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             f"(z = {CUBE_TOP_MM:g} mm); pixels of the cube will map with a parallax error")
     say("keep the table clear of cubes under the grid: the pusher goes down to "
         f"z = {opts.z_mm:g} mm at every point")
+
+
+def _fit_and_save(fleet: Any, arm_cfg: ArmConfig, opts: CalibrateOptions, box: cal.Box,
+                  existing: Mapping[str, Any] | None, say: Callable[[str], None]) -> int:
+    """On the started ``fleet``: drive, fit, report, and write the file if it is good."""
+    out = run_calibration(fleet, opts, box, existing, say)
+    if out.error is not None:
+        say(f"FAILED: {out.error}; nothing written")
+        return EXIT_FAILED
+    ok = report(out, opts, arm_cfg.crop, say)
+    if opts.image is not None and out.last_frame is not None:
+        import cv2
+
+        opts.image.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(opts.image), _overlay(out, opts, arm_cfg.mirror))
+        say(f"picture -> {opts.image}")
+    if not ok:
+        return EXIT_FAILED
+    assert out.data is not None
+    out.saved_path = str(fleet.save_calibration(opts.host, opts.arm, out.data))
+    say(f"calibration -> {out.saved_path} (on host {opts.host})")
+    if opts.out is not None:
+        atomic_write_json(opts.out, out.data)
+        say(f"copy -> {opts.out}")
+    return 0
+
+
+def calibrate(cfg: FleetConfig, opts: CalibrateOptions,
+              say: Callable[[str], None] = print) -> int:
+    """Calibrate arm ``opts.arm`` of host ``opts.host`` of ``cfg`` (see the module doc),
+    every line to ``say``: 0 when the file was written on the host, ``EXIT_FAILED``
+    when the calibration failed (nothing written); ConfigError (exit 2) for a host, an
+    arm, a box or an existing file that cannot be calibrated with. Every arm of the host
+    goes to rest at the end, whatever happens.
+
+    ``testbed calibrate`` (``cmd_calibrate``) and a rehearsal's first morning
+    (``testbed.lab.rehearsal``) both run this.
+    """
+    host = calibration_target(cfg, opts.host, opts.arm)
+    arm_cfg = next(a for a in host.arms if a.name == opts.arm)
+    existing = existing_calibration(host, opts.arm, say)
+    box = _safe_box(opts, existing, str(arm_cfg.calibration))
+    _announce(host.name, opts, box, say)
     fleet = make_fleet(host, opts.arm)
     try:
         fleet.start()
@@ -353,26 +416,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if not status.connected:
             say(f"FAILED: host {host.name} did not start: {status.error}")
             return EXIT_FAILED
-        out = run_calibration(fleet, opts, box, existing, say)
-        if out.error is not None:
-            say(f"FAILED: {out.error}; nothing written")
-            return EXIT_FAILED
-        ok = report(out, opts, arm_cfg.crop, say)
-        if opts.image is not None and out.last_frame is not None:
-            import cv2
-
-            opts.image.parent.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(opts.image), _overlay(out, opts, arm_cfg.mirror))
-            say(f"picture -> {opts.image}")
-        if not ok:
-            return EXIT_FAILED
-        assert out.data is not None
-        out.saved_path = str(fleet.save_calibration(host.name, opts.arm, out.data))
-        say(f"calibration -> {out.saved_path} (on host {host.name})")
-        if opts.out is not None:
-            atomic_write_json(opts.out, out.data)
-            say(f"copy -> {opts.out}")
-        return 0
+        return _fit_and_save(fleet, arm_cfg, opts, box, existing, say)
     except Exception as exc:
         from drivers.errors import DriverError
 
@@ -385,3 +429,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             fleet.rest()  # every arm, whatever happened
         finally:
             fleet.close()
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """``testbed calibrate``: the parsed arguments checked, then :func:`calibrate`."""
+    from testbed.core.config import load_fleet
+
+    cfg = load_fleet(args.config)
+    _, opts = resolve(cfg, args)
+    return calibrate(cfg, opts, print)

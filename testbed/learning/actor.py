@@ -1,6 +1,6 @@
 """Acting: the policy's decision and the priority signals, and an act-only copy of them.
 
-Why a copy: at the seed's fleet size (N = 100 arms) ``act`` is 0.2-0.4 s of forward
+Why a copy: at the paper's fleet size (N = 100 arms) ``act`` is 0.2-0.4 s of forward
 passes on this CPU, as long as a large part of the training step. The fleet loop runs
 ``act`` of step t beside ``train_step`` of step t, so the step costs the training step,
 not the sum (docs/notes/fleet.md). Both cannot use the same networks: the optimiser
@@ -28,8 +28,9 @@ from __future__ import annotations
 import copy
 import threading
 import warnings
-from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Mapping
+from contextlib import AbstractContextManager
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -40,9 +41,6 @@ from testbed.core.types import NUM_ACTIONS
 from testbed.learning.api import PolicyOutput, check_images
 from testbed.learning.critics import Combine, q_values
 from testbed.learning.policy import ensemble_signals
-
-if TYPE_CHECKING:
-    from testbed.learning.learner import Learner
 
 CriticNets = Mapping[str, tuple[nn.Module, Combine]]
 """Critic name -> (its online twin-Q network, how its heads combine)."""
@@ -85,24 +83,31 @@ def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
 class Actor:
     """``act`` of a learner on copies of its networks; ``sync()`` brings them up to date.
 
-    Made by ``Learner.acting_copy()``. ``sync`` copies the weights (about 6 MB at 5
-    members: a millisecond or two) and the learner's ``read_critics`` under the
-    learner's lock; call it while no training step runs (the fleet loop calls it just
-    before submitting one). ``act`` takes only the actor's own lock, so it runs while
-    the learner trains.
+    Made by ``Learner.acting_copy()``, which hands over what the actor reads of it: the
+    lock guarding its networks, the networks themselves (``policy`` and the critics'
+    online nets, copied here), how to read its current ``read_critics`` and its device.
+    ``sync`` copies the weights (about 6 MB at 5 members: a millisecond or two) and the
+    ``read_critics`` under that lock; call it while no training step runs (the fleet
+    loop calls it just before submitting one). ``act`` takes only the actor's own lock,
+    so it runs while the learner trains.
     """
 
-    def __init__(self, learner: Learner, *, compile: bool = False) -> None:
-        self._learner = learner
+    def __init__(self, lock: AbstractContextManager[Any], policy: nn.Module,
+                 critics: CriticNets, read: Callable[[], frozenset[str]],
+                 device: torch.device, *, compile: bool = False) -> None:
+        self._source_lock = lock
+        self._source_policy = policy
+        self._source_critics = dict(critics)
+        self._source_read = read
         self._lock = threading.Lock()
-        with learner._lock:
-            self._policy = copy.deepcopy(learner.policy).requires_grad_(False)
+        with lock:
+            self._policy = copy.deepcopy(policy).requires_grad_(False)
             self._critics: dict[str, tuple[nn.Module, Combine]] = {
-                name: (copy.deepcopy(critic.net).requires_grad_(False), critic.spec.combine)
-                for name, critic in learner.critics().items()
+                name: (copy.deepcopy(net).requires_grad_(False), how)
+                for name, (net, how) in self._source_critics.items()
             }
-            self.read: frozenset[str] = learner.read_critics
-            self.device = learner.device
+            self.read: frozenset[str] = read()
+            self.device = device
         self.compiled = compile
         self._run_policy: nn.Module = self._policy
         self._run_critics: dict[str, tuple[nn.Module, Combine]] = self._critics
@@ -115,19 +120,19 @@ class Actor:
 
     def _pairs(self) -> list[tuple[nn.Module, nn.Module]]:
         """(copy, source) for every network the actor holds."""
-        sources = self._learner.critics()
-        return [(self._policy, self._learner.policy),
-                *((net, sources[name].net) for name, (net, _) in self._critics.items())]
+        sources = self._source_critics
+        return [(self._policy, self._source_policy),
+                *((net, sources[name][0]) for name, (net, _) in self._critics.items())]
 
     def sync(self) -> None:
         """Copy the learner's current weights and parts into this actor."""
-        with self._learner._lock, self._lock, torch.no_grad():
+        with self._source_lock, self._lock, torch.no_grad():
             for dst, src in self._pairs():
                 for d, s in zip(dst.parameters(), src.parameters(), strict=True):
                     d.copy_(s)
                 for d, s in zip(dst.buffers(), src.buffers(), strict=True):
                     d.copy_(s)
-            self.read = self._learner.read_critics
+            self.read = self._source_read()
 
     def act(self, images: npt.ArrayLike) -> PolicyOutput:
         """As ``Learner.act``, on the weights of the last ``sync``."""

@@ -1,10 +1,10 @@
-"""The paper's six photometric augmentations (seed 8.3.3), batched, seeded, fast.
+"""The paper's six photometric augmentations (its 8.3.3), batched, seeded, fast.
 
 Why this module and not a library pipeline: the paper used imgaug, which does not import
 with numpy 2 and drags in the GUI OpenCV build; albumentations drags in the headless
-OpenCV build, which would clobber the operator's GUI build (../shared/ENVIRONMENT.md).
+OpenCV build, which would clobber the operator's GUI build (docs/notes/learning.md).
 kornia depends on torch only. Its ``kornia.augmentation`` pipeline, however, is not fast
-enough here (ENVIRONMENT.md: ~300 ms per 1000 64x64 images; the target is <= 285 ms,
+enough here (measured: ~300 ms per 1000 64x64 images; the target is <= 285 ms,
 twice imgaug's 570 ms) and has no op with imgaug's exact semantics for two of the six
 (``RandomContrast`` scales around 0, not mid-grey; ``RandomGaussianNoise`` has a fixed
 sigma). So the six ops run as one batched function with per-image parameters:

@@ -1,7 +1,7 @@
 """Safety and goal critics: Q-functions of the deployed policy on a sparse 0/1 outcome.
 
 Why: C.U.R. prioritises by risk, Q_risk(s, pi(s)), the discounted probability that the
-robot's own policy soon takes the cube out of the workspace (seed 8.3.2, Recovery RL);
+robot's own policy soon takes the cube out of the workspace (the paper's 8.3.2, Recovery RL);
 Fleet-ThriftyDAgger by goal risk, 1 - Q_goal(s, pi(s)), from the probability that it
 reaches the goal (ThriftyDAgger). Both are the same machinery on different labels:
 

@@ -16,7 +16,7 @@ images are outside any one member's bootstrap, which is what makes members disag
 away from the data.
 
 Critic minibatches are shared by both critics (one policy pass for pi(s') serves both):
-25 % violating transitions (seed 8.3.2, Recovery RL), 25 % successful ones (the goal
+25 % violating transitions (the paper's 8.3.2, Recovery RL), 25 % successful ones (the goal
 critic's rare positive, "in the same manner"), the rest uniform; a class that has no
 transition yet gives its share to the uniform part.
 """

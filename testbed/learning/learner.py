@@ -230,7 +230,8 @@ class Learner:
         """An ``Actor``: ``act`` on copies of these networks, brought up to date by its
         ``sync()``, so that act can run while ``train_step`` does (the fleet loop);
         compiled when ``cfg.compile_act``."""
-        return Actor(self, compile=self.cfg.compile_act)
+        return Actor(self._lock, self.policy, self._critic_nets(), lambda: self.read_critics,
+                     self.device, compile=self.cfg.compile_act)
 
     def signals_on_data(self, limit: int = 2000) -> dict[str, np.ndarray]:
         """``uncertainty`` and ``risk`` (the safety critic at pi(s)) on the states of this

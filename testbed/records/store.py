@@ -42,7 +42,7 @@ import numpy as np
 from testbed.core.atomic import atomic_write_json, fsync_dir
 from testbed.core.types import IMAGE_SIZE, Mode
 
-FORMAT: Final = "testbed.records.store/1"
+FORMAT: Final = "testbed.rundata/1"
 FOLDER: Final = "data"
 META: Final = "meta.json"
 MODES: Final[tuple[str, ...]] = tuple(m.value for m in Mode)

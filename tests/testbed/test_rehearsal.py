@@ -22,16 +22,12 @@ from drivers.testing.sshd import sshd_available
 from testbed.cli import main
 from testbed.core.atomic import atomic_write_json
 from testbed.core.config import FleetConfig
+from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.protocol import load_protocol
-from testbed.lab.rehearsal import (
-    HardwareTwinLab,
-    TruthRecorder,
-    TwinLabHumans,
-    arm_views,
-    true_calibration,
-    true_model_error,
-    truth_agreement,
-)
+from testbed.lab.camera_model import true_calibration, true_model_error
+from testbed.lab.hardware_twin import HardwareTwinLab
+from testbed.lab.lab_humans import TwinLabHumans, arm_views
+from testbed.lab.twin_truth import TruthRecorder, truth_agreement
 from testbed.records.steps import read_steps
 
 pytestmark = [
@@ -239,6 +235,7 @@ def test_the_lab_hand_completes_a_hard_reset_and_the_expert_pushes_towards_the_g
 
 def test_agent_and_sshd_killed_mid_trial_fault_only_their_host_and_come_back(
         lab: tuple[HardwareTwinLab, Path]) -> None:
+    from testbed.core.humans import Humans
     from testbed.experiments.scripted_humans import ScriptedHumans
     from testbed.experiments.trial import TrialOptions, run_trial
 
@@ -247,23 +244,29 @@ def test_agent_and_sshd_killed_mid_trial_fault_only_their_host_and_come_back(
     policy = tiny_policy(fleet, root / "policy.pt")
     drills: dict[str, int] = {}
 
-    def drill(outcome: Any) -> None:
-        t = outcome.t
-        if t == 2:
-            assert twin_lab.kill_agent("yumi-a") == 1
-            drills["agent"] = t
-        if t == 14:
-            twin_lab.hosts["yumi-b"].sshd.stop()  # the host's sshd dies (and its sessions)
-            drills["sshd"] = t
-        if t == 15:
-            twin_lab.hosts["yumi-b"].sshd.start()
-        if t in (12, 27):  # give a slow reconnect time before the next drill and the end
-            time.sleep(2.5)
+    class Drill(TrialHooks):
+        """The lab's humans for the run, and the faults at their steps."""
+
+        def humans(self, name: str) -> Humans:
+            return TwinLabHumans(ScriptedHumans(), twin_lab.labs, arm_views(fleet),
+                                 expert=True)
+
+        def on_step(self, outcome: Any) -> None:
+            t = outcome.t
+            if t == 2:
+                assert twin_lab.kill_agent("yumi-a") == 1
+                drills["agent"] = t
+            if t == 14:
+                twin_lab.hosts["yumi-b"].sshd.stop()  # the host's sshd dies (and its sessions)
+                drills["sshd"] = t
+            if t == 15:
+                twin_lab.hosts["yumi-b"].sshd.start()
+            if t in (12, 27):  # give a slow reconnect time before the next drill and the end
+                time.sleep(2.5)
 
     opts = TrialOptions(algorithm="bc", steps=32, seed=5, out=str(root / "runs"),
                         humans="scripted", policy=str(policy), name="drill")
-    humans = TwinLabHumans(ScriptedHumans(), twin_lab.labs, arm_views(fleet), expert=True)
-    run, summary = run_trial(fleet, opts, on_step=drill, humans=humans)
+    run, summary = run_trial(fleet, opts, hooks=Drill())
     assert summary["status"] == "complete"
     modes = robot_modes(run.path)
     faulted = {r: [t for t, m in enumerate(ms) if m == "fault"] for r, ms in modes.items()}

@@ -17,7 +17,8 @@ from synthetic_pushing import transitions
 
 from testbed.core.config import LearningConfig
 from testbed.experiments.pretraining import CRITICS as OFFLINE_CRITICS
-from testbed.fleet.priorities import ALGORITHMS, CRITIC_OF_SIGNAL
+from testbed.fleet.algorithms import ALGORITHMS
+from testbed.fleet.priorities import CRITIC_OF_SIGNAL
 from testbed.learning import Learner, Transitions
 from testbed.learning import checkpoint as ckpt
 from testbed.learning.learner import CRITICS, PARTS

@@ -1,0 +1,93 @@
+"""Calibrations judged against the hardware twin's TRUE camera model.
+
+Why it exists: on a real robot nobody knows how good a calibration is beyond its own
+reprojection error; on the twin the camera's pinhole, lens distortion and pose are
+known (``/lab/camera``). So a rehearsal can say what a fitted homography really gets
+wrong (``true_model_error``), tests and benchmarks can have a perfect calibration
+without driving the arm (``true_calibration``), and a rehearsal can write the file a
+lab writes by hand before its first calibration (``starting_calibration``: the safe box
+and the rest pose, no homography yet). All three project the cube-top plane through the
+true camera (``project_plane``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from testbed.lab.hardware_twin import HardwareTwinLab
+
+__all__ = ["project_plane", "starting_calibration", "true_calibration", "true_model_error"]
+
+
+def project_plane(cam: Mapping[str, Any], box_mm: Sequence[float], plane_z_mm: float,
+                  n: int) -> tuple[Any, Any]:
+    """An n x n grid of the box at height ``plane_z_mm`` (mm, (n*n, 3)) and where the
+    twin's TRUE camera (pinhole, distortion, pose from ``/lab/camera``) sees it ((n*n, 2))."""
+    import cv2
+    import numpy as np
+
+    xs = np.linspace(box_mm[0], box_mm[2], n)
+    ys = np.linspace(box_mm[1], box_mm[3], n)
+    pts = np.array([(x, y, plane_z_mm) for x in xs for y in ys], dtype=np.float64)
+    rvec, _ = cv2.Rodrigues(np.asarray(cam["R"], dtype=np.float64))
+    px, _ = cv2.projectPoints(pts, rvec, np.asarray(cam["t"], dtype=np.float64),
+                              np.asarray(cam["K"], dtype=np.float64),
+                              np.asarray(cam["dist"], dtype=np.float64))
+    return pts, px.reshape(-1, 2)
+
+
+def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
+                     n: int = 9) -> dict[str, Any]:
+    """The arm's calibration file as a perfect ``testbed calibrate`` would write it: the
+    homography fitted to the twin's TRUE projection of the cube-top plane over the arm's
+    workspace. For tests and benchmarks that need a calibrated twin quickly; a rehearsal
+    calibrates with ``testbed calibrate`` itself."""
+    import cv2
+
+    box = [float(v) for v in cam["workspaces_mm"][arm]]
+    pts, px = project_plane(cam, box, plane_z_mm, n)
+    h, _ = cv2.findHomography(px, pts[:, :2])
+    side = "L" if arm.startswith("l") else "R"
+    return {"homography": h.tolist(), "table_box_mm": box,
+            "rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
+                                -135.0 if side == "L" else 135.0],
+            "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+
+
+def true_model_error(cam: Mapping[str, Any], homography: Any, box_mm: Sequence[float],
+                     plane_z_mm: float = 40.0, n: int = 9) -> dict[str, float]:
+    """A fitted pixel -> table homography against the twin's TRUE camera model (pinhole,
+    distortion, pose), over an n x n grid of the box in the cube-top plane: the error a
+    calibrated arm makes in pixels (where it thinks a table point is seen) and in
+    millimetres (where it thinks a seen point is on the table)."""
+    import cv2
+    import numpy as np
+
+    pts, px = project_plane(cam, box_mm, plane_z_mm, n)
+    h = np.asarray(homography, dtype=np.float64)
+    mm = cv2.perspectiveTransform(px.reshape(-1, 1, 2), h).reshape(-1, 2)
+    back = cv2.perspectiveTransform(pts[:, None, :2].copy(), np.linalg.inv(h)).reshape(-1, 2)
+    err_mm = np.linalg.norm(mm - pts[:, :2], axis=1)
+    err_px = np.linalg.norm(back - px, axis=1)
+    return {"median_px": float(np.median(err_px)), "max_px": float(err_px.max()),
+            "median_mm": float(np.median(err_mm)), "max_mm": float(err_mm.max())}
+
+
+def starting_calibration(lab: HardwareTwinLab, host: str, arm: str) -> Path:
+    """The file a lab writes by hand before its first calibration: the arm's safe table
+    box and its rest pose (here, the twin's), no homography yet. An existing file is
+    left as it is (a rehearsal run again keeps its calibrations)."""
+    cam = lab.hosts[host].lab.camera()
+    path = lab.calibration_path(host, arm)
+    if path.exists():
+        return path
+    from testbed.core.atomic import atomic_write_json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    start = true_calibration(cam, arm)
+    del start["homography"]  # what a person knows before calibrating: box and rest pose
+    atomic_write_json(path, start)
+    return path

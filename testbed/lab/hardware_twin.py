@@ -1,0 +1,284 @@
+"""The hardware-twin lab: one PyBullet YuMi cell and one real ``sshd`` per YuMi host.
+
+Why it exists: a rehearsal must reach its hosts the way a lab reaches its robots' PCs
+(OpenSSH, the host agent, ``--backend yumi``), so each YuMi host of the fleet becomes a
+``python -m sim_twin.yumi_server`` process (an HTTP controller API and an MJPEG camera)
+with an OpenSSH ``sshd`` on loopback in front of it. ``HardwareTwinLab`` starts and
+stops both, rewrites the fleet's host section to reach them, and is the lab's hands in
+fault drills (kill an agent, stop an sshd). ``LabClient`` is the lab's side channel to
+one twin (``/lab/*``: the truth, the lab hand, the true camera model): what a person in
+the lab has and the controller does not. The controller's decisions never read it.
+
+``sim_twin`` runs in its own process and ``drivers.testing.sshd`` is imported inside
+the functions that start it, so importing this module starts and imports nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from testbed.core.config import ConfigError, FleetConfig
+
+if TYPE_CHECKING:
+    from drivers.testing.sshd import SshServer
+
+__all__ = ["HardwareTwinLab", "LabClient", "LabError", "RehearsalError", "TwinHost",
+           "require_yumi"]
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+"""This checkout: the twins' working folder and the rewritten hosts' ``workdir``."""
+SERVER_START_S = 60.0
+
+
+class LabError(RuntimeError):
+    """The hardware twin's lab side channel failed (the twin process is gone?)."""
+
+
+class RehearsalError(RuntimeError):
+    """The rehearsal itself could not go on (a twin or an sshd did not start, an arm
+    could not be calibrated); ``str()`` is the one line to print."""
+
+
+class LabClient:
+    """The lab's side channel to one hardware twin: truth, the lab hand, the camera model.
+
+    This is what a person in the lab has that the controller does not: eyes on the real
+    table and hands to put a cube back. The controller's decisions never read it.
+    """
+
+    def __init__(self, base_url: str, timeout_s: float = 15.0) -> None:
+        self.base_url = base_url.rstrip("/")
+        self.timeout_s = timeout_s
+
+    def _call(self, path: str, body: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        data = None if body is None else json.dumps(body).encode()
+        req = urllib.request.Request(f"{self.base_url}{path}", data=data,
+                                     headers={"Content-Type": "application/json"},
+                                     method="GET" if body is None else "POST")
+        try:
+            with urllib.request.urlopen(req, timeout=self.timeout_s) as resp:
+                out: dict[str, Any] = json.loads(resp.read())
+                return out
+        except urllib.error.HTTPError as exc:
+            detail = exc.read().decode("utf-8", "replace")[:300]
+            raise LabError(f"hardware twin {self.base_url}{path}: HTTP {exc.code}: "
+                           f"{detail}") from None
+        except (OSError, ValueError) as exc:
+            raise LabError(f"hardware twin {self.base_url}{path}: {exc}") from None
+
+    def truth(self) -> dict[str, dict[str, Any]]:
+        arms: dict[str, dict[str, Any]] = self._call("/lab/truth")["arms"]
+        return arms
+
+    def reset(self, arm: str) -> None:
+        self._call("/lab/reset", {"arm": arm})
+
+    def place(self, arm: str, xy_mm: Sequence[float], yaw: float = 0.0) -> None:
+        """A person puts the cube somewhere (fault drills, tests)."""
+        self._call("/lab/place", {"arm": arm, "xy_mm": [float(v) for v in xy_mm], "yaw": yaw})
+
+    def camera(self) -> dict[str, Any]:
+        return self._call("/lab/camera")
+
+    def healthy(self) -> bool:
+        try:
+            return bool(self._call("/lab/health").get("ok"))
+        except LabError:
+            return False
+
+
+@dataclass
+class TwinHost:
+    """One rehearsal host: its hardware twin process and the sshd in front of it."""
+
+    name: str
+    arms: tuple[str, ...]
+    port: int
+    proc: subprocess.Popen[bytes]
+    sshd: SshServer
+    lab: LabClient
+
+    @property
+    def camera_url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/camera.mjpg"
+
+    @property
+    def controller_url(self) -> str:
+        return f"twin+http://127.0.0.1:{self.port}"
+
+
+def require_yumi(fleet: FleetConfig) -> None:
+    """A rehearsal stands hardware twins where YuMi hosts are; twin hosts have none."""
+    not_yumi = [h.name for h in fleet.hosts if h.backend != "yumi"]
+    if not_yumi:
+        raise ConfigError(f"fleet.hosts[{not_yumi[0]}].backend: testbed rehearse needs a "
+                          "physical protocol (backend = \"yumi\" hosts); run a twin "
+                          "protocol with testbed protocol")
+
+
+class HardwareTwinLab:
+    """Starts, rewrites for, and stops the hardware twin hosts of one rehearsal."""
+
+    def __init__(self, fleet: FleetConfig, root: Path, *, seed: int = 0,
+                 realtime: float = 0.0) -> None:
+        require_yumi(fleet)
+        self.fleet = fleet
+        self.root = root.resolve()  # sshd's config needs absolute paths
+        self.seed = seed
+        self.realtime = realtime
+        self.hosts: dict[str, TwinHost] = {}
+
+    def start(self) -> None:
+        from drivers.testing.sshd import sshd_available
+
+        if not sshd_available():
+            raise ConfigError("testbed rehearse needs OpenSSH's sshd and ssh-keygen "
+                              "(Debian: apt-get install openssh-server)")
+        self.root.mkdir(parents=True, exist_ok=True)
+        starting: list[tuple[str, tuple[str, ...], subprocess.Popen[bytes], Path]] = []
+        try:
+            for i, h in enumerate(self.fleet.hosts):
+                arms = tuple(a.name for a in h.arms)
+                port_file = self.root / f"{h.name}.port"
+                port_file.unlink(missing_ok=True)
+                proc = self._start_twin(h.name, arms, self.seed * 1000 + i, port_file)
+                starting.append((h.name, arms, proc, port_file))
+            for name, arms, proc, port_file in starting:
+                port = _wait_port(proc, port_file, self.root / f"{name}-twin.log")
+                sshd = self._start_sshd(name)
+                self.hosts[name] = TwinHost(name, arms, port, proc, sshd,
+                                            LabClient(f"http://127.0.0.1:{port}"))
+        except BaseException:
+            for _, _, proc, _ in starting:
+                _terminate(proc)
+            self.stop()
+            raise
+
+    def _start_twin(self, host: str, arms: tuple[str, ...], seed: int, port_file: Path
+                    ) -> subprocess.Popen[bytes]:
+        """``python -m sim_twin.yumi_server`` for ``host``, its output to its log."""
+        log = open(self.root / f"{host}-twin.log", "ab")  # noqa: SIM115 (child owns it)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim_twin.yumi_server", "--arms", ",".join(arms),
+             "--seed", str(seed), "--port", "0",
+             "--port-file", str(port_file), "--realtime", f"{self.realtime:g}"],
+            cwd=PROJECT_ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
+            start_new_session=True)
+        log.close()
+        return proc
+
+    def _start_sshd(self, host: str) -> SshServer:
+        from drivers.testing.sshd import SshServer
+
+        sshd = SshServer(self.root / f"sshd-{host}")
+        try:
+            sshd.start()
+        except RuntimeError as exc:
+            raise RehearsalError(f"host {host}: the rehearsal's sshd did not start: "
+                                 f"{' '.join(str(exc).split())[:300]}") from None
+        return sshd
+
+    def stop(self) -> None:
+        for h in self.hosts.values():
+            with contextlib.suppress(Exception):
+                h.sshd.stop()
+            _terminate(h.proc)
+        self.hosts = {}
+
+    def __enter__(self) -> HardwareTwinLab:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def labs(self) -> dict[str, LabClient]:
+        return {n: h.lab for n, h in self.hosts.items()}
+
+    def calibration_path(self, host: str, arm: str) -> Path:
+        return self.root / "calib" / f"{host}-{arm}.json"
+
+    def rewrite(self, fleet: FleetConfig | None = None) -> FleetConfig:
+        """The fleet with each host pointed at its twin: address, port, user and keys of
+        its sshd; this checkout's interpreter and folder; the twin's camera and
+        controller; the rehearsal's calibration files. Nothing else changes."""
+        fleet = fleet or self.fleet
+        hosts = []
+        for h in fleet.hosts:
+            t = self.hosts[h.name]
+            arms = [a.model_copy(update={"calibration": str(self.calibration_path(h.name,
+                                                                                   a.name))})
+                    for a in h.arms]
+            hosts.append(h.model_copy(update={
+                "transport": "ssh", "address": "127.0.0.1", "port": t.sshd.port,
+                "user": t.sshd.user, "key_file": str(t.sshd.client_key),
+                "known_hosts": str(t.sshd.known_hosts), "python": sys.executable,
+                "workdir": str(PROJECT_ROOT), "camera": t.camera_url,
+                "controller_url": t.controller_url, "arms": arms}))
+        return fleet.model_copy(update={"hosts": hosts})
+
+    def reset_all(self, *_: Any) -> None:
+        """What the protocol's prompt asks of a person: every cube back near its centre."""
+        for h in self.hosts.values():
+            for arm in h.arms:
+                h.lab.reset(arm)
+
+    def kill_agent(self, host: str) -> int:
+        """Fault drill: SIGKILL the agent on ``host`` (the process under its sshd)."""
+        from drivers.testing.sshd import _children
+
+        t = self.hosts[host]
+        killed = 0
+        for pid in _children(t.sshd.proc.pid) if t.sshd.proc is not None else []:
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+            except OSError:
+                continue
+            if b"drivers.agent" in cmdline:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+                    killed += 1
+        return killed
+
+
+def _wait_port(proc: subprocess.Popen[bytes], port_file: Path, log: Path) -> int:
+    deadline = time.monotonic() + SERVER_START_S
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            tail = log.read_text(errors="replace")[-1500:] if log.exists() else ""
+            raise RehearsalError(f"the hardware twin exited with status {proc.returncode}: "
+                                 f"{' '.join(tail.split())[-300:]}")
+        with contextlib.suppress(OSError, ValueError):
+            text = port_file.read_text().strip()
+            if text:
+                return int(text)
+        time.sleep(0.05)
+    _terminate(proc)
+    raise RehearsalError(f"the hardware twin did not start within {SERVER_START_S:g} s "
+                         f"(see {log})")
+
+
+def _terminate(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(5.0)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(5.0)
