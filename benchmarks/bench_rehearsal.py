@@ -77,7 +77,7 @@ class Timed:
 def local_backend(host: YumiHost, clock: Clock) -> tuple[Any, Any]:
     from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
     from drivers.yumi.camera import VideoCaptureCamera
-    from drivers.yumi.yumi_controller import make_controller
+    from drivers.yumi.controllers import make_controller
     from testbed.perception import cube as perception
 
     setups = [ArmSetup(a.name, a.crop, a.mirror, ArmCalibration.load(a.calibration, a.name))

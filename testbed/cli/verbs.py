@@ -10,11 +10,8 @@ from __future__ import annotations
 
 from testbed.cli import data_verbs, lab_verbs, run_verbs
 from testbed.cli.arguments import Verb
-from testbed.cli.checks import check_policy
 
-__all__ = ["VERBS", "Verb", "check_policy"]
-# check_policy: still importable from here for tests/testbed/test_export.py, which
-# imports it so; its home is testbed.cli.checks.
+__all__ = ["VERBS", "Verb"]
 
 VERBS: tuple[Verb, ...] = (
     run_verbs.TRIAL,

@@ -13,8 +13,8 @@ import pytest
 from testbed.core.config import AlgorithmConfig
 from testbed.core.types import IMAGE_SIZE, ArmObservation, Fault, PushResult
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
-from testbed.fleet.priorities import get_algorithm
 from testbed.learning.api import PolicyOutput
 from testbed.records import store as rundata
 from testbed.records.steps import RunWriter, read_steps

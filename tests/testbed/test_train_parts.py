@@ -13,14 +13,8 @@ import pytest
 from testbed.core.config import AlgorithmConfig, FleetConfig
 from testbed.experiments.pretraining import load_transitions, pretrain_key
 from testbed.experiments.protocol import Protocol, pretrain_critics, run_protocol
-from testbed.fleet.priorities import (
-    ALGORITHM_NAMES,
-    ALGORITHMS,
-    LEARNED_SIGNALS,
-    AlgorithmSpec,
-    PrioritySignals,
-    get_algorithm,
-)
+from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS, AlgorithmSpec, get_algorithm
+from testbed.fleet.priorities import LEARNED_SIGNALS, PrioritySignals
 
 PARAMS = AlgorithmConfig(t_T=2, t_R=3, t_I=5, u_hat=0.1, r_hat=0.5, random_budget=0.4)
 SIGNALS = {"uncertainty": np.array([0.3, 0.1, 0.0, 0.2]),
