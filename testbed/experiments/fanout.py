@@ -114,10 +114,10 @@ def _protocol_run(proto: Protocol, folder: str, k: int, algorithm: str, threads:
 
 def _evaluation(proto: Protocol, folder: str, k: int, algorithm: str, threads: int,
                 *after: Any) -> None:
-    from testbed.experiments.protocol import _evaluate_run
+    from testbed.experiments.protocol import evaluate_run
 
     _threads(threads)
-    _evaluate_run(proto, Path(folder), algorithm, k, None, None)
+    evaluate_run(proto, Path(folder), algorithm, k)
 
 
 def _sweep_run(sweep: Sweep, folder: str, index: int, threads: int, *after: Any) -> str:

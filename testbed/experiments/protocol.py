@@ -241,9 +241,9 @@ def _evaluate_all(proto: Protocol, folder: Path, hooks: TrialHooks) -> None:
     """The paper's evaluation of every final policy (and the expert row on twins)."""
     for k in range(proto.trials):
         for algorithm in proto.run_order(k):
-            _evaluate_run(proto, folder, algorithm, k, hooks)
+            evaluate_run(proto, folder, algorithm, k, hooks)
         if proto.evaluate_expert and all(h.backend == "twin" for h in proto.fleet.hosts):
-            _evaluate_run(proto, folder, "expert", k, hooks)
+            evaluate_run(proto, folder, "expert", k, hooks)
 
 
 def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
@@ -301,8 +301,8 @@ def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,
     return summary
 
 
-def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
-                  hooks: TrialHooks) -> None:
+def evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
+                 hooks: TrialHooks | None = None) -> None:
     """``eval-<algorithm>-t<k>``: the final policy of ``<algorithm>-t<k>`` alone for
     ``proto.evaluate_steps`` steps, C-prioritised hard resets only (``testbed evaluate``);
     skipped when done or disabled, redone when it died before finishing."""
@@ -328,7 +328,7 @@ def _evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
             "protocol": {"name": proto.name, "trial": k, "evaluation": True}}
     cfg = proto.fleet
     with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names), label=name) as bar:
-        run_trial(cfg, opts, hooks=_EvaluationHooks(bar, hooks), meta=meta)
+        run_trial(cfg, opts, hooks=_EvaluationHooks(bar, hooks or TrialHooks()), meta=meta)
 
 
 class _EvaluationHooks(TrialHooks):
@@ -382,5 +382,13 @@ def _prompt(text: str) -> None:
     input(f"{text} ")
 
 
-__all__: list[Any] = ["Protocol", "load_protocol", "matched_budget", "pretrain_critics",
-                     "run_named", "run_protocol", "williams_square"]
+__all__: list[Any] = [
+    "Protocol",
+    "evaluate_run",
+    "load_protocol",
+    "matched_budget",
+    "pretrain_critics",
+    "run_named",
+    "run_protocol",
+    "williams_square",
+]
