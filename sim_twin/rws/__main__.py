@@ -1,0 +1,127 @@
+"""``python -m sim_twin.rws``: an RWS 1.0 twin of the YuMi's IRC5 as a process.
+
+Why a process: the agent's controller seam reaches the controller over the network; a
+rehearsal (later) starts one of these per YuMi host, as it starts a hardware twin.
+
+Usage::
+
+    python -m sim_twin.rws [--host 127.0.0.1] [--port 0] [--port-file F]
+        [--max-sessions 70] [--user NAME:PASSWORD ...] [--idle-timeout S]
+        [--ramdisk-value '$TEMP'] [--opmode AUTO] [--ctrlstate motoron]
+        [--cell --arms left,right --seed S --pusher-length-mm L] [--verbose]
+
+``Default User`` / ``robotics`` always log in; ``--user`` adds more. With ``--cell`` the
+arms' positions come from a ``YumiTwinCell`` (PyBullet) made here; without, from fixed
+poses. It writes the port (a decimal line) to ``--port-file`` once listening, serves until
+SIGTERM/SIGINT and exits 0 (2 on a bad argument).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import tempfile
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sim_twin.rws.digest_auth import DEFAULT_USERS
+from sim_twin.rws.file_store import DEFAULT_RAMDISK_VALUE, FileStore
+from sim_twin.rws.irc5 import CTRLSTATES, OPMODES, Irc5Controller
+from sim_twin.rws.mechunits import YUMI_UNITS, PoseSource
+from sim_twin.rws.rws_server import RwsServer, check_loopback
+from sim_twin.rws.rws_service import RwsService
+
+
+def _args(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m sim_twin.rws",
+                                description="An RWS 1.0 (RobotWare 6) twin of the YuMi's IRC5.")
+    p.add_argument("--host", default="127.0.0.1", help="a loopback address")
+    p.add_argument("--port", type=int, default=0, help="0: any free port")
+    p.add_argument("--port-file", type=Path, default=None)
+    p.add_argument("--max-sessions", type=int, default=70)
+    p.add_argument("--user", action="append", default=[], metavar="NAME:PASSWORD")
+    p.add_argument("--idle-timeout", type=float, default=None, metavar="S",
+                   help="drop sessions idle this long (default: never)")
+    p.add_argument("--ramdisk-value", default=DEFAULT_RAMDISK_VALUE,
+                   help="what ctrl/$RAMDISK answers")
+    p.add_argument("--opmode", default="AUTO", choices=OPMODES)
+    p.add_argument("--ctrlstate", default="motoron", choices=CTRLSTATES)
+    p.add_argument("--cell", action="store_true", help="positions from a YumiTwinCell")
+    p.add_argument("--arms", default="left,right")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pusher-length-mm", type=float, default=0.0,
+                   help="flange above the cell's TCP (tool0 = flange)")
+    p.add_argument("--verbose", action="store_true")
+    a = p.parse_args(argv)
+    try:
+        check_loopback(a.host)
+    except ValueError as exc:
+        p.error(str(exc))
+    if a.max_sessions < 1:
+        p.error("--max-sessions must be >= 1")
+    for u in a.user:
+        if ":" not in u or not u.split(":", 1)[0]:
+            p.error(f"--user {u!r}: expected NAME:PASSWORD")
+    return a
+
+
+def _write_port(path: Path, port: int) -> None:
+    """Atomically: a reader never sees a half-written port."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".")
+    with os.fdopen(fd, "w") as f:
+        f.write(f"{port}\n")
+    os.replace(tmp, path)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    a = _args(argv)
+    arms = tuple(s.strip() for s in a.arms.split(",") if s.strip())
+    units = tuple(u for u in YUMI_UNITS if u.arm in arms)
+    if not units:
+        print(f"sim_twin.rws: no YuMi arm in --arms {a.arms!r} (left, right)", file=sys.stderr)
+        return 2
+    cell: Any = None
+    poses: PoseSource | None = None
+    if a.cell:
+        from sim_twin.rws.cell_link import CellPoses
+        from sim_twin.yumi_cell import YumiTwinCell  # PyBullet: only when asked for
+
+        cell = YumiTwinCell(a.seed, tuple(u.arm for u in units))
+        poses = CellPoses(cell, threading.Lock(), units, a.pusher_length_mm)
+    users = dict(DEFAULT_USERS)
+    users.update({name: pw for name, _, pw in (u.partition(":") for u in a.user)})
+    controller = Irc5Controller(units=units, poses=poses, opmode=a.opmode,
+                                ctrlstate=a.ctrlstate, files=FileStore(
+                                    ramdisk_value=a.ramdisk_value))
+    service = RwsService(controller, users=users, max_sessions=a.max_sessions,
+                         idle_timeout_s=a.idle_timeout)
+    server = RwsServer(service, a.host, a.port, verbose=a.verbose)
+    done = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        done.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    server.start_thread()
+    if a.port_file is not None:
+        _write_port(a.port_file, server.port)
+    print(f"sim_twin.rws: {','.join(u.name for u in units)} on {server.url} "
+          f"(max {a.max_sessions} sessions)", file=sys.stderr, flush=True)
+    try:
+        while not done.wait(0.5):
+            pass
+    finally:
+        server.stop()
+        if cell is not None:
+            cell.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""One RWS request in, one answer out: authentication, sessions, logout, the lab side
+channel and the resources, independent of any HTTP server.
+
+Why it exists apart from the server: the hardware twin's own HTTP server
+(``sim_twin.yumi_server``) may later mount RWS on its port; it then hands each request
+to :meth:`RwsService.handle` and writes the :class:`HttpReply` back. The twin's own
+server (``sim_twin.rws.rws_server``) does exactly that.
+
+Order of a request: ``/lab/*`` (no authentication: the twin's side, never a
+controller's); else the session cookie or a digest login (``401`` / ``503``, see
+``sim_twin.rws.digest_auth``); ``/logout`` ends the session (``204``); a ``POST``'s body
+must be a form (``application/x-www-form-urlencoded``, else ``415``, as RWS answers);
+then the resource (``sim_twin.rws.resources``), rendered as JSON when ``json=1``.
+
+The lab side channel:
+
+- ``GET /lab/controller`` -> ``{"state": {...}, "sessions": [...], "max_sessions": n,
+  "refused_logins": n}``
+- ``POST /lab/controller`` with any of ``{"opmode": "AUTO"|"MANR"|..., "ctrlstate":
+  "motoron"|"motoroff"|"guardstop"|..., "speedratio": 0..100, "execution":
+  "running"|"stopped", "task_error": {"task", "code", "title", "desc"?, "causes"?,
+  "actions"?, "args"?, "msgtype"?}}`` -> the new state; ``400`` (nothing changed) on a
+  bad value.
+- ``GET /lab/health`` -> ``{"ok": true}``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+from sim_twin.rws.digest_auth import (
+    ABBCX_COOKIE,
+    REALM,
+    SESSION_COOKIE,
+    DigestAuthority,
+    Session,
+    SessionLimitReached,
+    SessionTable,
+)
+from sim_twin.rws.errors import GENERIC, RwsError, refused
+from sim_twin.rws.irc5 import Irc5Controller
+from sim_twin.rws.resources import Reply, Request, dispatch
+from sim_twin.rws.shapes import render, render_error
+
+FORM_TYPE = "application/x-www-form-urlencoded"
+LAB_KEYS = ("opmode", "ctrlstate", "speedratio", "execution", "task_error")
+
+
+@dataclass
+class HttpReply:
+    status: int
+    headers: list[tuple[str, str]] = field(default_factory=list)
+    body: bytes = b""
+
+
+def _lower_headers(headers: Mapping[str, str] | Iterable[tuple[str, str]]) -> dict[str, str]:
+    items = headers.items() if isinstance(headers, Mapping) else headers
+    out: dict[str, str] = {}
+    for k, v in items:
+        key = k.lower()
+        out[key] = f"{out[key]}; {v}" if key == "cookie" and key in out else v
+    return out
+
+
+def parse_cookies(header: str) -> dict[str, str]:
+    out = {}
+    for part in header.split(";"):
+        name, eq, value = part.strip().partition("=")
+        if eq and name:
+            out[name] = value
+    return out
+
+
+class RwsService:
+    """The twin's RWS endpoint for one controller."""
+
+    def __init__(self, controller: Irc5Controller, *, users: Mapping[str, str] | None = None,
+                 max_sessions: int = 70, idle_timeout_s: float | None = None,
+                 realm: str = REALM) -> None:
+        self.controller = controller
+        self.auth = DigestAuthority(users, realm)
+        self.sessions = SessionTable(max_sessions, idle_timeout_s)
+
+    def handle(self, method: str, target: str,
+               headers: Mapping[str, str] | Iterable[tuple[str, str]], body: bytes,
+               host: str) -> HttpReply:
+        """Answer one request. ``target`` is the request line's path and query as sent
+        (the digest ``uri``); ``host`` is ``http://name:port`` for the answers' links."""
+        h = _lower_headers(headers)
+        split = urlsplit(target)
+        query = dict(parse_qsl(split.query, keep_blank_values=True))
+        parts = [p for p in unquote(split.path).split("/") if p]
+        as_json = query.get("json") == "1"
+        if parts[:1] == ["lab"]:
+            return self._lab(method, parts[1:], body)
+        session = self.sessions.lookup(parse_cookies(h.get("cookie", "")))
+        cookies: list[tuple[str, str]] = []
+        if session is None:
+            user, stale = self.auth.verify(method, target, h.get("authorization"))
+            if user is None:
+                return HttpReply(401, [("WWW-Authenticate", self.auth.challenge(stale)),
+                                       ("Content-Type", "text/html")],
+                                 b"<html><body>401 Unauthorized</body></html>")
+            try:
+                session = self.sessions.open(user)
+            except SessionLimitReached as exc:
+                return self._error(refused(503, GENERIC, f"too many sessions: {exc}"),
+                                   host, as_json)
+            cookies = _session_cookies(session)
+        if parts == ["logout"]:
+            self.sessions.close(session.sid)
+            return HttpReply(204, _session_cookies(None))
+        try:
+            req = Request(method, parts, query, self._form(method, h, body), body)
+            reply = dispatch(self.controller, req)
+        except RwsError as exc:
+            out = self._error(exc, host, as_json)
+            out.headers += cookies
+            return out
+        return self._render(reply, host, as_json, cookies)
+
+    @staticmethod
+    def _form(method: str, h: Mapping[str, str], body: bytes) -> dict[str, str]:
+        if method != "POST" or not body:
+            return {}
+        ctype = h.get("content-type", "").split(";")[0].strip().lower()
+        if ctype != FORM_TYPE:
+            raise refused(415, GENERIC, f"a POST's body must be {FORM_TYPE}, got {ctype!r}")
+        try:
+            return dict(parse_qsl(body.decode("utf-8"), keep_blank_values=True))
+        except UnicodeDecodeError:
+            raise refused(400, GENERIC, "the form is not UTF-8") from None
+
+    @staticmethod
+    def _error(exc: RwsError, host: str, as_json: bool) -> HttpReply:
+        body, ctype = render_error(exc.code, exc.msg, host, as_json)
+        return HttpReply(exc.status, [("Content-Type", ctype)], body)
+
+    @staticmethod
+    def _render(reply: Reply, host: str, as_json: bool,
+                cookies: list[tuple[str, str]]) -> HttpReply:
+        if reply.doc is not None:
+            body, ctype = render(reply.doc, host, as_json)
+            return HttpReply(reply.status, [("Content-Type", ctype), *cookies], body)
+        if reply.raw is not None:
+            return HttpReply(reply.status, [("Content-Type", reply.ctype), *cookies], reply.raw)
+        return HttpReply(reply.status, cookies)
+
+    # --- the lab side channel -------------------------------------------------------------
+    def lab_state(self) -> dict[str, Any]:
+        return {"state": self.controller.snapshot(), "sessions": self.sessions.snapshot(),
+                "max_sessions": self.sessions.max_sessions,
+                "refused_logins": self.sessions.refused}
+
+    def apply_lab(self, body: Mapping[str, Any]) -> None:
+        """``POST /lab/controller``'s body applied to the controller (ValueError)."""
+        unknown = set(body) - set(LAB_KEYS)
+        if unknown:
+            raise ValueError(f"unknown keys {sorted(unknown)} (known: {list(LAB_KEYS)})")
+        err = body.get("task_error")
+        if err is not None and (not isinstance(err, Mapping) or not {"task", "code", "title"}
+                                <= set(err)):
+            raise ValueError('task_error must be {"task", "code", "title", ...}')
+        self.controller.set_state(opmode=body.get("opmode"), ctrlstate=body.get("ctrlstate"),
+                                  speedratio=body.get("speedratio"),
+                                  execution=body.get("execution"))
+        if err is not None:
+            extra = {k: err[k] for k in ("desc", "causes", "actions", "args", "msgtype")
+                     if k in err}
+            try:
+                self.controller.task_error(str(err["task"]), int(err["code"]), str(err["title"]),
+                                           **extra)
+            except RwsError as exc:
+                raise ValueError(exc.msg) from None
+
+    def _lab(self, method: str, parts: list[str], body: bytes) -> HttpReply:
+        if parts == ["health"] and method == "GET":
+            return _json(200, {"ok": True})
+        if parts != ["controller"] or method not in ("GET", "POST"):
+            return _json(404, {"error": f"no lab endpoint {method} /lab/{'/'.join(parts)}"})
+        if method == "POST":
+            try:
+                data = json.loads(body or b"null")
+                if not isinstance(data, dict):
+                    raise ValueError("expected a JSON object")
+                self.apply_lab(data)
+            except ValueError as exc:
+                return _json(400, {"error": str(exc)})
+        return _json(200, {"ok": True, **self.lab_state()})
+
+
+def _json(status: int, obj: Any) -> HttpReply:
+    return HttpReply(status, [("Content-Type", "application/json")], json.dumps(obj).encode())
+
+
+def _session_cookies(s: Session | None) -> list[tuple[str, str]]:
+    """Set-Cookie headers for a new session, or (``None``) ones that delete both."""
+    if s is None:
+        return [("Set-Cookie", f"{name}=; Path=/; Max-Age=0")
+                for name in (SESSION_COOKIE, ABBCX_COOKIE)]
+    return [("Set-Cookie", f"{SESSION_COOKIE}={s.sid}; Path=/; HttpOnly"),
+            ("Set-Cookie", f"{ABBCX_COOKIE}={s.abbcx}; Path=/; HttpOnly")]
