@@ -266,6 +266,15 @@ class YumiTwinCell:
         """The pusher body's centre (m) for a TCP (its bottom centre, mm)."""
         return [tcp_mm[0] * M, tcp_mm[1] * M, (tcp_mm[2] + PUSHER_HEIGHT_MM / 2) * M]
 
+    def hold(self, arm: str, xyz_mm: Sequence[float]) -> None:
+        """A motion stopped mid-way (a controller's stop): the arm's commanded TCP is
+        where it stopped, so its next program starts from there (the pusher's constraint
+        already holds it there)."""
+        if arm not in self._tcp:
+            raise ValueError(f"unknown arm {arm!r}; the cell has {sorted(self._tcp)}")
+        x, y, z = (float(v) for v in xyz_mm)
+        self._tcp[arm] = (x, y, z)
+
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
         """Each arm's actual TCP (the pusher's bottom centre), mm."""
         out = {}

@@ -14,8 +14,9 @@ Parts: ``irc5`` (the controller model and the start-hook seam), ``resources`` (t
 routes), ``rws_service`` (auth, sessions, the lab side channel), ``rws_server`` (HTTP),
 ``digest_auth``, ``event_log``, ``file_store``, ``io_signals``, ``rapid_data``,
 ``mechunits``, ``cell_link`` (positions from a ``YumiTwinCell``), ``shapes`` (JSON and
-XHTML). ``python -m sim_twin.rws`` serves one. Nothing here moves anything yet: a start
-runs the hook given to the controller (the RAPID semantics plug in there).
+XHTML), ``motion_program`` (the library's program file, decoded) and ``motion_exec``
+(``CellMotion``: the start hook that runs those programs on a ``YumiTwinCell``).
+``python -m sim_twin.rws`` serves one (``--cell``: with the twin's pushers moving).
 
 Use::
 

@@ -8,11 +8,13 @@ Usage::
     python -m sim_twin.rws [--host 127.0.0.1] [--port 0] [--port-file F]
         [--max-sessions 70] [--user NAME:PASSWORD ...] [--idle-timeout S]
         [--ramdisk-value '$TEMP'] [--opmode AUTO] [--ctrlstate motoron]
-        [--cell --arms left,right --seed S --pusher-length-mm L] [--verbose]
+        [--cell --arms left,right --seed S --pusher-length-mm L --realtime R] [--verbose]
 
 ``Default User`` / ``robotics`` always log in; ``--user`` adds more. With ``--cell`` the
-arms' positions come from a ``YumiTwinCell`` (PyBullet) made here; without, from fixed
-poses. It writes the port (a decimal line) to ``--port-file`` once listening, serves until
+arms' positions come from a ``YumiTwinCell`` (PyBullet) made here and a RAPID start runs
+the uploaded motion programs on it (``motion_exec.CellMotion``; ``--realtime`` paces the
+motion, 0: as fast as computed); without, the positions are fixed and a start ends at
+once. It writes the port (a decimal line) to ``--port-file`` once listening, serves until
 SIGTERM/SIGINT and exits 0 (2 on a bad argument).
 """
 
@@ -30,7 +32,7 @@ from typing import Any
 
 from sim_twin.rws.digest_auth import DEFAULT_USERS
 from sim_twin.rws.file_store import DEFAULT_RAMDISK_VALUE, FileStore
-from sim_twin.rws.irc5 import CTRLSTATES, OPMODES, Irc5Controller
+from sim_twin.rws.irc5 import CTRLSTATES, OPMODES, Irc5Controller, StartHook
 from sim_twin.rws.mechunits import YUMI_UNITS, PoseSource
 from sim_twin.rws.rws_server import RwsServer, check_loopback
 from sim_twin.rws.rws_service import RwsService
@@ -55,6 +57,8 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--pusher-length-mm", type=float, default=0.0,
                    help="flange above the cell's TCP (tool0 = flange)")
+    p.add_argument("--realtime", type=float, default=0.0,
+                   help="with --cell: motion paced at this multiple of real time (0: unpaced)")
     p.add_argument("--verbose", action="store_true")
     a = p.parse_args(argv)
     try:
@@ -87,15 +91,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     cell: Any = None
     poses: PoseSource | None = None
+    hook: StartHook | None = None
     if a.cell:
-        from sim_twin.rws.cell_link import CellPoses
+        from sim_twin.rws.motion_exec import CellMotion
         from sim_twin.yumi_cell import YumiTwinCell  # PyBullet: only when asked for
 
-        cell = YumiTwinCell(a.seed, tuple(u.arm for u in units))
-        poses = CellPoses(cell, threading.Lock(), units, a.pusher_length_mm)
+        cell = YumiTwinCell(a.seed, tuple(u.arm for u in units), realtime=a.realtime)
+        motion = CellMotion(cell, threading.Lock(), units, pusher_length_mm=a.pusher_length_mm)
+        poses, hook = motion.poses, motion
     users = dict(DEFAULT_USERS)
     users.update({name: pw for name, _, pw in (u.partition(":") for u in a.user)})
-    controller = Irc5Controller(units=units, poses=poses, opmode=a.opmode,
+    controller = Irc5Controller(units=units, poses=poses, on_start=hook, opmode=a.opmode,
                                 ctrlstate=a.ctrlstate, files=FileStore(
                                     ramdisk_value=a.ramdisk_value))
     service = RwsService(controller, users=users, max_sessions=a.max_sessions,

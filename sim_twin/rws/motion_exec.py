@@ -1,0 +1,560 @@
+"""The RWS twin's RAPID side: the start hook that runs ``abb_motion_program_exec``'s
+uploaded programs on a :class:`~sim_twin.yumi_cell.YumiTwinCell`.
+
+Why it exists: the agent drives the YuMi through the unchanged library, whose RAPID
+module reads the program file of each started motion task, moves the arm, writes a log
+file and says so in the event log; the client then reads those. For the rehearsal to run
+that path before the robot, the twin must do the same with the bytes the client sent: this
+hook (``Irc5Controller(on_start=CellMotion(...))``) does, and moves the cell's pushers at
+the commanded speeds.
+
+What a run does (a task is an arm: ``T_ROB_L`` -> ``left``, ``T_ROB_R`` -> ``right``):
+
+1. Each started motion task reads ITS file (:func:`program_file_for_task`: on a YuMi
+   both tasks read ``motion_program.bin``, the library's naming; both arms then run the
+   same program, as the twin assumes the library's RAPID would) and decodes it; a file
+   that cannot be read is an ErrWrite 80001 "Motion Program Failed" entry.
+2. The commands become cell waypoints: a robtarget is the TCP of the program's tool in
+   its work object; the twin turns it into the pusher's bottom (flange = TCP minus the
+   tool's ``tframe``, the flange pointing down; cell TCP = flange minus the pusher's
+   length, as :class:`~sim_twin.rws.cell_link.CellPoses` reports it). MoveJ and MoveL
+   are straight lines (the cell has no joints), MoveC a chain of chords through the
+   circle point, MoveAbsJ to the pose the twin reports as the arm's joints (its rest)
+   goes to the cell's rest point. Refused (80001, the task named): any other joint
+   target (the twin has no kinematics), a tool z not pointing down (the pusher is a
+   vertical cylinder), a moving work object or a stationary tool, a target below the
+   table, a speed <= 0, EGM (no EGM channel). Speeds are scaled by the controller's speed
+   ratio (at least 1 %) and capped at the YuMi's 1500 mm/s, as a controller caps ``vmax``.
+   Zones, CirPathMode and SyncMoveOn/Off are read and not modelled (every point is a stop
+   point; the arms move at the same time but are not path-synchronised).
+3. Both arms' blocks of moves run in one ``cell.execute`` (MultiMove); a WaitTime holds
+   its arm and, until it ends, the other arm's next block too (the twin runs in rounds).
+4. The log: ``log-<program timestamp>.bin`` on the RAM disk (the format the client
+   unpacks: version, timestamp, header, float32 rows) and the two ErrWrite \\I entries
+   (80003, "Motion Program Log File Opened" naming the file, "... Closed"). Rows are
+   sampled every ``frame_every_s`` simulated seconds while ``motion_program_log_motion``
+   is 1: ``timestamp`` (s since the run began) and per task ``<unit>_cmd_num``,
+   ``<unit>_x``, ``_y``, ``_z`` (the program tool's TCP, base frame, mm; the twin has no
+   joint angles to log). With logging off the file has the header only.
+5. ``stop`` (or motors off, a guard stop, a mode change) is seen at the next sample: the
+   motion ends there, each pusher held at its commanded point of that moment; the log is
+   left open (no "Closed" entry), as a program stopped mid-instruction leaves it.
+
+While a motion runs the cell's lock is held; RWS reads positions from the snapshot the
+hook keeps (refreshed every sample), so ``get_robtarget`` answers during the motion.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import re
+import struct
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from sim_twin.constants import TIME_STEP_S
+from sim_twin.rws.cell_link import CellPoses
+from sim_twin.rws.errors import RwsError
+from sim_twin.rws.event_log import MSG_INFO
+from sim_twin.rws.irc5 import ProgramRun
+from sim_twin.rws.mechunits import (
+    TOOL_DOWN,
+    YUMI_UNITS,
+    MechUnit,
+    Quat,
+    Vec3,
+    qconj,
+    qmul,
+    qnorm,
+    qrot,
+)
+from sim_twin.rws.motion_program import (
+    ERRWRITE_INFO,
+    FILE_VERSION,
+    CirPathMode,
+    Command,
+    EGMMoveC,
+    EGMMoveL,
+    EGMRunJoint,
+    EGMRunPose,
+    MotionProgramFile,
+    MoveAbsJ,
+    MoveC,
+    MoveJ,
+    MoveL,
+    ProgramFileError,
+    RobTarget,
+    SpeedData,
+    SyncMoveOff,
+    SyncMoveOn,
+    ToolData,
+    WaitTime,
+    WobjData,
+    decode_program,
+    describe,
+    program_failed,
+    program_file_for_task,
+)
+from sim_twin.yumi_cell import MAX_SPEED_MM_S, YumiTwinCell
+from sim_twin.yumi_geometry import REST_MM
+
+LOG_OPENED, LOG_CLOSED = "Motion Program Log File Opened", "Motion Program Log File Closed"
+JOINT_TOLERANCE_DEG = 0.01
+ORIENT_TOLERANCE_DEG = 1.0
+CHORD_DEG = 10.0
+"""A MoveC arc becomes chords of at most this angle (at least 4)."""
+Waypoint = dict[str, Any]
+
+
+@dataclass
+class _Block:
+    """Consecutive moves of one arm: cell waypoints and the cmd_num of each."""
+
+    waypoints: list[Waypoint] = field(default_factory=list)
+    cmd_nums: list[int] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class _Wait:
+    t: float
+    cmd_num: int
+
+
+@dataclass(frozen=True)
+class TaskProgram:
+    """What one task of a run read: its file and the decoded program."""
+
+    task: str
+    unit: MechUnit
+    path: str
+    program: MotionProgramFile
+
+
+class _Halted(Exception):
+    """Raised from the cell's frame callback when the run is stopped."""
+
+
+# --- targets -----------------------------------------------------------------------------------
+def _compose(a: tuple[Vec3, Quat], b: tuple[Sequence[float], Sequence[float]]
+             ) -> tuple[Vec3, Quat]:
+    (p, q), (t, r) = a, b
+    d = qrot(q, t)
+    return (p[0] + d[0], p[1] + d[1], p[2] + d[2]), qnorm(qmul(q, r))
+
+
+def _angle_deg(a: Quat, b: Quat) -> float:
+    dot = min(1.0, abs(sum(x * y for x, y in zip(a, b, strict=True))))
+    return math.degrees(2.0 * math.acos(dot))
+
+
+def _unit_quat(q: Sequence[float], what: str, task: str) -> Quat:
+    n = math.sqrt(sum(c * c for c in q))
+    if abs(n - 1.0) > 1e-3:
+        raise program_failed("Orientation not normalised", f"{what}: |q| = {n:.6g}", task=task)
+    return qnorm(q)
+
+
+def tool_offset(tool: ToolData, pusher_length_mm: float) -> Vec3:
+    """The program tool's TCP minus the cell's TCP (the pusher's bottom), base frame."""
+    d = qrot(TOOL_DOWN, tool.tframe.trans)
+    return (d[0], d[1], d[2] + pusher_length_mm)
+
+
+def cell_point(target: RobTarget, tool: ToolData, wobj: WobjData, pusher_length_mm: float,
+               *, task: str, what: str) -> Vec3:
+    """The cell TCP that puts the program tool's TCP at ``target`` (see the docstring)."""
+    if not tool.robhold:
+        raise program_failed("Stationary tool not supported by the twin", what, task=task)
+    if wobj.robhold or not wobj.ufprog or wobj.ufmec:
+        raise program_failed("Moving work object not supported by the twin",
+                             f"{what}: robhold={wobj.robhold}, ufprog={wobj.ufprog}, "
+                             f"ufmec={wobj.ufmec!r}", task=task)
+    frame = _compose(((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+                     (wobj.uframe.trans, _unit_quat(wobj.uframe.rot, "uframe", task)))
+    frame = _compose(frame, (wobj.oframe.trans, _unit_quat(wobj.oframe.rot, "oframe", task)))
+    p, q = _compose(frame, (target.trans, _unit_quat(target.rot, what, task)))
+    flange_q = qnorm(qmul(q, qconj(_unit_quat(tool.tframe.rot, "tframe", task))))
+    off = _angle_deg(flange_q, TOOL_DOWN)
+    if off > ORIENT_TOLERANCE_DEG:
+        raise program_failed("Orientation not reachable on the twin",
+                             f"{what}: the flange would be {off:.1f} deg from tool-down "
+                             "(the pusher only points down)", task=task)
+    d = tool_offset(tool, pusher_length_mm)
+    out = (p[0] - d[0], p[1] - d[1], p[2] - d[2])
+    if out[2] < 0.0:
+        raise program_failed("Position outside reach",
+                             f"{what}: the pusher would be {-out[2]:.1f} mm below the table",
+                             task=task)
+    return out
+
+
+def _speed(s: SpeedData, ratio: float, task: str, what: str) -> float:
+    if not s.v_tcp > 0.0:
+        raise program_failed("Invalid speed", f"{what}: v_tcp = {s.v_tcp:g}", task=task)
+    return min(s.v_tcp * max(ratio, 1.0) / 100.0, MAX_SPEED_MM_S)
+
+
+def arc_points(a: Vec3, b: Vec3, c: Vec3) -> list[Vec3]:
+    """Chords of the circle from ``a`` through ``b`` to ``c`` (ends included but ``a``);
+    ``ValueError`` if the three points are (nearly) on one line."""
+    u = [b[i] - a[i] for i in range(3)]
+    v = [c[i] - a[i] for i in range(3)]
+
+    def cross(x: Sequence[float], y: Sequence[float]) -> list[float]:
+        return [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]]
+
+    w = cross(u, v)
+    ww = sum(x * x for x in w)
+    uu, vv = sum(x * x for x in u), sum(x * x for x in v)
+    if ww < 1e-9 * max(uu * vv, 1e-12) or uu < 1e-6 or vv < 1e-6:
+        raise ValueError("the circle point and the end point are on a line with the start")
+    vw, wu = cross(v, w), cross(w, u)
+    centre = [a[i] + (uu * vw[i] + vv * wu[i]) / (2.0 * ww) for i in range(3)]
+    r_vec = [a[i] - centre[i] for i in range(3)]
+    r = math.sqrt(sum(x * x for x in r_vec))
+    n = [x / math.sqrt(ww) for x in w]
+    e1 = [x / r for x in r_vec]
+    e2 = cross(n, e1)
+    rel = [c[i] - centre[i] for i in range(3)]
+    sweep = math.atan2(sum(x * y for x, y in zip(rel, e2, strict=True)),
+                       sum(x * y for x, y in zip(rel, e1, strict=True))) % (2.0 * math.pi)
+    k = max(4, math.ceil(math.degrees(sweep) / CHORD_DEG))
+    pts: list[Vec3] = []
+    for i in range(1, k):
+        t = sweep * i / k
+        pts.append(tuple(centre[j] + r * (math.cos(t) * e1[j] + math.sin(t) * e2[j])
+                         for j in range(3)))  # type: ignore[arg-type]
+    return [*pts, c]
+
+
+# --- programs -> waypoints ------------------------------------------------------------------
+@dataclass
+class _ArmContext:
+    tp: TaskProgram
+    here: Vec3
+    rest_joints: tuple[float, ...]
+    rest_xyz: Vec3
+    pusher_length_mm: float
+    ratio: float
+
+
+def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
+    """The waypoints of one move command (updates ``ctx.here``)."""
+    task, what, prog = ctx.tp.task, describe(cmd), ctx.tp.program
+    if isinstance(cmd, EGMRunJoint | EGMRunPose | EGMMoveL | EGMMoveC):
+        raise program_failed("EGM not available on the twin", what, task=task)
+    if isinstance(cmd, MoveAbsJ):
+        j = cmd.to_joint_pos
+        want = (*j.robax, j.extax[0])
+        if len(ctx.rest_joints) != len(want) or any(
+                abs(x - y) > JOINT_TOLERANCE_DEG for x, y in zip(want, ctx.rest_joints,
+                                                                  strict=True)):
+            raise program_failed("Joint target not reachable on the twin",
+                                 f"{what}: {[round(x, 3) for x in want]} is not the rest pose "
+                                 f"{list(ctx.rest_joints)} (the twin has no kinematics)",
+                                 task=task)
+        ctx.here = ctx.rest_xyz
+        return [{"kind": "rest", "xyz_mm": None, "fine": cmd.zone.finep,
+                 "speed_mm_s": _speed(cmd.speed, ctx.ratio, task, what)}]
+    assert isinstance(cmd, MoveJ | MoveL | MoveC)
+    v = _speed(cmd.speed, ctx.ratio, task, what)
+    end = cell_point(cmd.to_point, prog.tool, prog.wobj, ctx.pusher_length_mm, task=task,
+                     what=what)
+    if isinstance(cmd, MoveC):
+        via = cell_point(cmd.cir_point, prog.tool, prog.wobj, ctx.pusher_length_mm,
+                         task=task, what=f"{what} (circle point)")
+        try:
+            pts = arc_points(ctx.here, via, end)
+        except ValueError as exc:
+            raise program_failed("Circle not defined", f"{what}: {exc}", task=task) from None
+    else:
+        pts = [end]
+    kind = "move_j" if isinstance(cmd, MoveJ) else "move_l"
+    ctx.here = end
+    return [{"kind": kind, "xyz_mm": list(p), "speed_mm_s": v,
+             "fine": cmd.zone.finep if p is end else False} for p in pts]
+
+
+def arm_plan(ctx: _ArmContext) -> list[_Block | _Wait]:
+    """One arm's program as blocks of moves and waits."""
+    out: list[_Block | _Wait] = []
+    for cmd in ctx.tp.program.commands:
+        if isinstance(cmd, CirPathMode | SyncMoveOn | SyncMoveOff):
+            continue
+        if isinstance(cmd, WaitTime):
+            if cmd.t < 0.0:
+                raise program_failed("Invalid WaitTime", f"{describe(cmd)}: {cmd.t:g} s",
+                                     task=ctx.tp.task)
+            out.append(_Wait(cmd.t, cmd.cmd_num))
+            continue
+        wps = _moves(ctx, cmd)
+        if not out or not isinstance(out[-1], _Block):
+            out.append(_Block())
+        block = out[-1]
+        assert isinstance(block, _Block)
+        block.waypoints += wps
+        block.cmd_nums += [cmd.cmd_num] * len(wps)
+    return out
+
+
+# --- the log -------------------------------------------------------------------------------------
+def _f32(v: float) -> bytes:
+    return struct.pack("<f", v)
+
+
+def _log_str(s: str) -> bytes:
+    raw = s.encode("ascii")
+    return _f32(len(raw)) + raw
+
+
+class _Log:
+    """The run's log file and its two event log entries."""
+
+    def __init__(self, run: ProgramRun, programs: Sequence[TaskProgram], enabled: bool,
+                 offsets: Mapping[str, Vec3]) -> None:
+        first = programs[0]
+        stamp = re.sub(r"[^0-9-]", "", first.program.timestamp) or "0"
+        self.name = f"log-{stamp}.bin"
+        self.run, self.programs, self.enabled = run, list(programs), enabled
+        self.offsets = dict(offsets)
+        self.timestamp = first.program.timestamp
+        self.columns = ["timestamp"] + [f"{tp.unit.name}_{c}" for tp in programs
+                                        for c in ("cmd_num", "x", "y", "z")]
+        self.rows: list[list[float]] = []
+        self.task = first.task
+
+    def _entry(self, header: str, reason: str) -> None:
+        self.run.controller.elog.write(ERRWRITE_INFO, MSG_INFO, header,
+                                       args=(header, reason, "", "", ""), src_name=self.task)
+
+    def open(self) -> None:
+        self.write_file()
+        self._entry(LOG_OPENED, f"RAMDISK:{self.name}")
+
+    def sample(self, t: float, cmd_nums: Mapping[str, int],
+               tcps: Mapping[str, Sequence[float]]) -> None:
+        if not self.enabled:
+            return
+        row = [t]
+        for tp in self.programs:
+            arm = tp.unit.arm
+            o, p = self.offsets[tp.task], tcps[arm]
+            row += [float(cmd_nums.get(arm, 0)), p[0] + o[0], p[1] + o[1], p[2] + o[2]]
+        self.rows.append(row)
+
+    def write_file(self) -> None:
+        body = b"".join(_f32(v) for row in self.rows for v in row)
+        data = _f32(FILE_VERSION) + _log_str(self.timestamp) + \
+            _log_str(",".join(self.columns)) + body
+        self.run.controller.files.put(f"RAMDISK:{self.name}", data)
+
+    def close(self) -> None:
+        self.write_file()
+        self._entry(LOG_CLOSED, f"RAMDISK:{self.name}")
+
+
+# --- the hook -------------------------------------------------------------------------------
+def _set_signal(run: ProgramRun, name: str, value: float) -> None:
+    with contextlib.suppress(RwsError):  # a twin configured without the library's signals
+        run.controller.signals.write(name, value)
+
+
+def _signal(run: ProgramRun, name: str) -> float:
+    try:
+        return run.controller.signals.value(name)
+    except RwsError:
+        return 0.0
+
+
+class _Clock:
+    """The simulated time of one ``cell.execute``, replayed from its frame callbacks (the
+    cell calls back at the first step ``i`` with ``i * dt >= next``, then ``next += dt_f``)."""
+
+    def __init__(self, frame_every_s: float) -> None:
+        self.every, self.next, self.step = frame_every_s, frame_every_s, 0
+
+    def tick(self) -> float:
+        i = self.step + 1
+        while i * TIME_STEP_S < self.next:
+            i += 1
+        self.step, self.next = i, self.next + self.every
+        return i * TIME_STEP_S
+
+
+class CellMotion:
+    """The start hook: ``Irc5Controller(units=units, poses=motion.poses, on_start=motion)``.
+
+    ``cell`` and ``cell_lock`` are the cell and the lock everything else that touches it
+    holds; ``pusher_length_mm`` is the flange's height above the cell's TCP (as
+    :class:`CellPoses`). ``frame_every_s``: how often (simulated seconds) the hook samples
+    the log, refreshes the positions RWS reads and looks for a stop. ``last_run`` holds
+    what each task of the latest run read (the twin's side: tests, the lab)."""
+
+    def __init__(self, cell: YumiTwinCell, cell_lock: threading.Lock | threading.RLock,
+                 units: Sequence[MechUnit] = YUMI_UNITS, *, pusher_length_mm: float = 0.0,
+                 frame_every_s: float = 0.02) -> None:
+        if frame_every_s < TIME_STEP_S:
+            raise ValueError(f"frame_every_s must be >= one physics step ({TIME_STEP_S:g} s)")
+        self.cell, self.cell_lock = cell, cell_lock
+        self.units = tuple(u for u in units if u.arm in cell.arms)
+        self.pusher_length_mm = float(pusher_length_mm)
+        self.frame_every_s = float(frame_every_s)
+        self._snap_lock = threading.Lock()
+        with cell_lock:
+            self._snap = dict(cell.tcp_xyz())
+        self.poses = CellPoses(self, threading.Lock(), self.units, self.pusher_length_mm)
+        self.last_run: dict[str, TaskProgram] = {}
+
+    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
+        """The cell's TCPs; while a motion holds the cell, the latest sample's."""
+        if self.cell_lock.acquire(blocking=False):
+            try:
+                self._refresh()
+            finally:
+                self.cell_lock.release()
+        with self._snap_lock:
+            return dict(self._snap)
+
+    def _refresh(self) -> dict[str, tuple[float, float, float]]:
+        """Read the cell (its lock held) into the snapshot."""
+        tcps = self.cell.tcp_xyz()
+        with self._snap_lock:
+            self._snap = dict(tcps)
+        return tcps
+
+    # --- a run ---------------------------------------------------------------------------
+    def _load(self, run: ProgramRun) -> list[TaskProgram]:
+        out = []
+        for task in run.tasks:
+            unit = next((u for u in self.units if u.task.upper() == task.upper()), None)
+            if unit is None:
+                continue  # not a motion task of this cell
+            path = program_file_for_task(unit.task)
+            try:
+                data = run.controller.files.read(path)
+            except RwsError:
+                raise ProgramFileError("Motion program file not found", "nothing uploaded",
+                                       path=path, task=unit.task) from None
+            try:
+                program = decode_program(data, path)
+            except ProgramFileError as exc:
+                exc.task = unit.task
+                raise
+            out.append(TaskProgram(unit.task, unit, path, program))
+        return out
+
+    def __call__(self, run: ProgramRun) -> None:
+        programs = self._load(run)
+        self.last_run = {tp.task: tp for tp in programs}
+        if not programs:
+            return
+        with self.cell_lock:
+            here = self._refresh()
+        ratio = float(run.controller.speedratio)
+        plans = {}
+        for tp in programs:
+            arm = tp.unit.arm
+            ctx = _ArmContext(tp, tuple(here[arm]), tuple(self.poses.joints(tp.unit)),  # type: ignore[arg-type]
+                              REST_MM[self.cell.sides[arm]], self.pusher_length_mm, ratio)
+            plans[arm] = arm_plan(ctx)
+        logging = _signal(run, "motion_program_log_motion") > 0
+        offsets = {tp.task: tool_offset(tp.program.tool, self.pusher_length_mm)
+                   for tp in programs}
+        log = _Log(run, programs, logging, offsets)
+        log.open()
+        done = self._rounds(run, plans, log, programs[0].unit.arm)
+        if done:
+            log.close()
+        else:
+            log.write_file()  # stopped: what was logged, no "Closed" entry
+
+    def _rounds(self, run: ProgramRun, plans: Mapping[str, list[_Block | _Wait]], log: _Log,
+                lead: str) -> bool:
+        """Run the arms' blocks together, round by round; False if stopped."""
+        idx = dict.fromkeys(plans, 0)
+        clock = 0.0
+        while not run.stop_requested.is_set():
+            blocks = {a: p[idx[a]] for a, p in plans.items()
+                      if idx[a] < len(p) and isinstance(p[idx[a]], _Block)}
+            if blocks:
+                took = self._move(run, blocks, log, clock, lead)  # type: ignore[arg-type]
+                if took is None:
+                    return False
+                clock += took
+                for a in blocks:
+                    idx[a] += 1
+            waits = {a: p[idx[a]] for a, p in plans.items()
+                     if idx[a] < len(p) and isinstance(p[idx[a]], _Wait)}
+            if waits:
+                t = max(w.t for w in waits.values())  # type: ignore[union-attr]
+                _set_signal(run, "motion_program_current_cmd_num",
+                            float(waits.get(lead, next(iter(waits.values()))).cmd_num))  # type: ignore[union-attr]
+                if self.cell.realtime > 0 and run.stop_requested.wait(t / self.cell.realtime):
+                    return False
+                clock += t
+                for a in waits:
+                    idx[a] += 1
+            if not blocks and not waits:
+                return True
+        return False
+
+    def _move(self, run: ProgramRun, blocks: Mapping[str, _Block], log: _Log, t0: float,
+              lead: str) -> float | None:
+        """One ``cell.execute`` of every arm's block; its simulated time, None if stopped."""
+        programs = {a: b.waypoints for a, b in blocks.items()}
+        clock = _Clock(self.frame_every_s)
+        with self.cell_lock:
+            try:
+                trajs = self.cell.plan(programs)
+            except ValueError as exc:
+                task = next(tp.task for tp in log.programs if tp.unit.arm in blocks)
+                raise program_failed("Motion refused by the twin cell", str(exc),
+                                     task=task) from None
+            ends = {a: list(_cumulative(s.duration for s in trajs[a].segments)) for a in trajs}
+            last_t = [0.0]
+
+            def frame() -> None:
+                t = last_t[0] = clock.tick()
+                nums = {a: _cmd_at(ends[a], blocks[a].cmd_nums, t) for a in blocks}
+                tcps = self._refresh()
+                log.sample(t0 + t, nums, tcps)
+                if lead in nums:
+                    _set_signal(run, "motion_program_current_cmd_num", float(nums[lead]))
+                if run.stop_requested.is_set():
+                    raise _Halted
+
+            try:
+                took = self.cell.execute(programs, on_frame=frame,
+                                         frame_every_s=self.frame_every_s)
+            except _Halted:
+                self._hold(trajs, last_t[0])
+                self._refresh()
+                return None
+            tcps = self._refresh()
+        log.sample(t0 + took, {a: b.cmd_nums[-1] for a, b in blocks.items()}, tcps)
+        return took
+
+    def _hold(self, trajs: Mapping[str, Any], t: float) -> None:
+        """After a stop: each pusher stays where its constraint was last put (the cell
+        keeps it there); the cell's own record of the commanded TCP, from which its next
+        program starts, is set to that point (``YumiTwinCell.hold``)."""
+        for arm, traj in trajs.items():
+            self.cell.hold(arm, traj.at(t))
+
+
+def _cumulative(durations: Any) -> list[float]:
+    out, total = [], 0.0
+    for d in durations:
+        total += d
+        out.append(total)
+    return out
+
+
+def _cmd_at(ends: Sequence[float], cmd_nums: Sequence[int], t: float) -> int:
+    for end, n in zip(ends, cmd_nums, strict=True):
+        if t < end:
+            return n
+    return cmd_nums[-1]
