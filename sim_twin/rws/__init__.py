@@ -15,7 +15,9 @@ routes), ``rws_service`` (auth, sessions, the lab side channel), ``rws_server`` 
 ``digest_auth``, ``event_log``, ``file_store``, ``io_signals``, ``rapid_data``,
 ``mechunits``, ``cell_link`` (positions from a ``YumiTwinCell``), ``shapes`` (JSON and
 XHTML), ``motion_program`` (the library's program file, decoded) and ``motion_exec``
-(``CellMotion``: the start hook that runs those programs on a ``YumiTwinCell``).
+(``CellMotion``: the start hook that runs those programs on a ``YumiTwinCell``, as the
+library's own RAPID would), ``testbed_rapid`` (``TestbedRapid``: the same with the
+semantics of the project's RAPID, ``robot/rapid/``: one program file per task).
 ``python -m sim_twin.rws`` serves one (``--cell``: with the twin's pushers moving).
 
 Use::

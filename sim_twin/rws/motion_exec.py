@@ -426,13 +426,17 @@ class CellMotion:
         return tcps
 
     # --- a run ---------------------------------------------------------------------------
+    def program_file(self, task: str) -> str:
+        """The file ``task`` reads: the library's naming (a variant overrides it)."""
+        return program_file_for_task(task)
+
     def _load(self, run: ProgramRun) -> list[TaskProgram]:
         out = []
         for task in run.tasks:
             unit = next((u for u in self.units if u.task.upper() == task.upper()), None)
             if unit is None:
                 continue  # not a motion task of this cell
-            path = program_file_for_task(unit.task)
+            path = self.program_file(unit.task)
             try:
                 data = run.controller.files.read(path)
             except RwsError:
@@ -451,15 +455,7 @@ class CellMotion:
         self.last_run = {tp.task: tp for tp in programs}
         if not programs:
             return
-        with self.cell_lock:
-            here = self._refresh()
-        ratio = float(run.controller.speedratio)
-        plans = {}
-        for tp in programs:
-            arm = tp.unit.arm
-            ctx = _ArmContext(tp, tuple(here[arm]), tuple(self.poses.joints(tp.unit)),  # type: ignore[arg-type]
-                              REST_MM[self.cell.sides[arm]], self.pusher_length_mm, ratio)
-            plans[arm] = arm_plan(ctx)
+        plans = self._plans(run, programs)
         logging = _signal(run, "motion_program_log_motion") > 0
         offsets = {tp.task: tool_offset(tp.program.tool, self.pusher_length_mm)
                    for tp in programs}
@@ -471,8 +467,22 @@ class CellMotion:
         else:
             log.write_file()  # stopped: what was logged, no "Closed" entry
 
-    def _rounds(self, run: ProgramRun, plans: Mapping[str, list[_Block | _Wait]], log: _Log,
-                lead: str) -> bool:
+    def _plans(self, run: ProgramRun, programs: Sequence[TaskProgram]
+               ) -> dict[str, list[_Block | _Wait]]:
+        """Every task's program as its arm's blocks and waits, from where the arm is."""
+        with self.cell_lock:
+            here = self._refresh()
+        ratio = float(run.controller.speedratio)
+        plans = {}
+        for tp in programs:
+            arm = tp.unit.arm
+            ctx = _ArmContext(tp, tuple(here[arm]), tuple(self.poses.joints(tp.unit)),  # type: ignore[arg-type]
+                              REST_MM[self.cell.sides[arm]], self.pusher_length_mm, ratio)
+            plans[arm] = arm_plan(ctx)
+        return plans
+
+    def _rounds(self, run: ProgramRun, plans: Mapping[str, list[_Block | _Wait]],
+                log: _Log | None, lead: str) -> bool:
         """Run the arms' blocks together, round by round; False if stopped."""
         idx = dict.fromkeys(plans, 0)
         clock = 0.0
@@ -501,8 +511,8 @@ class CellMotion:
                 return True
         return False
 
-    def _move(self, run: ProgramRun, blocks: Mapping[str, _Block], log: _Log, t0: float,
-              lead: str) -> float | None:
+    def _move(self, run: ProgramRun, blocks: Mapping[str, _Block], log: _Log | None,
+              t0: float, lead: str) -> float | None:
         """One ``cell.execute`` of every arm's block; its simulated time, None if stopped."""
         programs = {a: b.waypoints for a, b in blocks.items()}
         clock = _Clock(self.frame_every_s)
@@ -510,7 +520,7 @@ class CellMotion:
             try:
                 trajs = self.cell.plan(programs)
             except ValueError as exc:
-                task = next(tp.task for tp in log.programs if tp.unit.arm in blocks)
+                task = next(u.task for u in self.units if u.arm in blocks)
                 raise program_failed("Motion refused by the twin cell", str(exc),
                                      task=task) from None
             ends = {a: list(_cumulative(s.duration for s in trajs[a].segments)) for a in trajs}
@@ -520,7 +530,8 @@ class CellMotion:
                 t = last_t[0] = clock.tick()
                 nums = {a: _cmd_at(ends[a], blocks[a].cmd_nums, t) for a in blocks}
                 tcps = self._refresh()
-                log.sample(t0 + t, nums, tcps)
+                if log is not None:
+                    log.sample(t0 + t, nums, tcps)
                 if lead in nums:
                     _set_signal(run, "motion_program_current_cmd_num", float(nums[lead]))
                 if run.stop_requested.is_set():
@@ -534,7 +545,8 @@ class CellMotion:
                 self._refresh()
                 return None
             tcps = self._refresh()
-        log.sample(t0 + took, {a: b.cmd_nums[-1] for a, b in blocks.items()}, tcps)
+        if log is not None:
+            log.sample(t0 + took, {a: b.cmd_nums[-1] for a, b in blocks.items()}, tcps)
         return took
 
     def _hold(self, trajs: Mapping[str, Any], t: float) -> None:

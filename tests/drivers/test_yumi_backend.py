@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -173,14 +174,41 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
     assert rapid.count("MoveL") == 3 and "MoveJ" in rapid and "MoveAbsJ" in rapid
     assert "[40,500,5000,1000]" in rapid.replace(" ", "").replace(".0", "")
     calls: list[tuple[object, ...]] = []
-    client = ctrl._client
-    monkeypatch.setattr(client, "execute_multimove_motion_program",
-                        lambda mps, tasks, wait: calls.append((len(mps), tasks, wait)) or 5)
-    monkeypatch.setattr(client, "is_motion_program_running", lambda: True)
-    monkeypatch.setattr(client, "stop_motion_program", lambda: calls.append(("stop",)))
+
+    class Rws:  # the RWS calls of our execute path, recorded; RAPID never ends
+        state = "stopped"
+
+        def get_execution_state(self) -> SimpleNamespace:
+            return SimpleNamespace(ctrlexecstate=self.state)
+
+        def get_controller_state(self) -> str:
+            return "motoron"
+
+        def read_event_log(self) -> list[SimpleNamespace]:
+            return [SimpleNamespace(seqnum=5)]
+
+        def resetpp(self) -> None:
+            calls.append(("resetpp",))
+
+        def get_ramdisk_path(self) -> str:
+            return "$TEMP"
+
+        def upload_file(self, name: str, data: bytes) -> None:
+            calls.append(("upload", name))
+
+        def start(self, cycle: str, tasks: list[str]) -> None:
+            calls.append(("start", cycle, tasks))
+            self.state = "running"
+
+        def stop(self) -> None:
+            calls.append(("stop",))
+
+    monkeypatch.setattr(ctrl, "_rws", Rws())
     with pytest.raises(BackendError, match=r"did not finish within 0\.3 s"):
         ctrl.execute({"left": wps, "right": [Waypoint("rest", None, 100.0)]})
-    assert calls == [(2, ["T_ROB_L", "T_ROB_R"], False), ("stop",)]
+    assert calls == [("resetpp",), ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+                     ("upload", "$TEMP/testbed_T_ROB_R.bin"),
+                     ("start", "once", ["T_ROB_L", "T_ROB_R"]), ("stop",)]
 
 
 def test_yumi_agent_with_an_unreachable_controller_faults_clearly(tmp_path: Path) -> None:

@@ -1,0 +1,324 @@
+MODULE TestbedMotion
+  ! The testbed's motion program interpreter: ONE copy of this module in EACH arm's task
+  ! (T_ROB_L and T_ROB_R), next to that task's TestbedTask_L / TestbedTask_R module.
+  !
+  ! Why our own: abb_motion_program_exec's client names a task's program file after the
+  ! task's trailing digits, so the YuMi's T_ROB_L and T_ROB_R would share one file and
+  ! the second arm's program would overwrite the first's. This module reads the same
+  ! binary format (MotionProgram.get_program_bytes: little-endian float32 numbers,
+  ! version 10011) from a file FIXED PER TASK (tb_name in the task module), which is
+  ! where drivers/yumi/yumi_controller.py uploads it. Written for this project from the
+  ! Python writer's format; no RAPID code of any other project was used.
+  !
+  ! What it does (docs/notes/rws.md, "Our RAPID side"):
+  !   1. reads and checks the WHOLE file before the first motion (version, tool, work
+  !      object, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3 and WaitTime 5, at most
+  !      TB_MAX_CMDS commands, no robtarget below tb_floor_z, speeds > 0);
+  !   2. runs the commands with tool_pusher (tframe from the file, load from the task
+  !      module) in the file's work object; MoveJ with ConfJ On, MoveL with ConfL Off;
+  !      the TCP speed from the file, orientation and axis speeds from TB_V_* below;
+  !   3. waits until the arm is in position (WaitRob InPos) and writes
+  !      ErrWrite info (80003) "Testbed Motion Done": task, "seqno <n>", "commands <k>",
+  !      the file; or, when it refuses the file, ErrWrite (80001) "Testbed Motion
+  !      Failed": reason, the file, the detail, "at byte <offset>". No log file, no
+  !      signals: the driver reads the event log only.
+  ! A motion error (out of reach, collision, a stop) is the controller's own: it stops
+  ! the task and is in the event log with its own code; the driver reports it the same.
+  ! Routines are global in the task (rapidchecker's grammar has no LOCAL routines); the
+  ! tb_ prefix keeps them apart from the task's other names.
+  CONST string TB_DIR := "RAMDISK:";
+  CONST num TB_VERSION := 10011;
+  CONST num TB_MAX_CMDS := 64;
+  CONST string TB_DONE := "Testbed Motion Done";
+  CONST string TB_FAILED := "Testbed Motion Failed";
+  ! Orientation speed (deg/s): the pusher always points down, so this only paces the
+  ! reorientation out of the rest pose; slow enough that the TCP speed, not a wrist
+  ! swing, sets every push (a push is a straight line at constant orientation).
+  CONST num TB_V_ORI := 100;
+  ! Linear external axes (mm/s): the YuMi has none; a harmless value.
+  CONST num TB_V_LEAX := 1000;
+  ! Rotational external axes (deg/s): on the YuMi this is axis 7, the arm angle, which
+  ! every robtarget keeps at the calibrated value; slow, as it only moves out of rest.
+  CONST num TB_V_REAX := 100;
+
+  LOCAL VAR errnum tb_err := -1;
+  LOCAL VAR iodev tb_dev;
+  LOCAL VAR rawbytes tb_raw;
+  LOCAL VAR num tb_pos;
+  LOCAL VAR num tb_n;
+  LOCAL VAR num tb_seqno;
+  LOCAL VAR string tb_reason;
+  LOCAL VAR string tb_detail;
+  LOCAL VAR num tb_op{TB_MAX_CMDS};
+  LOCAL VAR num tb_cmd{TB_MAX_CMDS};
+  LOCAL VAR robtarget tb_pt{TB_MAX_CMDS};
+  LOCAL VAR jointtarget tb_jt{TB_MAX_CMDS};
+  LOCAL VAR speeddata tb_speed{TB_MAX_CMDS};
+  LOCAL VAR zonedata tb_zone{TB_MAX_CMDS};
+  LOCAL VAR num tb_wait{TB_MAX_CMDS};
+  LOCAL PERS wobjdata tb_wobj := [FALSE,TRUE,"",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
+
+  ! --- the entry: called from main in TestbedTask_L / TestbedTask_R ---------------------
+  PROC tb_run()
+    VAR num size;
+    tb_n := 0;
+    tb_pos := 0;
+    tb_reason := "";
+    tb_detail := "";
+    IF tb_err < 0 BookErrNo tb_err;
+    size := FileSize(TB_DIR + tb_name);
+    Open TB_DIR \File:=tb_name, tb_dev \Read \Bin;
+    tb_header;
+    WHILE tb_pos < size DO
+      tb_command;
+    ENDWHILE
+    Close tb_dev;
+    tb_execute;
+    ErrWrite \I, TB_DONE, GetTaskName() \RL2:="seqno " + NumToStr(tb_seqno, 0)
+      \RL3:="commands " + NumToStr(tb_n, 0) \RL4:=TB_DIR + tb_name;
+  ERROR
+    TEST ERRNO
+    CASE ERR_FILEOPEN:
+      tb_reason := "Motion program file not found";
+      tb_detail := "nothing uploaded";
+    CASE ERR_FILEACC:
+      tb_reason := "Motion program file not found";
+      tb_detail := "nothing uploaded (or not readable)";
+    CASE ERR_RANYBIN_EOF:
+      tb_reason := "Motion program file truncated";
+      tb_detail := "the file ends inside a value";
+    CASE tb_err:
+      ! tb_reason and tb_detail were set where the file was refused
+    DEFAULT:
+      ! not a refusal of ours: the controller's own error stops the task
+      Close tb_dev;
+      RAISE;
+    ENDTEST
+    Close tb_dev;
+    ErrWrite TB_FAILED, tb_reason \RL2:=TB_DIR + tb_name \RL3:=tb_detail
+      \RL4:="at byte " + NumToStr(tb_pos, 0);
+    RETURN;
+  ENDPROC
+
+  ! --- reading the file ------------------------------------------------------------------
+  PROC tb_fail(string reason, string detail)
+    tb_reason := reason;
+    tb_detail := detail;
+    RAISE tb_err;
+  ENDPROC
+
+  FUNC num tb_num()
+    VAR num v;
+    ReadRawBytes tb_dev, tb_raw, 4 \Time:=5;
+    UnpackRawBytes tb_raw, 1, v \Float4;
+    tb_pos := tb_pos + 4;
+    RETURN v;
+  ENDFUNC
+
+  FUNC bool tb_bool(string what)
+    VAR num v;
+    v := tb_num();
+    IF v <> 0 AND v <> 1 tb_fail "Invalid bool in motion program", what + " is " + NumToStr(v, 3);
+    RETURN v = 1;
+  ENDFUNC
+
+  FUNC string tb_str(string what)
+    VAR num len;
+    VAR string s := "";
+    len := tb_num();
+    IF len < 0 OR len > 32 OR len <> Round(len) THEN
+      tb_fail "Invalid string in motion program", what + " length " + NumToStr(len, 0);
+    ENDIF
+    ReadRawBytes tb_dev, tb_raw, 32 \Time:=5;
+    tb_pos := tb_pos + 32;
+    IF len > 0 UnpackRawBytes tb_raw, 1, s \ASCII:=len;
+    RETURN s;
+  ENDFUNC
+
+  FUNC pose tb_pose()
+    VAR pose p;
+    p.trans.x := tb_num();
+    p.trans.y := tb_num();
+    p.trans.z := tb_num();
+    p.rot.q1 := tb_num();
+    p.rot.q2 := tb_num();
+    p.rot.q3 := tb_num();
+    p.rot.q4 := tb_num();
+    RETURN p;
+  ENDFUNC
+
+  FUNC loaddata tb_load()
+    VAR loaddata l;
+    l.mass := tb_num();
+    l.cog.x := tb_num();
+    l.cog.y := tb_num();
+    l.cog.z := tb_num();
+    l.aom.q1 := tb_num();
+    l.aom.q2 := tb_num();
+    l.aom.q3 := tb_num();
+    l.aom.q4 := tb_num();
+    l.ix := tb_num();
+    l.iy := tb_num();
+    l.iz := tb_num();
+    RETURN l;
+  ENDFUNC
+
+  FUNC extjoint tb_extax()
+    VAR extjoint e;
+    e.eax_a := tb_num();
+    e.eax_b := tb_num();
+    e.eax_c := tb_num();
+    e.eax_d := tb_num();
+    e.eax_e := tb_num();
+    e.eax_f := tb_num();
+    RETURN e;
+  ENDFUNC
+
+  FUNC robtarget tb_robtarget()
+    VAR robtarget t;
+    VAR pose p;
+    p := tb_pose();
+    t.trans := p.trans;
+    t.rot := p.rot;
+    t.robconf.cf1 := tb_num();
+    t.robconf.cf4 := tb_num();
+    t.robconf.cf6 := tb_num();
+    t.robconf.cfx := tb_num();
+    t.extax := tb_extax();
+    RETURN t;
+  ENDFUNC
+
+  FUNC jointtarget tb_jointtarget()
+    VAR jointtarget j;
+    j.robax.rax_1 := tb_num();
+    j.robax.rax_2 := tb_num();
+    j.robax.rax_3 := tb_num();
+    j.robax.rax_4 := tb_num();
+    j.robax.rax_5 := tb_num();
+    j.robax.rax_6 := tb_num();
+    j.extax := tb_extax();
+    RETURN j;
+  ENDFUNC
+
+  FUNC speeddata tb_speeddata(string what)
+    VAR speeddata s;
+    s.v_tcp := tb_num();
+    s.v_ori := tb_num();
+    s.v_leax := tb_num();
+    s.v_reax := tb_num();
+    IF s.v_tcp <= 0 tb_fail "Invalid speed", what + ": v_tcp = " + NumToStr(s.v_tcp, 1);
+    ! the TCP speed is the step's (the driver's); the others are the cell's (above)
+    s.v_ori := TB_V_ORI;
+    s.v_leax := TB_V_LEAX;
+    s.v_reax := TB_V_REAX;
+    RETURN s;
+  ENDFUNC
+
+  FUNC zonedata tb_zonedata(string what)
+    VAR zonedata z;
+    z.finep := tb_bool(what + " finep");
+    z.pzone_tcp := tb_num();
+    z.pzone_ori := tb_num();
+    z.pzone_eax := tb_num();
+    z.zone_ori := tb_num();
+    z.zone_leax := tb_num();
+    z.zone_reax := tb_num();
+    RETURN z;
+  ENDFUNC
+
+  PROC tb_header()
+    VAR num version;
+    VAR loaddata ignored;
+    VAR string stamp;
+    version := tb_num();
+    IF version <> TB_VERSION THEN
+      tb_fail "Invalid motion program file version", NumToStr(version, 0) + " (expected "
+        + NumToStr(TB_VERSION, 0) + ")";
+    ENDIF
+    IF NOT tb_bool("tool robhold") tb_fail "Stationary tool not supported", "tool robhold";
+    ! the pusher's geometry is the calibration's (the file), its load the task module's
+    tool_pusher.tframe := tb_pose();
+    ignored := tb_load();
+    tb_wobj.robhold := tb_bool("wobj robhold");
+    tb_wobj.ufprog := tb_bool("wobj ufprog");
+    tb_wobj.ufmec := tb_str("wobj ufmec");
+    tb_wobj.uframe := tb_pose();
+    tb_wobj.oframe := tb_pose();
+    IF tb_wobj.robhold OR NOT tb_wobj.ufprog OR tb_wobj.ufmec <> "" THEN
+      tb_fail "Moving work object not supported", "robhold, ufprog or ufmec";
+    ENDIF
+    ! the grip load: the pusher holds nothing
+    ignored := tb_load();
+    stamp := tb_str("timestamp");
+    tb_seqno := tb_num();
+    IF tb_num() <> 0 tb_fail "EGM not supported", "the file asks for an EGM configuration";
+  ENDPROC
+
+  PROC tb_command()
+    VAR string what;
+    IF tb_n >= TB_MAX_CMDS THEN
+      tb_fail "Too many commands", "more than " + NumToStr(TB_MAX_CMDS, 0);
+    ENDIF
+    tb_n := tb_n + 1;
+    tb_cmd{tb_n} := tb_num();
+    tb_op{tb_n} := tb_num();
+    what := "cmd_num " + NumToStr(tb_cmd{tb_n}, 0);
+    TEST tb_op{tb_n}
+    CASE 1:
+      tb_jt{tb_n} := tb_jointtarget();
+      tb_speed{tb_n} := tb_speeddata("MoveAbsJ " + what);
+      tb_zone{tb_n} := tb_zonedata("MoveAbsJ " + what);
+    CASE 2:
+      tb_target "MoveJ " + what;
+    CASE 3:
+      tb_target "MoveL " + what;
+    CASE 5:
+      tb_wait{tb_n} := tb_num();
+      IF tb_wait{tb_n} < 0 tb_fail "Invalid WaitTime", "WaitTime " + what;
+    CASE 4:
+      tb_fail "Unsupported command", "MoveC " + what;
+    CASE 6:
+      tb_fail "Unsupported command", "CirPathMode " + what;
+    CASE 7:
+      tb_fail "Unsupported command", "SyncMoveOn " + what;
+    CASE 8:
+      tb_fail "Unsupported command", "SyncMoveOff " + what;
+    DEFAULT:
+      tb_fail "Invalid motion program command", "unknown opcode " + NumToStr(tb_op{tb_n}, 0)
+        + " (" + what + ")";
+    ENDTEST
+  ENDPROC
+
+  PROC tb_target(string what)
+    tb_pt{tb_n} := tb_robtarget();
+    IF tb_pt{tb_n}.trans.z < tb_floor_z THEN
+      tb_fail "Target below the table", what + ": z " + NumToStr(tb_pt{tb_n}.trans.z, 1)
+        + " mm < " + NumToStr(tb_floor_z, 1) + " mm";
+    ENDIF
+    tb_speed{tb_n} := tb_speeddata(what);
+    tb_zone{tb_n} := tb_zonedata(what);
+  ENDPROC
+
+  ! --- running it ------------------------------------------------------------------------
+  PROC tb_execute()
+    ! MoveJ keeps the calibrated configuration (confdata from the calibration file): a
+    ! joint move never flips a wrist; MoveL may keep the configuration it starts in, as
+    ! a push is a short line whose targets come from pixels, not taught poses.
+    ConfJ \On;
+    ConfL \Off;
+    FOR i FROM 1 TO tb_n DO
+      TEST tb_op{i}
+      CASE 1:
+        MoveAbsJ tb_jt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=tb_wobj;
+      CASE 2:
+        MoveJ tb_pt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=tb_wobj;
+      CASE 3:
+        MoveL tb_pt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=tb_wobj;
+      CASE 5:
+        WaitTime \InPos, tb_wait{i};
+      ENDTEST
+    ENDFOR
+    ! a last fly-by point is not the end: "done" means the arm is there
+    WaitRob \InPos;
+  ENDPROC
+ENDMODULE

@@ -1,0 +1,145 @@
+"""The agent's real YuMi controller client (``RwsYumiController``) against the RWS twin
+serving a real ``YumiTwinCell`` with OUR RAPID's semantics (``TestbedRapid``): a two-arm
+step uploads one file per task and moves BOTH arms to their own targets (the library's
+naming put both programs in one file and the left arm ran the right's), a one-arm step
+moves only that arm, and a refusal of our RAPID reaches the caller as one line naming the
+event-log entry."""
+
+from __future__ import annotations
+
+import struct
+import threading
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from drivers.errors import BackendError
+from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, Waypoint
+from sim_twin.rws import Irc5Controller, RwsServer, serve
+from sim_twin.rws.mechunits import YUMI_UNITS
+from sim_twin.rws.motion_exec import CellMotion
+from sim_twin.rws.testbed_rapid import TestbedRapid
+from sim_twin.yumi_cell import YumiTwinCell
+from sim_twin.yumi_geometry import REST_MM
+
+PUSHER_MM = 100.0
+LEFT, RIGHT = (400.0, 200.0, 60.0), (420.0, -180.0, 40.0)
+Made = tuple[RwsYumiController, Irc5Controller, YumiTwinCell, CellMotion, threading.Lock]
+
+
+@pytest.fixture
+def yumi() -> Iterator[Callable[..., Made]]:
+    made: list[tuple[RwsServer, YumiTwinCell, RwsYumiController]] = []
+
+    def make(hook: type[CellMotion] = TestbedRapid) -> Made:
+        cell = YumiTwinCell(3, realtime=0.0)
+        lock = threading.Lock()
+        motion = hook(cell, lock, YUMI_UNITS, pusher_length_mm=PUSHER_MM)
+        ctrl = Irc5Controller(units=YUMI_UNITS, poses=motion.poses, on_start=motion)
+        server = serve(ctrl)
+        poses = {u.arm: ArmPose(u.task, u.name, tuple(motion.poses.joints(u)),
+                                tool_z_mm=PUSHER_MM) for u in YUMI_UNITS}
+        client = RwsYumiController(server.url, poses, http_timeout_s=20.0,
+                                   motion_timeout_s=60.0)
+        made.append((server, cell, client))
+        return client, ctrl, cell, motion, lock
+
+    yield make
+    for server, cell, client in made:
+        client.close()
+        server.stop()
+        cell.close()
+
+
+def tcps(cell: YumiTwinCell, lock: threading.Lock) -> dict[str, tuple[float, float, float]]:
+    with lock:
+        return cell.tcp_xyz()
+
+
+def to(xyz: tuple[float, float, float]) -> list[Waypoint]:
+    above = (xyz[0], xyz[1], xyz[2] + 40.0)
+    return [Waypoint("move_j", above, 400.0, fine=False), Waypoint("move_l", xyz, 150.0)]
+
+
+def test_a_two_arm_step_moves_each_arm_to_its_own_target(yumi: Any) -> None:
+    client, ctrl, cell, motion, lock = yumi()
+    client.execute({"left": to(LEFT), "right": to(RIGHT)})
+    assert sorted(f["_title"] for f in ctrl.files.listdir("$TEMP")) == [
+        "testbed_T_ROB_L.bin", "testbed_T_ROB_R.bin"]  # two files: no clash
+    assert {t: tp.path for t, tp in motion.last_run.items()} == {
+        "T_ROB_L": "RAMDISK:testbed_T_ROB_L.bin", "T_ROB_R": "RAMDISK:testbed_T_ROB_R.bin"}
+    got = tcps(cell, lock)
+    assert got["left"] == pytest.approx(LEFT, abs=1.0)
+    assert got["right"] == pytest.approx(RIGHT, abs=1.0)
+    assert client.tcp_xyz()["left"][2] == pytest.approx(LEFT[2] + PUSHER_MM, abs=1.0)  # tool0
+    done = [e for e in ctrl.elog.entries() if e.title == "Testbed Motion Done"]
+    assert sorted(e.args[1] for e in done) == ["T_ROB_L", "T_ROB_R"]
+    assert {e.args[2] for e in done} == {"seqno 1"}
+    client.execute({"left": [Waypoint("rest", None, 500.0)],  # the next step: seqno 2
+                    "right": [Waypoint("rest", None, 500.0)]})
+    got = tcps(cell, lock)
+    assert got["left"] == pytest.approx(REST_MM["left"], abs=1.0)
+    assert got["right"] == pytest.approx(REST_MM["right"], abs=1.0)
+
+
+def test_a_one_arm_step_moves_only_that_arm(yumi: Any) -> None:
+    client, ctrl, cell, motion, lock = yumi()
+    before = tcps(cell, lock)
+    client.execute({"right": to(RIGHT)})
+    assert list(motion.last_run) == ["T_ROB_R"]
+    got = tcps(cell, lock)
+    assert got["right"] == pytest.approx(RIGHT, abs=1.0)
+    assert got["left"] == before["left"]
+    assert ctrl.task("T_ROB_L").active is False  # started alone, as the driver asked
+
+
+def test_a_malformed_program_is_one_line_naming_the_entry(
+        yumi: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    client, _, cell, _, lock = yumi()
+    before = tcps(cell, lock)
+    plain = client.program
+
+    class Garbled:  # the first command's opcode (float 1 + header) made 99
+        def __init__(self, mp: Any) -> None:
+            self.mp = mp
+
+        def get_program_bytes(self, seqno: int | None = None) -> bytes:
+            data = self.mp.get_program_bytes(seqno)
+            i = 4 * (1 + 19 + 25 + 11 + 9 + 1 + 1 + 1)
+            return data[:i] + struct.pack("<f", 99.0) + data[i + 4:]
+
+    monkeypatch.setattr(client, "program", lambda arm, wps: Garbled(plain(arm, wps)))
+    with pytest.raises(BackendError) as info:
+        client.execute({"left": to(LEFT)})
+    msg = str(info.value)
+    assert "\n" not in msg
+    assert msg.startswith("YuMi controller: event log 80001 'Testbed Motion Failed': ")
+    assert "Invalid motion program command; RAMDISK:testbed_T_ROB_L.bin; unknown opcode 99" \
+        in msg
+    assert tcps(cell, lock) == before
+
+
+def test_a_target_below_the_table_is_refused_before_any_motion(yumi: Any) -> None:
+    client, _, cell, _, lock = yumi()
+    before = tcps(cell, lock)
+    with pytest.raises(BackendError, match=r"^YuMi controller: event log 80001 'Testbed "
+                                           r"Motion Failed': Target below the table; "
+                                           r"RAMDISK:testbed_T_ROB_R.bin; MoveL 2: z -5 mm"):
+        client.execute({"left": to(LEFT), "right": to((400.0, -200.0, -5.0))})
+    got = tcps(cell, lock)
+    assert got["right"] == before["right"]  # refused in full: not even the MoveJ
+    assert got["left"] == pytest.approx(LEFT, abs=1.0)  # an independent task: it ran
+
+
+def test_a_controller_without_our_rapid_is_named(yumi: Any) -> None:
+    client, ctrl, *_ = yumi(hook=CellMotion)  # the library's RAPID: it reads another file
+    with pytest.raises(BackendError, match=r"event log 80001 'Motion Program Failed': Motion "
+                                           r"program file not found; "
+                                           r"RAMDISK:motion_program.bin"):
+        client.execute({"left": to(LEFT)})
+    ctrl.on_start = None  # RAPID that ends at once and writes nothing
+    with pytest.raises(BackendError, match=r"T_ROB_L ended without the event log entry "
+                                           r"'Testbed Motion Done' for program 2: is the "
+                                           r"testbed RAPID \(robot/rapid/\) loaded"):
+        client.execute({"left": to(LEFT)})
