@@ -27,9 +27,9 @@ import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
 from testbed.core.config import ConfigError, FleetConfig, LearningConfig
+from testbed.core.hosts import LoopHosts
 from testbed.core.humans import Humans
 from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
-from testbed.fleet.loop import HostsLike
 
 if TYPE_CHECKING:  # the learning package imports torch: only when data is really built
     from testbed.learning.api import Transitions
@@ -84,7 +84,7 @@ def concat(*parts: Transitions) -> Transitions:
 
 
 def _drive(
-    hosts: HostsLike,
+    hosts: LoopHosts,
     count: int,
     choose: Callable[[list[str], dict[str, ArmObservation], int], dict[str, int]],
     humans: Humans,
@@ -140,7 +140,7 @@ def _drive(
 
 
 def collect_demos(
-    hosts: HostsLike, humans: Humans, count: int, t_R: int, progress: Progress | None = None
+    hosts: LoopHosts, humans: Humans, count: int, t_R: int, progress: Progress | None = None
 ) -> Transitions:
     """``count`` human-driven pushes (every arm teleoperated)."""
 
@@ -155,7 +155,7 @@ def collect_demos(
 
 
 def rollout_policy(
-    hosts: HostsLike,
+    hosts: LoopHosts,
     humans: Humans,
     learner: Any,
     count: int,
@@ -210,7 +210,7 @@ def pretrain(
     learner: Any,
     lc: LearningConfig,
     demos: Transitions,
-    hosts: HostsLike,
+    hosts: LoopHosts,
     humans: Humans,
     t_R: int,
     seed: int,

@@ -40,6 +40,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from testbed.core.hosts import LoopHosts
 from testbed.core.humans import Humans, presence_of
 from testbed.core.interrupts import critical
 from testbed.core.types import (
@@ -61,18 +62,6 @@ from testbed.records import store as rundata
 from testbed.records.step_record import ArmStep, StepRecord
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter
-
-
-class HostsLike(Protocol):
-    """What the loop needs of ``drivers.host_fleet.HostFleet`` (kept structural for tests)."""
-
-    robot_names: list[str]
-
-    def observe(self) -> Mapping[str, ArmObservation | Fault]: ...
-
-    def execute(
-        self, pushes: Mapping[str, int], resets: Sequence[str]
-    ) -> Mapping[str, PushResult | Fault]: ...
 
 
 class LearnerLike(Protocol):
@@ -140,7 +129,7 @@ class FleetLoop:
     def __init__(
         self,
         *,
-        hosts: HostsLike,
+        hosts: LoopHosts,
         humans: Humans,
         learner: LearnerLike,
         algorithm: Algorithm,
