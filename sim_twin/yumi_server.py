@@ -48,12 +48,10 @@ import argparse
 import contextlib
 import json
 import math
-import os
 import select
 import signal
 import socket
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -64,6 +62,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from sim_twin.port_file import write_port
 from sim_twin.yumi_cell import YumiTwinCell
 
 BUSY_TEXT = "camera busy: another client is streaming"
@@ -293,15 +292,6 @@ class Handler(BaseHTTPRequestHandler):
             srv.stream_slot.release()
 
 
-def _write_port(path: Path, port: int) -> None:
-    """Atomically: a reader never sees a half-written port."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".")
-    with os.fdopen(fd, "w") as f:
-        f.write(f"{port}\n")
-    os.replace(tmp, path)
-
-
 def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m sim_twin.yumi_server",
                                 description="The YuMi hardware twin's HTTP server.")
@@ -338,7 +328,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     if a.port_file is not None:
-        _write_port(a.port_file, server.port)
+        write_port(a.port_file, server.port)
     print(f"yumi_server: arms {','.join(arms)} seed {a.seed} on http://{a.host}:{server.port}",
           file=sys.stderr, flush=True)
     try:

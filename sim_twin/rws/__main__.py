@@ -21,15 +21,14 @@ SIGTERM/SIGINT and exits 0 (2 on a bad argument).
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
-import tempfile
 import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sim_twin.port_file import write_port
 from sim_twin.rws.digest_auth import DEFAULT_USERS
 from sim_twin.rws.file_store import DEFAULT_RAMDISK_VALUE, FileStore
 from sim_twin.rws.irc5 import CTRLSTATES, OPMODES, Irc5Controller, StartHook
@@ -73,15 +72,6 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     return a
 
 
-def _write_port(path: Path, port: int) -> None:
-    """Atomically: a reader never sees a half-written port."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".")
-    with os.fdopen(fd, "w") as f:
-        f.write(f"{port}\n")
-    os.replace(tmp, path)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     a = _args(argv)
     arms = tuple(s.strip() for s in a.arms.split(",") if s.strip())
@@ -116,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, on_signal)
     server.start_thread()
     if a.port_file is not None:
-        _write_port(a.port_file, server.port)
+        write_port(a.port_file, server.port)
     print(f"sim_twin.rws: {','.join(u.name for u in units)} on {server.url} "
           f"(max {a.max_sessions} sessions)", file=sys.stderr, flush=True)
     try:

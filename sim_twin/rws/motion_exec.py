@@ -436,19 +436,24 @@ class CellMotion:
             unit = next((u for u in self.units if u.task.upper() == task.upper()), None)
             if unit is None:
                 continue  # not a motion task of this cell
-            path = self.program_file(unit.task)
-            try:
-                data = run.controller.files.read(path)
-            except RwsError:
-                raise ProgramFileError("Motion program file not found", "nothing uploaded",
-                                       path=path, task=unit.task) from None
-            try:
-                program = decode_program(data, path)
-            except ProgramFileError as exc:
-                exc.task = unit.task
-                raise
-            out.append(TaskProgram(unit.task, unit, path, program))
+            out.append(self.read_task(run, unit))
         return out
+
+    def read_task(self, run: ProgramRun, unit: MechUnit) -> TaskProgram:
+        """The program ``unit``'s task reads (``program_file``), decoded; a missing or
+        malformed file is a ``ProgramFileError`` naming the task."""
+        path = self.program_file(unit.task)
+        try:
+            data = run.controller.files.read(path)
+        except RwsError:
+            raise ProgramFileError("Motion program file not found", "nothing uploaded",
+                                   path=path, task=unit.task) from None
+        try:
+            program = decode_program(data, path)
+        except ProgramFileError as exc:
+            exc.task = unit.task
+            raise
+        return TaskProgram(unit.task, unit, path, program)
 
     def __call__(self, run: ProgramRun) -> None:
         programs = self._load(run)

@@ -33,7 +33,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from sim_twin.rws.errors import RwsError
 from sim_twin.rws.event_log import MSG_ERROR, MSG_INFO
 from sim_twin.rws.irc5 import ProgramRun, RapidError
 from sim_twin.rws.mechunits import MechUnit
@@ -45,9 +44,7 @@ from sim_twin.rws.motion_program import (
     MoveAbsJ,
     MoveJ,
     MoveL,
-    ProgramFileError,
     WaitTime,
-    decode_program,
     describe,
 )
 
@@ -110,16 +107,9 @@ class TestbedRapid(CellMotion):
         return self.files.get(task.upper(), testbed_program_file(task))
 
     def _read(self, run: ProgramRun, unit: MechUnit) -> TaskProgram:
-        path = self.program_file(unit.task)
-        try:
-            data = run.controller.files.read(path)
-        except RwsError:
-            raise ProgramFileError("Motion program file not found", "nothing uploaded",
-                                   path=path, task=unit.task) from None
-        program = decode_program(data, path)
-        tp = TaskProgram(unit.task, unit, path, program)
+        tp = self.read_task(run, unit)
         self.last_run[unit.task] = tp
-        check_program(program, self.floor_z_mm)
+        check_program(tp.program, self.floor_z_mm)
         return tp
 
     def _failed(self, run: ProgramRun, unit: MechUnit, exc: RapidError) -> None:
