@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 from urllib.parse import urlsplit
 
-DEFAULT_PORTS = {"http": 80, "https": 443, "twin+http": 80, "twin+https": 443}
+DEFAULT_PORTS = {"http": 80, "https": 443}
 
 
 class RobotBusy(RuntimeError):
@@ -39,8 +39,8 @@ def default_lock_dir() -> str:
 
 
 def normalise_url(url: str) -> str:
-    """A controller URL in one spelling per robot (``TWIN+HTTP://Host:80/`` ==
-    ``twin+http://host``)."""
+    """A controller URL in one spelling per robot (``HTTP://Host:80/`` ==
+    ``http://host``)."""
     parts = urlsplit(url.strip())
     scheme = parts.scheme.lower()
     host = (parts.hostname or "").lower()

@@ -6,7 +6,7 @@
 #   scripts/setup.sh --host     a robot host: headless OpenCV and the YuMi client only
 set -euo pipefail
 cd "$(dirname "$0")/.."
-extras="console,web"
+extras="console,web,yumi"
 apt_pkgs=(openssh-client)
 case "${1:-}" in
   --dev) extras="console,web,yumi,ray,dev,export"

@@ -17,10 +17,13 @@ __all__ = ["ArmOutcome", "ArmView", "HostBackend", "make_backend"]
 def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed: int,
                  physics: bool = True, crops: Mapping[str, tuple[int, int, int, int]] | None = None,
                  calibrations: Mapping[str, str] | None = None, camera: str | None = None,
-                 controller_url: str | None = None, calibrating: Collection[str] = ()
+                 controller_url: str | None = None, calibrating: Collection[str] = (),
+                 credentials_file: str | None = None, motion_timeout_s: float | None = None
                  ) -> HostBackend:
     """The agent's backend. ``calibrating``: yumi arms being calibrated (``--calibrate``):
-    they start with a provisional calibration; a twin has nothing to calibrate."""
+    they start with a provisional calibration; a twin has nothing to calibrate.
+    ``credentials_file`` and ``motion_timeout_s``: the YuMi controller's login file and
+    motion limit (a twin has neither)."""
     if kind == "twin":
         from drivers.backends.twin import CannedTwinBackend, TwinBackend
 
@@ -31,5 +34,7 @@ def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed
         from drivers.yumi.backend import build_yumi_backend
 
         return build_yumi_backend(arms, mirror, crops or {}, calibrations or {}, camera,
-                                  controller_url, seed, calibrating=tuple(calibrating))
+                                  controller_url, seed, calibrating=tuple(calibrating),
+                                  credentials_file=credentials_file,
+                                  motion_timeout_s=motion_timeout_s)
     raise ValueError(f"unknown backend {kind!r}; expected 'twin' or 'yumi'")

@@ -3,9 +3,9 @@
 Why here and not next to the real clients: it is a test helper (it records programs and
 moves the TCPs instantly), so it lives with the other helpers of ``drivers.testing`` and
 no production module carries it. It implements
-:class:`~drivers.yumi.yumi_controller.YumiControllerClient`, the seam the real clients
-(:class:`~drivers.yumi.yumi_controller.RwsYumiController`,
-:class:`~drivers.yumi.twin_controller.TwinControllerClient`) implement.
+:class:`~drivers.yumi.yumi_controller.YumiControllerClient`, the seam the real client
+(:class:`~drivers.yumi.rws_controller.RwsYumiController`, for a lab's controller and
+the hardware twin alike) implements.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ class FakeYumiController:
     stuck: set[str] = field(default_factory=set)
     programs: list[dict[str, list[Waypoint]]] = field(default_factory=list)
     closed: bool = False
+    stops: int = 0
     _tcp: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     _in_view_reads: dict[str, int] = field(default_factory=dict)
 
@@ -66,6 +67,12 @@ class FakeYumiController:
         for arm in self.stuck:
             out[arm] = self.in_view_xyz
         return out
+
+    def stop(self) -> None:
+        self.stops += 1
+
+    def describe(self) -> dict[str, object]:
+        return {"fake": True, "arms": sorted(self.rest_xyz)}
 
     def close(self) -> None:
         self.closed = True

@@ -63,6 +63,8 @@ GOAL_RGB = (40, 200, 40)
 GOAL_RADIUS = 3.0 / 64.0
 GOAL_MARGIN = 0.12
 CUBE_HALF = 4.0 / 64.0
+LIFT_TOLERANCE_MM = 1.0
+"""A pusher this far below travel height counts as up (the controller's own jitter)."""
 CALIBRATION_BOX_MM = (-1000.0, -1000.0, 1000.0, 1000.0)
 """Table box of an arm being calibrated whose file has none: wide on purpose; the
 calibration command supplies the safe box it drives in (``move_tcp`` refuses outside)."""
@@ -272,7 +274,7 @@ class YumiBackend(HostBackend):
     def _picture(self) -> npt.NDArray[np.uint8]:
         for _ in range(self._retakes + 1):
             if in_view := self._arms_in_view():
-                self._controller.execute({a: [Waypoint("rest", None, self._arms[
+                self._move({a: [Waypoint("rest", None, self._arms[
                     a].calibration.max_speed_mm_s)] for a in in_view})
                 self.retaken += 1
                 continue
@@ -372,7 +374,7 @@ class YumiBackend(HostBackend):
                     del moving[name]
             programs[name] = [Waypoint("rest", None, arm.calibration.max_speed_mm_s)]
         if moving:
-            self._controller.execute(programs)
+            self._move(programs)
             self._look()
         out: dict[str, ArmOutcome] = {}
         for arm in faces:
@@ -413,8 +415,20 @@ class YumiBackend(HostBackend):
         return done
 
     def rest(self) -> None:
-        self._controller.execute({name: [Waypoint("rest", None, a.calibration.max_speed_mm_s)]
-                                  for name, a in self._arms.items()})
+        self._move({name: [Waypoint("rest", None, a.calibration.max_speed_mm_s)]
+                    for name, a in self._arms.items()})
+
+    def stop(self) -> None:
+        """Stop the motion in progress through the controller (from the agent's control
+        path, while ``push``/``rest``/``move_tcp`` waits in another thread)."""
+        self._controller.stop()
+
+    def describe(self) -> dict[str, Any]:
+        """The controller as ``testbed check`` shows it, with each arm's task and table
+        box (which must lie inside the task's world zone box)."""
+        boxes = {a.calibration.pose.task if a.calibration.pose else name:
+                 list(a.calibration.table_box_mm) for name, a in self._arms.items()}
+        return {"controller": self._controller.describe(), "table_boxes": boxes}
 
     def reseed(self, seed: int) -> None:
         """A fresh goal stream from ``seed``, as a newly started agent would have: goals,
@@ -433,8 +447,9 @@ class YumiBackend(HostBackend):
         """Calibration: above the point at travel height, then straight down to it.
 
         A point outside the arm's table box is refused (ValueError), never clipped: the
-        calibration fit needs the TCP where it was asked to be. An arm low over the table
-        is lifted straight up first, so its joint move does not sweep the table.
+        calibration fit needs the TCP where it was asked to be. A pusher low over the
+        table is lifted straight up first (:meth:`_move`), so its joint move does not
+        sweep the table.
         """
         if arm not in self._arms:
             raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
@@ -453,14 +468,29 @@ class YumiBackend(HostBackend):
             raise ValueError(f"arm {arm}: z = {z:g} mm is below the table top (z = 0)")
         vmax = cal.max_speed_mm_s
         vslow = min(vmax, 2 * cal.push_speed_mm_s)
-        program: list[Waypoint] = []
-        cx, cy, cz = self._controller.tcp_xyz()[arm]
-        if cz < cal.z_travel_mm and bx0 <= cx <= bx1 and by0 <= cy <= by1:
-            program.append(Waypoint("move_l", (cx, cy, cal.z_travel_mm), vslow, fine=False))
-        program += [Waypoint("move_j", (x, y, cal.z_travel_mm), vmax, fine=False),
-                    Waypoint("move_l", (x, y, z), vslow)]
-        self._controller.execute({arm: program})
+        self._move({arm: [Waypoint("move_j", (x, y, cal.z_travel_mm), vmax, fine=False),
+                          Waypoint("move_l", (x, y, z), vslow)]})
         return self._controller.tcp_xyz()[arm]
+
+    def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
+        """Run ``programs`` (all arms at once), each pusher that is low lifted first.
+
+        A program's first move (a joint move to travel height, or the rest pose's
+        ``MoveAbsJ``) sweeps the pusher along a curve the TCP does not control: started
+        low over the table (a push that was stopped, a calibration point), it would drag
+        across the table or a cube. So a pusher below its arm's ``z_travel_mm`` first goes
+        straight up to it, where it is (the pusher's TCP, ``tool_pusher``, not the flange).
+        """
+        tcp = self._controller.tcp_xyz()
+        out: dict[str, list[Waypoint]] = {}
+        for arm, wps in programs.items():
+            cal = self._arms[arm].calibration
+            x, y, z = tcp[arm]
+            lift = [Waypoint("move_l", (x, y, cal.z_travel_mm),
+                             min(cal.max_speed_mm_s, 2 * cal.push_speed_mm_s), fine=False)
+                    ] if z < cal.z_travel_mm - LIFT_TOLERANCE_MM else []
+            out[arm] = lift + list(wps)
+        self._controller.execute(out)
 
     def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
         """Validate ``data`` as ``arm``'s calibration and replace its file atomically (a
@@ -536,7 +566,9 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
                        crops: Mapping[str, tuple[int, int, int, int]],
                        calibrations: Mapping[str, str], camera: str | None,
                        controller_url: str | None, seed: int = 0,
-                       calibrating: Collection[str] = ()) -> YumiBackend:
+                       calibrating: Collection[str] = (), *,
+                       credentials_file: str | None = None,
+                       motion_timeout_s: float | None = None) -> YumiBackend:
     """The agent's ``--backend yumi``: its camera, its controller (real or twin).
 
     Paths (calibration files, a video-file camera) are host paths: ``~`` and ``$VARS``
@@ -550,8 +582,8 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
         raise BackendError("--backend yumi needs --camera (device index, video file or "
                            "http(s)/rtsp URL)")
     if controller_url is None:
-        raise BackendError("--backend yumi needs --controller-url (the controller's RWS URL, "
-                           "or twin+http://HOST:PORT)")
+        raise BackendError("--backend yumi needs --controller-url (the controller's Robot "
+                           "Web Services, http(s)://HOST[:PORT])")
     if unknown := [a for a in calibrating if a not in arms]:
         raise BackendError(f"--calibrate {unknown[0]}: no such arm; this host has {list(arms)}")
     setups: list[ArmSetup] = []
@@ -565,7 +597,12 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
         cal = (provisional_calibration(paths[name], name) if name in calibrating
                else ArmCalibration.load(paths[name], name))
         setups.append(ArmSetup(name, crops[name], m, cal))
-    ctrl = make_controller(controller_url, {s.name: s.calibration.pose for s in setups})
+    if credentials_file is not None:
+        credentials_file = expand_path(credentials_file, "credentials_file")
+    ctrl = make_controller(controller_url, {s.name: s.calibration.pose for s in setups},
+                           credentials_file=credentials_file,
+                           motion_timeout_s=15.0 if motion_timeout_s is None
+                           else motion_timeout_s)
     try:
         if not camera.isdigit() and not is_url(camera):
             camera = expand_path(camera, "camera")

@@ -1,10 +1,10 @@
-"""The YuMi controller factory: the client that a controller URL names.
+"""The YuMi controller factory: the client that a host's controller settings name.
 
-Why a module of its own: the clients (:mod:`drivers.yumi.yumi_controller`, the real
-controller through Robot Web Services; :mod:`drivers.yumi.twin_controller`, the hardware
-twin) and the seam they share stay free of each other -- the twin client imports the seam,
-nothing imports back -- while the one place that knows both is this factory. The backend
-(:mod:`drivers.yumi.backend`) calls it and never knows which client it drives.
+Why a module of its own: the backend (:mod:`drivers.yumi.backend`) builds its controller
+here and never imports the ABB libraries; this is also where the controller URL, the
+login (:mod:`drivers.yumi.credentials`) and the motion timeout meet. There is one client,
+:class:`~drivers.yumi.rws_controller.RwsYumiController`, for a lab's IRC5 and for the
+hardware twin alike: both speak Robot Web Services 1.0.
 """
 
 from __future__ import annotations
@@ -12,30 +12,29 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from drivers.errors import BackendError
-from drivers.yumi.twin_controller import TwinControllerClient
-from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, YumiControllerClient
+from drivers.yumi.credentials import read_login
+from drivers.yumi.rws_controller import RwsYumiController
+from drivers.yumi.yumi_controller import ArmPose, YumiControllerClient
 
 __all__ = ["make_controller"]
 
 
 def make_controller(url: str, poses: Mapping[str, ArmPose | None], *,
+                    credentials_file: str | None = None, motion_timeout_s: float = 15.0,
                     field_name: str = "controller_url") -> YumiControllerClient:
-    """The controller client that ``url`` names: ``twin+http://HOST:PORT`` the hardware
-    twin (:class:`~drivers.yumi.twin_controller.TwinControllerClient`), ``http(s)://``
-    the real controller's Robot Web Services. Here, so that ``backend.py`` never knows
-    which one it drives. ``poses``: every arm (config order) with its pose from the
-    calibration file; the real controller needs each arm's rest pose, the twin knows its
-    own."""
+    """The controller client for ``url`` (``http(s)://HOST[:PORT]``, the controller's Robot
+    Web Services). ``poses``: every arm (config order) with its pose from the calibration
+    file; the controller needs each arm's rest pose, also while calibrating.
+    ``credentials_file``: the host's ``USER:PASSWORD`` file (None: the factory login)."""
     low = url.strip().lower()
-    if low.startswith("twin+http://"):
-        return TwinControllerClient(url.strip(), list(poses))
-    if low.startswith(("http://", "https://")):
-        if missing := [arm for arm, pose in poses.items() if pose is None]:
-            raise BackendError(
-                f"arm {missing[0]}: its calibration file has no 'rest_joints_deg' (7 angles): "
-                f"the YuMi controller (RWS) needs every arm's rest pose, also while "
-                f"calibrating" + (f" (arms without one: {missing})" if len(missing) > 1 else ""))
-        return RwsYumiController(url.strip(), {a: p for a, p in poses.items() if p is not None})
-    raise BackendError(f"{field_name}: {url!r} is not a controller URL; expected http(s)://HOST "
-                       f"(the YuMi's Robot Web Services) or twin+http://HOST:PORT (the "
-                       f"hardware twin)")
+    if not low.startswith(("http://", "https://")):
+        raise BackendError(f"{field_name}: {url!r} is not a controller URL; expected "
+                           f"http(s)://HOST[:PORT] (the YuMi's Robot Web Services)")
+    if missing := [arm for arm, pose in poses.items() if pose is None]:
+        raise BackendError(
+            f"arm {missing[0]}: its calibration file has no 'rest_joints_deg' (7 angles): "
+            f"the YuMi controller needs every arm's rest pose, also while calibrating"
+            + (f" (arms without one: {missing})" if len(missing) > 1 else ""))
+    login = read_login(credentials_file) if credentials_file else None
+    return RwsYumiController(url.strip(), {a: p for a, p in poses.items() if p is not None},
+                             login=login, motion_timeout_s=motion_timeout_s)

@@ -1,27 +1,25 @@
-"""The boundary to the ABB YuMi (IRB 14000) controller: motion programs of waypoints.
+"""The seam to the ABB YuMi (IRB 14000) controller: motion programs of waypoints.
 
-Why a boundary: the real controller (an IRC5 reached through Robot Web Services) cannot
-run in CI, so :class:`~drivers.yumi.backend.YumiBackend` talks to a small client
-protocol. :class:`RwsYumiController` implements it: ``abb-motion-program-exec`` builds
-each arm's program bytes, and a client of our own on ``abb-robot-client`` (RWS) uploads
-each to ITS task's file (``testbed_T_ROB_L.bin``, ``testbed_T_ROB_R.bin``: the library's
-own naming would put both in one), starts both tasks together (MultiMove, one RAPID task
-per arm) and reads the result our RAPID (robot/rapid/) writes to the event log. The
-hardware twin's client (``drivers.yumi.twin_controller``) is the other real one;
-:func:`drivers.yumi.controllers.make_controller` picks one from the controller URL.
-:class:`drivers.testing.fake_yumi.FakeYumiController` implements it for tests and records
-every waypoint; it is a fake on purpose and says so in its name.
+Why a seam: the real controller (an IRC5 reached through Robot Web Services) cannot run
+in CI, so :class:`~drivers.yumi.backend.YumiBackend` talks to a small client protocol,
+:class:`YumiControllerClient`. One real client implements it,
+:class:`~drivers.yumi.rws_controller.RwsYumiController` (the controller's RWS, and the
+hardware twin's, which speaks the same RWS 1.0); :func:`drivers.yumi.controllers.
+make_controller` builds it from the controller URL. :class:`drivers.testing.fake_yumi.
+FakeYumiController` implements the seam for the backend's unit tests and records every
+waypoint; it is a fake on purpose and says so in its name. This module also holds what
+the client and our RAPID (robot/rapid/) agree on: each task's program file and the
+event-log entries that report a program's end.
 """
 
 from __future__ import annotations
 
-import contextlib
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 from drivers.errors import BackendError
+from drivers.yumi.controller_state import entry_text
 
 WaypointKind = Literal["move_j", "move_l", "rest"]
 
@@ -59,7 +57,18 @@ class YumiControllerClient(Protocol):
         ...
 
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
-        """Current TCP position of every arm, robot base frame, mm."""
+        """Current TCP (the pusher's tip) of every arm, in the frame the waypoints use
+        (``wobj0``), mm."""
+        ...
+
+    def stop(self) -> None:
+        """Stop a program that is running, now (from another thread than ``execute``'s,
+        which then raises a :class:`BackendError`); returns within a second."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """What ``testbed check`` prints of the controller (a
+        :class:`~drivers.yumi.controller_state.ControllerReport` as a dict)."""
         ...
 
     def close(self) -> None: ...
@@ -76,20 +85,6 @@ DONE, FAILED = "Testbed Motion Done", "Testbed Motion Failed"
 def program_file(task: str) -> str:
     """The file name (on the controller's RAM disk) that task ``task`` reads."""
     return PROGRAM_FILE.format(task=task)
-
-
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split())
-
-
-def _entry_text(e: Any) -> str:
-    """One line naming an event log entry: code, title and what it says."""
-    args = [a for a in (getattr(e, "args", None) or []) if str(a).strip()]
-    if len(args) > 1 and str(args[0]).lower() == str(e.title).lower():  # an ErrWrite's lines
-        detail = "; ".join(str(a) for a in args[1:])
-    else:
-        detail = getattr(e, "desc", "") or "; ".join(str(a) for a in args)
-    return _one_line(f"event log {e.code} {e.title!r}: {detail}")
 
 
 def _since(log: Sequence[Any], prev: int | None) -> list[Any]:
@@ -111,7 +106,7 @@ def check_result(entries: Sequence[Any], tasks: Sequence[str], seqno: int) -> No
     errors = [e for e in entries if e.msgtype >= 3]
     if errors:
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        raise BackendError(f"YuMi controller: {_entry_text(errors[0])}{more}")
+        raise BackendError(f"YuMi controller: {entry_text(errors[0])}{more}")
     done = {str(e.args[1]) for e in entries
             if e.code == 80003 and len(e.args) >= 3 and str(e.args[0]) == DONE
             and str(e.args[2]) == f"seqno {seqno}"}
@@ -121,116 +116,3 @@ def check_result(entries: Sequence[Any], tasks: Sequence[str], seqno: int) -> No
                            f"testbed RAPID (robot/rapid/) loaded? See robot/README.md")
 
 
-class RwsYumiController:
-    """The real IRB 14000 through Robot Web Services: ``abb_motion_program_exec`` builds
-    each arm's program bytes, our RAPID (robot/rapid/) runs them, and this client (on
-    ``abb_robot_client.rws.RWS``) uploads, starts, waits and reads the result."""
-
-    def __init__(self, base_url: str, arms: Mapping[str, ArmPose], *,
-                 username: str = "Default User", password: str = "robotics",
-                 http_timeout_s: float = 5.0, motion_timeout_s: float = 60.0) -> None:
-        # Lazy: these clients pull in requests/websockets; only a YuMi host needs them.
-        from abb_motion_program_exec import abb_motion_program_exec_client as mpe
-        from abb_robot_client.rws import RWS
-
-        self._mpe: Any = mpe
-        self._arms = dict(arms)
-        self._motion_timeout_s = motion_timeout_s
-        self._seqno = 0
-        self._rws: Any = RWS(base_url, username, password)
-        # abb-robot-client issues its HTTP requests without a timeout: a controller that
-        # accepts the connection and never answers would block the agent for ever.
-        session = self._rws._session
-        plain_request = session.request
-
-        def request(method: str, url: str, **kw: Any) -> Any:
-            kw.setdefault("timeout", http_timeout_s)
-            return plain_request(method, url, **kw)
-
-        session.request = request
-
-    def program(self, arm: str, waypoints: Sequence[Waypoint]) -> Any:
-        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read)."""
-        mpe = self._mpe
-        pose = self._arms[arm]
-        tool = mpe.tooldata(True, mpe.pose([0, 0, pose.tool_z_mm], [1, 0, 0, 0]),
-                            mpe.loaddata(0.001, [0, 0, 0.001], [1, 0, 0, 0], 0, 0, 0))
-        mp = mpe.MotionProgram(tool=tool)
-        extax = [pose.arm_angle_deg, 9e9, 9e9, 9e9, 9e9, 9e9]
-        for w in waypoints:
-            speed = mpe.speeddata(float(w.speed_mm_s), 500, 5000, 1000)
-            zone = mpe.fine if w.fine else mpe.z10
-            if w.kind == "rest":
-                j = pose.rest_joints_deg
-                mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6], 9e9, 9e9, 9e9, 9e9, 9e9]),
-                            speed, zone)
-                continue
-            if w.xyz_mm is None:
-                raise BackendError(f"arm {arm}: a {w.kind} waypoint needs a position")
-            target = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
-                                   mpe.confdata(*pose.robconf), extax)
-            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
-        return mp
-
-    def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
-        arms = [a for a in self._arms if a in programs]
-        if not arms:
-            return
-        mps = {self._arms[a].task: self.program(a, programs[a]) for a in arms}
-        self._seqno = self._seqno % 60000 + 1  # float32-exact, and new for every step
-        seqno = self._seqno
-        try:
-            prev = self._start(mps, seqno)
-            self._wait()
-            entries = _since(self._rws.read_event_log(), prev)
-        except BackendError:
-            raise
-        except Exception as exc:
-            raise BackendError(f"YuMi controller refused the motion program: "
-                               f"{_one_line(exc)}") from exc
-        check_result(entries, list(mps), seqno)
-
-    def _start(self, mps: Mapping[str, Any], seqno: int) -> int | None:
-        """Upload every task's program to ITS file and start those tasks together; the
-        newest event log entry before the start (None: an empty log)."""
-        rws = self._rws
-        state = rws.get_execution_state().ctrlexecstate
-        if state != "stopped":
-            raise BackendError(f"YuMi controller: RAPID is {state} (started elsewhere?); "
-                               f"the motion program was not started")
-        ctrl = rws.get_controller_state()
-        if ctrl != "motoron":
-            raise BackendError(f"YuMi controller: the controller state is {ctrl}, not "
-                               f"motoron; the motion program was not started")
-        log = rws.read_event_log()
-        prev = log[0].seqnum if log else None
-        rws.resetpp()
-        ramdisk = rws.get_ramdisk_path()
-        for task, mp in mps.items():
-            rws.upload_file(f"{ramdisk}/{program_file(task)}", mp.get_program_bytes(seqno))
-        rws.start(cycle="once", tasks=list(mps))
-        return prev
-
-    def _wait(self) -> None:
-        deadline = time.monotonic() + self._motion_timeout_s
-        while self._rws.get_execution_state().ctrlexecstate == "running":
-            if time.monotonic() > deadline:
-                self._rws.stop()
-                raise BackendError(f"motion did not finish within "
-                                   f"{self._motion_timeout_s:g} s; program stopped")
-            time.sleep(0.05)
-
-    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
-        out: dict[str, tuple[float, float, float]] = {}
-        try:
-            for arm, pose in self._arms.items():
-                rt = self._rws.get_robtarget(mechunit=pose.mechunit)
-                out[arm] = (float(rt.trans[0]), float(rt.trans[1]), float(rt.trans[2]))
-        except Exception as exc:
-            raise BackendError(f"cannot read the arms' positions from the YuMi controller: "
-                               f"{exc}") from exc
-        return out
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):  # best effort on the way out
-            self._rws.logout()

@@ -191,7 +191,7 @@ class TwinHost(_HostBase):
     """False runs the agent's no-physics mode (canned images; benchmarks)."""
 
 
-CONTROLLER_SCHEMES = ("http", "https", "twin+http")
+CONTROLLER_SCHEMES = ("http", "https")
 CAMERA_SCHEMES = ("http", "https", "rtsp")
 
 
@@ -211,8 +211,18 @@ class YumiHost(_HostBase):
     camera: Annotated[str, BeforeValidator(_camera_text)]
     """A device index ("0"), a video file path, or a lab IP camera URL (http(s), rtsp)."""
     controller_url: str
-    """The controller: http(s)://HOST (Robot Web Services) or twin+http://HOST:PORT (the
-    hardware twin)."""
+    """The controller's Robot Web Services: http(s)://HOST[:PORT] (a lab's IRC5, or the
+    hardware twin's RWS in a rehearsal)."""
+    credentials_file: str | None = None
+    """A file ON THE HOST holding the controller's login, one line ``USER:PASSWORD``, mode
+    0600 (``drivers/yumi/credentials.py``); never the password itself. None: the factory
+    login, with a warning in the host log."""
+    deadline_s: float = Field(20.0, gt=0, le=600)
+    """Per-call deadline for a push or an observation (a YuMi push is a motion of seconds)."""
+    motion_timeout_s: float | None = Field(None, gt=0, le=600)
+    """The longest one motion program may run before the agent stops it through RWS; below
+    ``deadline_s``, so the controller hears why instead of a dead link. Default:
+    ``min(15, 0.75 * deadline_s)``."""
 
     @field_validator("camera")
     @classmethod
@@ -231,12 +241,21 @@ class YumiHost(_HostBase):
     def _controller_kind(cls, v: str) -> str:
         url = urlsplit(v.strip())
         if url.scheme not in CONTROLLER_SCHEMES or not url.hostname:
-            raise ValueError("controller_url must be http(s)://HOST (Robot Web Services) or "
-                             "twin+http://HOST:PORT (the hardware twin)")
+            raise ValueError("controller_url must be http(s)://HOST[:PORT] (the controller's "
+                             "Robot Web Services)")
         return v.strip()
 
     @model_validator(mode="after")
     def _yumi_arms(self) -> Self:
+        if self.motion_timeout_s is None:
+            self._set("motion_timeout_s", min(15.0, 0.75 * self.deadline_s))
+        elif self.motion_timeout_s >= self.deadline_s:
+            raise FieldProblem("motion_timeout_s", f"{self.motion_timeout_s:g} s is not below "
+                               f"deadline_s ({self.deadline_s:g} s): the agent must stop a "
+                               "motion before the controller gives up on the host")
+        if self.credentials_file is not None and not self.credentials_file.strip():
+            raise FieldProblem("credentials_file", "is empty; name the host's USER:PASSWORD "
+                               "file or leave the field out")
         for i, a in enumerate(self.arms):
             if a.crop is None:
                 raise FieldProblem(f"arms[{i}].crop", f"arm {a.name} of a yumi host needs "
@@ -246,6 +265,9 @@ class YumiHost(_HostBase):
                                    "needs its calibration file (a path ending .json)")
         if self.transport == "local" and "://" not in self.camera and not self.camera.isdigit():
             self._set("camera", expand_path(self.camera, "camera"))
+        if self.transport == "local" and self.credentials_file is not None:
+            self._set("credentials_file", expand_path(self.credentials_file,
+                                                      "credentials_file"))
         return self
 
 

@@ -51,3 +51,12 @@ def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None) -> H
                                                else WebConsoleConfig())
         return humans
     raise ValueError(f"unknown humans kind {kind!r}; use scripted, gui or web")
+
+
+def shared_cells(cfg: FleetConfig) -> dict[str, str]:
+    """Robot -> its cell, for the robots that share one with others: a YuMi host's arms
+    work over one table, so a person resetting one has hands near the other (the loop
+    holds the other's pushes, ``FleetLoop._hold_cells``). A twin host's arms are cells of
+    their own (separate PyBullet worlds) and share nothing."""
+    return {f"{h.name}/{a.name}": h.name for h in cfg.hosts for a in h.arms
+            if h.backend == "yumi" and len(h.arms) > 1}

@@ -34,7 +34,7 @@ from testbed.core.config import ConfigError, FleetConfig, HostConfig
 from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans, HumansStopRequested
 from testbed.core.interrupts import critical
-from testbed.experiments.build import build_hosts, make_humans
+from testbed.experiments.build import build_hosts, make_humans, shared_cells
 from testbed.experiments.checkpointer import CheckpointWriter
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import (
@@ -295,7 +295,7 @@ def _run_steps(run: _Run, hosts: Hosts, humans: Humans, learner: Any, algorithm:
                          writer=writer, steps=opts.steps, num_humans=cfg.humans.count,
                          t_T=cfg.algorithm.t_T, t_R=cfg.algorithm.t_R,
                          after_step=checkpoint, data=data,
-                         session=len(run.meta.get("resumed", [])))
+                         session=len(run.meta.get("resumed", [])), cells=shared_cells(cfg))
         loop.restore_counters(run.prior_rows)
         stopped_at = _steps(loop, run.start, opts.steps, hooks)
         checkpoints.wait()

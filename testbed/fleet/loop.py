@@ -102,6 +102,10 @@ class _Decided:
     """Humans not available at this step's allocation (sorted)."""
     released: list[dict[str, Any]] = field(default_factory=list)
     """Interventions ended before the allocation: ``{"robot", "human", "why"}``."""
+    held: dict[str, str] = field(default_factory=dict)
+    """Pushes not sent because a human is resetting an arm of the same cell: robot ->
+    why (recorded as ``refused``, with the face the policy or the human chose)."""
+    held_faces: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -142,8 +146,12 @@ class FleetLoop:
         overlap_act: bool = True,
         data: RunDataWriter | None = None,
         session: int = 0,
+        cells: Mapping[str, str] | None = None,
     ) -> None:
         self.hosts = hosts
+        self.cells = dict(cells or {})
+        """Robot -> the cell it shares with other robots (a YuMi's two arms over one
+        table); robots not in it share nothing. See :meth:`_hold_cells`."""
         self.humans = humans
         self.learner = learner
         self.algorithm = algorithm
@@ -207,7 +215,24 @@ class FleetLoop:
         responses = self.humans.act(requests, t) if requests else {}
         d = _Decided(out, keys, faulted, {}, [], {}, {}, away, released)
         self._assign_modes(d, assignment, violating, responses)
+        self._hold_cells(d)
         return d
+
+    def _hold_cells(self, d: _Decided) -> None:
+        """The policy for a hard reset while a sibling arm would push: a person's hands
+        are in a shared cell (a YuMi's table) from the step a reset of one of its arms
+        is assigned until the step it is confirmed, so no other arm of that cell moves in
+        those steps. Their pushes are held: not sent, recorded as ``refused`` ("held: ...")
+        with the face chosen, and the arm is free again the step after the reset ends.
+        Robots of separate cells (the twin's) are never held."""
+        resetting = {self.cells[r]: r for r in self.robots
+                     if d.modes[r] is Mode.RESET and r in self.cells}
+        for r in list(d.pushes):
+            cell = self.cells.get(r)
+            if cell in resetting and resetting[cell] != r:
+                d.held[r] = (f"held: a person is resetting {resetting[cell]} in the same "
+                             f"cell ({cell})")
+                d.held_faces[r] = d.pushes.pop(r)
 
     def _requests(self, observations: Mapping[str, ArmObservation | Fault],
                   assignment: np.ndarray, faulted: np.ndarray, keys: np.ndarray,
@@ -356,21 +381,24 @@ class FleetLoop:
         for i, r in enumerate(self.robots):
             res = results.get(r)
             mode = d.modes[r]
+            refused = None
             if isinstance(res, Fault):
                 mode = Mode.FAULT
+            elif r in d.held:
+                mode, refused = Mode.REFUSED, d.held[r]
             elif r in d.pushes and isinstance(res, PushResult) and res.refused is not None:
-                mode = Mode.REFUSED
+                mode, refused = Mode.REFUSED, str(res.refused)
             ok = isinstance(res, PushResult)
             faulted = mode is Mode.FAULT
             arms.append(ArmStep(
                 robot=r, mode=mode, human=d.humans_of[r],
-                action=d.pushes.get(r) if not faulted else None,
+                action=d.pushes.get(r, d.held_faces.get(r)) if not faulted else None,
                 success=bool(ok and res.success),  # type: ignore[union-attr]
                 violation=bool(ok and res.violation),  # type: ignore[union-attr]
                 uncertainty=None if faulted else float(uncertainty[i]),
                 risk=None if faulted else float(risk[i]),
                 key=tuple(float(k) for k in d.keys[i]),
-                refused=str(res.refused) if mode is Mode.REFUSED else None,  # type: ignore[union-attr]
+                refused=refused,
             ))
         faults = {r: res.reason for r, res in results.items() if isinstance(res, Fault)}
         return StepRecord(t, self.session, arms, seen.images, seen.observed, seen.goals,

@@ -29,7 +29,8 @@ from drivers.backends.base import ArmOutcome
 from drivers.errors import BackendError
 from drivers.host_fleet import HostFleet
 from drivers.yumi.backend import ArmCalibration, ArmSetup, plan_push
-from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, Waypoint
+from drivers.yumi.rws_controller import RwsYumiController
+from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from testbed.core.config import ArmConfig
 from testbed.core.types import MIN_GOAL_DISTANCE, ArmObservation, Fault
 
@@ -172,7 +173,7 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
     wps = plan_push(setup("left"), (0.5, 0.5), 0.0, 3)
     rapid = ctrl.program("left", wps).get_program_rapid()
     assert rapid.count("MoveL") == 3 and "MoveJ" in rapid and "MoveAbsJ" in rapid
-    assert "[40,500,5000,1000]" in rapid.replace(" ", "").replace(".0", "")
+    assert "[40,100,1000,100]" in rapid.replace(" ", "").replace(".0", "")
     calls: list[tuple[object, ...]] = []
 
     class Rws:  # the RWS calls of our execute path, recorded; RAPID never ends
@@ -184,8 +185,15 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         def get_controller_state(self) -> str:
             return "motoron"
 
+        def get_operation_mode(self) -> str:
+            return "AUTO"
+
+        def get_speedratio(self) -> float:
+            return 100.0
+
         def read_event_log(self) -> list[SimpleNamespace]:
-            return [SimpleNamespace(seqnum=5)]
+            return [SimpleNamespace(seqnum=5, code=10002, msgtype=1, title="PP reset",
+                                    args=[], desc="")]
 
         def resetpp(self) -> None:
             calls.append(("resetpp",))
@@ -204,7 +212,7 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
             calls.append(("stop",))
 
     monkeypatch.setattr(ctrl, "_rws", Rws())
-    with pytest.raises(BackendError, match=r"did not finish within 0\.3 s"):
+    with pytest.raises(BackendError, match=r"did not finish within motion_timeout_s = 0\.3 s"):
         ctrl.execute({"left": wps, "right": [Waypoint("rest", None, 100.0)]})
     assert calls == [("resetpp",), ("upload", "$TEMP/testbed_T_ROB_L.bin"),
                      ("upload", "$TEMP/testbed_T_ROB_R.bin"),
@@ -260,19 +268,22 @@ def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> No
     video = str(write_video(tmp_path / "cam.avi", [twin_picture(0)]))
     right = tmp_path / "right.json"
     right.write_text(json.dumps(yumi_calibration("right")))
-    cals = {"left": str(tmp_path / "none-yet.json"), "right": str(right)}
+    rest_only = tmp_path / "left-rest.json"  # what a lab writes before calibrating
+    rest_only.write_text(json.dumps({"rest_joints_deg": [0, -130, 30, 0, 40, 0, 135]}))
+    url = "http://127.0.0.1:9"
 
-    def build(url: str, calibrating: list[str]) -> YumiBackend:
+    def build(left: Path, calibrating: list[str]) -> YumiBackend:
+        cals = {"left": str(left), "right": str(right)}
         return build_yumi_backend(["left", "right"], [False, True], YUMI_CROPS, cals, video,
                                   url, calibrating=calibrating)
 
     with pytest.raises(BackendError, match=r"--calibrate middle: no such arm"):
-        build("twin+http://127.0.0.1:9", ["middle"])
+        build(rest_only, ["middle"])
     with pytest.raises(BackendError, match=r"arm left: cannot read calibration"):
-        build("twin+http://127.0.0.1:9", [])  # not calibrating: the file must exist
-    with pytest.raises(BackendError, match=r"arm left: .*'rest_joints_deg'.*RWS"):
-        build("http://127.0.0.1:9", ["left"])
-    backend = build("twin+http://127.0.0.1:9", ["left"])
+        build(tmp_path / "none-yet.json", [])  # not calibrating: the file must exist
+    with pytest.raises(BackendError, match=r"arm left: .*'rest_joints_deg'.*rest pose"):
+        build(tmp_path / "none-yet.json", ["left"])
+    backend = build(rest_only, ["left"])
     assert backend._arms["left"].calibration.table_box_mm == CALIBRATION_BOX_MM
     with pytest.raises(BackendError, match="arm left is being calibrated"):
         backend.push({"right": 0})

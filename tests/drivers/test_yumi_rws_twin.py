@@ -15,7 +15,8 @@ from typing import Any
 import pytest
 
 from drivers.errors import BackendError
-from drivers.yumi.yumi_controller import ArmPose, RwsYumiController, Waypoint
+from drivers.yumi.rws_controller import RwsYumiController
+from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer, serve
 from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.motion_exec import CellMotion

@@ -1,0 +1,219 @@
+"""The YuMi's controller through Robot Web Services 1.0: the one controller client.
+
+Why it looks like this: ``abb-motion-program-exec`` builds each arm's program bytes
+(``MotionProgram``, format 10011) and ``abb-robot-client``'s ``RWS`` carries every request
+unchanged; the upload, start and result are ours, because the library's own naming puts
+both arms' programs of a MultiMove step into one file (docs/notes/rws.md). Our RAPID
+(robot/rapid/) reads each task's file and reports in the event log. The same code runs
+against a lab's IRC5 and against the hardware twin (``sim_twin.yumi_server``), which
+answers RWS 1.0 as a controller does.
+
+Before every start the controller's state is read (:mod:`drivers.yumi.controller_state`):
+a push in manual mode, with the motors off, with RAPID running or a task stopped by a
+RAPID error is refused with one line naming what to fix, and nothing moves. Every event
+log entry since the previous program goes to the ``drivers.yumi.elog`` logger (the
+agent's stderr: the run's ``hosts/<host>.log``). :meth:`stop` stops a running program from
+another thread, on a second RWS session, so it never waits behind the polling.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from drivers.errors import BackendError
+from drivers.yumi.controller_state import describe, entry_text, one_line, read_state, refusal
+from drivers.yumi.credentials import FACTORY_PASSWORD, FACTORY_USER, RwsLogin
+from drivers.yumi.yumi_controller import ArmPose, Waypoint, _since, check_result, program_file
+
+elog_log = logging.getLogger("drivers.yumi.elog")
+elog_log.setLevel(logging.INFO)  # the controller's own words belong in the host log
+log = logging.getLogger(__name__)
+
+TOOL = "tool_pusher"
+"""Our RAPID's pusher (a ``TASK PERS tooldata`` in each task module): every motion and
+every TCP read uses it, so the point read back is the point commanded."""
+V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S = 100.0, 1000.0, 100.0
+"""Orientation, linear and rotational external-axis speeds written into each program,
+the same as our RAPID's ``TB_V_*`` (which it uses whatever the file says)."""
+POLL_S = 0.05
+PUSHER_LOAD = (0.1, (0.0, 0.0, 50.0))
+"""The program file's load (kg, centre of gravity mm); our RAPID uses its own
+``tool_pusher`` load, weighed on day one (robot/README.md)."""
+
+
+def _patch_timeout(rws: Any, timeout_s: float, counter: list[int] | None = None) -> None:
+    """abb-robot-client sends its requests without a timeout: a controller that accepts
+    the connection and never answers would block the agent for ever. ``counter[0]``
+    counts the requests."""
+    session = rws._session
+    plain_request = session.request
+
+    def request(method: str, url: str, **kw: Any) -> Any:
+        kw.setdefault("timeout", timeout_s)
+        if counter is not None:
+            counter[0] += 1
+        return plain_request(method, url, **kw)
+
+    session.request = request
+
+
+class RwsYumiController:
+    """Both arms of an IRB 14000 through RWS; programs of both arms start together."""
+
+    def __init__(self, base_url: str, arms: Mapping[str, ArmPose], *,
+                 login: RwsLogin | None = None, http_timeout_s: float = 5.0,
+                 motion_timeout_s: float = 15.0) -> None:
+        # Lazy: these clients pull in requests/websockets; only a YuMi host needs them.
+        from abb_motion_program_exec import abb_motion_program_exec_client as mpe
+        from abb_robot_client.rws import RWS
+
+        if login is None:
+            log.warning("no credentials_file for %s: logging in as the factory user %r",
+                        base_url, FACTORY_USER)
+            login = RwsLogin(FACTORY_USER, FACTORY_PASSWORD)
+        self._mpe: Any = mpe
+        self._arms = dict(arms)
+        self._motion_timeout_s = motion_timeout_s
+        self._seqno = 0
+        self._rws: Any = RWS(base_url, login.user, login.password)
+        self._stop_rws: Any = RWS(base_url, login.user, login.password)
+        self._count = [0]
+        _patch_timeout(self._rws, http_timeout_s, self._count)
+        _patch_timeout(self._stop_rws, min(http_timeout_s, 1.0))
+        self._stopping = threading.Event()
+        self._last_entry: int | None = None
+
+    @property
+    def requests(self) -> int:
+        """HTTP requests sent on the main session so far (the benchmark and the notes
+        count a push's from it)."""
+        return self._count[0]
+
+    def program(self, arm: str, waypoints: Sequence[Waypoint]) -> Any:
+        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read)."""
+        mpe = self._mpe
+        pose = self._arms[arm]
+        mass, cog = PUSHER_LOAD
+        tool = mpe.tooldata(True, mpe.pose([0, 0, pose.tool_z_mm], [1, 0, 0, 0]),
+                            mpe.loaddata(mass, list(cog), [1, 0, 0, 0], 0, 0, 0))
+        mp = mpe.MotionProgram(tool=tool)
+        extax = [pose.arm_angle_deg, 9e9, 9e9, 9e9, 9e9, 9e9]
+        for w in waypoints:
+            speed = mpe.speeddata(float(w.speed_mm_s), V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S)
+            zone = mpe.fine if w.fine else mpe.z10
+            if w.kind == "rest":
+                j = pose.rest_joints_deg
+                mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6], 9e9, 9e9, 9e9, 9e9, 9e9]),
+                            speed, zone)
+                continue
+            if w.xyz_mm is None:
+                raise BackendError(f"arm {arm}: a {w.kind} waypoint needs a position")
+            target = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
+                                   mpe.confdata(*pose.robconf), extax)
+            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
+        return mp
+
+    def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
+        arms = [a for a in self._arms if a in programs]
+        if not arms:
+            return
+        mps = {self._arms[a].task: self.program(a, programs[a]) for a in arms}
+        self._seqno = self._seqno % 60000 + 1  # float32-exact, and new for every step
+        seqno = self._seqno
+        self._stopping.clear()
+        prev: int | None = None
+        try:
+            prev = self._start(mps, seqno)
+            self._wait()
+            entries = self._entries_since(prev)
+        except BackendError:
+            with contextlib.suppress(Exception):  # the controller's side of the failure
+                self._entries_since(prev)
+            raise
+        except Exception as exc:
+            raise BackendError(f"YuMi controller refused the motion program: "
+                               f"{one_line(exc)}") from exc
+        check_result(entries, list(mps), seqno)
+
+    def _start(self, mps: Mapping[str, Any], seqno: int) -> int | None:
+        """Refuse unless the controller is ready; upload every task's program to ITS file
+        and start those tasks together. Returns the newest event log entry before."""
+        rws = self._rws
+        log_before = rws.read_event_log()
+        prev = log_before[0].seqnum if log_before else None
+        self._log_new(log_before)
+        if (why := refusal(read_state(rws))) is not None:
+            raise BackendError(f"YuMi controller: {why}; the motion was not started")
+        rws.resetpp()
+        ramdisk = rws.get_ramdisk_path()
+        for task, mp in mps.items():
+            rws.upload_file(f"{ramdisk}/{program_file(task)}", mp.get_program_bytes(seqno))
+        rws.start(cycle="once", tasks=list(mps))
+        return prev
+
+    def _wait(self) -> None:
+        deadline = time.monotonic() + self._motion_timeout_s
+        while self._rws.get_execution_state().ctrlexecstate == "running":
+            if self._stopping.is_set():
+                raise BackendError("YuMi controller: the motion was stopped (the operator "
+                                   "stopped the trial or the link to the controller was lost)")
+            if time.monotonic() > deadline:
+                self._rws.stop()
+                raise BackendError(f"YuMi controller: the motion did not finish within "
+                                   f"motion_timeout_s = {self._motion_timeout_s:g} s; the "
+                                   f"program was stopped")
+            time.sleep(POLL_S)
+        if self._stopping.is_set():
+            raise BackendError("YuMi controller: the motion was stopped (the operator "
+                               "stopped the trial or the link to the controller was lost)")
+
+    def _entries_since(self, prev: int | None) -> list[Any]:
+        log_now = self._rws.read_event_log()
+        self._log_new(log_now)
+        return _since(log_now, prev)
+
+    def _log_new(self, log_now: Sequence[Any]) -> None:
+        """Every entry not logged yet, oldest first, to the host log (one line each)."""
+        fresh = _since(log_now, self._last_entry) if self._last_entry is not None else []
+        for e in fresh:
+            level = logging.WARNING if e.msgtype >= 3 else logging.INFO
+            elog_log.log(level, "controller %s (seq %d, type %d)", entry_text(e), e.seqnum,
+                         e.msgtype)
+        if log_now:
+            self._last_entry = log_now[0].seqnum
+
+    def stop(self) -> None:
+        self._stopping.set()
+        try:
+            self._stop_rws.stop()
+        except Exception as exc:  # the polling loop still ends on the flag
+            log.error("could not stop RAPID through RWS: %s", one_line(exc))
+
+    def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
+        out: dict[str, tuple[float, float, float]] = {}
+        try:
+            for arm, pose in self._arms.items():
+                rt = self._rws.get_robtarget(mechunit=pose.mechunit, tool=TOOL, wobj="wobj0",
+                                             coordinate="Wobj")
+                out[arm] = (float(rt.trans[0]), float(rt.trans[1]), float(rt.trans[2]))
+        except Exception as exc:
+            raise BackendError(f"cannot read the arms' positions ({TOOL} in wobj0) from the "
+                               f"YuMi controller: {one_line(exc)}") from exc
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        try:
+            return describe(self._rws, [p.task for p in self._arms.values()]).to_dict()
+        except Exception as exc:
+            raise BackendError(f"cannot read the YuMi controller's state: "
+                               f"{one_line(exc)}") from exc
+
+    def close(self) -> None:
+        for rws in (self._rws, self._stop_rws):
+            with contextlib.suppress(Exception):  # best effort on the way out
+                rws.logout()
