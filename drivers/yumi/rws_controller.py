@@ -87,6 +87,11 @@ class RwsYumiController:
         _patch_timeout(self._stop_rws, min(http_timeout_s, 1.0))
         self._stopping = threading.Event()
         self._last_entry: int | None = None
+        self._ramdisk: str | None = None
+        self.timing: dict[str, float] = {}
+        """Wall seconds of the last :meth:`execute`'s phases: ``checks`` (event log and
+        state reads), ``upload`` (resetpp, RAM disk path, the files), ``start``, ``wait``
+        (the motion, polled until RAPID stops) and ``log`` (the result's entries)."""
 
     @property
     def requests(self) -> int:
@@ -126,11 +131,15 @@ class RwsYumiController:
         self._seqno = self._seqno % 60000 + 1  # float32-exact, and new for every step
         seqno = self._seqno
         self._stopping.clear()
+        self.timing = {}
         prev: int | None = None
         try:
             prev = self._start(mps, seqno)
+            t0 = time.perf_counter()
             self._wait()
+            t1 = time.perf_counter()
             entries = self._entries_since(prev)
+            self.timing.update(wait=t1 - t0, log=time.perf_counter() - t1)
         except BackendError:
             with contextlib.suppress(Exception):  # the controller's side of the failure
                 self._entries_since(prev)
@@ -144,16 +153,22 @@ class RwsYumiController:
         """Refuse unless the controller is ready; upload every task's program to ITS file
         and start those tasks together. Returns the newest event log entry before."""
         rws = self._rws
+        t0 = time.perf_counter()
         log_before = rws.read_event_log()
         prev = log_before[0].seqnum if log_before else None
         self._log_new(log_before)
         if (why := refusal(read_state(rws))) is not None:
             raise BackendError(f"YuMi controller: {why}; the motion was not started")
+        t1 = time.perf_counter()
         rws.resetpp()
-        ramdisk = rws.get_ramdisk_path()
+        if self._ramdisk is None:  # the controller's RAM disk folder does not move
+            self._ramdisk = str(rws.get_ramdisk_path())
         for task, mp in mps.items():
-            rws.upload_file(f"{ramdisk}/{program_file(task)}", mp.get_program_bytes(seqno))
+            rws.upload_file(f"{self._ramdisk}/{program_file(task)}",
+                            mp.get_program_bytes(seqno))
+        t2 = time.perf_counter()
         rws.start(cycle="once", tasks=list(mps))
+        self.timing.update(checks=t1 - t0, upload=t2 - t1, start=time.perf_counter() - t2)
         return prev
 
     def _wait(self) -> None:

@@ -49,8 +49,9 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
     checked with the config), or the scripted expert has a twin to read its pushes from
     (``scripted`` with ``teleop``).
 
-    A yumi host whose controller is the hardware twin (``twin+http://``) has one: a
-    rehearsal's scripted humans read it over the twin's side channel.
+    A yumi host whose controller is on loopback is a hardware twin (a lab's IRC5 is on
+    its own network, never on this machine): a rehearsal's scripted humans read it over
+    the twin's side channel.
     """
     where = "--humans (or humans.kind)"
     if kind == "gui":
@@ -77,11 +78,17 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
                               '".[web]"')
     elif kind == "scripted" and teleop:
         real = [h.name for h in cfg.hosts if h.backend != "twin"
-                and not str(getattr(h, "controller_url", "")).startswith("twin+")]
+                and not _on_loopback(str(getattr(h, "controller_url", "")))]
         if real:
             raise ConfigError(f"{where} scripted: scripted humans teleoperate from the twin's "
                               f"expert and host {real[0]} is a physical robot; use --humans gui "
                               "(or web)")
+
+
+def _on_loopback(url: str) -> bool:
+    from urllib.parse import urlsplit
+
+    return (urlsplit(url).hostname or "") in ("127.0.0.1", "localhost", "::1")
 
 
 def check_policy(path: str, cfg: FleetConfig) -> None:

@@ -2,8 +2,9 @@
 
 Why it exists: a rehearsal must reach its hosts the way a lab reaches its robots' PCs
 (OpenSSH, the host agent, ``--backend yumi``), so each YuMi host of the fleet becomes a
-``python -m sim_twin.yumi_server`` process (an HTTP controller API and an MJPEG camera)
-with an OpenSSH ``sshd`` on loopback in front of it. ``HardwareTwinLab`` starts and
+``python -m sim_twin.yumi_server`` process (the controller's Robot Web Services 1.0, as an
+IRC5 answers them, and an MJPEG camera) with an OpenSSH ``sshd`` on loopback in front of
+it; the agent's controller client is the one a lab's host runs. ``HardwareTwinLab`` starts and
 stops both, rewrites the fleet's host section to reach them, and is the lab's hands in
 fault drills (kill an agent, stop an sshd). ``LabClient`` is the lab's side channel to
 one twin (``/lab/*``: the truth, the lab hand, the true camera model): what a person in
@@ -106,9 +107,16 @@ class TwinHost:
     name: str
     arms: tuple[str, ...]
     port: int
+    """The twin's camera and lab side channel."""
+    rws_port: int
+    """The twin's controller: Robot Web Services 1.0, as a lab's IRC5 answers it."""
     proc: subprocess.Popen[bytes]
     sshd: SshServer
     lab: LabClient
+    login_file: Path
+    """The controller login (``USER:PASSWORD``, mode 0600), the host's ``credentials_file``."""
+    rws_log: Path
+    """Every RWS request the twin served (JSON lines: method, path, status, ms)."""
 
     @property
     def camera_url(self) -> str:
@@ -116,7 +124,13 @@ class TwinHost:
 
     @property
     def controller_url(self) -> str:
-        return f"twin+http://127.0.0.1:{self.port}"
+        return f"http://127.0.0.1:{self.rws_port}"
+
+    @property
+    def controller_lab_url(self) -> str:
+        """The twin controller's own side channel (``/lab/controller``: operating mode,
+        motors, guard stop, RAPID errors), what a person at the robot's cabinet changes."""
+        return f"http://127.0.0.1:{self.rws_port}"
 
 
 def require_yumi(fleet: FleetConfig) -> None:
@@ -147,33 +161,48 @@ class HardwareTwinLab:
             raise ConfigError("testbed rehearse needs OpenSSH's sshd and ssh-keygen "
                               "(Debian: apt-get install openssh-server)")
         self.root.mkdir(parents=True, exist_ok=True)
-        starting: list[tuple[str, tuple[str, ...], subprocess.Popen[bytes], Path]] = []
+        starting: list[tuple[str, tuple[str, ...], subprocess.Popen[bytes]]] = []
         try:
             for i, h in enumerate(self.fleet.hosts):
                 arms = tuple(a.name for a in h.arms)
-                port_file = self.root / f"{h.name}.port"
-                port_file.unlink(missing_ok=True)
-                proc = self._start_twin(h.name, arms, self.seed * 1000 + i, port_file)
-                starting.append((h.name, arms, proc, port_file))
-            for name, arms, proc, port_file in starting:
-                port = _wait_port(proc, port_file, self.root / f"{name}-twin.log")
+                for suffix in ("port", "rws.port"):
+                    (self.root / f"{h.name}.{suffix}").unlink(missing_ok=True)
+                write_login(self._login_file(h.name))
+                proc = self._start_twin(h.name, arms, self.seed * 1000 + i)
+                starting.append((h.name, arms, proc))
+            for name, arms, proc in starting:
+                log = self.root / f"{name}-twin.log"
+                port = _wait_port(proc, self.root / f"{name}.port", log)
+                rws_port = _wait_port(proc, self.root / f"{name}.rws.port", log)
                 sshd = self._start_sshd(name)
-                self.hosts[name] = TwinHost(name, arms, port, proc, sshd,
-                                            LabClient(f"http://127.0.0.1:{port}"))
+                self.hosts[name] = TwinHost(name, arms, port, rws_port, proc, sshd,
+                                            LabClient(f"http://127.0.0.1:{port}"),
+                                            self._login_file(name), self._rws_log(name))
         except BaseException:
-            for _, _, proc, _ in starting:
+            for _, _, proc in starting:
                 _terminate(proc)
             self.stop()
             raise
 
-    def _start_twin(self, host: str, arms: tuple[str, ...], seed: int, port_file: Path
+    def _login_file(self, host: str) -> Path:
+        return self.root / f"{host}-rws.login"
+
+    def _rws_log(self, host: str) -> Path:
+        return self.root / f"{host}-rws.jsonl"
+
+    def _start_twin(self, host: str, arms: tuple[str, ...], seed: int
                     ) -> subprocess.Popen[bytes]:
-        """``python -m sim_twin.yumi_server`` for ``host``, its output to its log."""
+        """``python -m sim_twin.yumi_server`` for ``host``, its output to its log: the
+        camera and the lab side channel on one port, the controller's RWS on another,
+        logging in with the host's login file and logging every request it serves."""
         log = open(self.root / f"{host}-twin.log", "ab")  # noqa: SIM115 (child owns it)
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim_twin.yumi_server", "--arms", ",".join(arms),
              "--seed", str(seed), "--port", "0",
-             "--port-file", str(port_file), "--realtime", f"{self.realtime:g}"],
+             "--port-file", str(self.root / f"{host}.port"),
+             "--rws-port-file", str(self.root / f"{host}.rws.port"),
+             "--rws-credentials", str(self._login_file(host)),
+             "--rws-log", str(self._rws_log(host)), "--realtime", f"{self.realtime:g}"],
             cwd=PROJECT_ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
             start_new_session=True)
         log.close()
@@ -227,7 +256,8 @@ class HardwareTwinLab:
                 "user": t.sshd.user, "key_file": str(t.sshd.client_key),
                 "known_hosts": str(t.sshd.known_hosts), "python": sys.executable,
                 "workdir": str(PROJECT_ROOT), "camera": t.camera_url,
-                "controller_url": t.controller_url, "arms": arms}))
+                "controller_url": t.controller_url, "credentials_file": str(t.login_file),
+                "arms": arms}))
         return fleet.model_copy(update={"hosts": hosts})
 
     def reset_all(self, *_: Any) -> None:
@@ -252,6 +282,17 @@ class HardwareTwinLab:
                     os.kill(pid, signal.SIGKILL)
                     killed += 1
         return killed
+
+
+def write_login(path: Path) -> None:
+    """A fresh controller login for one twin (``testbed`` and a random password), mode
+    0600 from its first byte: what a lab puts on its robot host for the real controller."""
+    import secrets
+
+    path.unlink(missing_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(f"testbed:{secrets.token_urlsafe(18)}\n")
 
 
 def _wait_port(proc: subprocess.Popen[bytes], port_file: Path, log: Path) -> int:

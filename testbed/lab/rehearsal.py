@@ -4,16 +4,19 @@ Why: the physical path (SSH, the host agent, the YuMi backend, its camera and it
 controller, calibration, the physical protocol's prompts and records) is what a lab runs
 on day one, and none of it runs in twin mode. A rehearsal runs the physical protocol
 UNCHANGED but for where its hosts are: each YuMi host becomes a hardware twin
-(``python -m sim_twin.yumi_server``: a PyBullet bimanual cell behind an HTTP controller
-API and an MJPEG camera) reached through a real OpenSSH ``sshd`` on loopback, and the
-agent on it runs ``--backend yumi`` as on the robot's PC::
+(``python -m sim_twin.yumi_server``: a PyBullet bimanual cell behind the controller's Robot
+Web Services, with our RAPID's semantics, and an MJPEG camera) reached through a real
+OpenSSH ``sshd`` on loopback, and the agent on it runs ``--backend yumi`` as on the
+robot's PC::
 
     testbed rehearse  --SSH-->  sshd  -->  python -m drivers.agent --backend yumi
                                              camera:     http://127.0.0.1:P/camera.mjpg
-                                             controller: twin+http://127.0.0.1:P
+                                             controller: http://127.0.0.1:Q (RWS 1.0, the
+                                               unchanged ABB client, a 0600 login file)
     lab side (never read by the controller's decisions):
       TwinLabHumans: scripted teleop from the twin's truth, the lab hand on a confirmed reset
       TruthRecorder: runs/<run>/twin_truth.jsonl (scoring only)
+      RwsLogSlices: runs/<run>/hosts/<host>.rws.jsonl (every RWS request the twin served)
 
 The protocol's host section is rewritten in addresses, ports, users and key paths (the
 twin's sshd), in the host install (python, workdir: this checkout), in the devices
@@ -45,6 +48,7 @@ from testbed.experiments.hooks import TrialHooks
 from testbed.lab.camera_model import starting_calibration, true_model_error
 from testbed.lab.hardware_twin import HardwareTwinLab, RehearsalError, require_yumi
 from testbed.lab.lab_humans import ArmView, TwinLabHumans, arm_views
+from testbed.lab.rws_requests import RwsLogSlices, read_requests, requests_table
 from testbed.lab.twin_truth import TruthRecorder, agreement_table, truth_agreement
 from testbed.records.run_dir import RunDir
 
@@ -109,7 +113,10 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
         calibration = _calibrate_all(lab, fleet, fleet_file, say)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
         hooks = _RehearsalHooks(lab, arm_views(fleet), opts.humans)
-        report = run_protocol(run_proto, out=str(folder), ask=False, hooks=hooks)
+        try:
+            report = run_protocol(run_proto, out=str(folder), ask=False, hooks=hooks)
+        finally:
+            hooks.rws.end()
     agreement: dict[str, dict[str, Any]] = {}
     for run in sorted(p for p in folder.iterdir() if (p / "twin_truth.jsonl").exists()):
         agreement[run.name] = truth_agreement(run)
@@ -118,6 +125,10 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
         markdown = ("**Quick rehearsal:** the learning sizes are the default twin trial's, not "
                     "the protocol's.\n\n" + markdown)
     markdown += "\n" + agreement_table(agreement)
+    rws_logs = sorted(folder.glob("*/hosts/*.rws.jsonl"))
+    if rws_logs:
+        markdown += "\n## The controllers' RWS requests (all runs)\n\n" + requests_table(
+            read_requests(rws_logs))
     (folder / "rehearsal.md").write_text(markdown, encoding="utf-8")
     return RehearsalResult(folder, markdown, agreement, calibration)
 
@@ -186,6 +197,8 @@ class _RehearsalHooks(TrialHooks):
     def __init__(self, lab: HardwareTwinLab, views: Mapping[str, ArmView], kind: str) -> None:
         self.lab, self.views, self.kind = lab, views, kind
         self.recorders: list[TruthRecorder] = []
+        self.rws = RwsLogSlices({n: h.rws_log for n, h in lab.hosts.items()})
+        """Each run's share of the twins' RWS request logs, into its ``hosts/``."""
 
     def before_run(self, name: str) -> bool:
         self.lab.reset_all(name)
@@ -199,6 +212,7 @@ class _RehearsalHooks(TrialHooks):
         return TwinLabHumans(inner, self.lab.labs, self.views, expert=self.kind == "scripted")
 
     def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:
+        self.rws.begin(run.path)
         rec = TruthRecorder(hosts, self.lab.labs, self.views, run.path / "twin_truth.jsonl")
         self.recorders.append(rec)
         return rec

@@ -210,13 +210,13 @@ def test_scripted_humans_cannot_teleoperate_a_physical_robot(
 
 
 def test_scripted_humans_may_drive_a_hardware_twin() -> None:
-    # A rehearsal's yumi hosts run on the hardware twin, whose side channel the scripted
-    # humans read: no error for them, nor for the twin fleet.
+    # A rehearsal's yumi hosts run on the hardware twin (its RWS on loopback), whose side
+    # channel the scripted humans read: no error for them, nor for the twin fleet.
     from testbed.cli.checks import check_humans
     from testbed.core.config import default_twin_config, parse_config
 
     check_humans("scripted", parse_config(tomllib.loads(
-        YUMI.format(url="twin+http://127.0.0.1:4101"))))
+        YUMI.format(url="http://127.0.0.1:4101"))))
     check_humans("scripted", default_twin_config())
 
 
