@@ -5,6 +5,13 @@ handshake check the agent's protocol version, takes one frame of every arm, repo
 each arm's state in one line, and writes a mosaic PNG of all arms' images so a glance
 shows a camera that is dark, a crop that is off, or a cube out of its workspace.
 
+A YuMi host's controller reports itself (RobotWare version and options, serial, operating
+mode, controller and RAPID state, speed ratio, tasks, our RAPID modules' version against
+this checkout's and their world zones); anything that would refuse a push or stop an arm
+(manual mode, motors off, a guard stop, a program running, a task stopped by a RAPID
+error, a missing option or module, a table box wider than its world zone) is a FAULT
+line naming what to fix, and the check fails.
+
 A host with a real camera (yumi) also sends its FULL frame, written as
 ``check-<host>.png`` beside the mosaic with each arm's crop box, its workspace (the
 task's canonical polygon mapped back through crop and mirror) and, when the arm's
@@ -50,6 +57,7 @@ def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], N
                 print_line(f"FAULT {robot}: {reason}")
         hosts.rest()
         for host in cfg.hosts:
+            ok = controller_report(hosts, host, print_line) and ok
             ok = full_frame(hosts, host, mosaic_path.parent, print_line) and ok
     finally:
         hosts.close()
@@ -95,6 +103,53 @@ def full_frame(hosts: Any, host: HostConfig, folder: Path,
     print_line(f"full frame {size[0]}x{size[1]} of host {host.name} with crops and "
                f"workspaces -> {path}")
     return True
+
+
+def controller_report(hosts: Any, host: HostConfig, print_line: Callable[[str], None]
+                      ) -> bool:
+    """Print what a YuMi host's controller says of itself (RobotWare, options, serial,
+    mode and state, tasks, our RAPID modules and world zones) and one FAULT line for each
+    thing to fix first; False if there is one. Other backends have no controller."""
+    from drivers.host_fleet import HostCallError
+    from drivers.yumi.controller_state import RAPID_VERSION, problems
+
+    if host.backend != "yumi" or not hosts.host_status()[host.name].connected:
+        return True
+    try:
+        info = hosts.describe(host.name)
+    except HostCallError as exc:
+        print_line(f"FAULT {host.name}: cannot read the controller's state: {exc}")
+        return False
+    rep, boxes = info["controller"], info.get("table_boxes", {})
+    for line in report_lines(host.name, rep, RAPID_VERSION):
+        print_line(line)
+    found = problems(rep, list(rep.get("rapid", {})), boxes)
+    for why in found:
+        print_line(f"FAULT {host.name}: {why}")
+    return not found
+
+
+def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:
+    """The controller's report as ``testbed check`` prints it (never a credential)."""
+    st = rep.get("state", {})
+    ratio = st.get("speedratio")
+    lines = [f"      {name}: controller {rep.get('system')} serial {rep.get('serial')}, "
+             f"RobotWare {rep.get('robotware')}; mode {st.get('opmode')}, "
+             f"{st.get('ctrlstate')}, RAPID {st.get('execstate')}, speed ratio "
+             f"{'?' if ratio is None else f'{ratio:g}'} %",
+             f"      {name}: options: {', '.join(rep.get('options', [])) or 'none'}",
+             f"      {name}: tasks: " + ", ".join(
+                 f"{t} ({'active' if d.get('active') else 'inactive'}, {d.get('excstate')})"
+                 for t, d in rep.get("tasks", {}).items())]
+    for task, ours in rep.get("rapid", {}).items():
+        z = ours.get("zones", {})
+        lo, hi = z.get("tb_zone_lo") or ["?", "?"], z.get("tb_zone_hi") or ["?", "?"]
+        v = ours.get("version")
+        lines.append(f"      {name}: {task}: testbed RAPID "
+                     f"{'not loaded' if v is None else f'version {v}'} (this checkout: "
+                     f"{version}); world zone box x {lo[0]}..{hi[0]}, y {lo[1]}..{hi[1]} mm "
+                     f"below z {z.get('tb_zone_z')}, floor z {z.get('tb_floor_z')}")
+    return lines
 
 
 def _workspace() -> Any:

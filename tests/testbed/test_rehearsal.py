@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from lab_fixtures import PHYSICAL, calibrate_exactly, tiny_policy, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
 from testbed.cli import main
-from testbed.core.atomic import atomic_write_json
 from testbed.core.config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.protocol import load_protocol
@@ -35,42 +35,6 @@ pytestmark = [
     pytest.mark.ssh,
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
-
-PHYSICAL = Path(__file__).resolve().parents[2] / "protocols" / "physical.toml"
-TINY_LEARNING = """[fleet.learning]
-ensemble_size = 2
-batch_size = 16
-demos = 16
-critic_transitions = 8
-pretrain_steps = 3
-critic_pretrain_steps = 3
-
-"""
-
-
-def tiny_protocol(tmp: Path, *, t_R: int | None = None) -> Path:
-    """physical.toml as shipped, but with learning sizes a test can afford."""
-    text = PHYSICAL.read_text()
-    text = re.sub(r"\[fleet\.learning\][^\[]*", TINY_LEARNING, text)
-    if t_R is not None:
-        text = re.sub(r"\nt_R = \d+", f"\nt_R = {t_R}", text)
-    path = tmp / "physical-tiny.toml"
-    path.write_text(text)
-    return path
-
-
-def tiny_policy(cfg: FleetConfig, path: Path) -> Path:
-    from testbed.learning import Learner
-
-    Learner(cfg.learning, seed=0).save(path)
-    return path
-
-
-def calibrate_exactly(lab: HardwareTwinLab) -> None:
-    for name, host in lab.hosts.items():
-        cam = host.lab.camera()
-        for arm in host.arms:
-            atomic_write_json(lab.calibration_path(name, arm), true_calibration(cam, arm))
 
 
 def robot_modes(run: Path) -> dict[str, list[str]]:
@@ -105,7 +69,17 @@ def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with
         assert meta["status"] == "complete"
         cfg = (run / "config.toml").read_text()
         assert 'backend = "yumi"' in cfg and 'transport = "ssh"' in cfg
-        assert "twin+http://127.0.0.1:" in cfg and "/camera.mjpg" in cfg
+        assert re.search(r'controller_url = "http://127\.0\.0\.1:\d+"', cfg)
+        assert "/camera.mjpg" in cfg and "-rws.login" in cfg  # the login file, not its text
+        password = (out / "lab" / "yumi-a-rws.login").read_text().split(":", 1)[1].strip()
+        for f in (run / "config.toml", run / "run.json", run / "hosts" / "yumi-a.log"):
+            assert password not in f.read_text()
+        served = [json.loads(x) for x in
+                  (run / "hosts" / "yumi-a.rws.jsonl").read_text().splitlines()]
+        starts = [r for r in served if r["method"] == "POST"
+                  and "rw/rapid/execution" in r["path"] and "action=start" in r["path"]]
+        assert starts and all(r["status"] == 204 for r in starts)
+        assert {"t", "method", "path", "status", "ms"} <= set(served[0])
         rows = read_steps(run / "steps.jsonl")
         assert all("wall_time" in r and "duration_s" in r for r in rows)
         truth = [json.loads(x) for x in (run / "twin_truth.jsonl").read_text().splitlines()]
@@ -122,6 +96,7 @@ def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with
     assert agree / n >= 0.98
     report = (out / "rehearsal.md").read_text()
     assert "| bc |" in report and "| fleet-ed |" in report and "twin's truth" in report
+    assert "The controllers' RWS requests" in report and "rw/rapid/execution?action=start" in report
 
 
 def test_rehearse_refuses_a_twin_protocol_in_one_line_before_anything_starts(
@@ -170,7 +145,7 @@ def test_a_second_agent_for_a_held_robot_is_refused_naming_the_holder(
             assert not status.connected
             pid = first.host_status()[host.name].agent_pid
             assert status.error is not None and f"held by agent pid {pid}" in status.error
-            assert "twin+http://127.0.0.1:" in status.error
+            assert "http://127.0.0.1:" in status.error
             obs = first.observe()  # the holder still drives its robot
             assert all(hasattr(o, "image") for o in obs.values())
         finally:
