@@ -275,6 +275,18 @@ class YumiTwinCell:
         x, y, z = (float(v) for v in xyz_mm)
         self._tcp[arm] = (x, y, z)
 
+    def halt(self, points: Mapping[str, Sequence[float]]) -> None:
+        """A motion stopped at a given point (a world zone's face, which the last physics
+        step may have passed by a fraction of a millimetre): each arm's pusher is pulled
+        back to its point, which is also where its next program starts, and the world
+        settles."""
+        for arm, p in points.items():
+            self.hold(arm, p)
+            pb.changeConstraint(self._cid[arm], self._body_pos(self._tcp[arm]),
+                                maxForce=_PUSHER_FORCE_N, physicsClientId=self.client)
+        self._settle()
+        self.version += 1
+
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
         """Each arm's actual TCP (the pusher's bottom centre), mm."""
         out = {}

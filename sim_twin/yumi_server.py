@@ -1,42 +1,65 @@
-"""The YuMi hardware twin as a process: camera stream, controller API, lab side channel.
+"""The YuMi hardware twin as a process: camera stream, the controller's RWS, lab side channel.
 
 Why a process with HTTP: the physical path (agent -> YumiBackend -> camera seam and
 controller seam) must run unchanged against the twin, over the same kinds of channel as
-in the lab: an IP camera's MJPEG stream that ``cv2.VideoCapture`` opens, and a
-controller reached over the network. The lab side channel (/lab/*) is what the
-rehearsal's humans and truth recorder use; the backend never sees it.
+in the lab: an IP camera's MJPEG stream that ``cv2.VideoCapture`` opens, and the IRC5's
+Robot Web Services 1.0 that the UNCHANGED ABB client (``abb_robot_client.rws.RWS``)
+speaks, behind which the twin plays OUR RAPID (``robot/rapid/``: one program file per
+task, the event-log entries, the world zones). The lab side channels (``/lab/*`` on both
+ports) are what the rehearsal's humans, truth recorder and fault drills use; the backend
+never sees them.
 
 Usage::
 
     python -m sim_twin.yumi_server --arms left,right --seed 7 --port 0 \\
-        --port-file /tmp/twin.port [--fps 15] [--realtime 0] [--host 127.0.0.1]
+        --port-file /tmp/twin.port [--fps 15] [--realtime 0] [--host 127.0.0.1] \\
+        [--rws-port-file /tmp/twin.rws.port] [--rws-credentials FILE] [--rws-log FILE] \\
+        [--zone ARM=x0,y0,x1,y1 ...] [--zone-z 80] [--floor-z 0] [--max-sessions 70] \\
+        [--pusher-length-mm 0] [--no-rapid] [--verbose]
 
-It listens on HOST:PORT (port 0: any free port), writes the port (a decimal line) to
-``--port-file`` atomically once listening, serves until SIGTERM/SIGINT and exits 0.
+It listens on HOST:PORT (port 0: any free port) for the camera and the lab, and on a
+second loopback port (always 127.0.0.1, any free port) for RWS; it writes the RWS port to
+``--rws-port-file`` and THEN the camera port to ``--port-file`` (each a decimal line,
+atomically), so a parent that sees the camera's port file can use both. It serves until
+SIGTERM/SIGINT and exits 0; 2 (one line on stderr) on a bad argument, a zone that does
+not fit, or a credentials file others can read.
 
-Endpoints (JSON unless said otherwise; errors are ``{"error": "..."}`` with 400/404/503):
+The camera port (JSON unless said otherwise; errors are ``{"error": "..."}`` with
+400/404/503):
 
 - ``GET /camera.mjpg``: ``multipart/x-mixed-replace; boundary=frame``, one JPEG part per
   frame at ``--fps`` (each part: ``--frame``, ``Content-Type: image/jpeg``,
   ``Content-Length``). One client at a time, like a V4L2 device: a second one gets 503
   with the text ``camera busy: another client is streaming``. The world is rendered
-  once per state (after a motion or a reset, before its reply is sent); every frame gets
-  fresh sensor noise. The socket's send buffer is kept small so few stale frames queue.
+  once per state (after a motion or a reset; during a motion at ``--realtime`` > 0 also
+  at ``--fps`` of wall time as it goes); every frame gets fresh sensor noise. The socket's
+  send buffer is kept small so few stale frames queue. After a motion the new state is
+  published before RWS reads execution ``stopped``.
 - ``GET /camera.jpg``: one JPEG of the current state (not a stream client).
-- ``POST /controller/execute`` ``{"programs": {arm: [waypoint, ...]}}``, each waypoint
-  ``{"kind": "move_j"|"move_l"|"rest", "xyz_mm": [x, y, z] | null, "speed_mm_s": v,
-  "fine": bool}``: all arms at once (MultiMove), returns ``{"ok": true, "sim_s": s}``
-  when every program ended and the cubes settled; 400 and nothing moves on a bad program
-  (unknown arm or kind, speed not in (0, 1500] mm/s, z < 0, NaN).
-- ``GET /controller/tcp`` -> ``{"tcp": {arm: [x, y, z]}}`` (actual TCP, mm).
 - ``POST /lab/reset`` ``{"arm": "left"}`` -> ``{"ok": true}``: the lab hand puts the
   arm's cube back near its workspace centre.
 - ``POST /lab/place`` ``{"arm", "xy_mm": [x, y], "yaw"}`` -> ``{"ok": true}``: a person puts
   the cube somewhere (fault drills, tests).
-- ``GET /lab/truth`` -> ``{"arms": {arm: {"cube_mm", "on_table", "cube_px", "yaw_px"}}}``.
+- ``GET /lab/truth`` -> ``{"arms": {arm: {"cube_mm", "on_table", "cube_px", "yaw_px",
+  "tcp_mm"}}}`` (``tcp_mm``: the pusher's actual TCP, world mm).
 - ``GET /lab/camera`` -> the true camera model and the cell's layout (K, dist, R/t and
   rvec/tvec world mm -> camera, crops, mirror, workspaces_mm, rest_mm, marker, ...).
 - ``GET /lab/health`` -> ``{"ok": true}``.
+
+The RWS port (``sim_twin.rws``; docs/notes/rws.md): RWS 1.0 as RobotWare 6 answers it,
+digest login as ``Default User``/``robotics`` or the ``--rws-credentials`` file's
+``USER:PASSWORD`` (the format of the agent's ``credentials_file``: one line, ``#``
+comments; mode 0600 or 0400), at most ``--max-sessions`` sessions. A RAPID start runs
+``TestbedRapid`` on this process's cell (under the same lock as the camera and the lab):
+our modules' semantics, the task modules' symbols readable (``tb_zone_lo``,
+``tb_zone_hi``, ``tb_zone_z``, ``tb_floor_z``, ``tool_pusher``, ``TB_RAPID_VERSION``, ...),
+and the stationary world zones, per arm the ``--zone`` box (world mm; default: the arm's
+workspace grown by 25 mm) below ``--zone-z`` and nothing below ``--floor-z``. With
+``--no-rapid`` our modules are not loaded: no such symbols, a start runs nothing. Its
+``/lab/controller`` side channel sets the controller's states, RAPID errors, the
+options listed, and loads/unloads our modules (``sim_twin.rws.rws_service``).
+``--rws-log`` appends one JSON line per RWS request served: ``{"t", "method", "path",
+"status", "ms"}`` (never a header, cookie or body).
 
 The geometry, camera model and physics are documented in ``sim_twin.yumi_geometry`` and
 ``sim_twin.yumi_cell``.
@@ -63,7 +86,18 @@ import cv2
 import numpy as np
 
 from sim_twin.port_file import write_port
+from sim_twin.rws.digest_auth import DEFAULT_USERS
+from sim_twin.rws.irc5 import Irc5Controller
+from sim_twin.rws.login_file import read_login_file
+from sim_twin.rws.mechunits import MechUnit
+from sim_twin.rws.request_log import RequestLog
+from sim_twin.rws.rws_server import RwsServer
+from sim_twin.rws.rws_service import RwsService
+from sim_twin.rws.testbed_install import TestbedInstall
+from sim_twin.rws.testbed_rapid import TestbedRapid
+from sim_twin.rws.world_zones import ArmZone, default_zone, parse_zone
 from sim_twin.yumi_cell import YumiTwinCell
+from sim_twin.yumi_geometry import arm_side
 
 BUSY_TEXT = "camera busy: another client is streaming"
 JPEG_QUALITY = 90
@@ -187,13 +221,11 @@ class Handler(BaseHTTPRequestHandler):
             self._stream()
         elif path == "/camera.jpg":
             self._send(200, srv.frames.jpeg(), "image/jpeg")
-        elif path == "/controller/tcp":
-            with srv.cell_lock:
-                tcp = cell.tcp_xyz()
-            self._json(200, {"tcp": {a: list(v) for a, v in tcp.items()}})
         elif path == "/lab/truth":
             with srv.cell_lock:
-                truth = cell.truth()
+                truth, tcp = cell.truth(), cell.tcp_xyz()
+            for arm, t in truth.items():
+                t["tcp_mm"] = list(tcp[arm])
             self._json(200, {"arms": truth})
         elif path == "/lab/camera":
             self._json(200, cell.camera_model)
@@ -205,8 +237,7 @@ class Handler(BaseHTTPRequestHandler):
     def do_POST(self) -> None:
         path = self.path.split("?", 1)[0]
         routes: dict[str, Callable[[Any], dict[str, Any]]] = {
-            "/controller/execute": self._execute, "/lab/reset": self._reset,
-            "/lab/place": self._place}
+            "/lab/reset": self._reset, "/lab/place": self._place}
         if path not in routes:
             self._json(404, {"error": f"no such endpoint: POST {path}"})
             return
@@ -216,18 +247,6 @@ class Handler(BaseHTTPRequestHandler):
             self._json(400, {"error": str(exc)})
             return
         self._json(200, reply)
-
-    def _execute(self, body: Any) -> dict[str, Any]:
-        if not isinstance(body, dict) or not isinstance(body.get("programs"), dict):
-            raise ValueError('expected {"programs": {arm: [waypoint, ...]}}')
-        srv = self.server
-        with srv.cell_lock:
-            live = srv.cell.realtime > 0  # a paced motion shows on the stream as it happens
-            sim_s = srv.cell.execute(  # live frames at --fps of wall time
-                body["programs"], on_frame=srv.frames.publish if live else None,
-                frame_every_s=srv.cell.realtime / srv.fps if live else 0.0)
-            srv.frames.publish()
-        return {"ok": True, "sim_s": round(sim_s, 6)}
 
     def _reset(self, body: Any) -> dict[str, Any]:
         if not isinstance(body, dict) or not isinstance(body.get("arm"), str):
@@ -294,46 +313,133 @@ class Handler(BaseHTTPRequestHandler):
 
 def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m sim_twin.yumi_server",
-                                description="The YuMi hardware twin's HTTP server.")
+                                description="The YuMi hardware twin: camera, RWS, lab side.")
     p.add_argument("--arms", default="left,right", help="comma-separated arm names")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--host", default="127.0.0.1", help="the camera's and the lab's address")
     p.add_argument("--port", type=int, default=0, help="0: any free port")
     p.add_argument("--port-file", type=Path, default=None)
     p.add_argument("--fps", type=float, default=15.0)
     p.add_argument("--realtime", type=float, default=0.0,
                    help="real-time factor of motions (sim s per wall s); 0: fast as possible")
+    p.add_argument("--rws-port-file", type=Path, default=None,
+                   help="where the RWS port goes (RWS is always served, on 127.0.0.1)")
+    p.add_argument("--rws-credentials", type=Path, default=None, metavar="FILE",
+                   help="one line USER:PASSWORD, mode 0600/0400: a login besides the factory's")
+    p.add_argument("--rws-log", type=Path, default=None, metavar="FILE",
+                   help="append one JSON line per RWS request served")
+    p.add_argument("--zone", action="append", default=[], metavar="ARM=x0,y0,x1,y1",
+                   help="an arm's world-zone box (world mm; default: workspace + 25 mm)")
+    p.add_argument("--zone-z", type=float, default=80.0, metavar="MM",
+                   help="below this the TCP must stay in its zone box")
+    p.add_argument("--floor-z", type=float, default=0.0, metavar="MM",
+                   help="no TCP below this, anywhere")
+    p.add_argument("--max-sessions", type=int, default=70)
+    p.add_argument("--pusher-length-mm", type=float, default=0.0,
+                   help="the flange above the pusher's tip (RWS tool0 = flange)")
+    p.add_argument("--no-rapid", action="store_true",
+                   help="our RAPID modules not loaded: no testbed symbols, a start runs nothing")
     p.add_argument("--verbose", action="store_true", help="log every request to stderr")
     a = p.parse_args(argv)
     if not (math.isfinite(a.fps) and 0 < a.fps <= 60):
         p.error("--fps must be in (0, 60]")
     if not (math.isfinite(a.realtime) and a.realtime >= 0):
         p.error("--realtime must be >= 0")
+    if a.max_sessions < 1:
+        p.error("--max-sessions must be >= 1")
+    if not all(math.isfinite(v) for v in (a.zone_z, a.floor_z, a.pusher_length_mm)):
+        p.error("--zone-z, --floor-z and --pusher-length-mm must be finite")
     return a
+
+
+def _zones(a: argparse.Namespace, cell_arms: Sequence[str], sides: dict[str, str]
+           ) -> dict[str, ArmZone]:
+    """Every arm's zone from ``--zone`` (default: its workspace grown), ``--zone-z`` and
+    ``--floor-z``; ``ValueError`` naming the argument."""
+    boxes: dict[str, tuple[float, float, float, float]] = {}
+    for text in a.zone:
+        arm, box = parse_zone(text)
+        if arm not in cell_arms:
+            raise ValueError(f"--zone {text!r}: no arm {arm!r} (this cell has "
+                             f"{','.join(cell_arms)})")
+        boxes[arm] = box
+    out = {}
+    for arm in cell_arms:
+        d = default_zone(sides[arm], zone_z=a.zone_z, floor_z=a.floor_z)
+        try:
+            out[arm] = ArmZone(*boxes.get(arm, d.box), zone_z=a.zone_z, floor_z=a.floor_z)
+        except ValueError as exc:
+            raise ValueError(f"--zone for {arm}: {exc}") from None
+    return out
+
+
+class RwsSide:
+    """The controller beside the camera: an RWS server on the same cell and cell lock,
+    our RAPID (or none) installed, and its request log."""
+
+    def __init__(self, server: TwinServer, a: argparse.Namespace,
+                 zones: dict[str, ArmZone], users: dict[str, str]) -> None:
+        cell = server.cell
+        units = tuple(MechUnit(f"ROB_{cell.sides[arm][0].upper()}",
+                               f"T_ROB_{cell.sides[arm][0].upper()}", arm) for arm in cell.arms)
+        live = cell.realtime > 0  # a paced motion shows on the stream as it happens
+        self.motion = TestbedRapid(cell, server.cell_lock, units,
+                                   pusher_length_mm=a.pusher_length_mm, floor_z_mm=a.floor_z,
+                                   zones=zones, on_frame=server.frames.publish,
+                                   on_frame_every_s=cell.realtime / server.fps if live
+                                   else math.inf)
+        self.controller = Irc5Controller(units=units, poses=self.motion.poses)
+        self.install = TestbedInstall(self.controller, self.motion, loaded=not a.no_rapid)
+        self.log = RequestLog(a.rws_log) if a.rws_log is not None else None
+        service = RwsService(self.controller, users=users, max_sessions=a.max_sessions,
+                             program=self.install)
+        self.server = RwsServer(service, "127.0.0.1", 0, verbose=a.verbose,
+                                request_log=self.log)
+
+    def close(self) -> None:
+        self.server.stop()
+        if self.log is not None:
+            self.log.close()
+
+
+def _users(a: argparse.Namespace) -> dict[str, str]:
+    users = dict(DEFAULT_USERS)
+    if a.rws_credentials is not None:
+        user, password = read_login_file(a.rws_credentials)
+        users[user] = password
+    return users
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     a = _args(argv)
     arms = tuple(s.strip() for s in a.arms.split(",") if s.strip())
     try:
+        users = _users(a)
+        zones = _zones(a, arms, arm_side(arms))
         cell = YumiTwinCell(a.seed, arms, realtime=a.realtime)
     except ValueError as exc:
         print(f"yumi_server: {exc}", file=sys.stderr)
         return 2
     server = TwinServer(cell, a.host, a.port, a.fps, a.verbose)
+    rws = RwsSide(server, a, zones, users)
 
     def on_signal(signum: int, frame: object) -> None:
         threading.Thread(target=server.stop, daemon=True).start()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    rws.server.start_thread()
+    if a.rws_port_file is not None:
+        write_port(a.rws_port_file, rws.server.port)
     if a.port_file is not None:
         write_port(a.port_file, server.port)
-    print(f"yumi_server: arms {','.join(arms)} seed {a.seed} on http://{a.host}:{server.port}",
+    print(f"yumi_server: arms {','.join(arms)} seed {a.seed} on http://{a.host}:{server.port}"
+          f", RWS on {rws.server.url} (our RAPID {'not ' if a.no_rapid else ''}loaded)",
           file=sys.stderr, flush=True)
     try:
         server.serve_forever(poll_interval=0.2)
     finally:
+        rws.close()
         server.server_close()
         with server.cell_lock:
             cell.close()

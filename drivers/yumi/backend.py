@@ -426,9 +426,12 @@ class YumiBackend(HostBackend):
     def describe(self) -> dict[str, Any]:
         """The controller as ``testbed check`` shows it, with each arm's task and table
         box (which must lie inside the task's world zone box)."""
-        boxes = {a.calibration.pose.task if a.calibration.pose else name:
-                 list(a.calibration.table_box_mm) for name, a in self._arms.items()}
-        return {"controller": self._controller.describe(), "table_boxes": boxes}
+        task = {name: a.calibration.pose.task if a.calibration.pose else name
+                for name, a in self._arms.items()}
+        return {"controller": self._controller.describe(),
+                "table_boxes": {task[n]: list(a.calibration.table_box_mm)
+                                for n, a in self._arms.items()},
+                "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()}}
 
     def reseed(self, seed: int) -> None:
         """A fresh goal stream from ``seed``, as a newly started agent would have: goals,

@@ -198,10 +198,13 @@ def describe(rws: Any, tasks: Sequence[str]) -> ControllerReport:
 
 
 def problems(rep: Mapping[str, Any], tasks: Sequence[str],
-             table_boxes: Mapping[str, Sequence[float]] | None = None) -> list[str]:
+             table_boxes: Mapping[str, Sequence[float]] | None = None,
+             travel_z: Mapping[str, float] | None = None) -> list[str]:
     """What must be fixed before a trial, one line each (``rep``: a
     :class:`ControllerReport` as a dict); ``table_boxes``: task -> the calibration's
-    ``table_box_mm``, which must lie inside that task's world zone box."""
+    ``table_box_mm``, which must lie inside that task's world zone box; ``travel_z``:
+    task -> the calibration's ``z_travel_mm``, at or above the zone's ``tb_zone_z`` (a
+    travel below it, outside the box, would stop the arm)."""
     out: list[str] = []
     opts = rep.get("options") or []
     for number, name in REQUIRED_OPTIONS.items():
@@ -224,8 +227,15 @@ def problems(rep: Mapping[str, Any], tasks: Sequence[str],
         elif version != RAPID_VERSION:
             out.append(f"task {task}: the testbed RAPID modules are version {version}, this "
                        f"driver needs {RAPID_VERSION}: load robot/rapid/ from this checkout")
-        elif (box := (table_boxes or {}).get(task)) is not None:
-            out += _zone_problems(task, ours.get("zones", {}), box)
+        else:
+            zones = ours.get("zones", {})
+            if (box := (table_boxes or {}).get(task)) is not None:
+                out += _zone_problems(task, zones, box)
+            z, top = (travel_z or {}).get(task), zones.get("tb_zone_z")
+            if z is not None and top is not None and z < top:
+                out.append(f"task {task}: the calibration's z_travel_mm {z:g} is below the "
+                           f"world zone's tb_zone_z {top:g}: a travel outside the zone box "
+                           f"would stop the arm; raise z_travel_mm to {top:g} or more")
     return out
 
 

@@ -22,10 +22,19 @@ MODULE TestbedMotion
   !      the file; or, when it refuses the file, ErrWrite (80001) "Testbed Motion
   !      Failed": reason, the file, the detail, "at byte <offset>". No log file, no
   !      signals: the driver reads the event log only.
-  ! A motion error (out of reach, collision, a stop) is the controller's own: it stops
-  ! the task and is in the event log with its own code; the driver reports it the same.
+  !   4. at power on (tb_zones, an event routine: robot/README.md), defines this task's
+  !      stationary world zones from the task module's tb_zone_lo, tb_zone_hi, tb_zone_z
+  !      and tb_floor_z: below tb_zone_z the TCP stays in the xy box, and never goes
+  !      below tb_floor_z, whatever program runs.
+  ! A motion error (out of reach, collision, a stop, a world zone) is the controller's
+  ! own: it stops the task and is in the event log with its own code; the driver
+  ! reports it the same.
   ! Routines are global in the task (rapidchecker's grammar has no LOCAL routines); the
   ! tb_ prefix keeps them apart from the task's other names.
+  ! The version of these modules' behaviour: bump it whenever they change. The driver
+  ! and testbed check read it (RWS); the twin plays the version RAPID_VERSION in
+  ! sim_twin/rws/testbed_rapid.py. 2: the world zones (tb_zones).
+  CONST num TB_RAPID_VERSION := 2;
   CONST string TB_DIR := "RAMDISK:";
   CONST num TB_VERSION := 10011;
   CONST num TB_MAX_CMDS := 64;
@@ -40,6 +49,29 @@ MODULE TestbedMotion
   ! Rotational external axes (deg/s): on the YuMi this is axis 7, the arm angle, which
   ! every robtarget keeps at the calibrated value; slow, as it only moves out of rest.
   CONST num TB_V_REAX := 100;
+
+  ! The world zones (option 608-1 World Zones). Technical reference manual - RAPID
+  ! Instructions, Functions and Data types (RobotWare 6), WZBoxDef, WZLimSup and
+  ! wzstationary, as read for this module:
+  !   - WZBoxDef \Inside: a box with its sides parallel to the WORLD coordinate system,
+  !     given by two opposite corners (LowPoint, HighPoint: pos, mm) that differ in x,
+  !     y and z; stored in a shapedata variable for WZLimSup.
+  !   - WZLimSup \Stat: activates supervision of that shape as a STATIONARY zone: the
+  !     movement stops when the TCP reaches the zone, in any program and when jogging;
+  !     a stationary zone cannot be deactivated or erased from RAPID, and the manual
+  !     defines it in an event routine of the event POWER ON, so that it is active from
+  !     every start. The world zone is a wzstationary VARIABLE (as the manual's own
+  !     examples declare it: at module level, here global in the task); WZLimSup writes
+  !     the zone's identity into it, so it reads non-zero once tb_zones has run.
+  !   - The zones supervise the TCP of the tool in use: every motion here is
+  !     tool_pusher, so it is the pusher's tip that stays out.
+  ! The outer faces of every box are TB_WZ_FAR mm away: far beyond the YuMi's reach.
+  CONST num TB_WZ_FAR := 5000;
+  VAR wzstationary tb_wz_floor;
+  VAR wzstationary tb_wz_xlo;
+  VAR wzstationary tb_wz_xhi;
+  VAR wzstationary tb_wz_ylo;
+  VAR wzstationary tb_wz_yhi;
 
   LOCAL VAR errnum tb_err := -1;
   LOCAL VAR iodev tb_dev;
@@ -57,6 +89,38 @@ MODULE TestbedMotion
   LOCAL VAR zonedata tb_zone{TB_MAX_CMDS};
   LOCAL VAR num tb_wait{TB_MAX_CMDS};
   LOCAL PERS wobjdata tb_wobj := [FALSE,TRUE,"",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
+
+  ! --- the world zones: the POWER ON event routine of this task ---------------------------
+  PROC tb_zones()
+    VAR shapedata shape;
+    VAR pos lo;
+    VAR pos hi;
+    VAR num z0;
+    ! every box reaches from far below the floor; corners differ in x, y and z
+    z0 := tb_floor_z - TB_WZ_FAR;
+    ! below the floor, everywhere
+    lo := [-TB_WZ_FAR, -TB_WZ_FAR, z0];
+    hi := [TB_WZ_FAR, TB_WZ_FAR, tb_floor_z];
+    WZBoxDef \Inside, shape, lo, hi;
+    WZLimSup \Stat, tb_wz_floor, shape;
+    ! below tb_zone_z: the four slabs around the xy box [tb_zone_lo, tb_zone_hi]
+    lo := [-TB_WZ_FAR, -TB_WZ_FAR, z0];
+    hi := [tb_zone_lo.x, TB_WZ_FAR, tb_zone_z];
+    WZBoxDef \Inside, shape, lo, hi;
+    WZLimSup \Stat, tb_wz_xlo, shape;
+    lo := [tb_zone_hi.x, -TB_WZ_FAR, z0];
+    hi := [TB_WZ_FAR, TB_WZ_FAR, tb_zone_z];
+    WZBoxDef \Inside, shape, lo, hi;
+    WZLimSup \Stat, tb_wz_xhi, shape;
+    lo := [tb_zone_lo.x, -TB_WZ_FAR, z0];
+    hi := [tb_zone_hi.x, tb_zone_lo.y, tb_zone_z];
+    WZBoxDef \Inside, shape, lo, hi;
+    WZLimSup \Stat, tb_wz_ylo, shape;
+    lo := [tb_zone_lo.x, tb_zone_hi.y, z0];
+    hi := [tb_zone_hi.x, TB_WZ_FAR, tb_zone_z];
+    WZBoxDef \Inside, shape, lo, hi;
+    WZLimSup \Stat, tb_wz_yhi, shape;
+  ENDPROC
 
   ! --- the entry: called from main in TestbedTask_L / TestbedTask_R ---------------------
   PROC tb_run()

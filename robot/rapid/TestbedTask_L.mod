@@ -10,8 +10,18 @@ MODULE TestbedTask_L
   ! file's tool_z_mm); the load is the pusher's own: WEIGH IT on day one and set mass
   ! (kg) and the centre of gravity (mm, tool0 frame) here before the first motion.
   TASK PERS tooldata tool_pusher := [TRUE,[[0,0,100],[1,0,0,0]],[0.1,[0,0,50],[1,0,0,0],0,0,0]];
-  ! The table top in this arm's base frame (mm): no MoveJ/MoveL target below it.
+  ! The floor (mm, world frame = wobj0, the frame the driver's targets use): no
+  ! MoveJ/MoveL target below it (checked in the file) and no TCP below it, anywhere
+  ! (the world zone tb_wz_floor).
   CONST num tb_floor_z := 0;
+  ! This arm's world zone (TestbedMotion, tb_zones; robot/README.md, "The zones"): below
+  ! tb_zone_z (mm, world) the TCP of tool_pusher must stay inside the xy box from
+  ! tb_zone_lo to tb_zone_hi (x, y in mm, world; z unused). SET THESE FROM YOUR TABLE at
+  ! install: the calibration's table_box_mm must lie inside the box, the other arm's
+  ! workspace outside it, and tb_zone_z at or below the calibration's z_travel_mm.
+  CONST pos tb_zone_lo := [215,5,0];
+  CONST pos tb_zone_hi := [585,375,0];
+  CONST num tb_zone_z := 80;
 
   PROC main()
     tb_run;

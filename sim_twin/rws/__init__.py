@@ -2,8 +2,9 @@
 
 Why it exists: on day one the agent drives the YuMi through the unchanged ABB clients
 (``abb_robot_client.rws``, ``abb_motion_program_exec``) over RWS, as against a real IRC5
-with RobotWare 6. The hardware twin spoke a private JSON API instead, so that path was
-never exercised before the robot. This package is an RWS 1.0 endpoint the clients run
+with RobotWare 6. The hardware twin once spoke a private JSON API instead, so that path
+was never exercised before the robot; ``sim_twin.yumi_server`` now serves this package
+beside its camera and nothing else. This package is an RWS 1.0 endpoint the clients run
 against unchanged: digest authentication and RobotWare's sessions (and their limit), the
 resources and answers the clients parse, and a controller whose states (manual mode,
 motors off, guard stop, a program running, a RAPID error) answer as a real one does.
@@ -17,8 +18,12 @@ routes), ``rws_service`` (auth, sessions, the lab side channel), ``rws_server`` 
 XHTML), ``motion_program`` (the library's program file, decoded) and ``motion_exec``
 (``CellMotion``: the start hook that runs those programs on a ``YumiTwinCell``, as the
 library's own RAPID would), ``testbed_rapid`` (``TestbedRapid``: the same with the
-semantics of the project's RAPID, ``robot/rapid/``: one program file per task).
-``python -m sim_twin.rws`` serves one (``--cell``: with the twin's pushers moving).
+semantics of the project's RAPID, ``robot/rapid/``: one program file per task, and its
+stationary world zones), ``world_zones`` (those zones as boxes), ``testbed_install``
+(our modules' symbols in the tasks, loadable and unloadable), ``request_log`` (one JSON
+line per request served) and ``login_file`` (an extra login from an owner-only file).
+``python -m sim_twin.rws`` serves one (``--cell``: with the twin's pushers moving, our
+RAPID's semantics or, with ``--rapid library``, the library's).
 
 Use::
 

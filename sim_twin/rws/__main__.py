@@ -8,14 +8,19 @@ Usage::
     python -m sim_twin.rws [--host 127.0.0.1] [--port 0] [--port-file F]
         [--max-sessions 70] [--user NAME:PASSWORD ...] [--idle-timeout S]
         [--ramdisk-value '$TEMP'] [--opmode AUTO] [--ctrlstate motoron]
-        [--cell --arms left,right --seed S --pusher-length-mm L --realtime R] [--verbose]
+        [--cell --arms left,right --seed S --pusher-length-mm L --realtime R
+         --rapid testbed|library] [--verbose]
 
 ``Default User`` / ``robotics`` always log in; ``--user`` adds more. With ``--cell`` the
 arms' positions come from a ``YumiTwinCell`` (PyBullet) made here and a RAPID start runs
-the uploaded motion programs on it (``motion_exec.CellMotion``; ``--realtime`` paces the
-motion, 0: as fast as computed); without, the positions are fixed and a start ends at
-once. It writes the port (a decimal line) to ``--port-file`` once listening, serves until
-SIGTERM/SIGINT and exits 0 (2 on a bad argument).
+the uploaded motion programs on it (``--realtime`` paces the motion, 0: as fast as
+computed) with the semantics of ``--rapid``: ``testbed`` (the default) our RAPID
+(``testbed_rapid.TestbedRapid``: one file per task, its symbols and its world zones at
+the defaults of ``world_zones.default_zone``), ``library`` the library's
+(``motion_exec.CellMotion``); without ``--cell``, the positions are fixed and a start
+ends at once. (``sim_twin.yumi_server`` serves the same RWS beside the hardware twin's
+camera, with zones and a request log.) It writes the port (a decimal line) to
+``--port-file`` once listening, serves until SIGTERM/SIGINT and exits 0 (2 on a bad argument).
 """
 
 from __future__ import annotations
@@ -32,9 +37,9 @@ from sim_twin.port_file import write_port
 from sim_twin.rws.digest_auth import DEFAULT_USERS
 from sim_twin.rws.file_store import DEFAULT_RAMDISK_VALUE, FileStore
 from sim_twin.rws.irc5 import CTRLSTATES, OPMODES, Irc5Controller, StartHook
-from sim_twin.rws.mechunits import YUMI_UNITS, PoseSource
+from sim_twin.rws.mechunits import YUMI_UNITS, MechUnit, PoseSource
 from sim_twin.rws.rws_server import RwsServer, check_loopback
-from sim_twin.rws.rws_service import RwsService
+from sim_twin.rws.rws_service import LabProgram, RwsService
 
 
 def _args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -58,6 +63,8 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="flange above the cell's TCP (tool0 = flange)")
     p.add_argument("--realtime", type=float, default=0.0,
                    help="with --cell: motion paced at this multiple of real time (0: unpaced)")
+    p.add_argument("--rapid", default="testbed", choices=("testbed", "library"),
+                   help="with --cell: whose RAPID a start plays (ours, or the library's)")
     p.add_argument("--verbose", action="store_true")
     a = p.parse_args(argv)
     try:
@@ -72,6 +79,19 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     return a
 
 
+def _cell_hook(a: argparse.Namespace, units: tuple[MechUnit, ...]
+               ) -> tuple[Any, PoseSource, StartHook]:
+    """A cell for ``--arms`` and the start hook of ``--rapid`` on it."""
+    from sim_twin.rws.motion_exec import CellMotion
+    from sim_twin.rws.testbed_rapid import TestbedRapid
+    from sim_twin.yumi_cell import YumiTwinCell  # PyBullet: only when asked for
+
+    cell = YumiTwinCell(a.seed, tuple(u.arm for u in units), realtime=a.realtime)
+    kind = TestbedRapid if a.rapid == "testbed" else CellMotion
+    motion = kind(cell, threading.Lock(), units, pusher_length_mm=a.pusher_length_mm)
+    return cell, motion.poses, motion
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     a = _args(argv)
     arms = tuple(s.strip() for s in a.arms.split(",") if s.strip())
@@ -83,19 +103,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     poses: PoseSource | None = None
     hook: StartHook | None = None
     if a.cell:
-        from sim_twin.rws.motion_exec import CellMotion
-        from sim_twin.yumi_cell import YumiTwinCell  # PyBullet: only when asked for
-
-        cell = YumiTwinCell(a.seed, tuple(u.arm for u in units), realtime=a.realtime)
-        motion = CellMotion(cell, threading.Lock(), units, pusher_length_mm=a.pusher_length_mm)
-        poses, hook = motion.poses, motion
+        cell, poses, hook = _cell_hook(a, units)
     users = dict(DEFAULT_USERS)
     users.update({name: pw for name, _, pw in (u.partition(":") for u in a.user)})
     controller = Irc5Controller(units=units, poses=poses, on_start=hook, opmode=a.opmode,
                                 ctrlstate=a.ctrlstate, files=FileStore(
                                     ramdisk_value=a.ramdisk_value))
+    program: LabProgram | None = None
+    if a.cell and a.rapid == "testbed":
+        from sim_twin.rws.testbed_install import TestbedInstall
+        from sim_twin.rws.testbed_rapid import TestbedRapid
+
+        assert isinstance(hook, TestbedRapid)
+        program = TestbedInstall(controller, hook)  # our modules' symbols, the lab's switch
     service = RwsService(controller, users=users, max_sessions=a.max_sessions,
-                         idle_timeout_s=a.idle_timeout)
+                         idle_timeout_s=a.idle_timeout, program=program)
     server = RwsServer(service, a.host, a.port, verbose=a.verbose)
     done = threading.Event()
 

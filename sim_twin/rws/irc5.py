@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from sim_twin.rws.errors import EXEC_STATE, GENERIC, MASTER_REJECT, MODE_REJECT, refused
@@ -375,6 +375,24 @@ class Irc5Controller:
                 for t in tasks:
                     self.tasks[t].excstate = "started"
             self._changed.notify_all()
+
+    def set_options(self, options: Sequence[str]) -> None:
+        """What ``rw/system/options`` lists (the twin's side: a system built without an
+        option, e.g. no ``608-1 World Zones``); ``ValueError`` unless a list of texts."""
+        if isinstance(options, str) or not all(isinstance(o, str) and o for o in options):
+            raise ValueError("options must be a list of option names")
+        with self._lock:
+            self.identity = replace(self.identity, options=tuple(options))
+
+    def remove_option(self, option: str) -> None:
+        """Drop every option named ``option`` or starting with it and a space (``608-1``
+        drops ``608-1 World Zones``); ``ValueError`` if none is listed."""
+        with self._lock:
+            keep = tuple(o for o in self.identity.options
+                         if o != option and not o.startswith(f"{option} "))
+            if not option or len(keep) == len(self.identity.options):
+                raise ValueError(f"no option {option!r} in {list(self.identity.options)}")
+            self.identity = replace(self.identity, options=keep)
 
     def _stop_current(self) -> None:
         if self._run is not None:

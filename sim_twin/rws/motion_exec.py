@@ -51,7 +51,7 @@ import math
 import re
 import struct
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,7 +59,7 @@ from sim_twin.constants import TIME_STEP_S
 from sim_twin.rws.cell_link import CellPoses
 from sim_twin.rws.errors import RwsError
 from sim_twin.rws.event_log import MSG_INFO
-from sim_twin.rws.irc5 import ProgramRun
+from sim_twin.rws.irc5 import ProgramRun, RapidError
 from sim_twin.rws.mechunits import (
     TOOL_DOWN,
     YUMI_UNITS,
@@ -98,7 +98,7 @@ from sim_twin.rws.motion_program import (
     program_failed,
     program_file_for_task,
 )
-from sim_twin.yumi_cell import MAX_SPEED_MM_S, YumiTwinCell
+from sim_twin.yumi_cell import MAX_SPEED_MM_S, Trajectory, YumiTwinCell
 from sim_twin.yumi_geometry import REST_MM
 
 LOG_OPENED, LOG_CLOSED = "Motion Program Log File Opened", "Motion Program Log File Closed"
@@ -384,6 +384,52 @@ class _Clock:
         return i * TIME_STEP_S
 
 
+class _ZoneHit(Exception):
+    """Raised from the cell's frame callback at a planned world-zone stop."""
+
+
+@dataclass(frozen=True)
+class ZoneStop:
+    """A planned world-zone stop: at ``t`` (s into the move) ``arm``'s TCP reaches ``box``
+    (the box's ``name`` and corners: the zone the RAPID defined)."""
+
+    t: float
+    arm: str
+    box: Any
+
+
+class _Sampler:
+    """The cell's frame callback for one ``cell.execute``: every ``every`` simulated
+    seconds it samples the log, refreshes the positions RWS reads, publishes a camera
+    frame when one is due, and stops the motion at a stop request or at ``stop_at``."""
+
+    def __init__(self, motion: CellMotion, run: ProgramRun, blocks: Mapping[str, _Block],
+                 trajs: Mapping[str, Trajectory], log: _Log | None, t0: float, lead: str,
+                 every: float, stop_at: float | None) -> None:
+        self.motion, self.run, self.blocks, self.log = motion, run, blocks, log
+        self.t0, self.lead, self.stop_at = t0, lead, stop_at
+        self.clock = _Clock(every)
+        self.ends = {a: list(_cumulative(s.duration for s in trajs[a].segments)) for a in trajs}
+        self.last_t = 0.0
+        self._shown = 0.0
+
+    def __call__(self) -> None:
+        t = self.last_t = self.clock.tick()
+        if self.stop_at is not None and t >= self.stop_at:
+            raise _ZoneHit
+        nums = {a: _cmd_at(self.ends[a], b.cmd_nums, t) for a, b in self.blocks.items()}
+        tcps = self.motion._refresh()
+        if self.log is not None:
+            self.log.sample(self.t0 + t, nums, tcps)
+        if self.lead in nums:
+            _set_signal(self.run, "motion_program_current_cmd_num", float(nums[self.lead]))
+        if self.motion.on_frame is not None and t - self._shown >= self.motion.on_frame_every_s:
+            self._shown = t
+            self.motion._publish()
+        if self.run.stop_requested.is_set():
+            raise _Halted
+
+
 class CellMotion:
     """The start hook: ``Irc5Controller(units=units, poses=motion.poses, on_start=motion)``.
 
@@ -391,17 +437,23 @@ class CellMotion:
     holds; ``pusher_length_mm`` is the flange's height above the cell's TCP (as
     :class:`CellPoses`). ``frame_every_s``: how often (simulated seconds) the hook samples
     the log, refreshes the positions RWS reads and looks for a stop. ``last_run`` holds
-    what each task of the latest run read (the twin's side: tests, the lab)."""
+    what each task of the latest run read (the twin's side: tests, the lab).
+
+    ``on_frame`` (optional, e.g. a camera's publish): called with the cell lock held at
+    most every ``on_frame_every_s`` simulated seconds while the arms move (at the samples)
+    and once when a run's motion has ended, before execution reads stopped."""
 
     def __init__(self, cell: YumiTwinCell, cell_lock: threading.Lock | threading.RLock,
                  units: Sequence[MechUnit] = YUMI_UNITS, *, pusher_length_mm: float = 0.0,
-                 frame_every_s: float = 0.02) -> None:
+                 frame_every_s: float = 0.02, on_frame: Callable[[], None] | None = None,
+                 on_frame_every_s: float = 0.0) -> None:
         if frame_every_s < TIME_STEP_S:
             raise ValueError(f"frame_every_s must be >= one physics step ({TIME_STEP_S:g} s)")
         self.cell, self.cell_lock = cell, cell_lock
         self.units = tuple(u for u in units if u.arm in cell.arms)
         self.pusher_length_mm = float(pusher_length_mm)
         self.frame_every_s = float(frame_every_s)
+        self.on_frame, self.on_frame_every_s = on_frame, float(on_frame_every_s)
         self._snap_lock = threading.Lock()
         with cell_lock:
             self._snap = dict(cell.tcp_xyz())
@@ -456,6 +508,19 @@ class CellMotion:
         return TaskProgram(unit.task, unit, path, program)
 
     def __call__(self, run: ProgramRun) -> None:
+        try:
+            self._run(run)
+        finally:
+            self.shown()
+
+    def shown(self) -> None:
+        """After a run's motion: the camera shows the new state (``on_frame``) before
+        the controller reads execution stopped."""
+        if self.on_frame is not None:
+            with self.cell_lock:
+                self._publish()
+
+    def _run(self, run: ProgramRun) -> None:
         programs = self._load(run)
         self.last_run = {tp.task: tp for tp in programs}
         if not programs:
@@ -518,9 +583,10 @@ class CellMotion:
 
     def _move(self, run: ProgramRun, blocks: Mapping[str, _Block], log: _Log | None,
               t0: float, lead: str) -> float | None:
-        """One ``cell.execute`` of every arm's block; its simulated time, None if stopped."""
+        """One ``cell.execute`` of every arm's block; its simulated time, None if stopped.
+        A planned world-zone stop (:meth:`_zone_stop`) halts every arm at that moment
+        and raises :meth:`_zone_error`'s RAPID error."""
         programs = {a: b.waypoints for a, b in blocks.items()}
-        clock = _Clock(self.frame_every_s)
         with self.cell_lock:
             try:
                 trajs = self.cell.plan(programs)
@@ -528,31 +594,40 @@ class CellMotion:
                 task = next(u.task for u in self.units if u.arm in blocks)
                 raise program_failed("Motion refused by the twin cell", str(exc),
                                      task=task) from None
-            ends = {a: list(_cumulative(s.duration for s in trajs[a].segments)) for a in trajs}
-            last_t = [0.0]
-
-            def frame() -> None:
-                t = last_t[0] = clock.tick()
-                nums = {a: _cmd_at(ends[a], blocks[a].cmd_nums, t) for a in blocks}
-                tcps = self._refresh()
-                if log is not None:
-                    log.sample(t0 + t, nums, tcps)
-                if lead in nums:
-                    _set_signal(run, "motion_program_current_cmd_num", float(nums[lead]))
-                if run.stop_requested.is_set():
-                    raise _Halted
-
+            zone = self._zone_stop(trajs)
+            # a zone stop is found at the physics step it falls in, not the next sample
+            every = self.frame_every_s if zone is None else TIME_STEP_S
+            sampler = _Sampler(self, run, blocks, trajs, log, t0, lead, every,
+                               None if zone is None else zone.t)
             try:
-                took = self.cell.execute(programs, on_frame=frame,
-                                         frame_every_s=self.frame_every_s)
+                took = self.cell.execute(programs, on_frame=sampler, frame_every_s=every)
             except _Halted:
-                self._hold(trajs, last_t[0])
+                self._hold(trajs, sampler.last_t)
                 self._refresh()
                 return None
+            except _ZoneHit:
+                assert zone is not None
+                self.cell.halt({a: traj.at(zone.t) for a, traj in trajs.items()})
+                tcps = self._refresh()
+                raise self._zone_error(zone, tcps) from None
             tcps = self._refresh()
         if log is not None:
             log.sample(t0 + took, {a: b.cmd_nums[-1] for a, b in blocks.items()}, tcps)
         return took
+
+    def _zone_stop(self, trajs: Mapping[str, Trajectory]) -> ZoneStop | None:
+        """When a move of ``trajs`` would take a TCP into a world zone: the library's
+        RAPID defines none (our RAPID's hook does: ``TestbedRapid``)."""
+        return None
+
+    def _zone_error(self, zone: ZoneStop, tcps: Mapping[str, Sequence[float]]) -> RapidError:
+        """The controller's error for a world-zone stop (see :meth:`_zone_stop`)."""
+        raise NotImplementedError
+
+    def _publish(self) -> None:
+        """Show the cell's state on the camera (``on_frame``; the cell lock is held)."""
+        if self.on_frame is not None:
+            self.on_frame()
 
     def _hold(self, trajs: Mapping[str, Any], t: float) -> None:
         """After a stop: each pusher stays where its constraint was last put (the cell

@@ -169,6 +169,12 @@ class SymbolTable:
             self._symbols[(task.upper(), module.upper(), name.upper())] = s
         return s
 
+    def undeclare(self, task: str, module: str, name: str) -> bool:
+        """Remove a symbol (a module unloaded); False if there was none."""
+        with self._lock:
+            return self._symbols.pop((task.upper(), module.upper(), name.upper()),
+                                     None) is not None
+
     def find(self, parts: Sequence[str]) -> Symbol:
         """The symbol of a URL's ``RAPID/...`` parts: ``[task, module, name]``,
         ``[task, name]`` (unique in the task) or ``[name]`` (unique anywhere)."""

@@ -6,7 +6,10 @@ digest authentication; this server gives every connection a thread, reads every 
 (also of a request answered ``401``, so the connection stays usable for the client's
 authenticated retry) and writes the service's answer with a ``Content-Length``.
 Connections still open when the server stops are shut down, so a test that leaks
-clients does not leave threads behind.
+clients does not leave threads behind. ``request_log`` (optional, e.g.
+:class:`~sim_twin.rws.request_log.RequestLog`) is told every request served: method, the
+path with its query, the status and the milliseconds from its headers read to its
+answer written.
 """
 
 from __future__ import annotations
@@ -15,12 +18,16 @@ import contextlib
 import ipaddress
 import socket
 import threading
+import time
+from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from sim_twin.rws.rws_service import HttpReply, RwsService
 
 MAX_BODY_BYTES = 64 << 20
+RequestHook = Callable[[str, str, int, float], None]
+"""(method, path with query, status, ms): told once per request served."""
 
 
 def check_loopback(host: str) -> None:
@@ -40,10 +47,11 @@ class RwsServer(ThreadingHTTPServer):
     allow_reuse_address = True
 
     def __init__(self, service: RwsService, host: str = "127.0.0.1", port: int = 0, *,
-                 verbose: bool = False) -> None:
+                 verbose: bool = False, request_log: RequestHook | None = None) -> None:
         check_loopback(host)
         self.service = service
         self.verbose = verbose
+        self.request_log = request_log
         self._open: set[socket.socket] = set()
         self._open_lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -114,17 +122,24 @@ class _Handler(BaseHTTPRequestHandler):
         return self.rfile.read(n) if n > 0 else b""
 
     def _serve(self) -> None:
+        start = time.perf_counter()
         body = self._body()
         if body is None:
-            self._write(HttpReply(411 if "chunked" in self.headers.get("Transfer-Encoding", "")
-                                  else 413, [("Content-Type", "text/plain")],
-                                  b"the twin needs a Content-Length of at most 64 MiB"))
+            reply = HttpReply(411 if "chunked" in self.headers.get("Transfer-Encoding", "")
+                              else 413, [("Content-Type", "text/plain")],
+                              b"the twin needs a Content-Length of at most 64 MiB")
             self.close_connection = True
-            return
-        host = self.headers.get("Host") or f"127.0.0.1:{self.server.port}"
-        reply = self.server.service.handle(self.command, self.path, self.headers.items(),
-                                           body, f"http://{host}")
-        self._write(reply)
+        else:
+            host = self.headers.get("Host") or f"127.0.0.1:{self.server.port}"
+            reply = self.server.service.handle(self.command, self.path, self.headers.items(),
+                                               body, f"http://{host}")
+        try:
+            self._write(reply)
+        finally:
+            hook = self.server.request_log
+            if hook is not None:
+                hook(self.command, self.path, reply.status,
+                     (time.perf_counter() - start) * 1000.0)
 
     def _write(self, reply: HttpReply) -> None:
         self.send_response(reply.status)

@@ -1,10 +1,10 @@
 """One RWS request in, one answer out: authentication, sessions, logout, the lab side
 channel and the resources, independent of any HTTP server.
 
-Why it exists apart from the server: the hardware twin's own HTTP server
-(``sim_twin.yumi_server``) may later mount RWS on its port; it then hands each request
-to :meth:`RwsService.handle` and writes the :class:`HttpReply` back. The twin's own
-server (``sim_twin.rws.rws_server``) does exactly that.
+Why it exists apart from the server: the answers are the controller's, whichever HTTP
+server carries them; the twin's RWS server (``sim_twin.rws.rws_server``, also the one
+``sim_twin.yumi_server`` runs beside its camera) hands each request to
+:meth:`RwsService.handle` and writes the :class:`HttpReply` back.
 
 Order of a request: ``/lab/*`` (no authentication: the twin's side, never a
 controller's); else the session cookie or a digest login (``401`` / ``503``, see
@@ -15,12 +15,18 @@ then the resource (``sim_twin.rws.resources``), rendered as JSON when ``json=1``
 The lab side channel:
 
 - ``GET /lab/controller`` -> ``{"state": {...}, "sessions": [...], "max_sessions": n,
-  "refused_logins": n}``
+  "refused_logins": n, "options": [...], "rapid": {"loaded", "version", "zones"} | null}``
 - ``POST /lab/controller`` with any of ``{"opmode": "AUTO"|"MANR"|..., "ctrlstate":
   "motoron"|"motoroff"|"guardstop"|..., "speedratio": 0..100, "execution":
-  "running"|"stopped", "task_error": {"task", "code", "title", "desc"?, "causes"?,
-  "actions"?, "args"?, "msgtype"?}}`` -> the new state; ``400`` (nothing changed) on a
-  bad value.
+  "running"|"stopped", "options": [name, ...], "remove_option": "608-1", "rapid":
+  "testbed"|"none", "rapid_version": n, "task_error": {"task", "code", "title",
+  "desc"?, "causes"?, "actions"?, "args"?, "msgtype"?}}``, applied in that order ->
+  the new state; ``400`` on a bad value (nothing changed when a value is malformed).
+  ``options`` replaces what ``rw/system/options`` lists, ``remove_option`` drops one
+  (by name or its number: ``608-1``); ``rapid`` loads or unloads our RAPID modules
+  (their symbols, and what a start runs; only with RAPID stopped) and ``rapid_version``
+  sets the ``TB_RAPID_VERSION`` they report (only on a twin that plays our RAPID:
+  ``sim_twin.rws.testbed_install``).
 - ``GET /lab/health`` -> ``{"ok": true}``.
 """
 
@@ -29,7 +35,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 from urllib.parse import parse_qsl, unquote, urlsplit
 
 from sim_twin.rws.digest_auth import (
@@ -47,7 +53,19 @@ from sim_twin.rws.resources import Reply, Request, dispatch
 from sim_twin.rws.shapes import render, render_error
 
 FORM_TYPE = "application/x-www-form-urlencoded"
-LAB_KEYS = ("opmode", "ctrlstate", "speedratio", "execution", "task_error")
+LAB_KEYS = ("opmode", "ctrlstate", "speedratio", "execution", "options", "remove_option",
+            "rapid", "rapid_version", "task_error")
+
+
+class LabProgram(Protocol):
+    """What the lab side channel can do to the RAPID installed on the twin
+    (``sim_twin.rws.testbed_install.TestbedInstall``)."""
+
+    def set_loaded(self, loaded: bool) -> None: ...
+
+    def set_version(self, version: int) -> None: ...
+
+    def lab_state(self) -> dict[str, Any]: ...
 
 
 @dataclass
@@ -80,8 +98,9 @@ class RwsService:
 
     def __init__(self, controller: Irc5Controller, *, users: Mapping[str, str] | None = None,
                  max_sessions: int = 70, idle_timeout_s: float | None = None,
-                 realm: str = REALM) -> None:
+                 realm: str = REALM, program: LabProgram | None = None) -> None:
         self.controller = controller
+        self.program = program
         self.auth = DigestAuthority(users, realm)
         self.sessions = SessionTable(max_sessions, idle_timeout_s)
 
@@ -154,10 +173,12 @@ class RwsService:
     def lab_state(self) -> dict[str, Any]:
         return {"state": self.controller.snapshot(), "sessions": self.sessions.snapshot(),
                 "max_sessions": self.sessions.max_sessions,
-                "refused_logins": self.sessions.refused}
+                "refused_logins": self.sessions.refused,
+                "options": list(self.controller.identity.options),
+                "rapid": None if self.program is None else self.program.lab_state()}
 
-    def apply_lab(self, body: Mapping[str, Any]) -> None:
-        """``POST /lab/controller``'s body applied to the controller (ValueError)."""
+    def _check_lab(self, body: Mapping[str, Any]) -> None:
+        """Refuse a malformed ``POST /lab/controller`` body before anything changes."""
         unknown = set(body) - set(LAB_KEYS)
         if unknown:
             raise ValueError(f"unknown keys {sorted(unknown)} (known: {list(LAB_KEYS)})")
@@ -165,9 +186,36 @@ class RwsService:
         if err is not None and (not isinstance(err, Mapping) or not {"task", "code", "title"}
                                 <= set(err)):
             raise ValueError('task_error must be {"task", "code", "title", ...}')
+        if "rapid" in body or "rapid_version" in body:
+            if self.program is None:
+                raise ValueError("this twin plays no RAPID of ours (rapid, rapid_version)")
+            if body.get("rapid", "testbed") not in ("testbed", "none"):
+                raise ValueError('rapid must be "testbed" (loaded) or "none" (not loaded)')
+        opts = body.get("options")
+        if opts is not None and (not isinstance(opts, list)
+                                 or not all(isinstance(o, str) and o for o in opts)):
+            raise ValueError("options must be a list of option names")
+        gone = body.get("remove_option")
+        if gone is not None and (not isinstance(gone, str) or not any(
+                o == gone or o.startswith(f"{gone} ") for o in self.controller.identity.options)):
+            raise ValueError(f"remove_option {gone!r}: no such option in "
+                             f"{list(self.controller.identity.options)}")
+
+    def apply_lab(self, body: Mapping[str, Any]) -> None:
+        """``POST /lab/controller``'s body applied to the controller (ValueError)."""
+        self._check_lab(body)
         self.controller.set_state(opmode=body.get("opmode"), ctrlstate=body.get("ctrlstate"),
                                   speedratio=body.get("speedratio"),
                                   execution=body.get("execution"))
+        if "options" in body:
+            self.controller.set_options(body["options"])
+        if "remove_option" in body:
+            self.controller.remove_option(body["remove_option"])
+        if self.program is not None and "rapid" in body:
+            self.program.set_loaded(body["rapid"] == "testbed")
+        if self.program is not None and "rapid_version" in body:
+            self.program.set_version(body["rapid_version"])
+        err = body.get("task_error")
         if err is not None:
             extra = {k: err[k] for k in ("desc", "causes", "actions", "args", "msgtype")
                      if k in err}

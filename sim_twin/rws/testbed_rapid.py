@@ -26,6 +26,12 @@ What our RAPID does, and so this hook (docs/notes/rws.md, "Our RAPID side"):
 3. After its last command (``WaitRob \\InPos``: the arm has arrived), each task writes
    ``ErrWrite \\I`` (80003) ``Testbed Motion Done``, reason lines: the task, ``seqno <n>``
    (the program header's), ``commands <k>``, the file. No log file, no signals.
+4. The controller supervises the stationary world zones ``tb_zones`` defined at power on
+   (:mod:`sim_twin.rws.world_zones`): when a task's TCP of ``tool_pusher`` (the
+   program's tool) would enter one, EVERY arm stops at that moment (the offending pusher
+   on the zone's face), the controller's own error (:data:`WORLD_ZONE_CODE`) goes to the
+   event log in that task, and execution stops: no ``Done`` entry. Each accepted
+   program's tool frame becomes ``tool_pusher``'s ``tframe`` (as ``tb_header`` does).
 """
 
 from __future__ import annotations
@@ -33,10 +39,11 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from sim_twin.rws.errors import RwsError
 from sim_twin.rws.event_log import MSG_ERROR, MSG_INFO
 from sim_twin.rws.irc5 import ProgramRun, RapidError
 from sim_twin.rws.mechunits import MechUnit
-from sim_twin.rws.motion_exec import CellMotion, TaskProgram
+from sim_twin.rws.motion_exec import CellMotion, TaskProgram, ZoneStop, tool_offset
 from sim_twin.rws.motion_program import (
     ERRWRITE_ERROR,
     ERRWRITE_INFO,
@@ -47,12 +54,25 @@ from sim_twin.rws.motion_program import (
     WaitTime,
     describe,
 )
+from sim_twin.rws.rapid_data import format_value, parse_value
+from sim_twin.rws.world_zones import ArmZone, default_zone, first_entry
+from sim_twin.yumi_cell import Trajectory
 
 DONE, FAILED = "Testbed Motion Done", "Testbed Motion Failed"
 """The headers (``args[0]``) of our RAPID's event log entries; the driver reads them."""
 MAX_COMMANDS = 64
 """The size of our RAPID's command arrays (``TB_MAX_CMDS`` in TestbedMotion.mod)."""
 SUPPORTED = (MoveAbsJ, MoveJ, MoveL, WaitTime)
+RAPID_VERSION = 2
+"""``TB_RAPID_VERSION`` in TestbedMotion.mod: the behaviour of our modules this twin plays
+(2: the world zones). The driver and ``testbed check`` compare the controller's."""
+WORLD_ZONE_CODE = 50000
+WORLD_ZONE_TITLE = "World zone reached"
+"""The twin's OWN code and title for a ``WZLimSup`` stop (motion domain, 5xxxx, like the
+controller's motion errors): RobotWare's real event for it was not found in any manual
+at hand (the operating manual's event list was not in the search corpus), so this is a
+placeholder the driver must not depend on; docs/rws-checklist.md asks for the real one.
+The driver reports any error entry (type 3) as the step's failure, whatever its code."""
 
 
 def testbed_program_file(task: str) -> str:
@@ -88,20 +108,35 @@ def ours(exc: RapidError, path: str, task: str) -> RapidError:
                       args=(FAILED, args[1], path, args[3], args[4]))
 
 
+class WorldZoneStop(RapidError):
+    """The controller stopped every motion: a TCP reached a stationary world zone."""
+
+
 class TestbedRapid(CellMotion):
     """The start hook of our RAPID: ``Irc5Controller(units=units, poses=hook.poses,
     on_start=hook)``. As :class:`CellMotion` (``cell``, ``cell_lock``, ``units``,
-    ``pusher_length_mm``, ``frame_every_s``), plus ``files`` (task -> the file it reads;
-    default :func:`testbed_program_file`) and ``floor_z_mm`` (our RAPID's ``tb_floor_z``).
-    ``last_run``: what each task of the latest run read (accepted or not)."""
+    ``pusher_length_mm``, ``frame_every_s``, ``on_frame``...), plus ``files`` (task ->
+    the file it reads; default :func:`testbed_program_file`), ``floor_z_mm`` (our RAPID's
+    ``tb_floor_z``) and ``zones`` (arm -> :class:`ArmZone`, the task module's zone
+    constants; default: the arm's workspace grown by
+    :data:`~sim_twin.rws.world_zones.DEFAULT_MARGIN_MM`, ``tb_zone_z`` 80 mm, the floor).
+    ``last_run``: what each task of the latest run read (accepted or not). The modules'
+    symbols (``tool_pusher``, the zone constants, ``TB_RAPID_VERSION``...) are declared by
+    ``sim_twin.rws.testbed_install.TestbedInstall(controller, hook)``, which also sets
+    ``on_start``; without it RWS reads of them answer as if the modules were missing."""
 
     __test__ = False  # not a pytest class, whatever its name
 
     def __init__(self, *args: Any, files: Mapping[str, str] | None = None,
-                 floor_z_mm: float = 0.0, **kwargs: Any) -> None:
+                 floor_z_mm: float = 0.0, zones: Mapping[str, ArmZone] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.files = {t.upper(): f for t, f in (files or {}).items()}
         self.floor_z_mm = float(floor_z_mm)
+        self.zones = {u.arm: default_zone(self.cell.sides[u.arm], floor_z=self.floor_z_mm)
+                      for u in self.units}
+        self.zones.update(zones or {})
+        self._offsets: dict[str, tuple[float, float, float]] = {}
 
     def program_file(self, task: str) -> str:
         return self.files.get(task.upper(), testbed_program_file(task))
@@ -110,6 +145,7 @@ class TestbedRapid(CellMotion):
         tp = self.read_task(run, unit)
         self.last_run[unit.task] = tp
         check_program(tp.program, self.floor_z_mm)
+        _set_tool_frame(run, unit.task, tp.program)
         return tp
 
     def _failed(self, run: ProgramRun, unit: MechUnit, exc: RapidError) -> None:
@@ -117,7 +153,7 @@ class TestbedRapid(CellMotion):
         run.controller.elog.write(e.code, MSG_ERROR, e.title, desc=e.desc, args=e.args,
                                   src_name=unit.task)
 
-    def __call__(self, run: ProgramRun) -> None:
+    def _run(self, run: ProgramRun) -> None:
         self.last_run = {}
         started = {t.upper() for t in run.tasks}
         plans, accepted = {}, []
@@ -131,8 +167,12 @@ class TestbedRapid(CellMotion):
             accepted.append(tp)
         if not accepted:
             return
+        self._offsets = {tp.unit.arm: tool_offset(tp.program.tool, self.pusher_length_mm)
+                         for tp in accepted}
         try:
             done = self._rounds(run, plans, None, accepted[0].unit.arm)
+        except WorldZoneStop:
+            raise  # the controller's own error, not our RAPID's
         except RapidError as exc:
             task = exc.task or accepted[0].task
             raise ours(exc, self.program_file(task), task) from None
@@ -143,3 +183,45 @@ class TestbedRapid(CellMotion):
                 ERRWRITE_INFO, MSG_INFO, DONE, src_name=tp.task,
                 args=(DONE, tp.task, f"seqno {tp.program.seqno}",
                       f"commands {len(tp.program.commands)}", tp.path))
+
+    # --- the world zones --------------------------------------------------------------------
+    def _zone_stop(self, trajs: Mapping[str, Trajectory]) -> ZoneStop | None:
+        """The first moment any arm's TCP of ``tool_pusher`` would reach its zones."""
+        hits = []
+        for arm, traj in trajs.items():
+            zone = self.zones.get(arm)
+            if zone is None:
+                continue
+            hit = first_entry(traj.segments, zone, self._offsets.get(arm, (0.0, 0.0, 0.0)))
+            if hit is not None:
+                hits.append(ZoneStop(hit[0], arm, hit[1]))
+        return min(hits, key=lambda z: z.t) if hits else None
+
+    def _zone_error(self, zone: ZoneStop, tcps: Mapping[str, Sequence[float]]) -> RapidError:
+        unit = next(u for u in self.units if u.arm == zone.arm)
+        off = self._offsets.get(zone.arm, (0.0, 0.0, 0.0))
+        p = [round(tcps[zone.arm][k] + off[k], 1) for k in range(3)]
+        where = f"[{p[0]:g},{p[1]:g},{p[2]:g}]"
+        return WorldZoneStop(
+            WORLD_ZONE_CODE, WORLD_ZONE_TITLE, task=unit.task,
+            desc=f"Task {unit.task}: the TCP of tool_pusher reached the stationary world "
+                 f"zone {zone.box.name} ({zone.box.rapid()}, world, mm) at {where}. "
+                 "Every motion task stopped there.",
+            causes="A programmed path leaves the zone box (tb_zone_lo, tb_zone_hi) below "
+                   "tb_zone_z, or goes below tb_floor_z.",
+            actions="Move the arm out of the zone (above tb_zone_z) and check the "
+                    "targets against the calibration's table box.",
+            args=(unit.task, zone.box.name, *(f"{v:g}" for v in p)))
+
+
+def _set_tool_frame(run: ProgramRun, task: str, program: MotionProgramFile) -> None:
+    """``tool_pusher.tframe := <the file's>`` (``tb_header``), when our RAPID is loaded."""
+    try:
+        sym = run.controller.symbols.find([task, "tool_pusher"])
+    except RwsError:
+        return  # not declared: the modules are not loaded (the twin's lab side)
+    value = parse_value(sym.value)
+    assert isinstance(value, list)
+    f = program.tool.tframe
+    value[1] = [[float(v) for v in f.trans], [float(v) for v in f.rot]]
+    run.controller.symbols.set([task, "tool_pusher"], format_value(value))

@@ -123,7 +123,7 @@ def controller_report(hosts: Any, host: HostConfig, print_line: Callable[[str], 
     rep, boxes = info["controller"], info.get("table_boxes", {})
     for line in report_lines(host.name, rep, RAPID_VERSION):
         print_line(line)
-    found = problems(rep, list(rep.get("rapid", {})), boxes)
+    found = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
     for why in found:
         print_line(f"FAULT {host.name}: {why}")
     return not found

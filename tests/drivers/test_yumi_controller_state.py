@@ -113,6 +113,10 @@ def test_check_problems_name_what_to_fix() -> None:
         _report(rapid=gone), tasks)[0]
     wide = problems(_report(), tasks, {"T_ROB_R": (10, -200, 600, 200)})
     assert len(wide) == 1 and "reaches outside the world zone box" in wide[0]
+    low = problems(_report(), tasks, travel_z={"T_ROB_L": 60.0, "T_ROB_R": 80.0})
+    assert low == ["task T_ROB_L: the calibration's z_travel_mm 60 is below the world zone's "
+                   "tb_zone_z 80: a travel outside the zone box would stop the arm; raise "
+                   "z_travel_mm to 80 or more"]
 
 
 def test_the_drivers_rapid_version_is_the_modules() -> None:

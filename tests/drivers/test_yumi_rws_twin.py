@@ -10,6 +10,7 @@ from __future__ import annotations
 import struct
 import threading
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -20,6 +21,7 @@ from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer, serve
 from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.motion_exec import CellMotion
+from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
 from sim_twin.yumi_cell import YumiTwinCell
 from sim_twin.yumi_geometry import REST_MM
@@ -38,6 +40,8 @@ def yumi() -> Iterator[Callable[..., Made]]:
         lock = threading.Lock()
         motion = hook(cell, lock, YUMI_UNITS, pusher_length_mm=PUSHER_MM)
         ctrl = Irc5Controller(units=YUMI_UNITS, poses=motion.poses, on_start=motion)
+        if isinstance(motion, TestbedRapid):  # our modules loaded: tool_pusher, the zones
+            TestbedInstall(ctrl, motion)
         server = serve(ctrl)
         poses = {u.arm: ArmPose(u.task, u.name, tuple(motion.poses.joints(u)),
                                 tool_z_mm=PUSHER_MM) for u in YUMI_UNITS}
@@ -73,7 +77,8 @@ def test_a_two_arm_step_moves_each_arm_to_its_own_target(yumi: Any) -> None:
     got = tcps(cell, lock)
     assert got["left"] == pytest.approx(LEFT, abs=1.0)
     assert got["right"] == pytest.approx(RIGHT, abs=1.0)
-    assert client.tcp_xyz()["left"][2] == pytest.approx(LEFT[2] + PUSHER_MM, abs=1.0)  # tool0
+    # read with tool_pusher, whose tframe each program set: the pusher's tip, not the flange
+    assert client.tcp_xyz()["left"] == pytest.approx(LEFT, abs=1.0)
     done = [e for e in ctrl.elog.entries() if e.title == "Testbed Motion Done"]
     assert sorted(e.args[1] for e in done) == ["T_ROB_L", "T_ROB_R"]
     assert {e.args[2] for e in done} == {"seqno 1"}
@@ -144,3 +149,88 @@ def test_a_controller_without_our_rapid_is_named(yumi: Any) -> None:
                                            r"'Testbed Motion Done' for program 2: is the "
                                            r"testbed RAPID \(robot/rapid/\) loaded"):
         client.execute({"left": to(LEFT)})
+
+
+# -- the pusher, not the flange: lift first; world zones -----------------------------------
+def backend_on(client: RwsYumiController, motion: CellMotion, tmp_path: Path, *,
+               table_box: tuple[float, float, float, float] | None = None) -> Any:
+    """A ``YumiBackend`` on the real client (a video file for a camera: no pictures are
+    taken here). Its calibration: the pusher's length as ``tool_z_mm``, the twin's rest."""
+    from driver_fakes import twin_picture, write_video
+
+    from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.yumi.camera import VideoCaptureCamera
+    from sim_twin.yumi_geometry import workspace_mm
+
+    setups = []
+    for u in YUMI_UNITS:
+        cal = {"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+               "table_box_mm": list(table_box or workspace_mm(motion.cell.sides[u.arm])),
+               "z_push_mm": 12.0, "z_travel_mm": 80.0, "max_speed_mm_s": 400.0,
+               "push_speed_mm_s": 100.0, "tool_z_mm": PUSHER_MM,
+               "rest_joints_deg": list(motion.poses.joints(u))}
+        setups.append(ArmSetup(u.arm, (0, 0, 64, 64), u.arm == "right",
+                               ArmCalibration.from_dict(cal, u.arm)))
+    video = write_video(tmp_path / "cam.avi", [twin_picture(0)])
+    return YumiBackend(setups, VideoCaptureCamera(str(video)), client)
+
+
+def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
+                                                                 tmp_path: Path) -> None:
+    client, _, cell, motion, lock = yumi()
+    backend = backend_on(client, motion, tmp_path)
+    low = (400.0, 200.0, 15.0)
+    assert backend.move_tcp("left", low) == pytest.approx(low, abs=1.0)
+    # The pusher is 15 mm over the table, its flange 115 mm: only a read with the pusher's
+    # tool sees that it is low. The rest move goes straight up first, then MoveAbsJ.
+    backend.rest()
+    first, second = motion.last_run["T_ROB_L"].program.commands[:2]
+    assert type(first).__name__ == "MoveL" and type(second).__name__ == "MoveAbsJ"
+    assert list(first.to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
+    assert tcps(cell, lock)["left"] == pytest.approx(REST_MM["left"], abs=1.0)
+    backend.move_tcp("left", low)
+    backend.move_tcp("left", (300.0, 100.0, 20.0))  # from low to another point: up first
+    cmds = motion.last_run["T_ROB_L"].program.commands
+    assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveJ", "MoveL"]
+    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
+    backend.rest()  # already at travel height or above: no lift
+    backend.move_tcp("left", (300.0, 100.0, 90.0))
+    assert [type(c).__name__ for c in motion.last_run["T_ROB_L"].program.commands] == [
+        "MoveJ", "MoveL"]
+    backend.close()
+
+
+def test_a_push_past_the_world_zone_is_stopped_by_the_controller(yumi: Any,
+                                                                  tmp_path: Path) -> None:
+    client, ctrl, cell, motion, lock = yumi()
+    zone = motion.zones["left"]  # the twin's default: the workspace grown by 25 mm
+    y = (zone.y0 + zone.y1) / 2
+    start, past = (zone.x1 - 60.0, y, 12.0), (zone.x1 + 40.0, y, 12.0)
+    stroke = [Waypoint("move_j", (start[0], y, 80.0), 300.0, fine=False),
+              Waypoint("move_l", start, 100.0), Waypoint("move_l", past, 50.0)]
+    with pytest.raises(BackendError) as info:
+        client.execute({"left": stroke, "right": to(RIGHT)})
+    msg = str(info.value)
+    assert "\n" not in msg, msg
+    assert msg.startswith("YuMi controller: event log 50000 'World zone reached': Task "
+                          "T_ROB_L: the TCP of tool_pusher reached the stationary world "
+                          "zone tb_wz_xhi"), msg
+    got = tcps(cell, lock)
+    assert got["left"][0] == pytest.approx(zone.x1, abs=0.5)  # stopped on the zone's face
+    assert got["left"][2] == pytest.approx(12.0, abs=0.5)
+    assert not any(e.title == "Testbed Motion Done" for e in ctrl.elog.entries())
+    # A task stopped by the zone stays stopped for the driver until a person has looked:
+    # the next motion is refused, naming the entry, until the program pointer is reset.
+    with pytest.raises(BackendError, match=r"stopped by a RAPID error \(event log 50000 "
+                                           r"'World zone reached'.*PP to Main"):
+        client.execute({"left": to(LEFT)})
+    ctrl.resetpp()  # the FlexPendant's "PP to Main"
+    # The same through the backend: a table box wider than the zone lets a point past it
+    # be asked for; the controller stops the arm where the zone begins, and says so.
+    backend = backend_on(client, motion, tmp_path, table_box=(
+        zone.x0, zone.y0, zone.x1 + 80.0, zone.y1))
+    with pytest.raises(BackendError, match=r"^YuMi controller: event log 50000 'World zone "
+                                           r"reached'"):
+        backend.move_tcp("left", (zone.x1 + 40.0, y, 20.0))
+    assert tcps(cell, lock)["left"][0] == pytest.approx(zone.x1, abs=0.5)
+    backend.close()

@@ -1,7 +1,8 @@
 """The YuMi backend's two seams with real parts: the camera as a lab IP camera (an HTTP
-MJPEG stream through cv2.VideoCapture/FFmpeg), and the controller client chosen from the
+MJPEG stream through cv2.VideoCapture/FFmpeg), and the controller client built from the
 controller URL; then the backend, unchanged, against the hardware twin server
-(``python -m sim_twin.yumi_server``: PyBullet, its camera stream, its controller API).
+(``python -m sim_twin.yumi_server``: PyBullet, its camera stream, its controller's Robot
+Web Services with our RAPID's semantics), through the one real controller client.
 """
 
 from __future__ import annotations
@@ -23,9 +24,11 @@ from driver_fakes import twin_picture, write_video
 from mjpeg_fixture import MjpegCamera, frame_number
 
 from drivers.errors import BackendError
+from drivers.yumi.backend import ArmCalibration
 from drivers.yumi.camera import VideoCaptureCamera
 from drivers.yumi.controllers import make_controller
-from drivers.yumi.yumi_controller import ArmPose, RwsYumiController
+from drivers.yumi.rws_controller import RwsYumiController
+from drivers.yumi.yumi_controller import ArmPose, Waypoint
 
 # --- the camera seam: a network camera ------------------------------------------------
 
@@ -131,24 +134,25 @@ def test_file_paths_expand_home_and_variables(tmp_path: Path,
         VideoCaptureCamera("$CAMS/cam.avi")
 
 
-# --- the controller seam: chosen from the URL -------------------------------------------
-def test_make_controller_chooses_from_the_url() -> None:
-    from drivers.yumi.twin_controller import TwinControllerClient
-
+# --- the controller seam: one client, built from the URL and the login file -------------
+def test_make_controller_builds_the_rws_client(tmp_path: Path) -> None:
     pose = ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135))
-    twin = make_controller("twin+http://127.0.0.1:1", {"left": None, "right": None})
-    assert isinstance(twin, TwinControllerClient)
-    with pytest.raises(BackendError, match=r"twin controller twin\+http://127.0.0.1:1: "
-                                           r"/controller/tcp failed: .*refused"):
-        twin.tcp_xyz()
-    assert isinstance(make_controller("http://127.0.0.1:1", {"left": pose}), RwsYumiController)
-    with pytest.raises(BackendError, match=r"arm right: .*'rest_joints_deg'.*RWS.*every arm's "
+    ctrl = make_controller("http://127.0.0.1:1", {"left": pose})
+    assert isinstance(ctrl, RwsYumiController)
+    with pytest.raises(BackendError, match=r"cannot read the arms' positions \(tool_pusher "
+                                           r"in wobj0\) from the YuMi controller: .*refused"):
+        ctrl.tcp_xyz()
+    with pytest.raises(BackendError, match=r"arm right: .*'rest_joints_deg'.*every arm's "
                                            r"rest pose, also while calibrating"):
         make_controller("https://yumi.lab", {"left": pose, "right": None})
-    with pytest.raises(BackendError, match=r"^controller_url: 'rws://yumi' is not a controller"):
-        make_controller("rws://yumi", {"left": pose})
-    with pytest.raises(BackendError, match=r"must be twin\+http://HOST:PORT"):
-        make_controller("twin+http://127.0.0.1:4/x", {"left": pose})
+    for url in ("rws://yumi", "twin+http://127.0.0.1:4101"):
+        with pytest.raises(BackendError, match=r"^controller_url: .* is not a controller URL"):
+            make_controller(url, {"left": pose})
+    login = tmp_path / "rws.login"
+    login.write_text("lab:secret\n")
+    login.chmod(0o644)
+    with pytest.raises(BackendError, match=r"credentials_file .*mode 0644"):
+        make_controller("http://127.0.0.1:1", {"left": pose}, credentials_file=str(login))
 
 
 # --- the backend, unchanged, on the hardware twin ----------------------------------------
@@ -160,10 +164,10 @@ SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 80.0, "max_speed_mm_s": 300.0,
 class Twin:
     """One ``python -m sim_twin.yumi_server`` process and its published camera model."""
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, rws_port: int) -> None:
         self.base = f"http://127.0.0.1:{port}"
         self.camera_url = f"{self.base}/camera.mjpg"
-        self.controller_url = f"twin+http://127.0.0.1:{port}"
+        self.controller_url = f"http://127.0.0.1:{rws_port}"
         self.model: dict[str, Any] = self.get("/lab/camera")
 
     def get(self, path: str, body: Any = None) -> Any:
@@ -179,7 +183,8 @@ class Twin:
         return self.get("/lab/truth")["arms"]
 
     def tcp(self) -> dict[str, list[float]]:
-        return self.get("/controller/tcp")["tcp"]
+        """Where each pusher truly is (the lab's eyes, not the controller's word)."""
+        return {a: t["tcp_mm"] for a, t in self.truth().items()}
 
     def project(self, xyz: Any) -> np.ndarray:
         m = self.model
@@ -197,7 +202,8 @@ class Twin:
         xy = np.array([(x, y) for x in np.linspace(x0, x1, 9) for y in np.linspace(y0, y1, 9)])
         uv = self.project(np.c_[xy, np.full(len(xy), 40.0)])
         h, _ = cv2.findHomography(uv, xy)
-        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS}
+        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
+                **rest_pose(arm)}
 
     def canonical(self, arm: str) -> np.ndarray:
         """The cube's true centre in the arm's canonical crop frame."""
@@ -208,14 +214,29 @@ class Twin:
             c[0] = 1.0 - c[0]
         return c
 
+    def client(self) -> RwsYumiController:
+        """The agent's controller client on this twin's RWS."""
+        poses = {a: ArmCalibration.from_dict(self.calibration(a), a).pose for a in ARMS}
+        return RwsYumiController(self.controller_url, poses)  # type: ignore[arg-type]
+
     def fresh(self) -> None:
         """Both cubes back near their centres, both arms at rest (the lab hand)."""
-        speed = SPEEDS["max_speed_mm_s"]
-        self.get("/controller/execute", {"programs": {a: [
-            {"kind": "rest", "xyz_mm": None, "speed_mm_s": speed, "fine": True}]
-            for a in ("left", "right")}})
-        for arm in ("left", "right"):
+        ctrl = self.client()
+        try:
+            ctrl.execute({a: [Waypoint("rest", None, SPEEDS["max_speed_mm_s"])] for a in ARMS})
+        finally:
+            ctrl.close()
+        for arm in ARMS:
             self.get("/lab/reset", {"arm": arm})
+
+
+ARMS = ("left", "right")
+
+
+def rest_pose(arm: str) -> dict[str, Any]:
+    """The twin's rest pose in a calibration file (the joints its RWS reports)."""
+    return {"rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
+                                -135.0 if arm == "left" else 135.0]}
 
 
 @pytest.fixture(scope="module")
@@ -225,11 +246,12 @@ def twin(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Twin]:
     if not (ROOT / "sim_twin" / "yumi_server.py").exists():
         pytest.fail("sim_twin/yumi_server.py (the hardware twin, Part S) is missing")
     d = tmp_path_factory.mktemp("twin")
-    port_file = d / "port"
+    port_file, rws_file = d / "port", d / "rws.port"
     with open(d / "server.log", "wb") as log:
         proc = subprocess.Popen([sys.executable, "-m", "sim_twin.yumi_server", "--arms",
                                  "left,right", "--seed", "3", "--port", "0", "--port-file",
-                                 str(port_file), "--fps", "15"], cwd=ROOT, stdout=log,
+                                 str(port_file), "--rws-port-file", str(rws_file),
+                                 "--fps", "15"], cwd=ROOT, stdout=log,
                                 stderr=subprocess.STDOUT)
     try:
         t0 = time.monotonic()
@@ -237,7 +259,7 @@ def twin(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Twin]:
             if proc.poll() is not None or time.monotonic() - t0 > 60:
                 pytest.fail(f"twin server did not start: {(d / 'server.log').read_text()}")
             time.sleep(0.05)
-        yield Twin(int(port_file.read_text()))
+        yield Twin(int(port_file.read_text()), int(rws_file.read_text()))
     finally:
         proc.terminate()
         try:
@@ -309,15 +331,15 @@ def test_backend_observes_and_pushes_the_twin(twin: Twin, tmp_path: Path,
         backend.reseed(11)
         assert {a: v.goal for a, v in backend.observe().items()} == first
         assert first != {a: v.goal for a, v in goals.items()}
-        print(f"push on the twin: {wall:.2f} s wall (sim {backend._controller.last_sim_s} s)")
+        print(f"push on the twin over RWS: {wall:.2f} s wall "
+              f"({backend._controller.timing})")
     finally:
         backend.close()
 
 
 def test_refused_and_per_arm_errors_leave_the_sibling_pushing(twin: Twin,
                                                               tmp_path: Path) -> None:
-    from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
-    from drivers.yumi.twin_controller import TwinControllerClient
+    from drivers.yumi.backend import ArmSetup, YumiBackend
 
     class JammedSetup(ArmSetup):  # one arm's planning fails (as a bad pose or model would)
         def canonical_to_table(self, c: Any) -> tuple[float, float]:
@@ -334,7 +356,7 @@ def test_refused_and_per_arm_errors_leave_the_sibling_pushing(twin: Twin,
     ]:
         backend = open_retrying(lambda r=right: YumiBackend(  # type: ignore[misc]
             [left, r], VideoCaptureCamera(twin.camera_url),
-            TwinControllerClient(twin.controller_url, ["left", "right"]), seed=2))
+            twin.client(), seed=2))
         try:
             backend.observe()
             truth = twin.truth()
@@ -361,7 +383,8 @@ def test_calibration_mode_moves_the_tcp_shows_the_marker_and_saves(
 
     twin.fresh()
     box = twin.model["workspaces_mm"]["left"]
-    files = cal_files(twin, tmp_path, left={"table_box_mm": box, **SPEEDS})  # no homography
+    files = cal_files(twin, tmp_path, left={"table_box_mm": box, **SPEEDS,  # no homography
+                                            **rest_pose("left")})
     monkeypatch.setenv("HOME", str(tmp_path))
     backend = open_retrying(lambda: make_backend(
         "yumi", arms=["left", "right"], mirror=[False, True], seed=0,

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import twin_rws
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from abb_robot_client.rws import RWS
 
@@ -418,12 +419,15 @@ def test_a_malformed_program_fails_with_the_controllers_elog_entry(cell_twin: An
         m.execute_motion_program(below, task="T_ROB_L")
 
 
-def test_python_m_sim_twin_rws_cell_runs_programs(tmp_path: Path) -> None:
+@pytest.mark.parametrize("rapid", ["library", "testbed"])
+def test_python_m_sim_twin_rws_cell_runs_programs(tmp_path: Path, rapid: str) -> None:
     port_file = tmp_path / "port"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "sim_twin.rws", "--port", "0",
                              "--port-file", str(port_file), "--cell", "--arms", "left",
-                             "--pusher-length-mm", "100"], cwd=ROOT, env=env,
+                             "--pusher-length-mm", "100",
+                             *(["--rapid", rapid] if rapid == "library" else [])],
+                            cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
@@ -433,7 +437,11 @@ def test_python_m_sim_twin_rws_cell_runs_programs(tmp_path: Path) -> None:
         c = client(f"http://127.0.0.1:{int(port_file.read_text())}")
         mp = mpe.MotionProgram()  # tool0: the flange
         mp.MoveL(rt(400, 200, 150), mpe.v500, mpe.fine)
-        mpe.MotionProgramExecClient(abb_client=c).execute_motion_program(mp, task="T_ROB_L")
+        if rapid == "library":
+            mpe.MotionProgramExecClient(abb_client=c).execute_motion_program(mp, task="T_ROB_L")
+        else:  # the default: our RAPID, its own file, its symbols
+            assert [e.title for e in twin_rws.run(c, {"T_ROB_L": mp})] == ["Testbed Motion Done"]
+            assert c.get_rapid_variable("tb_zone_z", "T_ROB_L/TestbedTask_L") == "80"
         assert c.get_robtarget("ROB_L").trans.tolist() == pytest.approx([400, 200, 150], abs=1.0)
         proc.terminate()
         assert proc.wait(timeout=20) == 0

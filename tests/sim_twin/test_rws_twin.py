@@ -456,6 +456,28 @@ def test_the_lab_side_refuses_an_impossible_state(twin: Any) -> None:
     assert lab(s)["state"]["ctrlstate"] == "motoron"
 
 
+def test_the_lab_side_sets_the_options_listed(twin: Any) -> None:
+    s, ctrl = twin()
+    c = client(s.url)
+
+    def listed() -> list[str]:
+        return [o["option"] for o in c._do_get("rw/system/options")["_embedded"]["_state"]]
+
+    every = listed()
+    assert lab(s, {"remove_option": "608-1"})["options"] == [o for o in every
+                                                             if not o.startswith("608-1")]
+    assert "608-1 World Zones" not in listed()
+    assert lab(s, {"options": ["RobotWare Base", "616-1 PC Interface"]})["options"] == [
+        "RobotWare Base", "616-1 PC Interface"]
+    assert listed() == ["RobotWare Base", "616-1 PC Interface"]
+    for body in ({"remove_option": "623-1"}, {"options": [""]}, {"rapid": "none"},
+                 {"rapid_version": 1}):  # not listed; empty; no RAPID of ours on this twin
+        with pytest.raises(urllib.error.HTTPError) as e:
+            lab(s, body)
+        assert e.value.code == 400
+    assert lab(s)["rapid"] is None and ctrl.identity.options == tuple(listed())
+
+
 def test_a_rapid_error_stops_the_task_and_shows_in_the_elog(twin: Any) -> None:
     s, _ = twin()
     c = client(s.url)

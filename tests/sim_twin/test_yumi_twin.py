@@ -1,5 +1,6 @@
 """The YuMi hardware twin: contact physics, MultiMove, rest pose, lab hand, perception and
-markers against the true camera, and the HTTP server with a real cv2.VideoCapture."""
+markers against the true camera, and the server process with a real cv2.VideoCapture on
+its camera and the unchanged ABB RWS client on its controller."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
+import twin_rws
+from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 
 from sim_twin.yumi_cell import RESET_NOISE, YumiTwinCell
 from sim_twin.yumi_geometry import WORKSPACE_MM, workspace_mm
@@ -175,17 +178,19 @@ def test_marker_is_found_where_the_tcp_projects(cell: YumiTwinCell) -> None:
 # --- the server process ------------------------------------------------------------------------
 class Server:
     def __init__(self, tmp: Path) -> None:
-        port_file = tmp / "port"
+        port_file, rws_port_file = tmp / "port", tmp / "rws.port"
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "sim_twin.yumi_server", "--seed", "5", "--port", "0",
-             "--port-file", str(port_file), "--fps", "15"], cwd=ROOT, env=env,
+             "--port-file", str(port_file), "--rws-port-file", str(rws_port_file),
+             "--fps", "15"], cwd=ROOT, env=env,
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         deadline = time.monotonic() + 30
         while not port_file.exists():
             assert self.proc.poll() is None and time.monotonic() < deadline, "server did not start"
             time.sleep(0.05)
         self.url = f"http://127.0.0.1:{int(port_file.read_text())}"
+        self.rws_url = f"http://127.0.0.1:{int(rws_port_file.read_text())}"
 
     def get(self, path: str) -> Any:
         with urllib.request.urlopen(self.url + path, timeout=10) as r:
@@ -219,10 +224,32 @@ def _fresh(cap: cv2.VideoCapture, fps: float = 15.0) -> npt.NDArray[np.uint8]:
     return frame
 
 
+def rapid_push(c: Any, cube: list[float]) -> Any:
+    """``push_x`` as our RAPID's program (the driver's shape): stop points, the rest pose
+    as a MoveAbsJ to the joints the controller reports."""
+    p = twin_rws.program([("J" if w["kind"] == "move_j" else "L", w["xyz_mm"],
+                           w["speed_mm_s"]) for w in push_x(cube) if w["kind"] != "rest"])
+    j = c.get_jointtarget("ROB_L")
+    p.MoveAbsJ(mpe.jointtarget(j.robax.tolist(), j.extax.tolist()), mpe.v200, mpe.fine)
+    return p
+
+
+def _cube_seen(frame: npt.NDArray[np.uint8], cam: Mapping[str, Any], truth: Mapping[str, Any]
+               ) -> float:
+    """Crop pixels between the cube perception finds in ``frame`` and the truth's."""
+    box = tuple(cam["crops"]["left"])
+    pose = find_cube(crop(frame, box, False))
+    w = box[2] - box[0]
+    u, v = truth["cube_px"]
+    assert pose is not None
+    return math.dist(pose.centre, ((u + 0.5 - box[0]) / w, (v + 0.5 - box[1]) / w)) * 64
+
+
 def test_server_stream_controller_and_lab(server: Server) -> None:
     cam = server.get("/lab/camera")
     assert (cam["width"], cam["height"]) == (640, 480) and cam["mirror"] == {
         "left": False, "right": True}
+    c = twin_rws.client(server.rws_url)  # the controller: RWS, the unchanged ABB client
     cap = cv2.VideoCapture(server.url + "/camera.mjpg", cv2.CAP_FFMPEG)
     try:
         assert cap.isOpened()
@@ -232,30 +259,31 @@ def test_server_stream_controller_and_lab(server: Server) -> None:
             urllib.request.urlopen(server.url + "/camera.mjpg", timeout=10)
         assert busy.value.code == 503 and b"camera busy" in busy.value.read()
 
-        with pytest.raises(urllib.error.HTTPError) as bad:
-            server.post("/controller/execute", {"programs": {"left": [wp("move_l", [400, 200,
-                                                                                  -5], 100)]}})
-        assert bad.value.code == 400 and "below the table" in json.loads(bad.value.read())["error"]
+        below = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("L", (400, 200, -5), 100)])})
+        assert [(e.code, e.args[1]) for e in below] == [(80001, "Target below the table")]
         t0 = server.get("/lab/truth")["arms"]["left"]
-        reply = server.post("/controller/execute", {"programs": {"left": push_x(t0["cube_mm"])}})
-        assert reply["ok"] and reply["sim_s"] > 1.0
+        done = twin_rws.run(c, {"T_ROB_L": rapid_push(c, t0["cube_mm"])}, seqno=2)
+        assert [e.title for e in done] == ["Testbed Motion Done"]
+        with urllib.request.urlopen(server.url + "/camera.jpg", timeout=10) as r:
+            jpg = cv2.imdecode(np.frombuffer(r.read(), np.uint8), cv2.IMREAD_COLOR)
         t1 = server.get("/lab/truth")["arms"]["left"]
         assert t1["cube_mm"][0] - t0["cube_mm"][0] > 20.0
-        assert server.get("/controller/tcp")["tcp"]["left"] == pytest.approx([100, 450, 150],
-                                                                            abs=1.0)
-        frame = _fresh(cap)  # the stream shows the moved cube
-        box = tuple(cam["crops"]["left"])
-        pose = find_cube(crop(frame, box, False))
-        w = box[2] - box[0]
-        u, v = t1["cube_px"]
-        assert pose is not None and math.dist(
-            pose.centre, ((u + 0.5 - box[0]) / w, (v + 0.5 - box[1]) / w)) * 64 < 0.6
+        assert t1["tcp_mm"] == pytest.approx([100, 450, 150], abs=1.0)
+        assert c.get_robtarget("ROB_L").trans.tolist() == pytest.approx([100, 450, 150],
+                                                                       abs=1.0)
+        assert _cube_seen(jpg, cam, t1) < 0.6  # shown by the time execution read stopped
+        assert _cube_seen(_fresh(cap), cam, t1) < 0.6  # and on the stream
     finally:
         cap.release()
+    for gone in ("/controller/execute", "/controller/tcp"):  # the private API is retired
+        with pytest.raises(urllib.error.HTTPError) as e:
+            server.post(gone, {"programs": {}}) if "execute" in gone else server.get(gone)
+        assert e.value.code == 404
     assert server.post("/lab/reset", {"arm": "left"}) == {"ok": True}
     with urllib.request.urlopen(server.url + "/camera.jpg", timeout=10) as r:
         jpg = cv2.imdecode(np.frombuffer(r.read(), np.uint8), cv2.IMREAD_COLOR)
     assert jpg.shape == (480, 640, 3)
     assert server.get("/lab/health") == {"ok": True}
+    c.logout()
     server.proc.send_signal(signal.SIGTERM)
     assert server.proc.wait(timeout=10) == 0

@@ -1,7 +1,7 @@
 """``testbed calibrate`` and ``testbed check``'s full frame against the REAL hardware twin.
 
-One ``python -m sim_twin.yumi_server`` process (PyBullet cell, MJPEG camera, controller
-API); the agent runs the YumiBackend unchanged (local transport) with ``--calibrate``.
+One ``python -m sim_twin.yumi_server`` process (PyBullet cell, MJPEG camera, the
+controller's Robot Web Services); the agent runs the YumiBackend unchanged (local transport) with ``--calibrate``.
 The fitted homography is judged against the twin's TRUE camera model (``/lab/camera``:
 K, lens distortion, pose), not against the command's own report.
 """
@@ -27,13 +27,20 @@ from testbed.cli import main
 from testbed.perception import homography as cal
 
 ROOT = Path(__file__).resolve().parents[2]
-SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 60.0, "max_speed_mm_s": 400.0,
+SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 90.0, "max_speed_mm_s": 400.0,
           "push_speed_mm_s": 100.0}
 
 
+def rest_pose(arm: str) -> dict[str, Any]:
+    """The twin's rest pose as a lab writes it into an arm's starting file."""
+    return {"rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
+                                -135.0 if arm == "left" else 135.0]}
+
+
 class Twin:
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, rws_port: int) -> None:
         self.base = f"http://127.0.0.1:{port}"
+        self.rws = f"http://127.0.0.1:{rws_port}"
         self.model: dict[str, Any] = self.get("/lab/camera")
 
     def get(self, path: str, body: Any = None) -> Any:
@@ -56,17 +63,19 @@ class Twin:
         x0, y0, x1, y1 = self.model["workspaces_mm"][arm]
         xy = np.array([(x, y) for x in np.linspace(x0, x1, 9) for y in np.linspace(y0, y1, 9)])
         h, _ = cv2.findHomography(self.project(np.c_[xy, np.full(len(xy), 40.0)]), xy)
-        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS}
+        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
+                **rest_pose(arm)}
 
 
 @pytest.fixture(scope="module")
 def twin(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Twin]:
     d = tmp_path_factory.mktemp("twin")
-    port_file = d / "port"
+    port_file, rws_file = d / "port", d / "rws.port"
     with open(d / "server.log", "wb") as log:
         proc = subprocess.Popen([sys.executable, "-m", "sim_twin.yumi_server", "--arms",
                                  "left,right", "--seed", "11", "--port", "0", "--port-file",
-                                 str(port_file), "--fps", "15"], cwd=ROOT, stdout=log,
+                                 str(port_file), "--rws-port-file", str(rws_file),
+                                 "--fps", "15"], cwd=ROOT, stdout=log,
                                 stderr=subprocess.STDOUT)
     try:
         t0 = time.monotonic()
@@ -74,7 +83,7 @@ def twin(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Twin]:
             if proc.poll() is not None or time.monotonic() - t0 > 60:
                 pytest.fail(f"twin server did not start: {(d / 'server.log').read_text()}")
             time.sleep(0.05)
-        yield Twin(int(port_file.read_text()))
+        yield Twin(int(port_file.read_text()), int(rws_file.read_text()))
     finally:
         proc.terminate()
         try:
@@ -91,7 +100,7 @@ def lab(twin: Twin, tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("lab")
     m = twin.model
     (d / "left.json").write_text(json.dumps({"table_box_mm": m["workspaces_mm"]["left"],
-                                             **SPEEDS}))
+                                             **SPEEDS, **rest_pose("left")}))
     (d / "right.json").write_text(json.dumps(twin.true_calibration("right")))
     x0, y0, x1, y1 = m["crops"]["left"]
     port = twin.base.rsplit(":", 1)[1]
@@ -103,7 +112,7 @@ count = 1
 name = "yumi"
 backend = "yumi"
 camera = "http://127.0.0.1:{port}/camera.mjpg"
-controller_url = "twin+http://127.0.0.1:{port}"
+controller_url = "{twin.rws}"
 deadline_s = 30
 [[hosts.arms]]
 name = "left"
@@ -119,7 +128,7 @@ calibration = "{d}/right.json"
 
 
 def _at_rest(twin: Twin) -> bool:
-    tcp = twin.get("/controller/tcp")["tcp"]
+    tcp = {a: t["tcp_mm"] for a, t in twin.get("/lab/truth")["arms"].items()}
     return all(np.allclose(tcp[a], twin.model["rest_mm"][a], atol=1.0) for a in tcp)
 
 
