@@ -12,19 +12,30 @@ Lifecycle::
     take the robot's lock (drivers.hostlock; a second agent for the same robot is refused
     and never builds its backend) -> start backend (errors kept for the hello reply)
     -> wait for hello (version check)
-    -> serve observe / push / reset / rest / heartbeat / reseed / frame / move_tcp /
-       save_calibration until bye, EOF, a broken frame, or no frame for --idle-timeout
-       seconds (the controller or the link is dead)
+    -> serve observe / push / reset / rest / reseed / frame / move_tcp / save_calibration
+       in order, in ONE worker thread, while the reader answers heartbeat and stop at
+       once, until bye, EOF, a broken frame, or no frame for --idle-timeout seconds
+       while no request runs (the controller or the link is dead)
     -> bye: arms to rest, then bye_ok; anything else: NO motion
     -> finally: backend closed, lock released
 
+Why a reader beside the worker (protocol 3): a push on a real arm is a motion of
+seconds. While it runs the reader still hears the controller: heartbeats are answered
+(the controller knows the agent lives), and ``stop`` reaches ``backend.stop()`` at once
+instead of waiting behind the motion it should stop.
+
 An orphaned agent never moves an arm: once its controller is gone (EOF, idle timeout,
-broken pipe, broken frame) nobody is watching the cell, so it closes the backend
-where the arms are. Arms rest only when asked (``rest``, ``bye``).
+broken pipe, broken frame) nobody is watching the cell, so it stops the motion in
+progress (``backend.stop()``), runs none of the requests still queued, and closes the
+backend where the arms are. Arms rest only when asked (``rest``, ``bye``). With
+``--watchdog S`` the same stop comes when a request runs and no frame at all has come
+from the controller for S seconds: a v3 controller heartbeats during every call, so
+silence means the link stopped answering.
 
 A backend exception answers that one request with an ``error`` frame carrying the arm
-and the traceback; the agent keeps serving. A broken frame (bad magic, length, CRC,
-truncation) cannot be resynchronised: the agent answers ``error`` (fatal) and exits.
+and the traceback (a ``BackendError``, an expected refusal: its message alone); the
+agent keeps serving. A broken frame (bad magic, length, CRC, truncation) cannot be
+resynchronised: the agent answers ``error`` (fatal) and exits.
 """
 
 from __future__ import annotations
@@ -33,18 +44,20 @@ import argparse
 import contextlib
 import logging
 import os
+import queue
 import select
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 # Light imports only (numpy, json, zlib): nothing here prints to fd 1. The backends
 # (pybullet!) are imported in main(), after claim_stdout().
 from drivers import wire as p
 from drivers.backends.base import ArmView
-from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError
+from drivers.errors import BackendError, DeadlineExceeded, LinkClosed, ProtocolError
 from drivers.hostlock import RobotBusy, RobotLock, default_lock_dir, lock_identity
 
 if TYPE_CHECKING:
@@ -107,11 +120,24 @@ def fd_writer(fd: int, timeout_s: float) -> Callable[[bytes], None]:
     return write
 
 
+POLL_S = 0.05
+"""While a request runs, the reader waits for frames in slices this long, so it notices
+at once the worker ending the session (bye, a broken link) and the watchdog's silence."""
+STOP_LIMIT_S = 0.5
+"""``HostBackend.stop`` returns within this (the reader hears nothing meanwhile)."""
+DRAIN_S = 10.0
+"""At exit, how long the backend may take to return from a stopped request before it is
+closed anyway."""
+
+
 def serve(reader: p.FrameReader, write: Callable[[bytes], None],
-          make_backend: Callable[[], HostBackend], *, idle_timeout_s: float = 120.0) -> int:
+          make_backend: Callable[[], HostBackend], *, idle_timeout_s: float = 120.0,
+          watchdog_s: float | None = None) -> int:
     """Serve one controller until bye/EOF/broken frame; returns the exit status.
 
-    Never raises: every failure becomes an ``error`` frame and/or an exit status.
+    ``watchdog_s``: while a request runs, stop the backend once if no frame at all came
+    from the controller for this long (None: no watchdog). Never raises: every failure
+    becomes an ``error`` frame and/or an exit status.
     """
     started = time.monotonic()
     backend: HostBackend | None = None
@@ -122,75 +148,299 @@ def serve(reader: p.FrameReader, write: Callable[[bytes], None],
         what = str(exc) if isinstance(exc, RobotBusy) else f"{type(exc).__name__}: {exc}"
         startup_error = (what, traceback.format_exc())
         log.error("backend failed to start: %s", startup_error[0])
-    greeted = False
+    session = _Session(reader, write, backend, startup_error, started,
+                       idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s)
     try:
-        while True:
-            try:
-                frame = reader.read_frame(time.monotonic() + idle_timeout_s)
-            except LinkClosed:
-                log.info("the controller closed the stream; closing the backend without "
-                         "moving the arms")
-                return EXIT_OK
-            except DeadlineExceeded:
-                log.error("no frame from the controller in %.0f s; the controller or the "
-                          "link is dead: exiting WITHOUT moving the arms", idle_timeout_s)
-                return EXIT_IDLE
-            except ProtocolError as exc:
-                log.error("%s; exiting without moving the arms", exc)
-                write(p.make_error(0, "protocol", str(exc), fatal=True))
-                return EXIT_PROTOCOL
-            mid = frame.id
-            try:
-                req = p.parse_request(frame, backend.arm_names if backend else None)
-            except ProtocolError as exc:
-                write(p.make_error(mid, "protocol", str(exc)))
-                continue
-            if req.type == "hello":
-                if req.body["version"] != p.PROTOCOL_VERSION:
-                    write(p.make_error(mid, "version", (
-                        f"controller speaks protocol {req.body['version']}, this agent "
-                        f"speaks {p.PROTOCOL_VERSION}; update the project on the host"),
-                        fatal=True))
-                    return EXIT_VERSION
-                if backend is None:
-                    assert startup_error is not None
-                    write(p.make_error(mid, "startup", startup_error[0],
-                                       traceback=startup_error[1], fatal=True))
-                    return EXIT_STARTUP
-                write(p.encode_frame({"type": "hello_ok", "id": mid,
-                                      "version": p.PROTOCOL_VERSION, "backend": backend.kind,
-                                      "arms": list(backend.arm_names),
-                                      "mirror": [bool(m) for m in backend.mirror],
-                                      "pid": os.getpid()}))
-                greeted = True
-                continue
-            if not greeted or backend is None:
-                write(p.make_error(mid, "protocol", f"{req.type!r} before hello"))
-                continue
-            if req.type == "bye":
-                # Rest BEFORE bye_ok: the controller's close waits for it, so the arms are
-                # out of the way when the agent is gone.
-                log.info("bye: arms to rest, then exiting")
-                try:
-                    backend.rest()
-                except Exception:
-                    log.exception("rest at bye failed")
-                write(p.encode_frame({"type": "bye_ok", "id": mid}))
-                return EXIT_OK
-            write(_dispatch(backend, req, started))
-            prepare = getattr(backend, "prepare", None)
-            if req.type in ("push", "reset") and prepare is not None:
-                try:  # the next observation, while the controller is busy elsewhere
-                    prepare()
-                except Exception:  # observe will try again and report it
-                    log.exception("preparing the next observation")
-    except (BrokenPipeError, ConnectionError) as exc:
-        log.error("cannot write to the controller: %s; exiting without moving the arms", exc)
-        return EXIT_LINK
+        return session.run()
     finally:
-        if backend is not None:
+        session.finish()
+
+
+class _Session:
+    """One controller's session: a reader (the calling thread) and one worker thread.
+
+    Why two threads: a push is a motion of seconds on a real arm, and while it runs the
+    controller must still be heard. The reader reads frames all the time and answers
+    ``heartbeat`` and ``stop`` at once (stop: ``backend.stop()``, then ``stop_ok``);
+    every other request goes, in order, to the ONE worker, so requests stay serial and
+    in the order the controller pipelined them. Replies are written under one lock, so
+    frames never interleave. The reader also keeps the watchdog and the idle timeout,
+    and when the controller is gone (EOF, a broken frame, a broken pipe) it stops the
+    motion in progress first, then the session ends without moving the arms.
+    """
+
+    def __init__(self, reader: p.FrameReader, write: Callable[[bytes], None],
+                 backend: HostBackend | None, startup_error: tuple[str, str] | None,
+                 started: float, *, idle_timeout_s: float, watchdog_s: float | None) -> None:
+        self.reader = reader
+        self._raw_write = write
+        self.backend = backend
+        self.startup_error = startup_error
+        self.started = started
+        self.idle_timeout_s = idle_timeout_s
+        self.watchdog_s = watchdog_s
+        self.greeted = False
+        self.last_frame = time.monotonic()
+        self._write_lock = threading.Lock()
+        self._jobs: queue.Queue[p.Request | bytes | None] = queue.Queue()
+        self._worker: threading.Thread | None = None
+        self._closing = threading.Event()
+        self._state = threading.Lock()  # guards the fields below
+        self._pending = 0  # requests queued or running
+        self._current: str | None = None  # the type of the request running
+        self._seq = 0  # requests started so far
+        self._idle_since = time.monotonic()
+        self._exit: int | None = None  # set by the worker: the session is over
+        self._watched = 0  # the request the watchdog last stopped
+
+    # -- the reader -------------------------------------------------------------------
+    def run(self) -> int:
+        """Read and route frames until the session ends; returns the exit status."""
+        try:
+            while True:
+                with self._state:
+                    status, busy, idle_since = self._exit, self._pending > 0, self._idle_since
+                if status is not None:
+                    return status
+                waiting_idle = not busy
+                deadline = (max(self.last_frame, idle_since) + self.idle_timeout_s
+                            if waiting_idle else time.monotonic() + POLL_S)
+                try:
+                    frame = self.reader.read_frame(deadline)
+                except DeadlineExceeded:
+                    if waiting_idle:
+                        log.error("no frame from the controller in %.0f s; the controller or "
+                                  "the link is dead: exiting WITHOUT moving the arms",
+                                  self.idle_timeout_s)
+                        return EXIT_IDLE
+                    self._watch()
+                    continue
+                except LinkClosed:
+                    self._abort("the controller closed the stream")
+                    log.info("the controller closed the stream; closing the backend without "
+                             "moving the arms")
+                    return self._worker_status(EXIT_OK)
+                except ProtocolError as exc:
+                    self._abort("a broken frame")
+                    log.error("%s; exiting without moving the arms", exc)
+                    self._send(p.make_error(0, "protocol", str(exc), fatal=True))
+                    return EXIT_PROTOCOL
+                self.last_frame = time.monotonic()
+                status = self._route(frame)
+                if status is not None:
+                    return status
+        except (BrokenPipeError, ConnectionError) as exc:
+            self._abort("the controller stopped reading")
+            log.error("cannot write to the controller: %s; exiting without moving the arms",
+                      exc)
+            return EXIT_LINK
+
+    def _route(self, frame: p.Frame) -> int | None:
+        """Answer a frame at once, or queue it for the worker; an exit status ends it."""
+        backend = self.backend
+        try:
+            req = p.parse_request(frame, backend.arm_names if backend else None)
+        except ProtocolError as exc:
+            self._in_order(p.make_error(frame.id, "protocol", str(exc)))
+            return None
+        if req.type == "stop":  # before hello too: stopping is always right
+            self._stop(f"stop from the controller (request {req.id})")
+            self._send(p.encode_frame({"type": "stop_ok", "id": req.id}))
+            return None
+        if not self.greeted:
+            return self._before_hello(req)
+        if req.type == "heartbeat":
+            with self._state:
+                busy = self._current
+            self._send(p.encode_frame({"type": "heartbeat_ok", "id": req.id, "busy": busy,
+                                       "uptime_s": round(time.monotonic() - self.started, 3)}))
+            return None
+        self._in_order(req)
+        return None
+
+    def _before_hello(self, req: p.Request) -> int | None:
+        if req.type != "hello":
+            self._send(p.make_error(req.id, "protocol", f"{req.type!r} before hello"))
+            return None
+        reply, status = self._hello(req)
+        self._send(reply)
+        if status is None:
+            self.greeted = True
+            self._worker = threading.Thread(target=self._work, name="agent-worker",
+                                            daemon=True)
+            self._worker.start()
+        return status
+
+    def _hello(self, req: p.Request) -> tuple[bytes, int | None]:
+        """The reply to a hello, and the exit status if it ends the session."""
+        if req.body["version"] != p.PROTOCOL_VERSION:
+            why = (f"controller speaks protocol {req.body['version']}, this agent speaks "
+                   f"{p.PROTOCOL_VERSION}; update the project on the host")
+            return p.make_error(req.id, "version", why, fatal=True), EXIT_VERSION
+        backend = self.backend
+        if backend is None:
+            assert self.startup_error is not None
+            return p.make_error(req.id, "startup", self.startup_error[0],
+                                traceback=self.startup_error[1], fatal=True), EXIT_STARTUP
+        return p.encode_frame({"type": "hello_ok", "id": req.id,
+                               "version": p.PROTOCOL_VERSION, "backend": backend.kind,
+                               "arms": list(backend.arm_names),
+                               "mirror": [bool(m) for m in backend.mirror],
+                               "pid": os.getpid()}), None
+
+    def _in_order(self, job: p.Request | bytes) -> None:
+        """After hello: to the worker, behind the requests before it (a reply as bytes:
+        an error for a request that could not be parsed). Before hello: at once."""
+        if not self.greeted:
+            assert isinstance(job, bytes)
+            self._send(job)
+            return
+        with self._state:
+            self._pending += 1
+        self._jobs.put(job)
+
+    def _watch(self) -> None:
+        """The watchdog: a request runs, and the controller has said nothing for
+        ``watchdog_s``: the link stopped answering and nobody watches the robot."""
+        if self.watchdog_s is None:
+            return
+        silent = time.monotonic() - self.last_frame
+        with self._state:
+            current, seq = self._current, self._seq
+            due = current is not None and seq != self._watched and silent >= self.watchdog_s
+            if due:
+                self._watched = seq
+        if due:
+            log.error("watchdog: no frame from the controller for %.1f s during %s; "
+                      "stopping the motion (the link stopped answering, nobody watches the "
+                      "robot)", silent, current)
+            self._stop("the watchdog")
+
+    def _stop(self, why: str) -> None:
+        """``backend.stop()``, never raising (the reader must go on)."""
+        backend = self.backend
+        if backend is None:
+            return
+        with self._state:
+            current = self._current
+        t0 = time.monotonic()
+        try:
+            backend.stop()
+        except Exception:  # say it; the caller goes on as if stopped
+            log.exception("stopping the backend (%s) failed", why)
+            return
+        took = time.monotonic() - t0
+        log.log(logging.WARNING if took > STOP_LIMIT_S else logging.INFO,
+                "stopped the backend (%s) during %s in %.3f s%s", why, current or "no request",
+                took, " (HostBackend.stop must return within 0.5 s)"
+                if took > STOP_LIMIT_S else "")
+
+    def _abort(self, why: str) -> None:
+        """The controller is gone: run nothing more, stop the motion in progress."""
+        self._closing.set()
+        with self._state:
+            running = self._current is not None
+        if running:
+            self._stop(why)
+
+    def _worker_status(self, default: int) -> int:
+        """At EOF: the worker's own ending (a broken pipe) if it had one, else ``default``."""
+        self._drain()
+        with self._state:
+            return self._exit if self._exit is not None else default
+
+    def _send(self, data: bytes) -> None:
+        with self._write_lock:
+            self._raw_write(data)
+
+    # -- the worker -------------------------------------------------------------------
+    def _work(self) -> None:
+        """Run the queued requests one by one, in order, until told to stop."""
+        while True:
+            job = self._jobs.get()
+            if job is None or self._closing.is_set():
+                return
+            with self._state:
+                self._current = job.type if isinstance(job, p.Request) else "error"
+                self._seq += 1
+            status: int | None = None
             try:
-                backend.close()  # never rest here: an orphaned agent does not move
+                status = self._do(job)
+            except (BrokenPipeError, ConnectionError) as exc:
+                log.error("cannot write to the controller: %s; exiting without moving the "
+                          "arms", exc)
+                status = EXIT_LINK
+            except Exception as exc:  # a bug of ours: say it, answer it, keep serving
+                log.exception("serving %s", self._current)
+                if isinstance(job, p.Request):
+                    with contextlib.suppress(Exception):
+                        self._reply(p.make_error(job.id, "backend",
+                                                 f"{type(exc).__name__}: {exc}",
+                                                 traceback=traceback.format_exc()))
+            with self._state:
+                self._current = None
+                self._pending -= 1
+                self._idle_since = time.monotonic()
+                if status is not None:
+                    self._exit = status
+            if status is not None:
+                self._closing.set()
+                return
+
+    def _do(self, job: p.Request | bytes) -> int | None:
+        """One request: its reply (dropped once the controller is gone); bye ends it."""
+        backend = self.backend
+        assert backend is not None
+        if isinstance(job, bytes):
+            self._reply(job)
+            return None
+        if job.type == "bye":
+            # Rest BEFORE bye_ok: the controller's close waits for it, so the arms are
+            # out of the way when the agent is gone.
+            log.info("bye: arms to rest, then exiting")
+            try:
+                backend.rest()
+            except Exception:
+                log.exception("rest at bye failed")
+            self._reply(p.encode_frame({"type": "bye_ok", "id": job.id}))
+            return EXIT_OK
+        if job.type == "hello":  # again: the same answer
+            reply, status = self._hello(job)
+            self._reply(reply)
+            return status
+        self._reply(_dispatch(backend, job))
+        prepare = getattr(backend, "prepare", None)
+        if job.type in ("push", "reset") and prepare is not None and not self._closing.is_set():
+            try:  # the next observation, while the controller is busy elsewhere
+                prepare()
+            except Exception:  # observe will try again and report it
+                log.exception("preparing the next observation")
+        return None
+
+    def _reply(self, data: bytes) -> None:
+        if not self._closing.is_set():  # the controller is gone: nobody reads it
+            self._send(data)
+
+    # -- the end ----------------------------------------------------------------------
+    def _drain(self) -> None:
+        """Let the worker finish the request it is in (after a stop), bounded."""
+        worker = self._worker
+        if worker is None or not worker.is_alive():
+            return
+        self._closing.set()
+        self._jobs.put(None)
+        worker.join(DRAIN_S)
+        if worker.is_alive():
+            log.error("the backend did not return from %s within %.0f s; closing it anyway",
+                      self._current, DRAIN_S)
+
+    def finish(self) -> None:
+        """The worker ended, then the backend closed: never rest here, an orphaned agent
+        does not move."""
+        self._drain()
+        if self.backend is not None:
+            try:
+                self.backend.close()
             except Exception:  # shutting down; say it and go on
                 log.exception("closing the backend")
 
@@ -221,7 +471,10 @@ def _observe_reply(backend: HostBackend, mid: int) -> bytes:
     return p.make_observe_reply(mid, views, errors)
 
 
-def _dispatch(backend: HostBackend, req: p.Request, started: float) -> bytes:
+def _dispatch(backend: HostBackend, req: p.Request) -> bytes:
+    """The reply to one ordered request; a backend's exception becomes an error frame:
+    a ``BackendError`` (an expected refusal) with its message alone, anything else with
+    its traceback, for the operator's log."""
     try:
         if req.type == "observe":
             return _observe_reply(backend, req.id)
@@ -232,9 +485,6 @@ def _dispatch(backend: HostBackend, req: p.Request, started: float) -> bytes:
         if req.type == "rest":
             backend.rest()
             return p.encode_frame({"type": "rest_ok", "id": req.id})
-        if req.type == "heartbeat":
-            return p.encode_frame({"type": "heartbeat_ok", "id": req.id,
-                                   "uptime_s": round(time.monotonic() - started, 3)})
         if req.type == "reseed":
             backend.reseed(req.body["seed"])
             return p.encode_frame({"type": "reseed_ok", "id": req.id})
@@ -255,6 +505,10 @@ def _dispatch(backend: HostBackend, req: p.Request, started: float) -> bytes:
                             f"{f': {exc}' if str(exc) else ''}", arm=req.body.get("arm"))
     except ValueError as exc:
         return p.make_error(req.id, "request", str(exc), traceback=traceback.format_exc(),
+                            arm=getattr(exc, "arm", None))
+    except BackendError as exc:  # an expected refusal: one line for the operator
+        log.warning("%s refused: %s", req.type, exc)
+        return p.make_error(req.id, "backend", str(exc) or type(exc).__name__,
                             arm=getattr(exc, "arm", None))
     except Exception as exc:  # the controller decides; we keep serving
         log.exception("%s failed", req.type)
@@ -297,11 +551,65 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                          "no lock, every twin agent owns its own cell)")
     ap.add_argument("--idle-timeout", type=float, default=120.0,
                     help="exit (arms NOT moved) after this long without a frame")
+    ap.add_argument("--watchdog", type=float, default=None, metavar="S",
+                    help="while a request runs, stop the motion if no frame at all came "
+                         "from the controller for S seconds (the controller heartbeats "
+                         "during motions; default: no watchdog)")
+    ap.add_argument("--credentials-file", default=None, metavar="FILE",
+                    help="yumi: the controller's login, one line USER:PASSWORD, mode 0600")
+    ap.add_argument("--motion-timeout", type=float, default=None, metavar="S",
+                    help="yumi: stop a motion program that runs longer than S seconds")
     ap.add_argument("--chdir", default=None, help="working directory (the project checkout)")
     return ap.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+BackendFactory = Callable[[argparse.Namespace, dict[str, Any]], "HostBackend"]
+"""``(args, kwargs) -> backend``: how :func:`main` builds its backend from the parsed
+argv and the keyword arguments of ``drivers.backends.make_backend`` it derived."""
+
+
+def _backend_kwargs(args: argparse.Namespace) -> dict[str, Any] | str:
+    """``make_backend``'s keyword arguments from the argv, or what is wrong with it.
+
+    ``credentials_file`` and ``motion_timeout_s`` only when given, so a backend factory
+    that does not know them yet still builds the backends that do not need them."""
+    arms = [a for a in args.arms.split(",") if a]
+    if args.mirror is None:
+        mirror = [a.startswith("right") for a in arms]
+    else:
+        mirror = [m.strip() in ("1", "true") for m in args.mirror.split(",")]
+    if len(mirror) != len(arms):
+        return f"--mirror needs one value per arm ({len(arms)})"
+    crops: dict[str, tuple[int, int, int, int]] = {}
+    for arm, box in _pairs(args.crop, "--crop").items():
+        try:
+            x0, y0, x1, y1 = (int(v) for v in box.split(","))
+        except ValueError:
+            return f"--crop {arm}=... needs four integers"
+        crops[arm] = (x0, y0, x1, y1)
+    kwargs: dict[str, Any] = dict(
+        arms=arms, mirror=mirror, seed=args.seed, physics=not args.no_physics, crops=crops,
+        calibrations=_pairs(args.calibration, "--calibration"), camera=args.camera,
+        controller_url=args.controller_url, calibrating=args.calibrate)
+    if args.credentials_file is not None:
+        kwargs["credentials_file"] = args.credentials_file
+    if args.motion_timeout is not None:
+        kwargs["motion_timeout_s"] = args.motion_timeout
+    return kwargs
+
+
+def _make_backend(args: argparse.Namespace, kwargs: dict[str, Any]) -> HostBackend:
+    """The product's backends (twin, yumi), imported only now (pybullet prints)."""
+    from drivers.backends import make_backend
+
+    return make_backend(args.backend, **kwargs)
+
+
+def main(argv: Sequence[str] | None = None, *,
+         backend_factory: BackendFactory | None = None) -> int:
+    """The agent process. ``backend_factory``: the tests' seam (their own backend, e.g.
+    an arm that moves for seconds, behind the real agent: ``tests/drivers/slow_arm.py``);
+    the command line never reaches it."""
     frames_fd = claim_stdout()
     args = parse_args(argv)
     logging.basicConfig(stream=sys.stderr, level=logging.WARNING,
@@ -309,24 +617,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     log.setLevel(logging.INFO)  # our lifecycle lines (a few per session), not others
     if args.chdir:
         os.chdir(args.chdir)
-    arms = [a for a in args.arms.split(",") if a]
-    if args.mirror is None:
-        mirror = [a.startswith("right") for a in arms]
-    else:
-        mirror = [m.strip() in ("1", "true") for m in args.mirror.split(",")]
-    if len(mirror) != len(arms):
-        print(f"--mirror needs one value per arm ({len(arms)})", file=sys.stderr)
+    kwargs = _backend_kwargs(args)
+    if isinstance(kwargs, str):
+        print(kwargs, file=sys.stderr)
         return EXIT_USAGE
-    crops: dict[str, tuple[int, int, int, int]] = {}
-    for arm, box in _pairs(args.crop, "--crop").items():
-        try:
-            x0, y0, x1, y1 = (int(v) for v in box.split(","))
-        except ValueError:
-            print(f"--crop {arm}=... needs four integers", file=sys.stderr)
-            return EXIT_USAGE
-        crops[arm] = (x0, y0, x1, y1)
-    calibrations = _pairs(args.calibration, "--calibration")
-
+    build = backend_factory or _make_backend
     identity = lock_identity(args.backend, args.controller_url, args.lock_id)
     lock = (RobotLock(identity, args.lock_dir or default_lock_dir(), args.host)
             if identity else None)
@@ -337,17 +632,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if lock is not None:  # before anything touches the robot (refusal: at hello)
             lock.acquire()
             log.info("holding the lock of robot %s (%s)", lock.identity, lock.path)
-        from drivers.backends import make_backend
-
-        return make_backend(args.backend, arms=arms, mirror=mirror, seed=args.seed,
-                            physics=not args.no_physics, crops=crops,
-                            calibrations=calibrations, camera=args.camera,
-                            controller_url=args.controller_url, calibrating=args.calibrate)
+        return build(args, kwargs)
 
     reader = p.FrameReader(fd_reader(0), "controller")
     try:
         return serve(reader, fd_writer(frames_fd, max(10.0, args.idle_timeout)), factory,
-                     idle_timeout_s=args.idle_timeout)
+                     idle_timeout_s=args.idle_timeout, watchdog_s=args.watchdog)
     finally:
         if lock is not None:
             lock.release()

@@ -20,6 +20,11 @@ the 2-core test machine, worse under load; see docs/notes/drivers.md):
       3. a host that fails (error, deadline, EOF, malformed frame) -> Fault for its arms
 
     keeper thread (every 0.1 s): per host, start a reconnect (backoff) or a heartbeat
+    (write-only while a call holds the host's link: the agent's watchdog hears us)
+
+    stop_motion() (any thread, a signal handler included): ``stop`` to every agent,
+    write-only, even mid-call; Ctrl-C during a call sends it to the hosts in flight
+    before their links are dropped
 
 Faults are as narrow as we can know them: an arm whose own entry in a push or observe
 reply carries ``error`` is a Fault alone (its sibling's push happened and is reported);
@@ -57,6 +62,8 @@ __all__ = ["HostCallError", "HostFleet", "HostStatus", "derive_seed"]
 log = logging.getLogger("drivers.host_fleet")
 
 KEEPER_PERIOD_S = 0.1
+STOP_WRITE_S = 0.5
+"""How long a stop may wait to be written to one host (all hosts at once)."""
 Program = list[tuple[str, dict[str, Any]]]
 T = TypeVar("T")
 Outcome = tuple[str, Any]
@@ -111,6 +118,30 @@ def _close_all(sessions: Sequence[HostSession], stop: threading.Event) -> None:
     deadline = time.monotonic() + 8.0
     for t in closers:
         t.join(max(deadline - time.monotonic(), 0.0))
+
+
+def _stop_sessions(sessions: Sequence[HostSession]) -> list[str]:
+    """``stop`` to every session's agent at once, in threads of their own, so that the
+    caller (a signal handler, maybe, in the thread that holds a link's locks) never
+    waits longer than ``STOP_WRITE_S`` and a little; the hosts it reached."""
+    reached: list[str] = []
+
+    def stop(s: HostSession) -> None:
+        if s.stop_motion(STOP_WRITE_S):
+            reached.append(s.name)
+
+    threads: list[threading.Thread] = []
+    for s in sessions:
+        t = threading.Thread(target=stop, args=(s,), name=f"stop-{s.name}", daemon=True)
+        try:
+            t.start()
+        except RuntimeError:  # no new threads at interpreter shutdown: EOF stops them
+            continue
+        threads.append(t)
+    deadline = time.monotonic() + STOP_WRITE_S + 0.1
+    for t in threads:
+        t.join(max(deadline - time.monotonic(), 0.0))
+    return [s.name for s in sessions if s.name in reached]
 
 
 def _fault(reason: str, tb: str = "", arm: str | None = None, *, refused: bool = False
@@ -189,7 +220,11 @@ class HostFleet:
         if self._closed:
             return
         self._closed = True
-        self._finalizer()
+        try:
+            self._finalizer()
+        except BaseException:  # Ctrl-C while the agents rest at bye: stop those motions
+            _stop_sessions(self._sessions)
+            raise
 
     def __enter__(self) -> HostFleet:
         self.start()
@@ -200,6 +235,19 @@ class HostFleet:
 
     def host_status(self) -> dict[str, HostStatus]:
         return {s.name: s.status for s in self._sessions}
+
+    def stop_motion(self) -> list[str]:
+        """Stop every motion in progress NOW: ``stop`` to every connected agent,
+        write-only, even while a call is in flight (the agent answers it at once and
+        the call's reply still comes: an error or the outcome of the stopped motion).
+
+        Callable from any thread, a signal handler or a console's Stop included: the
+        hosts are written to at once, each within ``STOP_WRITE_S``, so it returns within
+        about half a second whatever the hosts do. Returns the hosts the stop reached."""
+        reached = _stop_sessions(self._sessions)
+        if len(reached) < sum(1 for s in self._sessions if s.link is not None):
+            log.warning("stop reached only hosts %s", reached)
+        return reached
 
     # -- the broadcast ----------------------------------------------------------------
     def _run(self, programs: Mapping[int, Program],
@@ -241,11 +289,13 @@ class HostFleet:
                     continue
                 out[i] = self._collect(s, link, sent, parse)
         except BaseException:
-            # Ctrl-C mid-read: those streams are mid-frame; drop them (at EOF each agent
-            # exits without moving its arms) and let the caller handle the interrupt.
-            for i, s, link, _ in inflight:
-                if i not in out:
-                    s.drop(link, RuntimeError("interrupted during a call"))
+            # Ctrl-C mid-call: stop the motions in flight first (at once, write-only),
+            # then drop those streams, which may be mid-frame (at EOF each agent stops
+            # and exits without moving its arms), and let the caller handle the interrupt.
+            pending = [(s, link) for i, s, link, _ in inflight if i not in out]
+            _stop_sessions([s for s, _ in pending])
+            for s, link in pending:
+                s.drop(link, RuntimeError("interrupted during a call"))
             raise
         finally:
             for _, s, _, _ in inflight:

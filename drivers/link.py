@@ -5,11 +5,19 @@ messages. Every call has a deadline; every reply is checked against the request 
 id, arm set) by ``drivers.wire``; when the stream breaks, the error carries what the
 agent left behind (exit status, end of its stderr: e.g. the traceback of a crash at
 import), so the operator reads *why* and not a bare EOF.
+
+Two threads may write on one link (protocol 3): the fleet's call, and a heartbeat or a
+stop sent write-only (:meth:`AgentLink.send_only`) while that call waits for its reply.
+A write lock keeps every frame whole, and the call's reader skips the ``heartbeat_ok``
+and ``stop_ok`` it is not waiting for (the agent answers those at once, so they may come
+before, between or after the call's replies); ``skipped`` keeps the latest of them.
 """
 
 from __future__ import annotations
 
+import threading
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -19,9 +27,14 @@ from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError, Truncate
 from drivers.transport import Transport
 from testbed.core.config import HostConfig
 
+SKIPPED_KEEP = 256
+
 
 class AgentLink:
-    """One live connection to one host's agent. Not thread-safe (one caller)."""
+    """One live connection to one host's agent.
+
+    One caller makes the calls (reads); any thread may :meth:`send_only` a heartbeat or
+    a stop meanwhile (writes are serialised by the link's write lock)."""
 
     def __init__(self, host: HostConfig, transport: Transport) -> None:
         self.host = host
@@ -30,7 +43,14 @@ class AgentLink:
         self.reader = p.FrameReader(transport.read, self.peer)
         self.info: p.HelloInfo | None = None
         self.last_io = time.monotonic()
+        """When a frame last came from the agent."""
+        self.last_write = self.last_io
+        """When a frame last went to the agent (the heartbeat's cadence during a call)."""
+        self.skipped: deque[tuple[float, dict[str, Any]]] = deque(maxlen=SKIPPED_KEEP)
+        """(time.monotonic(), header) of the latest replies skipped by a read: the
+        heartbeat_ok and stop_ok of requests sent write-only."""
         self._next_id = 1
+        self._write_lock = threading.Lock()
 
     @property
     def arms(self) -> tuple[str, ...]:
@@ -48,22 +68,48 @@ class AgentLink:
 
     def send(self, mtype: str, deadline: float, **fields: Any) -> int:
         """Write one request; returns its id. Requests may be pipelined."""
-        mid = self._next_id
-        self._next_id = mid % p.MAX_ID + 1
-        try:
-            self.transport.write(p.make_request(mtype, mid, **fields), deadline)
-        except (LinkClosed, DeadlineExceeded) as exc:
-            raise self._explain(exc) from None
+        mid = self._write(mtype, deadline, fields)
+        if mid is None:
+            raise self._explain(DeadlineExceeded(
+                f"{self.peer}: the link was busy writing past the deadline")) from None
         return mid
 
-    def receive(self, mtype: str, mid: int, deadline: float) -> p.Frame:
-        """Read the reply to request ``mid``; ``error`` replies raise (AgentError...)."""
+    def send_only(self, mtype: str, deadline: float, **fields: Any) -> int | None:
+        """Write a request whose reply nobody waits for (a heartbeat or a stop during a
+        call): the read that meets its reply skips it. None if another frame was being
+        written until the deadline (nothing written: the stream is intact)."""
+        return self._write(mtype, deadline, fields)
+
+    def _write(self, mtype: str, deadline: float, fields: Mapping[str, Any]) -> int | None:
+        if not self._write_lock.acquire(timeout=max(deadline - time.monotonic(), 0.0)):
+            return None
         try:
-            frame = self.reader.read_frame(deadline)
-        except (LinkClosed, ProtocolError, DeadlineExceeded) as exc:
-            raise self._explain(exc) from None
-        self.last_io = time.monotonic()
-        return p.check_reply(frame, f"{mtype}_ok", mid, self.peer)
+            mid = self._next_id
+            self._next_id = mid % p.MAX_ID + 1
+            try:
+                self.transport.write(p.make_request(mtype, mid, **fields), deadline)
+            except (LinkClosed, DeadlineExceeded) as exc:
+                raise self._explain(exc) from None
+            self.last_write = time.monotonic()
+            return mid
+        finally:
+            self._write_lock.release()
+
+    def receive(self, mtype: str, mid: int, deadline: float) -> p.Frame:
+        """Read the reply to request ``mid``; ``error`` replies raise (AgentError...).
+
+        A ``heartbeat_ok`` or ``stop_ok`` with another id is the late reply of a request
+        sent write-only: recorded in ``skipped``, never taken for this reply."""
+        while True:
+            try:
+                frame = self.reader.read_frame(deadline)
+            except (LinkClosed, ProtocolError, DeadlineExceeded) as exc:
+                raise self._explain(exc) from None
+            self.last_io = time.monotonic()
+            if frame.type in p.AT_ONCE_REPLIES and frame.id != mid:
+                self.skipped.append((self.last_io, frame.header))
+                continue
+            return p.check_reply(frame, f"{mtype}_ok", mid, self.peer)
 
     def call(self, mtype: str, deadline: float, **fields: Any) -> p.Frame:
         return self.receive(mtype, self.send(mtype, deadline, **fields), deadline)

@@ -6,13 +6,18 @@ three things that happen to it outside the fleet's calls run in background threa
 
 * (re)connecting, with exponential backoff (1, 2, 4, ... s, at most 30 s), in a thread
   of its own per attempt, so an SSH connect that hangs in the network hangs nothing;
-* the application heartbeat, when the link has been idle for ``heartbeat_s`` (SSH
-  keepalives do not notice a dead peer; the agent exits when it hears nothing);
+* the application heartbeat, when nothing has gone to or come from the agent for
+  ``heartbeat_s`` (SSH keepalives do not notice a dead peer; the agent exits when it
+  hears nothing). While a fleet call holds the link (a motion of seconds), the
+  heartbeat is written write-only and the call's reader skips its reply, so the
+  agent's watchdog (``--watchdog``, ``heartbeat_s + 1``) hears the controller all along;
 * closing a dropped link (waits for the agent to exit, bounded).
 
 A link is dropped as soon as its byte stream can no longer be trusted (protocol error,
-deadline, EOF); the agent sees EOF and exits WITHOUT moving its arms (nobody would be
-watching them). ``lock`` serialises the fleet's calls and the heartbeat on the link.
+deadline, EOF); the agent sees EOF, stops any motion in progress and exits WITHOUT
+moving its arms (nobody would be watching them). ``lock`` serialises the fleet's calls
+and the heartbeat's own calls on the link; :meth:`HostSession.stop_motion` needs no
+lock (a write-only ``stop``, from any thread).
 
 With a :class:`~drivers.hostlog.HostLog`, every event of the host (attempts, connected,
 dropped, faults, close) and every stderr line of its agent goes to its log file.
@@ -33,6 +38,8 @@ from drivers.transport import LocalTransport, agent_argv, make_transport
 from testbed.core.config import HostConfig
 
 MAX_BACKOFF_S = 30.0
+WRITE_ONLY_S = 1.0
+"""The longest a write-only heartbeat may take (it holds the link's write lock)."""
 
 
 @dataclass
@@ -66,6 +73,7 @@ class HostSession:
         self.backoff_s = backoff_s
         self.lock = threading.Lock()
         self.link: AgentLink | None = None
+        self._closing_link: AgentLink | None = None  # the link saying bye (stop reaches it)
         self.status = HostStatus(cfg.name)
         self.closed = False
         self._state = threading.Lock()  # guards the fields below and self.link swaps
@@ -97,7 +105,8 @@ class HostSession:
                     self._connecting = True
                     _spawn(self._connect, f"connect-{self.name}")
                 return
-            due = now - self.link.last_io >= self.cfg.heartbeat_s
+            link = self.link
+            due = now - max(link.last_io, link.last_write) >= self.cfg.heartbeat_s
             if not due or self._heartbeating:
                 return
             self._heartbeating = True
@@ -148,20 +157,48 @@ class HostSession:
 
     def _heartbeat(self) -> None:
         try:
-            if not self.lock.acquire(blocking=False):
-                return  # a call is using the link: that is proof of life enough
-            try:
-                link = self.link
-                if link is not None:
-                    try:
-                        link.heartbeat(time.monotonic() + self.cfg.deadline_s)
-                    except Exception as exc:
-                        self.drop(link, exc)
-            finally:
-                self.lock.release()
+            if self.lock.acquire(blocking=False):
+                try:
+                    link = self.link
+                    if link is not None:
+                        try:
+                            link.heartbeat(time.monotonic() + self.cfg.deadline_s)
+                        except Exception as exc:
+                            self.drop(link, exc)
+                finally:
+                    self.lock.release()
+                return
+            # A call holds the link (a motion may run for seconds): heartbeat write-only;
+            # the call's reader skips the reply. A failed write may have torn a frame.
+            link = self.link
+            if link is not None:
+                try:
+                    link.send_only("heartbeat", time.monotonic() + min(
+                        self.cfg.deadline_s, WRITE_ONLY_S))
+                except Exception as exc:
+                    self.drop(link, exc)
         finally:
             with self._state:
                 self._heartbeating = False
+
+    def stop_motion(self, timeout_s: float) -> bool:
+        """``stop`` to the agent now, write-only, even while a call holds the link: it
+        stops the motion in progress. True if it was written within ``timeout_s``.
+        Never blocks longer; a failed write may have torn a frame, so the link is
+        dropped (the agent stops at EOF all the same)."""
+        link = self.link or self._closing_link
+        if link is None:
+            return False
+        try:
+            sent = link.send_only("stop", time.monotonic() + timeout_s) is not None
+        except Exception as exc:
+            self.drop(link, exc)
+            return False
+        if sent:
+            self.event("stop sent to the agent")
+        else:
+            self.event("stop not sent: the link was busy writing for %.1f s", timeout_s)
+        return sent
 
     # -- used by the fleet's calls ----------------------------------------------------
     def drop(self, link: AgentLink, exc: BaseException) -> None:
@@ -203,11 +240,14 @@ class HostSession:
             if link is not None:
                 said = "not said (link busy)"
                 if locked:  # never interleave with a heartbeat on the same stream
+                    self._closing_link = link  # a stop still reaches the rest at bye
                     try:  # the agent rests its arms before it answers: give it time
                         link.bye(time.monotonic() + min(self.cfg.deadline_s, 5.0))
                         said = "answered"
                     except Exception as exc:
                         said = f"failed: {describe(exc)}"
+                    finally:
+                        self._closing_link = None
                 link.close()
                 self.event("closed: bye %s; agent exit status %s", said,
                            link.transport.exit_status())

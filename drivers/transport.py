@@ -47,11 +47,14 @@ def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: floa
 
     Backend-specific fields are read with ``getattr``: a twin host's config has no
     camera, a YuMi host's no physics. ``calibrating``: arms started in calibration mode
-    (``--calibrate ARM``)."""
+    (``--calibrate ARM``). The watchdog is one second past the heartbeat period: the
+    session heartbeats every ``heartbeat_s`` during a call too, so a longer silence
+    while a motion runs means the link stopped answering."""
     argv = [python, "-m", "drivers.agent", "--backend", host.backend, "--host", host.name,
             "--arms", ",".join(a.name for a in host.arms),
             "--mirror", ",".join("1" if a.mirror else "0" for a in host.arms),
-            "--seed", str(seed), "--idle-timeout", f"{idle_timeout_s:g}"]
+            "--seed", str(seed), "--idle-timeout", f"{idle_timeout_s:g}",
+            "--watchdog", f"{host.heartbeat_s + 1:g}"]
     if host.backend == "twin" and not getattr(host, "physics", True):
         argv.append("--no-physics")
     if host.backend == "yumi":
@@ -59,6 +62,10 @@ def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: floa
             argv += ["--camera", str(camera)]
         if (url := getattr(host, "controller_url", None)) is not None:
             argv += ["--controller-url", str(url)]
+        if (creds := getattr(host, "credentials_file", None)) is not None:
+            argv += ["--credentials-file", str(creds)]
+        if (limit := getattr(host, "motion_timeout_s", None)) is not None:
+            argv += ["--motion-timeout", f"{limit:g}"]
         for a in host.arms:
             if (crop := getattr(a, "crop", None)) is not None:
                 argv += ["--crop", f"{a.name}=" + ",".join(str(v) for v in crop)]
@@ -338,19 +345,29 @@ class SshTransport(Transport):
         assert chan is not None
         if self._due_drain():
             self._drain_stderr()
+        # Wait with select, not chan.settimeout: a heartbeat or a stop may be written
+        # from another thread while this read waits, and the channel has ONE timeout,
+        # which a write sets (it would cut this read short, or stretch it). The
+        # channel's select pipe is also readable for stderr alone: drain that and wait on.
         # Past the deadline, bytes already received still count (see LocalTransport).
-        chan.settimeout(max(deadline - time.monotonic(), 0.0))
         try:
-            data: bytes = chan.recv(n)
-        except TimeoutError:
-            raise DeadlineExceeded(f"{self.peer}: no reply within the deadline") from None
-        except (OSError, EOFError) as exc:
+            while not (chan.recv_ready() or chan.eof_received or chan.closed):
+                if chan.recv_stderr_ready():
+                    self._drain_stderr()
+                    continue
+                timeout = max(deadline - time.monotonic(), 0.0)
+                if not select.select([chan], [], [], timeout)[0] and timeout == 0.0:
+                    raise DeadlineExceeded(f"{self.peer}: no reply within the deadline")
+            data: bytes = chan.recv(n)  # data or EOF: never a wait
+        except (OSError, EOFError, ValueError) as exc:
             raise LinkClosed(f"{self.peer}: SSH channel failed: {exc}") from None
         if not data:
             self._drain_stderr()
         return data
 
     def write(self, data: bytes, deadline: float) -> None:
+        """Writes come one at a time (``AgentLink`` holds its write lock), so the
+        channel's timeout is theirs alone."""
         chan = self._chan
         assert chan is not None
         timeout = deadline - time.monotonic()

@@ -29,7 +29,8 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
                                                         [, refused] [, error]}}}
     reset {arms: [arm]}                     reset_ok {results: {arm: {done}}}
     rest {}                                 rest_ok {}
-    heartbeat {}                            heartbeat_ok {uptime_s}
+    heartbeat {}                            heartbeat_ok {uptime_s, busy}    (at once)
+    stop {}                                 stop_ok {}                       (at once)
     reseed {seed}                           reseed_ok {}
     frame {}                                frame_ok {} + one PNG (the full BGR camera frame)
     move_tcp {arm, xyz_mm}                  move_tcp_ok {tcp: [x, y, z]}
@@ -37,9 +38,21 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
     bye {}                                  bye_ok {} (after the arms are at rest)
                                             error {kind, message, traceback, arm, fatal}
 
-Version 2 (this one) added the per-arm ``refused``/``error`` of push and observe replies
-and the four requests reseed, frame, move_tcp, save_calibration: a version-1 peer would
-misread a refused push as a plain failure, so the versions must match.
+The agent answers requests in order, one at a time (they may be pipelined), except the
+two marked "at once": ``heartbeat`` and ``stop`` are answered as soon as they arrive,
+even while another request (a motion of seconds) is in progress, so their replies may
+overtake the reply of an earlier request. The controller matches replies by id and
+skips a ``heartbeat_ok`` or ``stop_ok`` it is not waiting for. ``stop`` stops any motion
+in progress now (``HostBackend.stop``); the interrupted request still gets its reply (an
+error or its outcome). ``busy`` of ``heartbeat_ok``: the type of the request in progress,
+or null.
+
+Version 3 (this one) added ``stop`` and the answers at once: a version-2 agent reads
+nothing while it runs a request, so it would queue a stop behind the very motion it
+should stop (and fall silent for the length of every motion), so the versions must
+match. Version 2 added the per-arm ``refused``/``error`` of push and observe replies and
+the four requests reseed, frame, move_tcp, save_calibration (a version-1 peer would
+misread a refused push as a plain failure).
 """
 
 from __future__ import annotations
@@ -61,7 +74,7 @@ from drivers.png import SIGNATURE as PNG_SIGNATURE
 from drivers.png import decode_png, encode_png
 from testbed.core.types import NUM_ACTIONS
 
-PROTOCOL_VERSION: Final = 2
+PROTOCOL_VERSION: Final = 3
 MAGIC: Final = b"FDG1"
 PREFIX: Final = struct.Struct(">4sIII")
 PREFIX_BYTES: Final = PREFIX.size  # 16
@@ -71,7 +84,11 @@ MAX_BLOBS: Final = 64
 MAX_ID: Final = 2**32 - 1
 
 REQUEST_TYPES: Final = ("hello", "observe", "push", "reset", "rest", "heartbeat", "bye",
-                        "reseed", "frame", "move_tcp", "save_calibration")
+                        "reseed", "frame", "move_tcp", "save_calibration", "stop")
+AT_ONCE: Final = ("heartbeat", "stop")
+"""Requests the agent answers as soon as they arrive, even during another request."""
+AT_ONCE_REPLIES: Final = ("heartbeat_ok", "stop_ok")
+"""Their replies: a reader skips one it is not waiting for (it may overtake others)."""
 MAX_REASON_CHARS: Final = 2000
 """A per-arm ``refused``/``error`` text is cut to this (a reason, not a traceback)."""
 MAX_FRAME_PIXELS: Final = 4096 * 4096
@@ -126,8 +143,10 @@ class FrameReader:
     ``peer`` names the other end in messages ("agent on host cell0", "controller").
     EOF exactly at a frame boundary is :class:`LinkClosed`; EOF inside a frame is a
     truncated frame (:class:`ProtocolError`). Reads are buffered (one read usually
-    brings a whole frame); the protocol is strictly request/reply, so nothing is ever
-    read ahead of the frame being waited for except by a misbehaving peer.
+    brings a whole frame, and a pipelined one may come with it). A deadline that passes
+    mid-frame consumes nothing: the bytes already read stay in the buffer and the next
+    ``read_frame`` goes on from them, so the agent can wait in short slices (to watch
+    its worker) without ever losing a frame boundary.
     """
 
     def __init__(self, read: ReadFn, peer: str) -> None:
@@ -135,23 +154,21 @@ class FrameReader:
         self._buf = bytearray()
         self.peer = peer
 
-    def _take(self, n: int, deadline: float, *, done: int = 0, total: int = PREFIX_BYTES
-              ) -> bytes:
+    def _fill(self, n: int, deadline: float, total: int) -> None:
+        """At least ``n`` bytes in the buffer (``total``: the frame's size, for messages)."""
         buf = self._buf
         while len(buf) < n:
             chunk = self._read(max(n - len(buf), 65536), deadline)
             if not chunk:
-                if done == 0 and not buf:
+                if not buf:
                     raise LinkClosed(f"{self.peer} closed the stream")
                 raise TruncatedFrame(f"truncated frame from {self.peer}: the stream ended "
-                                    f"after {done + len(buf)} of {total} bytes")
+                                     f"after {len(buf)} of {total} bytes")
             buf += chunk
-        out = bytes(buf[:n])
-        del buf[:n]
-        return out
 
     def read_frame(self, deadline: float) -> Frame:
-        prefix = self._take(PREFIX_BYTES, deadline)
+        self._fill(PREFIX_BYTES, deadline, PREFIX_BYTES)
+        prefix = bytes(self._buf[:PREFIX_BYTES])
         magic, hlen, blen, crc = PREFIX.unpack(prefix)
         if magic != MAGIC:
             raise ProtocolError(
@@ -163,8 +180,10 @@ class FrameReader:
         if hlen + blen > MAX_FRAME_BYTES:
             raise ProtocolError(f"malformed frame from {self.peer}: {hlen + blen} bytes "
                                 f"exceeds the limit of {MAX_FRAME_BYTES}")
-        rest = self._take(hlen + blen, deadline, done=PREFIX_BYTES,
-                          total=PREFIX_BYTES + hlen + blen)
+        total = PREFIX_BYTES + hlen + blen
+        self._fill(total, deadline, total)
+        rest = bytes(self._buf[PREFIX_BYTES:total])
+        del self._buf[:total]
         if zlib.crc32(rest) != crc:
             raise ProtocolError(f"corrupted frame from {self.peer}: CRC mismatch over "
                                 f"{hlen + blen} bytes")
@@ -538,7 +557,8 @@ def parse_save_calibration_reply(frame: Frame, peer: str) -> str:
 
 
 __all__ = [
-    "MAGIC", "MAX_FRAME_BYTES", "MAX_HEADER_BYTES", "PROTOCOL_VERSION", "AgentError",
+    "AT_ONCE", "AT_ONCE_REPLIES", "MAGIC", "MAX_FRAME_BYTES", "MAX_HEADER_BYTES",
+    "PROTOCOL_VERSION", "AgentError",
     "ArmFailed", "DeadlineExceeded", "Frame", "FrameReader", "HelloInfo", "LinkClosed",
     "ProtocolError", "Request", "check_reply", "decode_image", "encode_frame", "encode_image",
     "make_error", "make_frame_reply", "make_observe_reply", "make_push_reply", "make_request",

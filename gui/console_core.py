@@ -25,7 +25,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import defaultdict, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -126,6 +126,10 @@ class ConsoleCore:
         self._pending: dict[tuple[int, int], tuple[float, str]] = {}
         self._latencies: deque[FrameLatency] = deque(maxlen=10_000)
         self._closed = False
+        self.on_stop: Callable[[], None] | None = None
+        """Called, in a thread of its own, when a human confirms Stop: the trial sets it
+        to stop the motions in flight (a push of seconds would otherwise run to its end
+        before ``act``/``show`` can raise)."""
 
     # ---- for subclasses -------------------------------------------------------------
     def _has_surface(self, wid: int) -> bool:
@@ -317,6 +321,9 @@ class ConsoleCore:
             self._confirming.discard(wid)
             if cmd.command is Command.YES:
                 self._stop_reason = f"stop confirmed by {self.surface_name(wid)}"
+                if self.on_stop is not None:  # never under our lock, never blocking input
+                    threading.Thread(target=self.on_stop, name="console-stop",
+                                     daemon=True).start()
                 self._redraw_all()
             else:  # "go on": the question is answered all the same
                 self._redraw(wid)

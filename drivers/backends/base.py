@@ -16,6 +16,8 @@ Semantics (docs/ARCHITECTURE.md ``TwinCell``; the task constants in ``testbed.co
 * ``reset`` completes a hard reset (twin: puts the cube back; physical: a human did it,
   the backend checks the picture) and says whether the arm is free again.
 * ``rest`` moves every arm out of the camera's view; ``close`` releases the hardware.
+* ``stop`` is the one call from another thread: the agent's reader calls it while a
+  motion runs in its worker (the operator's stop, a lost link, the watchdog).
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ class ArmOutcome:
 
 
 class HostBackend(ABC):
-    """The arms and camera of one host. Not thread-safe: the agent calls it serially."""
+    """The arms and camera of one host. Not thread-safe: the agent calls it serially,
+    from one worker thread, except :meth:`stop` (from the agent's reader thread)."""
 
     kind: str = "abstract"
     """Short backend name reported in the handshake ("twin", "yumi", ...)."""
@@ -95,6 +98,18 @@ class HostBackend(ABC):
     @abstractmethod
     def close(self) -> None:
         """Release the hardware; idempotent."""
+
+    def stop(self) -> None:
+        """Stop any motion in progress NOW.
+
+        Called from another thread than the one running ``push``/``reset``/``rest``/
+        ``move_tcp``/``observe`` (the agent's reader: the operator pressed stop, the
+        link was lost, or the watchdog heard nothing from the controller); it must
+        return within 0.5 s, motion or not. The interrupted call then ends with an
+        error (a ``drivers.errors.BackendError`` reads as one line to the operator) or
+        with its outcome. Default: nothing (a backend whose motions cannot be stopped
+        midway, as the twin's simulated strokes, which last milliseconds)."""
+        return None
 
     # -- optional capabilities (a backend that lacks one says so) ------------------------
     def prepare(self) -> None:

@@ -8,6 +8,11 @@ process, after the agent has claimed its stdout (pybullet prints to fd 1 at impo
 :class:`CannedTwinBackend` is the agent's ``--no-physics`` mode: fixed images (PNG
 encoded once) and seeded outcomes with no simulation at all, so the SSH benchmark
 measures the controller and the wire, not PyBullet.
+
+Neither has a ``stop`` of its own (``HostBackend.stop`` does nothing): a twin push is
+one PyBullet call that simulates the stroke faster than real time and returns its
+outcome, and stopping it midway from another thread is neither cheap (PyBullet is not
+thread-safe) nor wanted (a trial's records are byte-equal per seed).
 """
 
 from __future__ import annotations

@@ -7,6 +7,11 @@ two. All three meet here, so none imports another.
 
 ``LoopHosts`` is the part the loop itself calls each step (a test's double needs only
 that); ``Hosts`` adds the lifecycle that a trial's setup and teardown call.
+
+One call is optional (hosts without it have no motion to stop): ``stop_motion()``,
+stop every motion in progress NOW, from any thread, returning within about half a
+second (``HostFleet.stop_motion``: a console's confirmed Stop must not wait for a
+push of seconds to end). Call it through :func:`stop_motion_of`.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from typing import Protocol, runtime_checkable
 
 from testbed.core.types import ArmObservation, Fault, PushResult
 
-__all__ = ["Hosts", "LoopHosts"]
+__all__ = ["Hosts", "LoopHosts", "stop_motion_of"]
 
 
 @runtime_checkable
@@ -43,3 +48,13 @@ class Hosts(LoopHosts, Protocol):
     def reseed(self, trial_seed: int) -> None: ...
 
     def close(self) -> None: ...
+
+
+def stop_motion_of(hosts: LoopHosts) -> bool:
+    """``hosts.stop_motion()`` if these hosts can stop their motions (the optional call
+    of the contract), and whether they could."""
+    stop = getattr(hosts, "stop_motion", None)
+    if not callable(stop):
+        return False
+    stop()
+    return True

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
 
-from testbed.core.hosts import Hosts
+from testbed.core.hosts import Hosts, stop_motion_of
 from testbed.core.humans import Humans, Presence, presence_of
 from testbed.core.types import (
     ArmObservation,
@@ -62,6 +62,10 @@ class HostsWrapper:
 
     def close(self) -> None:
         self.hosts.close()
+
+    def stop_motion(self) -> None:
+        """The optional call: reaches the inner hosts whether or not they can stop."""
+        stop_motion_of(self.hosts)
 
 
 class HumansWrapper:

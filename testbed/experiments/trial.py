@@ -21,6 +21,7 @@ run.json is written three times: when the run opens, once it is prepared, at the
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import time
@@ -31,9 +32,10 @@ from typing import Any
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
 from testbed.core.config import ConfigError, FleetConfig, HostConfig
-from testbed.core.hosts import Hosts
+from testbed.core.hosts import Hosts, stop_motion_of
 from testbed.core.humans import Humans, HumansStopRequested
 from testbed.core.interrupts import critical
+from testbed.core.wrappers import HumansWrapper
 from testbed.experiments.build import build_hosts, make_humans, shared_cells
 from testbed.experiments.checkpointer import CheckpointWriter
 from testbed.experiments.hooks import TrialHooks
@@ -152,6 +154,7 @@ def run_trial(
         built = build_hosts(cfg, opts.seed + (run.start * 7919 if run.start else 0),
                             log_dir=run.dir.path / "hosts")
         hosts = hooks.wrap_hosts(built, run.dir)
+    _stop_motion_on_console_stop(humans, hosts)
     stopped_at: int | None = None
     try:
         if own_hosts:
@@ -171,6 +174,17 @@ def run_trial(
                 hosts.close()
         humans.close()
     return _finish(run, stopped_at)
+
+
+def _stop_motion_on_console_stop(humans: Humans, hosts: Hosts) -> None:
+    """A console's confirmed Stop stops the motions in flight too (``on_stop`` of
+    ``gui.console_core.ConsoleCore``, through any humans wrappers): the trial itself
+    stops at the step's end, but a push of seconds on a real arm must not run on."""
+    inner: Any = humans  # a console, or any humans (only a console has ``on_stop``)
+    while isinstance(inner, HumansWrapper):
+        inner = inner.humans
+    if hasattr(inner, "on_stop"):
+        inner.on_stop = functools.partial(stop_motion_of, hosts)
 
 
 def _open_run(cfg: FleetConfig, opts: TrialOptions, resume: Path | None,

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from drivers import wire as p
 from drivers.agent import fd_reader, serve
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from drivers.backends.twin import CannedTwinBackend
@@ -178,6 +179,53 @@ class RecordingBackend(HostBackend):
         if not self.capable:
             return super().save_calibration(arm, data)
         return f"/calib/{arm}.json"
+
+
+def _whole_frame(chunk: bytes) -> bool:
+    """Is ``chunk`` exactly one well-framed frame (so the agent will answer it)?"""
+    if len(chunk) < p.PREFIX_BYTES:
+        return False
+    magic, hlen, blen, _ = p.PREFIX.unpack(chunk[:p.PREFIX_BYTES])
+    return magic == p.MAGIC and len(chunk) == p.PREFIX_BYTES + hlen + blen
+
+
+def lockstep_serve(chunks: Sequence[bytes], backend: HostBackend, *,
+                   tail: Callable[[], bytes] = lambda: b"",
+                   write: Callable[[bytes], None] | None = None, **serve_kw: Any
+                   ) -> tuple[int, list[bytes]]:
+    """The real ``serve`` loop driven by a controller that waits for the reply to each
+    request before it sends the next, then gives ``tail()`` (``b""``: EOF; it may raise
+    DeadlineExceeded: silence). Why lockstep: the agent reads ahead (protocol 3), and
+    once the controller is gone it starts nothing more, so a script written all at once
+    and closed would end before its requests ran. Returns the status and the replies
+    (each write, as written; ``write`` replaces the recording, its attempts count)."""
+    todo = iter(chunks)
+    out: list[bytes] = []
+    attempts = [0]
+    owed = [0]  # replies the agent owes for the chunks given so far
+
+    def record(data: bytes) -> None:
+        attempts[0] += 1
+        (write or out.append)(data)
+
+    def read(n: int, deadline: float) -> bytes:
+        while attempts[0] < owed[0]:  # as a pipe with nothing in it yet
+            if time.monotonic() >= deadline:
+                raise DeadlineExceeded("lockstep: waiting for the agent's reply")
+            time.sleep(0.001)
+        chunk = next(todo, None)
+        if chunk is None:
+            return tail()
+        owed[0] += _whole_frame(chunk)
+        return chunk
+
+    rc = serve(p.FrameReader(read, "controller"), record, lambda: backend, **serve_kw)
+    return rc, out
+
+
+def frames_of(out: Sequence[bytes]) -> list[p.Frame]:
+    """The frames of written replies (one frame per write)."""
+    return [p.FrameReader(lambda n, d, b=b: b, "agent").read_frame(1e18) for b in out]
 
 
 Mutation = Callable[[int, bytes], tuple[bytes, bool]]

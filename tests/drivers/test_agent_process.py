@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from driver_fakes import ExplodingBackend
+from driver_fakes import ExplodingBackend, frames_of, lockstep_serve
 
 from drivers import agent
 from drivers import wire as p
@@ -155,11 +155,9 @@ def test_backend_exception_is_an_error_frame_with_arm_and_traceback() -> None:
             p.make_request("push", 2, faces={"right": 1}),
             p.make_request("push", 3, faces={"left": 1}),
             p.make_request("push", 4, faces={"left": 9})]
-    stream = iter([b"".join(reqs)])
-    out: list[bytes] = []
-    reader = p.FrameReader(lambda n, d: next(stream, b""), "controller")
-    assert agent.serve(reader, out.append, lambda: backend) == 0
-    frames = [p.FrameReader(lambda n, d, b=b: b, "agent").read_frame(1e18) for b in out]
+    rc, out = lockstep_serve(reqs, backend)
+    assert rc == 0
+    frames = frames_of(out)
     assert [f.type for f in frames] == ["hello_ok", "error", "push_ok", "error"]
     err = frames[1].header
     assert err["kind"] == "backend" and err["arm"] == "right" and not err["fatal"]

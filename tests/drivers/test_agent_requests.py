@@ -1,10 +1,10 @@
-"""The agent's new requests (protocol 2) through the real ``serve`` loop: reseed, frame,
+"""The agent's requests of protocol 2 through the real ``serve`` loop: reseed, frame,
 move_tcp, save_calibration, per-arm refusals and errors, and backends that lack one."""
 
 from __future__ import annotations
 
 import numpy as np
-from driver_fakes import RecordingBackend
+from driver_fakes import RecordingBackend, frames_of, lockstep_serve
 
 from drivers import agent
 from drivers import wire as p
@@ -14,11 +14,9 @@ from drivers.backends.base import ArmOutcome, ArmView
 def run(backend: RecordingBackend, *reqs: tuple[str, dict]) -> list[p.Frame]:
     data = [p.make_request("hello", 1, version=p.PROTOCOL_VERSION, host="h")] + [
         p.make_request(t, i + 2, **f) for i, (t, f) in enumerate(reqs)]
-    chunks = iter(data)
-    out: list[bytes] = []
-    reader = p.FrameReader(lambda n, d: next(chunks, b""), "controller")
-    assert agent.serve(reader, out.append, lambda: backend) == agent.EXIT_OK
-    frames = [p.FrameReader(lambda n, d, b=b: b, "agent").read_frame(1e18) for b in out]
+    rc, out = lockstep_serve(data, backend)
+    assert rc == agent.EXIT_OK
+    frames = frames_of(out)
     assert frames[0].type == "hello_ok"
     return frames[1:]
 

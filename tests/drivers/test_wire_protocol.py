@@ -13,7 +13,7 @@ import pytest
 
 from drivers import wire as p
 from drivers.backends.base import ArmOutcome, ArmView
-from drivers.errors import AgentError, LinkClosed, ProtocolError
+from drivers.errors import AgentError, DeadlineExceeded, LinkClosed, ProtocolError
 from drivers.png import decode_png, encode_png
 
 
@@ -169,9 +169,42 @@ def test_header_is_compact_json() -> None:
                                               "blobs": []}
 
 
+# ------------------------------------------------------------- version 3 additions
+def test_protocol_version_is_3_with_stop_answered_at_once() -> None:
+    assert p.PROTOCOL_VERSION == 3
+    assert "stop" in p.REQUEST_TYPES and set(p.AT_ONCE) == {"heartbeat", "stop"}
+    assert set(p.AT_ONCE_REPLIES) == {f"{t}_ok" for t in p.AT_ONCE}
+    req = p.parse_request(reader_of(p.make_request("stop", 9)).read_frame(1e18), ("left",))
+    assert req == p.Request("stop", 9, {})
+    with pytest.raises(ProtocolError, match="carry no blobs"):
+        p.parse_request(reader_of(p.encode_frame({"type": "stop", "id": 1}, [b"x"])
+                                  ).read_frame(1e18), None)
+
+
+def test_a_deadline_mid_frame_loses_nothing() -> None:
+    """The agent waits in short slices: a deadline inside a frame (prefix read, body
+    not yet) must leave the next read_frame to go on from the same bytes."""
+    frames = p.make_request("push", 4, faces={"left": 1}) + p.make_request("stop", 5)
+    pieces = [frames[:10], None, frames[10:20], None, frames[20:]]
+
+    def read(n: int, deadline: float) -> bytes:
+        if not pieces:
+            return b""
+        piece = pieces.pop(0)
+        if piece is None:
+            raise DeadlineExceeded("nothing yet")
+        return piece
+
+    r = p.FrameReader(read, "controller")
+    for _ in range(2):
+        with pytest.raises(DeadlineExceeded):
+            r.read_frame(0.0)
+    assert (r.read_frame(0.0).type, r.read_frame(0.0).type) == ("push", "stop")
+    with pytest.raises(LinkClosed):
+        r.read_frame(0.0)
+
+
 # ------------------------------------------------------------- version 2 additions
-def test_protocol_version_is_2() -> None:
-    assert p.PROTOCOL_VERSION == 2
 
 
 def test_push_reply_carries_per_arm_refused_and_error_only_when_set() -> None:

@@ -234,7 +234,7 @@ def test_yumi_agent_with_an_unreachable_controller_faults_clearly(tmp_path: Path
         obs = fleet.observe()
     f = obs["yumi0/left"]
     assert isinstance(f, Fault) and "cannot read the arms' positions" in f.reason
-    assert "Traceback" in f.traceback
+    assert f.traceback == ""  # a BackendError: one line, no traceback
     assert not isinstance(obs["yumi0/right"], ArmObservation)
     assert np.all([isinstance(o, Fault) for o in obs.values()])
 

@@ -1,7 +1,8 @@
 """``testbed calibrate`` and ``testbed check``'s full frame against the REAL hardware twin.
 
 One ``python -m sim_twin.yumi_server`` process (PyBullet cell, MJPEG camera, the
-controller's Robot Web Services); the agent runs the YumiBackend unchanged (local transport) with ``--calibrate``.
+controller's Robot Web Services); the agent runs the YumiBackend unchanged (local
+transport) with ``--calibrate``.
 The fitted homography is judged against the twin's TRUE camera model (``/lab/camera``:
 K, lens distortion, pose), not against the command's own report.
 """
