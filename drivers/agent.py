@@ -12,7 +12,8 @@ Lifecycle::
     take the robot's lock (drivers.hostlock; a second agent for the same robot is refused
     and never builds its backend) -> start backend (errors kept for the hello reply)
     -> wait for hello (version check)
-    -> serve observe / push / reset / rest / reseed / frame / move_tcp / save_calibration
+    -> serve observe / push / reset / rest / reseed / frame / move_tcp / save_calibration /
+       describe
        in order, in ONE worker thread, while the reader answers heartbeat and stop at
        once, until bye, EOF, a broken frame, or no frame for --idle-timeout seconds
        while no request runs (the controller or the link is dead)
@@ -447,7 +448,8 @@ class _Session:
 
 _CANNOT: dict[str, str] = {
     "reseed": "be reseeded", "frame": "take a full camera frame",
-    "move_tcp": "move a TCP to a point", "save_calibration": "save a calibration"}
+    "move_tcp": "move a TCP to a point", "save_calibration": "save a calibration",
+    "describe": "describe a robot controller"}
 
 
 def _observe_reply(backend: HostBackend, mid: int) -> bytes:
@@ -498,6 +500,9 @@ def _dispatch(backend: HostBackend, req: p.Request) -> bytes:
             path = backend.save_calibration(req.body["arm"], req.body["data"])
             return p.encode_frame({"type": "save_calibration_ok", "id": req.id,
                                    "path": str(path)})
+        if req.type == "describe":
+            return p.encode_frame({"type": "describe_ok", "id": req.id,
+                                   "info": backend.describe()})
         return p.make_error(req.id, "protocol", f"unhandled request {req.type!r}")
     except NotImplementedError as exc:
         what = _CANNOT.get(req.type, f"do {req.type!r}")

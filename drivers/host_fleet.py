@@ -476,6 +476,12 @@ class HostFleet:
                               timeout_s if timeout_s is not None
                               else max(s.cfg.deadline_s, 60.0))
 
+    def describe(self, host: str, *, timeout_s: float | None = None) -> dict[str, Any]:
+        """What the host's robot controller says of itself (``testbed check``); a backend
+        without a controller (the twin) answers with a ``HostCallError``."""
+        return self._call_one(host, "describe", {},
+                              lambda f, peer: p.parse_describe_reply(f, peer), timeout_s)
+
     def save_calibration(self, host: str, arm: str, data: Mapping[str, Any], *,
                          timeout_s: float | None = None) -> str:
         """Write ``arm``'s calibration file on the host (atomically); its path there."""

@@ -35,6 +35,7 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
     frame {}                                frame_ok {} + one PNG (the full BGR camera frame)
     move_tcp {arm, xyz_mm}                  move_tcp_ok {tcp: [x, y, z]}
     save_calibration {arm, data}            save_calibration_ok {path}
+    describe {}                             describe_ok {info: {...}} (the controller's report)
     bye {}                                  bye_ok {} (after the arms are at rest)
                                             error {kind, message, traceback, arm, fatal}
 
@@ -47,7 +48,7 @@ in progress now (``HostBackend.stop``); the interrupted request still gets its r
 error or its outcome). ``busy`` of ``heartbeat_ok``: the type of the request in progress,
 or null.
 
-Version 3 (this one) added ``stop`` and the answers at once: a version-2 agent reads
+Version 3 (this one) added ``stop``, ``describe`` and the answers at once: a version-2 agent reads
 nothing while it runs a request, so it would queue a stop behind the very motion it
 should stop (and fall silent for the length of every motion), so the versions must
 match. Version 2 added the per-arm ``refused``/``error`` of push and observe replies and
@@ -84,7 +85,8 @@ MAX_BLOBS: Final = 64
 MAX_ID: Final = 2**32 - 1
 
 REQUEST_TYPES: Final = ("hello", "observe", "push", "reset", "rest", "heartbeat", "bye",
-                        "reseed", "frame", "move_tcp", "save_calibration", "stop")
+                        "reseed", "frame", "move_tcp", "save_calibration", "stop",
+                        "describe")
 AT_ONCE: Final = ("heartbeat", "stop")
 """Requests the agent answers as soon as they arrive, even during another request."""
 AT_ONCE_REPLIES: Final = ("heartbeat_ok", "stop_ok")
@@ -549,6 +551,11 @@ def parse_move_tcp_reply(frame: Frame, peer: str) -> tuple[float, float, float]:
     return _xyz(frame.header.get("tcp"), "move_tcp_ok", peer, "'tcp'")
 
 
+def parse_describe_reply(frame: Frame, peer: str) -> dict[str, Any]:
+    info: dict[str, Any] = _get(frame.header, "info", dict, peer)
+    return info
+
+
 def parse_save_calibration_reply(frame: Frame, peer: str) -> str:
     path = _get(frame.header, "path", str, peer)
     if not path:
@@ -564,5 +571,5 @@ __all__ = [
     "make_error", "make_frame_reply", "make_observe_reply", "make_push_reply", "make_request",
     "make_reset_reply", "parse_frame_reply", "parse_hello_reply", "parse_move_tcp_reply",
     "parse_observe_reply", "parse_push_reply", "parse_request", "parse_reset_reply",
-    "parse_save_calibration_reply",
+    "parse_describe_reply", "parse_save_calibration_reply",
 ]

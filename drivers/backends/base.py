@@ -137,6 +137,12 @@ class HostBackend(ABC):
         """Write ``arm``'s calibration file atomically on the host; returns its path."""
         raise NotImplementedError(f"backend {self.kind!r} has no calibration file")
 
+    def describe(self) -> dict[str, Any]:
+        """What ``testbed check`` prints of the robot's controller (a YuMi: RobotWare,
+        options, serial, state, tasks, our RAPID and its zones); JSON types only, never
+        a credential."""
+        raise NotImplementedError(f"backend {self.kind!r} has no controller to describe")
+
     # -- helpers shared by the backends -------------------------------------------------
     def check_faces(self, faces: Mapping[str, Any]) -> dict[str, int]:
         """Validate a push request; ValueError names the arm and the bad face."""
