@@ -42,6 +42,9 @@ The camera port (JSON unless said otherwise; errors are ``{"error": "..."}`` wit
   the cube somewhere (fault drills, tests).
 - ``GET /lab/truth`` -> ``{"arms": {arm: {"cube_mm", "on_table", "cube_px", "yaw_px",
   "tcp_mm"}}}`` (``tcp_mm``: the pusher's actual TCP, world mm).
+- ``GET /lab/tcp`` -> ``{"tcp_mm": {arm: [x, y, z]}}``: the pushers now, ALSO while a
+  motion runs (``/lab/truth`` waits for the cell, so for the motion's end): the latest
+  sample of the running program, what a person sees of a moving arm.
 - ``GET /lab/camera`` -> the true camera model and the cell's layout (K, dist, R/t and
   rvec/tvec world mm -> camera, crops, mirror, workspaces_mm, rest_mm, marker, ...).
 - ``GET /lab/health`` -> ``{"ok": true}``.
@@ -160,6 +163,9 @@ class TwinServer(ThreadingHTTPServer):
         self.stream_slot = threading.Lock()
         self.stopping = threading.Event()
         self.frames = FrameCache(cell)
+        self.tcp_source: Callable[[], dict[str, tuple[float, float, float]]] | None = None
+        """Where ``GET /lab/tcp`` reads the pushers without waiting for a motion to end
+        (the controller's start hook keeps the latest sample); set by :class:`RwsSide`."""
         self._streams: set[socket.socket] = set()
         self._streams_lock = threading.Lock()
         with self.cell_lock:
@@ -227,12 +233,25 @@ class Handler(BaseHTTPRequestHandler):
             for arm, t in truth.items():
                 t["tcp_mm"] = list(tcp[arm])
             self._json(200, {"arms": truth})
+        elif path == "/lab/tcp":
+            self._json(200, {"tcp_mm": self._tcp_now()})
         elif path == "/lab/camera":
             self._json(200, cell.camera_model)
         elif path == "/lab/health":
             self._json(200, {"ok": True})
         else:
             self._json(404, {"error": f"no such endpoint: GET {path}"})
+
+    def _tcp_now(self) -> dict[str, list[float]]:
+        """Each pusher's actual TCP (world mm) now, also mid-motion: from the motion's
+        latest sample (every ``frame_every_s`` of simulated time) while one runs."""
+        srv = self.server
+        if srv.tcp_source is not None:
+            tcp = srv.tcp_source()
+        else:
+            with srv.cell_lock:
+                tcp = srv.cell.tcp_xyz()
+        return {a: [round(float(v), 3) for v in xyz] for a, xyz in tcp.items()}
 
     def do_POST(self) -> None:
         path = self.path.split("?", 1)[0]
@@ -422,6 +441,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     server = TwinServer(cell, a.host, a.port, a.fps, a.verbose)
     rws = RwsSide(server, a, zones, users)
+    server.tcp_source = rws.motion.tcp_xyz
 
     def on_signal(signum: int, frame: object) -> None:
         threading.Thread(target=server.stop, daemon=True).start()

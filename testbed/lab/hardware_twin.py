@@ -93,6 +93,11 @@ class LabClient:
     def camera(self) -> dict[str, Any]:
         return self._call("/lab/camera")
 
+    def tcp(self) -> dict[str, list[float]]:
+        """Where each pusher is now, also mid-motion (the twin's latest motion sample)."""
+        out: dict[str, list[float]] = self._call("/lab/tcp")["tcp_mm"]
+        return out
+
     def healthy(self) -> bool:
         try:
             return bool(self._call("/lab/health").get("ok"))

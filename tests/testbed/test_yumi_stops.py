@@ -60,7 +60,8 @@ def fleet_of(lab: HardwareTwinLab) -> FleetConfig:
 
 
 def tcp(lab: HardwareTwinLab) -> dict[str, list[float]]:
-    return {a: t["tcp_mm"] for a, t in lab.hosts["yumi-a"].lab.truth().items()}
+    """The pushers as the lab sees them, mid-motion too (the twin's truth)."""
+    return lab.hosts["yumi-a"].lab.tcp()
 
 
 def watch(lab: HardwareTwinLab, act: Callable[[], None], out: dict[str, Any],
@@ -83,13 +84,23 @@ def watch(lab: HardwareTwinLab, act: Callable[[], None], out: dict[str, Any],
     return t
 
 
-def assert_stopped(lab: HardwareTwinLab, out: dict[str, Any]) -> None:
+V_MAX_MM_S = 150.0
+"""The calibrations' max_speed_mm_s (the default): no pusher moves faster."""
+
+
+def assert_stopped(lab: HardwareTwinLab, out: dict[str, Any], bound_s: float = 1.0) -> None:
+    """Under way at the stop, still from ``settle_s`` on, never at the program's end, and
+    no farther from where the stop found it than ``bound_s`` at full speed."""
     rest = lab.hosts["yumi-a"].lab.camera()["rest_mm"]
     for arm in ("left", "right"):
-        moved = math.dist(out["before"][arm], out["settled"][arm])
-        assert moved > 1.0, (arm, out)  # it was moving when the stop came
+        assert math.dist(out["before"][arm], rest[arm]) > 50.0, (arm, out)  # under way
         assert math.dist(out["settled"][arm], out["later"][arm]) < 0.5, (arm, out)  # stopped
-        assert math.dist(out["later"][arm], rest[arm]) > 50.0  # far from the program's end
+        # the push ends at rest: a pusher stopped out there never finished its program
+        assert math.dist(out["later"][arm], rest[arm]) > 50.0, (arm, out)
+        after = math.dist(out["before"][arm], out["settled"][arm])
+        assert after <= V_MAX_MM_S * bound_s, (arm, after, out)
+        out.setdefault("after_stop_mm", {})[arm] = round(after, 1)
+    print(f"moved after the stop: {out['after_stop_mm']} mm")
 
 
 def back_to_rest(lab: HardwareTwinLab) -> None:
@@ -170,5 +181,5 @@ def test_a_link_that_stops_answering_stops_the_motion(lab: HardwareTwinLab,
         for pid in frozen:
             os.kill(pid, signal.SIGCONT)
         fleet.close()
-    assert_stopped(lab, out)
+    assert_stopped(lab, out, bound_s=HEARTBEAT_S + 1.0)
     back_to_rest(lab)
