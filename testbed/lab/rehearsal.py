@@ -160,9 +160,11 @@ def _calibrate_all(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path,
     """``testbed calibrate`` for every arm, against the twin, over SSH: the lab's first
     morning. Each arm starts from a hand-written starting file (safe box, rest pose)."""
     figures: dict[str, dict[str, float]] = {}
+    for h in fleet.hosts:  # every arm's starting file first: the controller client needs
+        for a in h.arms:   # each arm's rest pose, also while its sibling is calibrated
+            starting_calibration(lab, h.name, a.name)
     for h in fleet.hosts:
         for a in h.arms:
-            starting_calibration(lab, h.name, a.name)
             say(f"calibrate {h.name}/{a.name} (testbed calibrate --config {fleet_file} "
                 f"--host {h.name} --arm {a.name})")
             status = _calibrate_arm(fleet_file, h.name, a.name, say)
