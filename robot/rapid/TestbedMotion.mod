@@ -7,7 +7,7 @@ MODULE TestbedMotion
   ! the second arm's program would overwrite the first's. This module reads the same
   ! binary format (MotionProgram.get_program_bytes: little-endian float32 numbers,
   ! version 10011) from a file FIXED PER TASK (tb_name in the task module), which is
-  ! where drivers/yumi/yumi_controller.py uploads it. Written for this project from the
+  ! where drivers/yumi/rws_controller.py uploads it. Written for this project from the
   ! Python writer's format; no RAPID code of any other project was used.
   !
   ! What it does (docs/notes/rws.md, "Our RAPID side"):
