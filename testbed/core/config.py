@@ -12,8 +12,9 @@ from __future__ import annotations
 import os
 import re
 import sys
+import types
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 from urllib.parse import urlsplit
 
 from typing_extensions import Self
@@ -44,8 +45,53 @@ class ConfigError(ValueError):
     """A config or argument that cannot be used; ``str()`` is the one line to print."""
 
 
+def _scalar_kind(annotation: Any) -> type | None:
+    """``bool``, ``int`` or ``float`` when a field (or the items of its tuple or list)
+    holds that scalar, else None; ``X | None`` and ``Annotated[X, ...]`` look through."""
+    origin = get_origin(annotation)
+    if origin is Annotated:
+        return _scalar_kind(get_args(annotation)[0])
+    if origin in (Union, types.UnionType):
+        kinds = {_scalar_kind(a) for a in get_args(annotation) if a is not type(None)}
+        return kinds.pop() if len(kinds) == 1 else None
+    if origin in (tuple, list):
+        kinds = {_scalar_kind(a) for a in get_args(annotation) if a is not Ellipsis}
+        return kinds.pop() if len(kinds) == 1 else None
+    return annotation if annotation in (bool, int, float) else None
+
+
+_KIND_TEXT = {bool: "a TOML boolean (true or false)", int: "a TOML integer",
+              float: "a TOML number"}
+
+
+def _toml_typed(kind: type, value: Any) -> bool:
+    """Is ``value`` (as TOML gave it) of ``kind``? No string for a boolean or a number,
+    no boolean for a number (pydantic's lax mode would take ``"yes"`` as true)."""
+    if kind is bool:
+        return isinstance(value, bool)
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) if kind is int else isinstance(value, int | float)
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _toml_types(cls, value: Any, info: ValidationInfo) -> Any:
+        """Config values take TOML's types strictly: ``mirror = "yes"`` or
+        ``deadline_s = "20"`` is an error naming the field, never a guess."""
+        field = cls.model_fields.get(info.field_name or "")
+        kind = None if field is None else _scalar_kind(field.annotation)
+        if kind is None or value is None:
+            return value
+        items = value if isinstance(value, list | tuple) else [value]
+        if not all(_toml_typed(kind, v) for v in items):
+            got = next(v for v in items if not _toml_typed(kind, v))
+            what = "a string" if isinstance(got, str) else type(got).__name__
+            raise ValueError(f"must be {_KIND_TEXT[kind]}, not {what}")
+        return value
 
 
 class ArmConfig(_Strict):
