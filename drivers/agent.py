@@ -549,11 +549,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                     help="yumi: this arm is being calibrated (provisional calibration; "
                          "frame, move_tcp, rest and save_calibration only); repeatable")
     ap.add_argument("--lock-dir", default=None,
-                    help="directory of the per-robot lock files (default "
-                         "${XDG_RUNTIME_DIR:-/tmp}/fleet-testbed-locks)")
+                    help="directory of the per-robot lock files, shared by every user of "
+                         "the host (default /run/lock/fleet-testbed)")
     ap.add_argument("--lock-id", default=None,
-                    help="lock this identity (default: yumi: the controller URL; twin: "
-                         "no lock, every twin agent owns its own cell)")
+                    help="lock this identity (default: yumi: the controller's serial, else "
+                         "its URL; twin: no lock, every twin agent owns its own cell)")
     ap.add_argument("--idle-timeout", type=float, default=120.0,
                     help="exit (arms NOT moved) after this long without a frame")
     ap.add_argument("--watchdog", type=float, default=None, metavar="S",
@@ -603,6 +603,18 @@ def _backend_kwargs(args: argparse.Namespace) -> dict[str, Any] | str:
     return kwargs
 
 
+def _robot_identity(args: argparse.Namespace) -> str | None:
+    """What this agent must own exclusively: ``--lock-id``; a YuMi as its controller
+    names itself (its serial, one read-only query) or else its normalised URL; None for
+    a twin (it owns its own cell)."""
+    if args.lock_id or args.backend != "yumi" or not args.controller_url:
+        return lock_identity(args.backend, args.controller_url, args.lock_id)
+    from drivers.yumi.controller_state import controller_identity
+
+    return (controller_identity(args.controller_url, args.credentials_file)
+            or lock_identity(args.backend, args.controller_url, None))
+
+
 def _make_backend(args: argparse.Namespace, kwargs: dict[str, Any]) -> HostBackend:
     """The product's backends (twin, yumi), imported only now (pybullet prints)."""
     from drivers.backends import make_backend
@@ -627,15 +639,17 @@ def main(argv: Sequence[str] | None = None, *,
         print(kwargs, file=sys.stderr)
         return EXIT_USAGE
     build = backend_factory or _make_backend
-    identity = lock_identity(args.backend, args.controller_url, args.lock_id)
-    lock = (RobotLock(identity, args.lock_dir or default_lock_dir(), args.host)
-            if identity else None)
     log.info("agent pid %d for host %s: backend %s, protocol %d", os.getpid(), args.host,
              args.backend, p.PROTOCOL_VERSION)
+    held: list[RobotLock] = []
 
     def factory() -> HostBackend:
-        if lock is not None:  # before anything touches the robot (refusal: at hello)
+        identity = _robot_identity(args)
+        if identity is not None:  # before anything moves the robot (refusal: at hello)
+            lock = RobotLock(identity, args.lock_dir or default_lock_dir(), args.host,
+                             controller=args.controller_url)
             lock.acquire()
+            held.append(lock)
             log.info("holding the lock of robot %s (%s)", lock.identity, lock.path)
         return build(args, kwargs)
 
@@ -644,7 +658,7 @@ def main(argv: Sequence[str] | None = None, *,
         return serve(reader, fd_writer(frames_fd, max(10.0, args.idle_timeout)), factory,
                      idle_timeout_s=args.idle_timeout, watchdog_s=args.watchdog)
     finally:
-        if lock is not None:
+        for lock in held:
             lock.release()
         for fd in (0, frames_fd):  # leave a terminal as we found it
             with contextlib.suppress(OSError):

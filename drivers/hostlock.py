@@ -9,9 +9,20 @@ fails its start with a message naming the holder, and never builds the backend. 
 kernel releases the lock when the holder exits, however it exits, so a stale file is
 never a stale lock.
 
-Identity: for a YuMi the controller URL (normalised: scheme and host lower-case, default
-port explicit, trailing slash dropped), since that is the thing that moves; a twin agent
-owns its own simulated cell, so it is locked only when given an explicit ``--lock-id``.
+Identity: for a YuMi the robot as its controller reports itself (its serial, from a
+read-only ``ctrl/identity`` query the agent makes before the lock:
+``drivers.yumi.controller_state.controller_identity``), so two spellings of one
+controller's address are one robot; when the controller cannot be asked, the controller
+URL (normalised: scheme and host lower-case, default port explicit, trailing slash
+dropped). A twin agent owns its own simulated cell, so it is locked only when given an
+explicit ``--lock-id``.
+
+For every user: the lock directory is one per host, shared by all its users (default
+:func:`default_lock_dir`, ``/run/lock/fleet-testbed``: the system's directory for lock
+files, world-writable and sticky; ``--lock-dir`` or the host config's ``lock_dir``
+otherwise), and each lock file is readable and writable by all (0666), so a colleague's
+agent for the same robot, under another Unix user, is refused as one's own is. The file
+names its holder: user, pid, host, controller address, since when.
 """
 
 from __future__ import annotations
@@ -21,6 +32,7 @@ import fcntl
 import hashlib
 import json
 import os
+import pwd
 import re
 import socket
 import time
@@ -34,8 +46,54 @@ class RobotBusy(RuntimeError):
     """Another live agent holds this robot's lock."""
 
 
+SHARED_LOCK_ROOTS = ("/run/lock", "/var/lock", "/tmp")
+"""Where the shared lock folder goes: the first of these that exists (Debian's /run/lock
+is the system's, mode 1777)."""
+
+
 def default_lock_dir() -> str:
-    return os.path.join(os.environ.get("XDG_RUNTIME_DIR") or "/tmp", "fleet-testbed-locks")
+    """One folder per host for every user's agents (not ``$XDG_RUNTIME_DIR``, which is
+    per user: a colleague's agent would not see the lock)."""
+    root = next((r for r in SHARED_LOCK_ROOTS if os.path.isdir(r)), "/tmp")
+    return os.path.join(root, "fleet-testbed")
+
+
+def _shared_dir(path: Path) -> None:
+    """Create the lock folder sticky and world-writable (as /tmp): every user may add a
+    lock file, nobody may remove another's."""
+    if path.is_dir():
+        return
+    path.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(OSError):  # someone else's folder: theirs to set
+        os.chmod(path, 0o1777)
+
+
+def _open_shared(path: Path) -> int:
+    """The lock file, read-write, made 0666 when we create it. Opened WITHOUT ``O_CREAT``
+    when it exists: Linux's ``fs.protected_regular`` refuses an ``O_CREAT`` open of
+    another user's file in a sticky world-writable folder, the very case of a colleague's
+    lock."""
+    flags = os.O_RDWR | os.O_CLOEXEC
+    for _ in range(3):
+        try:
+            return os.open(path, flags)
+        except FileNotFoundError:
+            pass
+        try:
+            fd = os.open(path, flags | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:  # made by another agent just now: open theirs
+            continue
+        with contextlib.suppress(OSError):  # the umask took bits: every user may lock it
+            os.fchmod(fd, 0o666)
+        return fd
+    return os.open(path, flags)
+
+
+def _user() -> str:
+    try:
+        return pwd.getpwuid(os.geteuid()).pw_name
+    except KeyError:
+        return f"uid {os.geteuid()}"
 
 
 def normalise_url(url: str) -> str:
@@ -80,10 +138,13 @@ def describe_holder(identity: str, raw: str, path: Path) -> str:
     except ValueError:
         who = "another agent (it has not written its details yet)"
     else:
-        who = f"agent pid {h.get('pid', '?')} on host {h.get('host', '?')}"
+        user = f" of user {h['user']}" if h.get("user") else ""
+        who = f"agent pid {h.get('pid', '?')}{user} on host {h.get('host', '?')}"
         if h.get("started"):
             who += f" since {h['started']}"
-        where = [f"from {h['ssh_connection']}"] if h.get("ssh_connection") else []
+        where = [f"controller {h['controller']}"] if h.get("controller") else []
+        if h.get("ssh_connection"):
+            where.append(f"from {h['ssh_connection']}")
         if h.get("machine") and h.get("machine") != h.get("host"):
             where.append(f"machine {h['machine']}")
         if where:
@@ -96,17 +157,19 @@ class RobotLock:
     """An exclusive flock held for the agent's lifetime (released on :meth:`release` or
     by the kernel at exit)."""
 
-    def __init__(self, identity: str, lock_dir: str | os.PathLike[str], host: str) -> None:
+    def __init__(self, identity: str, lock_dir: str | os.PathLike[str], host: str, *,
+                 controller: str | None = None) -> None:
         self.identity = identity
         self.path = lock_path(lock_dir, identity)
         self._fd: int | None = None
         self._host = host
+        self._controller = controller
 
     def acquire(self) -> None:
         """Take the lock or raise :class:`RobotBusy` naming the holder (OSError if the
         lock directory is unusable)."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        _shared_dir(self.path.parent)
+        fd = _open_shared(self.path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -117,7 +180,8 @@ class RobotLock:
             os.close(fd)
             raise
         ssh = os.environ.get("SSH_CONNECTION", "").split()
-        holder = {"pid": os.getpid(), "host": self._host, "machine": socket.gethostname(),
+        holder = {"pid": os.getpid(), "user": _user(), "host": self._host,
+                  "controller": self._controller, "machine": socket.gethostname(),
                   "started": time.strftime("%H:%M:%S"),
                   "started_iso": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                   "ssh_connection": " ".join(ssh[:2]) if ssh else None,

@@ -66,6 +66,8 @@ def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: floa
             argv += ["--credentials-file", str(creds)]
         if (limit := getattr(host, "motion_timeout_s", None)) is not None:
             argv += ["--motion-timeout", f"{limit:g}"]
+        if (locks := getattr(host, "lock_dir", None)) is not None:
+            argv += ["--lock-dir", str(locks)]
         for a in host.arms:
             if (crop := getattr(a, "crop", None)) is not None:
                 argv += ["--crop", f"{a.name}=" + ",".join(str(v) for v in crop)]

@@ -90,7 +90,7 @@ import numpy as np
 
 from sim_twin.port_file import write_port
 from sim_twin.rws.digest_auth import DEFAULT_USERS
-from sim_twin.rws.irc5 import Irc5Controller
+from sim_twin.rws.irc5 import Identity, Irc5Controller
 from sim_twin.rws.login_file import read_login_file
 from sim_twin.rws.mechunits import MechUnit
 from sim_twin.rws.request_log import RequestLog
@@ -354,6 +354,10 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--floor-z", type=float, default=0.0, metavar="MM",
                    help="no TCP below this, anywhere")
     p.add_argument("--max-sessions", type=int, default=70)
+    p.add_argument("--serial", default=None,
+                   help="the controller's serial (ctrl/identity's ctrl-id; default "
+                        "14000-500000): robot locks are keyed on it, so twins beside each "
+                        "other need their own")
     p.add_argument("--pusher-length-mm", type=float, default=0.0,
                    help="the flange above the pusher's tip (RWS tool0 = flange)")
     p.add_argument("--no-rapid", action="store_true",
@@ -407,7 +411,9 @@ class RwsSide:
                                    zones=zones, on_frame=server.frames.publish,
                                    on_frame_every_s=cell.realtime / server.fps if live
                                    else math.inf)
-        self.controller = Irc5Controller(units=units, poses=self.motion.poses)
+        identity = Identity() if a.serial is None else Identity(ctrl_id=a.serial)
+        self.controller = Irc5Controller(units=units, poses=self.motion.poses,
+                                         identity=identity)
         self.install = TestbedInstall(self.controller, self.motion, loaded=not a.no_rapid)
         self.log = RequestLog(a.rws_log) if a.rws_log is not None else None
         service = RwsService(self.controller, users=users, max_sessions=a.max_sessions,

@@ -36,5 +36,6 @@ def make_controller(url: str, poses: Mapping[str, ArmPose | None], *,
             f"the YuMi controller needs every arm's rest pose, also while calibrating"
             + (f" (arms without one: {missing})" if len(missing) > 1 else ""))
     login = read_login(credentials_file) if credentials_file else None
-    return RwsYumiController(url.strip(), {a: p for a, p in poses.items() if p is not None},
+    return RwsYumiController(url.strip().rstrip("/"),
+                             {a: p for a, p in poses.items() if p is not None},
                              login=login, motion_timeout_s=motion_timeout_s)

@@ -265,6 +265,10 @@ class YumiHost(_HostBase):
     login, with a warning in the host log."""
     deadline_s: float = Field(20.0, gt=0, le=600)
     """Per-call deadline for a push or an observation (a YuMi push is a motion of seconds)."""
+    lock_dir: str | None = None
+    """The folder of the robot locks ON THE HOST, shared by every user of the host
+    (``drivers/hostlock.py``; default ``/run/lock/fleet-testbed``): one agent per robot,
+    whoever starts it."""
     motion_timeout_s: float | None = Field(None, gt=0, le=600)
     """The longest one motion program may run before the agent stops it through RWS; below
     ``deadline_s``, so the controller hears why instead of a dead link. Default:

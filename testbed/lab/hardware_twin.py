@@ -189,6 +189,13 @@ class HardwareTwinLab:
             self.stop()
             raise
 
+    def _serial(self, host: str) -> str:
+        """The twin controller's serial: robot locks are keyed on it, so each twin of a
+        lab (and of another lab on this machine) has its own, stable for its folder."""
+        import zlib
+
+        return f"14000-{zlib.crc32(f'{self.root}/{host}'.encode()) % 1_000_000:06d}"
+
     def _login_file(self, host: str) -> Path:
         return self.root / f"{host}-rws.login"
 
@@ -207,7 +214,8 @@ class HardwareTwinLab:
              "--port-file", str(self.root / f"{host}.port"),
              "--rws-port-file", str(self.root / f"{host}.rws.port"),
              "--rws-credentials", str(self._login_file(host)),
-             "--rws-log", str(self._rws_log(host)), "--realtime", f"{self.realtime:g}"],
+             "--rws-log", str(self._rws_log(host)), "--realtime", f"{self.realtime:g}",
+             "--serial", self._serial(host)],
             cwd=PROJECT_ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
             start_new_session=True)
         log.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pwd
 import select
 import subprocess
 import sys
@@ -19,6 +20,8 @@ from drivers import agent
 from drivers import wire as p
 from drivers.errors import DeadlineExceeded
 from drivers.hostlock import lock_identity, lock_path, normalise_url
+
+ME = pwd.getpwuid(os.geteuid()).pw_name
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -174,9 +177,9 @@ def test_a_second_agent_for_the_same_robot_is_refused_naming_the_holder(
     f = second.hello()
     assert f.type == "error" and f.header["kind"] == "startup" and f.header["fatal"]
     msg = f.header["message"]
-    assert msg.startswith(f"robot cell-7 is held by agent pid {first.proc.pid} on host "
-                          f"yumi-a since ")
-    assert "(from 127.0.0.1 51514" in msg and "lock file" in msg
+    assert msg.startswith(f"robot cell-7 is held by agent pid {first.proc.pid} of user {ME} "
+                          f"on host yumi-a since ")
+    assert "from 127.0.0.1 51514" in msg and "lock file" in msg
     assert second.proc.wait(10) == agent.EXIT_STARTUP
     assert second.proc.stderr is not None
     assert b"pybullet build time" not in second.proc.stderr.read()  # never built
@@ -202,8 +205,8 @@ def test_yumi_agents_lock_the_normalised_controller_url(
                     "--controller-url", "TWIN+HTTP://127.0.0.1:4101/", "--camera", "0")
     f = second.hello()
     assert f.type == "error" and f.header["kind"] == "startup"
-    assert (f"robot twin+http://127.0.0.1:4101 is held by agent pid {first.proc.pid} on "
-            f"host yumi-a") in f.header["message"]
+    assert (f"robot twin+http://127.0.0.1:4101 is held by agent pid {first.proc.pid} of "
+            f"user {ME} on host yumi-a") in f.header["message"]
     # Twin agents without --lock-id share nothing: both start.
     t1 = agents("--backend", "twin", "--no-physics", "--lock-dir", locks)
     t2 = agents("--backend", "twin", "--no-physics", "--lock-dir", locks)
