@@ -89,10 +89,11 @@ class ControllerState:
     """One line naming the RAPID error that stopped a task (None: none)."""
 
 
-def read_state(rws: Any) -> ControllerState:
+def read_state(rws: Any, log: Sequence[Any] | None = None) -> ControllerState:
     """Operating mode, controller state, RAPID execution, speed ratio and the error (if
-    any) that stopped RAPID, read through ``rws``."""
-    err = rapid_error(rws.read_event_log())
+    any) that stopped RAPID, read through ``rws``; ``log``: the event log when the caller
+    has just read it (a controller sends the whole log: read it once)."""
+    err = rapid_error(rws.read_event_log() if log is None else log)
     try:
         ratio: float | None = float(rws.get_speedratio())
     except Exception:  # an old RobotWare without panel/speedratio: report it unknown

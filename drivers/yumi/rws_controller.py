@@ -157,7 +157,7 @@ class RwsYumiController:
         log_before = rws.read_event_log()
         prev = log_before[0].seqnum if log_before else None
         self._log_new(log_before)
-        if (why := refusal(read_state(rws))) is not None:
+        if (why := refusal(read_state(rws, log_before))) is not None:
             raise BackendError(f"YuMi controller: {why}; the motion was not started")
         t1 = time.perf_counter()
         rws.resetpp()

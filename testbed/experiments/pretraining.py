@@ -180,7 +180,8 @@ def rollout_policy(
 
 _HOW_TO_REACH = frozenset({"transport", "address", "port", "user", "key_file", "known_hosts",
                            "python", "workdir", "deadline_s", "heartbeat_s",
-                           "connect_timeout_s"})
+                           "connect_timeout_s", "ssh_alias", "ssh_config",
+                           "credentials_file", "motion_timeout_s", "lock_dir"})
 """Host fields that say how a host is reached, not what it is: left out of the key, so a
 rehearsal's fresh ports or a lab's new address do not throw theta_0 away."""
 

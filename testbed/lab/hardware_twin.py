@@ -266,6 +266,7 @@ class HardwareTwinLab:
                     for a in h.arms]
             hosts.append(h.model_copy(update={
                 "transport": "ssh", "address": "127.0.0.1", "port": t.sshd.port,
+                "ssh_alias": None, "ssh_config": None,
                 "user": t.sshd.user, "key_file": str(t.sshd.client_key),
                 "known_hosts": str(t.sshd.known_hosts), "python": sys.executable,
                 "workdir": str(PROJECT_ROOT), "camera": t.camera_url,
