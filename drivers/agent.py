@@ -11,7 +11,7 @@ Lifecycle::
 
     take the robot's lock (drivers.hostlock; a second agent for the same robot is refused
     and never builds its backend) -> start backend (errors kept for the hello reply)
-    -> wait for hello (version check)
+    -> wait for hello (version check; hello_ok names this build: drivers.build_id)
     -> serve observe / push / reset / rest / reseed / frame / move_tcp / save_calibration /
        describe
        in order, in ONE worker thread, while the reader answers heartbeat and stop at
@@ -58,6 +58,7 @@ from typing import TYPE_CHECKING, Any
 # (pybullet!) are imported in main(), after claim_stdout().
 from drivers import wire as p
 from drivers.backends.base import ArmView
+from drivers.build_id import build_id
 from drivers.errors import BackendError, DeadlineExceeded, LinkClosed, ProtocolError
 from drivers.hostlock import RobotBusy, RobotLock, default_lock_dir, lock_identity
 
@@ -287,7 +288,7 @@ class _Session:
                                "version": p.PROTOCOL_VERSION, "backend": backend.kind,
                                "arms": list(backend.arm_names),
                                "mirror": [bool(m) for m in backend.mirror],
-                               "pid": os.getpid()}), None
+                               "pid": os.getpid(), "build": build_id()}), None
 
     def _in_order(self, job: p.Request | bytes) -> None:
         """After hello: to the worker, behind the requests before it (a reply as bytes:
@@ -564,6 +565,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                     help="yumi: the controller's login, one line USER:PASSWORD, mode 0600")
     ap.add_argument("--motion-timeout", type=float, default=None, metavar="S",
                     help="yumi: stop a motion program that runs longer than S seconds")
+    ap.add_argument("--camera-settings", default=None, metavar="JSON",
+                    help="yumi: the camera's settings, a JSON object of width, height, "
+                         "fourcc, fps, exposure, white_balance, focus (set on a V4L2 "
+                         "camera when it opens, and read back)")
     ap.add_argument("--chdir", default=None, help="working directory (the project checkout)")
     return ap.parse_args(argv)
 
@@ -600,6 +605,8 @@ def _backend_kwargs(args: argparse.Namespace) -> dict[str, Any] | str:
         kwargs["credentials_file"] = args.credentials_file
     if args.motion_timeout is not None:
         kwargs["motion_timeout_s"] = args.motion_timeout
+    if args.camera_settings is not None:  # the JSON text: the camera validates it
+        kwargs["camera_settings"] = args.camera_settings
     return kwargs
 
 
@@ -639,8 +646,8 @@ def main(argv: Sequence[str] | None = None, *,
         print(kwargs, file=sys.stderr)
         return EXIT_USAGE
     build = backend_factory or _make_backend
-    log.info("agent pid %d for host %s: backend %s, protocol %d", os.getpid(), args.host,
-             args.backend, p.PROTOCOL_VERSION)
+    log.info("agent pid %d for host %s: backend %s, protocol %d, build %s", os.getpid(),
+             args.host, args.backend, p.PROTOCOL_VERSION, build_id())
     held: list[RobotLock] = []
 
     def factory() -> HostBackend:

@@ -23,6 +23,7 @@ from typing import Any
 
 from drivers import wire as p
 from drivers.backends.base import ArmOutcome, ArmView
+from drivers.build_id import BuildMismatch, build_id, matches, mismatch_line
 from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError, TruncatedFrame
 from drivers.transport import Transport
 from testbed.core.config import HostConfig
@@ -115,7 +116,9 @@ class AgentLink:
         return self.receive(mtype, self.send(mtype, deadline, **fields), deadline)
 
     def open(self, argv: list[str], timeout_s: float) -> p.HelloInfo:
-        """Start the agent and shake hands; the agent must serve the configured arms."""
+        """Start the agent and shake hands; the agent must serve the configured arms and
+        run this controller's build (BuildMismatch otherwise: nothing was asked of the
+        arms yet, and closing the link leaves them where they are)."""
         deadline = time.monotonic() + timeout_s
         self.transport.open(argv, timeout_s)
         frame = self.call("hello", deadline, version=p.PROTOCOL_VERSION, host=self.host.name)
@@ -128,6 +131,9 @@ class AgentLink:
             raise ProtocolError(f"{self.peer} serves arms {list(info.arms)} (mirror "
                                 f"{list(info.mirror)}) but the config names {list(self.arms)} "
                                 f"(mirror {list(mirror)})")
+        if not matches(info.build):
+            raise BuildMismatch(mismatch_line(self.host.name, info.build, build_id(),
+                                              self.host.workdir))
         self.info = info
         return info
 

@@ -31,6 +31,7 @@ import traceback
 from collections.abc import Collection
 from dataclasses import dataclass
 
+from drivers.build_id import BuildMismatch
 from drivers.errors import AgentError, DeadlineExceeded, DriverError, LinkClosed
 from drivers.hostlog import HostLog
 from drivers.link import AgentLink
@@ -152,8 +153,8 @@ class HostSession:
             self.status.error = self.status.traceback = None
             self.status.attempts = 0
             self.status.reported = True
-        self.event("connected: agent pid %d, backend %s, arms %s, seed %d", info.pid,
-                   info.backend, ",".join(info.arms), self.seed)
+        self.event("connected: agent pid %d, backend %s, arms %s, seed %d, build %s",
+                   info.pid, info.backend, ",".join(info.arms), self.seed, info.build)
 
     def _heartbeat(self) -> None:
         try:
@@ -270,7 +271,7 @@ def close_async(link: AgentLink) -> None:
 
 
 def _text(exc: BaseException) -> str:
-    if isinstance(exc, AgentError):
+    if isinstance(exc, AgentError | BuildMismatch):  # their message is the whole line
         return str(exc)
     if isinstance(exc, DriverError):
         kind = {LinkClosed: "link closed", DeadlineExceeded: "deadline exceeded"}.get(

@@ -10,10 +10,12 @@ Rules kept here (the security rules; docs/notes/drivers.md, "SSH"):
 * The agent's command line is a fixed argv built by :func:`agent_argv`; over SSH every
   word is quoted with ``shlex.quote`` (the remote side always runs a shell), so no config
   value is ever interpolated into a shell string; no local shell is ever started.
-* SSH: host key checked against the host's configured known_hosts file only; an unknown
-  key is refused (a ``RejectPolicy``) with a message naming the host and the file; key
-  auth only (no passwords, no ssh-agent, no ~/.ssh key search); TCP_NODELAY on the
-  socket (Nagle + delayed ACK stall small frames by ~40 ms).
+* SSH (how a host is reached: ``drivers.ssh_setup``): every hop's host key checked
+  against its known_hosts files only; an unknown key is refused (a ``RejectPolicy``)
+  with a message naming the hop and the file; key auth only: the named key, else the
+  ssh-agent's keys (no passwords, no ~/.ssh key search); no local process (no ssh
+  binary, no ProxyCommand): a bastion is crossed by a ``direct-tcpip`` channel;
+  TCP_NODELAY on the socket (Nagle + delayed ACK stall small frames by ~40 ms).
 * Reads and writes take an absolute deadline (``time.monotonic()``); nothing blocks
   past it. ``close`` is bounded too.
 """
@@ -24,7 +26,6 @@ import contextlib
 import os
 import select
 import shlex
-import socket
 import subprocess
 import sys
 import time
@@ -33,7 +34,7 @@ from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
-from drivers.errors import DeadlineExceeded, HostKeyError, LinkClosed, TransportError
+from drivers.errors import DeadlineExceeded, LinkClosed, TransportError
 from testbed.core.config import HostConfig
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -60,6 +61,8 @@ def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: floa
     if host.backend == "yumi":
         if (camera := getattr(host, "camera", None)) is not None:
             argv += ["--camera", str(camera)]
+        if (cam_settings := getattr(host, "camera_settings", None)) is not None:
+            argv += ["--camera-settings", cam_settings.model_dump_json(exclude_none=True)]
         if (url := getattr(host, "controller_url", None)) is not None:
             argv += ["--controller-url", str(url)]
         if (creds := getattr(host, "credentials_file", None)) is not None:
@@ -276,7 +279,8 @@ class SshTransport(Transport):
 
     def __init__(self, host: HostConfig) -> None:
         super().__init__(host)
-        self._client: Any = None
+        self._conn: Any = None
+        """The ``ssh_setup.Connection``: the host's SSH connection and its bastions'."""
         self._chan: Any = None
 
     @staticmethod
@@ -286,55 +290,29 @@ class SshTransport(Transport):
         return " ".join(shlex.quote(w) for w in words)
 
     def open(self, argv: list[str], timeout_s: float) -> None:
+        """Log in along the host's route (``drivers.ssh_setup``: an ssh config alias,
+        bastions, agent or passphrase keys) and start the agent on one exec channel."""
         import paramiko  # only the SSH path needs it
 
+        from drivers import ssh_setup
+
         h = self.host
-        if h.known_hosts is None or h.key_file is None or h.user is None:
-            raise TransportError(f"host {h.name}: ssh needs user, key_file and known_hosts")
         if not argv or not argv[0].startswith("/"):
             raise TransportError(f"host {h.name}: over ssh the agent's interpreter must be "
                                  f"an absolute path, got {argv[:1]}")
-        where = f"{h.address}:{h.port}"
-        client = paramiko.SSHClient()
+        deadline = time.monotonic() + timeout_s
+        route = ssh_setup.resolve_route(h)
+        conn = ssh_setup.connect(route, timeout_s)
         try:
-            client.load_host_keys(h.known_hosts)
-        except (OSError, paramiko.SSHException) as exc:
-            raise HostKeyError(f"host {h.name}: cannot read known_hosts file {h.known_hosts}: "
-                               f"{exc}") from None
-        client.set_missing_host_key_policy(_refusing_policy(h.name, h.known_hosts, h.port))
-        try:
-            sock = socket.create_connection((h.address, h.port), timeout=timeout_s)
-        except OSError as exc:
-            client.close()
-            raise TransportError(f"host {h.name}: cannot reach {where}: {exc}") from None
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        try:
-            client.connect(hostname=h.address, port=h.port, username=h.user,
-                           key_filename=h.key_file, sock=sock, timeout=timeout_s,
-                           banner_timeout=timeout_s, auth_timeout=timeout_s,
-                           channel_timeout=timeout_s, allow_agent=False, look_for_keys=False)
-            transport = client.get_transport()
-            assert transport is not None
-            chan = transport.open_session(timeout=timeout_s)
+            chan = conn.transport.open_session(timeout=max(deadline - time.monotonic(), 0.1))
             chan.exec_command(self.remote_command(h, argv))
-        except HostKeyError:
-            client.close()
-            raise
-        except paramiko.BadHostKeyException as exc:
-            client.close()
-            raise HostKeyError(
-                f"host {h.name} ({where}): the server's host key does NOT match the entry in "
-                f"{h.known_hosts} (got {exc.key.get_name()} {exc.key.fingerprint}); refusing "
-                f"to connect. If the host was reinstalled, verify and replace its entry.") from None
-        except paramiko.AuthenticationException as exc:
-            client.close()
-            raise TransportError(f"host {h.name} ({where}): key authentication as {h.user!r} "
-                                 f"with {h.key_file} failed: {exc}") from None
         except (paramiko.SSHException, OSError, EOFError) as exc:
-            client.close()
-            raise TransportError(f"host {h.name} ({where}): SSH failed: "
-                                 f"{type(exc).__name__}: {exc}") from None
-        self._client, self._chan = client, chan
+            conn.close()
+            target = route.target
+            raise TransportError(ssh_setup.one_line(
+                f"{target.role} ({target.where}): SSH failed: {type(exc).__name__}: "
+                f"{exc}")) from None
+        self._conn, self._chan = conn, chan
 
     def _drain_stderr(self) -> None:
         chan = self._chan
@@ -390,8 +368,8 @@ class SshTransport(Transport):
         return None
 
     def close(self) -> None:
-        chan, client = self._chan, self._client
-        self._client = None
+        chan, conn = self._chan, self._conn
+        self._conn = None
         if chan is not None:
             with contextlib.suppress(Exception):
                 chan.shutdown_write()  # EOF on the agent's stdin: it exits, arms unmoved
@@ -405,33 +383,8 @@ class SshTransport(Transport):
             self.flush_stderr_lines()
             with contextlib.suppress(Exception):
                 chan.close()
-        if client is not None:
-            with contextlib.suppress(Exception):
-                client.close()
-
-
-def _fingerprint(key: Any) -> str:
-    import base64
-    import hashlib
-
-    digest = hashlib.sha256(key.asbytes()).digest()
-    return "SHA256:" + base64.b64encode(digest).decode().rstrip("=")
-
-
-def _refusing_policy(host: str, known_hosts: str, port: int) -> Any:
-    """A paramiko ``RejectPolicy`` whose refusal names the host and the known_hosts file."""
-    import paramiko
-
-    class RefuseUnknownHostKey(paramiko.RejectPolicy):
-        def missing_host_key(self, client: Any, hostname: str, key: Any) -> None:
-            raise HostKeyError(
-                f"host {host}: the SSH server at {hostname} offered an unknown "
-                f"{key.get_name()} host key ({_fingerprint(key)}) that is not in the "
-                f"known_hosts file {known_hosts}; refusing to connect (unknown host keys "
-                f"are refused). Verify the fingerprint on the host, then add it, e.g. "
-                f"ssh-keyscan -p {port} ADDRESS >> {known_hosts}")
-
-    return RefuseUnknownHostKey()
+        if conn is not None:
+            conn.close()  # the host's connection, then each bastion's
 
 
 def make_transport(host: HostConfig) -> Transport:

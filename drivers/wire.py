@@ -21,7 +21,8 @@ Frame (all integers big-endian)::
 Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
 
     controller -> agent                     agent -> controller
-    hello {version, host}                   hello_ok {version, backend, arms, mirror, pid}
+    hello {version, host}                   hello_ok {version, backend, arms, mirror, pid,
+                                                      build}
     observe {}                              observe_ok {arms: [{arm, violating, goal,
                                                         expert_action, blob} | {arm, error}]}
                                                         + PNGs
@@ -54,6 +55,12 @@ should stop (and fall silent for the length of every motion), so the versions mu
 match. Version 2 added the per-arm ``refused``/``error`` of push and observe replies and
 the four requests reseed, frame, move_tcp, save_calibration (a version-1 peer would
 misread a refused push as a plain failure).
+
+``build`` of ``hello_ok`` (``drivers.build_id``): the exact code the agent runs; the
+controller refuses a host whose build is not its own (``drivers.link``), before any arm
+moves. It came without a version change on purpose: an older controller ignores the
+field, and an older agent, which lacks it, is refused by a newer controller with the
+line that says to deploy (an agent's version refusal would say less).
 """
 
 from __future__ import annotations
@@ -408,6 +415,8 @@ class HelloInfo:
     arms: tuple[str, ...]
     mirror: tuple[bool, ...]
     pid: int
+    build: str | None = None
+    """The agent's build id (``drivers.build_id``); None from an agent before build ids."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -453,7 +462,10 @@ def parse_hello_reply(frame: Frame, peer: str) -> HelloInfo:
         raise _bad("hello_ok", peer, "'arms' must be a non-empty list of distinct names")
     if len(mirror) != len(arms) or any(type(m) is not bool for m in mirror):
         raise _bad("hello_ok", peer, "'mirror' must be one true/false per arm")
-    return HelloInfo(version, backend, tuple(arms), tuple(mirror), pid)
+    build = h.get("build")
+    if build is not None and (not isinstance(build, str) or not build):
+        raise _bad("hello_ok", peer, f"'build' must be a build id string, got {build!r:.60}")
+    return HelloInfo(version, backend, tuple(arms), tuple(mirror), pid, build)
 
 
 def parse_observe_reply(frame: Frame, arms: Sequence[str], peer: str
@@ -569,7 +581,7 @@ __all__ = [
     "ArmFailed", "DeadlineExceeded", "Frame", "FrameReader", "HelloInfo", "LinkClosed",
     "ProtocolError", "Request", "check_reply", "decode_image", "encode_frame", "encode_image",
     "make_error", "make_frame_reply", "make_observe_reply", "make_push_reply", "make_request",
-    "make_reset_reply", "parse_frame_reply", "parse_hello_reply", "parse_move_tcp_reply",
-    "parse_observe_reply", "parse_push_reply", "parse_request", "parse_reset_reply",
-    "parse_describe_reply", "parse_save_calibration_reply",
+    "make_reset_reply", "parse_describe_reply", "parse_frame_reply", "parse_hello_reply",
+    "parse_move_tcp_reply", "parse_observe_reply", "parse_push_reply", "parse_request",
+    "parse_reset_reply", "parse_save_calibration_reply",
 ]

@@ -1,19 +1,33 @@
 #!/usr/bin/env bash
 # Set up this checkout on a fresh Debian/Ubuntu machine: system packages (when missing)
-# and the Python 3.11 virtual environment in .venv with the project installed.
-#   scripts/setup.sh            operator machine: GUI OpenCV (console), web console, twin, SSH
-#   scripts/setup.sh --dev      the same plus the test tools (Xvfb, Chromium and its driver)
-#   scripts/setup.sh --host     a robot host: headless OpenCV and the YuMi client only
+# and a virtual environment with the project installed (README "Two installs").
+#   scripts/setup.sh              operator machine (.venv, Python 3.11): the extra `operator`
+#                                 (torch, the twin, SSH, plots), GUI OpenCV (console), web
+#                                 console, YuMi clients; editable
+#   scripts/setup.sh --dev        the same plus the test tools (sshd, Xvfb, Chromium, driver)
+#   scripts/setup.sh --host [DIR] a robot host (DIR, default .venv-host; Python 3.10-3.12):
+#                                 the agent's side only, headless OpenCV and the YuMi clients;
+#                                 no torch, pybullet, kornia or matplotlib. Installed (not
+#                                 editable) from this checkout's stamped wheel; `testbed
+#                                 deploy` on the operator's machine replaces it with its build
 set -euo pipefail
+mode="${1:-}"
+host_venv="${2:-.venv-host}"
+case "$mode" in
+  --host) [ $# -le 2 ] || { echo "usage: scripts/setup.sh --host [DIR]" >&2; exit 2; }
+          # DIR as the caller meant it (relative to where they stand), before the cd below
+          case "$host_venv" in /*) ;; *) host_venv="$PWD/$host_venv" ;; esac ;;
+  --dev|"") [ $# -le 1 ] || { echo "usage: scripts/setup.sh [--dev|--host [DIR]]" >&2; exit 2; } ;;
+  *) echo "usage: scripts/setup.sh [--dev|--host [DIR]]" >&2; exit 2 ;;
+esac
 cd "$(dirname "$0")/.."
-extras="console,web,yumi"
+extras="operator,console,web,yumi"
 apt_pkgs=(openssh-client)
-case "${1:-}" in
-  --dev) extras="console,web,yumi,ray,dev,export"
+case "$mode" in
+  --dev) extras="operator,console,web,yumi,ray,dev,export"
          apt_pkgs+=(openssh-server xvfb xauth xdotool chromium chromium-driver) ;;
-  --host) extras="headless,yumi" ;;
-  "") ;;
-  *) echo "usage: scripts/setup.sh [--dev|--host]" >&2; exit 2 ;;
+  --host) extras="headless,yumi"
+          apt_pkgs=(openssh-server git) ;;  # reached over SSH; git stamps the build
 esac
 
 missing=()
@@ -23,6 +37,30 @@ if [ ${#missing[@]} -gt 0 ]; then
   echo "installing system packages: ${missing[*]}" >&2
   $sudo env DEBIAN_FRONTEND=noninteractive apt-get update -qq
   $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+if [ "$mode" = --host ]; then
+  py=""
+  for c in python3.12 python3.11 python3.10 python3; do
+    if command -v "$c" >/dev/null && "$c" -c 'import sys; sys.exit(not (3, 10) <= sys.version_info[:2] <= (3, 12))'; then
+      py="$c"; break
+    fi
+  done
+  [ -n "$py" ] || { echo "a robot host needs Python 3.10, 3.11 or 3.12" >&2; exit 2; }
+  [ -x "$host_venv/bin/python" ] || "$py" -m venv "$host_venv"
+  hpy="$host_venv/bin/python"
+  # A host has no screen: the headless OpenCV, never the GUI build beside it (both own cv2/).
+  "$hpy" -m pip uninstall -q -y opencv-python >/dev/null 2>&1 || true
+  wheels="$(mktemp -d)"
+  trap 'rm -rf "$wheels"' EXIT
+  # This checkout's wheel, stamped with its build id (drivers/build_id.py: standard
+  # library only, so it runs before anything is installed), then its host extras.
+  wheel="$(PYTHONPATH="$PWD" "$hpy" -m drivers.build_id --wheel "$wheels")"
+  "$hpy" -m pip install -q --disable-pip-version-check "${wheel}[${extras}]"
+  built="$(cd / && "$hpy" -c 'from drivers.build_id import build_id; print(build_id())')"
+  echo "robot host ready: build $built in $host_venv" >&2
+  echo "in the fleet config, this host's python = \"$hpy\" (and no workdir)" >&2
+  exit 0
 fi
 
 py=""
@@ -38,7 +76,6 @@ done
 pip=(.venv/bin/python -m pip install -q --no-compile --disable-pip-version-check)
 # torch first and pinned: a bare "torch" would pull a CUDA build of several GB.
 "${pip[@]}" "torch==2.13.0"
-# The other OpenCV build must go before this one is installed: both own cv2/.
-other="opencv-python-headless"; [ "$extras" = "headless,yumi" ] && other="opencv-python"
-.venv/bin/python -m pip uninstall -q -y "$other" >/dev/null 2>&1 || true
+# The headless OpenCV must go before the GUI build is installed: both own cv2/.
+.venv/bin/python -m pip uninstall -q -y opencv-python-headless >/dev/null 2>&1 || true
 "${pip[@]}" -e ".[${extras}]"

@@ -9,17 +9,27 @@ imports nothing of the project.
 
 from __future__ import annotations
 
-from sim_twin.cell import TwinArmState, TwinCell, TwinOutcome
-from sim_twin.constants import (
-    FACE_DIRECTIONS,
-    IMAGE_SIZE,
-    MAX_PUSHES_PER_GOAL,
-    MIN_GOAL_DISTANCE,
-    NUM_ACTIONS,
-    SUCCESS_RADIUS,
-    WORKSPACE_POLYGON,
-)
-from sim_twin.supervisor import expert_face
+try:
+    from sim_twin.cell import TwinArmState, TwinCell, TwinOutcome
+    from sim_twin.constants import (
+        FACE_DIRECTIONS,
+        IMAGE_SIZE,
+        MAX_PUSHES_PER_GOAL,
+        MIN_GOAL_DISTANCE,
+        NUM_ACTIONS,
+        SUCCESS_RADIUS,
+        WORKSPACE_POLYGON,
+    )
+    from sim_twin.supervisor import expert_face
+except ModuleNotFoundError as exc:
+    if exc.name != "pybullet":
+        raise
+    # A robot host's install has no PyBullet (README "Two installs"): one line that names
+    # the extra (testbed.core.extras says the same for the controller's rooms; this
+    # package imports nothing of the project).
+    raise ImportError("sim_twin needs the operator install: pip install "
+                      "'fleet-testbed[operator]' (or the twin extra; this is a host "
+                      "install: pybullet is not installed)", name="pybullet") from None
 
 __all__ = [
     "FACE_DIRECTIONS",

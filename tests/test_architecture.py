@@ -5,7 +5,8 @@ contracts in pyproject.toml, and a planted violation below proves it would catch
 what a contract cannot say is checked here from the source itself: the arrows to
 ``drivers``, ``gui`` and ``sim_twin`` are lazy (inside functions), no import hides
 behind ``importlib``, the rooms have no circle, no two product modules share a name,
-no product function is over 80 lines, and ``testbed.core`` stays Python 3.10 code.
+no product function is over 80 lines, and what a robot host imports stays Python 3.10
+code that needs only the host install.
 """
 
 from __future__ import annotations
@@ -204,8 +205,76 @@ def test_product_code_cites_only_files_that_exist() -> None:
     assert cited == []
 
 
-def test_core_is_python_3_10_code() -> None:
+HOST_ENTRY_POINTS = ("drivers.agent", "drivers.build_id", "drivers.backends")
+"""What a robot host runs: ``python -m drivers.agent`` and its backends, and ``python -m
+drivers.build_id`` (``scripts/setup.sh --host``); with every module of ``drivers.yumi``,
+``testbed.core`` and ``testbed.perception`` (the host install's part of testbed)."""
+HOST_PACKAGES = ("numpy", "cv2", "pydantic", "typing_extensions", "tomli",
+                 "abb_robot_client", "abb_motion_program_exec")
+"""What the host install provides besides the standard library (pyproject's base and
+its extras headless and yumi)."""
+REMOVED_IN_3_12 = ("distutils", "imp", "asynchat", "asyncore", "smtpd")
+
+
+def _module_file(module: str) -> Path | None:
+    base = ROOT.joinpath(*module.split("."))
+    for candidate in (base / "__init__.py", base.with_suffix(".py")):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _all_imports(path: Path) -> list[str]:
+    """Every import of a file, lazy and TYPE_CHECKING ones included, with ``from X
+    import y`` also as ``X.y`` (y may be a module)."""
+    found: list[str] = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        for m in _imported(node, _module(path)):
+            found.append(m)
+            if isinstance(node, ast.ImportFrom):
+                found.extend(f"{m}.{a.name}" for a in node.names)
+    return found
+
+
+def _host_modules() -> dict[str, Path]:
+    """The modules a robot host imports: the entry points and every product module they
+    import (lazily too), each module's packages included; not ``sim_twin``, which a
+    twin backend imports only with the twin extra (an operator's Python 3.11)."""
+    todo = [*HOST_ENTRY_POINTS,
+            *(_module(p) for room in ("drivers/yumi", "testbed/core", "testbed/perception")
+              for p in sorted((ROOT / room).glob("*.py")))]
+    seen: dict[str, Path] = {}
+    while todo:
+        parts = todo.pop().split(".")
+        for i in range(1, len(parts) + 1):
+            name = ".".join(parts[:i])
+            path = _module_file(name)
+            if path is None or name in seen or parts[0] == "sim_twin":
+                continue
+            seen[name] = path
+            todo.extend(m for m in _all_imports(path) if m.split(".")[0] in PACKAGES)
+    return seen
+
+
+def test_a_hosts_code_is_python_3_10_code() -> None:
+    """A robot host runs Python 3.10-3.12 and only 3.11 exists here: every module it
+    imports is checked statically (vermin: nothing newer than 3.10; nothing 3.12 removed)."""
+    modules = _host_modules()
+    assert {"drivers.agent", "drivers.wire", "drivers.yumi.backend", "drivers.yumi.camera",
+            "testbed.core.config", "testbed.perception.cube"} <= set(modules)
+    assert not {m for m in modules if m.startswith(("testbed.learning", "testbed.lab"))}
     proc = subprocess.run([str(BIN / "vermin"), "-t=3.10-", "--violations", "--no-tips",
-                           "--eval-annotations", str(ROOT / "testbed" / "core")],
+                           "--eval-annotations", *sorted(map(str, set(modules.values())))],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-3000:]
+    removed = [f"{m}: {i}" for m, p in modules.items() for i in _all_imports(p)
+               if i.split(".")[0] in REMOVED_IN_3_12]
+    assert removed == []
+
+
+def test_a_hosts_code_needs_only_the_host_install() -> None:
+    """What a host's modules import beyond the product is the standard library or the
+    host install's packages: never torch, pybullet, kornia, matplotlib (the operator's)."""
+    outside = {i.split(".")[0] for p in _host_modules().values() for i in _all_imports(p)
+               if i and i.split(".")[0] not in PACKAGES}
+    assert outside - set(sys.stdlib_module_names) - {"__future__"} <= set(HOST_PACKAGES)

@@ -12,7 +12,9 @@ the folder ``/run/sshd``.
 The server can be killed (``stop``), frozen (``freeze``/``thaw``, SIGSTOP: a dead peer
 that never closes the TCP connection) and started again on the same port with the same
 keys (``start``). ``stop`` also ends every process the server started (the agents), by
-process id, so a test leaves nothing behind.
+process id, so a test leaves nothing behind. A bastion is just another server (its
+``log_level="DEBUG1"`` log shows each forwarded ``direct-tcpip`` connection);
+``SshAgent`` is a real ``ssh-agent`` for keys that never touch the controller's disk.
 """
 
 from __future__ import annotations
@@ -40,9 +42,15 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _keygen(path: Path, comment: str) -> None:
-    subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", comment,
-                    "-f", str(path)], check=True, stdin=subprocess.DEVNULL)
+def keygen(path: Path, comment: str, passphrase: str = "") -> Path:
+    """A new ed25519 key pair at ``path`` (and ``path.pub``) made by ``ssh-keygen``.
+
+    A passphrase-protected key gets 2 bcrypt rounds instead of 16: the tests want a
+    real encrypted OpenSSH key, not a slow one (16 rounds: ~0.3 s per decryption here)."""
+    rounds = ["-a", "2"] if passphrase else []
+    subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", passphrase, *rounds,
+                    "-C", comment, "-f", str(path)], check=True, stdin=subprocess.DEVNULL)
+    return path
 
 
 def _children(pid: int) -> list[int]:
@@ -73,6 +81,9 @@ class SshServer:
     root: Path
     port: int = field(default_factory=free_port)
     user: str = field(default_factory=lambda: os.environ.get("USER") or _whoami())
+    log_level: str = "ERROR"
+    """sshd's ``LogLevel`` (its ``-e`` output goes to ``log``): ``DEBUG1`` shows each
+    forwarded ``direct-tcpip`` connection, which a bastion test reads."""
     proc: subprocess.Popen[bytes] | None = None
     _known_pids: set[int] = field(default_factory=set)
 
@@ -85,8 +96,8 @@ class SshServer:
         self.config = self.root / "sshd_config"
         self.log = self.root / "sshd.log"
         if not self.host_key.exists():
-            _keygen(self.host_key, "fleet-test-host")
-            _keygen(self.client_key, "fleet-test-client")
+            keygen(self.host_key, "fleet-test-host")
+            keygen(self.client_key, "fleet-test-client")
         shutil.copyfile(self.client_key.with_suffix(".pub"), self.authorized_keys)
         host_pub = self.host_key.with_suffix(".pub").read_text().split()
         self.known_hosts.write_text(f"[127.0.0.1]:{self.port} {host_pub[0]} {host_pub[1]}\n")
@@ -96,8 +107,23 @@ class SshServer:
             "KbdInteractiveAuthentication no", "PubkeyAuthentication yes", "UsePAM no",
             "StrictModes no", "PermitRootLogin prohibit-password", f"PidFile {self.root}/pid",
             "MaxStartups 100", "MaxSessions 50", "UseDNS no", "PrintMotd no",
-            "LogLevel ERROR", "",
+            # SFTP as a Debian host's sshd has it (testbed deploy copies its wheel so)
+            "Subsystem sftp internal-sftp",
+            f"LogLevel {self.log_level}", "",
         ]))
+
+    def authorize(self, public_key: Path) -> None:
+        """Let the holder of ``public_key`` (a ``.pub`` file) log in too."""
+        with open(self.authorized_keys, "a") as f:
+            f.write(public_key.read_text().strip() + "\n")
+
+    def known_hosts_line(self, hostname: str = "127.0.0.1") -> str:
+        """This server's host key as a known_hosts line for ``hostname`` at its port."""
+        kind, blob = self.host_key.with_suffix(".pub").read_text().split()[:2]
+        return f"[{hostname}]:{self.port} {kind} {blob}\n"
+
+    def log_text(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
 
     def start(self, timeout_s: float = 10.0) -> None:
         """Start (or restart) the server and wait until it answers with its banner."""
@@ -159,6 +185,59 @@ class SshServer:
         self.proc = None
 
     def __enter__(self) -> SshServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+@dataclass
+class SshAgent:
+    """A real ``ssh-agent`` on a socket of its own, for the tests of agent-held keys.
+
+    Why a real one: paramiko's ``Agent`` speaks the agent protocol over the socket
+    named by ``SSH_AUTH_SOCK``, and the point is that a key the controller never reads
+    from disk still logs in. ``ssh-agent -D -a SOCK`` stays in the foreground (its pid
+    is ours to stop); ``add`` runs ``ssh-add`` against that socket only.
+    """
+
+    sock: Path
+    proc: subprocess.Popen[bytes] | None = None
+
+    def start(self, timeout_s: float = 5.0) -> None:
+        if len(str(self.sock)) > 100:  # sun_path holds 108 bytes
+            raise ValueError(f"agent socket path too long for AF_UNIX: {self.sock}")
+        self.sock.unlink(missing_ok=True)
+        self.proc = subprocess.Popen(["ssh-agent", "-D", "-a", str(self.sock)],
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL, start_new_session=True)
+        deadline = time.monotonic() + timeout_s
+        while not self.sock.exists():
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"ssh-agent did not make its socket {self.sock}")
+            time.sleep(0.01)
+
+    def env(self) -> dict[str, str]:
+        return {**os.environ, "SSH_AUTH_SOCK": str(self.sock)}
+
+    def add(self, key: Path) -> None:
+        """``ssh-add KEY`` (an unencrypted key: nothing to ask)."""
+        subprocess.run(["ssh-add", "-q", str(key)], check=True, env=self.env(),
+                       stdin=subprocess.DEVNULL, capture_output=True)
+
+    def stop(self) -> None:
+        if self.proc is None:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            self.proc.kill()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(5.0)
+        self.proc = None
+        self.sock.unlink(missing_ok=True)
+
+    def __enter__(self) -> SshAgent:
         self.start()
         return self
 

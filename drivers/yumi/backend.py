@@ -425,13 +425,19 @@ class YumiBackend(HostBackend):
 
     def describe(self) -> dict[str, Any]:
         """The controller as ``testbed check`` shows it, with each arm's task and table
-        box (which must lie inside the task's world zone box)."""
+        box (which must lie inside the task's world zone box), and the camera: its
+        settings as read back and each arm's crop's sharpness and exposure."""
         task = {name: a.calibration.pose.task if a.calibration.pose else name
                 for name, a in self._arms.items()}
+        from drivers.yumi.picture_quality import camera_report
+
+        frame = None if self._calibrating else self._picture()  # every arm out of view
         return {"controller": self._controller.describe(),
                 "table_boxes": {task[n]: list(a.calibration.table_box_mm)
                                 for n, a in self._arms.items()},
-                "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()}}
+                "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()},
+                "camera": camera_report(self._camera, {n: a.crop for n, a in self._arms.items()},
+                                        frame=frame)}
 
     def reseed(self, seed: int) -> None:
         """A fresh goal stream from ``seed``, as a newly started agent would have: goals,
@@ -571,19 +577,22 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
                        controller_url: str | None, seed: int = 0,
                        calibrating: Collection[str] = (), *,
                        credentials_file: str | None = None,
-                       motion_timeout_s: float | None = None) -> YumiBackend:
+                       motion_timeout_s: float | None = None,
+                       camera_settings: Mapping[str, Any] | str | None = None) -> YumiBackend:
     """The agent's ``--backend yumi``: its camera, its controller (real or twin).
 
     Paths (calibration files, a video-file camera) are host paths: ``~`` and ``$VARS``
     are expanded here, on the host. ``calibrating``: arms in calibration mode (see the
-    module docstring).
+    module docstring). ``camera_settings``: the host's ``camera_settings`` (a mapping, or
+    the agent's ``--camera-settings`` JSON), set on a V4L2 camera and read back
+    (``drivers/yumi/capture_settings.py``).
     """
     from drivers.yumi.camera import VideoCaptureCamera
     from drivers.yumi.controllers import make_controller
 
     if camera is None:
-        raise BackendError("--backend yumi needs --camera (device index, video file or "
-                           "http(s)/rtsp URL)")
+        raise BackendError("--backend yumi needs --camera (a device index, /dev path or "
+                           "card name, a video file, or an http(s)/rtsp URL)")
     if controller_url is None:
         raise BackendError("--backend yumi needs --controller-url (the controller's Robot "
                            "Web Services, http(s)://HOST[:PORT])")
@@ -609,7 +618,7 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
     try:
         if not camera.isdigit() and not is_url(camera):
             camera = expand_path(camera, "camera")
-        cam = VideoCaptureCamera(camera)
+        cam = VideoCaptureCamera(camera, settings=camera_settings)
     except Exception:
         ctrl.close()
         raise

@@ -20,6 +20,7 @@ from typing import NoReturn
 
 from testbed.cli.verbs import VERBS
 from testbed.core.config import ConfigError
+from testbed.core.extras import missing_operator_module, needs_operator
 from testbed.core.interrupts import EXIT_INTERRUPTED, INTERRUPTS
 
 
@@ -54,6 +55,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # ConsoleUnavailable: a DISPLAY that is set but that no X server answers, found
         # only when the console opens its windows (its message is one line with the fix).
         sys.stderr.write(f"testbed {args.verb}: {exc}\n")
+        return 2
+    except ImportError as exc:
+        if missing_operator_module(exc) is None:  # a bug, or another extra's own line
+            raise
+        # A robot host's install (no torch, pybullet, ...): what it lacks, in one line.
+        sys.stderr.write(f"testbed {args.verb}: {needs_operator('this verb', exc)}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write("testbed: interrupted; arms at rest, records closed\n")

@@ -1,4 +1,4 @@
-"""The verbs of the lab's hardware: ``check``, ``calibrate`` and ``rehearse``.
+"""The verbs of the lab's hardware: ``deploy``, ``check``, ``calibrate`` and ``rehearse``.
 
 Each is one ``Verb`` (its arguments and its handler together); the work is
 ``testbed.lab``'s. Imported for ``testbed --help``, so ``testbed.lab`` (cv2, the
@@ -13,6 +13,30 @@ from pathlib import Path
 from testbed.cli.arguments import HUMANS, Verb, add_config, positive
 from testbed.cli.checks import check_device, check_humans, check_out_file, load_config
 from testbed.core.config import ConfigError
+
+
+# ---- deploy -----------------------------------------------------------------------------
+def _deploy_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", required=True,
+                   help="fleet config or protocol file whose ssh hosts get this build")
+    p.add_argument("--host", metavar="NAME", help="only this host (default: every ssh host)")
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    from testbed.lab.deploy import deploy  # paramiko, only when asked
+
+    cfg = load_config(args)
+    return 0 if deploy(cfg, args.host, print_line=print) else 1
+
+
+DEPLOY = Verb(
+    "deploy", help="install this checkout's build on the robot hosts",
+    description="Build a wheel of this checkout stamped with its build id (the commit, "
+    "and a hash of uncommitted changes), copy it to each ssh host (or --host NAME) by "
+    "SFTP, install it into the environment the host's python names, install the host "
+    "extras' dependencies it lacks, and verify the host's python imports the agent and "
+    "reports this build. A host that runs another build is refused at hello.",
+    add_arguments=_deploy_arguments, run=cmd_deploy)
 
 
 # ---- check ------------------------------------------------------------------------------

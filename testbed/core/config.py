@@ -38,6 +38,10 @@ from pydantic import (
 )
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+SSH_ALIAS_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$"
+"""A word as ``ssh ALIAS`` takes it: never an option (no leading ``-``), no spaces."""
+DEFAULT_ADDRESS = "127.0.0.1"
+DEFAULT_SSH_CONFIG = "~/.ssh/config"
 Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
 
 
@@ -157,21 +161,43 @@ def expand_path(text: str, field: str) -> str:
 class _HostBase(_Strict):
     """What every host has, whatever its backend: where it is and how to reach it.
 
-    Paths are expanded (``~``, ``$VARS``) when the config is loaded: ``key_file`` and
-    ``known_hosts`` always (they are read on this machine, and a missing one is an
-    error here, before anything starts), ``python``, ``workdir``, a YuMi ``camera``
-    path and the arms' ``calibration`` only for ``transport = "local"``. Over ssh those
-    are paths on the robot host: they are passed as written and the agent expands them
-    there.
+    Paths are expanded (``~``, ``$VARS``) when the config is loaded: ``key_file``,
+    ``known_hosts`` and ``ssh_config`` always (they are read on this machine, and a
+    missing one is an error here, before anything starts), ``python``, ``workdir``, a
+    YuMi ``camera`` path and the arms' ``calibration`` only for ``transport = "local"``.
+    Over ssh those are paths on the robot host: they are passed as written and the agent
+    expands them there.
+
+    Two ways to say where an ssh host is. Explicit: ``address``, ``port``, ``user``,
+    ``known_hosts`` and (optionally) ``key_file``, read from this file alone. By alias:
+    ``ssh_alias`` names a ``Host`` of an OpenSSH client config (``ssh_config``, default
+    ``~/.ssh/config``) and the host is reached as ``ssh ALIAS`` reaches it. With an
+    alias, what the ssh config sets for it WINS (``HostName``, ``Port``, ``User``,
+    ``IdentityFile``, ``ProxyJump``, ``UserKnownHostsFile``): it is the lab's one
+    description of its hosts, which its people's ``ssh`` uses too, and a resolved config
+    written back (a run's config.toml lists every default) must not start overriding
+    it. ``port``, ``user``, ``key_file`` and ``known_hosts`` here fill in what the ssh
+    config leaves unsaid (then OpenSSH's defaults: port 22, the local user,
+    ``~/.ssh/known_hosts``); ``address`` is not used, so it may not be given. No key
+    named anywhere: the running ssh-agent's keys (``SSH_AUTH_SOCK``).
     """
 
     name: Name
     transport: Literal["local", "ssh"] = "local"
-    address: str = "127.0.0.1"
+    address: str = DEFAULT_ADDRESS
     port: int = Field(22, ge=1, le=65535)
     user: str | None = None
     key_file: str | None = None
+    """The private key to log in with; None: the ssh-agent's keys (or, with
+    ``ssh_alias``, the ssh config's ``IdentityFile``)."""
     known_hosts: str | None = None
+    ssh_alias: str | None = Field(None, pattern=SSH_ALIAS_PATTERN, max_length=253)
+    """A ``Host`` alias of ``ssh_config``: reach the host as ``ssh ALIAS`` does, its
+    bastions (``ProxyJump``) included (precedence: the class docstring)."""
+    ssh_config: str | None = None
+    """The OpenSSH client config that ``ssh_alias`` is looked up in; default (when
+    ``ssh_alias`` is set) ``~/.ssh/config``. ``ProxyCommand``, ``Match exec`` and
+    ``Include`` are refused when the host is reached: nothing local is ever run."""
     python: str = "python3"
     """Interpreter that runs the agent; over SSH it must be an absolute path."""
     workdir: str | None = None
@@ -188,10 +214,12 @@ class _HostBase(_Strict):
 
     @model_validator(mode="after")
     def _transport_fields(self, info: ValidationInfo) -> Self:
+        self._ssh_alias_fields()
         if self.transport == "ssh":
-            missing = [f for f in ("user", "key_file", "known_hosts") if getattr(self, f) is None]
-            if missing:
-                raise ValueError(f"ssh transport needs {', '.join(missing)}")
+            missing = [f for f in ("user", "known_hosts") if getattr(self, f) is None]
+            if missing and self.ssh_alias is None:
+                raise ValueError(f"ssh transport needs {', '.join(missing)} (or ssh_alias: "
+                                 "a Host of your ssh config)")
             if not self.python.startswith("/"):
                 raise ValueError("python must be an absolute interpreter path over ssh")
         names = [a.name for a in self.arms]
@@ -202,11 +230,29 @@ class _HostBase(_Strict):
         self._expand_paths(_checking_files(info))
         return self
 
+    def _ssh_alias_fields(self) -> None:
+        """An alias or a config file only make sense together and over ssh, and with an
+        alias the ssh config says where the host is: an ``address`` as well would be
+        silently ignored, so it is refused (the default, 127.0.0.1, is "not given")."""
+        if self.ssh_alias is None:
+            if self.ssh_config is not None:
+                raise FieldProblem("ssh_alias", "ssh_config is set but ssh_alias is not; "
+                                   "name the Host of that file to reach this host by")
+            return
+        if self.transport != "ssh":
+            raise FieldProblem("ssh_alias", 'an ssh alias needs transport = "ssh"')
+        if self.address != DEFAULT_ADDRESS:
+            raise FieldProblem("address", f"address and ssh_alias both say where the host "
+                               f"is; the HostName of {self.ssh_alias!r} in the ssh config "
+                               "wins: leave address out (or drop ssh_alias)")
+        if self.ssh_config is None:
+            self._set("ssh_config", DEFAULT_SSH_CONFIG)
+
     def _set(self, field: str, value: Any) -> None:
         object.__setattr__(self, field, value)  # frozen: only while validating
 
     def _expand_paths(self, check_files: bool) -> None:
-        for field in ("key_file", "known_hosts"):
+        for field in ("key_file", "known_hosts", "ssh_config"):
             raw = getattr(self, field)
             if raw is None:
                 continue
@@ -246,6 +292,69 @@ def _camera_text(value: Any) -> Any:
     return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
 
+CAMERA_AUTO = "auto"
+_CAMERA_CONTROLS: dict[str, tuple[int, int, str]] = {
+    "exposure": (1, 1_000_000, "manual exposure in the device's units, 100 us on UVC"),
+    "white_balance": (1000, 15000, "manual white balance in kelvin"),
+    "focus": (0, 100_000, "manual focus position, autofocus off"),
+}
+
+
+class CameraSettings(_Strict):
+    """A V4L2 camera's picture (a YuMi host's ``camera_settings`` table).
+
+    Why: perception thresholds colours, so exposure, white balance and focus must not
+    drift with the daylight or with what is in view, and the crops and calibration are
+    pixels of one resolution. A field left out is left as the device has it (V4L2 keeps
+    a control between programs: ``"auto"`` turns the automatic mode back on). The agent
+    sets them when it opens the camera, reads each back and warns once per setting the
+    device did not take, asked vs got (``drivers/yumi/capture_settings.py``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+    width: int | None = Field(None, ge=16, le=16384)
+    height: int | None = Field(None, ge=16, le=16384)
+    fourcc: str | None = None
+    """Pixel format, 1 to 4 letters or digits (``"MJPG"``, ``"YUYV"``; padded with spaces)."""
+    fps: int | None = Field(None, ge=1, le=1000)
+    exposure: int | Literal["auto"] | None = None
+    """Manual exposure (auto exposure off) in the device's units, or ``"auto"``."""
+    white_balance: int | Literal["auto"] | None = None
+    """Manual white balance in kelvin (auto white balance off), or ``"auto"``."""
+    focus: int | Literal["auto"] | None = None
+    """Manual focus position (autofocus off), or ``"auto"``."""
+
+    @field_validator("fourcc", mode="before")
+    @classmethod
+    def _fourcc(cls, v: Any) -> Any:
+        if v is None:
+            return v
+        if not isinstance(v, str) or not 1 <= len(v) <= 4 or not v.isascii() \
+                or not v.strip().isalnum():
+            raise ValueError('a pixel format of 1 to 4 letters or digits, e.g. "MJPG" or '
+                             '"YUYV"')
+        return v.ljust(4)
+
+    @field_validator("exposure", "white_balance", "focus", mode="before")
+    @classmethod
+    def _manual_or_auto(cls, v: Any, info: ValidationInfo) -> Any:
+        lo, hi, what = _CAMERA_CONTROLS[str(info.field_name)]
+        if v is None or v == CAMERA_AUTO:
+            return v
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise ValueError(f'a whole number in [{lo}, {hi}] ({what}) or "auto"')
+        return v
+
+    @model_validator(mode="after")
+    def _size_is_a_pair(self) -> Self:
+        if (self.width is None) != (self.height is None):
+            missing = "height" if self.height is None else "width"
+            raise FieldProblem(missing, "give width and height together (the device is "
+                               "asked for one size), or neither")
+        return self
+
+
 class YumiHost(_HostBase):
     """An ABB YuMi (IRB 14000) with an overhead camera (``drivers/yumi/backend.py``).
 
@@ -256,6 +365,10 @@ class YumiHost(_HostBase):
     backend: Literal["yumi"] = "yumi"
     camera: Annotated[str, BeforeValidator(_camera_text)]
     """A device index ("0"), a video file path, or a lab IP camera URL (http(s), rtsp)."""
+    camera_settings: CameraSettings | None = None
+    """The V4L2 camera's resolution, pixel format, rate, exposure, white balance and
+    focus (TOML ``[hosts.camera_settings]``); None: left as the device has them. Not for
+    a URL camera (set a network camera's picture on the camera)."""
     controller_url: str
     """The controller's Robot Web Services: http(s)://HOST[:PORT] (a lab's IRC5, or the
     hardware twin's RWS in a rehearsal)."""
@@ -318,6 +431,16 @@ class YumiHost(_HostBase):
         if self.transport == "local" and self.credentials_file is not None:
             self._set("credentials_file", expand_path(self.credentials_file,
                                                       "credentials_file"))
+        return self
+
+    @model_validator(mode="after")
+    def _camera_settings_need_a_device(self) -> Self:
+        """A URL camera is read through FFmpeg, which sets nothing on the camera: settings
+        there would be silently ignored, so they are an error naming the field."""
+        if self.camera_settings is not None and "://" in self.camera:
+            raise FieldProblem("camera_settings", "a network camera takes no settings from "
+                               "here; set its picture on the camera itself, or remove "
+                               "camera_settings")
         return self
 
 

@@ -2,7 +2,8 @@
 
 Why a room of its own: a lab's day is calibrate every arm (``calibrate``: ``testbed
 calibrate``), check every host, camera and arm before a trial (``preflight``: ``testbed
-check``), and, before touching a robot at all, rehearse the whole physical protocol on
+check``), put this checkout's build on the hosts (``deploy``: ``testbed deploy``), and,
+before touching a robot at all, rehearse the whole physical protocol on
 hardware twins behind real sshds (``rehearsal``: ``testbed rehearse``, with the twins
 and their sshds in ``hardware_twin``, the lab's humans in ``lab_humans``, the truth and
 its scoring in ``twin_truth`` and the true camera's figures in ``camera_model``). These

@@ -123,6 +123,8 @@ def controller_report(hosts: Any, host: HostConfig, print_line: Callable[[str], 
     rep, boxes = info["controller"], info.get("table_boxes", {})
     for line in report_lines(host.name, rep, RAPID_VERSION):
         print_line(line)
+    for line in camera_lines(host.name, info.get("camera") or {}):
+        print_line(line)
     found = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
     for why in found:
         print_line(f"FAULT {host.name}: {why}")
@@ -149,6 +151,31 @@ def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:
                      f"{'not loaded' if v is None else f'version {v}'} (this checkout: "
                      f"{version}); world zone box x {lo[0]}..{hi[0]}, y {lo[1]}..{hi[1]} mm "
                      f"below z {z.get('tb_zone_z')}, floor z {z.get('tb_floor_z')}")
+    return lines
+
+
+def camera_lines(name: str, cam: dict[str, Any]) -> list[str]:
+    """The camera as read back (``drivers/yumi/picture_quality.camera_report``): its node
+    and settings, a WARN line per setting the device did not take, and each arm's crop's
+    sharpness (variance of the Laplacian) and exposure (mean luma, clipped share)."""
+    if not cam:
+        return []
+    d = cam.get("camera", {})
+    got = d.get("settings") or {}
+    settings = ", ".join(f"{k} {v}" for k, v in got.items() if v is not None) or "as opened"
+    where = d.get("node") or d.get("source", "?")
+    lines = [f"      {name}: camera {where} ({d.get('card') or d.get('kind', '?')}), "
+             f"{cam.get('size', ['?', '?'])[0]}x{cam.get('size', ['?', '?'])[1]}: "
+             f"{settings}"]
+    lines += [f"WARN  {name}: camera setting {k} not taken: {why}"
+              for k, why in (d.get("refused") or {}).items()]
+    for arm, q in (cam.get("crops") or {}).items():
+        if "error" in q:
+            lines.append(f"WARN  {name}/{arm}: {q['error']}")
+            continue
+        lines.append(f"      {name}/{arm}: sharpness {q['sharpness']:.0f}, luma mean "
+                     f"{q['luma_mean']:.0f} (p5 {q['luma_p5']:.0f}, p95 {q['luma_p95']:.0f}), "
+                     f"clipped {100 * q['clipped']:.1f} %")
     return lines
 
 

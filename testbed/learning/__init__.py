@@ -18,8 +18,13 @@ import os
 # setdefault: a lab that tunes OpenMP itself keeps its setting.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from testbed.learning.api import EnsembleImpl, PolicyOutput, ProgressFn, Transitions
-from testbed.learning.learner import Learner
-from testbed.learning.runtime import LearningError
+from testbed.core.extras import needs_operator
+
+try:  # torch and kornia: the operator install's (a host install says so in one line)
+    from testbed.learning.api import EnsembleImpl, PolicyOutput, ProgressFn, Transitions
+    from testbed.learning.learner import Learner
+    from testbed.learning.runtime import LearningError
+except ImportError as exc:
+    raise needs_operator("testbed.learning", exc) from None
 
 __all__ = ["EnsembleImpl", "Learner", "LearningError", "PolicyOutput", "ProgressFn", "Transitions"]

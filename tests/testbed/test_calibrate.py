@@ -198,6 +198,15 @@ def test_check_draws_the_full_frame_with_crops_and_calibration(
     img = cv2.imread(str(tmp_path / "check-yumi.png"))
     assert img is not None and img.shape == (480, 640, 3)
     assert "calibrated table box drawn" in out
+    # the controller's report and the camera's, as read back, with each crop's figures
+    assert re.search(r"yumi: controller YUMI_TWIN serial \S+, RobotWare 6\.", out)
+    assert "yumi: T_ROB_L: testbed RAPID version 2 (this checkout: 2); world zone box" in out
+    assert re.search(r"yumi: camera http://127\.0\.0\.1:\d+/camera\.mjpg \(stream\), "
+                     r"640x480: width 640, height 480", out)
+    for arm in ("left", "right"):
+        m = re.search(rf"yumi/{arm}: sharpness (\d+), luma mean (\d+)", out)
+        assert m and float(m.group(1)) > 10 and 40 < float(m.group(2)) < 220, out
+    assert "FAULT" not in out
     # The crop boxes are drawn in their colours on the frame's rectangle edges.
     _, y0, x1, y1 = twin.model["crops"]["right"]
     edge = img[y0 + 20 : y1 - 20, x1 - 2]
