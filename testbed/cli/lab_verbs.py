@@ -114,6 +114,9 @@ def _rehearse_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--realtime", type=float, default=0.0, metavar="X",
                    help="pace the twins' motion at X times real time (default 0: as fast "
                    "as they compute)")
+    p.add_argument("--host-python", metavar="PYTHON",
+                   help="run the agents with this robot host install's interpreter "
+                        "(scripts/setup.sh --host), not this checkout")
 
 
 def cmd_rehearse(args: argparse.Namespace) -> int:
@@ -134,10 +137,15 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     check_device(proto.fleet)
     if args.realtime < 0:
         raise ConfigError("--realtime: must be >= 0")
+    if args.host_python is not None and not (Path(args.host_python).is_absolute()
+                                             and Path(args.host_python).is_file()):
+        raise ConfigError(f"--host-python: {args.host_python!r} is not an interpreter's "
+                          "absolute path; give the host install's (scripts/setup.sh --host "
+                          "prints it)")
     try:
         result = rehearse(RehearsalOptions(path, args.trials, args.steps, args.humans,
                                            args.quick, Path(args.out) if args.out else None,
-                                           algorithms, args.realtime))
+                                           algorithms, args.realtime, args.host_python))
     except RehearsalError as exc:
         Console(stderr=True).print(f"testbed rehearse: {exc}", markup=False, highlight=False)
         return 1

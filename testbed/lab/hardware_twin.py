@@ -151,12 +151,15 @@ class HardwareTwinLab:
     """Starts, rewrites for, and stops the hardware twin hosts of one rehearsal."""
 
     def __init__(self, fleet: FleetConfig, root: Path, *, seed: int = 0,
-                 realtime: float = 0.0) -> None:
+                 realtime: float = 0.0, host_python: str | None = None) -> None:
         require_yumi(fleet)
         self.fleet = fleet
         self.root = root.resolve()  # sshd's config needs absolute paths
         self.seed = seed
         self.realtime = realtime
+        self.host_python = host_python
+        """A robot host install's interpreter (``scripts/setup.sh --host``) the agents run
+        from, as on a lab's host: no checkout on their path. None: this checkout's."""
         self.hosts: dict[str, TwinHost] = {}
 
     def start(self) -> None:
@@ -255,8 +258,9 @@ class HardwareTwinLab:
 
     def rewrite(self, fleet: FleetConfig | None = None) -> FleetConfig:
         """The fleet with each host pointed at its twin: address, port, user and keys of
-        its sshd; this checkout's interpreter and folder; the twin's camera and
-        controller; the rehearsal's calibration files. Nothing else changes."""
+        its sshd; this checkout's interpreter and folder (or, with ``host_python``, a host
+        install's interpreter and no folder); the twin's camera and controller and its
+        login file; the rehearsal's calibration files. Nothing else changes."""
         fleet = fleet or self.fleet
         hosts = []
         for h in fleet.hosts:
@@ -268,8 +272,10 @@ class HardwareTwinLab:
                 "transport": "ssh", "address": "127.0.0.1", "port": t.sshd.port,
                 "ssh_alias": None, "ssh_config": None,
                 "user": t.sshd.user, "key_file": str(t.sshd.client_key),
-                "known_hosts": str(t.sshd.known_hosts), "python": sys.executable,
-                "workdir": str(PROJECT_ROOT), "camera": t.camera_url,
+                "known_hosts": str(t.sshd.known_hosts),
+                "python": self.host_python or sys.executable,
+                "workdir": None if self.host_python else str(PROJECT_ROOT),
+                "camera": t.camera_url,
                 "controller_url": t.controller_url, "credentials_file": str(t.login_file),
                 "arms": arms}))
         return fleet.model_copy(update={"hosts": hosts})

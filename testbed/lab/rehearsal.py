@@ -72,6 +72,8 @@ class RehearsalOptions:
     out: Path | None = None
     algorithms: list[str] | None = None
     realtime: float = 0.0
+    host_python: str | None = None
+    """The agents' interpreter: a robot host install's (``scripts/setup.sh --host``)."""
 
 
 @dataclass
@@ -100,7 +102,8 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
     update = _protocol_update(proto, opts, folder)
     fleet = _rehearsal_fleet(proto.fleet, opts)
     folder.mkdir(parents=True, exist_ok=True)
-    lab = HardwareTwinLab(fleet, folder / "lab", seed=proto.seed(0), realtime=opts.realtime)
+    lab = HardwareTwinLab(fleet, folder / "lab", seed=proto.seed(0), realtime=opts.realtime,
+                          host_python=opts.host_python)
     with lab:
         fleet = lab.rewrite(fleet)
         fleet_dir = RunDir(folder / "lab" / "fleet")

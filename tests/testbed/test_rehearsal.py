@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from host_install import HostVenv, install_build
 from lab_fixtures import PHYSICAL, calibrate_exactly, tiny_policy, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
@@ -46,11 +47,17 @@ def robot_modes(run: Path) -> dict[str, list[str]]:
 
 
 def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with_truth(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], host_venv: HostVenv) -> None:
+    # The agents run from a robot host's install (scripts/setup.sh --host, this build):
+    # no checkout on their path, no torch, no pybullet, as on a lab's host.
+    from drivers.build_id import build_id
+
+    install_build(host_venv, build_id(), tmp_path)
     out = tmp_path / "rehearsal"
     steps = 15
     status = main(["rehearse", str(tiny_protocol(tmp_path)), "--steps", str(steps),
-                   "--algorithms", "bc,fleet-ed", "--out", str(out)])
+                   "--algorithms", "bc,fleet-ed", "--out", str(out),
+                   "--host-python", str(host_venv.python)])
     printed = capsys.readouterr().out
     assert status == 0, printed[-3000:]
     assert f"rehearsal: {out}" in printed
@@ -69,6 +76,7 @@ def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with
         assert meta["status"] == "complete"
         cfg = (run / "config.toml").read_text()
         assert 'backend = "yumi"' in cfg and 'transport = "ssh"' in cfg
+        assert f'python = "{host_venv.python}"' in cfg and "workdir" not in cfg
         assert re.search(r'controller_url = "http://127\.0\.0\.1:\d+"', cfg)
         assert "/camera.mjpg" in cfg and "-rws.login" in cfg  # the login file, not its text
         password = (out / "lab" / "yumi-a-rws.login").read_text().split(":", 1)[1].strip()
