@@ -115,15 +115,29 @@ def test_ctrl_c_on_the_operators_machine_stops_the_motion(lab: HardwareTwinLab) 
     from drivers.host_fleet import HostFleet
 
     out: dict[str, Any] = {}
+    in_call = threading.Event()
+
+    def on_sigint(signum: int, frame: object) -> None:
+        # Python's own behaviour (KeyboardInterrupt in the main thread), but only while the
+        # call runs: a SIGINT that came late must not interrupt pytest itself
+        if in_call.is_set():
+            raise KeyboardInterrupt
+
     fleet = HostFleet(fleet_of(lab).hosts)
     fleet.start()
+    before = signal.signal(signal.SIGINT, on_sigint)
     try:
+        assert fleet.host_status()["yumi-a"].connected, fleet.host_status()
         fleet.observe()
         t = watch(lab, lambda: os.kill(os.getpid(), signal.SIGINT), out)
+        in_call.set()
         with pytest.raises(KeyboardInterrupt):
             fleet.execute(PUSH, [])
+        in_call.clear()
         t.join(10)
     finally:
+        in_call.clear()
+        signal.signal(signal.SIGINT, before)
         fleet.close()
     assert_stopped(lab, out)
     back_to_rest(lab)
@@ -136,12 +150,13 @@ def test_the_agents_stdin_closing_stops_the_motion(lab: HardwareTwinLab) -> None
     fleet = HostFleet(fleet_of(lab).hosts)
     fleet.start()
     try:
+        assert fleet.host_status()["yumi-a"].connected, fleet.host_status()
         fleet.observe()
         link = fleet._sessions[0].link
         assert link is not None
 
         def hang_up() -> None:  # the operator's process is gone: its connection closes
-            link.transport._client.close()
+            link.transport._conn.client.close()
 
         t = watch(lab, hang_up, out)
         res = fleet.execute(PUSH, [])
@@ -163,6 +178,7 @@ def test_a_link_that_stops_answering_stops_the_motion(lab: HardwareTwinLab,
     fleet.start()
     frozen: list[int] = []
     try:
+        assert fleet.host_status()["yumi-a"].connected, fleet.host_status()
         fleet.observe()
         sshd = lab.hosts["yumi-a"].sshd
         agent = fleet.host_status()["yumi-a"].agent_pid
