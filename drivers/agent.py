@@ -616,7 +616,7 @@ def _robot_identity(args: argparse.Namespace) -> str | None:
     a twin (it owns its own cell)."""
     if args.lock_id or args.backend != "yumi" or not args.controller_url:
         return lock_identity(args.backend, args.controller_url, args.lock_id)
-    from drivers.yumi.controller_state import controller_identity
+    from drivers.yumi.rws_controller import controller_identity
 
     return (controller_identity(args.controller_url, args.credentials_file)
             or lock_identity(args.backend, args.controller_url, None))

@@ -11,7 +11,7 @@ never a stale lock.
 
 Identity: for a YuMi the robot as its controller reports itself (its serial, from a
 read-only ``ctrl/identity`` query the agent makes before the lock:
-``drivers.yumi.controller_state.controller_identity``), so two spellings of one
+``drivers.yumi.rws_controller.controller_identity``), so two spellings of one
 controller's address are one robot; when the controller cannot be asked, the controller
 URL (normalised: scheme and host lower-case, default port explicit, trailing slash
 dropped). A twin agent owns its own simulated cell, so it is locked only when given an

@@ -14,7 +14,6 @@ it returned; nothing here imports it, so the module loads without the YuMi extra
 
 from __future__ import annotations
 
-import contextlib
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -253,29 +252,3 @@ def _zone_problems(task: str, zones: Mapping[str, Any], box: Sequence[float]) ->
                 f"widen the zone (robot/README.md)"]
     return []
 
-
-def controller_identity(url: str, credentials_file: str | None = None,
-                        timeout_s: float = 3.0) -> str | None:
-    """The robot as its controller names itself, ``"IRC5 <serial>"`` (``ctrl/identity``'s
-    ``ctrl-id``), from one read-only RWS request and a logout; None when the controller
-    cannot be asked (the caller then locks on the URL). The agent keys its robot lock on
-    it, before it takes the lock: two spellings of one address are one robot."""
-    from abb_robot_client.rws import RWS
-
-    from drivers.yumi.credentials import FACTORY_PASSWORD, FACTORY_USER, read_login
-
-    try:
-        login = read_login(credentials_file) if credentials_file else None
-        rws = RWS(url.rstrip("/"), login.user if login else FACTORY_USER,
-                  login.password if login else FACTORY_PASSWORD)
-        plain = rws._session.request
-        rws._session.request = lambda m, u, **kw: plain(m, u, **{"timeout": timeout_s, **kw})
-        try:
-            items = _state_items(rws._do_get("ctrl/identity"))
-        finally:
-            with contextlib.suppress(Exception):
-                rws.logout()
-    except Exception:  # unreachable, refused, an old RobotWare: the URL will do
-        return None
-    serial = next((str(i.get("ctrl-id", "")) for i in items if i.get("ctrl-id")), "")
-    return f"IRC5 {serial}" if serial else None

@@ -62,6 +62,41 @@ def _patch_timeout(rws: Any, timeout_s: float, counter: list[int] | None = None)
     session.request = request
 
 
+def _login_or_factory(login: RwsLogin | None, url: str) -> RwsLogin:
+    if login is None:
+        log.warning("no credentials_file for %s: logging in as the factory user %r", url,
+                    FACTORY_USER)
+        login = RwsLogin(FACTORY_USER, FACTORY_PASSWORD)
+    return login
+
+
+def controller_identity(url: str, credentials_file: str | None = None,
+                        timeout_s: float = 3.0) -> str | None:
+    """The robot as its controller names itself, ``"IRC5 <serial>"`` (``ctrl/identity``'s
+    ``ctrl-id``), from one read-only RWS request and a logout; None when the controller
+    cannot be asked (the caller then locks on the URL). The agent keys its robot lock on
+    it, before it takes the lock: two spellings of one address are one robot."""
+    from abb_robot_client.rws import RWS
+
+    from drivers.yumi.credentials import read_login
+
+    try:
+        login = (read_login(credentials_file) if credentials_file
+                 else RwsLogin(FACTORY_USER, FACTORY_PASSWORD))  # the client warns once
+        rws = RWS(url.rstrip("/"), login.user, login.password)
+        _patch_timeout(rws, timeout_s)
+        try:
+            items = rws._do_get("ctrl/identity").get("_embedded", {}).get("_state", [])
+        finally:
+            with contextlib.suppress(Exception):
+                rws.logout()
+    except Exception:  # unreachable, refused, an old RobotWare: the URL will do
+        return None
+    serial = next((str(i.get("ctrl-id", "")) for i in items
+                   if isinstance(i, Mapping) and i.get("ctrl-id")), "")
+    return f"IRC5 {serial}" if serial else None
+
+
 class RwsYumiController:
     """Both arms of an IRB 14000 through RWS; programs of both arms start together."""
 
@@ -72,10 +107,7 @@ class RwsYumiController:
         from abb_motion_program_exec import abb_motion_program_exec_client as mpe
         from abb_robot_client.rws import RWS
 
-        if login is None:
-            log.warning("no credentials_file for %s: logging in as the factory user %r",
-                        base_url, FACTORY_USER)
-            login = RwsLogin(FACTORY_USER, FACTORY_PASSWORD)
+        login = _login_or_factory(login, base_url)
         self._mpe: Any = mpe
         self._arms = dict(arms)
         self._motion_timeout_s = motion_timeout_s
