@@ -130,6 +130,12 @@ class HumanResponse:
     robot: str
     action: int | None = None
     reset_done: bool = False
+    waited_s: float | None = None
+    """Seconds from when this human was first shown this intervention to this answer,
+    on the answer that carries the intervention's first action (its first push, or a
+    reset's confirmation); None on every other answer, or from a human that does not
+    measure it. The loop records it with the steps it took (the step row's ``first``):
+    the per-human table's "time to first action"."""
 
 
 @dataclass(slots=True)
