@@ -9,9 +9,11 @@ build time to fd 1 at import and a stray ``print`` would corrupt the stream.
 
 Lifecycle::
 
-    take the robot's lock (drivers.hostlock; a second agent for the same robot is refused
-    and never builds its backend) -> start backend (errors kept for the hello reply)
-    -> wait for hello (version check; hello_ok names this build: drivers.build_id)
+    a YuMi: ask its controller who it is (serial, RobotWare; one read-only login)
+    -> take the robot's lock (drivers.hostlock; a second agent for the same robot is
+    refused and never builds its backend) -> start backend (errors kept for the hello
+    reply) -> wait for hello (version check; hello_ok names this build, drivers.build_id,
+    and a YuMi's controller as it named itself)
     -> serve observe / push / reset / rest / reseed / frame / move_tcp / save_calibration /
        describe
        in order, in ONE worker thread, while the reader answers heartbeat and stop at
@@ -51,7 +53,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 # Light imports only (numpy, json, zlib): nothing here prints to fd 1. The backends
@@ -134,11 +136,14 @@ closed anyway."""
 
 def serve(reader: p.FrameReader, write: Callable[[bytes], None],
           make_backend: Callable[[], HostBackend], *, idle_timeout_s: float = 120.0,
-          watchdog_s: float | None = None) -> int:
+          watchdog_s: float | None = None,
+          hello_fields: Mapping[str, Any] | None = None) -> int:
     """Serve one controller until bye/EOF/broken frame; returns the exit status.
 
     ``watchdog_s``: while a request runs, stop the backend once if no frame at all came
-    from the controller for this long (None: no watchdog). Never raises: every failure
+    from the controller for this long (None: no watchdog). ``hello_fields``: optional
+    fields of ``hello_ok`` (``controller``: what the robot's controller said of itself),
+    read at each hello, so ``make_backend`` may fill them. Never raises: every failure
     becomes an ``error`` frame and/or an exit status.
     """
     started = time.monotonic()
@@ -151,7 +156,8 @@ def serve(reader: p.FrameReader, write: Callable[[bytes], None],
         startup_error = (what, traceback.format_exc())
         log.error("backend failed to start: %s", startup_error[0])
     session = _Session(reader, write, backend, startup_error, started,
-                       idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s)
+                       idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s,
+                       hello_fields=hello_fields or {})
     try:
         return session.run()
     finally:
@@ -173,8 +179,10 @@ class _Session:
 
     def __init__(self, reader: p.FrameReader, write: Callable[[bytes], None],
                  backend: HostBackend | None, startup_error: tuple[str, str] | None,
-                 started: float, *, idle_timeout_s: float, watchdog_s: float | None) -> None:
+                 started: float, *, idle_timeout_s: float, watchdog_s: float | None,
+                 hello_fields: Mapping[str, Any]) -> None:
         self.reader = reader
+        self.hello_fields = hello_fields
         self._raw_write = write
         self.backend = backend
         self.startup_error = startup_error
@@ -288,7 +296,8 @@ class _Session:
                                "version": p.PROTOCOL_VERSION, "backend": backend.kind,
                                "arms": list(backend.arm_names),
                                "mirror": [bool(m) for m in backend.mirror],
-                               "pid": os.getpid(), "build": build_id()}), None
+                               "pid": os.getpid(), "build": build_id(),
+                               **self.hello_fields}), None
 
     def _in_order(self, job: p.Request | bytes) -> None:
         """After hello: to the worker, behind the requests before it (a reply as bytes:
@@ -610,15 +619,27 @@ def _backend_kwargs(args: argparse.Namespace) -> dict[str, Any] | str:
     return kwargs
 
 
-def _robot_identity(args: argparse.Namespace) -> str | None:
+def _controller_info(args: argparse.Namespace) -> dict[str, str] | None:
+    """A YuMi's controller as it names itself (serial, RobotWare, system: one read-only
+    login, before the lock), for the lock and for hello_ok ``controller``; None for a
+    twin, or when the controller cannot be asked."""
+    if args.backend != "yumi" or not args.controller_url:
+        return None
+    from drivers.yumi.rws_controller import controller_info
+
+    return controller_info(args.controller_url, args.credentials_file)
+
+
+def _robot_identity(args: argparse.Namespace, controller: Mapping[str, str] | None
+                    ) -> str | None:
     """What this agent must own exclusively: ``--lock-id``; a YuMi as its controller
-    names itself (its serial, one read-only query) or else its normalised URL; None for
-    a twin (it owns its own cell)."""
+    names itself (``controller``'s serial) or else its normalised URL; None for a twin
+    (it owns its own cell)."""
     if args.lock_id or args.backend != "yumi" or not args.controller_url:
         return lock_identity(args.backend, args.controller_url, args.lock_id)
-    from drivers.yumi.rws_controller import controller_identity
+    from drivers.yumi.rws_controller import robot_identity
 
-    return (controller_identity(args.controller_url, args.credentials_file)
+    return (robot_identity(controller)
             or lock_identity(args.backend, args.controller_url, None))
 
 
@@ -649,9 +670,13 @@ def main(argv: Sequence[str] | None = None, *,
     log.info("agent pid %d for host %s: backend %s, protocol %d, build %s", os.getpid(),
              args.host, args.backend, p.PROTOCOL_VERSION, build_id())
     held: list[RobotLock] = []
+    hello_fields: dict[str, Any] = {}
 
     def factory() -> HostBackend:
-        identity = _robot_identity(args)
+        controller = _controller_info(args)
+        if controller is not None:
+            hello_fields["controller"] = controller
+        identity = _robot_identity(args, controller)
         if identity is not None:  # before anything moves the robot (refusal: at hello)
             lock = RobotLock(identity, args.lock_dir or default_lock_dir(), args.host,
                              controller=args.controller_url)
@@ -663,7 +688,8 @@ def main(argv: Sequence[str] | None = None, *,
     reader = p.FrameReader(fd_reader(0), "controller")
     try:
         return serve(reader, fd_writer(frames_fd, max(10.0, args.idle_timeout)), factory,
-                     idle_timeout_s=args.idle_timeout, watchdog_s=args.watchdog)
+                     idle_timeout_s=args.idle_timeout, watchdog_s=args.watchdog,
+                     hello_fields=hello_fields)
     finally:
         for lock in held:
             lock.release()

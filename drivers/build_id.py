@@ -46,6 +46,7 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
@@ -148,11 +149,33 @@ def changes_hash(root: Path, paths: Sequence[str]) -> str:
     return h.hexdigest()[:8]
 
 
-def checkout_build(root: Path) -> str:
-    """The build id of a checkout (the scheme above); BuildIdError if git cannot tell."""
+@dataclass(frozen=True, slots=True)
+class Checkout:
+    """What git says a checkout holds: the commit and the product's changed files."""
+
+    commit: str
+    """HEAD's full SHA-1 (40 hex digits)."""
+    changed: tuple[str, ...]
+    """:func:`changed_files`: empty when the product is exactly the commit's."""
+
+    @property
+    def dirty(self) -> bool:
+        return bool(self.changed)
+
+
+def checkout_state(root: Path) -> Checkout:
+    """HEAD and the product's uncommitted changes, read once: what a build id is made
+    of, and what a run's run.json says of its code (the one git reader of the project)."""
     sha = _git(root, "rev-parse", "--verify", "HEAD").decode().strip()
-    changed = changed_files(root)
-    label = f"g{sha[:7]}" + (f".d{changes_hash(root, changed)}" if changed else "")
+    return Checkout(sha, tuple(changed_files(root)))
+
+
+def checkout_build(root: Path, state: Checkout | None = None) -> str:
+    """The build id of a checkout (the scheme above); BuildIdError if git cannot tell.
+    ``state``: the checkout as :func:`checkout_state` just read it (else read now)."""
+    state = state if state is not None else checkout_state(root)
+    label = f"g{state.commit[:7]}" + (
+        f".d{changes_hash(root, state.changed)}" if state.changed else "")
     return f"{project_version(root)}+{label}"
 
 
@@ -171,18 +194,47 @@ def installed_build() -> str:
     return "unknown"
 
 
-@functools.lru_cache(maxsize=1)
-def build_id() -> str:
-    """This process's build id, computed once (git runs once per process)."""
-    if not (ROOT / "pyproject.toml").is_file():
-        return installed_build()
-    if is_checkout(ROOT):
+@dataclass(frozen=True, slots=True)
+class SourceState:
+    """Which code a process runs, as a reviewer asks it of a run (run.json ``code``)."""
+
+    commit: str | None
+    """The checkout's HEAD (40 hex digits); None: not a git checkout (an install, a
+    copy without .git, or git could not tell)."""
+    dirty: bool | None
+    """The product (PRODUCT) had uncommitted changes; for an install, what its stamped
+    id says (``.d<hash8>``); None where nothing can say (a tree without git, a wheel
+    that was never stamped)."""
+    build: str
+    """The build id (the scheme above)."""
+
+
+_STAMPED = re.compile(r"\+g[0-9a-f]{7}(\.d[0-9a-f]{8})?$")
+
+
+def source_state(root: Path | None = None) -> SourceState:
+    """The code of the tree ``root`` (default: this ``drivers`` package's, ROOT) now:
+    commit, dirty and build id from ONE reading of git, so the three always agree.
+    :func:`build_id` is this state's ``build``, computed once per process."""
+    root = ROOT if root is None else root
+    if not (root / "pyproject.toml").is_file():
+        build = installed_build()
+        stamped = _STAMPED.search(build)
+        return SourceState(None, None if stamped is None else stamped[1] is not None, build)
+    if is_checkout(root):
         try:
-            return checkout_build(ROOT)
+            state = checkout_state(root)
+            return SourceState(state.commit, state.dirty, checkout_build(root, state))
         except (BuildIdError, OSError, ValueError) as exc:
             print(f"drivers.build_id: {exc}; the build is a hash of the files instead",
                   file=sys.stderr)
-    return tree_build(ROOT)
+    return SourceState(None, None, tree_build(root))
+
+
+@functools.lru_cache(maxsize=1)
+def build_id() -> str:
+    """This process's build id, computed once (git runs once per process)."""
+    return source_state().build
 
 
 def matches(theirs: str | None) -> bool:

@@ -236,6 +236,27 @@ class HostFleet:
     def host_status(self) -> dict[str, HostStatus]:
         return {s.name: s.status for s in self._sessions}
 
+    def hosts_info(self) -> dict[str, dict[str, Any]]:
+        """What each host is, as its agent said at hello (run.json ``hosts``, the
+        optional call of ``testbed.core.hosts``): ``backend`` (the agent's own word:
+        twin, twin-canned for a twin without physics, yumi), ``transport``, ``build``,
+        ``arms`` and, for a YuMi, ``controller`` (``serial``, ``robotware``, ``system``;
+        None where not known). A host that never answered: its config's backend, build
+        None. Read from memory, no request: the hello already said it all, and it never
+        carries a credential."""
+        out: dict[str, dict[str, Any]] = {}
+        for s in self._sessions:
+            status = s.status
+            entry: dict[str, Any] = {"backend": status.backend or s.cfg.backend,
+                                     "transport": s.cfg.transport, "build": status.build,
+                                     "arms": list(s.arms)}
+            if entry["backend"] == "yumi":
+                said = status.controller or {}
+                entry["controller"] = ({k: said.get(k) for k in p.CONTROLLER_KEYS}
+                                       if said else None)
+            out[s.name] = entry
+        return out
+
     def stop_motion(self) -> list[str]:
         """Stop every motion in progress NOW: ``stop`` to every connected agent,
         write-only, even while a call is in flight (the agent answers it at once and

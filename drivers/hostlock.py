@@ -9,13 +9,13 @@ fails its start with a message naming the holder, and never builds the backend. 
 kernel releases the lock when the holder exits, however it exits, so a stale file is
 never a stale lock.
 
-Identity: for a YuMi the robot as its controller reports itself (its serial, from a
-read-only ``ctrl/identity`` query the agent makes before the lock:
-``drivers.yumi.rws_controller.controller_identity``), so two spellings of one
-controller's address are one robot; when the controller cannot be asked, the controller
-URL (normalised: scheme and host lower-case, default port explicit, trailing slash
-dropped). A twin agent owns its own simulated cell, so it is locked only when given an
-explicit ``--lock-id``.
+Identity: for a YuMi the robot as its controller reports itself (its serial, from the
+read-only ``ctrl/identity`` and ``rw/system`` queries the agent makes before the lock:
+``drivers.yumi.rws_controller.controller_info``, which its hello also carries), so two
+spellings of one controller's address are one robot; when the controller cannot be
+asked, the controller URL (normalised: scheme and host lower-case, default port
+explicit, trailing slash dropped). A twin agent owns its own simulated cell, so it is
+locked only when given an explicit ``--lock-id``.
 
 For every user: the lock directory is one per host, shared by all its users (default
 :func:`default_lock_dir`, ``/run/lock/fleet-testbed``: the system's directory for lock

@@ -28,7 +28,7 @@ from __future__ import annotations
 import threading
 import time
 import traceback
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
 from drivers.build_id import BuildMismatch
@@ -51,6 +51,10 @@ class HostStatus:
     connected: bool = False
     backend: str | None = None
     agent_pid: int | None = None
+    build: str | None = None
+    """The build the host's last agent reported at hello (None: none answered yet)."""
+    controller: Mapping[str, str] | None = None
+    """A YuMi's controller as that agent's hello named it (serial, RobotWare, system)."""
     error: str | None = None
     """Why the host is down (None while connected)."""
     traceback: str | None = None
@@ -150,11 +154,14 @@ class HostSession:
             self.status.connected = True
             self.status.backend = info.backend
             self.status.agent_pid = info.pid
+            self.status.build = info.build
+            self.status.controller = info.controller
             self.status.error = self.status.traceback = None
             self.status.attempts = 0
             self.status.reported = True
-        self.event("connected: agent pid %d, backend %s, arms %s, seed %d, build %s",
-                   info.pid, info.backend, ",".join(info.arms), self.seed, info.build)
+        self.event("connected: agent pid %d, backend %s, arms %s, seed %d, build %s%s",
+                   info.pid, info.backend, ",".join(info.arms), self.seed, info.build,
+                   "".join(f", controller {k} {v}" for k, v in (info.controller or {}).items()))
 
     def _heartbeat(self) -> None:
         try:

@@ -22,7 +22,7 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
 
     controller -> agent                     agent -> controller
     hello {version, host}                   hello_ok {version, backend, arms, mirror, pid,
-                                                      build}
+                                                      build [, controller]}
     observe {}                              observe_ok {arms: [{arm, violating, goal,
                                                         expert_action, blob} | {arm, error}]}
                                                         + PNGs
@@ -61,6 +61,14 @@ controller refuses a host whose build is not its own (``drivers.link``), before 
 moves. It came without a version change on purpose: an older controller ignores the
 field, and an older agent, which lacks it, is refused by a newer controller with the
 line that says to deploy (an agent's version refusal would say less).
+
+``controller`` of ``hello_ok`` (a YuMi agent): its robot controller as it named itself
+when the agent started, ``{serial, robotware, system}`` (only those it said; strings),
+so a run records which controller drove its arms without a request of its own
+(``HostFleet.hosts_info``). Optional, and without a version change for the same reason
+as ``build``: an older controller ignores it, and its absence only means "not known"
+(a twin, a controller that could not be asked, an agent from before it, which is
+refused for its build anyway).
 """
 
 from __future__ import annotations
@@ -103,6 +111,9 @@ MAX_REASON_CHARS: Final = 2000
 MAX_FRAME_PIXELS: Final = 4096 * 4096
 """A camera frame PNG may not claim more pixels than this (a PNG bomb is refused)."""
 ERROR_KINDS: Final = ("protocol", "version", "request", "backend", "startup")
+CONTROLLER_KEYS: Final = ("serial", "robotware", "system")
+"""What ``hello_ok.controller`` may say of the robot's controller (never a credential)."""
+MAX_CONTROLLER_CHARS: Final = 200
 
 _JSON: Final = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
@@ -417,6 +428,8 @@ class HelloInfo:
     pid: int
     build: str | None = None
     """The agent's build id (``drivers.build_id``); None from an agent before build ids."""
+    controller: Mapping[str, str] | None = None
+    """A YuMi's controller as it named itself (``CONTROLLER_KEYS``); None: not known."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -465,7 +478,20 @@ def parse_hello_reply(frame: Frame, peer: str) -> HelloInfo:
     build = h.get("build")
     if build is not None and (not isinstance(build, str) or not build):
         raise _bad("hello_ok", peer, f"'build' must be a build id string, got {build!r:.60}")
-    return HelloInfo(version, backend, tuple(arms), tuple(mirror), pid, build)
+    return HelloInfo(version, backend, tuple(arms), tuple(mirror), pid, build,
+                     _controller(h.get("controller"), peer))
+
+
+def _controller(v: Any, peer: str) -> dict[str, str] | None:
+    """``hello_ok.controller``: null, or an object of some of ``CONTROLLER_KEYS`` with
+    string values (each cut to ``MAX_CONTROLLER_CHARS``)."""
+    if v is None:
+        return None
+    if (not isinstance(v, dict) or any(k not in CONTROLLER_KEYS or not isinstance(x, str)
+                                       for k, x in v.items())):
+        raise _bad("hello_ok", peer, f"'controller' must be null or an object of "
+                                     f"{list(CONTROLLER_KEYS)} strings, got {v!r:.80}")
+    return {k: v[k][:MAX_CONTROLLER_CHARS] for k in CONTROLLER_KEYS if k in v}
 
 
 def parse_observe_reply(frame: Frame, arms: Sequence[str], peer: str

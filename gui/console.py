@@ -225,9 +225,11 @@ class ConsoleHumans(ConsoleCore):
     def _dispatch(self, wid: int, msg: tuple[Any, ...]) -> None:
         kind = msg[0]
         if kind == "key":
-            self._on_command(wid, int(msg[1]), decode_key(int(msg[2])))
+            at = float(msg[3]) if len(msg) > 3 else None  # the window's own stamp
+            self._on_command(wid, int(msg[1]), decode_key(int(msg[2])), at)
         elif kind == "click":
-            self._on_click(wid, int(msg[1]), int(msg[2]), int(msg[3]))
+            at = float(msg[4]) if len(msg) > 4 else None
+            self._on_click(wid, int(msg[1]), int(msg[2]), int(msg[3]), at)
         elif kind == "shown":
             self._on_shown(wid, int(msg[1]), float(msg[2]), float(msg[3]))
 

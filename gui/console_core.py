@@ -18,6 +18,16 @@ A subclass owns its surfaces: it implements ``_has_surface(wid)`` and
 ``_gave_up`` (stop waiting for a human: the web console's away humans) and
 ``_changed`` (after any redraw: the OpenCV console's state file). Window ids: humans
 are ``0..M-1``, the fleet overview is ``OVERVIEW``.
+
+Time to first action (``HumanResponse.waited_s``): each ``Desk`` times an intervention
+from the moment a frame showing it was first on that human's screen to the key, click
+or button that first pushed or confirmed the reset. Both ends are stamped on this
+process's ``time.monotonic()`` clock and each surface says which moment it can honestly
+stamp: the ``at`` of ``_on_command`` / ``_on_click`` (the input) and the ``seen_at`` of
+``_on_shown`` (the frame on screen). The OpenCV windows stamp both themselves (same
+machine, system-wide monotonic clock): the key or click as HighGUI delivered it, the
+frame when the ``waitKeyEx`` that lets Qt paint it returned. The browser console stamps
+both as its page's reports arrive at the server (``gui.web.web_humans``).
 """
 
 from __future__ import annotations
@@ -293,7 +303,7 @@ class ConsoleCore:
             desk = self._desks[wid]
             view = Desk.with_flags(desk.view(), **self._flags(wid))
             frame = draw.render_console(view, self.layout)
-            desk.register(seq, view)
+            desk.register(seq, view, time.monotonic())
         self._posted[wid] = seq
         self._post(wid, seq, frame)
         self._changed()
@@ -308,12 +318,15 @@ class ConsoleCore:
         self._redraw_all()
         self._cond.notify_all()
 
-    def _on_command(self, wid: int, seq: int, cmd: KeyCommand | None) -> bool:
-        """A key or a button on surface ``wid`` whose frame ``seq`` was on screen.
+    def _on_command(self, wid: int, seq: int, cmd: KeyCommand | None,
+                    at: float | None = None) -> bool:
+        """A key or a button on surface ``wid`` whose frame ``seq`` was on screen, made
+        at ``at`` (``time.monotonic()``; default: now, as it arrives).
 
         Returns True if it was taken (a push or a reset confirmation that counted, a
         pause, a stop step), False if it was refused (stale frame, paused, no request).
         """
+        at = time.monotonic() if at is None else at
         if cmd is None:
             return False
         taken = False
@@ -338,25 +351,33 @@ class ConsoleCore:
         elif wid != OVERVIEW and not self._paused:
             desk = self._desks[wid]
             if cmd.command is Command.PUSH and cmd.action is not None:
-                taken = desk.on_push(cmd.action, seq)
+                taken = desk.on_push(cmd.action, seq, at)
             elif cmd.command is Command.CONFIRM:
-                taken = desk.on_confirm(seq)
+                taken = desk.on_confirm(seq, at)
             if taken:
                 self._redraw(wid)
         self._cond.notify_all()
         return taken
 
-    def _on_click(self, wid: int, seq: int, x: float, y: float) -> bool:
+    def _on_click(self, wid: int, seq: int, x: float, y: float,
+                  at: float | None = None) -> bool:
+        """A click at frame pixel (x, y) on frame ``seq``, made at ``at`` (default now)."""
         if wid == OVERVIEW or self._paused or wid in self._confirming:
             return False
-        taken = self._desks[wid].on_click((x, y), seq)
+        at = time.monotonic() if at is None else at
+        taken = self._desks[wid].on_click((x, y), seq, at)
         if taken:
             self._redraw(wid)
             self._cond.notify_all()
         return taken
 
-    def _on_shown(self, wid: int, seq: int, t_imshow: float, t_painted: float) -> None:
+    def _on_shown(self, wid: int, seq: int, t_imshow: float, t_painted: float,
+                  seen_at: float | None = None) -> None:
+        """Frame ``seq`` of surface ``wid`` is on screen; ``seen_at`` (default
+        ``t_painted``) is the moment that starts an intervention's time to first action."""
         self._shown[wid] = max(self._shown[wid], seq)
+        if wid != OVERVIEW:
+            self._desks[wid].on_shown(seq, t_painted if seen_at is None else seen_at)
         pending = self._pending.pop((wid, seq), None)
         if pending is not None:
             t_act, robot = pending

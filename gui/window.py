@@ -17,12 +17,13 @@ Why a process per window rather than one GUI thread for all of them:
 Wire (pickled ``multiprocessing.connection`` messages over two pipes)::
 
     console --> window   ("frame", seq, bgr_array)  |  ("close",)
-    window --> console   ("ready", pid) | ("error", text) | ("key", seq, code)
-                         ("click", seq, x, y) | ("shown", seq, t_imshow, t_painted)
+    window --> console   ("ready", pid) | ("error", text) | ("key", seq, code, t)
+                         ("click", seq, x, y, t) | ("shown", seq, t_imshow, t_painted)
 
 ``seq`` tags every input with the frame that was on screen (see ``gui.desk``);
-``shown`` carries ``time.monotonic()`` stamps (system-wide on Linux) for the latency
-benchmark.
+``shown`` and the inputs' ``t`` carry ``time.monotonic()`` stamps (system-wide on
+Linux), taken here as HighGUI hands over the key or click, for the latency benchmark
+and the human's time to first action (a pipe and a pump thread later is not the press).
 
 Run as ``python -m gui.window --in-fd R --out-fd W --name NAME [--x X --y Y]``.
 """
@@ -68,7 +69,7 @@ def _child(inbox: Connection, outbox: Connection, name: str, x: int, y: int) -> 
 
     def on_mouse(event: int, mx: int, my: int, _flags: int, _param: Any) -> None:
         if event == cv2.EVENT_LBUTTONDOWN:
-            outbox.send(("click", shown["seq"], int(mx), int(my)))
+            outbox.send(("click", shown["seq"], int(mx), int(my), time.monotonic()))
 
     def open_window() -> None:
         cv2.namedWindow(name, flags)
@@ -105,7 +106,7 @@ def _child(inbox: Connection, outbox: Connection, name: str, x: int, y: int) -> 
         else:
             key = cv2.waitKeyEx(POLL_MS)
         if key != -1:
-            outbox.send(("key", shown["seq"], key))
+            outbox.send(("key", shown["seq"], key, time.monotonic()))
         now = time.monotonic()
         if now >= next_check:
             next_check = now + VISIBILITY_CHECK_S

@@ -176,19 +176,29 @@ def rapid_of_task(rws: Any, task: str) -> dict[str, Any]:
     return {"version": None if version is None else int(version), "zones": zones}
 
 
+def identity_fields(system: Mapping[str, Any], ident: Mapping[str, Any]) -> dict[str, str]:
+    """``robotware``, ``system`` and ``serial`` ("" where not said) from the answers to
+    ``rw/system`` and ``ctrl/identity`` (either may be ``{}``): what ``testbed check``
+    prints and what a run records of its YuMi host, read by one parser."""
+    out = {"robotware": "", "system": "", "serial": ""}
+    for item in _state_items(system):
+        if item.get("_type") == "sys-system-li":
+            out["robotware"] = str(item.get("rwversion", ""))
+            out["system"] = str(item.get("name", ""))
+    for item in _state_items(ident):
+        out["serial"] = str(item.get("ctrl-id", ""))
+        out["system"] = out["system"] or str(item.get("ctrl-name", ""))
+    return out
+
+
 def describe(rws: Any, tasks: Sequence[str]) -> ControllerReport:
     """The controller as ``testbed check`` shows it: identity, RobotWare and options,
     state, every RAPID task, and our modules in each of ``tasks`` (the arms' tasks)."""
-    rep = ControllerReport()
-    for item in _state_items(rws._do_get("rw/system")):
-        if item.get("_type") == "sys-system-li":
-            rep.robotware = str(item.get("rwversion", ""))
-            rep.system = str(item.get("name", ""))
-        elif item.get("_type") == "sys-options-li":
+    system = rws._do_get("rw/system")
+    rep = ControllerReport(**identity_fields(system, rws._do_get("ctrl/identity")))
+    for item in _state_items(system):
+        if item.get("_type") == "sys-options-li":
             rep.options = [str(o.get("option", "")) for o in item.get("options", [])]
-    for item in _state_items(rws._do_get("ctrl/identity")):
-        rep.serial = str(item.get("ctrl-id", ""))
-        rep.system = rep.system or str(item.get("ctrl-name", ""))
     rep.state = asdict(read_state(rws))
     for name, t in rws.get_tasks().items():
         rep.tasks[name] = {"type": t.type_, "active": bool(t.active),

@@ -26,7 +26,14 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from drivers.errors import BackendError
-from drivers.yumi.controller_state import describe, entry_text, one_line, read_state, refusal
+from drivers.yumi.controller_state import (
+    describe,
+    entry_text,
+    identity_fields,
+    one_line,
+    read_state,
+    refusal,
+)
 from drivers.yumi.credentials import FACTORY_PASSWORD, FACTORY_USER, RwsLogin
 from drivers.yumi.yumi_controller import ArmPose, Waypoint, _since, check_result, program_file
 
@@ -70,12 +77,16 @@ def _login_or_factory(login: RwsLogin | None, url: str) -> RwsLogin:
     return login
 
 
-def controller_identity(url: str, credentials_file: str | None = None,
-                        timeout_s: float = 3.0) -> str | None:
-    """The robot as its controller names itself, ``"IRC5 <serial>"`` (``ctrl/identity``'s
-    ``ctrl-id``), from one read-only RWS request and a logout; None when the controller
-    cannot be asked (the caller then locks on the URL). The agent keys its robot lock on
-    it, before it takes the lock: two spellings of one address are one robot."""
+def controller_info(url: str, credentials_file: str | None = None,
+                    timeout_s: float = 3.0) -> dict[str, str] | None:
+    """The controller as it names itself: ``serial`` (``ctrl/identity``'s ``ctrl-id``),
+    ``robotware`` and ``system`` (``rw/system``), only those it said; from two read-only
+    RWS requests and a logout. None when the controller cannot be asked.
+
+    Why here, before the backend: the agent keys its robot lock on the serial before it
+    takes the lock (:func:`robot_identity`), and the same answer goes into its hello, so a
+    run records which controller (and RobotWare) drove its arms at no further request.
+    Never a credential: the login is used, not returned."""
     from abb_robot_client.rws import RWS
 
     from drivers.yumi.credentials import read_login
@@ -86,15 +97,32 @@ def controller_identity(url: str, credentials_file: str | None = None,
         rws = RWS(url.rstrip("/"), login.user, login.password)
         _patch_timeout(rws, timeout_s)
         try:
-            items = rws._do_get("ctrl/identity").get("_embedded", {}).get("_state", [])
+            ident = rws._do_get("ctrl/identity")
+            try:
+                system = rws._do_get("rw/system")
+            except Exception:  # an old RobotWare: the serial alone still names the robot
+                system = {}
         finally:
             with contextlib.suppress(Exception):
                 rws.logout()
     except Exception:  # unreachable, refused, an old RobotWare: the URL will do
         return None
-    serial = next((str(i.get("ctrl-id", "")) for i in items
-                   if isinstance(i, Mapping) and i.get("ctrl-id")), "")
+    said = {k: v for k, v in identity_fields(system, ident).items() if v}
+    return said or None
+
+
+def robot_identity(info: Mapping[str, str] | None) -> str | None:
+    """The robot as the lock names it, ``"IRC5 <serial>"``; None without a serial."""
+    serial = (info or {}).get("serial")
     return f"IRC5 {serial}" if serial else None
+
+
+def controller_identity(url: str, credentials_file: str | None = None,
+                        timeout_s: float = 3.0) -> str | None:
+    """The robot as its controller names itself, ``"IRC5 <serial>"``, from
+    :func:`controller_info`; None when the controller cannot be asked (the caller then
+    locks on the URL): two spellings of one address are one robot."""
+    return robot_identity(controller_info(url, credentials_file, timeout_s))
 
 
 class RwsYumiController:

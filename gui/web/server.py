@@ -14,12 +14,13 @@ page, and a socket is refused before it opens)::
     GET /?token=T              the page of T's human
     GET /overview?token=T      the fleet overview (any human's token)
     WS  /ws?token=T            server -> page: binary frames (u32 header length, JSON
-                                 header, PNG), JSON texts ("input" replies, "history")
+                                 header, PNG), JSON texts ("input" replies, "fleet":
+                                 the latest counters and modes, for a page with no arm)
                                page -> server: {"type": "key", "key", "seq"},
                                  {"type": "click", "x", "y", "seq"},
                                  {"type": "button", "name", "seq"},
                                  {"type": "painted", "seq", "t_sent", "t_painted"}
-    WS  /ws/overview?token=T   the same, for the overview surface
+    WS  /ws/overview?token=T   the same for the overview surface ("history", no "fleet")
 
 ``seq`` is the number of the frame on screen when the human acted: an input counts
 only for the request that frame showed (``gui.desk``), so an action for a step that
@@ -81,6 +82,7 @@ class _Subscriber:
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     texts: deque[str] = field(default_factory=deque)
     sent_version: int = -1
+    fleet_version: int = -1
 
 
 class FrameHub:
@@ -88,12 +90,15 @@ class FrameHub:
 
     ``post`` never blocks: it keeps the newest payload of a surface and wakes that
     surface's sockets on the server's loop; a socket that is behind skips to the
-    newest frame (a human wants the present, not a backlog).
+    newest frame (a human wants the present, not a backlog). ``post_fleet`` does the
+    same for the fleet's state that every human page shows while it has no arm (one
+    text for all of them; a page that opens later gets the latest at once).
     """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._latest: dict[int, tuple[int, bytes, dict[str, Any]]] = {}
+        self._fleet: tuple[int, str] | None = None
         self._version = 0
         self._subs: set[_Subscriber] = set()
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -107,13 +112,33 @@ class FrameHub:
             with contextlib.suppress(RuntimeError):  # the loop is closing
                 loop.call_soon_threadsafe(self._wake, wid)
 
+    def post_fleet(self, doc: dict[str, Any]) -> None:
+        """The fleet's latest state for the human pages (JSON text ``doc``)."""
+        text = json.dumps(doc)
+        with self._lock:
+            self._version += 1
+            self._fleet = (self._version, text)
+            loop = self.loop
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(self._wake_human_pages)
+
     def latest(self, wid: int) -> tuple[int, bytes, dict[str, Any]] | None:
         with self._lock:
             return self._latest.get(wid)
 
+    def latest_fleet(self) -> tuple[int, str] | None:
+        with self._lock:
+            return self._fleet
+
     def _wake(self, wid: int) -> None:
         for sub in self._subs:
             if sub.wid == wid:
+                sub.wake.set()
+
+    def _wake_human_pages(self) -> None:
+        for sub in self._subs:
+            if sub.wid != OVERVIEW:
                 sub.wake.set()
 
     def subscribe(self, wid: int) -> _Subscriber:
@@ -155,6 +180,10 @@ async def _send_loop(ws: WebSocket, hub: FrameHub, sub: _Subscriber) -> None:
         if latest is not None and latest[0] != sub.sent_version:
             sub.sent_version = latest[0]
             await ws.send_bytes(frame_message(latest[1], latest[2]))
+        fleet = hub.latest_fleet() if sub.wid != OVERVIEW else None
+        if fleet is not None and fleet[0] != sub.fleet_version:
+            sub.fleet_version = fleet[0]
+            await ws.send_text(fleet[1])
 
 
 def build_app(owner: Owner, hub: FrameHub) -> Starlette:

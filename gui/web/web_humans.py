@@ -69,6 +69,22 @@ def _encode_png(frame: Frame) -> bytes:
     return buf.tobytes()
 
 
+def fleet_doc(status: FleetStatus) -> dict[str, Any]:
+    """The ``"fleet"`` text of the human pages: counters, and each arm's mode and human.
+
+    Text, not a frame: a page with no arm shows it as HTML (readable on a phone, found by
+    its words), and one text serves every page without rendering a frame per human.
+    """
+    counters = ("t", "steps", "successes", "hard_resets", "idle_time", "human_actions")
+    return {  # int(): a loop may count in numpy integers, which JSON does not take
+        "type": "fleet", **{k: int(getattr(status, k)) for k in counters},
+        "rohe": round(float(status.rohe), 5), "paused": bool(status.paused),
+        "robots": [{"robot": r.robot, "mode": r.mode.value,
+                    "human": None if r.human is None else int(r.human)}
+                   for r in status.robots],
+    }
+
+
 @functools.cache
 def _page_template(overview: bool) -> str:
     """A page with its script and style inlined (so nothing is served without a token),
@@ -202,6 +218,8 @@ class WebHumans(ConsoleCore):
         self._hub.post(wid, _encode_png(frame), header)
 
     def show(self, t: int, status: FleetStatus) -> None:
+        """The overview's frame and curve point, and the fleet's state on every human's
+        page (what a human with no arm sees instead of an empty image)."""
         with self._cond:
             self._history.append({
                 "t": status.t, "successes": status.successes,
@@ -210,6 +228,7 @@ class WebHumans(ConsoleCore):
                 "modes": [str(r.mode) for r in status.robots],
             })
             del self._history[:-HISTORY_MAX]
+            self._hub.post_fleet(fleet_doc(status))
         super().show(t, status)
 
     # ---- the server's calls (worker threads) -------------------------------------------
@@ -243,22 +262,32 @@ class WebHumans(ConsoleCore):
             self._cond.notify_all()
 
     def handle(self, wid: int, msg: Any) -> dict[str, Any] | None:
-        """One message from a page; the reply says whether an input was taken."""
+        """One message from a page; the reply says whether an input was taken.
+
+        Its arrival is the moment stamped on it for the time to first action: the
+        page's own clock may be another device's, set seconds apart, while arrival is
+        on this process's clock and late by the same uplink delay for the paint report
+        that starts the wait as for the key, click or button that ends it.
+        """
+        arrived = time.monotonic()
         if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
             return {"type": "error", "why": "not a console message"}
         kind = msg["type"]
         try:
             seq = int(msg.get("seq", -1))
             if kind == "painted":
-                self._painted(wid, seq, float(msg["t_sent"]), float(msg["t_painted"]))
+                self._painted(wid, seq, float(msg["t_sent"]), float(msg["t_painted"]),
+                              arrived)
                 return None
             with self._cond:
                 if kind == "key":
-                    taken = self._on_command(wid, seq, decode_browser_key(str(msg["key"])))
+                    taken = self._on_command(wid, seq, decode_browser_key(str(msg["key"])),
+                                             arrived)
                 elif kind == "button" and str(msg.get("name")) in BUTTONS:
-                    taken = self._on_command(wid, seq, BUTTONS[str(msg["name"])])
+                    taken = self._on_command(wid, seq, BUTTONS[str(msg["name"])], arrived)
                 elif kind == "click":
-                    taken = self._on_click(wid, seq, float(msg["x"]), float(msg["y"]))
+                    taken = self._on_click(wid, seq, float(msg["x"]), float(msg["y"]),
+                                           arrived)
                 else:
                     return {"type": "error", "why": f"unknown message {kind!r}"}
                 why = None if taken else self._why_refused(wid, seq)
@@ -276,13 +305,16 @@ class WebHumans(ConsoleCore):
             return "stale: that frame's request is over"
         return "nothing to answer on that frame"
 
-    def _painted(self, wid: int, seq: int, t_sent_ms: float, t_painted_ms: float) -> None:
-        """The page's own clock (epoch ms) -> this process's monotonic clock."""
+    def _painted(self, wid: int, seq: int, t_sent_ms: float, t_painted_ms: float,
+                 arrived: float) -> None:
+        """The page's own clock (epoch ms) -> this process's monotonic clock, for the
+        latencies; the report's ``arrived`` starts a time to first action (``handle``)."""
         offset = time.time() - time.monotonic()
         with self._cond:
             if seq > self._posted[wid]:
                 return  # a page cannot report a frame not yet sent
-            self._on_shown(wid, seq, t_sent_ms / 1e3 - offset, t_painted_ms / 1e3 - offset)
+            self._on_shown(wid, seq, t_sent_ms / 1e3 - offset, t_painted_ms / 1e3 - offset,
+                           seen_at=arrived)
 
     def close(self) -> None:
         """Stop the server (every page sees the socket close); safe to call twice."""

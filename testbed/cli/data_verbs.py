@@ -213,6 +213,9 @@ TRAIN = Verb(
 def _report_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dirs", nargs="+", metavar="RUN_OR_PROTOCOL_DIR")
     p.add_argument("--out", metavar="DIR", help="where to write the report (default: first dir)")
+    p.add_argument("--reference", metavar="ALGORITHM_OR_POINT",
+                   help="what every other algorithm (or sweep point) is compared with, "
+                        "paired by trial (default: cur; a sweep: its grid's first point)")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -224,7 +227,8 @@ def cmd_report(args: argparse.Namespace) -> int:
             raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no such folder {str(d)!r}")
     if args.out is not None:
         check_out_dir("--out", args.out)
-    report = write_report(dirs, Path(args.out) if args.out else dirs[0])
+    report = write_report(dirs, Path(args.out) if args.out else dirs[0],
+                          reference=args.reference)
     print(report.markdown)
     print(f"report: {report.folder}")
     return 0
@@ -232,5 +236,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 REPORT = Verb(
     "report", help="tables and plots of runs or protocol folders",
-    description="Mean +- std per algorithm, Markdown + CSV, PNG curves.",
+    description="Per algorithm (or sweep point): mean +- std, 95% intervals, paired "
+    "comparisons against a reference with exact sign-flip p-values, the humans by name; "
+    "report.md, report.html (one self-contained page with the curves and the runs' "
+    "metadata), CSVs, curves.png.",
     add_arguments=_report_arguments, run=cmd_report)

@@ -542,11 +542,82 @@ class WebConsoleConfig(_Strict):
         return self
 
 
+class HumanProfile(_Strict):
+    """One human of the fleet (TOML ``[[humans.people]]``): a name, and for a scripted
+    human how it behaves.
+
+    The name is how the records and the report know the person (the per-human table);
+    it is recorded in every run (config.toml, run.json ``humans``), so it must never be
+    a secret: a web console's token is a separate field. ``skill``, ``latency`` and
+    ``availability`` describe a *scripted* human (``kind = "scripted"``), so a twin
+    protocol can rehearse operators who differ (``testbed.experiments.scripted_humans``);
+    a person at a console is measured, not described, so they are refused there.
+    """
+
+    name: Name
+    skill: float = Field(1.0, ge=0.0, le=1.0, allow_inf_nan=False)
+    """How often a teleop push is the expert's; otherwise one of the other three faces."""
+    latency: int = Field(0, ge=0, le=1000)
+    """Timesteps from an assignment to the first action (the twin runs as fast as it
+    can, so a latency in seconds would mean nothing there): a teleop's first push comes
+    at its ``latency``-th step, a hard reset takes ``latency`` steps more than t_R."""
+    availability: float = Field(1.0, gt=0.0, le=1.0, allow_inf_nan=False)
+    """The chance, each timestep, that the human can take a new intervention (else they
+    are away for that step's allocation; a held intervention goes on)."""
+
+    @property
+    def scripted_only(self) -> list[str]:
+        """The profile fields set away from a perfect, instant, always-there human."""
+        return [f for f, perfect in (("skill", 1.0), ("latency", 0), ("availability", 1.0))
+                if getattr(self, f) != perfect]
+
+
 class HumansConfig(_Strict):
     count: int = Field(2, ge=0, le=1000)
     kind: Literal["scripted", "gui", "web"] = "scripted"
     web: WebConsoleConfig = WebConsoleConfig()
     """The browser console's settings (TOML ``[humans.web]``), read when kind is web."""
+    people: list[HumanProfile] = Field(default_factory=list)
+    """One entry per human, in index order (TOML ``[[humans.people]]``); empty: humans
+    named ``human0``, ``human1``, ... with perfect scripted profiles. Given without
+    ``count``, it sets the count."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _count_from_people(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "count" not in data and isinstance(
+                data.get("people"), list):
+            return {**data, "count": len(data["people"])}
+        return data
+
+    @model_validator(mode="after")
+    def _people(self) -> Self:
+        if self.people and len(self.people) != self.count:
+            raise FieldProblem("people", f"{len(self.people)} people for humans.count = "
+                               f"{self.count}; give one [[humans.people]] per human, or "
+                               "drop count")
+        names = [p.name for p in self.people]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise FieldProblem(f"people[{i}].name", f"{name!r} twice; each human "
+                                   "needs their own name")
+        if self.kind != "scripted":
+            for i, p in enumerate(self.people):
+                if p.scripted_only:
+                    raise FieldProblem(f"people[{i}].{p.scripted_only[0]}", "describes a "
+                                       f"scripted human, and humans.kind is {self.kind!r}: "
+                                       "a person at a console is measured, not described")
+        return self
+
+    @property
+    def names(self) -> list[str]:
+        """Each human's name, by index."""
+        return [p.name for p in self.people] or [f"human{i}" for i in range(self.count)]
+
+    @property
+    def profiles(self) -> list[HumanProfile]:
+        """Each human's profile, by index (perfect ones when ``people`` is empty)."""
+        return list(self.people) or [HumanProfile(name=n) for n in self.names]
 
     @model_validator(mode="after")
     def _one_token_per_human(self) -> Self:

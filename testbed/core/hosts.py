@@ -8,20 +8,25 @@ two. All three meet here, so none imports another.
 ``LoopHosts`` is the part the loop itself calls each step (a test's double needs only
 that); ``Hosts`` adds the lifecycle that a trial's setup and teardown call.
 
-One call is optional (hosts without it have no motion to stop): ``stop_motion()``,
-stop every motion in progress NOW, from any thread, returning within about half a
-second (``HostFleet.stop_motion``: a console's confirmed Stop must not wait for a
-push of seconds to end). Call it through :func:`stop_motion_of`.
+Two calls are optional, found with ``getattr`` (an in-process test double has neither):
+
+* ``stop_motion()``: stop every motion in progress NOW, from any thread, returning
+  within about half a second (``HostFleet.stop_motion``: a console's confirmed Stop must
+  not wait for a push of seconds to end). Call it through :func:`stop_motion_of`.
+* ``hosts_info()``: host name -> what that host is, as its agent said when it answered
+  (``HostFleet.hosts_info``: backend, transport, build, arms, a YuMi's controller),
+  JSON types only and never a credential, for run.json ``hosts``: which hosts produced
+  a run. Call it through :func:`hosts_info_of` (None: these hosts cannot say).
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from testbed.core.types import ArmObservation, Fault, PushResult
 
-__all__ = ["Hosts", "LoopHosts", "stop_motion_of"]
+__all__ = ["Hosts", "LoopHosts", "hosts_info_of", "stop_motion_of"]
 
 
 @runtime_checkable
@@ -58,3 +63,13 @@ def stop_motion_of(hosts: LoopHosts) -> bool:
         return False
     stop()
     return True
+
+
+def hosts_info_of(hosts: LoopHosts) -> dict[str, dict[str, Any]] | None:
+    """``hosts.hosts_info()`` if these hosts can say what they are (the optional call of
+    the contract), else None: nothing to record, rather than a guess."""
+    info = getattr(hosts, "hosts_info", None)
+    if not callable(info):
+        return None
+    found: dict[str, dict[str, Any]] | None = info()
+    return found

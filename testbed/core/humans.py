@@ -56,7 +56,14 @@ class Humans(Protocol):
     def close(self) -> None: ...
 
 
-def presence_of(humans: Humans) -> Presence | None:
-    """``humans.presence()`` if that kind of humans can be away, else None (all present)."""
+def presence_of(humans: Humans, t: int | None = None) -> Presence | None:
+    """``humans.presence()`` if that kind of humans can be away, else None (all present).
+
+    Humans whose presence depends on the step rather than on a clock (the scripted
+    humans' ``availability``, drawn per step so a resumed trial draws as the
+    uninterrupted one) have ``presence_at(t)`` instead; the loop passes ``t``."""
+    at = getattr(humans, "presence_at", None)
+    if t is not None and callable(at):
+        return at(t)
     get = getattr(humans, "presence", None)
     return get() if callable(get) else None

@@ -13,8 +13,9 @@ humans whether or not they can be away.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
+from typing import Any
 
-from testbed.core.hosts import Hosts, stop_motion_of
+from testbed.core.hosts import Hosts, hosts_info_of, stop_motion_of
 from testbed.core.humans import Humans, Presence, presence_of
 from testbed.core.types import (
     ArmObservation,
@@ -67,10 +68,15 @@ class HostsWrapper:
         """The optional call: reaches the inner hosts whether or not they can stop."""
         stop_motion_of(self.hosts)
 
+    def hosts_info(self) -> dict[str, dict[str, Any]] | None:
+        """The other optional call: the inner hosts' (None when they cannot say)."""
+        return hosts_info_of(self.hosts)
+
 
 class HumansWrapper:
     """Humans around ``humans``: every call of ``testbed.core.humans.Humans`` forwarded,
-    ``presence()`` included (None when the inner humans are always present)."""
+    ``presence()`` and ``presence_at(t)`` included (None when the inner humans are always
+    present)."""
 
     def __init__(self, humans: Humans) -> None:
         self.humans = humans
@@ -83,6 +89,9 @@ class HumansWrapper:
 
     def presence(self) -> Presence | None:
         return presence_of(self.humans)
+
+    def presence_at(self, t: int) -> Presence | None:
+        return presence_of(self.humans, t)
 
     def close(self) -> None:
         self.humans.close()

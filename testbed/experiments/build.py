@@ -1,25 +1,54 @@
-"""What a trial is built from: its hosts and its humans, from a config.
+"""What a trial is built from: its hosts and its humans, from a config; and which code
+it runs (run.json ``code``).
 
 Why one module: this is the one place in ``testbed/`` (with ``testbed.lab``) that
-reaches the rooms that talk to the world, ``drivers`` (the host fleet) and ``gui``
-(the consoles), and it imports them only inside the functions that build them, so
+reaches the rooms that talk to the world, ``drivers`` (the host fleet, the build id)
+and ``gui`` (the consoles), and it imports them only inside the functions that need
+them, so
 ``import testbed`` never pulls in SSH, a window system or a web server
 (docs/ARCHITECTURE.md, the import rules).
 """
 
 from __future__ import annotations
 
+import importlib.metadata
+import platform
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from testbed.core.config import FleetConfig, WebConsoleConfig
+from testbed.core.config import FleetConfig, HumanProfile, WebConsoleConfig
 from testbed.core.humans import Humans
 from testbed.experiments.scripted_humans import ScriptedHumans
 
 if TYPE_CHECKING:
     from drivers.host_fleet import HostFleet
 
-__all__ = ["build_hosts", "make_humans"]
+__all__ = ["build_hosts", "code_identity", "make_humans"]
+
+
+LIBRARIES = ("numpy", "pybullet", "kornia")
+"""The libraries a run's numbers depend on besides torch (run.json ``numerics`` has it):
+the arrays, the twin's physics, the augmentation; each recorded when installed."""
+
+
+def code_identity() -> dict[str, Any]:
+    """Which code this controller runs, for run.json ``code``: the checkout's commit,
+    whether the product had uncommitted changes, the build id every host's agent must
+    match (``drivers.build_id``, its one git reader: here, lazily, because this is the
+    module of ``testbed.experiments`` that may reach ``drivers``), the Python and the
+    versions of ``LIBRARIES`` (package metadata: cheap, nothing imported)."""
+    from drivers.build_id import source_state
+
+    state = source_state()
+    libraries: dict[str, str] = {}
+    for name in LIBRARIES:
+        try:
+            libraries[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return {"commit": state.commit, "dirty": state.dirty, "build": state.build,
+            "python": platform.python_version(), "libraries": libraries}
 
 
 def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> HostFleet:
@@ -32,14 +61,19 @@ def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> Hos
     return HostFleet(cfg.hosts, trial_seed=seed, log_dir=log_dir)
 
 
-def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None) -> Humans:
+def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
+                people: Sequence[HumanProfile] = (), seed: int = 0,
+                robots: Sequence[str] = ()) -> Humans:
     """Build the humans of a trial; a console is imported only when asked for.
 
     ``web``: the browser console's settings (``humans.web`` of the config), read only
     for ``kind = "web"`` (default: ``WebConsoleConfig()``, loopback, random tokens).
+    ``people``: the scripted humans' profiles (``humans.profiles``; none: perfect
+    experts, as for collecting demonstrations), their draws seeded by ``seed`` and the
+    arm's index in ``robots``.
     """
     if kind == "scripted":
-        return ScriptedHumans()
+        return ScriptedHumans(people, seed=seed, robots=robots)
     if kind == "gui":
         from gui.console import ConsoleHumans
 

@@ -16,11 +16,18 @@ Evaluations (``testbed evaluate``: rows ``eval:<algorithm>``) are the paper's Ta
 its learning curves: they get a second table (successes, hard resets, idle time; no
 human effort to weigh, humans only reset) in report.md and ``report-eval.csv``, and stay
 out of the learning table, its CSV and the curves.
+
+What a reviewer needs beyond mean +- std (:mod:`testbed.experiments.report_tables`): a
+95% interval per metric and algorithm, each algorithm against a reference (C.U.R., or
+``--reference``) paired by trial with an exact sign-flip p-value, the same for the
+evaluations and, per point, for a sweep (its reference: the grid's first point); the
+humans by name (``report_humans``); a line for any two algorithms or points whose
+records are identical. ``report.html`` (``report_html``) is all of it on one
+self-contained page, with the metadata that decides the numbers.
 """
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 from dataclasses import dataclass, field
@@ -30,6 +37,15 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
+from testbed.experiments.report_humans import HumanCounts, count_humans
+from testbed.experiments.report_tables import (
+    Table,
+    humans_table,
+    identical_groups,
+    interval_table,
+    paired_table,
+    steps_digest,
+)
 from testbed.records.metrics import cumulative, summarize
 from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
 from testbed.records.steps import read_steps
@@ -57,9 +73,42 @@ class RunRecord:
     group: str = ""
     """The table's row and the figure's line: the algorithm, or a sweep's point
     (run.json ``sweep.point``: ``humans.count-2``)."""
+    meta: dict[str, Any] = field(default_factory=dict)
+    """The run's run.json."""
+    config: dict[str, Any] = field(default_factory=dict)
+    """The run's config.toml (thresholds as resolved)."""
+    humans: list[str] = field(default_factory=list)
+    """The humans' names, by index."""
+    human_counts: list[HumanCounts] = field(default_factory=list)
+    digest: str = ""
+    """``steps_digest``: equal for runs with identical records."""
 
     def __post_init__(self) -> None:
         self.group = self.group or self.algorithm
+
+    @property
+    def trial(self) -> tuple[str, int]:
+        """What pairs runs: a protocol's trial index, else the seed (a sweep's or a
+        trial's), as (kind, number)."""
+        proto = self.meta.get("protocol", {})
+        if "trial" in proto:
+            return ("trial", int(proto["trial"]))
+        seed = self.meta.get("sweep", {}).get("seed", self.meta.get("options", {}).get("seed"))
+        return ("seed", int(seed if seed is not None else 0))
+
+    @property
+    def grid_index(self) -> tuple[int, tuple[Any, ...]]:
+        """Where a sweep's point sits in its grid (run.json ``sweep.index``; older sweeps:
+        their values, numbers as numbers)."""
+        sweep = self.meta.get("sweep", {})
+        values = tuple((0, v, "") if isinstance(v, int | float) else (1, 0, str(v))
+                       for v in sweep.get("values", {}).values())
+        return int(sweep.get("index", 1 << 30)), values
+
+
+def trial_label(key: Any) -> str:
+    kind, number = key
+    return f"t{number}" if kind == "trial" else f"seed {number}"
 
 
 @dataclass
@@ -69,6 +118,8 @@ class Report:
     runs: list[RunRecord]
     notes: list[str] = field(default_factory=list)
     """One line each: what the table leaves out (unfinished runs)."""
+    tables: list[Table] = field(default_factory=list)
+    """Every table, in the report's order (``Table.key`` names each)."""
 
 
 def unfinished(path: Path) -> str | None:
@@ -103,13 +154,23 @@ def load_run(path: Path) -> RunRecord:
     # from before labels: an evaluation is marked by its options' "evaluate"
     algorithm = (opts.get("label") or (evaluation_label(None) if opts.get("evaluate") else None)
                  or opts.get("algorithm") or path.name.split("-t")[0])
-    num_humans = _num_humans(path)
+    config = _config(path)
+    num_humans = int(config.get("humans", {}).get("count", 2))
+    names = _human_names(config.get("humans", {}), num_humans)
     steps = read_steps(path / "steps.jsonl")
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)
     curves = cumulative(steps, num_humans=num_humans)
     point = meta.get("sweep", {}).get("point", "")
     return RunRecord(path, algorithm, num_humans, summary, curves, rohe_parts(steps),
-                     group=point)
+                     group=point, meta=meta, config=config, humans=names,
+                     human_counts=count_humans(steps, num_humans),
+                     digest=steps_digest(path / "steps.jsonl"))
+
+
+def _human_names(humans: dict[str, Any], count: int) -> list[str]:
+    people = humans.get("people") or []
+    return ([str(p["name"]) for p in people] if len(people) == count
+            else [f"human{i}" for i in range(count)])
 
 
 def rohe_parts(steps: list[dict[str, Any]]) -> dict[str, int]:
@@ -141,32 +202,30 @@ def _rate(rs: list[RunRecord], num: str, den: str) -> float:
     return sum(r.parts[num] for r in rs) / d if d else 0.0
 
 
-def rohe_section(runs: list[RunRecord]) -> str:
-    """Markdown: per algorithm, ROHE and its parts (successes by who pushed, human
+def rohe_table(runs: list[RunRecord]) -> Table:
+    """Per algorithm, ROHE and its parts (successes by who pushed, human
     actions, the policy's successes and violations per push); then, for each
     algorithm whose ROHE is not below C.U.R.'s (the paper's ordering broken), one
     paragraph that says which part decides it, from these measurements: ROHE's ratio
     is (successes ratio) x ((1 + C.U.R.'s human actions) / (1 + its own)), and the
     larger factor decides."""
     groups = _groups(runs)
-    head = ("| algorithm | ROHE | successes (policy + humans) | human actions | "
-            "policy successes / push | policy violations / push | "
-            "human successes / push |\n|---|---|---|---|---|---|---|\n")
-    lines = []
-    for alg, rs in groups.items():
-        lines.append(
-            f"| {alg} | {_mean(rs, lambda r: r.summary['rohe']):.4f} | "
-            f"{_mean(rs, lambda r: r.summary['successes']):.1f} "
-            f"({_mean(rs, lambda r: r.parts['policy_successes']):.1f} + "
-            f"{_mean(rs, lambda r: r.parts['human_successes']):.1f}) | "
-            f"{_mean(rs, lambda r: r.summary['human_actions']):.1f} | "
-            f"{_rate(rs, 'policy_successes', 'policy_pushes'):.3f} | "
-            f"{_rate(rs, 'policy_violations', 'policy_pushes'):.3f} | "
-            f"{_rate(rs, 'human_successes', 'human_pushes'):.3f} |")
-    text = ("ROHE and its parts (mean over trials; per push: pooled)\n\n" + head
-            + "\n".join(lines) + "\n")
+    header = ["algorithm", "ROHE", "successes (policy + humans)", "human actions",
+              "policy successes / push", "policy violations / push",
+              "human successes / push"]
+    rows = [[alg, f"{_mean(rs, lambda r: r.summary['rohe']):.4f}",
+             f"{_mean(rs, lambda r: r.summary['successes']):.1f} "
+             f"({_mean(rs, lambda r: r.parts['policy_successes']):.1f} + "
+             f"{_mean(rs, lambda r: r.parts['human_successes']):.1f})",
+             f"{_mean(rs, lambda r: r.summary['human_actions']):.1f}",
+             f"{_rate(rs, 'policy_successes', 'policy_pushes'):.3f}",
+             f"{_rate(rs, 'policy_violations', 'policy_pushes'):.3f}",
+             f"{_rate(rs, 'human_successes', 'human_pushes'):.3f}"]
+            for alg, rs in groups.items()]
+    table = Table("rohe", "ROHE and its parts (mean over trials; per push: pooled)",
+                  header, rows)
     if PAPER_FIRST not in groups:
-        return text
+        return table
     cur = groups[PAPER_FIRST]
     c_rohe = _mean(cur, lambda r: r.summary["rohe"])
     c_succ = _mean(cur, lambda r: r.summary["successes"])
@@ -181,8 +240,8 @@ def rohe_section(runs: list[RunRecord]) -> str:
         h_factor = (1 + c_hum) / (1 + hum)
         decides = ("human actions" if abs(np.log(max(h_factor, 1e-9)))
                    >= abs(np.log(max(s_factor, 1e-9))) else "successes")
-        text += (
-            f"\n{alg} is not below C.U.R. by ROHE ({rohe:.4f} against {c_rohe:.4f}), "
+        table.notes.append(
+            f"{alg} is not below C.U.R. by ROHE ({rohe:.4f} against {c_rohe:.4f}), "
             f"the reverse of the paper's ordering. Its successes are {s_factor:.2f}x "
             f"C.U.R.'s ({succ:.1f} against {c_succ:.1f}) and its human actions "
             f"{hum:.1f} against {c_hum:.1f}, a factor {h_factor:.2f} in its favour in "
@@ -192,49 +251,74 @@ def rohe_section(runs: list[RunRecord]) -> str:
             f"{_rate(cur, 'policy_successes', 'policy_pushes'):.3f} and "
             f"{_rate(cur, 'policy_violations', 'policy_pushes'):.3f}); the humans' "
             f"teleop pushes succeed {_rate(cur, 'human_successes', 'human_pushes'):.3f} "
-            f"per push under C.U.R.\n")
-    return text
+            f"per push under C.U.R.")
+    return table
 
 
-def _num_humans(path: Path) -> int:
+def rohe_section(runs: list[RunRecord]) -> str:
+    """ROHE and its parts as Markdown (``rohe_table``)."""
+    return rohe_table(runs).markdown()
+
+
+def _config(path: Path) -> dict[str, Any]:
     import tomllib
 
     cfg = path / "config.toml"
-    if cfg.exists():
-        return int(tomllib.loads(cfg.read_text()).get("humans", {}).get("count", 2))
-    return 2
+    return tomllib.loads(cfg.read_text()) if cfg.exists() else {}
 
 
 def _groups(runs: list[RunRecord]) -> dict[str, list[RunRecord]]:
-    """Runs by row/line, in the order they come (a sweep's file order)."""
+    """Runs by row/line: a sweep's points in its grid's order (run.json
+    ``sweep.index``), else in the order they come; each group's runs by trial."""
+    ordered = sorted(runs, key=lambda r: r.grid_index) if any(
+        "sweep" in r.meta for r in runs) else runs
     groups: dict[str, list[RunRecord]] = {}
-    for r in runs:
+    for r in ordered:
         groups.setdefault(r.group, []).append(r)
-    return groups
+    return {g: sorted(rs, key=lambda r: r.trial) for g, rs in groups.items()}
 
 
-def _table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS) -> tuple[str, str]:
+def mean_std_table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS,
+                   key: str = "learning", title: str = "") -> Table:
+    """Mean +- std (ddof 0) over trials per group and metric: the paper's tables. A
+    sweep's CSV also has each point's values, numbers as numbers."""
     groups = _groups(runs)
     first = "point" if any(r.group != r.algorithm for r in runs) else "algorithm"
-    header = [first, "trials", *metrics]
-    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    buf = io.StringIO()
-    w = csv.writer(buf)
-    w.writerow([first, "trials"] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")])
+    values = _sweep_values(groups)
+    fields = next(iter(_sweep_fields(groups).values())) if values else []
+    rows: list[list[str]] = []
+    csv_rows: list[list[Any]] = [[first, *fields, "trials"]
+                                 + [f"{m}_{s}" for m in metrics for s in ("mean", "std")]]
     for alg, rs in groups.items():
-        cells, row = [], [alg, len(rs)]
+        cells, row = [], [alg, *values.get(alg, []), len(rs)]
         for m in metrics:
             v = np.array([float(r.summary[m]) for r in rs])
             mean, std = float(v.mean()), float(v.std(ddof=0))
             fmt = "{:.4f}" if m == "rohe" else "{:.1f}"
             cells.append(f"{fmt.format(mean)} ± {fmt.format(std)}")
             row += [round(mean, 6), round(std, 6)]
-        md.append("| " + " | ".join([alg, str(len(rs)), *cells]) + " |")
-        w.writerow(row)
-    return "\n".join(md) + "\n", buf.getvalue()
+        rows.append([alg, str(len(rs)), *cells])
+        csv_rows.append(row)
+    return Table(key, title, [first, "trials", *metrics], rows, csv_rows=csv_rows)
 
 
-def _plot(runs: list[RunRecord], path: Path) -> None:
+def _sweep_fields(groups: dict[str, list[RunRecord]]) -> dict[str, list[str]]:
+    return {g: list(rs[0].meta.get("sweep", {}).get("values", {})) for g, rs in groups.items()
+            if "sweep" in rs[0].meta}
+
+
+def _sweep_values(groups: dict[str, list[RunRecord]]) -> dict[str, list[Any]]:
+    """A sweep point's values (numbers as numbers) for the CSV, when every group is a
+    point of one grid; else nothing."""
+    fields = _sweep_fields(groups)
+    if len(fields) != len(groups) or len({tuple(f) for f in fields.values()}) != 1:
+        return {}
+    return {g: list(rs[0].meta["sweep"]["values"].values()) for g, rs in groups.items()}
+
+
+def _plot(runs: list[RunRecord]) -> bytes:
+    """The five cumulative curves, one line per group, shaded one standard deviation
+    over trials (the paper's figures): PNG bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -260,10 +344,52 @@ def _plot(runs: list[RunRecord], path: Path) -> None:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    return buf.getvalue()
 
 
-def write_report(dirs: list[Path], out: Path) -> Report:
+def _reference(groups: dict[str, list[RunRecord]], asked: str | None, prefix: str = ""
+               ) -> str | None:
+    """The group the others are compared with: ``--reference`` (with the evaluation's
+    prefix for the evaluation table), else C.U.R., else a sweep's first point."""
+    from testbed.core.config import ConfigError
+
+    if asked is not None:
+        name = prefix + asked if prefix and not asked.startswith(prefix) else asked
+        if name not in groups:
+            if prefix:
+                return None  # no evaluation of it: the evaluation table has no comparison
+            raise ConfigError(f"--reference: no finished run of {asked!r} here; give one of "
+                              f"{', '.join(groups)}")
+        return name
+    if prefix + PAPER_FIRST in groups:
+        return prefix + PAPER_FIRST
+    first = next(iter(groups.values()))[0]
+    return first.group if "sweep" in first.meta and len(groups) > 1 else None
+
+
+def learning_tables(runs: list[RunRecord], metrics: tuple[str, ...], reference: str | None,
+                    prefix: str = "", kind: str = "learning") -> list[Table]:
+    """The table of means, the intervals, the paired comparison, identical records."""
+    groups = _groups(runs)
+    first = "point" if any(r.group != r.algorithm for r in runs) else "algorithm"
+    what = "evaluation" if prefix else ("sweep" if first == "point" else "learning")
+    tables = [interval_table(f"{kind}-intervals", f"95% intervals ({what})", first,
+                             {g: [r.summary for r in rs] for g, rs in groups.items()},
+                             metrics)]
+    ref = _reference(groups, reference, prefix)
+    if ref is not None and len(groups) > 1:
+        tables.append(paired_table(
+            f"{kind}-paired", f"Paired against {ref} ({what})", first,
+            {g: {r.trial: r.summary for r in rs} for g, rs in groups.items()}, ref,
+            metrics, trial_label))
+    same = identical_groups({g: {r.trial: r.digest for r in rs} for g, rs in groups.items()})
+    tables[0].notes += same
+    return tables
+
+
+def write_report(dirs: list[Path], out: Path, reference: str | None = None) -> Report:
+    """report.md, report.html and the CSVs of the finished runs in or below ``dirs``;
+    ``reference``: the algorithm (or sweep point) the others are compared with."""
     from testbed.core.config import ConfigError
 
     found = find_runs(dirs)
@@ -283,20 +409,43 @@ def write_report(dirs: list[Path], out: Path) -> Report:
     if not runs:
         raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no finished run; {notes[0]}")
     out.mkdir(parents=True, exist_ok=True)
+    sections = _sections(runs, reference)
+    md = "\n".join(t.markdown() for t in sections) + "".join(f"\n{n}\n" for n in notes)
+    for t in sections:
+        if t.csv_rows:
+            atomic_write_bytes(out / CSV_NAMES.get(t.key, f"report-{t.key}.csv"),
+                               t.csv_text().encode())
+    atomic_write_bytes(out / "report.md", md.encode())
+    learning = [r for r in runs if not r.algorithm.startswith(EVAL_PREFIX)]
+    png = _plot(learning or runs)
+    atomic_write_bytes(out / "curves.png", png)
+    from testbed.experiments.report_html import report_page
+
+    atomic_write_bytes(out / "report.html", report_page(sections, notes, png, runs).encode())
+    return Report(out, md, runs, notes, sections)
+
+
+CSV_NAMES = {"learning": "report.csv", "eval": "report-eval.csv"}
+"""The two CSVs scripts read since before the intervals (their names kept)."""
+
+
+def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
+    """Every table of the report, in the page's order."""
     learning = [r for r in runs if not r.algorithm.startswith(EVAL_PREFIX)]
     evaluations = [r for r in runs if r.algorithm.startswith(EVAL_PREFIX)]
-    md = ""
+    tables: list[Table] = []
     if learning:
-        md, csv_text = _table(learning)
-        atomic_write_bytes(out / "report.csv", csv_text.encode())
-    if learning and all(r.group == r.algorithm for r in learning):  # not for sweeps
-        md += "\n" + rohe_section(learning)
+        tables.append(mean_std_table(learning))
+        tables += learning_tables(learning, METRICS, reference)
+        if all(r.group == r.algorithm for r in learning):  # not for sweeps
+            tables.append(rohe_table(learning))
+        groups = _groups(learning)
+        tables.append(humans_table({g: [(r.humans, r.human_counts) for r in rs]
+                                    for g, rs in groups.items()}))
     if evaluations:
-        eval_md, eval_csv = _table(evaluations, EVAL_METRICS)
-        md += ("\n" if md else "") + ("Evaluation (the paper's 8.3.4, Table 2): each final policy "
-                                       "alone, humans for hard resets only\n\n") + eval_md
-        atomic_write_bytes(out / "report-eval.csv", eval_csv.encode())
-    md += "".join(f"\n{n}\n" for n in notes)
-    atomic_write_bytes(out / "report.md", md.encode())
-    _plot(learning or evaluations, out / "curves.png")
-    return Report(out, md, runs, notes)
+        tables.append(mean_std_table(
+            evaluations, EVAL_METRICS, key="eval",
+            title="Evaluation (the paper's 8.3.4, Table 2): each final policy alone, "
+                  "humans for hard resets only"))
+        tables += learning_tables(evaluations, EVAL_METRICS, reference, EVAL_PREFIX, "eval")
+    return tables

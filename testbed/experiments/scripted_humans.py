@@ -1,42 +1,120 @@
-"""The twin's scripted humans: ground-truth teleop and timed hard resets.
+"""The twin's scripted humans: operators who differ, by profile, for twin mode.
 
 Why in ``experiments``: they are how a twin trial, protocol or sweep rehearses its
 operators (the paper's simulated experts); the fleet loop sees them only through the
-``testbed.core.humans.Humans`` contract.
+``testbed.core.humans.Humans`` contract. Each human follows its
+``testbed.core.config.HumanProfile``: ``skill`` (how often its push is the expert's),
+``latency`` (timesteps before its first action) and ``availability`` (the chance it can
+take new work at a step). The default profile is the paper's perfect expert, and its
+records are those of the humans before profiles existed.
+
+Every random draw comes from a generator seeded by (trial seed, step, human, arm), not
+from a running stream: the same trial gives the same draws, and a resumed trial gives
+the draws the uninterrupted one would have, whatever happened before the crash.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 
-from testbed.core.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
+import numpy as np
+
+from testbed.core.config import HumanProfile
+from testbed.core.humans import Presence
+from testbed.core.types import (
+    NUM_ACTIONS,
+    FleetStatus,
+    HumanRequest,
+    HumanResponse,
+    InterventionKind,
+)
 
 __all__ = ["ScriptedHumans"]
 
+_SKILL, _AVAILABLE = 1, 2
+"""Which draw a generator is for (its seed's last word): independent streams."""
+
 
 class ScriptedHumans:
-    """Ground-truth teleop and timed hard resets, for twin mode.
+    """Teleop from the host's expert action, and hard resets of ``t_R`` steps, by profile.
 
     Teleop pushes the host's expert action (``ArmObservation.expert_action``, which only
-    a twin host reports). A hard reset is done at the end of the ``t_R``-th step it was
-    served (docs/ARCHITECTURE.md, "The timestep"), i.e. when ``served + 1 >= min_steps``.
+    a twin host reports) with probability ``skill``, else one of the other faces; its
+    first push comes on the intervention's ``latency``-th step (``served == latency``;
+    the steps before pass without a push). A hard reset is done at the end of the
+    ``t_R + latency``-th step it was served (docs/ARCHITECTURE.md, "The timestep"). The
+    answer that carries an intervention's first action reports ``waited_s``: the wall
+    time since this human was first asked (the steps are what the profile sets; the
+    seconds are what the twin's speed makes of them).
     """
+
+    def __init__(self, profiles: Sequence[HumanProfile] = (), seed: int = 0,
+                 robots: Sequence[str] = ()) -> None:
+        self.profiles = list(profiles)
+        self.seed = int(seed) & 0xFFFFFFFF
+        self._robot_index = {r: i for i, r in enumerate(robots)}
+        self._asked: dict[tuple[str, int], float] = {}
+        """(robot, human) -> when the current intervention was first asked (monotonic)."""
+
+    def _profile(self, human: int) -> HumanProfile:
+        if human < len(self.profiles):
+            return self.profiles[human]
+        return HumanProfile(name=f"human{human}")
+
+    def _rng(self, t: int, human: int, robot: str, what: int) -> np.random.Generator:
+        arm = self._robot_index.get(robot, sum(robot.encode()))
+        return np.random.default_rng([self.seed, int(t), human, arm, what])
 
     def act(self, requests: Sequence[HumanRequest], t: int) -> dict[str, HumanResponse]:
         out: dict[str, HumanResponse] = {}
+        now = time.monotonic()
         for req in requests:
+            key = (req.robot, req.human)
+            if req.served == 0 or key not in self._asked:
+                self._asked[key] = now
+            prof = self._profile(req.human)
             if req.kind is InterventionKind.TELEOP:
-                action = req.observation.expert_action
-                if action is None:
-                    raise RuntimeError(
-                        f"{req.robot}: scripted humans need a twin host (no expert action); "
-                        "use --humans gui with physical arms"
-                    )
-                out[req.robot] = HumanResponse(req.robot, action=int(action))
+                if req.served < prof.latency:
+                    out[req.robot] = HumanResponse(req.robot)  # not yet: the step passes
+                    continue
+                first = req.served == prof.latency
+                out[req.robot] = HumanResponse(
+                    req.robot, action=self._push(req, prof, t),
+                    waited_s=now - self._asked[key] if first else None)
             else:
-                done = req.served + 1 >= req.min_steps
-                out[req.robot] = HumanResponse(req.robot, reset_done=done)
+                done = req.served + 1 >= req.min_steps + prof.latency
+                out[req.robot] = HumanResponse(
+                    req.robot, reset_done=done,
+                    waited_s=now - self._asked[key] if done else None)
         return out
+
+    def _push(self, req: HumanRequest, prof: HumanProfile, t: int) -> int:
+        expert = req.observation.expert_action
+        if expert is None:
+            raise RuntimeError(
+                f"{req.robot}: scripted humans need a twin host (no expert action); "
+                "use --humans gui with physical arms"
+            )
+        if prof.skill >= 1.0:
+            return int(expert)
+        rng = self._rng(t, req.human, req.robot, _SKILL)
+        if rng.random() < prof.skill:
+            return int(expert)
+        others = [a for a in range(NUM_ACTIONS) if a != int(expert)]
+        return int(others[int(rng.integers(len(others)))])
+
+    def presence_at(self, t: int) -> Presence | None:
+        """Who can take new work at step ``t`` (``testbed.core.humans.presence_of``): None
+        (everyone, always) unless a profile's ``availability`` is below 1; then each such
+        human is there with that chance, drawn for (seed, t, human)."""
+        if all(p.availability >= 1.0 for p in self.profiles):
+            return None
+        available = np.array([
+            p.availability >= 1.0
+            or bool(self._rng(t, h, "", _AVAILABLE).random() < p.availability)
+            for h, p in enumerate(self.profiles)], dtype=bool)
+        return Presence(available=available)
 
     def show(self, t: int, status: FleetStatus) -> None:
         return None

@@ -182,7 +182,10 @@ def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
     opts = TrialOptions(algorithm=run.algorithm, steps=sweep.steps, seed=run.seed,
                         out=str(folder), humans=sweep.humans, name=run.name,
                         pretrain_critics=pretrain_critics_of(sweep))
+    # "index": the point's place in the grid, so the report lists points in the grid's
+    # order (1, 3, 5, 10, 20), not their names' (1, 10, 20, 3, 5)
     run_meta = {**(meta or {}), "sweep": {"name": sweep.name, "point": run.point.label,
+                                          "index": index // len(sweep.seeds),
                                           "values": run.point.values, "seed": run.seed}}
     return run_named(run.fleet, opts, folder, meta=run_meta, hooks=hooks)
 

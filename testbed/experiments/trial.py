@@ -15,7 +15,8 @@ robot), in steps of one job each:
 ``run_trial`` builds the hosts and humans (``testbed.experiments.build``), runs those
 steps inside ``try/finally`` so that, whatever happens, the arms go to their rest pose
 and the humans are closed, and ``--resume`` continues where a crash or a kill left off.
-run.json is written three times: when the run opens, once it is prepared, at the end.
+run.json is written when the run opens (with the code it runs), once its hosts have
+answered (which hosts), once it is prepared, and at the end.
 """
 
 from __future__ import annotations
@@ -25,18 +26,18 @@ import functools
 import json
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
 from testbed.core.config import ConfigError, FleetConfig, HostConfig
-from testbed.core.hosts import Hosts, stop_motion_of
+from testbed.core.hosts import Hosts, LoopHosts, hosts_info_of, stop_motion_of
 from testbed.core.humans import Humans, HumansStopRequested
 from testbed.core.interrupts import critical
 from testbed.core.wrappers import HumansWrapper
-from testbed.experiments.build import build_hosts, make_humans, shared_cells
+from testbed.experiments.build import build_hosts, code_identity, make_humans, shared_cells
 from testbed.experiments.checkpointer import CheckpointWriter
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import (
@@ -148,7 +149,9 @@ def run_trial(
     cfg, opts = run.cfg, run.opts
     humans = hooks.humans(run.dir.path.name)
     if humans is None:
-        humans = make_humans(opts.humans, cfg.humans.count, cfg.humans.web)
+        humans = make_humans(opts.humans, cfg.humans.count, cfg.humans.web,
+                             people=cfg.humans.profiles, seed=opts.seed,
+                             robots=cfg.robot_names)
     own_hosts = hosts is None
     if hosts is None:
         built = build_hosts(cfg, opts.seed + (run.start * 7919 if run.start else 0),
@@ -166,6 +169,7 @@ def run_trial(
             stopped_at = run.start
         if stopped_at is None:
             stopped_at = _run_steps(run, driven, humans, learner, algorithm, hooks)
+        _record_hosts(run, hosts)  # a host that first answered during the steps
     finally:
         if own_hosts:
             try:
@@ -198,11 +202,21 @@ def _open_run(cfg: FleetConfig, opts: TrialOptions, resume: Path | None,
         folder.write_config(cfg)
         run = _Run(folder, cfg, cfg, opts,
                    {**(meta or {}), "options": opts.__dict__, "created": time.time(),
-                    "status": RUNNING})
+                    "status": RUNNING, "humans": _humans_record(cfg, opts)})
+        _record(run.meta, "code", code_identity())
         run.save_meta()
     if host_configs is not None:
         run.cfg = _with_hosts(run.cfg, host_configs, run.dir.path)
     return run
+
+
+def _humans_record(cfg: FleetConfig, opts: TrialOptions) -> dict[str, Any]:
+    """run.json ``humans``: who answered the interventions, by index: each human's name
+    (never a secret: a web console's tokens are elsewhere and never written) and, for
+    scripted humans, their profile (testbed/core/config.py ``HumanProfile``)."""
+    scripted = opts.humans == "scripted"
+    return {"kind": opts.humans, "people": [
+        p.model_dump() if scripted else {"name": p.name} for p in cfg.humans.profiles]}
 
 
 def _resumed(path: Path) -> _Run:
@@ -219,9 +233,45 @@ def _resumed(path: Path) -> _Run:
     _rewrite_steps(folder.steps, prior)
     meta.update(status=RUNNING, resumed=[*meta.get("resumed", []), time.time()])
     meta.pop("stopped_at", None)
+    _record(meta, "code", code_identity())  # this session's, beside the first's
     run = _Run(folder, cfg, cfg, opts, meta, state, prior)
     run.save_meta()
     return run
+
+
+def _record(meta: dict[str, Any], key: str, value: dict[str, Any],
+            merge: Callable[[Any, dict[str, Any]], dict[str, Any]] | None = None) -> None:
+    """run.json ``key`` (``code``, ``hosts``) for this session. The session that opened
+    the run writes ``key``; each resumed session k appends its own entry
+    ``{"session": k, key: value}`` to ``resumed_<key>`` (k as in ``resumed`` and the
+    data store's frames), so what the first session recorded is kept and every session
+    says what ran its steps, even when it is the same. ``merge``: how to combine with
+    what this session recorded before (its hosts that answered late)."""
+    session = len(meta.get("resumed", []))
+    slot = meta
+    if session:
+        history = meta.setdefault(f"resumed_{key}", [])
+        if not history or history[-1].get("session") != session:
+            history.append({"session": session})
+        slot = history[-1]
+    old = slot.get(key)
+    slot[key] = value if merge is None or old is None else merge(old, value)
+
+
+def _first_answers(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
+    """Each host as it first answered in this session; one that had not answered yet
+    (``build`` None) as it is now."""
+    return {name: old[name] if (old.get(name) or {}).get("build") else entry
+            for name, entry in new.items()}
+
+
+def _record_hosts(run: _Run, hosts: LoopHosts) -> None:
+    """run.json ``hosts``: each host of the fleet as its agent said when it answered
+    (``hosts_info_of``; never a credential); nothing for hosts that cannot say (an
+    in-process double), rather than a guess."""
+    info = hosts_info_of(hosts)
+    if info is not None:
+        _record(run.meta, "hosts", info, merge=_first_answers)
 
 
 def _algorithm(run: _Run) -> Algorithm:
@@ -238,7 +288,10 @@ def _prepare(run: _Run, hosts: Hosts, humans: Humans, hooks: TrialHooks
     """The algorithm, the learner the first step acts with, and the hosts the loop
     drives (the expert row wraps them). Thresholds given as quantiles are resolved on
     the learner, those the algorithm reads (BC reads neither); unread ones stay as given
-    in config.toml. run.json gets the thresholds and the numerics (threads etc.)."""
+    in config.toml. run.json gets the hosts (at once: pretraining may take minutes),
+    the thresholds and the numerics (threads etc.)."""
+    _record_hosts(run, hosts)
+    run.save_meta()
     algorithm = _algorithm(run)
     pending = {k: q for k, q in run.cfg.algorithm.quantile_thresholds.items()
                if SIGNAL[k] in algorithm.spec.reads}

@@ -57,6 +57,7 @@ from testbed.core.types import (
 )
 from testbed.fleet.algorithms import Algorithm
 from testbed.fleet.allocator import Allocator
+from testbed.fleet.interventions import FirstActions
 from testbed.fleet.priorities import PrioritySignals
 from testbed.records import store as rundata
 from testbed.records.step_record import ArmStep, StepRecord
@@ -106,6 +107,11 @@ class _Decided:
     """Pushes not sent because a human is resetting an arm of the same cell: robot ->
     why (recorded as ``refused``, with the face the policy or the human chose)."""
     held_faces: dict[str, int] = field(default_factory=dict)
+    served: dict[str, int] = field(default_factory=dict)
+    """Robot -> steps its human has already spent on the intervention (0: the first)."""
+    first: dict[str, float | None] = field(default_factory=dict)
+    """Robots whose human acted for the first time in the intervention this step ->
+    the seconds the human reported (``HumanResponse.waited_s``)."""
 
 
 @dataclass
@@ -175,12 +181,14 @@ class FleetLoop:
         self._actor: ActorLike | None = (
             make_actor() if overlap_act and callable(make_actor) else None)
         self.status = FleetStatus(t=0, steps=steps)
+        self._first_actions = FirstActions()
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
         """Rebuild the live counters from the records of a resumed trial."""
         for row in rows:
             self._count(row)
+        self._first_actions.restore(rows)
 
     def _count(self, row: Mapping[str, Any]) -> None:
         s = self.status
@@ -198,7 +206,7 @@ class FleetLoop:
         """Keys, allocation, the humans' answers: what every arm does at step t."""
         faulted = np.array([not isinstance(observations.get(r), ArmObservation)
                             for r in self.robots])
-        available, away, released = self._presence()
+        available, away, released = self._presence(t)
         signals = PrioritySignals(
             t=t,
             violating=violating & ~faulted,
@@ -264,28 +272,35 @@ class FleetLoop:
     def _assign_modes(self, d: _Decided, assignment: np.ndarray, violating: np.ndarray,
                       responses: Mapping[str, HumanResponse]) -> None:
         """Each arm's mode, human and push (or reset) from the allocation and answers."""
-        kinds = self.allocator.kinds
+        kinds, served = self.allocator.kinds, self.allocator.served
         for i, r in enumerate(self.robots):
             h = int(assignment[i])
             d.humans_of[r] = h if h >= 0 else None
+            answer = responses.get(r)
+            acted = False
             if d.faulted[i]:
                 d.modes[r] = Mode.FAULT
             elif h >= 0 and kinds[i] is InterventionKind.RESET:
                 d.modes[r] = Mode.RESET
-                if responses.get(r) is not None and responses[r].reset_done:
+                if answer is not None and answer.reset_done:
                     d.resets.append(r)
+                    acted = True
             elif violating[i]:
                 d.modes[r] = Mode.IDLE
             elif h >= 0:
                 d.modes[r] = Mode.TELEOP
-                answer = responses.get(r)
                 if answer is not None and answer.action is not None:
                     d.pushes[r] = int(answer.action)  # else the human let the step pass
+                    acted = True
             else:
                 d.modes[r] = Mode.AUTONOMOUS
                 d.pushes[r] = int(d.out.actions[i])
+            if h >= 0 and not d.faulted[i]:
+                d.served[r] = int(served[i])
+                if self._first_actions.first(r, d.served[r], acted):
+                    d.first[r] = None if answer is None else answer.waited_s
 
-    def _presence(self) -> tuple[np.ndarray | None, list[int], list[dict[str, Any]]]:
+    def _presence(self, t: int) -> tuple[np.ndarray | None, list[int], list[dict[str, Any]]]:
         """Who may be assigned at this step: (available mask or None, away, released).
 
         Humans without ``presence()`` give ``(None, [], [])``: the allocation and the row
@@ -293,7 +308,7 @@ class FleetLoop:
         says, and the arm it is on is freed now, before the allocation, so a present
         human may take that arm at this very step.
         """
-        p = presence_of(self.humans)
+        p = presence_of(self.humans, t)
         if p is None:
             return None, [], []
         given = np.asarray(p.available)
@@ -399,6 +414,8 @@ class FleetLoop:
                 risk=None if faulted else float(risk[i]),
                 key=tuple(float(k) for k in d.keys[i]),
                 refused=refused,
+                served=d.served.get(r),
+                first=((d.served[r], d.first[r]) if r in d.first else None),
             ))
         faults = {r: res.reason for r, res in results.items() if isinstance(res, Fault)}
         return StepRecord(t, self.session, arms, seen.images, seen.observed, seen.goals,

@@ -3,7 +3,10 @@
 A lab operator runs it before the 250-step trial: it reaches each host, lets the
 handshake check the agent's protocol version, takes one frame of every arm, reports
 each arm's state in one line, and writes a mosaic PNG of all arms' images so a glance
-shows a camera that is dark, a crop that is off, or a cube out of its workspace.
+shows a camera that is dark, a crop that is off, or a cube out of its workspace: each
+tile is labelled with its robot's name and has the arm's workspace outlined on it (the
+violation check's polygon, in the crop's canonical frame), so the glance also says
+which arm it is and how far the cube is from leaving its workspace.
 
 A YuMi host's controller reports itself (RobotWare version and options, serial, operating
 mode, controller and RAPID state, speed ratio, tasks, our RAPID modules' version against
@@ -22,9 +25,9 @@ without a camera frame (the twin) are skipped with a line, not failed.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
@@ -39,7 +42,8 @@ def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], N
 
     hosts = build_hosts(cfg, cfg.trial.seed)
     ok = True
-    images = []
+    images: list[np.ndarray] = []
+    names: list[str] = []
     try:
         hosts.start()
         obs = hosts.observe()
@@ -51,6 +55,7 @@ def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], N
                 dark = " DARK IMAGE?" if mean < 10 else ""
                 print_line(f"ok    {robot}: frame {o.image.shape}, {state}{dark}")
                 images.append(o.image)
+                names.append(robot)
             else:
                 ok = False
                 reason = o.reason if isinstance(o, Fault) else "no answer"
@@ -62,7 +67,8 @@ def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], N
     finally:
         hosts.close()
     if images:
-        cv2.imwrite(str(mosaic_path), cv2.cvtColor(mosaic(images), cv2.COLOR_RGB2BGR))
+        picture = mosaic(images, names)
+        cv2.imwrite(str(mosaic_path), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
         print_line(f"mosaic of {len(images)} arms -> {mosaic_path}")
     return ok
 
@@ -213,15 +219,73 @@ def _table_box_px(host: HostConfig, arm: str, path: str | None) -> tuple[Any, st
         return None, f"calibration {where} has no usable homography/table_box_mm ({exc})"
 
 
-def mosaic(images: list[np.ndarray], cols: int = 4, scale: int = 4) -> np.ndarray:
-    """Tile arm images (upscaled) into one picture for ``testbed check``."""
+MOSAIC_LABEL_H: Final = 22
+"""Pixels of the strip above each tile that carries its robot's name."""
+MOSAIC_GAP: Final = 4
+"""Background pixels between tiles, so that two arms' crops never read as one."""
+MOSAIC_BACKGROUND: Final = (32, 32, 32)
+MOSAIC_TEXT: Final = (235, 235, 235)
+MOSAIC_OUTLINE: Final = (255, 220, 0)
+"""RGB of the workspace outline: the consoles' colour for it (``gui.draw.POLYGON``)."""
+
+
+def mosaic_size(count: int, image_px: int = 64, cols: int = 4, scale: int = 4
+                ) -> tuple[int, int]:
+    """(height, width) of the mosaic of ``count`` arms' ``image_px`` crops."""
+    rows, used = (count + cols - 1) // cols, min(cols, count)
+    side = image_px * scale
+    return (rows * (MOSAIC_LABEL_H + side) + (rows - 1) * MOSAIC_GAP,
+            used * side + (used - 1) * MOSAIC_GAP)
+
+
+def mosaic(images: Sequence[np.ndarray], names: Sequence[str], cols: int = 4,
+           scale: int = 4) -> np.ndarray:
+    """Tile arm images (RGB, upscaled) into one RGB picture for ``testbed check``.
+
+    Each tile sits under a strip with its robot's name (``cell0/left``), and the arm's
+    workspace polygon is drawn on it: the crop is in the canonical frame (a mirrored
+    arm's too), where the polygon is one for every arm, so a cube near or over the line
+    is an arm about to need, or needing, a hard reset.
+    """
+    if len(names) != len(images):
+        raise ValueError(f"mosaic: {len(images)} images but {len(names)} names")
     if not images:
         return np.zeros((64 * scale, 64 * scale, 3), np.uint8)
-    rows = (len(images) + cols - 1) // cols
-    h, w = images[0].shape[0] * scale, images[0].shape[1] * scale
-    out = np.zeros((rows * h, min(cols, len(images)) * w, 3), np.uint8)
-    for k, img in enumerate(images):
-        big = np.kron(img, np.ones((scale, scale, 1), np.uint8))
+    side_h, side_w = images[0].shape[0] * scale, images[0].shape[1] * scale
+    height, width = mosaic_size(len(images), images[0].shape[0], cols, scale)
+    out = np.empty((height, width, 3), np.uint8)
+    out[:] = MOSAIC_BACKGROUND
+    for k, (img, name) in enumerate(zip(images, names, strict=True)):
         r, c = divmod(k, cols)
-        out[r * h : (r + 1) * h, c * w : (c + 1) * w] = big
+        y0 = r * (MOSAIC_LABEL_H + side_h + MOSAIC_GAP)
+        x0 = c * (side_w + MOSAIC_GAP)
+        _label(out[y0 : y0 + MOSAIC_LABEL_H, x0 : x0 + side_w], name)
+        tile = out[y0 + MOSAIC_LABEL_H : y0 + MOSAIC_LABEL_H + side_h, x0 : x0 + side_w]
+        tile[:] = np.kron(img[..., :3], np.ones((scale, scale, 1), np.uint8))
+        _outline_workspace(tile, thickness=max(1, scale // 2))
     return out
+
+
+def _label(strip: np.ndarray, text: str) -> None:
+    """``text`` in ``strip`` (a view into the mosaic), cut to fit its width."""
+    import cv2
+
+    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.5
+    room = strip.shape[1] - 8
+    while len(text) > 4 and cv2.getTextSize(text, font, size, 1)[0][0] > room:
+        text = text[:-3] + ".."
+    canvas = np.ascontiguousarray(strip)
+    cv2.putText(canvas, text, (4, MOSAIC_LABEL_H - 7), font, size, MOSAIC_TEXT, 1,
+                cv2.LINE_AA)
+    strip[:] = canvas
+
+
+def _outline_workspace(tile: np.ndarray, thickness: int) -> None:
+    """The workspace polygon (canonical units) drawn on an upscaled canonical crop."""
+    import cv2
+
+    h, w = tile.shape[:2]
+    pts = np.round(np.asarray(_workspace()) * (w, h)).astype(np.int32).reshape(-1, 1, 2)
+    canvas = np.ascontiguousarray(tile)
+    cv2.polylines(canvas, [pts], True, MOSAIC_OUTLINE, thickness, cv2.LINE_AA)
+    tile[:] = canvas

@@ -213,7 +213,8 @@ class _RehearsalHooks(TrialHooks):
         from testbed.experiments.build import make_humans
 
         fleet = self.lab.fleet
-        inner = make_humans(self.kind, fleet.humans.count, fleet.humans.web)
+        inner = make_humans(self.kind, fleet.humans.count, fleet.humans.web,
+                            people=fleet.humans.profiles, robots=fleet.robot_names)
         return TwinLabHumans(inner, self.lab.labs, self.views, expert=self.kind == "scripted")
 
     def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:

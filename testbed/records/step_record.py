@@ -38,6 +38,14 @@ class ArmStep:
     key: tuple[float, ...]
     refused: str | None = None
     """Why the host did not push (``mode`` is then ``refused``)."""
+    served: int | None = None
+    """With a human on the arm: the steps that human already spent on this intervention
+    (0 on its first step; ``Allocator.served``), so an intervention is the run of steps
+    from a 0. None without a human."""
+    first: tuple[int, float | None] | None = None
+    """On the step of the intervention's first action (a teleop's first push, a reset's
+    confirmation): (steps from the assignment, i.e. ``served``; the seconds the human
+    reported, or None)."""
 
     def to_entry(self) -> dict[str, Any]:
         entry: dict[str, Any] = {
@@ -53,6 +61,10 @@ class ArmStep:
         }
         if self.refused is not None:
             entry["refused"] = self.refused
+        if self.served is not None:
+            entry["served"] = self.served
+        if self.first is not None:
+            entry["first"] = {"steps": self.first[0], "s": self.first[1]}
         return entry
 
 
@@ -120,9 +132,17 @@ class StepRecord:
         that make data stores from rows)."""
         arms = [ArmStep(r["robot"], Mode(r["mode"]), r["human"], r["action"],
                         bool(r["success"]), bool(r["violation"]), r["uncertainty"],
-                        r["risk"], tuple(r.get("key", ())), r.get("refused"))
+                        r["risk"], tuple(r.get("key", ())), r.get("refused"),
+                        r.get("served"), _first(r.get("first")))
                 for r in row["robots"]]
         return cls(int(row["t"]), session, arms, images, observed, goals,
                    dict(row.get("faults", {})), list(row.get("away", [])),
                    list(row.get("released", [])), float(row.get("wall_time", 0.0)),
                    float(row.get("duration_s", 0.0)))
+
+
+def _first(entry: dict[str, Any] | None) -> tuple[int, float | None] | None:
+    """A row's ``first`` back as ``ArmStep.first``."""
+    if entry is None:
+        return None
+    return int(entry["steps"]), None if entry.get("s") is None else float(entry["s"])

@@ -73,6 +73,25 @@ def _is_number(v: object) -> bool:
             and math.isfinite(float(v)))
 
 
+def _check_intervention(row: dict[str, Any], where: str, human: object) -> None:
+    """``served`` (an int >= 0, only with a human) and ``first`` (``{"steps": served,
+    "s": seconds >= 0 or null}``, only with ``served``): optional, as rows written before
+    them have neither."""
+    served = row.get("served")
+    if "served" in row and not (_is_int(served) and served >= 0 and human is not None):
+        raise RecordError(f"{where}.served must be an int >= 0 on an arm with a human, "
+                          f"got {served!r} (human {human!r})")
+    if "first" not in row:
+        return
+    first = row["first"]
+    if not (isinstance(first, dict) and first.get("steps") == served and "served" in row):
+        raise RecordError(f"{where}.first must be {{\"steps\": served, \"s\": ...}}, got "
+                          f"{first!r} (served {served!r})")
+    secs = first.get("s")
+    if secs is not None and not (_is_number(secs) and secs >= 0):
+        raise RecordError(f"{where}.first.s must be a number >= 0 or null, got {secs!r}")
+
+
 def validate_step(obj: object) -> None:
     """Raise ``RecordError`` naming the field unless ``obj`` is a valid step row.
 
@@ -124,6 +143,7 @@ def validate_step(obj: object) -> None:
                               f"{refused!r}")
         if "refused" in row and mode != Mode.REFUSED.value:
             raise RecordError(f"{where}.refused is only for mode 'refused', got mode {mode!r}")
+        _check_intervention(row, where, human)
         action = row.get("action", ...)
         if action is ... or not (action is None or (_is_int(action)
                                                     and 0 <= action < NUM_ACTIONS)):

@@ -25,6 +25,7 @@ from drivers.build_id import (
     is_checkout,
     mismatch_line,
     product_files,
+    source_state,
     tree_build,
 )
 from drivers.errors import ProtocolError
@@ -114,6 +115,25 @@ def test_a_source_tree_without_git_is_a_hash_of_its_files(checkout: Path, tmp_pa
     assert tree_build(one) != tree_build(two)
 
 
+def test_the_source_state_is_the_commit_dirty_and_build_of_one_git_reading(
+        checkout: Path, tmp_path: Path) -> None:
+    """What run.json ``code`` says: HEAD in full, dirty exactly when the build id has
+    its ``.d<hash8>`` (the product changed, not the tests), the build id itself."""
+    head = git(checkout, "rev-parse", "HEAD").strip()
+    state = source_state(checkout)
+    assert (state.commit, state.dirty, state.build) == (head, False, checkout_build(checkout))
+    assert re.fullmatch(r"[0-9a-f]{40}", head)
+    (checkout / "tests" / "test_a.py").write_text("def test(): assert 1\n")
+    assert source_state(checkout).dirty is False  # not the product
+    (checkout / "drivers" / "a.py").write_text("A = 2\n")
+    state = source_state(checkout)
+    assert state.commit == head and state.dirty is True
+    assert state.build == checkout_build(checkout) and ".d" in state.build
+    copy = tmp_path / "copy"
+    shutil.copytree(checkout, copy, ignore=shutil.ignore_patterns(".git"))
+    assert source_state(copy) == type(state)(None, None, tree_build(copy))  # no git: unknown
+
+
 def test_the_controller_keeps_its_build_and_also_takes_its_trees_build_of_now(
         checkout: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Cached per process; on a mismatch asked once more: a file saved since the
@@ -141,6 +161,7 @@ def test_an_agent_of_this_checkout_reports_its_build_at_hello() -> None:
         info = p.parse_hello_reply(p.check_reply(hello, "hello_ok", 1, "agent"), "agent")
         # computed by the agent's own git run, the same way as ours (the same checkout)
         assert info.build == checkout_build(ROOT)
+        assert info.controller is None  # a twin has no controller to name
         assert agent.call("bye").type == "bye_ok"
     finally:
         agent.proc.kill()
@@ -156,6 +177,21 @@ def test_hello_ok_build_is_a_string_or_absent() -> None:
     for bad in (5, "", ["x"]):
         with pytest.raises(ProtocolError, match="'build' must be a build id string"):
             p.parse_hello_reply(p.Frame({**base, "build": bad}), "agent")
+
+
+def test_hello_ok_controller_is_an_object_of_strings_or_absent() -> None:
+    """A YuMi agent's ``controller`` (no version change: optional, like ``build``)."""
+    base = {"type": "hello_ok", "id": 1, "version": p.PROTOCOL_VERSION, "backend": "yumi",
+            "arms": ["left"], "mirror": [False], "pid": 7, "build": "0.1.0+gabc1234"}
+    assert p.parse_hello_reply(p.Frame(base), "agent").controller is None
+    said = {"serial": "14000-512345", "robotware": "6.08.01.00", "system": "YUMI_A"}
+    assert p.parse_hello_reply(p.Frame({**base, "controller": said}), "agent"
+                               ).controller == said
+    assert p.parse_hello_reply(p.Frame({**base, "controller": {"serial": "x" * 500}}),
+                               "agent").controller == {"serial": "x" * 200}
+    for bad in ("IRC5", {"serial": 5}, {"password": "secret"}):
+        with pytest.raises(ProtocolError, match="'controller' must be null or an object"):
+            p.parse_hello_reply(p.Frame({**base, "controller": bad}), "agent")
 
 
 def test_a_host_running_another_checkout_is_refused_at_hello_naming_it(tmp_path: Path
@@ -181,5 +217,8 @@ def test_a_host_running_another_checkout_is_refused_at_hello_naming_it(tmp_path:
         assert status.error == mismatch_line("cell0", theirs, build_id(), str(other))
         assert status.error.startswith(f"host cell0 runs build {theirs} from its checkout "
                                        f"{other}, this controller is build {build_id()}")
+        # refused at hello: not a host of this run's code, so its build stays unknown
+        assert fleet.hosts_info()["cell0"] == {"backend": "twin", "transport": "local",
+                                               "build": None, "arms": ["left", "right"]}
         obs = fleet.observe()
         assert all(isinstance(o, Fault) and status.error in o.reason for o in obs.values())

@@ -12,6 +12,7 @@ import pytest
 from driver_fakes import ExplodingBackend, ThreadAgentTransport, local_host, wait_until
 
 import drivers.session
+from drivers.build_id import matches
 from drivers.host_fleet import HostFleet, derive_seed
 from drivers.transport import LocalTransport, make_transport
 from testbed.core.config import HostConfig, TwinHost, YumiHost
@@ -50,6 +51,14 @@ def test_twin_fleet_observes_executes_and_closes_cleanly() -> None:
         fleet.rest()
         pids = agent_pids(fleet)
         assert len(pids) == 2
+        # what run.json ``hosts`` records: each host as its agent said at hello
+        info = fleet.hosts_info()
+        assert list(info) == ["cell0", "cell1"]
+        for name, entry in info.items():
+            assert entry == {"backend": "twin", "transport": "local",
+                             "build": fleet.host_status()[name].build,
+                             "arms": ["left", "right"]}
+            assert matches(entry["build"])  # this checkout's build, as hello checked
     wait_until(lambda: not any(alive(pid) for pid in pids.values()), 10, "agents to exit")
 
 

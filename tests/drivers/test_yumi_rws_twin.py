@@ -234,3 +234,27 @@ def test_a_push_past_the_world_zone_is_stopped_by_the_controller(yumi: Any,
         backend.move_tcp("left", (zone.x1 + 40.0, y, 20.0))
     assert tcps(cell, lock)["left"][0] == pytest.approx(zone.x1, abs=0.5)
     backend.close()
+
+
+# -- what the agent says of its controller at hello (run.json ``hosts``) -------------------
+def test_controller_info_is_what_the_controller_says_and_never_the_login(
+        tmp_path: Path) -> None:
+    from drivers.yumi.rws_controller import controller_identity, controller_info
+    from sim_twin.rws import serve
+    from sim_twin.rws.irc5 import Identity
+
+    ident = Identity(ctrl_id="14000-512345", rwversion="6.15.02.00", name="YUMI_LAB")
+    server = serve(Irc5Controller(identity=ident), users={"lab": "s3cret-pw"})
+    login = tmp_path / "rws.login"
+    login.write_text("lab:s3cret-pw\n")
+    login.chmod(0o600)
+    try:
+        info = controller_info(server.url, str(login))
+        assert info == {"serial": "14000-512345", "robotware": "6.15.02.00",
+                        "system": "YUMI_LAB"}
+        assert controller_identity(server.url, str(login)) == "IRC5 14000-512345"
+        login.write_text("lab:wrong\n")  # refused: nothing is known, nothing is guessed
+        assert controller_info(server.url, str(login)) is None
+    finally:
+        server.stop()
+    assert controller_info(server.url, None, timeout_s=0.5) is None  # unreachable

@@ -1,7 +1,8 @@
 """Real windows under Xvfb, driven by xdotool as a person would drive them.
 
 Each human's key goes to that human's arm (per-window attribution), a click on a face
-marker pushes that face, Enter completes a hard reset, p pauses, Esc then y stops.
+marker pushes that face, Enter completes a hard reset, p pauses, Esc then y stops; the
+first key or Enter of an intervention carries its time to first action (``waited_s``).
 """
 
 from __future__ import annotations
@@ -112,6 +113,41 @@ def test_enter_completes_a_hard_reset(
     later = make_request("cell1/left", 1, "reset", served=1)
     assert console.act([later], 21)["cell1/left"].reset_done is True
     assert console.act([later], 22)["cell1/left"].reset_done is False
+
+
+DELAY_S = 0.4
+"""How long the test's human looks at a window before answering it."""
+
+
+def test_waited_s_from_the_window_to_the_first_key_and_enter(
+    console: ConsoleHumans, windows: list[str], xvfb: Xvfb, make_request: RequestFactory
+) -> None:
+    def teleop(t: int, served: int, delay_s: float) -> Any:
+        call = ActCall(lambda: console.act(
+            [make_request("cell0/left", 0, served=served)], t))
+        console.wait_for_prompt(0)  # the window reported the frame painted
+        time.sleep(delay_s)
+        until_taken(lambda: press(windows[0], "w", display=xvfb.display),
+                    lambda: not call.waiting)
+        return call.join()["cell0/left"]
+
+    first = teleop(24, 0, DELAY_S)
+    assert first.action == 0
+    assert first.waited_s is not None and DELAY_S <= first.waited_s < DELAY_S + 2.0
+    later = teleop(25, 1, 0.0)
+    assert later.action == 0 and later.waited_s is None
+
+    assert console.act([make_request("cell1/left", 1, "reset")], 26)[
+        "cell1/left"].waited_s is None
+    console.wait_for_prompt(1)
+    time.sleep(DELAY_S)
+    until_taken(lambda: press(windows[1], "Return", display=xvfb.display),
+                lambda: console.snapshot(1).phase is Phase.RESET_CONFIRMED)
+    done = console.act([make_request("cell1/left", 1, "reset", served=1)], 27)["cell1/left"]
+    assert done.reset_done
+    assert done.waited_s is not None and DELAY_S <= done.waited_s < DELAY_S + 2.0
+    held = console.act([make_request("cell1/left", 1, "reset", served=2)], 28)["cell1/left"]
+    assert held.waited_s is None
 
 
 def test_pause_blocks_act_until_resumed(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from console_helpers import RequestFactory
 
 from gui.desk import Desk
@@ -136,3 +137,86 @@ def test_after_a_timeout_late_keys_do_not_count(make_request: RequestFactory) ->
     assert not d.on_push(0, seq)
     view = d.view()
     assert view.phase is Phase.SENT and view.sent_action is None
+
+
+# ---- time to first action (HumanResponse.waited_s), on the desk's own stamps -----------
+def test_waited_s_is_on_the_first_push_of_each_teleop_only(make_request: RequestFactory) -> None:
+    d = desk()
+    d.assign([make_request(served=0)], t=0, serial=1)
+    d.register(1, d.view(), posted_at=100.0)
+    d.on_shown(1, 100.25)  # on screen a quarter second after it left
+    assert d.on_push(3, 1, at=102.0)
+    first = d.responses()["cell0/left"]
+    assert first.action == 3 and first.waited_s == pytest.approx(1.75)
+    for t, served in ((1, 1), (2, 2)):  # the same intervention's later steps
+        d.assign([make_request(served=served)], t=t, serial=1 + t)
+        d.register(1 + t, d.view(), posted_at=103.0 + t)
+        d.on_shown(1 + t, 103.0 + t)
+        assert d.on_push(0, 1 + t, at=104.0 + t)
+        later = d.responses()["cell0/left"]
+        assert later.action == 0 and later.waited_s is None
+    d.assign([make_request(served=0)], t=3, serial=4)  # a new intervention: a new clock
+    d.register(4, d.view(), posted_at=200.0)
+    d.on_shown(4, 200.5)
+    d.on_shown(1, 90.0)  # a late report of the old intervention's frame changes nothing
+    assert d.on_push(1, 4, at=203.0)
+    assert d.responses()["cell0/left"].waited_s == pytest.approx(2.5)
+
+
+def test_a_step_let_pass_carries_none_and_the_clock_runs_on(make_request: RequestFactory
+                                                           ) -> None:
+    d = desk()
+    d.assign([make_request(served=0)], t=0, serial=1)
+    d.register(1, d.view(), posted_at=10.0)
+    d.on_shown(1, 10.5)
+    passed = d.responses()["cell0/left"]  # act() gave up: no push
+    assert passed.action is None and passed.waited_s is None
+    d.assign([make_request(served=1)], t=1, serial=2)
+    d.register(2, d.view(), posted_at=14.0)
+    d.on_shown(2, 14.5)
+    assert d.on_push(2, 2, at=16.0)
+    # from the first time this intervention was on screen, not from this step's frame
+    assert d.responses()["cell0/left"].waited_s == pytest.approx(5.5)
+
+
+def test_waited_s_of_a_reset_is_on_the_answer_that_reports_it_done(
+    make_request: RequestFactory,
+) -> None:
+    d = desk()
+    d.assign([make_request(kind="reset", served=0)], t=0, serial=1)
+    d.register(1, d.view(), posted_at=50.0)
+    d.on_shown(1, 50.1)
+    assert d.responses()["cell0/left"].waited_s is None  # not confirmed yet
+    assert d.on_confirm(1, at=58.1)  # Enter while the fleet executes
+    d.assign([make_request(kind="reset", served=1)], t=1, serial=2)
+    done = d.responses()["cell0/left"]
+    assert done.reset_done and done.waited_s == pytest.approx(8.0)
+    d.assign([make_request(kind="reset", served=2, violating=False)], t=2, serial=3)
+    held = d.responses()["cell0/left"]
+    assert not held.reset_done and held.waited_s is None
+
+
+def test_a_key_before_its_paint_report_times_from_the_frames_departure(
+    make_request: RequestFactory,
+) -> None:
+    d = desk()
+    d.assign([make_request(served=0)], t=0, serial=1)
+    d.register(1, d.view(), posted_at=7.0)
+    assert d.on_push(0, 1, at=7.4)  # no paint report yet (a page's key came first)
+    d.on_shown(1, 7.6)
+    assert d.responses()["cell0/left"].waited_s == pytest.approx(0.4)
+
+
+def test_a_queued_request_is_timed_from_when_it_was_shown(make_request: RequestFactory
+                                                         ) -> None:
+    d = desk()
+    d.assign([make_request("a/left"), make_request("b/left")], t=0, serial=1)
+    d.register(1, d.view(), posted_at=1.0)  # shows a/left; b/left waits behind it
+    d.on_shown(1, 1.0)
+    assert d.on_push(0, 1, at=2.0)
+    d.register(2, d.view(), posted_at=2.0)  # now b/left
+    d.on_shown(2, 2.1)
+    assert d.on_push(3, 2, at=5.1)
+    out = d.responses()
+    assert out["a/left"].waited_s == pytest.approx(1.0)
+    assert out["b/left"].waited_s == pytest.approx(3.0)

@@ -2,7 +2,8 @@
 
 First, pages against a ``WebHumans`` in this process: the page paints the very pixels
 the OpenCV console draws, a page without a token shows nothing, a key on one page and a
-tap on the other push their own human's arms.
+tap on the other push their own human's arms, and a human with no arm sees that they
+wait and the fleet's counters and modes, live, instead of an empty image.
 
 Then end to end, ``testbed trial --humans web`` on the twin: the trial runs in its own
 process; two headless Chromium windows open the two humans' URLs and answer as people
@@ -30,7 +31,7 @@ from typing import Any
 import numpy as np
 import pytest
 import tomli_w
-from console_helpers import ActCall
+from console_helpers import ActCall, arm_image
 from selenium.webdriver.common.keys import Keys
 
 from gui.console_core import OVERVIEW
@@ -45,6 +46,7 @@ from gui.web.browser import (
     page_state,
     press_key,
 )
+from testbed.core.types import FleetStatus, Mode, RobotStatus
 from testbed.records.steps import read_steps
 
 pytestmark = pytest.mark.browser
@@ -148,6 +150,85 @@ def test_a_key_and_a_tap_push_their_own_humans_arms(
                    .get("humans", [])] == [False, True], "overview shows who is here")
     assert web.presence().available.tolist() == [False, True]
     assert web._posted[OVERVIEW] > 0
+
+
+IDLE_PANEL = """
+const q = (id) => document.getElementById(id);
+const counters = {};
+for (const k of ["step", "successes", "hard_resets", "idle_time", "human_actions", "rohe"]) {
+  counters[k] = q("f-" + k).textContent;
+}
+return {idle: !q("idle").hidden, waiting: q("waiting").textContent, counters,
+        none: !q("fleet-none").hidden,
+        rows: Array.from(q("fleet-robots").tBodies[0].rows,
+                         (tr) => Array.from(tr.cells, (td) => td.textContent))};
+"""
+
+
+def _panel_when(page: Any, cond: Any, what: str) -> dict[str, Any]:
+    """The idle panel's contents once ``cond(panel)`` holds."""
+    got: dict[str, Any] = {}
+
+    def ready() -> bool:
+        got.update(page.execute_script(IDLE_PANEL))
+        return bool(cond(got))
+
+    _wait(ready, f"{what}: {got}")
+    return got
+
+
+def test_a_human_without_an_arm_sees_the_wait_and_the_fleet(
+    web: WebHumans, pages: tuple[Any, Any], make_request: Any
+) -> None:
+    from selenium.webdriver.common.by import By
+
+    page = pages[0]
+    open_console(page, web.urls[0])
+    panel = _panel_when(page, lambda p: p["idle"], "no idle panel before the first step")
+    assert panel["none"] and panel["rows"] == [] and panel["counters"]["step"] == "-"
+    assert page.find_element(By.ID, "waiting").is_displayed()
+    assert "Waiting for an arm: nothing needs you right now" in page.find_element(
+        By.ID, "idle").text
+    assert not page.find_element(By.ID, "frame").is_displayed(), "the empty grey box"
+    assert not page.find_element(By.ID, "reset").is_enabled()
+
+    image = arm_image()
+    web.show(7, FleetStatus(7, 24, successes=3, hard_resets=1, idle_time=4,
+                            human_actions=9, rohe=0.25, robots=[
+        RobotStatus("cell0/left", Mode.AUTONOMOUS, image),
+        RobotStatus("cell0/right", Mode.TELEOP, image, 1),
+        RobotStatus("cell1/left", Mode.IDLE, image),
+        RobotStatus("cell1/right", Mode.FAULT, None)]))
+    panel = _panel_when(page, lambda p: p["counters"]["step"] == "7 of 24", "step 7")
+    assert panel["counters"] == {"step": "7 of 24", "successes": "3", "hard_resets": "1",
+                                 "idle_time": "4", "human_actions": "9", "rohe": "0.250"}
+    assert panel["rows"] == [["cell0/left", "autonomous", "-"],
+                             ["cell0/right", "teleop", "human 1"],
+                             ["cell1/left", "idle", "-"], ["cell1/right", "fault", "-"]]
+    assert not panel["none"]
+    text = page.find_element(By.ID, "idle").text  # what is on screen, not only in the DOM
+    assert "Waiting for an arm" in text and "cell0/right" in text and "human 1" in text
+
+    web.show(8, FleetStatus(8, 24, successes=4, hard_resets=2, idle_time=5,
+                            human_actions=10, rohe=0.3, robots=[
+        RobotStatus("cell0/left", Mode.AUTONOMOUS, image),
+        RobotStatus("cell0/right", Mode.AUTONOMOUS, image),
+        RobotStatus("cell1/left", Mode.RESET, image, 1),
+        RobotStatus("cell1/right", Mode.AUTONOMOUS, image)]))
+    panel = _panel_when(page, lambda p: p["counters"]["step"] == "8 of 24", "live: step 8")
+    assert (panel["counters"]["successes"], panel["counters"]["rohe"]) == ("4", "0.300")
+    assert panel["rows"][2] == ["cell1/left", "reset", "human 1"]
+
+    # an arm for human 0: the image and its buttons come back; done, the panel again
+    call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 8))
+    web.wait_for_prompt(0)
+    _panel_when(page, lambda p: not p["idle"], "the arm's image")
+    assert page.find_element(By.ID, "frame").is_displayed()
+    press_key(page, "w")
+    assert call.join()["cell0/left"].action == 0
+    web.act([], 9)
+    panel = _panel_when(page, lambda p: p["idle"], "idle again")
+    assert panel["counters"]["step"] == "8 of 24"
 
 
 def _free_port() -> int:

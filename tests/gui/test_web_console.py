@@ -15,13 +15,17 @@ What is proven:
   why) and never applied to the next step;
 * the "Reset done" button completes a hard reset (only on a frame that showed it);
   pause / resume / stop-then-yes / stop-then-no from a page;
+* time to first action: ``waited_s`` from the frame on the page to the first key or the
+  reset button, once per intervention (at least the delay the test waits before it),
+  None on the intervention's later answers, restarted by a new intervention;
 * presence: a human is available while a page of theirs is open, unavailable at once
   when the last one closes, ``gone`` only after ``grace_s``; ``act`` waits for an away
   human's push at most ``away_timeout_s`` and still waits for a present one;
 * malformed messages get an error reply and the socket goes on (one known exception:
   see ``test_a_message_the_parser_chokes_on_gets_an_error_too``);
 * the overview socket: who is present, the counters of each ``show``, and the
-  history of every point so far for a page that opens late;
+  history of every point so far for a page that opens late; the human pages' "fleet"
+  text (counters, modes, who holds which arm) each step, the latest at once on opening;
 * TLS from a certificate and key (https, wss; plain http fails); a taken port is one
   ``ConsoleUnavailable`` line naming host:port.
 
@@ -492,6 +496,53 @@ def test_stop_then_yes_stops(
     p1.wait_frame(lambda h: h["stop_requested"])  # every page is told
 
 
+# ---- 6b: time to first action (HumanResponse.waited_s) -------------------------------------
+DELAY_S = 0.4
+"""How long the test's human looks at a frame before answering it."""
+SLACK_S = 2.0
+"""More than a loaded machine adds between the page's reports and the test's sleeps."""
+
+
+def test_waited_s_from_the_frame_on_the_page_to_the_first_key(
+    web: WebHumans, open_page: OpenPage, make_request: RequestFactory
+) -> None:
+    page = open_page(0)
+
+    def answer(t: int, served: int, key: str, delay_s: float) -> Any:
+        call = ActCall(lambda: web.act([make_request("cell0/left", 0, served=served)], t))
+        web.wait_for_prompt(0)  # the page has reported this step's frame painted
+        time.sleep(delay_s)
+        assert page.key(key)["taken"]
+        return call.join()["cell0/left"]
+
+    first = answer(0, 0, "w", DELAY_S)
+    assert first.action == 0
+    assert first.waited_s is not None and DELAY_S <= first.waited_s < DELAY_S + SLACK_S
+    for t in (1, 2):  # the intervention's later steps: pushes, no waited_s
+        later = answer(t, t, "d", 0.0)
+        assert later.action == 3 and later.waited_s is None
+    t_second = time.monotonic()
+    second = answer(3, 0, "x", DELAY_S / 2)  # served == 0 again: the clock restarts
+    assert second.action == 2 and second.waited_s is not None
+    assert DELAY_S / 2 <= second.waited_s <= time.monotonic() - t_second
+
+
+def test_waited_s_from_the_reset_frame_to_the_reset_done_button(
+    web: WebHumans, open_page: OpenPage, make_request: RequestFactory
+) -> None:
+    page = open_page(1)
+    out = web.act([make_request("cell1/left", 1, "reset", served=0)], 40)
+    assert out["cell1/left"].waited_s is None  # nothing done yet
+    web.wait_for_prompt(1)
+    time.sleep(DELAY_S)
+    assert page.button("confirm")["taken"]
+    done = web.act([make_request("cell1/left", 1, "reset", served=1)], 41)["cell1/left"]
+    assert done.reset_done
+    assert done.waited_s is not None and DELAY_S <= done.waited_s < DELAY_S + SLACK_S
+    held = web.act([make_request("cell1/left", 1, "reset", served=2)], 42)["cell1/left"]
+    assert not held.reset_done and held.waited_s is None
+
+
 # ---- 7: presence ----------------------------------------------------------------------------
 def test_presence_follows_the_open_pages(web: WebHumans, open_page: OpenPage) -> None:
     assert web.presence().available.tolist() == [False, False]
@@ -643,6 +694,34 @@ def test_overview_socket_who_is_here_counters_and_history(
     overview.wait_frame(lambda h: h["paused"])
     assert overview.button("pause")["taken"]
     assert not web.paused
+
+
+def test_human_pages_get_the_fleets_state_each_step_and_the_latest_on_opening(
+    web: WebHumans, open_page: OpenPage
+) -> None:
+    page = open_page(0)
+    overview = open_page(1, path="/ws/overview")
+
+    def fleet_texts(p: FakePage) -> list[dict[str, Any]]:
+        with p._cond:
+            return [x for x in p.texts if x.get("type") == "fleet"]
+
+    assert fleet_texts(page) == [], "no state before the first step"
+    robots = [RobotStatus("cell0/left", Mode.TELEOP, arm_image(), 1),
+              RobotStatus("cell0/right", Mode.IDLE, None)]
+    for t in (5, 6):
+        web.show(t, FleetStatus(t, 50, successes=t, hard_resets=1, idle_time=2,
+                                human_actions=3, rohe=0.125, robots=robots))
+        wait_until(lambda t=t: [x["t"] for x in fleet_texts(page)][-1:] == [t], f"step {t}")
+    assert fleet_texts(page)[-1] == {
+        "type": "fleet", "t": 6, "steps": 50, "successes": 6, "hard_resets": 1,
+        "idle_time": 2, "human_actions": 3, "rohe": 0.125, "paused": False,
+        "robots": [{"robot": "cell0/left", "mode": "teleop", "human": 1},
+                   {"robot": "cell0/right", "mode": "idle", "human": None}]}
+    late = open_page(1)
+    wait_until(lambda: [x["t"] for x in fleet_texts(late)] == [6], "the latest, at once")
+    overview.wait_frame(lambda h: h.get("point", {}).get("t") == 6)
+    assert fleet_texts(overview) == [], "the overview has its own counters"
 
 
 # ---- 10, 11: TLS and the port ---------------------------------------------------------------

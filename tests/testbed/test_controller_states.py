@@ -6,7 +6,8 @@ One hardware-twin lab (2 YuMi hosts, each a ``python -m sim_twin.yumi_server`` b
 real sshd): the agent runs the real controller client over the twin's Robot Web
 Services. The twin's controller is put into each state through its side channel
 (``POST /lab/controller``), what a person at the cabinet does with the key switch, the
-motors-on button, a door of the cell or the FlexPendant.
+motors-on button, a door of the cell or the FlexPendant. And a trial's run.json names
+each host's controller as the twin reports itself, never its login.
 """
 
 from __future__ import annotations
@@ -128,3 +129,49 @@ def test_a_controller_not_ready_fails_check_and_faults_only_its_hosts_arms(
             pp_to_main(twin_lab, "yumi-a")
     ok, lines = check(fleet, tmp_path)
     assert ok, lines  # fixed at the cabinet: ready again
+
+
+def test_a_trial_records_each_controller_as_it_says_and_never_its_login(
+        lab: tuple[HardwareTwinLab, Path], tmp_path: Path) -> None:
+    """run.json ``hosts``: each YuMi host over SSH with the build its agent reported and
+    its controller as the twin says over RWS (the ``--serial`` it was started with, its
+    RobotWare); no file of the run folder holds the password of a login file."""
+    from abb_robot_client.rws import RWS
+
+    from drivers.build_id import matches
+    from testbed.experiments.trial import TrialOptions, run_trial
+
+    twin_lab, _ = lab
+    twin_lab.reset_all()  # the drills above may have left a cube out
+    fleet = twin_lab.rewrite()
+    # the expert row: no learner to build (no torch); a YuMi has no expert, it pushes 0
+    opts = TrialOptions(algorithm="bc", steps=1, seed=5, out=str(tmp_path / "runs"),
+                        humans="scripted", name="provenance", evaluate=True, expert=True)
+    run, summary = run_trial(fleet, opts)
+    assert summary["status"] == "complete"
+    hosts = json.loads((run.path / "run.json").read_text())["hosts"]
+    assert list(hosts) == ["yumi-a", "yumi-b"]
+    passwords = []
+    for name, twin in twin_lab.hosts.items():
+        user, password = twin.login_file.read_text().strip().split(":", 1)
+        passwords.append(password)
+        rws = RWS(twin.controller_url, user, password)  # what the controller says
+        try:
+            ident = rws._do_get("ctrl/identity")["_embedded"]["_state"][0]
+            system = next(i for i in rws._do_get("rw/system")["_embedded"]["_state"]
+                          if i["_type"] == "sys-system-li")
+        finally:
+            rws.logout()
+        assert ident["ctrl-id"] == twin_lab._serial(name)  # its --serial
+        entry = hosts[name]
+        assert entry == {"backend": "yumi", "transport": "ssh", "build": entry["build"],
+                         "arms": ["left", "right"],
+                         "controller": {"robotware": system["rwversion"],
+                                        "serial": ident["ctrl-id"],
+                                        "system": system["name"]}}
+        assert matches(entry["build"])
+        assert f"build {entry['build']}" in (run.path / "hosts" / f"{name}.log").read_text()
+    files = [f for f in run.path.rglob("*") if f.is_file()]
+    assert len(files) > 5 and all(len(pw) >= 16 for pw in passwords)
+    leaked = [str(f) for f in files for pw in passwords if pw.encode() in f.read_bytes()]
+    assert leaked == []

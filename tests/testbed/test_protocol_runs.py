@@ -215,6 +215,7 @@ class _StopAt(ScriptedHumans):
     """The operator presses Esc (and confirms) during step ``k``'s overview."""
 
     def __init__(self, k: int) -> None:
+        super().__init__()
         self.k = k
 
     def show(self, t: int, status: FleetStatus) -> None:

@@ -43,7 +43,9 @@ def test_an_algorithm_above_cur_gets_a_paragraph_naming_the_deciding_part(
                                     [(A, False, False), (A, False, False)]])
     md = write_report([tmp_path], tmp_path).markdown
     assert "ROHE and its parts" in md
-    rows = {line.split(" | ")[0].strip("| "): line for line in md.splitlines()
+    rohe = md[md.index("ROHE and its parts"):]
+    rows = {line.split(" | ")[0].strip("| "): line
+            for line in rohe[:rohe.index("\n\n", rohe.index("|"))].splitlines()
             if line.startswith(("| cur |", "| bc |"))}
     # ROHE = (M/N) * successes / (1 + human actions), M = 2 (default), N = 2
     assert "| 0.6667 | 4.0 (2.0 + 2.0) | 5.0 | 0.667 | 0.000 | 0.500 |" in rows["cur"]

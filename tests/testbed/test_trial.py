@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import re
 import signal
 import subprocess
@@ -27,6 +28,7 @@ from testbed.records.steps import read_steps, validate_step
 from testbed.records.store import RunData
 
 ROOT = Path(__file__).resolve().parents[2]
+PRODUCT = ("drivers", "gui", "sim_twin", "testbed", "pyproject.toml")  # drivers.build_id's
 
 SMALL = {
     "trial": {"steps": 24, "seed": 3},
@@ -69,7 +71,9 @@ def test_twin_trial_summary_equals_recomputation(workdir: Path) -> None:
     assert [s["wall_time"] for s in steps] == sorted(s["wall_time"] for s in steps)
     for host in ("cell0", "cell1"):  # each host's agent log, in the run folder
         assert (run / "hosts" / f"{host}.log").stat().st_size > 0
-    assert json.loads((run / "run.json").read_text())["status"] == "complete"
+    meta = json.loads((run / "run.json").read_text())
+    assert meta["status"] == "complete"
+    _assert_code_and_hosts(meta, run)
     printed = json.loads(proc.stdout[proc.stdout.index("{"):])
     on_disk = json.loads((run / "summary.json").read_text())
     again = summarize(steps, algorithm="cur", num_humans=2, num_robots=4)
@@ -77,6 +81,28 @@ def test_twin_trial_summary_equals_recomputation(workdir: Path) -> None:
         assert printed[k] == on_disk[k] == again[k], k
     modes = {r["mode"] for s in steps for r in s["robots"]}
     assert "autonomous" in modes and "teleop" in modes
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True,
+                          check=True).stdout
+
+
+def _assert_code_and_hosts(meta: dict[str, object], run: Path) -> None:
+    """run.json says which code ran (this checkout's HEAD, dirty as git status says of
+    the product) and which hosts (each twin host with the build its agent reported at
+    hello, as its own log says)."""
+    code = meta["code"]
+    assert isinstance(code, dict)
+    assert code["commit"] == _git("rev-parse", "HEAD").strip()
+    assert code["dirty"] is bool(_git("status", "--porcelain", "--", *PRODUCT).strip())
+    assert code["python"] == platform.python_version() and "numpy" in code["libraries"]
+    hosts = meta["hosts"]
+    assert isinstance(hosts, dict) and list(hosts) == ["cell0", "cell1"]
+    for name, entry in hosts.items():
+        assert entry == {"backend": "twin", "transport": "local", "build": code["build"],
+                         "arms": ["left", "right"]}
+        assert f"build {entry['build']}" in (run / "hosts" / f"{name}.log").read_text()
 
 
 def _agents_of(proc: subprocess.Popen[bytes], timeout_s: float = 240) -> set[int]:
@@ -209,6 +235,13 @@ def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
     summary = json.loads((run / "summary.json").read_text())
     assert summary == {**summary, **summarize(steps, algorithm="cur", num_humans=2,
                                               num_robots=4)}
+    # the first session's code and hosts are kept; the resumed session says its own
+    meta = json.loads((run / "run.json").read_text())
+    _assert_code_and_hosts(meta, run)
+    (code,), (hosts,) = meta["resumed_code"], meta["resumed_hosts"]
+    assert code["session"] == hosts["session"] == 1 == len(meta["resumed"])
+    assert code["code"]["commit"] == meta["code"]["commit"]
+    assert hosts["hosts"].keys() == meta["hosts"].keys()
 
 
 @pytest.mark.slow
@@ -315,5 +348,9 @@ def test_check_preflights_every_arm_and_writes_a_mosaic(workdir: Path) -> None:
     assert len(ok_lines) == 4
     import cv2
 
+    from testbed.lab.preflight import MOSAIC_LABEL_H, mosaic_size
+
     img = cv2.imread(str(workdir / "m.png"))
-    assert img is not None and img.shape == (256, 1024, 3)
+    # 4 arms in a row, each 64x64 crop at x4 under its robot's name strip
+    assert img is not None and img.shape == (*mosaic_size(4), 3)
+    assert img.shape[0] == MOSAIC_LABEL_H + 256 and img.shape[1] >= 1024

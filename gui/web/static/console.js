@@ -5,7 +5,7 @@
 const TestbedConsole = (() => {
   const token = new URLSearchParams(location.search).get("token") || "";
   const state = { shownSeq: 0, head: null, replies: [], painted: 0, open: false,
-                  latencies: [], points: [] };
+                  latencies: [], points: [], fleet: null };
   window.consoleState = state;  // read by tests and the latency benchmark
   let ws = null;
   let nextId = 1;
@@ -73,7 +73,7 @@ const TestbedConsole = (() => {
   function connect(path, onFrame, onText) {
     ws = new WebSocket(wsUrl(path));
     ws.binaryType = "arraybuffer";
-    ws.onopen = () => setConn(true);
+    ws.onopen = () => { state.fleet = null; setConn(true); };  // a new console's state
     ws.onmessage = (ev) => {
       if (typeof ev.data === "string") onText(JSON.parse(ev.data));
       else onFrame(...parseFrame(ev.data));
@@ -110,7 +110,56 @@ const TestbedConsole = (() => {
       status("error: " + msg.why);
     } else if (msg.type === "history") {
       state.points = msg.points;
+    } else if (msg.type === "fleet") {
+      state.fleet = msg;
     }
+  }
+
+  // A human with no arm sees that they wait, and the fleet's state (the server's
+  // "fleet" text, one per step) instead of an empty image.
+  const IDLE_NOTES = {
+    paused: "The fleet is paused: Resume (or p, space) lets it go on.",
+    stopping: "The trial is stopping.",
+    running: "This page shows an arm's camera by itself as soon as the fleet needs you.",
+  };
+
+  function setText(id, text) { document.getElementById(id).textContent = String(text); }
+
+  function showFleet(doc, me) {
+    const table = document.getElementById("fleet-robots");
+    document.getElementById("fleet-none").hidden = doc !== null;
+    table.hidden = doc === null;
+    for (const k of ["successes", "hard_resets", "idle_time", "human_actions"]) {
+      setText("f-" + k, doc === null ? "-" : doc[k]);
+    }
+    setText("f-step", doc === null ? "-" : `${doc.t} of ${doc.steps}`);
+    setText("f-rohe", doc === null ? "-" : doc.rohe.toFixed(3));
+    const rows = (doc === null ? [] : doc.robots).map((r) => {
+      const tr = document.createElement("tr");
+      tr.dataset.robot = r.robot;
+      const held = r.human === null ? "-" : `human ${r.human}${r.human === me ? " (you)" : ""}`;
+      [r.robot, r.mode, held].forEach((text, i) => {
+        const td = document.createElement("td");  // textContent: names are not markup
+        td.textContent = text;
+        if (i === 1) td.className = "mode mode-" + r.mode;
+        tr.appendChild(td);
+      });
+      return tr;
+    });
+    table.tBodies[0].replaceChildren(...rows);
+  }
+
+  // The panel takes the frame's place and size; the buttons stay where they are
+  // (disabled), so none moves under a finger, nor vanishes under a click, as arms come
+  // and go.
+  function showIdle(head) {
+    const idle = head.phase === "idle";
+    document.getElementById("idle").hidden = !idle;
+    document.getElementById("frame").hidden = idle;
+    if (!idle) return;
+    const note = head.stop_requested ? "stopping" : head.paused ? "paused" : "running";
+    setText("idle-note", IDLE_NOTES[note]);
+    showFleet(state.fleet, head.human);
   }
 
   const KEYS = new Set(["ArrowUp", "ArrowLeft", "ArrowDown", "ArrowRight", "Enter",
@@ -126,8 +175,12 @@ const TestbedConsole = (() => {
         b.disabled = head.phase !== "choose";
       }
       showFlags(head);
+      showIdle(head);
     });
-    connect("/ws", draw, onReply);
+    connect("/ws", draw, (msg) => {
+      onReply(msg);
+      if (msg.type === "fleet" && state.head) showIdle(state.head);
+    });
     wireButtons();
     document.addEventListener("keydown", (e) => {
       if (e.repeat || e.ctrlKey || e.metaKey || e.altKey) return;

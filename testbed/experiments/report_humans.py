@@ -1,0 +1,114 @@
+"""The humans as people: what each human did in a run, counted from its rows alone.
+
+Why: ROHE weighs "human actions" as if the humans were one pool, and the paper's
+simulated experts are all alike; a lab's operators are not. A reviewer (and the lab)
+asks who did the interventions, how long each took to act once assigned, how long each
+held an arm and how well their pushes did. Everything here comes from ``steps.jsonl``:
+
+* an intervention starts at a row whose arm has the human with ``served == 0`` (rows
+  from before ``served`` existed: where the arm's human or kind changes);
+* a teleop intervention's first push, and a reset's confirmation, carry ``first``:
+  steps from the assignment and the seconds the human's console measured;
+* a push is the human's when the arm's mode is ``teleop`` with an action (a push the
+  host refused or a cell held is not a push); its success and violation are that
+  step's.
+
+Names come from the run's ``config.toml`` (``[[humans.people]]``; without them
+``human0``, ``human1``, ...), so the table says "ana", not "human 0".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["HumanCounts", "count_humans", "merge"]
+
+
+@dataclass(slots=True)
+class HumanCounts:
+    """One human's work in one run (or summed over runs: :func:`merge`)."""
+
+    teleops: int = 0
+    """Teleop interventions."""
+    resets: int = 0
+    """Hard-reset interventions."""
+    steps_held: int = 0
+    """Arm-steps with this human on the arm (teleop, reset, or a push refused)."""
+    pushes: int = 0
+    successes: int = 0
+    """Of ``pushes``: the ones that reached the goal."""
+    violations: int = 0
+    """Of ``pushes``: the ones that took the cube out of the workspace."""
+    first_push_steps: list[int] = field(default_factory=list)
+    """Per teleop intervention with a push: steps from the assignment to the first push."""
+    first_push_s: list[float] = field(default_factory=list)
+    """The same in seconds, where the human's console measured it."""
+    reset_steps: list[int] = field(default_factory=list)
+    """Per confirmed reset: steps from the assignment to the confirmation, plus one
+    (the steps it took)."""
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / self.pushes if self.pushes else math.nan
+
+
+def count_humans(rows: Iterable[Mapping[str, Any]], num_humans: int) -> list[HumanCounts]:
+    """Per human index: what they did in the run whose rows these are."""
+    out = [HumanCounts() for _ in range(num_humans)]
+    last: dict[str, tuple[int, bool]] = {}  # robot -> (human, is reset) of the last row
+    for row in rows:
+        seen: set[str] = set()
+        for r in row["robots"]:
+            h = r.get("human")
+            robot = r["robot"]
+            if h is None or not 0 <= int(h) < num_humans:
+                continue
+            seen.add(robot)
+            c = out[int(h)]
+            reset = r["mode"] == "reset"
+            served = r.get("served")
+            starts = served == 0 if served is not None else last.get(robot) != (h, reset)
+            last[robot] = (int(h), reset)
+            if starts:
+                c.resets += reset
+                c.teleops += not reset
+            c.steps_held += 1
+            _first(c, r, reset)
+            if r["mode"] == "teleop" and r.get("action") is not None:
+                c.pushes += 1
+                c.successes += bool(r["success"])
+                c.violations += bool(r["violation"])
+        for robot in [k for k in last if k not in seen]:
+            del last[robot]  # the arm had no human this step: the next one starts anew
+    return out
+
+
+def _first(c: HumanCounts, r: Mapping[str, Any], reset: bool) -> None:
+    first = r.get("first")
+    if first is None:
+        return
+    if reset:
+        c.reset_steps.append(int(first["steps"]) + 1)
+        return
+    c.first_push_steps.append(int(first["steps"]))
+    if first.get("s") is not None:
+        c.first_push_s.append(float(first["s"]))
+
+
+def merge(runs: Sequence[HumanCounts]) -> HumanCounts:
+    """One human's counts over several runs (an algorithm's trials): sums and pooled lists."""
+    m = HumanCounts()
+    for c in runs:
+        m.teleops += c.teleops
+        m.resets += c.resets
+        m.steps_held += c.steps_held
+        m.pushes += c.pushes
+        m.successes += c.successes
+        m.violations += c.violations
+        m.first_push_steps += c.first_push_steps
+        m.first_push_s += c.first_push_s
+        m.reset_steps += c.reset_steps
+    return m

@@ -1,0 +1,243 @@
+"""The report's tables beyond mean +- std: intervals, paired comparisons, the humans,
+identical records. Each is a :class:`Table`, written to Markdown and to the HTML page
+from the same cells, and the numbers behind it to a CSV for scripts.
+
+Why one shape: report.md, report.html and the CSVs must say the same thing; building
+every table once, as rows of cells, and rendering it twice keeps them from drifting.
+The statistics are :mod:`testbed.experiments.intervals`; the per-human counts
+:mod:`testbed.experiments.report_humans`.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from testbed.experiments.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, paired
+from testbed.experiments.report_humans import HumanCounts, merge
+
+__all__ = ["Table", "humans_table", "identical_groups", "interval_table", "paired_table",
+           "steps_digest"]
+
+
+@dataclass
+class Table:
+    """One table of the report: a title, a header, rows of cells, notes under it."""
+
+    key: str
+    """A stable id (the HTML anchor, the CSV's name, what tests look for)."""
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+    notes: list[str] = field(default_factory=list)
+    csv_rows: list[list[Any]] = field(default_factory=list)
+    """The numbers behind the cells, header first (empty: no CSV)."""
+
+    def markdown(self) -> str:
+        lines = [f"{self.title}\n"] if self.title else []
+        lines += ["| " + " | ".join(self.header) + " |", "|" + "---|" * len(self.header)]
+        lines += ["| " + " | ".join(row) + " |" for row in self.rows]
+        text = "\n".join(lines) + "\n"
+        return text + "".join(f"\n{n}\n" for n in self.notes)
+
+    def csv_text(self) -> str:
+        buf = io.StringIO()
+        csv.writer(buf).writerows(self.csv_rows)
+        return buf.getvalue()
+
+
+def _fmt(metric: str) -> str:
+    return "{:.4f}" if metric == "rohe" else "{:.1f}"
+
+
+def _signed(x: float, metric: str) -> str:
+    return f"{x:+.4f}" if metric == "rohe" else f"{x:+.1f}"
+
+
+def _cell(iv: Interval, metric: str) -> str:
+    f = _fmt(metric)
+    if iv.method in ("none", "one"):
+        return f.format(iv.mean) + " (one trial)" if iv.method == "one" else "-"
+    return f"{f.format(iv.mean)} [{f.format(iv.low)}, {f.format(iv.high)}]"
+
+
+def method_note(counts: Sequence[int]) -> str:
+    """What the intervals are, and which rule these trial counts fell under."""
+    used = sorted(set(counts))
+    def rule(n: int) -> str:
+        return ("no interval" if n < 2 else "BCa bootstrap" if n >= BOOTSTRAP_MIN_TRIALS
+                else "t")
+
+    kinds = ", ".join(f"{n} trial{'s' if n != 1 else ''}: {rule(n)}" for n in used)
+    return (f"95% intervals of the mean over trials: Student's t with n - 1 degrees of "
+            f"freedom for fewer than {BOOTSTRAP_MIN_TRIALS} trials (a bootstrap of so few "
+            f"trials has too few distinct resamples and is too narrow), a BCa bootstrap "
+            f"over trials (9999 resamples, seeded) from {BOOTSTRAP_MIN_TRIALS} on; here "
+            f"{kinds}. All trials of a row equal: the interval is that value.")
+
+
+def interval_table(key: str, title: str, first: str,
+                   groups: Mapping[str, Sequence[Mapping[str, float]]],
+                   metrics: Sequence[str]) -> Table:
+    """Per group (algorithm or sweep point) and metric: the mean with its 95% interval.
+    ``groups``: name -> one summary per trial."""
+    rows, csv_rows = [], [[first, "trials"] + [f"{m}_{s}" for m in metrics
+                                              for s in ("mean", "low", "high")]]
+    counts = []
+    for name, summaries in groups.items():
+        ivs = [interval([float(s[m]) for s in summaries]) for m in metrics]
+        counts.append(len(summaries))
+        rows.append([name, str(len(summaries))] + [_cell(iv, m)
+                                                   for iv, m in zip(ivs, metrics, strict=True)])
+        csv_rows.append([name, len(summaries)] + [_num(x) for iv in ivs
+                                                  for x in (iv.mean, iv.low, iv.high)])
+    return Table(key, title, [first, "trials", *metrics], rows, [method_note(counts)],
+                 csv_rows)
+
+
+def _num(x: float) -> float | str:
+    return "" if math.isnan(x) else round(float(x), 6)
+
+
+def paired_table(key: str, title: str, first: str,
+                 groups: Mapping[str, Mapping[Hashable, Mapping[str, float]]],
+                 reference: str, metrics: Sequence[str],
+                 key_label: Callable[[Hashable], str]) -> Table:
+    """Every group against ``reference``, pair by pair (``groups``: name -> trial key ->
+    summary): the differences, their mean and interval, the exact sign-flip p-value."""
+    ref = groups[reference]
+    header = [first, "metric", f"per trial (minus {reference})", "mean difference",
+              "95% interval", "sign-flip p", "pairs"]
+    rows: list[list[str]] = []
+    csv_rows: list[list[Any]] = [[first, "metric", "pairs", "mean_difference", "low", "high",
+                                  "p_value", "differences"]]
+    notes: list[str] = []
+    floors: set[int] = set()
+    for name, by_key in groups.items():
+        if name == reference:
+            continue
+        for m in metrics:
+            cmp = paired({k: float(s[m]) for k, s in by_key.items()},
+                         {k: float(s[m]) for k, s in ref.items()})
+            f = _fmt(m)
+            per = ", ".join(f"{key_label(k)}: {_signed(d, m)}" for k, d in
+                            zip(cmp.keys, cmp.diffs, strict=True))
+            iv = cmp.difference
+            ci = ("-" if iv.method in ("none", "one")
+                  else f"[{f.format(iv.low)}, {f.format(iv.high)}]")
+            p = "-" if math.isnan(cmp.p_value) else f"{cmp.p_value:.3f}"
+            rows.append([name, m, per or "-", "-" if math.isnan(iv.mean) else
+                         _signed(iv.mean, m), ci, p, str(len(cmp.diffs))])
+            csv_rows.append([name, m, len(cmp.diffs), _num(iv.mean), _num(iv.low),
+                             _num(iv.high), _num(cmp.p_value),
+                             " ".join(f"{d:.6g}" for d in cmp.diffs)])
+            floors.add(len(cmp.diffs))
+            if m == metrics[0] and cmp.unpaired:
+                notes.append(f"{name}: {', '.join(key_label(k) for k in cmp.unpaired)} "
+                             f"{'has' if len(cmp.unpaired) == 1 else 'have'} a finished run "
+                             f"of only one of {name} and {reference}, and "
+                             f"{'is' if len(cmp.unpaired) == 1 else 'are'} left out of "
+                             "this comparison (a difference needs both runs).")
+    notes.insert(0, _paired_note(reference, sorted(floors)))
+    return Table(key, title, header, rows, notes, csv_rows)
+
+
+def _paired_note(reference: str, pair_counts: Sequence[int]) -> str:
+    floors = "; ".join(f"{n} pairs: {2.0 / 2 ** n:.4g}" if n > 1 else f"{n} pair: 1"
+                       for n in pair_counts if n > 0)
+    return (f"Paired by trial: the runs of one trial share theta_0 and the trial's seed, "
+            f"so each difference is one trial's run minus {reference}'s. The sign-flip "
+            f"p-value is exact (every one of the 2^n sign patterns of the differences): "
+            f"the chance, were there no difference, of a mean difference as far from 0. "
+            f"Its smallest possible value is 2 / 2^n ({floors}): with 3 trials no "
+            f"comparison can reach p < 0.05 however large the difference, so read the "
+            f"interval for the size and more trials for a test. The interval of the mean "
+            f"difference follows the rule of the intervals above.")
+
+
+HUMAN_HEADER = ["algorithm", "human", "teleops", "resets", "steps held", "pushes",
+                "success / push", "violations (teleop)", "to first push (steps)",
+                "to first push (s)", "reset took (steps)"]
+
+
+def _mean(xs: Sequence[float], fmt: str) -> str:
+    return "-" if not xs else fmt.format(sum(xs) / len(xs))
+
+
+def humans_table(per_group: Mapping[str, Sequence[tuple[list[str], list[HumanCounts]]]]
+                 ) -> Table:
+    """Per algorithm and human (by name): their interventions, time held, time to act,
+    and their pushes' outcomes, summed over the trials (``per_group``: name -> per run
+    (names, counts))."""
+    rows: list[list[str]] = []
+    csv_rows: list[list[Any]] = [[h.replace(" / ", "_per_").replace(" ", "_")
+                                  for h in HUMAN_HEADER]]
+    for group, runs in per_group.items():
+        names: list[str] = []
+        for run_names, _ in runs:
+            names += [n for n in run_names if n not in names]
+        for name in names:
+            c = merge([counts[run_names.index(name)] for run_names, counts in runs
+                       if name in run_names])
+            rate = "-" if math.isnan(c.success_rate) else f"{c.success_rate:.3f}"
+            cells = [group, name, str(c.teleops), str(c.resets), str(c.steps_held),
+                     str(c.pushes), rate, str(c.violations),
+                     _mean(c.first_push_steps, "{:.2f}"), _mean(c.first_push_s, "{:.2f}"),
+                     _mean(c.reset_steps, "{:.2f}")]
+            rows.append(cells)
+            csv_rows.append([group, name, c.teleops, c.resets, c.steps_held, c.pushes,
+                             _num(c.success_rate), c.violations,
+                             *(_num(sum(x) / len(x)) if x else "" for x in
+                               (c.first_push_steps, c.first_push_s, c.reset_steps))])
+    notes = ["Summed over each algorithm's trials. An intervention starts where a human "
+             "is put on an arm; \"to first push\" is from that step to their first push "
+             "(0: they pushed on the step they were assigned), in steps and in the "
+             "seconds their console measured; \"reset took\" is the steps from the "
+             "assignment to the confirmation. A push is a teleop step the host executed; "
+             "its success and violation are that step's."]
+    return Table("humans", "The humans (per algorithm, summed over trials)", HUMAN_HEADER,
+                 rows, notes, csv_rows)
+
+
+TIME_FIELDS = ("wall_time", "duration_s")
+
+
+def steps_digest(path: Path) -> str:
+    """SHA-256 of a run's steps.jsonl without its timing (the one part of a row that
+    differs between two runs of one seed): equal digests, identical records."""
+    h = hashlib.sha256()
+    with path.open() as f:
+        for line in f:
+            if not line.strip():
+                continue
+            row = json.loads(line)
+            for k in TIME_FIELDS:
+                row.pop(k, None)
+            for arm in row.get("robots", []):  # a console's seconds are timing too
+                if isinstance(arm.get("first"), dict):
+                    arm["first"].pop("s", None)
+            h.update(json.dumps(row, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def identical_groups(digests: Mapping[str, Mapping[Hashable, str]]) -> list[str]:
+    """One line per pair of groups whose runs have identical records in every trial they
+    share: their comparison tests nothing this run can show."""
+    names = list(digests)
+    lines = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            common = [k for k in digests[a] if k in digests[b]]
+            if common and all(digests[a][k] == digests[b][k] for k in common):
+                lines.append(f"IDENTICAL RECORDS: {a} and {b} made the same records, step "
+                             f"for step, in all {len(common)} trial(s) they share: what "
+                             "tells them apart never happened in these runs, so this "
+                             "report cannot compare them.")
+    return lines

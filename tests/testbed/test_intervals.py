@@ -1,0 +1,83 @@
+"""The report's intervals and paired comparisons on examples computed by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from testbed.experiments.intervals import (
+    BOOTSTRAP_MIN_TRIALS,
+    interval,
+    paired,
+    sign_flip_p,
+    smallest_p,
+)
+
+T_975_2 = 4.302652729911275  # Student's t, 97.5th percentile, 2 degrees of freedom
+
+
+def test_t_interval_of_three_trials_by_hand() -> None:
+    # [1, 2, 3]: mean 2, sample sd 1, se 1/sqrt(3); half-width t(0.975, 2) / sqrt(3)
+    iv = interval([1.0, 2.0, 3.0])
+    half = T_975_2 / math.sqrt(3)
+    assert iv.method == "t" and iv.n == 3
+    assert iv.mean == pytest.approx(2.0)
+    assert (iv.low, iv.high) == pytest.approx((2.0 - half, 2.0 + half))
+
+
+def test_degenerate_cases() -> None:
+    assert interval([]).method == "none" and math.isnan(interval([]).mean)
+    one = interval([0.4])
+    assert one.method == "one" and one.mean == 0.4 and math.isnan(one.low)
+    same = interval([5.0, 5.0, 5.0])
+    assert (same.method, same.low, same.high) == ("exact", 5.0, 5.0)
+
+
+def test_bootstrap_from_the_switch_count() -> None:
+    rng = np.random.default_rng(3)
+    v = rng.normal(10.0, 2.0, BOOTSTRAP_MIN_TRIALS)
+    iv = interval(v)
+    assert iv.method == "bootstrap"
+    assert iv.low < v.mean() < iv.high
+    # a bootstrap interval is about the t interval's width for normal data
+    t_half = 2.262 * v.std(ddof=1) / math.sqrt(len(v))
+    assert 0.5 * t_half < (iv.high - iv.low) / 2 < 1.5 * t_half
+    assert interval(v[:-1]).method == "t"
+    assert interval(v, seed=1) == interval(v, seed=1)  # seeded: the same report twice
+
+
+def test_identical_to_the_reference_gives_zero_and_p_one() -> None:
+    ref = {0: 0.37, 1: 0.35, 2: 0.40}
+    cmp = paired(dict(ref), ref)
+    assert cmp.diffs == (0.0, 0.0, 0.0)
+    assert cmp.difference.mean == 0.0 and cmp.difference.method == "exact"
+    assert cmp.p_value == 1.0
+
+
+def test_a_shifted_copy_gives_the_shift_and_the_floor_of_three_pairs() -> None:
+    ref = {0: 0.37, 1: 0.35, 2: 0.40}
+    cmp = paired({k: v + 0.1 for k, v in ref.items()}, ref)
+    assert cmp.difference.mean == pytest.approx(0.1)
+    assert cmp.difference.low == pytest.approx(0.1) == cmp.difference.high
+    # all three pairs the same sign: 2 of the 8 sign patterns reach |mean| = 0.1
+    assert cmp.p_value == pytest.approx(0.25) == cmp.floor == smallest_p(3)
+
+
+def test_sign_flip_p_by_enumeration() -> None:
+    # diffs (1, 2, -0.5): observed sum 2.5; the 8 patterns' sums are +-2.5, +-3.5, +-1.5,
+    # +-0.5, and four of them reach |2.5| -> 4/8
+    assert sign_flip_p([1.0, 2.0, -0.5]) == pytest.approx(0.5)
+    # (1, 1, 1, -1): |sum| 2; patterns with |sum| >= 2 of 16: sum 4 (2), sum 2 (8) -> 10/16
+    assert sign_flip_p([1.0, 1.0, 1.0, -1.0]) == pytest.approx(10 / 16)
+    assert smallest_p(5) == pytest.approx(1 / 16)
+    assert smallest_p(1) == 1.0
+    assert sign_flip_p([3.0]) == 1.0  # one pair: both signs reach it
+
+
+def test_a_trial_without_both_runs_is_left_out_and_named() -> None:
+    cmp = paired({0: 1.0, 1: 2.0, 2: 3.0}, {0: 0.5, 2: 2.0, 3: 9.0})
+    assert cmp.keys == (0, 2) and cmp.diffs == (0.5, 1.0)
+    assert set(cmp.unpaired) == {1, 3}
+    assert cmp.floor == 0.5
