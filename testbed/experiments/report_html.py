@@ -30,6 +30,8 @@ __all__ = ["report_page", "run_metadata"]
 
 SECRET = re.compile(r"pass|token|secret|credential|login", re.IGNORECASE)
 CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
+NUMBER = re.compile(r"[+-]?\d[\d.]*( ±| \[|$| \(one)")
+"""A cell that starts with a number (a mean, an interval, a count): right-aligned."""
 
 TEMPLATE = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8">
@@ -41,8 +43,8 @@ body { font: 14px/1.45 system-ui, sans-serif; margin: 2em auto; max-width: 1400p
        padding: 0 1em; color: #1b1b1b; }
 h1 { font-size: 1.5em; } h2 { font-size: 1.15em; margin-top: 2em; }
 table { border-collapse: collapse; margin: .5em 0; font-variant-numeric: tabular-nums; }
-th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: right; }
-th { background: #f2f2f2; } td:first-child, th:first-child { text-align: left; }
+th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: left; }
+th { background: #f2f2f2; } td.n { text-align: right; }
 p.note { color: #444; max-width: 70em; } p.flag { color: #8a1c00; font-weight: 600; }
 img { max-width: 100%; } nav a { margin-right: 1em; } code { font-size: .95em; }
 </style></head><body>
@@ -53,7 +55,7 @@ img { max-width: 100%; } nav a { margin-right: 1em; } code { font-size: .95em; }
 {% for t in tables %}
 <section id="{{ t.key }}"><h2>{{ t.title or "Learning (mean ± std over trials)" }}</h2>
 <table><thead><tr>{% for h in t.header %}<th>{{ h }}</th>{% endfor %}</tr></thead>
-<tbody>{% for row in t.rows %}<tr>{% for c in row %}<td>{{ c }}</td>{% endfor %}</tr>
+<tbody>{% for row in t.rows %}<tr>{% for c in row %}<td{{ c|cls }}>{{ c }}</td>{% endfor %}</tr>
 {% endfor %}</tbody></table>
 {% for n in t.notes %}<p class="{{ 'flag' if n.startswith('IDENTICAL') else 'note' }}">
 {{ n }}</p>{% endfor %}</section>
@@ -67,7 +69,7 @@ trials, as in the paper's figures.</p></section>
 <section id="metadata"><h2>Metadata</h2>
 {% for name, rows in meta.items() %}<h3>{{ name }}</h3>
 {% if rows %}<table><thead><tr>{% for h in rows[0] %}<th>{{ h }}</th>{% endfor %}</tr>
-</thead><tbody>{% for row in rows[1:] %}<tr>{% for c in row %}<td>{{ c }}</td>
+</thead><tbody>{% for row in rows[1:] %}<tr>{% for c in row %}<td{{ c|cls }}>{{ c }}</td>
 {% endfor %}</tr>{% endfor %}</tbody></table>{% else %}<p class="note">not recorded
 </p>{% endif %}{% endfor %}</section>
 </body></html>
@@ -137,8 +139,10 @@ def report_page(tables: Sequence[Table], notes: Sequence[str], png: bytes,
                 runs: Sequence[RunRecord]) -> str:
     """The page's HTML."""
     import jinja2
+    from markupsafe import Markup  # jinja2's own escaping library
 
     env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
+    env.filters["cls"] = lambda c: Markup(' class="n"' if NUMBER.match(str(c)) else "")
     folders = sorted({str(r.path.parent) for r in runs})
     return env.from_string(TEMPLATE).render(
         title=", ".join(folders), runs=runs, tables=tables, notes=notes,
