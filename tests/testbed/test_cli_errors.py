@@ -304,3 +304,16 @@ def test_twin_protocol_file_is_a_fine_fleet(tmp_path: Path,
     line = one_line(["trial", "--config", str(TWIN_PROTOCOL), "--algorithm", "nope",
                      "--out", str(tmp_path / "out")], capsys)
     assert "unknown algorithm 'nope'" in line
+
+
+def test_a_reference_with_no_runs_is_named(tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / "cur-t0"
+    run.mkdir()
+    write(run / "steps.jsonl", '{"t": 0, "robots": [{"robot": "h/a", "mode": "autonomous", '
+          '"human": null, "action": 1, "success": false, "violation": false, '
+          '"uncertainty": 0.1, "risk": 0.0, "key": [0.0]}]}\n')
+    write(run / "run.json", '{"options": {"algorithm": "cur"}, "status": "complete"}')
+    line = one_line(["report", str(tmp_path), "--reference", "fleet-td"], capsys)
+    assert "--reference" in line and "'fleet-td'" in line and "cur" in line
+    assert not (tmp_path / "report.html").exists()  # nothing half-written
