@@ -45,7 +45,7 @@ from gui.console_core import OVERVIEW, ConsoleCore, Frame, FrameLatency, WindowS
 from gui.display import check_window_system, default_display, explain_window_failure
 from gui.errors import ConsoleUnavailable
 from gui.keys import decode_key
-from gui.view import ConsoleView, Phase
+from gui.view import ConsoleView, Phase, human_label
 from gui.window import WindowProcess
 
 __all__ = ["OVERVIEW", "ConsoleHumans", "FrameLatency", "WindowState", "window_name"]
@@ -54,9 +54,10 @@ WINDOW_GAP_PX: Final = 12
 TITLE_BAR_PX: Final = 40
 
 
-def window_name(human: int, title: str = "testbed") -> str:
-    """The title of human ``human``'s console window (``xdotool search --name`` it)."""
-    return f"{title} console - human {human}"
+def window_name(human: int, title: str = "testbed", name: str | None = None) -> str:
+    """The title of human ``human``'s console window (``xdotool search --name`` it):
+    ``"testbed console - ana (human 0)"``, or ``"... - human 0"`` when unnamed."""
+    return f"{title} console - {human_label(human, name)}"
 
 
 def overview_window_name(title: str = "testbed") -> str:
@@ -74,13 +75,15 @@ class ConsoleHumans(ConsoleCore):
     seconds (paused time not counted) and answers ``action=None`` for that arm.
     ``displays``: one X display per human (default: ``$DISPLAY`` for all); the overview
     opens on the first. Requests for a human index >= ``num_humans`` go to human
-    ``index % num_humans`` (queued after that human's own).
+    ``index % num_humans`` (queued after that human's own). ``names``: each human's
+    name, in their window's title and header (empty: "human i").
     """
 
     def __init__(
         self,
         num_humans: int,
         *,
+        names: Sequence[str] = (),
         scale: int = 6,
         title: str = "testbed",
         overview: bool = True,
@@ -89,7 +92,8 @@ class ConsoleHumans(ConsoleCore):
         start_timeout_s: float = 30.0,
         state_path: str | Path | None = None,
     ) -> None:
-        super().__init__(num_humans, scale=scale, teleop_timeout_s=teleop_timeout_s)
+        super().__init__(num_humans, names=names, scale=scale,
+                         teleop_timeout_s=teleop_timeout_s)
         self.title = title
         disp = list(displays) if displays is not None else [default_display()] * num_humans
         if len(disp) != num_humans:
@@ -115,7 +119,7 @@ class ConsoleHumans(ConsoleCore):
 
     # ---- windows ------------------------------------------------------------------------
     def window_name(self, human: int) -> str:
-        return window_name(human, self.title)
+        return window_name(human, self.title, self.human_name(human))
 
     @property
     def overview_name(self) -> str:
@@ -184,8 +188,8 @@ class ConsoleHumans(ConsoleCore):
         if wid != OVERVIEW and self._stop_reason is None and not self._closed:
             log = self._log_dir / f"window{wid}.log"
             self._stop_reason = (
-                f"the console window of human {wid} closed unexpectedly; last log line: "
-                f"{_tail(log) or '(none)'}"
+                f"the console window of {self.human_label(wid)} closed unexpectedly; "
+                f"last log line: {_tail(log) or '(none)'}"
             )
             self._redraw_all()
 

@@ -46,7 +46,7 @@ from gui.desk import Desk
 from gui.errors import StopRequested
 from gui.keys import Command, KeyCommand
 from gui.layout import ConsoleLayout, Point
-from gui.view import ConsoleView, Phase
+from gui.view import ConsoleView, Phase, human_label
 from testbed.core.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
 
 TELEOP: Final = InterventionKind.TELEOP
@@ -54,6 +54,26 @@ OVERVIEW: Final = -1
 """Window id of the fleet overview (humans are 0..M-1)."""
 
 Frame = npt.NDArray[np.uint8]
+
+
+def check_names(names: Sequence[str], num_humans: int) -> tuple[str, ...]:
+    """The humans' names as a console shows them, or a ValueError saying what is wrong.
+
+    Why checked here and not only in the config: a console built by a script or a test
+    gets no config, and a name is put in window titles and pages, where an empty one, a
+    line break or a twin would name the wrong person (or nobody).
+    """
+    given = tuple(names)
+    if not given:
+        return ()
+    if len(given) != num_humans:
+        raise ValueError(f"names: need {num_humans} (one per human), got {len(given)}")
+    for i, name in enumerate(given):
+        if not isinstance(name, str) or not name.strip() or not name.isprintable():
+            raise ValueError(f"names[{i}]: {name!r} is not a name to show")
+        if name in given[:i]:
+            raise ValueError(f"names[{i}]: {name!r} twice; each human needs their own")
+    return given
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,17 +133,21 @@ class ConsoleCore:
     ``teleop_timeout_s``: if set, ``act`` gives up waiting for a push after this many
     seconds (paused time not counted) and answers ``action=None`` for that arm.
     Requests for a human index >= ``num_humans`` go to human ``index % num_humans``.
+    ``names``: each human's name, by index (the config's ``humans.people``), shown on
+    every surface beside the index (``gui.view.human_label``); empty: "human i".
     """
 
-    def __init__(self, num_humans: int, *, scale: int = 6,
+    def __init__(self, num_humans: int, *, names: Sequence[str] = (), scale: int = 6,
                  teleop_timeout_s: float | None = None) -> None:
         if num_humans < 1:
             raise ValueError(f"num_humans must be >= 1, got {num_humans}")
         self.num_humans = num_humans
+        self.names = check_names(names, num_humans)
         self.layout = ConsoleLayout(scale=scale)
         self.teleop_timeout_s = teleop_timeout_s
         self._cond = threading.Condition(threading.RLock())
-        self._desks = [Desk(h, self.layout) for h in range(num_humans)]
+        self._desks = [Desk(h, self.layout, name=self.human_name(h))
+                       for h in range(num_humans)]
         self._seq = 0
         self._serial = 0
         self._posted: dict[int, int] = defaultdict(int)
@@ -157,7 +181,15 @@ class ConsoleCore:
         """Called after each redraw and paint report (under the lock)."""
 
     def surface_name(self, wid: int) -> str:
-        return "fleet overview" if wid == OVERVIEW else f"human {wid}"
+        return "fleet overview" if wid == OVERVIEW else self.human_label(wid)
+
+    def human_name(self, human: int) -> str | None:
+        """Human ``human``'s name, or None when the console was given no names."""
+        return self.names[human] if self.names else None
+
+    def human_label(self, human: int) -> str:
+        """``"ana (human 0)"`` (or ``"human 0"``): what every surface calls this human."""
+        return human_label(human, self.human_name(human))
 
     def _mark_closed(self) -> bool:
         """Mark the console closed (``act``/``show`` raise from now on); False if it

@@ -109,8 +109,12 @@ class Desk:
         human: int,
         layout: ConsoleLayout,
         locate: Callable[[npt.NDArray[np.uint8]], CubeMarker | None] = locate_cube,
+        *,
+        name: str | None = None,
     ) -> None:
         self.human = human
+        self.name = name
+        """Shown with every view (the header names the person), None when unnamed."""
         self.layout = layout
         self._locate = locate
         self._items: list[_Item] = []
@@ -245,7 +249,7 @@ class Desk:
     def view(self) -> ConsoleView:
         item = self._current()
         if item is None:
-            return ConsoleView(self.human, Phase.IDLE, t=self._t)
+            return ConsoleView(self.human, Phase.IDLE, t=self._t, name=self.name)
         if item.teleop:
             phase = Phase.CHOOSE if item.answer is None and not item.expired else Phase.SENT
         else:
@@ -257,7 +261,7 @@ class Desk:
         )
         return ConsoleView(
             self.human, phase, item.request, self._t, item.cube, item.markers,
-            sent_action=item.answer, queued=waiting,
+            sent_action=item.answer, queued=waiting, name=self.name,
         )
 
     def register(self, seq: int, view: ConsoleView, posted_at: float | None = None) -> None:

@@ -21,7 +21,7 @@ import numpy.typing as npt
 from gui.keys import ARROW_NAMES, KEY_NAMES
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.scene import workspace_polygon
-from gui.view import ConsoleView, Phase
+from gui.view import ConsoleView, Phase, human_label
 from testbed.core.types import SUCCESS_RADIUS, FleetStatus, InterventionKind, Mode, RobotStatus
 
 Frame = npt.NDArray[np.uint8]
@@ -151,7 +151,7 @@ def _header(img: Frame, layout: ConsoleLayout, view: ConsoleView) -> None:
     w = layout.width
     req = view.request
     host, _, arm = (req.robot.partition("/") if req else ("", "", ""))
-    who = f"human {view.human}" + (f" | {host} / {arm or host}" if req else "")
+    who = human_label(view.human, view.name) + (f" | {host} / {arm or host}" if req else "")
     _text(img, _fit(who, w - 70), (6, 17), TEXT, 0.5, 1)
     if view.t is not None:
         _text(img, f"t={view.t}", (w - 64, 17), DIM_TEXT)

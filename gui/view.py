@@ -42,3 +42,17 @@ class ConsoleView:
     paused: bool = False
     confirming_stop: bool = False
     stop_requested: bool = False
+    name: str | None = None
+    """The human's name (the config's ``humans.people``), None when unnamed."""
+
+
+def human_label(human: int, name: str | None = None) -> str:
+    """How every console names human ``human``: ``"ana (human 0)"``, or ``"human 0"``
+    when unnamed.
+
+    The name is who the person is (the records and the report use it); the index stays
+    beside it because the step rows, the tokens and a lab's scripts count humans by
+    index, and one label everywhere (titles, header, links, pages) lets an operator match
+    a window to a line of the records.
+    """
+    return f"{name} (human {human})" if name else f"human {human}"

@@ -25,7 +25,7 @@ DOCS = ROOT / "docs"
 
 
 def web_idle(out: Path) -> None:
-    """Human 0's page while the fleet has no arm for them, mid-trial, 3 humans."""
+    """Human 0's page while the fleet has no arm for them, mid-trial, 3 named humans."""
     from selenium.webdriver.common.by import By
 
     from gui.web import WebHumans
@@ -40,7 +40,8 @@ def web_idle(out: Path) -> None:
     status = FleetStatus(137, 250, successes=successes, hard_resets=6, idle_time=18,
                          human_actions=human_actions,
                          rohe=(3 / 4) * successes / (1 + human_actions), robots=robots)
-    with WebHumans(3, announce=None) as web, chromium(width=440, height=900) as page:
+    with (WebHumans(3, names=["ana", "bo", "cy"], announce=None) as web,
+          chromium(width=440, height=900) as page):
         open_console(page, web.urls[0])
         web.show(status.t, status)
         deadline = time.monotonic() + 10

@@ -28,8 +28,10 @@ and key are given.
 from __future__ import annotations
 
 import functools
+import html
 import sys
 import time
+from collections.abc import Sequence
 from importlib import resources
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -69,20 +71,31 @@ def _encode_png(frame: Frame) -> bytes:
     return buf.tobytes()
 
 
-def fleet_doc(status: FleetStatus) -> dict[str, Any]:
+def fleet_doc(status: FleetStatus, names: Sequence[str] = ()) -> dict[str, Any]:
     """The ``"fleet"`` text of the human pages: counters, and each arm's mode and human.
 
     Text, not a frame: a page with no arm shows it as HTML (readable on a phone, found by
     its words), and one text serves every page without rendering a frame per human.
+    With ``names`` (by human index), an arm held by a named human also has its ``name``,
+    so the page says who holds it; unnamed, the text is what it always was.
     """
     counters = ("t", "steps", "successes", "hard_resets", "idle_time", "human_actions")
     return {  # int(): a loop may count in numpy integers, which JSON does not take
         "type": "fleet", **{k: int(getattr(status, k)) for k in counters},
         "rohe": round(float(status.rohe), 5), "paused": bool(status.paused),
-        "robots": [{"robot": r.robot, "mode": r.mode.value,
-                    "human": None if r.human is None else int(r.human)}
+        "robots": [_robot_doc(r.robot, r.mode.value, r.human, names)
                    for r in status.robots],
     }
+
+
+def _robot_doc(robot: str, mode: str, human: int | None,
+               names: Sequence[str]) -> dict[str, Any]:
+    """One arm of the ``"fleet"`` text; ``name`` only when its human has one."""
+    doc: dict[str, Any] = {"robot": robot, "mode": mode,
+                           "human": None if human is None else int(human)}
+    if human is not None and 0 <= human < len(names):
+        doc["name"] = names[human]
+    return doc
 
 
 @functools.cache
@@ -102,13 +115,15 @@ class WebHumans(ConsoleCore):
     ``announce``, stderr by default); ``urls`` has them too. Use it as a context
     manager or call ``close()``. Without ``tokens``, every console of this process uses
     the same random ones, so a protocol's trials keep their URLs (a fixed ``port``
-    too: the pages reconnect by themselves between trials).
+    too: the pages reconnect by themselves between trials). ``names``: each human's
+    name, on their printed link, their page and the fleet's pages (empty: "human i").
     """
 
     def __init__(
         self,
         num_humans: int,
         *,
+        names: Sequence[str] = (),
         host: str = "127.0.0.1",
         port: int = 0,
         tokens: list[str] | None = None,
@@ -120,7 +135,8 @@ class WebHumans(ConsoleCore):
         scale: int = 6,
         announce: TextIO | None = sys.stderr,
     ) -> None:
-        super().__init__(num_humans, scale=scale, teleop_timeout_s=teleop_timeout_s)
+        super().__init__(num_humans, names=names, scale=scale,
+                         teleop_timeout_s=teleop_timeout_s)
         if (certfile is None) != (keyfile is None):
             raise ValueError("humans.web: give both certfile and keyfile, or neither")
         self.tokens = TokenBook(tokens) if tokens else TokenBook.for_session(num_humans)
@@ -144,21 +160,24 @@ class WebHumans(ConsoleCore):
         self.overview_url = f"{self.base_url}/overview?token={self.tokens.token(0)}"
         if announce is not None and (self.base_url, *self.urls) not in _ANNOUNCED:
             _ANNOUNCED.add((self.base_url, *self.urls))  # once: a protocol's next trial
-            lines = [f"web console: human {h}: {u}" for h, u in enumerate(self.urls)]
+            lines = [f"web console: {self.human_label(h)}: {u}"
+                     for h, u in enumerate(self.urls)]
             lines.append(f"web console: fleet overview: {self.overview_url}")
             print("\n".join(lines), file=announce, flush=True)
         with self._cond:
             self._redraw_all()
 
     @classmethod
-    def from_config(cls, count: int, cfg: WebConsoleConfig | None = None) -> WebHumans:
-        """Built from ``[humans.web]`` (``testbed.core.config.WebConsoleConfig``)."""
+    def from_config(cls, count: int, cfg: WebConsoleConfig | None = None, *,
+                    names: Sequence[str] = ()) -> WebHumans:
+        """Built from ``[humans.web]`` (``testbed.core.config.WebConsoleConfig``) and the
+        humans' ``names`` (``humans.people``; empty: "human i")."""
         if cfg is None:
             from testbed.core.config import WebConsoleConfig
 
             cfg = WebConsoleConfig()
         return cls(
-            count, host=cfg.host, port=cfg.port, tokens=list(cfg.tokens) or None,
+            count, names=names, host=cfg.host, port=cfg.port, tokens=list(cfg.tokens) or None,
             certfile=cfg.certfile, keyfile=cfg.keyfile, grace_s=cfg.grace_s,
             away_timeout_s=cfg.away_timeout_s, teleop_timeout_s=cfg.teleop_timeout_s,
         )
@@ -192,7 +211,8 @@ class WebHumans(ConsoleCore):
 
     # ---- ConsoleCore's surfaces: pages -------------------------------------------------
     def surface_name(self, wid: int) -> str:
-        return "the fleet overview page" if wid == OVERVIEW else f"human {wid}'s page"
+        return ("the fleet overview page" if wid == OVERVIEW
+                else f"{self.human_label(wid)}'s page")
 
     def _has_surface(self, wid: int) -> bool:
         return not self._closed
@@ -203,19 +223,26 @@ class WebHumans(ConsoleCore):
                                   "stop_requested": self._stop_reason is not None}
         if wid == OVERVIEW:
             header["humans"] = [{"human": h, "present": self._pages[h] > 0,
-                                 "phase": self._desks[h].view().phase.value}
+                                 "phase": self._desks[h].view().phase.value,
+                                 **self._name_of(h)}
                                 for h in range(self.num_humans)]
             if self._history:
                 header["point"] = self._history[-1]
         else:
             view = self._desks[wid].view()
             req = view.request
-            header |= {"human": wid, "phase": view.phase.value,
+            header |= {"human": wid, **self._name_of(wid), "phase": view.phase.value,
                        "robot": req.robot if req else None,
                        "kind": req.kind.value if req else None,
                        "markers": [list(p) for p in view.markers]
                        if view.phase is Phase.CHOOSE else []}
         self._hub.post(wid, _encode_png(frame), header)
+
+    def _name_of(self, human: int) -> dict[str, str]:
+        """``{"name": ...}`` for a named human, ``{}`` otherwise: an unnamed console's
+        headers stay what they were, and a page falls back to "human i" without it."""
+        name = self.human_name(human)
+        return {} if name is None else {"name": name}
 
     def show(self, t: int, status: FleetStatus) -> None:
         """The overview's frame and curve point, and the fleet's state on every human's
@@ -228,7 +255,7 @@ class WebHumans(ConsoleCore):
                 "modes": [str(r.mode) for r in status.robots],
             })
             del self._history[:-HISTORY_MAX]
-            self._hub.post_fleet(fleet_doc(status))
+            self._hub.post_fleet(fleet_doc(status, self.names))
         super().show(t, status)
 
     # ---- the server's calls (worker threads) -------------------------------------------
@@ -236,8 +263,11 @@ class WebHumans(ConsoleCore):
         return self.tokens.human_of(token)
 
     def page(self, wid: int) -> str:
+        """The page of surface ``wid``; a human's is headed with their label, escaped
+        (a name is text, never markup, whatever a script passed as one)."""
         overview = wid == OVERVIEW
-        return _page_template(overview).replace("HUMAN_INDEX", "" if overview else str(wid))
+        label = "" if overview else html.escape(self.human_label(wid))
+        return _page_template(overview).replace("HUMAN_LABEL", label)
 
     def connected(self, wid: int) -> list[dict[str, Any]]:
         with self._cond:

@@ -42,7 +42,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
     count = args.count or cfg.learning.demos
     check_out_file("--out", args.out)
     check_humans(args.humans or cfg.humans.kind, cfg)
-    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web)
+    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web,
+                         names=[p.name for p in cfg.humans.people])
     hosts = build_hosts(cfg, args.seed)
     try:
         hosts.start()
@@ -92,7 +93,8 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
         why = " ".join(str(exc).split())[:160]
         raise ConfigError(f"--demos: {args.demos} is not a demonstrations file ({why}); "
                           "give the .npz of testbed collect") from None
-    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web)
+    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web,
+                         names=[p.name for p in cfg.humans.people])
     hosts = build_hosts(cfg, PRETRAIN_SEED)
     learner = new_learner(cfg, PRETRAIN_SEED)
     try:

@@ -62,27 +62,29 @@ def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> Hos
 
 
 def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
-                people: Sequence[HumanProfile] = (), seed: int = 0,
-                robots: Sequence[str] = ()) -> Humans:
+                people: Sequence[HumanProfile] = (), names: Sequence[str] = (),
+                seed: int = 0, robots: Sequence[str] = ()) -> Humans:
     """Build the humans of a trial; a console is imported only when asked for.
 
     ``web``: the browser console's settings (``humans.web`` of the config), read only
     for ``kind = "web"`` (default: ``WebConsoleConfig()``, loopback, random tokens).
     ``people``: the scripted humans' profiles (``humans.profiles``; none: perfect
     experts, as for collecting demonstrations), their draws seeded by ``seed`` and the
-    arm's index in ``robots``.
+    arm's index in ``robots``. ``names``: what a console calls each person (the names
+    of ``humans.people``, so the windows and pages say who is who, as the records do);
+    empty: "human 0", "human 1", ... (a config that names nobody keeps its labels).
     """
     if kind == "scripted":
         return ScriptedHumans(people, seed=seed, robots=robots)
     if kind == "gui":
         from gui.console import ConsoleHumans
 
-        return ConsoleHumans(num_humans=count)
+        return ConsoleHumans(num_humans=count, names=names)
     if kind == "web":
         from gui.web import WebHumans
 
-        humans: Humans = WebHumans.from_config(count, web if web is not None
-                                               else WebConsoleConfig())
+        humans: Humans = WebHumans.from_config(
+            count, web if web is not None else WebConsoleConfig(), names=names)
         return humans
     raise ValueError(f"unknown humans kind {kind!r}; use scripted, gui or web")
 

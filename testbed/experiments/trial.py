@@ -151,7 +151,8 @@ def run_trial(
     if humans is None:
         humans = make_humans(opts.humans, cfg.humans.count, cfg.humans.web,
                              people=cfg.humans.profiles, seed=opts.seed,
-                             robots=cfg.robot_names)
+                             robots=cfg.robot_names,
+                             names=[p.name for p in cfg.humans.people])
     own_hosts = hosts is None
     if hosts is None:
         built = build_hosts(cfg, opts.seed + (run.start * 7919 if run.start else 0),

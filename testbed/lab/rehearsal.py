@@ -214,7 +214,8 @@ class _RehearsalHooks(TrialHooks):
 
         fleet = self.lab.fleet
         inner = make_humans(self.kind, fleet.humans.count, fleet.humans.web,
-                            people=fleet.humans.profiles, robots=fleet.robot_names)
+                            people=fleet.humans.profiles, robots=fleet.robot_names,
+                            names=[p.name for p in fleet.humans.people])
         return TwinLabHumans(inner, self.lab.labs, self.views, expert=self.kind == "scripted")
 
     def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from console_helpers import CUBE_RGB, TABLE_RGB, RequestFactory, arm_image
@@ -139,3 +141,32 @@ def test_overview_mosaic_borders_and_counters() -> None:
 def test_overview_before_the_first_step() -> None:
     frame = draw.render_overview(None)
     assert frame.ndim == 3 and frame.shape[1] >= draw.OVERVIEW_MIN_WIDTH
+
+
+def test_the_header_and_the_window_title_name_the_human(
+    make_request: RequestFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The person's name, with the index the step rows count by; unnamed: "human i"."""
+    from gui.console import window_name
+
+    drawn: list[str] = []
+    put_text = draw._text
+
+    def recording(img: np.ndarray, text: str, *args: Any, **kwargs: Any) -> None:
+        drawn.append(text)
+        put_text(img, text, *args, **kwargs)
+
+    monkeypatch.setattr(draw, "_text", recording)
+    desk = Desk(0, LAYOUT, locate=lambda _img: CUBE, name="ana")
+    desk.assign([make_request()], t=7, serial=1)
+    named = draw.render_console(desk.view(), LAYOUT)
+    assert [t for t in drawn if "human" in t] == ["ana (human 0) | cell0 / left"]
+    drawn.clear()
+    plain = draw.render_console(view_of(make_request), LAYOUT)
+    assert [t for t in drawn if "human" in t] == ["human 0 | cell0 / left"]
+    assert (named[:20] != plain[:20]).any(), "the name is in the header's pixels"
+    drawn.clear()
+    draw.render_console(ConsoleView(1, Phase.IDLE, name="bo"), LAYOUT)
+    assert [t for t in drawn if "human" in t] == ["bo (human 1)"]
+    assert window_name(0, name="ana") == "testbed console - ana (human 0)"
+    assert window_name(1) == "testbed console - human 1"

@@ -1,11 +1,15 @@
-"""One human's input rules: an input counts only for the image the human saw."""
+"""One human's input rules: an input counts only for the image the human saw; and
+what a console calls each human (a name beside the index)."""
 
 from __future__ import annotations
 
 import pytest
 from console_helpers import RequestFactory
 
+from gui.console_core import ConsoleCore
 from gui.desk import Desk
+from gui.errors import StopRequested
+from gui.keys import Command, KeyCommand
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.view import Phase
 
@@ -220,3 +224,40 @@ def test_a_queued_request_is_timed_from_when_it_was_shown(make_request: RequestF
     out = d.responses()
     assert out["a/left"].waited_s == pytest.approx(1.0)
     assert out["b/left"].waited_s == pytest.approx(3.0)
+
+
+class _Surfaceless(ConsoleCore):
+    """A console with no surface: its naming and its stop, without windows or pages."""
+
+    def _has_surface(self, wid: int) -> bool:
+        return False
+
+
+def test_a_named_console_calls_each_human_by_name_beside_the_index(
+    make_request: RequestFactory,
+) -> None:
+    core = _Surfaceless(2, names=["ana", "bo"])
+    assert [core.human_label(h) for h in range(2)] == ["ana (human 0)", "bo (human 1)"]
+    assert core.surface_name(1) == "bo (human 1)"
+    assert core.snapshot(0).window == "ana (human 0)"  # the state file's "window"
+    core._desks[1].assign([make_request(human=1)], t=0, serial=1)
+    assert core._desks[1].view().name == "bo", "the drawn header gets the name"
+    assert core._desks[0].view().name == "ana", "an idle view too"
+    with core._cond:  # as a surface reports an input: under the console's lock
+        assert core._on_command(0, 0, KeyCommand(Command.STOP))
+        assert core._on_command(0, 0, KeyCommand(Command.YES))
+    with pytest.raises(StopRequested, match=r"stop confirmed by ana \(human 0\)"):
+        core.act([], 1)
+    # unnamed: today's labels, everywhere
+    plain = _Surfaceless(2)
+    assert plain.names == () and plain.human_name(1) is None
+    assert plain.surface_name(1) == "human 1" and plain._desks[1].view().name is None
+
+
+@pytest.mark.parametrize(("names", "why"), [
+    (["ana"], "need 2"), (["ana", "ana"], "twice"), (["ana", ""], "not a name"),
+    (["ana", "b\no"], "not a name"),
+], ids=["count", "twice", "empty", "line-break"])
+def test_names_a_console_cannot_show_are_refused(names: list[str], why: str) -> None:
+    with pytest.raises(ValueError, match=why):
+        _Surfaceless(2, names=names)

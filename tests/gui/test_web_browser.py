@@ -3,15 +3,18 @@
 First, pages against a ``WebHumans`` in this process: the page paints the very pixels
 the OpenCV console draws, a page without a token shows nothing, a key on one page and a
 tap on the other push their own human's arms, and a human with no arm sees that they
-wait and the fleet's counters and modes, live, instead of an empty image.
+wait and the fleet's counters and modes, live, instead of an empty image, under their
+own name, with the names of those who hold the arms.
 
 Then end to end, ``testbed trial --humans web`` on the twin: the trial runs in its own
 process; two headless Chromium windows open the two humans' URLs and answer as people
-would: human 0 presses ``w`` on the keyboard (push up, action 0), human 1 clicks face
-marker 3 on the image (push right), and both press the "Reset done" button on a
-hard-reset frame. Midway, human 1's page is closed. The records must show exactly those
-pushes on the arms each human held, hard resets completed by the button, and after the
-close: human 1 away, never newly assigned, and the trial going on to its last step.
+would: human 0 (ana, in the config's ``humans.people``) presses ``w`` on the keyboard
+(push up, action 0), human 1 (bo) clicks face marker 3 on the image (push right), and
+both press the "Reset done" button on a hard-reset frame. Midway, human 1's page is
+closed. The records must show exactly those pushes on the arms each human held, hard
+resets completed by the button, and after the close: human 1 away, never newly
+assigned, and the trial going on to its last step; the printed links and the overview
+name both humans.
 """
 
 from __future__ import annotations
@@ -73,6 +76,14 @@ def web() -> Iterator[WebHumans]:
         yield console
 
 
+@pytest.fixture
+def named_web() -> Iterator[WebHumans]:
+    """Two humans the config names (``humans.people``): the pages say who is who."""
+    with WebHumans(2, names=["ana", "bo"], port=0, announce=None,
+                   away_timeout_s=30.0) as console:
+        yield console
+
+
 CANVAS_SHA256 = """
 const done = arguments[arguments.length - 1];
 const c = document.getElementById(arguments[0]);
@@ -128,6 +139,8 @@ def test_no_token_no_page(web: WebHumans, pages: tuple[Any, Any]) -> None:
 def test_a_key_and_a_tap_push_their_own_humans_arms(
     web: WebHumans, pages: tuple[Any, Any], make_request: Any
 ) -> None:
+    from selenium.webdriver.common.by import By
+
     for h, page in enumerate(pages):
         open_console(page, web.urls[h])
     _wait(lambda: bool(web.presence().available.all()), "both humans present")
@@ -149,6 +162,8 @@ def test_a_key_and_a_tap_push_their_own_humans_arms(
     _wait(lambda: [x["present"] for x in (page_state(pages[0]).get("head") or {})
                    .get("humans", [])] == [False, True], "overview shows who is here")
     assert web.presence().available.tolist() == [False, True]
+    who = pages[0].find_element(By.ID, "humans").text  # unnamed humans: "human i"
+    assert who.startswith("human 0: away \u00b7 human 1: "), who
     assert web._posted[OVERVIEW] > 0
 
 
@@ -178,12 +193,14 @@ def _panel_when(page: Any, cond: Any, what: str) -> dict[str, Any]:
 
 
 def test_a_human_without_an_arm_sees_the_wait_and_the_fleet(
-    web: WebHumans, pages: tuple[Any, Any], make_request: Any
+    named_web: WebHumans, pages: tuple[Any, Any], make_request: Any
 ) -> None:
     from selenium.webdriver.common.by import By
 
-    page = pages[0]
+    web, page = named_web, pages[0]
     open_console(page, web.urls[0])
+    assert page.title == "testbed console - ana (human 0)"
+    assert page.find_element(By.ID, "who").text == "ana (human 0)"
     panel = _panel_when(page, lambda p: p["idle"], "no idle panel before the first step")
     assert panel["none"] and panel["rows"] == [] and panel["counters"]["step"] == "-"
     assert page.find_element(By.ID, "waiting").is_displayed()
@@ -203,11 +220,11 @@ def test_a_human_without_an_arm_sees_the_wait_and_the_fleet(
     assert panel["counters"] == {"step": "7 of 24", "successes": "3", "hard_resets": "1",
                                  "idle_time": "4", "human_actions": "9", "rohe": "0.250"}
     assert panel["rows"] == [["cell0/left", "autonomous", "-"],
-                             ["cell0/right", "teleop", "human 1"],
+                             ["cell0/right", "teleop", "bo"],
                              ["cell1/left", "idle", "-"], ["cell1/right", "fault", "-"]]
     assert not panel["none"]
     text = page.find_element(By.ID, "idle").text  # what is on screen, not only in the DOM
-    assert "Waiting for an arm" in text and "cell0/right" in text and "human 1" in text
+    assert "Waiting for an arm" in text and "cell0/right" in text and "bo" in text
 
     web.show(8, FleetStatus(8, 24, successes=4, hard_resets=2, idle_time=5,
                             human_actions=10, rohe=0.3, robots=[
@@ -217,7 +234,7 @@ def test_a_human_without_an_arm_sees_the_wait_and_the_fleet(
         RobotStatus("cell1/right", Mode.AUTONOMOUS, image)]))
     panel = _panel_when(page, lambda p: p["counters"]["step"] == "8 of 24", "live: step 8")
     assert (panel["counters"]["successes"], panel["counters"]["rohe"]) == ("4", "0.300")
-    assert panel["rows"][2] == ["cell1/left", "reset", "human 1"]
+    assert panel["rows"][2] == ["cell1/left", "reset", "bo"]
 
     # an arm for human 0: the image and its buttons come back; done, the panel again
     call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 8))
@@ -244,7 +261,7 @@ def _config(port: int) -> dict[str, Any]:
         "algorithm": {"u_hat": 0.0},
         "learning": {"ensemble_size": 2, "batch_size": 32, "demos": 40,
                      "critic_transitions": 40, "pretrain_steps": 5},
-        "humans": {"count": 2, "kind": "web",
+        "humans": {"count": 2, "kind": "web", "people": [{"name": "ana"}, {"name": "bo"}],
                    "web": {"port": port, "tokens": TOKENS, "grace_s": 1.0,
                            "away_timeout_s": 0.5}},
     }
@@ -341,6 +358,7 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
                         closed_at_step = done
                     time.sleep(0.1)
                 overview = page_state(page1)
+                presence = page1.find_element("id", "humans").text
             finally:
                 h0.stop()
                 h1.stop()
@@ -352,7 +370,8 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
     assert proc.returncode == 0, err[-3000:]
     assert not h0.errors and not h1.errors, (h0.errors, h1.errors)
     assert closed_at_step is not None, "the trial ended before human 1's page was closed"
-    assert "web console: human 0:" in err, "the URLs are printed once at start"
+    assert f"web console: ana (human 0): {urls[0]}" in err, "the URLs, printed at start"
+    assert f"web console: bo (human 1): {urls[1]}" in err, "... with each human's name"
 
     steps = read_steps(run / "steps.jsonl")
     assert len(steps) == STEPS
@@ -388,5 +407,7 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
     last = steps[-1]
     assert points[-1]["modes"] == [r["mode"] for r in last["robots"]]
     assert [x["present"] for x in overview["head"]["humans"]] == [True, False]
+    assert presence.startswith("ana (human 0): ") and presence.endswith(
+        "\u00b7 bo (human 1): away"), presence  # the config's names, on the page
     released = [x for s in steps for x in s.get("released", [])]
     assert all(x["human"] == 1 and x["why"] == "away" for x in released), released

@@ -9,6 +9,9 @@ What is proven:
   and no frame; the token alone says who a page is (``?human=`` changes nothing);
 * one human cannot act for another: the server takes the human from the socket's
   token, never from a message, a frame number or a marker's coordinates;
+* named humans (``names``): each name beside its index on the printed link, the page's
+  title and header (HTML-escaped), the frame headers and the fleet's text; an unnamed
+  console's wire is what it was;
 * each browser key and each face marker click means its push (w/ArrowLeft/x/d, k);
 * an input counts only for the frame that showed the waiting request: an action
   replayed from the step before, or a second answer to one frame, is refused (with
@@ -316,7 +319,53 @@ def test_the_token_alone_says_whose_page_it_is(web: WebHumans, open_page: OpenPa
     page = open_page(1, query="&human=0")
     assert page.latest["human"] == 1
     assert page.pngs[-1].startswith(b"\x89PNG\r\n\x1a\n")
+    assert "name" not in page.latest, "an unnamed console's header is what it was"
     assert web.presence().available.tolist() == [False, True]
+
+
+def test_named_humans_on_their_links_pages_frames_and_the_fleets_text() -> None:
+    """Each name beside its index on the printed links and the page's title and header,
+    escaped there (a name is text, never markup), and in the frame headers and the
+    fleet's text (the waiting page's "held by" column, the overview's presence list);
+    ``make_humans(names=...)`` hands them on (a trial passes ``humans.people``'s)."""
+    import io
+
+    from testbed.core.config import WebConsoleConfig
+    from testbed.experiments.build import make_humans
+
+    built = make_humans("web", 2, WebConsoleConfig(port=0), names=["ana", "bo"])
+    try:
+        assert isinstance(built, WebHumans) and built.names == ("ana", "bo")
+    finally:
+        built.close()
+    out = io.StringIO()
+    with console(names=["ana", "<b>bo</b>"], announce=out) as web:
+        assert out.getvalue().splitlines()[:2] == [
+            f"web console: ana (human 0): {web.urls[0]}",
+            f"web console: <b>bo</b> (human 1): {web.urls[1]}"]
+        body = http_get(web.urls[0])[1]
+        assert "<title>testbed console - ana (human 0)</title>" in body
+        assert '<span id="who">ana (human 0)</span>' in body
+        body = http_get(web.urls[1])[1]
+        assert '<span id="who">&lt;b&gt;bo&lt;/b&gt; (human 1)</span>' in body
+        assert "<b>bo</b>" not in body
+        assert web.surface_name(0) == "ana (human 0)'s page"
+        with (FakePage(f"{ws_base(web)}/ws?token={TOKENS[1]}") as page,
+              FakePage(f"{ws_base(web)}/ws/overview?token={TOKENS[0]}") as overview):
+            assert (page.latest["human"], page.latest["name"]) == (1, "<b>bo</b>")
+            head = overview.wait_frame(lambda h: h["humans"][1]["present"])
+            assert [(h["human"], h["name"], h["present"]) for h in head["humans"]] == [
+                (0, "ana", False), (1, "<b>bo</b>", True)]
+            web.show(3, FleetStatus(3, 10, robots=[
+                RobotStatus("cell0/left", Mode.TELEOP, arm_image(), 1),
+                RobotStatus("cell0/right", Mode.AUTONOMOUS, arm_image())]))
+            with page._cond:
+                page._cond.wait_for(lambda: any(x["type"] == "fleet" for x in page.texts),
+                                    WAIT_S)
+                fleet = next(x for x in page.texts if x["type"] == "fleet")
+            assert fleet["robots"] == [
+                {"robot": "cell0/left", "mode": "teleop", "human": 1, "name": "<b>bo</b>"},
+                {"robot": "cell0/right", "mode": "autonomous", "human": None}]
 
 
 # ---- 3: who acts for whom, and what each input means ----------------------------------------

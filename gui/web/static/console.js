@@ -125,6 +125,9 @@ const TestbedConsole = (() => {
 
   function setText(id, text) { document.getElementById(id).textContent = String(text); }
 
+  // gui.view.human_label: the name with the index beside it; "human <i>" when unnamed.
+  function label(human, name) { return name ? `${name} (human ${human})` : `human ${human}`; }
+
   function showFleet(doc, me) {
     const table = document.getElementById("fleet-robots");
     document.getElementById("fleet-none").hidden = doc !== null;
@@ -137,7 +140,8 @@ const TestbedConsole = (() => {
     const rows = (doc === null ? [] : doc.robots).map((r) => {
       const tr = document.createElement("tr");
       tr.dataset.robot = r.robot;
-      const held = r.human === null ? "-" : `human ${r.human}${r.human === me ? " (you)" : ""}`;
+      const held = r.human === null ? "-"
+        : (r.name || `human ${r.human}`) + (r.human === me ? " (you)" : "");
       [r.robot, r.mode, held].forEach((text, i) => {
         const td = document.createElement("td");  // textContent: names are not markup
         td.textContent = text;
@@ -228,6 +232,20 @@ const TestbedConsole = (() => {
     ctx.fillText(String(yMax), 2, pad);
   }
 
+  // Who is here, as text nodes: a name is the lab's text, never markup.
+  function showHumans(humans) {
+    const items = [];
+    humans.forEach((x, i) => {
+      if (i > 0) items.push(document.createTextNode(" \u00b7 "));
+      const span = document.createElement("span");
+      span.className = x.present ? "here" : "away";
+      span.dataset.human = String(x.human);
+      span.textContent = `${label(x.human, x.name)}: ${x.present ? x.phase : "away"}`;
+      items.push(span);
+    });
+    document.getElementById("humans").replaceChildren(...items);
+  }
+
   function overviewPage() {
     const curves = document.getElementById("curves");
     const draw = frameDrawer(document.getElementById("mosaic"), (head) => {
@@ -243,9 +261,7 @@ const TestbedConsole = (() => {
           `t ${last.t}  successes ${last.successes}  hard resets ${last.hard_resets}  ` +
           `human actions ${last.human_actions}  idle ${last.idle}  ROHE ${last.rohe}`;
       }
-      document.getElementById("humans").innerHTML = (head.humans || []).map((x) =>
-        `<span class="${x.present ? "here" : "away"}">human ${x.human}: ` +
-        `${x.present ? x.phase : "away"}</span>`).join(" &middot; ");
+      showHumans(head.humans || []);
       showFlags(head);
       drawCurves(curves, state.points);
     });
