@@ -3,13 +3,17 @@
     .venv/bin/python scripts/doc_images.py                 # both
     .venv/bin/python scripts/doc_images.py web-idle        # docs/web-console-idle.png
     .venv/bin/python scripts/doc_images.py check-mosaic    # docs/check-mosaic.png
+    .venv/bin/python scripts/doc_images.py report-page [--report F]   # docs/report-page.png
 
 Why a script: the pictures must be what the code draws today, so they are made by the
 code, never edited by hand. ``web-idle`` is the browser console's page of a human with
 no arm (headless Chromium, as tests/gui/test_web_browser.py drives it; needs the
 ``chromium`` and ``chromium-driver`` packages); ``check-mosaic`` is ``testbed check
 --config protocols/twin.toml --mosaic docs/check-mosaic.png`` (the twin fleet's 4 arms;
-the twin has no full camera frame, so nothing else is written).
+the twin has no full camera frame, so nothing else is written); ``report-page`` is a
+``report.html`` in headless Chromium, the whole page (default: the short twin protocol's,
+``runs/protocol-twin-operators/report.html``, after ``testbed protocol
+protocols/twin-operators.toml``).
 """
 
 from __future__ import annotations
@@ -62,21 +66,48 @@ def check_mosaic(out: Path) -> None:
         raise SystemExit(f"testbed check failed ({rc})")
 
 
+REPORT = ROOT / "runs" / "protocol-twin-operators" / "report.html"
+
+
+def report_page(out: Path, report: Path = REPORT) -> None:
+    """The whole of a report.html, as a reviewer scrolls it (one tall PNG)."""
+    import base64
+
+    from gui.web.browser import chromium
+
+    if not report.is_file():
+        raise SystemExit(f"no {report}: run testbed protocol protocols/twin-operators.toml "
+                         "first, or give --report")
+    with chromium(width=1400, height=1000) as page:
+        page.get(report.resolve().as_uri())
+        height = page.execute_script("return document.documentElement.scrollHeight")
+        page.set_window_size(1400, min(height + 40, 16000))
+        shot = page.execute_cdp_cmd("Page.captureScreenshot",
+                                    {"captureBeyondViewport": True, "format": "png"})
+        out.write_bytes(base64.b64decode(shot["data"]))
+
+
 PICTURES = {"web-idle": (web_idle, "web-console-idle.png"),
-            "check-mosaic": (check_mosaic, "check-mosaic.png")}
+            "check-mosaic": (check_mosaic, "check-mosaic.png"),
+            "report-page": (report_page, "report-page.png")}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("which", nargs="*", metavar="PICTURE",
                    help=f"any of {', '.join(PICTURES)} (default: all)")
+    p.add_argument("--report", type=Path, default=REPORT,
+                   help="the report.html of report-page (default: %(default)s)")
     args = p.parse_args(argv)
     unknown = [w for w in args.which if w not in PICTURES]
     if unknown:
         p.error(f"unknown picture {unknown[0]!r}: choose from {', '.join(PICTURES)}")
     for name in args.which or PICTURES:
         make, file = PICTURES[name]
-        make(DOCS / file)
+        if make is report_page:
+            report_page(DOCS / file, args.report)
+        else:
+            make(DOCS / file)
         print(f"{name} -> {DOCS / file}")
     return 0
 

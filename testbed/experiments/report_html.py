@@ -92,6 +92,8 @@ def _text(v: Any) -> str:
         return ", ".join(_text(x) for x in v)
     if isinstance(v, dict):
         return ", ".join(f"{k}={_text(x)}" for k, x in v.items())
+    if isinstance(v, float):
+        return f"{v:.4g}"  # a resolved threshold or budget: 0.8083, not 0.80833333333
     return str(v)
 
 
@@ -130,9 +132,24 @@ def run_metadata(runs: Sequence[RunRecord]) -> dict[str, list[list[str]]]:
             hosts.append([name, host, _text(info.get("backend")), _text(info.get("transport")),
                           _text(info.get("build")), _text(ctrl.get("robotware")),
                           _text(ctrl.get("serial")), _text(ctrl.get("system"))])
-    return {"Runs and code": runs_rows, "Versions and numerics": numerics,
-            "Thresholds as resolved": thresholds,
-            "Hosts": hosts if len(hosts) > 1 else []}
+    total = len(runs)
+    return {"Runs and code": runs_rows, "Versions and numerics": _grouped(numerics, total),
+            "Thresholds as resolved": _grouped(thresholds, total),
+            "Hosts": _grouped(hosts, total) if len(hosts) > 1 else []}
+
+
+def _grouped(rows: list[list[str]], total: int) -> list[list[str]]:
+    """Rows that say the same but for their run, once, with the runs they stand for
+    ("all 27 runs" when every run agrees): a reviewer sees what differs."""
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for row in rows[1:]:
+        groups.setdefault(tuple(row[1:]), []).append(row[0])
+    out = [["runs", *rows[0][1:]]]
+    for rest, names in groups.items():
+        runs = (f"all {total} runs" if len(set(names)) == total and total > 1
+                else ", ".join(dict.fromkeys(names)))
+        out.append([runs, *rest])
+    return out
 
 
 def report_page(tables: Sequence[Table], notes: Sequence[str], png: bytes,

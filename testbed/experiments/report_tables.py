@@ -80,7 +80,9 @@ def method_note(counts: Sequence[int]) -> str:
             f"freedom for fewer than {BOOTSTRAP_MIN_TRIALS} trials (a bootstrap of so few "
             f"trials has too few distinct resamples and is too narrow), a BCa bootstrap "
             f"over trials (9999 resamples, seeded) from {BOOTSTRAP_MIN_TRIALS} on; here "
-            f"{kinds}. All trials of a row equal: the interval is that value.")
+            f"{kinds}. All trials of a row equal: the interval is that value. A t interval "
+            f"of a count can reach below 0: that is the width so few trials allow, not a "
+            f"value the count can take.")
 
 
 def interval_table(key: str, title: str, first: str,
