@@ -201,7 +201,8 @@ def humans_table(per_group: Mapping[str, Sequence[tuple[list[str], list[HumanCou
     notes = ["Summed over each algorithm's trials. An intervention starts where a human "
              "is put on an arm; \"to first push\" is from that step to their first push "
              "(0: they pushed on the step they were assigned), in steps and in the "
-             "seconds their console measured; \"reset took\" is the steps from the "
+             "seconds their console measured (scripted humans: steps only; '-': no "
+             "console measured it); \"reset took\" is the steps from the "
              "assignment to the confirmation. A push is a teleop step the host executed; "
              "its success and violation are that step's."]
     return Table("humans", "The humans (per algorithm, summed over trials)", HUMAN_HEADER,

@@ -15,7 +15,6 @@ the draws the uninterrupted one would have, whatever happened before the crash.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -43,10 +42,11 @@ class ScriptedHumans:
     a twin host reports) with probability ``skill``, else one of the other faces; its
     first push comes on the intervention's ``latency``-th step (``served == latency``;
     the steps before pass without a push). A hard reset is done at the end of the
-    ``t_R + latency``-th step it was served (docs/ARCHITECTURE.md, "The timestep"). The
-    answer that carries an intervention's first action reports ``waited_s``: the wall
-    time since this human was first asked (the steps are what the profile sets; the
-    seconds are what the twin's speed makes of them).
+    ``t_R + latency``-th step it was served (docs/ARCHITECTURE.md, "The timestep").
+    Their time to a first action is in steps (the row's ``first.steps``: the profile's
+    ``latency``); they report no ``waited_s``: seconds would be the twin's speed, not
+    the human's, and would make two runs of one seed differ (the records of a seed are
+    the same, serial or overlapped, local or on a Ray worker).
     """
 
     def __init__(self, profiles: Sequence[HumanProfile] = (), seed: int = 0,
@@ -54,8 +54,6 @@ class ScriptedHumans:
         self.profiles = list(profiles)
         self.seed = int(seed) & 0xFFFFFFFF
         self._robot_index = {r: i for i, r in enumerate(robots)}
-        self._asked: dict[tuple[str, int], float] = {}
-        """(robot, human) -> when the current intervention was first asked (monotonic)."""
 
     def _profile(self, human: int) -> HumanProfile:
         if human < len(self.profiles):
@@ -68,25 +66,16 @@ class ScriptedHumans:
 
     def act(self, requests: Sequence[HumanRequest], t: int) -> dict[str, HumanResponse]:
         out: dict[str, HumanResponse] = {}
-        now = time.monotonic()
         for req in requests:
-            key = (req.robot, req.human)
-            if req.served == 0 or key not in self._asked:
-                self._asked[key] = now
             prof = self._profile(req.human)
             if req.kind is InterventionKind.TELEOP:
                 if req.served < prof.latency:
                     out[req.robot] = HumanResponse(req.robot)  # not yet: the step passes
                     continue
-                first = req.served == prof.latency
-                out[req.robot] = HumanResponse(
-                    req.robot, action=self._push(req, prof, t),
-                    waited_s=now - self._asked[key] if first else None)
+                out[req.robot] = HumanResponse(req.robot, action=self._push(req, prof, t))
             else:
                 done = req.served + 1 >= req.min_steps + prof.latency
-                out[req.robot] = HumanResponse(
-                    req.robot, reset_done=done,
-                    waited_s=now - self._asked[key] if done else None)
+                out[req.robot] = HumanResponse(req.robot, reset_done=done)
         return out
 
     def _push(self, req: HumanRequest, prof: HumanProfile, t: int) -> int:

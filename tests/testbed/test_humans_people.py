@@ -122,8 +122,9 @@ def test_a_latency_delays_the_first_push_and_the_reset() -> None:
     teleop = [humans.act([_request("a", 0, InterventionKind.TELEOP, s)], s)["a"]
               for s in range(4)]
     assert [r.action for r in teleop] == [None, None, 2, 2]
-    assert [r.waited_s is not None for r in teleop] == [False, False, True, False]
-    assert teleop[2].waited_s is not None and teleop[2].waited_s >= 0
+    # their time to act is in steps (the row's first.steps); no seconds: the twin's
+    # speed is not the human's, and seconds would make two runs of one seed differ
+    assert all(r.waited_s is None for r in teleop)
     reset = [humans.act([_request("a", 0, InterventionKind.RESET, s, min_steps=3)], s)["a"]
              for s in range(5)]
     assert [r.reset_done for r in reset] == [False, False, False, False, True]  # t_R + 2

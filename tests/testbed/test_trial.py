@@ -309,10 +309,15 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert "| eval:bc | 2 |" in evaluation and "| eval:cur | 2 |" in evaluation
     assert "| eval:expert | 2 |" in evaluation
     assert "eval" not in learning
-    table, _, parts = learning.partition("ROHE and its parts")
+    table = learning.split("\n\n")[0]  # the first table: mean +- std
     rows = [ln for ln in table.splitlines() if ln.startswith(("| bc ", "| cur "))]
     assert len(rows) == 2 and all("| 2 |" in r for r in rows)
+    parts = learning.partition("ROHE and its parts")[2].split("\n\n")[1]
     assert len([ln for ln in parts.splitlines() if ln.startswith(("| bc ", "| cur "))]) == 2
+    # the report's new tables: bc paired against cur over the 2 trials, the humans
+    assert "Paired against cur (learning)" in learning and "| bc | successes |" in learning
+    assert "The humans (per algorithm, summed over trials)" in learning
+    assert (out / "report.html").read_text().count("<table>") >= 8
     csv_lines = (out / "report.csv").read_text().splitlines()
     assert csv_lines[0].startswith("algorithm,trials,successes_mean,successes_std")
     png = (out / "curves.png").read_bytes()
