@@ -382,7 +382,8 @@ def learning_tables(runs: list[RunRecord], metrics: tuple[str, ...], reference: 
             f"{kind}-paired", f"Paired against {ref} ({what})", first,
             {g: {r.trial: r.summary for r in rs} for g, rs in groups.items()}, ref,
             metrics, trial_label))
-    same = identical_groups({g: {r.trial: r.digest for r in rs} for g, rs in groups.items()})
+    same = identical_groups({g: {r.trial: r.digest for r in rs} for g, rs in groups.items()},
+                            trial_label)
     tables[0].notes += same
     return tables
 

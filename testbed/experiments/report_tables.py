@@ -209,28 +209,33 @@ def humans_table(per_group: Mapping[str, Sequence[tuple[list[str], list[HumanCou
                  rows, notes, csv_rows)
 
 
-TIME_FIELDS = ("wall_time", "duration_s")
+BEHAVIOUR = ("robot", "mode", "human", "action", "success", "violation", "refused",
+             "served")
+"""What an arm did at a step: who acted, what, and what came of it. Not its ``key``
+(each algorithm's keys have their own shape: R's and C.R.'s differ even when they pick
+the same arms), nor the learner's signals or any timing."""
 
 
 def steps_digest(path: Path) -> str:
-    """SHA-256 of a run's steps.jsonl without its timing (the one part of a row that
-    differs between two runs of one seed): equal digests, identical records."""
+    """SHA-256 of what a run's fleet did, step by step (``BEHAVIOUR`` of every arm,
+    faults, away humans, released interventions): equal digests, the same run, whatever
+    the algorithm's keys said and however long the steps took."""
     h = hashlib.sha256()
     with path.open() as f:
         for line in f:
             if not line.strip():
                 continue
             row = json.loads(line)
-            for k in TIME_FIELDS:
-                row.pop(k, None)
-            for arm in row.get("robots", []):  # a console's seconds are timing too
-                if isinstance(arm.get("first"), dict):
-                    arm["first"].pop("s", None)
-            h.update(json.dumps(row, sort_keys=True).encode())
+            kept = {"t": row.get("t"), "faults": row.get("faults"), "away": row.get("away"),
+                    "released": row.get("released"),
+                    "robots": [{k: arm.get(k) for k in BEHAVIOUR}
+                               for arm in row.get("robots", [])]}
+            h.update(json.dumps(kept, sort_keys=True).encode())
     return h.hexdigest()
 
 
-def identical_groups(digests: Mapping[str, Mapping[Hashable, str]]) -> list[str]:
+def identical_groups(digests: Mapping[str, Mapping[Hashable, str]],
+                     label: Callable[[Hashable], str] = str) -> list[str]:
     """One line per pair of groups whose runs have identical records in every trial they
     share: their comparison tests nothing this run can show."""
     names = list(digests)
@@ -238,9 +243,16 @@ def identical_groups(digests: Mapping[str, Mapping[Hashable, str]]) -> list[str]
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             common = [k for k in digests[a] if k in digests[b]]
-            if common and all(digests[a][k] == digests[b][k] for k in common):
-                lines.append(f"IDENTICAL RECORDS: {a} and {b} made the same records, step "
-                             f"for step, in all {len(common)} trial(s) they share: what "
-                             "tells them apart never happened in these runs, so this "
-                             "report cannot compare them.")
+            same = [k for k in common if digests[a][k] == digests[b][k]]
+            if common and len(same) == len(common):
+                lines.append(f"IDENTICAL RECORDS: {a} and {b} did the same, step for step "
+                             f"(every arm's mode, human, push and outcome), in all "
+                             f"{len(common)} trial(s) they share: what tells them apart "
+                             "never happened in these runs, so this report cannot "
+                             "compare them.")
+            elif same:
+                lines.append(f"Same records in part: {a} and {b} did the same, step for "
+                             f"step, in {len(same)} of their {len(common)} shared trials "
+                             f"({', '.join(label(k) for k in same)}); only the others "
+                             "tell them apart.")
     return lines

@@ -19,7 +19,8 @@ PASSWORD = "hunter2-never-in-a-report"
 
 
 def _run(folder: Path, algorithm: str, pattern: list[list[tuple[str, bool]]],
-         meta: dict[str, Any], people: tuple[str, ...] = ("ana", "bo")) -> None:
+         meta: dict[str, Any], people: tuple[str, ...] = ("ana", "bo"),
+         key: tuple[float, ...] = (0.0,)) -> None:
     """Each step: one (mode, success) per arm; humans by arm index."""
     folder.mkdir(parents=True)
     with RunWriter(folder) as w:
@@ -29,7 +30,7 @@ def _run(folder: Path, algorithm: str, pattern: list[list[tuple[str, bool]]],
                 "human": i if mode in (T, R) else None,
                 "action": 1 if mode in (T, A) else None,
                 "success": ok, "violation": False, "uncertainty": 0.1, "risk": 0.0,
-                "key": [0.0], **({"served": 0} if mode in (T, R) else {})}
+                "key": list(key), **({"served": 0} if mode in (T, R) else {})}
                 for i, (mode, ok) in enumerate(arms)]})
     (folder / "run.json").write_text(json.dumps(
         {"options": {"algorithm": algorithm, "seed": 0, "steps": len(pattern)},
@@ -59,7 +60,9 @@ def _protocol(root: Path) -> None:
                                         "password": PASSWORD,
                                         "controller": {"robotware": "6.15.02",
                                                        "serial": "14000-501234"}}}}
-            _run(root / f"{alg}-t{k}", alg, pattern, meta)
+            # random's keys have another shape: what it did is what counts
+            _run(root / f"{alg}-t{k}", alg, pattern, meta,
+                 key=(0.5, 0.1) if alg == "random" else (0.0,))
 
 
 def test_intervals_pairs_and_identical_records_over_three_trials(tmp_path: Path) -> None:
@@ -150,3 +153,16 @@ def test_report_html_in_chromium_has_every_table_and_makes_no_request(
             "return performance.getEntriesByType('resource').length") == 0
         csp = driver.find_element(By.CSS_SELECTOR, "meta[http-equiv]").get_attribute("content")
         assert csp.startswith("default-src 'none'")
+
+
+def test_records_the_same_in_some_trials_only_are_named_with_those_trials() -> None:
+    from testbed.experiments.report import trial_label
+    from testbed.experiments.report_tables import identical_groups
+
+    lines = identical_groups({"cur": {("seed", 0): "a", ("seed", 1): "b"},
+                              "cur-i": {("seed", 0): "c", ("seed", 1): "b"},
+                              "r": {("seed", 0): "x", ("seed", 1): "y"},
+                              "cr": {("seed", 0): "x", ("seed", 1): "y"}}, trial_label)
+    assert lines[0].startswith("Same records in part: cur and cur-i")
+    assert "1 of their 2 shared trials (seed 1)" in lines[0]
+    assert lines[1].startswith("IDENTICAL RECORDS: r and cr") and len(lines) == 2
