@@ -369,7 +369,8 @@ def _reference(groups: dict[str, list[RunRecord]], asked: str | None, prefix: st
 
 def learning_tables(runs: list[RunRecord], metrics: tuple[str, ...], reference: str | None,
                     prefix: str = "", kind: str = "learning") -> list[Table]:
-    """The table of means, the intervals, the paired comparison, identical records."""
+    """After the table of means: the intervals (with any identical records under them)
+    and the paired comparison against the reference."""
     groups = _groups(runs)
     first = "point" if any(r.group != r.algorithm for r in runs) else "algorithm"
     what = "evaluation" if prefix else ("sweep" if first == "point" else "learning")
