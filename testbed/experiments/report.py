@@ -164,7 +164,7 @@ def load_run(path: Path) -> RunRecord:
     return RunRecord(path, algorithm, num_humans, summary, curves, rohe_parts(steps),
                      group=point, meta=meta, config=config, humans=names,
                      human_counts=count_humans(steps, num_humans),
-                     digest=steps_digest(path / "steps.jsonl"))
+                     digest=steps_digest(steps))
 
 
 def _human_names(humans: dict[str, Any], count: int) -> list[str]:
@@ -284,8 +284,7 @@ def mean_std_table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS,
     sweep's CSV also has each point's values, numbers as numbers."""
     groups = _groups(runs)
     first = "point" if any(r.group != r.algorithm for r in runs) else "algorithm"
-    values = _sweep_values(groups)
-    fields = next(iter(_sweep_fields(groups).values())) if values else []
+    fields, values = _sweep_columns(groups)
     rows: list[list[str]] = []
     csv_rows: list[list[Any]] = [[first, *fields, "trials"]
                                  + [f"{m}_{s}" for m in metrics for s in ("mean", "std")]]
@@ -302,18 +301,13 @@ def mean_std_table(runs: list[RunRecord], metrics: tuple[str, ...] = METRICS,
     return Table(key, title, [first, "trials", *metrics], rows, csv_rows=csv_rows)
 
 
-def _sweep_fields(groups: dict[str, list[RunRecord]]) -> dict[str, list[str]]:
-    return {g: list(rs[0].meta.get("sweep", {}).get("values", {})) for g, rs in groups.items()
-            if "sweep" in rs[0].meta}
-
-
-def _sweep_values(groups: dict[str, list[RunRecord]]) -> dict[str, list[Any]]:
-    """A sweep point's values (numbers as numbers) for the CSV, when every group is a
-    point of one grid; else nothing."""
-    fields = _sweep_fields(groups)
-    if len(fields) != len(groups) or len({tuple(f) for f in fields.values()}) != 1:
-        return {}
-    return {g: list(rs[0].meta["sweep"]["values"].values()) for g, rs in groups.items()}
+def _sweep_columns(groups: dict[str, list[RunRecord]]) -> tuple[list[str], dict[str, list[Any]]]:
+    """The grid's fields and each point's values (numbers as numbers) for the CSV, when
+    every group is a point of one grid; else nothing."""
+    values = {g: rs[0].meta.get("sweep", {}).get("values") for g, rs in groups.items()}
+    if not all(values.values()) or len({tuple(v) for v in values.values()}) != 1:
+        return [], {}
+    return list(next(iter(values.values()))), {g: list(v.values()) for g, v in values.items()}
 
 
 def _plot(runs: list[RunRecord]) -> bytes:

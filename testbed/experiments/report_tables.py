@@ -15,9 +15,8 @@ import hashlib
 import io
 import json
 import math
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from testbed.experiments.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, paired
@@ -216,21 +215,18 @@ BEHAVIOUR = ("robot", "mode", "human", "action", "success", "violation", "refuse
 the same arms), nor the learner's signals or any timing."""
 
 
-def steps_digest(path: Path) -> str:
+def steps_digest(rows: Iterable[Mapping[str, Any]]) -> str:
     """SHA-256 of what a run's fleet did, step by step (``BEHAVIOUR`` of every arm,
-    faults, away humans, released interventions): equal digests, the same run, whatever
-    the algorithm's keys said and however long the steps took."""
+    faults, away humans, released interventions), from the rows already read: equal
+    digests, the same run, whatever the algorithm's keys said and however long the
+    steps took."""
     h = hashlib.sha256()
-    with path.open() as f:
-        for line in f:
-            if not line.strip():
-                continue
-            row = json.loads(line)
-            kept = {"t": row.get("t"), "faults": row.get("faults"), "away": row.get("away"),
-                    "released": row.get("released"),
-                    "robots": [{k: arm.get(k) for k in BEHAVIOUR}
-                               for arm in row.get("robots", [])]}
-            h.update(json.dumps(kept, sort_keys=True).encode())
+    for row in rows:
+        kept = {"t": row.get("t"), "faults": row.get("faults"), "away": row.get("away"),
+                "released": row.get("released"),
+                "robots": [{k: arm.get(k) for k in BEHAVIOUR}
+                           for arm in row.get("robots", [])]}
+        h.update(json.dumps(kept, sort_keys=True).encode())
     return h.hexdigest()
 
 
