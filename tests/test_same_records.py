@@ -7,6 +7,13 @@ subprocess, so it imports nothing of the project's layout) and compares every ru
 ``steps.jsonl`` and ``data/`` records, the wall-clock and duration fields aside (they are
 the one part of a record that differs between two runs of one seed).
 
+The digests hold on x86-64 machines with AVX2 or AVX-512 because the subprocess pins
+the CPU kernels torch uses to AVX2 and its threads to two (``SAME_KERNELS``): torch
+picks its kernels by the CPU it finds, an AVX-512 kernel sums in another order, the
+learner's floats differ in the last bits and, a few steps later, an arm's action. A
+seed replays exactly on one machine (the fan-out and overlap tests); across machines
+only with the kernels and threads pinned like this (docs/notes/learning.md).
+
 Re-record (only on purpose, when a change is meant to change the records):
 ``TESTBED_RECORD_DIGESTS=1 python -m pytest tests/test_same_records.py``.
 """
@@ -49,10 +56,19 @@ PROTOCOL: dict[str, Any] = {
 }
 
 
+SAME_KERNELS = {"ATEN_CPU_CAPABILITY": "avx2", "ONEDNN_MAX_CPU_ISA": "AVX2",
+                "TESTBED_THREADS": "2"}
+"""torch's own kernels and oneDNN's held to AVX2 whatever the CPU offers, and the two
+torch threads the digests were recorded with whatever the cores. Measured on a 2-core
+AVX-512 AMD EPYC: without the first two, every learning run differed; with them, all
+matched. MKL is left to choose: ``MKL_CBWR=AVX2`` changed the protocol's records there,
+so an AVX-512 Intel, where MKL may choose AVX-512 kernels, is untried."""
+
+
 def _cli(*args: str, cwd: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "testbed.cli", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=600,
-                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+                          env={**os.environ, "PYTHONPATH": str(ROOT), **SAME_KERNELS})
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
+import socket
 import ssl
 import struct
 import threading
@@ -55,7 +56,7 @@ import pytest
 import trustme
 from console_helpers import ActCall, RequestFactory, arm_image
 from websockets.exceptions import ConnectionClosed, InvalidStatus
-from websockets.sync.client import connect
+from websockets.sync.client import ClientConnection, connect
 
 from gui import ConsoleUnavailable, StopRequested
 from gui.view import Phase
@@ -67,6 +68,9 @@ GRACE_S = 0.5
 AWAY_S = 0.3
 WAIT_S = 5.0
 """Deadline of every wait for the server (it answers in milliseconds)."""
+OPEN_S = 20.0
+"""Deadline of a socket's opening handshake: milliseconds when the machine is idle, but
+one CI run under load saw a TLS opening take more than 5 s."""
 Header = dict[str, Any]
 
 
@@ -94,6 +98,23 @@ def http_get(url: str, context: ssl.SSLContext | None = None) -> tuple[int, str]
             return exc.code, exc.read().decode()
 
 
+class _WakingConnection(ClientConnection):
+    """websockets' sync client, whose failed opening cannot hang the test.
+
+    With TLS 1.3 the reader thread can sit inside a blocking ``SSLSocket.recv`` (the
+    server's session tickets make the socket readable, no application data follows);
+    when the opening handshake then times out, websockets closes the socket and joins
+    that thread, and a close() never wakes a read blocked on the same descriptor, so the
+    join waits forever (seen in CI: a 300 s pytest timeout instead of a TimeoutError).
+    Shutting the TCP connection down first wakes the read with end of file.
+    """
+
+    def close_socket(self) -> None:
+        with contextlib.suppress(OSError):
+            socket.socket.shutdown(self.socket, socket.SHUT_RDWR)  # the TCP socket's own
+        super().close_socket()
+
+
 class FakePage:
     """A console page minus the pixels: one socket, frames read in a thread.
 
@@ -106,7 +127,8 @@ class FakePage:
     def __init__(self, url: str, *, ssl_context: ssl.SSLContext | None = None) -> None:
         self._stack = contextlib.ExitStack()
         self.ws = self._stack.enter_context(connect(
-            url, proxy=None, ssl=ssl_context, open_timeout=WAIT_S, close_timeout=2))
+            url, proxy=None, ssl=ssl_context, open_timeout=OPEN_S, close_timeout=2,
+            create_connection=_WakingConnection))
         self._cond = threading.Condition()
         self._send_lock = threading.Lock()
         self._ids = itertools.count(1)
@@ -826,3 +848,42 @@ def test_a_protocols_next_console_keeps_the_urls_and_says_them_once() -> None:
         assert third.urls == urls
     assert out.getvalue().count("web console: human 0:") == 1
     assert len(set(urls)) == 2, "each human has a token of their own"
+
+
+def test_a_silent_tls_server_fails_the_page_instead_of_hanging_it(tmp_path: Path) -> None:
+    """The test client's own guard (``_WakingConnection``): a TLS 1.3 server that never
+    answers the upgrade makes the opening time out and raise, in about its timeout, not
+    hang in websockets' join of its reader (which the plain client does)."""
+    ca = trustme.CA()
+    server_ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ca.issue_cert("127.0.0.1").configure_cert(server_ctx)
+    client_ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ca.configure_trust(client_ctx)
+    listener = socket.create_server(("127.0.0.1", 0))
+    release = threading.Event()
+
+    def silent() -> None:
+        conn, _ = listener.accept()
+        with server_ctx.wrap_socket(conn, server_side=True) as tls:
+            tls.recv(4096)  # the upgrade request, never answered
+            release.wait(30)
+
+    threading.Thread(target=silent, daemon=True).start()
+    outcome: list[BaseException] = []
+
+    def open_() -> None:
+        try:
+            connect(f"wss://127.0.0.1:{listener.getsockname()[1]}/ws", proxy=None,
+                    ssl=client_ctx, open_timeout=1, create_connection=_WakingConnection)
+        except BaseException as exc:
+            outcome.append(exc)
+
+    opener = threading.Thread(target=open_, daemon=True)
+    started = time.monotonic()
+    opener.start()
+    opener.join(10)
+    release.set()
+    listener.close()
+    assert not opener.is_alive(), "the opening hung past its timeout"
+    assert time.monotonic() - started < 5
+    assert len(outcome) == 1 and isinstance(outcome[0], TimeoutError)
