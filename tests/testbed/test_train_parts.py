@@ -87,7 +87,7 @@ def test_protocol_pretrains_once_and_each_run_trains_only_what_it_reads(
 ) -> None:
     proto = Protocol.model_validate({
         "name": "parts", "trials": 1, "algorithms": algorithms, "steps": STEPS,
-        "out": str(tmp_path / "proto"), "fleet": FLEET,
+        "out": str(tmp_path / "proto"), "fleet": FLEET, "evaluate_steps": 0,
     })
     run_protocol(proto, ask=False)
     out = tmp_path / "proto"
