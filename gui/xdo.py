@@ -163,7 +163,11 @@ class Autopilot:
     Reads the console's state file; when a human's window shows a teleop prompt (its
     latest frame on screen), answers with ``teleop(human)``: ``("key", "w")`` presses a
     key, ``("click", k)`` clicks face marker k; when it shows a hard-reset banner,
-    presses Return. Each frame is answered once. For end-to-end tests:
+    presses Return. Each frame is answered once, and again (its window looked up anew)
+    if the prompt is still there ``retry_s`` later: an X event can be lost on a loaded
+    machine, and a person whose key did nothing presses it again. A prompt the console
+    took leaves its phase (``sent``, ``reset_confirmed``) or its frame, so an answer
+    never lands twice. For end-to-end tests:
 
         TESTBED_CONSOLE_STATE=state.json xvfb-run testbed trial --humans gui ...
         Autopilot("state.json", display, lambda h: ("key", "w") if h == 0 else ("click", 3))
@@ -171,15 +175,19 @@ class Autopilot:
 
     def __init__(
         self, state_path: str | os.PathLike[str], display: str | None,
-        teleop: Callable[[int], Answer], period_s: float = 0.02,
+        teleop: Callable[[int], Answer], period_s: float = 0.02, retry_s: float = 2.0,
     ) -> None:
         self.state_path = state_path
         self.display = display
         self.teleop = teleop
         self.period_s = period_s
+        self.retry_s = retry_s
         self.answers: list[tuple[int, str, str, Answer]] = []
         """(human, robot, phase, answer) of every prompt answered, in order."""
-        self._done: set[tuple[int, int]] = set()
+        self.retries = 0
+        """Answers sent again because the prompt was still on screen ``retry_s`` later."""
+        self._done: dict[tuple[int, int], float] = {}
+        """(human, seq) of each frame answered -> when (monotonic)."""
         self._ids: dict[str, str] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="autopilot", daemon=True)
@@ -218,8 +226,15 @@ class Autopilot:
             return
         for w in windows:
             human, seq = int(w["human"]), int(w["seq_shown"])
-            if not w.get("on_screen") or (human, seq) in self._done:
+            if not w.get("on_screen"):
                 continue
+            answered = self._done.get((human, seq))
+            if answered is not None:
+                if time.monotonic() - answered < self.retry_s:
+                    continue
+                if w["phase"] in ("choose", "reset"):  # not taken: the answer was lost
+                    self._ids.pop(str(w["window"]), None)
+                    self.retries += 1
             if w["phase"] == "choose":
                 answer = self.teleop(human)
                 wid = self._window(w["window"])
@@ -233,5 +248,5 @@ class Autopilot:
                 press(self._window(w["window"]), "Return", display=self.display)
             else:
                 continue
-            self._done.add((human, seq))
+            self._done[(human, seq)] = time.monotonic()
             self.answers.append((human, str(w["robot"]), str(w["phase"]), answer))

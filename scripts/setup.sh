@@ -71,11 +71,20 @@ for c in python3.11 python3; do
 done
 [ -n "$py" ] || { echo "Python 3.11 is required (pybullet ships wheels for 3.11 only)" >&2; exit 2; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
-# --no-compile: pip byte-compiles every module it installs (torch alone: 40 s against
-# 12 s here); Python compiles the ones a run imports, once, on first import.
+# --no-compile: pip byte-compiles every module it installs one file at a time (torch
+# alone: 40 s against 12 s here); compileall below does it on every core, once.
 pip=(.venv/bin/python -m pip install -q --no-compile --disable-pip-version-check)
 # torch first and pinned: a bare "torch" would pull a CUDA build of several GB.
 "${pip[@]}" "torch==2.13.0"
 # The headless OpenCV must go before the GUI build is installed: both own cv2/.
 .venv/bin/python -m pip uninstall -q -y opencv-python-headless >/dev/null 2>&1 || true
 "${pip[@]}" -e ".[${extras}]"
+# Byte-compile what was installed and this checkout's packages, on every core; a re-run
+# compiles only what changed. Without it, wherever PYTHONDONTWRITEBYTECODE is set (this
+# machine's environment sets it) Python never writes a .pyc, and every process compiles
+# torch, dynamo and sympy from source again: a trial's start took 10.4 s instead of 2.7
+# (docs/notes/tests.md). A file that is not Python 3.11 (a package's 3.12-only test
+# helper) stays source, as pip leaves it.
+.venv/bin/python -m compileall -q -j 0 testbed drivers gui sim_twin \
+  "$(.venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" \
+  >/dev/null 2>&1 || true

@@ -54,6 +54,14 @@ def test_trial_with_console_humans(xvfb: Xvfb, tmp_path: Path) -> None:
                    lambda h: ("key", "w") if h == 0 else ("click", PUSH_OF_HUMAN[1])) as pilot:
         try:
             _, err = proc.communicate(timeout=240)
+        except subprocess.TimeoutExpired:  # say where it stood, not only that it hung
+            proc.kill()
+            _, err = proc.communicate(timeout=30)
+            console = state.read_text() if state.exists() else "(no state file)"
+            pytest.fail(f"the trial did not end in 240 s; the autopilot answered "
+                        f"{len(pilot.answers)} prompts ({pilot.retries} again), the last "
+                        f"{pilot.answers[-3:]}; console state: {console[-1500:]}; "
+                        f"stderr tail:\n{err[-3000:]}")
         finally:
             if proc.poll() is None:
                 proc.kill()
