@@ -229,12 +229,12 @@ class Autopilot:
             if not w.get("on_screen"):
                 continue
             answered = self._done.get((human, seq))
-            if answered is not None:
-                if time.monotonic() - answered < self.retry_s:
+            if answered is not None:  # again only if still waiting retry_s later: lost
+                if (time.monotonic() - answered < self.retry_s
+                        or w["phase"] not in ("choose", "reset")):
                     continue
-                if w["phase"] in ("choose", "reset"):  # not taken: the answer was lost
-                    self._ids.pop(str(w["window"]), None)
-                    self.retries += 1
+                self._ids.pop(str(w["window"]), None)
+                self.retries += 1
             if w["phase"] == "choose":
                 answer = self.teleop(human)
                 wid = self._window(w["window"])

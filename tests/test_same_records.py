@@ -7,12 +7,13 @@ subprocess, so it imports nothing of the project's layout) and compares every ru
 ``steps.jsonl`` and ``data/`` records, the wall-clock and duration fields aside (they are
 the one part of a record that differs between two runs of one seed).
 
-The digests hold on x86-64 machines with AVX2 or AVX-512 because the subprocess pins
-the CPU kernels torch uses to AVX2 and its threads to two (``SAME_KERNELS``): torch
-picks its kernels by the CPU it finds, an AVX-512 kernel sums in another order, the
-learner's floats differ in the last bits and, a few steps later, an arm's action. A
-seed replays exactly on one machine (the fan-out and overlap tests); across machines
-only with the kernels and threads pinned like this (docs/notes/learning.md).
+The digests hold on CI's AVX2 machine and on an AVX-512 AMD EPYC because the
+subprocess pins the CPU kernels torch uses to AVX2 and its threads to two
+(``SAME_KERNELS``): torch picks its kernels by the CPU it finds, an AVX-512 kernel sums
+in another order, the learner's floats differ in the last bits and, a few steps later,
+an arm's action. A seed replays exactly on one machine (the fan-out and overlap tests);
+across machines only with the kernels and threads pinned like this
+(docs/notes/learning.md).
 
 Re-record (only on purpose, when a change is meant to change the records):
 ``TESTBED_RECORD_DIGESTS=1 python -m pytest tests/test_same_records.py``.
