@@ -42,8 +42,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from drivers.yumi.yumi_host import YumiHost
 from testbed.core.atomic import atomic_write_json
-from testbed.core.config import YumiHost
 from testbed.core.types import ArmObservation
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.camera_model import true_calibration

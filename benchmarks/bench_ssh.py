@@ -49,11 +49,12 @@ sys.path.insert(0, str(ROOT))
 
 from drivers import wire as p  # noqa: E402
 from drivers.backends.twin import CannedTwinBackend  # noqa: E402
+from drivers.backends.twin.twin_host import TwinHost  # noqa: E402
 from drivers.host_fleet import HostFleet  # noqa: E402
 from drivers.session import HostSession  # noqa: E402
 from drivers.testing.sshd import SshServer, sshd_available  # noqa: E402
 from drivers.transport import SshTransport  # noqa: E402
-from testbed.core.config import HostConfig, TwinHost  # noqa: E402
+from testbed.core.host_config import HostConfig  # noqa: E402
 
 
 def host_config(name: str, server: SshServer, port: int | None = None) -> HostConfig:

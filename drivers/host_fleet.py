@@ -54,7 +54,7 @@ from drivers.errors import AgentError, DriverError
 from drivers.hostlog import HostLog
 from drivers.link import AgentLink
 from drivers.session import HostSession, HostStatus, describe, remote_traceback
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 from testbed.core.types import NUM_ACTIONS, ArmObservation, Fault, PushResult
 
 __all__ = ["HostCallError", "HostFleet", "HostStatus", "derive_seed"]

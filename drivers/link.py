@@ -26,7 +26,7 @@ from drivers.backends.base import ArmOutcome, ArmView
 from drivers.build_id import BuildMismatch, build_id, matches, mismatch_line
 from drivers.errors import DeadlineExceeded, LinkClosed, ProtocolError, TruncatedFrame
 from drivers.transport import Transport
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 
 SKIPPED_KEEP = 256
 

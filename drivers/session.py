@@ -36,7 +36,7 @@ from drivers.errors import AgentError, DeadlineExceeded, DriverError, LinkClosed
 from drivers.hostlog import HostLog
 from drivers.link import AgentLink
 from drivers.transport import LocalTransport, agent_argv, make_transport
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 
 MAX_BACKOFF_S = 30.0
 WRITE_ONLY_S = 1.0

@@ -54,7 +54,8 @@ from paramiko.auth_strategy import (
 )
 
 from drivers.errors import HostKeyError, TransportError
-from testbed.core.config import ConfigError, HostConfig
+from testbed.core.config import ConfigError
+from testbed.core.host_config import HostConfig
 
 DEFAULT_KNOWN_HOSTS = "~/.ssh/known_hosts"
 MAX_HOPS = 8

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import DeadlineExceeded, LinkClosed, TransportError
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STDERR_KEEP = 8192

@@ -15,7 +15,6 @@ import sys
 import types
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
-from urllib.parse import urlsplit
 
 from typing_extensions import Self
 
@@ -26,11 +25,8 @@ else:  # a robot host's Python 3.10
 
 from pydantic import (
     BaseModel,
-    BeforeValidator,
     ConfigDict,
-    Discriminator,
     Field,
-    Tag,
     ValidationError,
     ValidationInfo,
     field_validator,
@@ -38,10 +34,6 @@ from pydantic import (
 )
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
-SSH_ALIAS_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$"
-"""A word as ``ssh ALIAS`` takes it: never an option (no leading ``-``), no spaces."""
-DEFAULT_ADDRESS = "127.0.0.1"
-DEFAULT_SSH_CONFIG = "~/.ssh/config"
 Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
 
 
@@ -78,8 +70,13 @@ def _toml_typed(kind: type, value: Any) -> bool:
     return isinstance(value, int) if kind is int else isinstance(value, int | float)
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class StrictModel(BaseModel):
+    """Every config model's base: unknown keys are errors, values frozen, TOML's types
+    taken strictly. ``defer_build``: a model's schema is made when it is first used, so
+    a config that holds hosts (their union is every installed backend's model,
+    ``testbed.core.host_config.AnyHost``) loads no backend when ``testbed`` is imported."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -96,24 +93,6 @@ class _Strict(BaseModel):
             what = "a string" if isinstance(got, str) else type(got).__name__
             raise ValueError(f"must be {_KIND_TEXT[kind]}, not {what}")
         return value
-
-
-class ArmConfig(_Strict):
-    name: Name
-    crop: tuple[int, int, int, int] | None = None
-    """Pixel box (x0, y0, x1, y1) of this arm's workspace in the host camera image."""
-    mirror: bool = False
-    """Mirror the crop left-right into the canonical frame (the right arm)."""
-    calibration: str | None = None
-    """Path (on the host) of the image-to-table homography file (YuMi backend)."""
-
-    @model_validator(mode="after")
-    def _crop_is_a_box(self) -> ArmConfig:
-        if self.crop is not None:
-            x0, y0, x1, y1 = self.crop
-            if min(self.crop) < 0 or x1 <= x0 or y1 <= y0:
-                raise ValueError("crop must be (x0, y0, x1, y1) with 0 <= x0 < x1, 0 <= y0 < y1")
-        return self
 
 
 class FieldProblem(ValueError):
@@ -136,7 +115,7 @@ def validation_context(check_files: bool = True) -> dict[str, Any]:
     return {CHECK_FILES: check_files}
 
 
-def _checking_files(info: ValidationInfo) -> bool:
+def checking_files(info: ValidationInfo) -> bool:
     ctx = info.context
     return not (isinstance(ctx, dict) and ctx.get(CHECK_FILES) is False)
 
@@ -158,309 +137,24 @@ def expand_path(text: str, field: str) -> str:
     return _VAR.sub(value, os.path.expanduser(text))
 
 
-class _HostBase(_Strict):
-    """What every host has, whatever its backend: where it is and how to reach it.
-
-    Paths are expanded (``~``, ``$VARS``) when the config is loaded: ``key_file``,
-    ``known_hosts`` and ``ssh_config`` always (they are read on this machine, and a
-    missing one is an error here, before anything starts), ``python``, ``workdir``, a
-    YuMi ``camera`` path and the arms' ``calibration`` only for ``transport = "local"``.
-    Over ssh those are paths on the robot host: they are passed as written and the agent
-    expands them there.
-
-    Two ways to say where an ssh host is. Explicit: ``address``, ``port``, ``user``,
-    ``known_hosts`` and (optionally) ``key_file``, read from this file alone. By alias:
-    ``ssh_alias`` names a ``Host`` of an OpenSSH client config (``ssh_config``, default
-    ``~/.ssh/config``) and the host is reached as ``ssh ALIAS`` reaches it. With an
-    alias, what the ssh config sets for it WINS (``HostName``, ``Port``, ``User``,
-    ``IdentityFile``, ``ProxyJump``, ``UserKnownHostsFile``): it is the lab's one
-    description of its hosts, which its people's ``ssh`` uses too, and a resolved config
-    written back (a run's config.toml lists every default) must not start overriding
-    it. ``port``, ``user``, ``key_file`` and ``known_hosts`` here fill in what the ssh
-    config leaves unsaid (then OpenSSH's defaults: port 22, the local user,
-    ``~/.ssh/known_hosts``); ``address`` is not used, so it may not be given. No key
-    named anywhere: the running ssh-agent's keys (``SSH_AUTH_SOCK``).
-    """
-
-    name: Name
-    transport: Literal["local", "ssh"] = "local"
-    address: str = DEFAULT_ADDRESS
-    port: int = Field(22, ge=1, le=65535)
-    user: str | None = None
-    key_file: str | None = None
-    """The private key to log in with; None: the ssh-agent's keys (or, with
-    ``ssh_alias``, the ssh config's ``IdentityFile``)."""
-    known_hosts: str | None = None
-    ssh_alias: str | None = Field(None, pattern=SSH_ALIAS_PATTERN, max_length=253)
-    """A ``Host`` alias of ``ssh_config``: reach the host as ``ssh ALIAS`` does, its
-    bastions (``ProxyJump``) included (precedence: the class docstring)."""
-    ssh_config: str | None = None
-    """The OpenSSH client config that ``ssh_alias`` is looked up in; default (when
-    ``ssh_alias`` is set) ``~/.ssh/config``. ``ProxyCommand``, ``Match exec`` and
-    ``Include`` are refused when the host is reached: nothing local is ever run."""
-    python: str = "python3"
-    """Interpreter that runs the agent; over SSH it must be an absolute path."""
-    workdir: str | None = None
-    """Project checkout on the host (over SSH); the agent runs with it as PYTHONPATH."""
-    deadline_s: float = Field(10.0, gt=0, le=600)
-    """Per-call deadline for a push or an observation on this host."""
-    heartbeat_s: float = Field(2.0, gt=0, le=600)
-    """Idle time after which the controller checks the agent is alive (application
-    heartbeat: SSH keepalives do not notice a dead peer)."""
-    connect_timeout_s: float = Field(20.0, gt=0, le=600)
-    """Budget to (re)connect: SSH handshake, agent start, backend start, hello."""
-    arms: list[ArmConfig] = Field(default_factory=lambda: [ArmConfig(name="left"),
-                                                          ArmConfig(name="right", mirror=True)])
-
-    @model_validator(mode="after")
-    def _transport_fields(self, info: ValidationInfo) -> Self:
-        self._ssh_alias_fields()
-        if self.transport == "ssh":
-            missing = [f for f in ("user", "known_hosts") if getattr(self, f) is None]
-            if missing and self.ssh_alias is None:
-                raise ValueError(f"ssh transport needs {', '.join(missing)} (or ssh_alias: "
-                                 "a Host of your ssh config)")
-            if not self.python.startswith("/"):
-                raise ValueError("python must be an absolute interpreter path over ssh")
-        names = [a.name for a in self.arms]
-        if len(set(names)) != len(names):
-            raise ValueError("arm names must be unique within a host")
-        if not self.arms:
-            raise ValueError("a host needs at least one arm")
-        self._expand_paths(_checking_files(info))
-        return self
-
-    def _ssh_alias_fields(self) -> None:
-        """An alias or a config file only make sense together and over ssh, and with an
-        alias the ssh config says where the host is: an ``address`` as well would be
-        silently ignored, so it is refused (the default, 127.0.0.1, is "not given")."""
-        if self.ssh_alias is None:
-            if self.ssh_config is not None:
-                raise FieldProblem("ssh_alias", "ssh_config is set but ssh_alias is not; "
-                                   "name the Host of that file to reach this host by")
-            return
-        if self.transport != "ssh":
-            raise FieldProblem("ssh_alias", 'an ssh alias needs transport = "ssh"')
-        if self.address != DEFAULT_ADDRESS:
-            raise FieldProblem("address", f"address and ssh_alias both say where the host "
-                               f"is; the HostName of {self.ssh_alias!r} in the ssh config "
-                               "wins: leave address out (or drop ssh_alias)")
-        if self.ssh_config is None:
-            self._set("ssh_config", DEFAULT_SSH_CONFIG)
-
-    def _set(self, field: str, value: Any) -> None:
-        object.__setattr__(self, field, value)  # frozen: only while validating
-
-    def _expand_paths(self, check_files: bool) -> None:
-        for field in ("key_file", "known_hosts", "ssh_config"):
-            raw = getattr(self, field)
-            if raw is None:
-                continue
-            path = expand_path(raw, field)
-            if check_files and not Path(path).is_file():
-                shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
-                raise FieldProblem(field, f"no such file {shown}; fix the path or create it")
-            self._set(field, path)
-        if self.transport != "local":
-            return
-        self._set("python", expand_path(self.python, "python"))  # "python3" stays as is
-        if self.workdir is not None:
-            self._set("workdir", expand_path(self.workdir, "workdir"))
-        self._set("arms", [
-            a if a.calibration is None else a.model_copy(update={
-                "calibration": expand_path(a.calibration, f"arms[{i}].calibration")})
-            for i, a in enumerate(self.arms)
-        ])
+from testbed.core.backends import host_models  # noqa: E402
 
 
-class TwinHost(_HostBase):
-    """A PyBullet twin cell (``drivers/backends/twin.py``)."""
+class _Hosts:
+    """``testbed.core.host_config.AnyHost``, looked up when the schema is made: that
+    module subclasses the base classes above, so it cannot be imported before them."""
 
-    backend: Literal["twin"] = "twin"
-    seed: int | None = None
-    """The cell's world seed (default: derived from the trial seed)."""
-    physics: bool = True
-    """False runs the agent's no-physics mode (canned images; benchmarks)."""
-
-
-CONTROLLER_SCHEMES = ("http", "https")
-CAMERA_SCHEMES = ("http", "https", "rtsp")
-
-
-def _camera_text(value: Any) -> Any:
-    """TOML ``camera = 0`` (an integer) means device 0, as ``camera = "0"``."""
-    return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
-
-
-CAMERA_AUTO = "auto"
-_CAMERA_CONTROLS: dict[str, tuple[int, int, str]] = {
-    "exposure": (1, 1_000_000, "manual exposure in the device's units, 100 us on UVC"),
-    "white_balance": (1000, 15000, "manual white balance in kelvin"),
-    "focus": (0, 100_000, "manual focus position, autofocus off"),
-}
-
-
-class CameraSettings(_Strict):
-    """A V4L2 camera's picture (a YuMi host's ``camera_settings`` table).
-
-    Why: perception thresholds colours, so exposure, white balance and focus must not
-    drift with the daylight or with what is in view, and the crops and calibration are
-    pixels of one resolution. A field left out is left as the device has it (V4L2 keeps
-    a control between programs: ``"auto"`` turns the automatic mode back on). The agent
-    sets them when it opens the camera, reads each back and warns once per setting the
-    device did not take, asked vs got (``drivers/yumi/capture_settings.py``).
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
-
-    width: int | None = Field(None, ge=16, le=16384)
-    height: int | None = Field(None, ge=16, le=16384)
-    fourcc: str | None = None
-    """Pixel format, 1 to 4 letters or digits (``"MJPG"``, ``"YUYV"``; padded with spaces)."""
-    fps: int | None = Field(None, ge=1, le=1000)
-    exposure: int | Literal["auto"] | None = None
-    """Manual exposure (auto exposure off) in the device's units, or ``"auto"``."""
-    white_balance: int | Literal["auto"] | None = None
-    """Manual white balance in kelvin (auto white balance off), or ``"auto"``."""
-    focus: int | Literal["auto"] | None = None
-    """Manual focus position (autofocus off), or ``"auto"``."""
-
-    @field_validator("fourcc", mode="before")
     @classmethod
-    def _fourcc(cls, v: Any) -> Any:
-        if v is None:
-            return v
-        if not isinstance(v, str) or not 1 <= len(v) <= 4 or not v.isascii() \
-                or not v.strip().isalnum():
-            raise ValueError('a pixel format of 1 to 4 letters or digits, e.g. "MJPG" or '
-                             '"YUYV"')
-        return v.ljust(4)
+    def __get_pydantic_core_schema__(cls, source: Any, handler: Any) -> Any:
+        from testbed.core.host_config import AnyHost
 
-    @field_validator("exposure", "white_balance", "focus", mode="before")
-    @classmethod
-    def _manual_or_auto(cls, v: Any, info: ValidationInfo) -> Any:
-        lo, hi, what = _CAMERA_CONTROLS[str(info.field_name)]
-        if v is None or v == CAMERA_AUTO:
-            return v
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise ValueError(f'a whole number in [{lo}, {hi}] ({what}) or "auto"')
-        return v
-
-    @model_validator(mode="after")
-    def _size_is_a_pair(self) -> Self:
-        if (self.width is None) != (self.height is None):
-            missing = "height" if self.height is None else "width"
-            raise FieldProblem(missing, "give width and height together (the device is "
-                               "asked for one size), or neither")
-        return self
+        return handler.generate_schema(AnyHost)
 
 
-class YumiHost(_HostBase):
-    """An ABB YuMi (IRB 14000) with an overhead camera (``drivers/yumi/backend.py``).
+def _default_hosts() -> list[Any]:
+    from testbed.core.host_config import default_hosts
 
-    Everything the agent needs is checked here, at load time, so a typo is one line
-    before anything starts rather than a traceback on the host after pretraining.
-    """
-
-    backend: Literal["yumi"] = "yumi"
-    camera: Annotated[str, BeforeValidator(_camera_text)]
-    """A device index ("0"), a video file path, or a lab IP camera URL (http(s), rtsp)."""
-    camera_settings: CameraSettings | None = None
-    """The V4L2 camera's resolution, pixel format, rate, exposure, white balance and
-    focus (TOML ``[hosts.camera_settings]``); None: left as the device has them. Not for
-    a URL camera (set a network camera's picture on the camera)."""
-    controller_url: str
-    """The controller's Robot Web Services: http(s)://HOST[:PORT] (a lab's IRC5, or the
-    hardware twin's RWS in a rehearsal)."""
-    credentials_file: str | None = None
-    """A file ON THE HOST holding the controller's login, one line ``USER:PASSWORD``, mode
-    0600 (``drivers/yumi/credentials.py``); never the password itself. None: the factory
-    login, with a warning in the host log."""
-    deadline_s: float = Field(20.0, gt=0, le=600)
-    """Per-call deadline for a push or an observation (a YuMi push is a motion of seconds)."""
-    lock_dir: str | None = None
-    """The folder of the robot locks ON THE HOST, shared by every user of the host
-    (``drivers/hostlock.py``; default ``/run/lock/fleet-testbed``): one agent per robot,
-    whoever starts it."""
-    motion_timeout_s: float | None = Field(None, gt=0, le=600)
-    """The longest one motion program may run before the agent stops it through RWS; below
-    ``deadline_s``, so the controller hears why instead of a dead link. Default:
-    ``min(15, 0.75 * deadline_s)``."""
-
-    @field_validator("camera")
-    @classmethod
-    def _camera_kind(cls, v: str) -> str:
-        v = v.strip()
-        if not v:
-            raise ValueError("camera is empty; give a device index, a video file or a URL")
-        if "://" in v:
-            url = urlsplit(v)
-            if url.scheme not in CAMERA_SCHEMES or not url.netloc:
-                raise ValueError(f"camera URL must be {', '.join(CAMERA_SCHEMES)}://HOST/...")
-        return v
-
-    @field_validator("controller_url")
-    @classmethod
-    def _controller_kind(cls, v: str) -> str:
-        url = urlsplit(v.strip())
-        if url.scheme not in CONTROLLER_SCHEMES or not url.hostname:
-            raise ValueError("controller_url must be http(s)://HOST[:PORT] (the controller's "
-                             "Robot Web Services)")
-        return v.strip()
-
-    @model_validator(mode="after")
-    def _yumi_arms(self) -> Self:
-        if self.motion_timeout_s is None:
-            self._set("motion_timeout_s", min(15.0, 0.75 * self.deadline_s))
-        elif self.motion_timeout_s >= self.deadline_s:
-            raise FieldProblem("motion_timeout_s", f"{self.motion_timeout_s:g} s is not below "
-                               f"deadline_s ({self.deadline_s:g} s): the agent must stop a "
-                               "motion before the controller gives up on the host")
-        if self.credentials_file is not None and not self.credentials_file.strip():
-            raise FieldProblem("credentials_file", "is empty; name the host's USER:PASSWORD "
-                               "file or leave the field out")
-        for i, a in enumerate(self.arms):
-            if a.crop is None:
-                raise FieldProblem(f"arms[{i}].crop", f"arm {a.name} of a yumi host needs "
-                                   "its crop box (x0, y0, x1, y1) in the camera image")
-            if a.calibration is None or not a.calibration.endswith(".json"):
-                raise FieldProblem(f"arms[{i}].calibration", f"arm {a.name} of a yumi host "
-                                   "needs its calibration file (a path ending .json)")
-        if self.transport == "local" and "://" not in self.camera and not self.camera.isdigit():
-            self._set("camera", expand_path(self.camera, "camera"))
-        if self.transport == "local" and self.credentials_file is not None:
-            self._set("credentials_file", expand_path(self.credentials_file,
-                                                      "credentials_file"))
-        return self
-
-    @model_validator(mode="after")
-    def _camera_settings_need_a_device(self) -> Self:
-        """A URL camera is read through FFmpeg, which sets nothing on the camera: settings
-        there would be silently ignored, so they are an error naming the field."""
-        if self.camera_settings is not None and "://" in self.camera:
-            raise FieldProblem("camera_settings", "a network camera takes no settings from "
-                               "here; set its picture on the camera itself, or remove "
-                               "camera_settings")
-        return self
-
-
-HOST_MODELS: dict[str, type[_HostBase]] = {"twin": TwinHost, "yumi": YumiHost}
-
-
-def _backend_of(value: Any) -> str:
-    """The union's tag: ``backend``, ``"twin"`` when the key is absent."""
-    backend = (value.get("backend", "twin") if isinstance(value, dict)
-               else getattr(value, "backend", "twin"))
-    return backend if isinstance(backend, str) else repr(backend)
-
-
-HostConfig = Annotated[
-    Annotated[TwinHost, Tag("twin")] | Annotated[YumiHost, Tag("yumi")],
-    Discriminator(_backend_of, custom_error_type="unknown_backend",
-                  custom_error_message="unknown backend"),
-]
-"""One host of the fleet: a ``TwinHost`` or a ``YumiHost``, chosen by ``backend``."""
-
+    return default_hosts()
 
 TOKEN_PATTERN = re.compile(r"[A-Za-z0-9_-]{16,}")
 """A web console token: at least 16 characters, URL-safe (it travels in the link)."""
@@ -468,7 +162,7 @@ TOKEN_PATTERN = re.compile(r"[A-Za-z0-9_-]{16,}")
 _HOSTNAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?")
 
 
-class WebConsoleConfig(_Strict):
+class WebConsoleConfig(StrictModel):
     """The browser console (``humans.kind = "web"``, TOML ``[humans.web]``).
 
     Humans on their own devices come and go: ``grace_s`` and ``away_timeout_s`` bound
@@ -535,14 +229,14 @@ class WebConsoleConfig(_Strict):
             if raw is None:
                 continue
             path = expand_path(raw, name)
-            if _checking_files(info) and not Path(path).is_file():
+            if checking_files(info) and not Path(path).is_file():
                 shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
                 raise FieldProblem(name, f"no such file {shown}; fix the path or create it")
             object.__setattr__(self, name, path)  # frozen: only while validating
         return self
 
 
-class HumanProfile(_Strict):
+class HumanProfile(StrictModel):
     """One human of the fleet (TOML ``[[humans.people]]``): a name, and for a scripted
     human how it behaves.
 
@@ -572,7 +266,7 @@ class HumanProfile(_Strict):
                 if getattr(self, f) != perfect]
 
 
-class HumansConfig(_Strict):
+class HumansConfig(StrictModel):
     count: int = Field(2, ge=0, le=1000)
     kind: Literal["scripted", "gui", "web"] = "scripted"
     web: WebConsoleConfig = WebConsoleConfig()
@@ -644,7 +338,7 @@ MATCH_BUDGET = re.compile(r"match:[a-z0-9][a-z0-9-]*")
 """``random_budget = "match:<algorithm>"``: Random gets the human effort of that algorithm."""
 
 
-class AlgorithmConfig(_Strict):
+class AlgorithmConfig(StrictModel):
     """Allocation hyperparameters (the paper's 8.3, Table 1; docs/notes/core.md)."""
 
     name: str = "cur"
@@ -703,7 +397,7 @@ class AlgorithmConfig(_Strict):
         return None
 
 
-class LearningConfig(_Strict):
+class LearningConfig(StrictModel):
     ensemble_size: int = Field(5, ge=1, le=32)
     batch_size: int = Field(256, ge=1, le=65536)
     lr: float = Field(3e-4, gt=0, lt=1)
@@ -730,20 +424,19 @@ class LearningConfig(_Strict):
             self.critic_pretrain_steps)
 
 
-class TrialConfig(_Strict):
+class TrialConfig(StrictModel):
     steps: int = Field(250, ge=1, le=1_000_000)
     seed: int = 0
     out: str = "runs"
 
 
-class FleetConfig(_Strict):
+class FleetConfig(StrictModel):
     name: Name = "twin"
     trial: TrialConfig = TrialConfig()
     humans: HumansConfig = HumansConfig()
     algorithm: AlgorithmConfig = AlgorithmConfig()
     learning: LearningConfig = LearningConfig()
-    hosts: list[HostConfig] = Field(default_factory=lambda: [TwinHost(name="cell0"),
-                                                             TwinHost(name="cell1")])
+    hosts: list[_Hosts] = Field(default_factory=_default_hosts)
 
     @model_validator(mode="after")
     def _unique_hosts(self) -> FleetConfig:
@@ -765,7 +458,7 @@ def _where(loc: tuple[int | str, ...]) -> tuple[list[int | str], str | None]:
     parts: list[int | str] = []
     tag = None
     for k, p in enumerate(loc):
-        if (p in HOST_MODELS and k >= 2 and isinstance(loc[k - 1], int)
+        if (p in host_models() and k >= 2 and isinstance(loc[k - 1], int)
                 and loc[k - 2] == "hosts"):
             tag = str(p)
             continue
@@ -784,7 +477,7 @@ def _one_line(err: ValidationError, source: str, prefix: tuple[str, ...] = ()) -
     got = first.get("input")
     if first["type"] == "extra_forbidden":
         key = str(parts[-1])
-        other = [b for b, m in HOST_MODELS.items() if b != tag and key in m.model_fields]
+        other = [b for b, m in host_models().items() if b != tag and key in m.model_fields]
         if tag is not None and other and len(parts) >= 2 and isinstance(parts[-2], int):
             msg = f"{key} is a {other[0]}-only field, not one of a {tag} host"
             fix = f"remove it, or set backend = \"{other[0]}\""
@@ -796,7 +489,7 @@ def _one_line(err: ValidationError, source: str, prefix: tuple[str, ...] = ()) -
     elif first["type"] == "unknown_backend":
         parts.append("backend")
         got = got.get("backend") if isinstance(got, dict) else got
-        fix = f"got {got!r}; use {' or '.join(repr(b) for b in HOST_MODELS)}"
+        fix = f"got {got!r}; use {' or '.join(repr(b) for b in host_models())}"
     elif isinstance(problem, FieldProblem):
         fix = ""  # its message says what to do
     else:

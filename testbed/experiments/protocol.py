@@ -39,7 +39,7 @@ from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 
 if TYPE_CHECKING:
-    from testbed.core.config import HostConfig
+    from testbed.core.host_config import HostConfig
     from testbed.core.humans import Humans
     from testbed.experiments.trial import TrialOptions
     from testbed.fleet.loop import StepOutcome

@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
-from testbed.core.config import ConfigError, FleetConfig, HostConfig
+from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.host_config import HostConfig
 from testbed.core.hosts import Hosts, LoopHosts, hosts_info_of, stop_motion_of
 from testbed.core.humans import Humans, HumansStopRequested
 from testbed.core.interrupts import critical

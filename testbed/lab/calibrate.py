@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_json
-from testbed.core.config import ArmConfig, ConfigError, FleetConfig, HostConfig
+from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.host_config import ArmConfig, HostConfig
 from testbed.perception import homography as cal
 
 CUBE_TOP_MM = 40.0

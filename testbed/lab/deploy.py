@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from testbed.core.config import ConfigError, FleetConfig, HostConfig
+from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.host_config import HostConfig
 
 if TYPE_CHECKING:
     from drivers.ssh_setup import Connection

@@ -31,7 +31,9 @@ from typing import Any, Final
 
 import numpy as np
 
-from testbed.core.config import FleetConfig, HostConfig
+from testbed.core.backends import backend_of
+from testbed.core.config import FleetConfig
+from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault
 
 
@@ -77,7 +79,7 @@ def full_frame(hosts: Any, host: HostConfig, folder: Path,
                print_line: Callable[[str], None]) -> bool:
     """Write ``folder/check-<host>.png`` (full frame, crops, workspaces); False on a fault.
 
-    Only hosts whose backend has a camera frame are asked (yumi); a host that is down
+    Only hosts whose backend has the ``camera_frame`` capability are asked; a host that is down
     was already reported by the observation, so it is not reported twice.
     """
     import cv2
@@ -85,7 +87,7 @@ def full_frame(hosts: Any, host: HostConfig, folder: Path,
     from drivers.host_fleet import HostCallError
     from testbed.perception import homography as cal
 
-    if host.backend != "yumi":
+    if not backend_of(host).capabilities.camera_frame:
         return True
     if not hosts.host_status()[host.name].connected:
         return True  # its arms are already FAULT lines
@@ -113,76 +115,26 @@ def full_frame(hosts: Any, host: HostConfig, folder: Path,
 
 def controller_report(hosts: Any, host: HostConfig, print_line: Callable[[str], None]
                       ) -> bool:
-    """Print what a YuMi host's controller says of itself (RobotWare, options, serial,
-    mode and state, tasks, our RAPID modules and world zones) and one FAULT line for each
-    thing to fix first; False if there is one. Other backends have no controller."""
+    """Print what a host's controller says of itself and one FAULT line for each thing to
+    fix first; False if there is one. Only backends with the ``controller`` capability
+    are asked (a YuMi: RobotWare, options, serial, mode and state, tasks, our RAPID and
+    its world zones: ``drivers/yumi/check_report.py``); the backend words its report."""
     from drivers.host_fleet import HostCallError
-    from drivers.yumi.controller_state import RAPID_VERSION, problems
 
-    if host.backend != "yumi" or not hosts.host_status()[host.name].connected:
+    plugin = backend_of(host)
+    if not plugin.capabilities.controller or not hosts.host_status()[host.name].connected:
         return True
     try:
         info = hosts.describe(host.name)
     except HostCallError as exc:
         print_line(f"FAULT {host.name}: cannot read the controller's state: {exc}")
         return False
-    rep, boxes = info["controller"], info.get("table_boxes", {})
-    for line in report_lines(host.name, rep, RAPID_VERSION):
+    lines, faults = plugin.controller_report(host, info)
+    for line in lines:
         print_line(line)
-    for line in camera_lines(host.name, info.get("camera") or {}):
-        print_line(line)
-    found = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
-    for why in found:
+    for why in faults:
         print_line(f"FAULT {host.name}: {why}")
-    return not found
-
-
-def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:
-    """The controller's report as ``testbed check`` prints it (never a credential)."""
-    st = rep.get("state", {})
-    ratio = st.get("speedratio")
-    lines = [f"      {name}: controller {rep.get('system')} serial {rep.get('serial')}, "
-             f"RobotWare {rep.get('robotware')}; mode {st.get('opmode')}, "
-             f"{st.get('ctrlstate')}, RAPID {st.get('execstate')}, speed ratio "
-             f"{'?' if ratio is None else f'{ratio:g}'} %",
-             f"      {name}: options: {', '.join(rep.get('options', [])) or 'none'}",
-             f"      {name}: tasks: " + ", ".join(
-                 f"{t} ({'active' if d.get('active') else 'inactive'}, {d.get('excstate')})"
-                 for t, d in rep.get("tasks", {}).items())]
-    for task, ours in rep.get("rapid", {}).items():
-        z = ours.get("zones", {})
-        lo, hi = z.get("tb_zone_lo") or ["?", "?"], z.get("tb_zone_hi") or ["?", "?"]
-        v = ours.get("version")
-        lines.append(f"      {name}: {task}: testbed RAPID "
-                     f"{'not loaded' if v is None else f'version {v}'} (this checkout: "
-                     f"{version}); world zone box x {lo[0]}..{hi[0]}, y {lo[1]}..{hi[1]} mm "
-                     f"below z {z.get('tb_zone_z')}, floor z {z.get('tb_floor_z')}")
-    return lines
-
-
-def camera_lines(name: str, cam: dict[str, Any]) -> list[str]:
-    """The camera as read back (``drivers/yumi/picture_quality.camera_report``): its node
-    and settings, a WARN line per setting the device did not take, and each arm's crop's
-    sharpness (variance of the Laplacian) and exposure (mean luma, clipped share)."""
-    if not cam:
-        return []
-    d = cam.get("camera", {})
-    got = d.get("settings") or {}
-    settings = ", ".join(f"{k} {v}" for k, v in got.items() if v is not None) or "as opened"
-    where = d.get("node") or d.get("source", "?")
-    lines = [f"      {name}: camera {where} ({d.get('card') or d.get('kind', '?')}), "
-             f"{cam.get('size', ['?', '?'])[0]}x{cam.get('size', ['?', '?'])[1]}: "
-             f"{settings}"]
-    lines += [f"WARN  {name}: camera setting {k} not taken: {why}"
-              for k, why in (d.get("refused") or {}).items()]
-    for arm, q in (cam.get("crops") or {}).items():
-        if "error" in q:
-            lines.append(f"WARN  {name}/{arm}: {q['error']}")
-            continue
-        lines.append(f"      {name}/{arm}: sharpness {q['sharpness']:.0f}, luma mean "
-                     f"{q['luma_mean']:.0f} (p5 {q['luma_p5']:.0f}, p95 {q['luma_p95']:.0f}), "
-                     f"clipped {100 * q['clipped']:.1f} %")
-    return lines
+    return not faults
 
 
 def _workspace() -> Any:

@@ -26,11 +26,13 @@ from drivers import wire as p
 from drivers.agent import fd_reader, serve
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from drivers.backends.twin import CannedTwinBackend
+from drivers.backends.twin.twin_host import TwinHost
 from drivers.errors import DeadlineExceeded
 from drivers.testing.sshd import SshServer
 from drivers.transport import Transport
 from drivers.wire import FrameReader
-from testbed.core.config import HostConfig, TwinHost, YumiHost
+from drivers.yumi.yumi_host import YumiHost
+from testbed.core.host_config import HostConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 

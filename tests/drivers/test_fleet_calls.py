@@ -17,7 +17,7 @@ import drivers.session
 from drivers.backends.base import ArmOutcome
 from drivers.host_fleet import HostCallError, HostFleet, derive_seed
 from drivers.transport import make_transport
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault, PushResult
 
 

@@ -27,7 +27,7 @@ import drivers.session
 from drivers import wire as p
 from drivers.host_fleet import HostCallError, HostFleet
 from drivers.png import encode_png
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault, PushResult
 
 CASES = int(os.environ.get("FUZZ_CASES", "1000"))

@@ -12,10 +12,12 @@ import pytest
 from driver_fakes import ExplodingBackend, ThreadAgentTransport, local_host, wait_until
 
 import drivers.session
+from drivers.backends.twin.twin_host import TwinHost
 from drivers.build_id import matches
 from drivers.host_fleet import HostFleet, derive_seed
 from drivers.transport import LocalTransport, make_transport
-from testbed.core.config import HostConfig, TwinHost, YumiHost
+from drivers.yumi.yumi_host import YumiHost
+from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault, PushResult
 
 

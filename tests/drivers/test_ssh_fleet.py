@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 from driver_fakes import ROOT, ssh_host, wait_until
 
+from drivers.backends.twin.twin_host import TwinHost
 from drivers.host_fleet import HostFleet
 from drivers.testing.sshd import SshServer
 from drivers.transport import SshTransport, agent_argv
-from testbed.core.config import TwinHost
 from testbed.core.types import ArmObservation, Fault, PushResult
 
 pytestmark = pytest.mark.ssh

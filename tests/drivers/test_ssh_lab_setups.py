@@ -25,6 +25,7 @@ from typing import Any
 import pytest
 from driver_fakes import ROOT, wait_until
 
+from drivers.backends.twin.twin_host import TwinHost
 from drivers.errors import HostKeyError, TransportError
 from drivers.host_fleet import HostFleet
 from drivers.ssh_setup import (
@@ -36,7 +37,7 @@ from drivers.ssh_setup import (
 )
 from drivers.testing.sshd import SshAgent, SshServer, free_port, keygen, sshd_available
 from drivers.transport import SshTransport
-from testbed.core.config import ConfigError, TwinHost, parse_config
+from testbed.core.config import ConfigError, parse_config
 from testbed.core.types import ArmObservation, Fault
 
 Servers = Callable[..., SshServer]

@@ -31,7 +31,7 @@ from drivers.host_fleet import HostFleet
 from drivers.yumi.backend import ArmCalibration, ArmSetup, plan_push
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
-from testbed.core.config import ArmConfig
+from testbed.core.host_config import ArmConfig
 from testbed.core.types import MIN_GOAL_DISTANCE, ArmObservation, Fault
 
 

@@ -126,7 +126,7 @@ def test_the_drivers_rapid_version_is_the_modules() -> None:
 
 
 def test_motion_timeout_defaults_below_the_deadline() -> None:
-    from testbed.core.config import YumiHost
+    from drivers.yumi.yumi_host import YumiHost
 
     arms = [{"name": "left", "crop": [0, 0, 1, 1], "calibration": "l.json"}]
     host = YumiHost(name="y", camera="0", controller_url="http://192.0.2.1", arms=arms)

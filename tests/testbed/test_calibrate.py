@@ -281,8 +281,8 @@ def test_report_names_rejected_points_and_applies_the_thresholds() -> None:
 def test_the_existing_file_is_read_on_the_host_over_real_ssh(tmp_path: Path) -> None:
     """Over SSH the calibration file lives on the robot host: it is read there (same key
     and known_hosts as the agent), with ``~``/``$VARS`` expanded by the host."""
+    from drivers.backends.twin.twin_host import TwinHost
     from drivers.testing.sshd import SshServer, sshd_available
-    from testbed.core.config import TwinHost
     from testbed.lab.calibrate import read_host_file
 
     if not sshd_available():

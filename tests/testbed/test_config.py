@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
+from drivers.backends.twin.twin_host import TwinHost
+from drivers.yumi.yumi_host import YumiHost
 from testbed.cli import main
 from testbed.core.config import (
     ConfigError,
-    TwinHost,
-    YumiHost,
     default_twin_config,
     file_kind,
     load_config,

@@ -23,7 +23,7 @@ from lab_fixtures import calibrate_exactly, tiny_protocol
 from drivers import wire as p
 from drivers.build_id import build_id
 from drivers.testing.sshd import sshd_available
-from testbed.core.config import HostConfig
+from testbed.core.host_config import HostConfig
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.hardware_twin import HardwareTwinLab
 

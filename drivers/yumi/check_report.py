@@ -1,0 +1,75 @@
+"""What ``testbed check`` prints of a YuMi's controller and camera, and what it fails on.
+
+Why here, with the YuMi: the report is the YuMi's (RobotWare, options, tasks, our RAPID
+and its world zones, a V4L2 camera's settings and each crop's picture quality);
+``testbed check`` asks any backend with the ``controller`` capability for its report
+(``testbed.core.backends.Backend.controller_report``) and prints it as given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["camera_lines", "controller_report", "report_lines"]
+
+
+def controller_report(name: str, info: Mapping[str, Any]) -> tuple[list[str], list[str]]:
+    """(report lines, FAULT reasons) of host ``name``'s ``describe()`` answer: anything
+    that would refuse a push or stop an arm (manual mode, motors off, a guard stop, a
+    program running, a RAPID error, a missing option or module, a table box wider than
+    its world zone) is a reason to fix first."""
+    from drivers.yumi.controller_state import RAPID_VERSION, problems
+
+    rep, boxes = info["controller"], info.get("table_boxes", {})
+    lines = report_lines(name, rep, RAPID_VERSION)
+    lines += camera_lines(name, info.get("camera") or {})
+    return lines, problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
+
+
+def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:
+    """The controller's report as ``testbed check`` prints it (never a credential)."""
+    st = rep.get("state", {})
+    ratio = st.get("speedratio")
+    lines = [f"      {name}: controller {rep.get('system')} serial {rep.get('serial')}, "
+             f"RobotWare {rep.get('robotware')}; mode {st.get('opmode')}, "
+             f"{st.get('ctrlstate')}, RAPID {st.get('execstate')}, speed ratio "
+             f"{'?' if ratio is None else f'{ratio:g}'} %",
+             f"      {name}: options: {', '.join(rep.get('options', [])) or 'none'}",
+             f"      {name}: tasks: " + ", ".join(
+                 f"{t} ({'active' if d.get('active') else 'inactive'}, {d.get('excstate')})"
+                 for t, d in rep.get("tasks", {}).items())]
+    for task, ours in rep.get("rapid", {}).items():
+        z = ours.get("zones", {})
+        lo, hi = z.get("tb_zone_lo") or ["?", "?"], z.get("tb_zone_hi") or ["?", "?"]
+        v = ours.get("version")
+        lines.append(f"      {name}: {task}: testbed RAPID "
+                     f"{'not loaded' if v is None else f'version {v}'} (this checkout: "
+                     f"{version}); world zone box x {lo[0]}..{hi[0]}, y {lo[1]}..{hi[1]} mm "
+                     f"below z {z.get('tb_zone_z')}, floor z {z.get('tb_floor_z')}")
+    return lines
+
+
+def camera_lines(name: str, cam: dict[str, Any]) -> list[str]:
+    """The camera as read back (``drivers/yumi/picture_quality.camera_report``): its node
+    and settings, a WARN line per setting the device did not take, and each arm's crop's
+    sharpness (variance of the Laplacian) and exposure (mean luma, clipped share)."""
+    if not cam:
+        return []
+    d = cam.get("camera", {})
+    got = d.get("settings") or {}
+    settings = ", ".join(f"{k} {v}" for k, v in got.items() if v is not None) or "as opened"
+    where = d.get("node") or d.get("source", "?")
+    lines = [f"      {name}: camera {where} ({d.get('card') or d.get('kind', '?')}), "
+             f"{cam.get('size', ['?', '?'])[0]}x{cam.get('size', ['?', '?'])[1]}: "
+             f"{settings}"]
+    lines += [f"WARN  {name}: camera setting {k} not taken: {why}"
+              for k, why in (d.get("refused") or {}).items()]
+    for arm, q in (cam.get("crops") or {}).items():
+        if "error" in q:
+            lines.append(f"WARN  {name}/{arm}: {q['error']}")
+            continue
+        lines.append(f"      {name}/{arm}: sharpness {q['sharpness']:.0f}, luma mean "
+                     f"{q['luma_mean']:.0f} (p5 {q['luma_p5']:.0f}, p95 {q['luma_p95']:.0f}), "
+                     f"clipped {100 * q['clipped']:.1f} %")
+    return lines

@@ -1,0 +1,151 @@
+"""The YuMi's declaration: what the registry (``testbed.core.backends``) finds of it.
+
+An ABB YuMi (IRB 14000) on an IRC5 controller, reached over Robot Web Services, with
+one overhead camera: both arms work over one table (a shared cell), each arm is
+calibrated (image-to-table homography), the controller names itself (serial,
+RobotWare), the agent locks the robot on that serial, motions can be stopped in flight,
+and ``testbed rehearse`` can stand a hardware twin in its place. The flags the agent
+takes for it are written (``agent_argv``) and read (``add_agent_arguments``,
+``backend_kwargs``) here, in one place.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar
+from urllib.parse import urlsplit
+
+from drivers.backends.plugin import BackendPlugin, arm_pairs
+from drivers.yumi.yumi_host import YumiHost
+from testbed.core.backends import Capabilities
+
+if TYPE_CHECKING:
+    from drivers.backends.base import HostBackend
+    from testbed.core.host_config import HostBase
+
+__all__ = ["BACKEND", "YumiPlugin"]
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+class YumiPlugin(BackendPlugin):
+    name: ClassVar[str] = "yumi"
+    host_model: ClassVar[type[HostBase]] = YumiHost
+    capabilities: ClassVar[Capabilities] = Capabilities(
+        calibration=True, camera_frame=True, shared_cell=True, controller=True,
+        robot_lock=True, stop=True, hardware_twin=True)
+    extra: ClassVar[str | None] = "yumi"
+    verify_imports: ClassVar[tuple[str, ...]] = (
+        "drivers.yumi.backend", "drivers.yumi.camera", "drivers.yumi.rws_controller",
+        "abb_robot_client.rws", "abb_motion_program_exec", "cv2")
+
+    # -- the controller's side --------------------------------------------------------
+    def scripted_teleop(self, host: HostBase) -> bool:
+        """Only a hardware twin (its controller on loopback, a rehearsal) carries the
+        expert's action; a lab's YuMi is teleoperated by people."""
+        url = str(getattr(host, "controller_url", ""))
+        return (urlsplit(url).hostname or "") in LOOPBACK
+
+    def controller_report(self, host: HostBase, info: Mapping[str, Any]
+                          ) -> tuple[list[str], list[str]]:
+        from drivers.yumi.check_report import controller_report
+
+        return controller_report(host.name, info)
+
+    def agent_argv(self, host: HostBase) -> list[str]:
+        argv: list[str] = []
+        if (camera := getattr(host, "camera", None)) is not None:
+            argv += ["--camera", str(camera)]
+        if (cam_settings := getattr(host, "camera_settings", None)) is not None:
+            argv += ["--camera-settings", cam_settings.model_dump_json(exclude_none=True)]
+        if (url := getattr(host, "controller_url", None)) is not None:
+            argv += ["--controller-url", str(url)]
+        if (creds := getattr(host, "credentials_file", None)) is not None:
+            argv += ["--credentials-file", str(creds)]
+        if (limit := getattr(host, "motion_timeout_s", None)) is not None:
+            argv += ["--motion-timeout", f"{limit:g}"]
+        if (locks := getattr(host, "lock_dir", None)) is not None:
+            argv += ["--lock-dir", str(locks)]
+        for a in host.arms:
+            if a.crop is not None:
+                argv += ["--crop", f"{a.name}=" + ",".join(str(v) for v in a.crop)]
+            if a.calibration is not None:
+                argv += ["--calibration", f"{a.name}={a.calibration}"]
+        return argv
+
+    # -- the agent's side -------------------------------------------------------------
+    def add_agent_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--camera", default=None, help="yumi: device index or video file")
+        parser.add_argument("--controller-url", default=None,
+                            help="yumi: RWS URL of the controller")
+        parser.add_argument("--crop", action="append", default=[], metavar="ARM=x0,y0,x1,y1")
+        parser.add_argument("--calibration", action="append", default=[], metavar="ARM=FILE")
+        parser.add_argument("--credentials-file", default=None, metavar="FILE",
+                            help="yumi: the controller's login, one line USER:PASSWORD, "
+                                 "mode 0600")
+        parser.add_argument("--motion-timeout", type=float, default=None, metavar="S",
+                            help="yumi: stop a motion program that runs longer than S s")
+        parser.add_argument("--camera-settings", default=None, metavar="JSON",
+                            help="yumi: the camera's settings, a JSON object of width, "
+                                 "height, fourcc, fps, exposure, white_balance, focus (set "
+                                 "on a V4L2 camera when it opens, and read back)")
+
+    def backend_kwargs(self, args: argparse.Namespace) -> dict[str, Any] | str:
+        """``credentials_file``, ``motion_timeout_s`` and ``camera_settings`` only when
+        given (the camera validates the settings' JSON text itself)."""
+        crops: dict[str, tuple[int, int, int, int]] = {}
+        pairs = arm_pairs(args.crop, "--crop")
+        if isinstance(pairs, str):
+            return pairs
+        for arm, box in pairs.items():
+            try:
+                x0, y0, x1, y1 = (int(v) for v in box.split(","))
+            except ValueError:
+                return f"--crop {arm}=... needs four integers"
+            crops[arm] = (x0, y0, x1, y1)
+        calibrations = arm_pairs(args.calibration, "--calibration")
+        if isinstance(calibrations, str):
+            return calibrations
+        kwargs: dict[str, Any] = dict(crops=crops, calibrations=calibrations,
+                                      camera=args.camera, controller_url=args.controller_url)
+        if args.credentials_file is not None:
+            kwargs["credentials_file"] = args.credentials_file
+        if args.motion_timeout is not None:
+            kwargs["motion_timeout_s"] = args.motion_timeout
+        if args.camera_settings is not None:
+            kwargs["camera_settings"] = args.camera_settings
+        return kwargs
+
+    def make_backend(self, *, arms: Sequence[str], mirror: Sequence[bool], seed: int,
+                     calibrating: Sequence[str] = (), **kwargs: Any) -> HostBackend:
+        from drivers.yumi.backend import build_yumi_backend
+
+        return build_yumi_backend(
+            arms, mirror, kwargs.get("crops") or {}, kwargs.get("calibrations") or {},
+            kwargs.get("camera"), kwargs.get("controller_url"), seed,
+            calibrating=tuple(calibrating), credentials_file=kwargs.get("credentials_file"),
+            motion_timeout_s=kwargs.get("motion_timeout_s"),
+            camera_settings=kwargs.get("camera_settings"))
+
+    def controller_info(self, args: argparse.Namespace) -> dict[str, str] | None:
+        """Serial, RobotWare and system: one read-only login, before the lock."""
+        if not args.controller_url:
+            return None
+        from drivers.yumi.rws_controller import controller_info
+
+        return controller_info(args.controller_url, args.credentials_file)
+
+    def robot_identity(self, args: argparse.Namespace,
+                       controller: Mapping[str, str] | None) -> str | None:
+        """The controller as it names itself (``"IRC5 <serial>"``), else its URL in one
+        spelling (two spellings of one address are one robot)."""
+        if not args.controller_url:
+            return None
+        from drivers.hostlock import normalise_url
+        from drivers.yumi.rws_controller import robot_identity
+
+        return robot_identity(controller) or normalise_url(args.controller_url)
+
+
+BACKEND = YumiPlugin()
