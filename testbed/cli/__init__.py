@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from testbed.cli.verbs import VERBS
+from testbed.core.backends import BackendError
 from testbed.core.config import ConfigError
 from testbed.core.extras import missing_operator_module, needs_operator
 from testbed.core.interrupts import EXIT_INTERRUPTED, INTERRUPTS
@@ -51,7 +52,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     run = next(v.run for v in VERBS if v.name == args.verb)
     try:
         return run(args)
-    except (ConfigError, ConsoleUnavailable) as exc:
+    except (ConfigError, BackendError, ConsoleUnavailable) as exc:
+        # BackendError: an unknown backend or a lab's plugin that does not load.
         # ConsoleUnavailable: a DISPLAY that is set but that no X server answers, found
         # only when the console opens its windows (its message is one line with the fix).
         sys.stderr.write(f"testbed {args.verb}: {exc}\n")

@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from testbed.core.backends import backend_of
 from testbed.core.config import NAME_PATTERN, ConfigError, FleetConfig, load_fleet
 
 if TYPE_CHECKING:
@@ -77,18 +78,11 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
                               f"({', '.join(missing)} not installed); pip install -e "
                               '".[web]"')
     elif kind == "scripted" and teleop:
-        real = [h.name for h in cfg.hosts if h.backend != "twin"
-                and not _on_loopback(str(getattr(h, "controller_url", "")))]
+        real = [h.name for h in cfg.hosts if not backend_of(h).scripted_teleop(h)]
         if real:
             raise ConfigError(f"{where} scripted: scripted humans teleoperate from the twin's "
                               f"expert and host {real[0]} is a physical robot; use --humans gui "
                               "(or web)")
-
-
-def _on_loopback(url: str) -> bool:
-    from urllib.parse import urlsplit
-
-    return (urlsplit(url).hostname or "") in ("127.0.0.1", "localhost", "::1")
 
 
 def check_policy(path: str, cfg: FleetConfig) -> None:

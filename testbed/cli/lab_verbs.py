@@ -20,12 +20,18 @@ def _deploy_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE", required=True,
                    help="fleet config or protocol file whose ssh hosts get this build")
     p.add_argument("--host", metavar="NAME", help="only this host (default: every ssh host)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the backends found (and where from) and what each host would "
+                        "install and verify; connect to nothing")
 
 
 def cmd_deploy(args: argparse.Namespace) -> int:
-    from testbed.lab.deploy import deploy  # paramiko, only when asked
+    from testbed.lab.deploy import deploy, plan  # paramiko, only when asked
 
     cfg = load_config(args)
+    if args.dry_run:
+        plan(cfg, args.host, print_line=print)
+        return 0
     return 0 if deploy(cfg, args.host, print_line=print) else 1
 
 

@@ -42,7 +42,8 @@ if TYPE_CHECKING:
     from testbed.core.host_config import HostBase
 
 __all__ = ["BUILTIN", "DEFAULT_BACKEND", "ENTRY_POINT_GROUP", "Backend", "BackendError",
-           "Capabilities", "backend", "backend_of", "backends", "host_models"]
+           "Capabilities", "backend", "backend_lines", "backend_of", "backends",
+           "host_models"]
 
 ENTRY_POINT_GROUP: Final = "testbed.backends"
 """The entry point group a package registers its backends in."""
@@ -115,6 +116,9 @@ class Backend:
     """The ``pip`` extra a robot host installs for this backend (``"yumi"``), or None."""
     verify_imports: ClassVar[tuple[str, ...]] = ()
     """Modules a host install must import for its agent to run this backend."""
+    host_requirements: ClassVar[tuple[str, ...]] = ()
+    """What else a robot host installs for it (``pip`` requirements): a lab's own backend
+    names its package here (``"lab-ur5e==1.2"``); the product's use ``extra``."""
     origin: str = field(default="", compare=False)
     """Where it was found, set by the registry (entry point, package and version)."""
 
@@ -185,6 +189,14 @@ def backend(name: str) -> Backend:
 def backend_of(host: HostBase) -> Backend:
     """The backend that drives ``host``."""
     return backend(host.backend)
+
+
+def backend_lines() -> list[str]:
+    """One line per backend found: its name, where it came from, what it can do (what
+    ``testbed check`` and ``testbed deploy`` print first)."""
+    return [f"backend {name}: {b.origin}; capabilities: "
+            f"{', '.join(b.capabilities.names()) or 'none beyond the contract'}"
+            for name, b in backends().items()]
 
 
 def host_models() -> dict[str, type[HostBase]]:

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from testbed.core.backends import backend_of
 from testbed.core.config import FleetConfig, HumanProfile, WebConsoleConfig
 from testbed.core.humans import Humans
 from testbed.experiments.scripted_humans import ScriptedHumans
@@ -95,4 +96,4 @@ def shared_cells(cfg: FleetConfig) -> dict[str, str]:
     holds the other's pushes, ``FleetLoop._hold_cells``). A twin host's arms are cells of
     their own (separate PyBullet worlds) and share nothing."""
     return {f"{h.name}/{a.name}": h.name for h in cfg.hosts for a in h.arms
-            if h.backend == "yumi" and len(h.arms) > 1}
+            if backend_of(h).capabilities.shared_cell and len(h.arms) > 1}

@@ -40,6 +40,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from testbed.core.backends import backend_of
 from testbed.core.config import ConfigError, FleetConfig
 
 if TYPE_CHECKING:
@@ -56,7 +57,7 @@ MAX_RETRIES = 3
 def check_fanout(fleet: FleetConfig, humans: str, what: str) -> None:
     """ConfigError (exit 2, one line) unless every host is a twin and the humans are
     scripted."""
-    physical = [h.name for h in fleet.hosts if h.backend != "twin"]
+    physical = [h.name for h in fleet.hosts if not backend_of(h).capabilities.simulated]
     if physical:
         raise ConfigError(
             f"--ray/--workers: {what} drives physical arms (host {physical[0]!r}); arms are "

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from testbed.core.backends import backend_of
 from testbed.core.config import (
     ConfigError,
     FleetConfig,
@@ -242,7 +243,8 @@ def _evaluate_all(proto: Protocol, folder: Path, hooks: TrialHooks) -> None:
     for k in range(proto.trials):
         for algorithm in proto.run_order(k):
             evaluate_run(proto, folder, algorithm, k, hooks)
-        if proto.evaluate_expert and all(h.backend == "twin" for h in proto.fleet.hosts):
+        if proto.evaluate_expert and all(backend_of(h).capabilities.simulated
+                                         for h in proto.fleet.hosts):
             evaluate_run(proto, folder, "expert", k, hooks)
 
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_json
+from testbed.core.backends import backend_of
 from testbed.core.config import ConfigError, FleetConfig
 from testbed.core.host_config import ArmConfig, HostConfig
 from testbed.perception import homography as cal
@@ -99,9 +100,10 @@ def calibration_target(cfg: FleetConfig, host_name: str, arm: str) -> HostConfig
         raise ConfigError(f"--host: no host {host_name!r} in the fleet; it has "
                           f"{', '.join(hosts)}")
     host = hosts[host_name]
-    if host.backend != "yumi":
-        raise ConfigError(f"--host: host {host.name} runs the {host.backend} backend; only "
-                          f"yumi hosts are calibrated (the twin needs no calibration)")
+    if not backend_of(host).capabilities.calibration:
+        raise ConfigError(f"--host: host {host.name} runs the {host.backend} backend, which "
+                          "has no calibration (only backends that can move a TCP to a point "
+                          "and keep a calibration file are calibrated)")
     arms = {a.name: a for a in host.arms}
     if arm not in arms:
         raise ConfigError(f"--arm: host {host.name} has no arm {arm!r}; it has "

@@ -30,23 +30,32 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
+from testbed.core.backends import backend_lines, backend_of
 from testbed.core.config import ConfigError, FleetConfig
 from testbed.core.host_config import HostConfig
 
 if TYPE_CHECKING:
     from drivers.ssh_setup import Connection
 
-__all__ = ["HOST_EXTRAS", "DeployError", "Deployed", "deploy", "deploy_host", "deploy_targets"]
+__all__ = ["AGENT_IMPORTS", "HOST_EXTRA", "DeployError", "Deployed", "deploy", "deploy_host",
+           "deploy_targets", "host_install", "plan"]
 
-HOST_EXTRAS: Final = {"yumi": "headless,yumi", "twin": "headless,twin"}
-"""The extras a host of each backend installs besides the base (pyproject.toml)."""
-VERIFY_IMPORTS: Final = {
-    "yumi": ("drivers.yumi.backend", "drivers.yumi.camera", "drivers.yumi.rws_controller",
-             "abb_robot_client.rws", "abb_motion_program_exec", "cv2"),
-    "twin": ("drivers.backends.twin", "sim_twin.cell", "cv2"),
-}
-"""What the verification imports besides the agent: the backend's own modules and
-clients, so a host that cannot run its agent fails here, not at the trial's start."""
+HOST_EXTRA: Final = "headless"
+"""The extra every host installs besides the base (pyproject.toml); its backend's plugin
+adds its own (``Backend.extra``, ``Backend.host_requirements``)."""
+AGENT_IMPORTS: Final = ("drivers", "drivers.agent", "drivers.wire", "testbed.core.config",
+                        "testbed.perception.cube")
+"""What every agent imports; the verification adds its backend's ``verify_imports`` (its
+own modules and clients), so a host that cannot run its agent fails here, not at the
+trial's start."""
+
+
+def host_install(host: HostConfig) -> tuple[str, tuple[str, ...], tuple[str, ...]]:
+    """What ``host`` installs and verifies, from its backend's plugin: (the product's
+    extras, other requirements, the modules its verification imports)."""
+    plugin = backend_of(host)
+    extras = HOST_EXTRA + (f",{plugin.extra}" if plugin.extra else "")
+    return extras, plugin.host_requirements, (*AGENT_IMPORTS, *plugin.verify_imports)
 HOST_PYTHONS: Final = ((3, 10), (3, 12))
 PROBE: Final = ("import importlib.util, json, sys, tempfile; print(json.dumps({'version': "
                 "list(sys.version_info[:3]), 'pip': importlib.util.find_spec('pip') is not "
@@ -96,6 +105,18 @@ def deploy_targets(fleet: FleetConfig, name: str | None) -> list[HostConfig]:
     return hosts
 
 
+def plan(fleet: FleetConfig, name: str | None, *, print_line: Callable[[str], None]) -> None:
+    """``testbed deploy --dry-run``: the backends found and where from, then what each
+    target host would install and verify; connects to nothing, builds nothing."""
+    for line in backend_lines():
+        print_line(line)
+    for host in deploy_targets(fleet, name):
+        extras, others, modules = host_install(host)
+        print_line(f"plan  {host.name}: backend {host.backend}; pip install "
+                   f"fleet-testbed[{extras}]{''.join(' ' + r for r in others)} with "
+                   f"{host.python}; verify imports {', '.join(modules)}")
+
+
 def deploy(fleet: FleetConfig, name: str | None, *, print_line: Callable[[str], None]
            ) -> bool:
     """Build this checkout's stamped wheel once, then deploy it to each target host in
@@ -105,6 +126,8 @@ def deploy(fleet: FleetConfig, name: str | None, *, print_line: Callable[[str], 
     from drivers.build_id import ROOT, BuildIdError, build_id, build_wheel, is_checkout
 
     hosts = deploy_targets(fleet, name)
+    for line in backend_lines():
+        print_line(line)
     build = build_id()  # this process's: the same id its own hello check compares
     if not is_checkout(ROOT) or "+g" not in build:
         raise ConfigError(f"testbed deploy builds from a git checkout of the project; "
@@ -179,13 +202,14 @@ def _install(remote: _Remote, host: HostConfig, wheel: Path, build: str) -> Depl
         remote.run([*pip, "--no-deps", "--force-reinstall", target], "installing the wheel")
         seconds["install"] = time.monotonic() - t
         t = time.monotonic()
-        extras = HOST_EXTRAS.get(host.backend, "headless")
-        remote.run([*pip, f"{target}[{extras}]"], f"installing the {extras} dependencies")
+        extras, others, modules = host_install(host)
+        remote.run([*pip, f"{target}[{extras}]", *others],
+                   f"installing the {', '.join((extras, *others))} dependencies")
         seconds["dependencies"] = time.monotonic() - t
     finally:
         remote.remove(target, probe["tmp"])
     t = time.monotonic()
-    got = remote.json([py, "-c", _verify_code(host.backend)], "verifying the install")
+    got = remote.json([py, "-c", _verify_code(modules)], "verifying the install")
     seconds["verify"] = time.monotonic() - t
     if got["build"] != build:
         raise DeployError(f"installed, but its python {py} runs build {got['build']} from "
@@ -193,10 +217,8 @@ def _install(remote: _Remote, host: HostConfig, wheel: Path, build: str) -> Depl
     return Deployed(host.name, build, str(got["where"]), shown, seconds)
 
 
-def _verify_code(backend: str) -> str:
+def _verify_code(modules: Sequence[str]) -> str:
     """The host's ``python -c``: import what its agent imports, print the build."""
-    modules = ("drivers", "drivers.agent", "drivers.wire", "testbed.core.config",
-               "testbed.perception.cube", *VERIFY_IMPORTS.get(backend, ()))
     return (f"import json, os, {', '.join(modules)}\n"
             "from drivers.build_id import build_id\n"
             "print(json.dumps({'build': build_id(), "

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from testbed.core.backends import backend_of
 from testbed.core.config import ConfigError, FleetConfig
 
 if TYPE_CHECKING:
@@ -140,11 +141,12 @@ class TwinHost:
 
 def require_yumi(fleet: FleetConfig) -> None:
     """A rehearsal stands hardware twins where YuMi hosts are; twin hosts have none."""
-    not_yumi = [h.name for h in fleet.hosts if h.backend != "yumi"]
+    not_yumi = [h for h in fleet.hosts if not backend_of(h).capabilities.hardware_twin]
     if not_yumi:
-        raise ConfigError(f"fleet.hosts[{not_yumi[0]}].backend: testbed rehearse needs a "
-                          "physical protocol (backend = \"yumi\" hosts); run a twin "
-                          "protocol with testbed protocol")
+        raise ConfigError(f"fleet.hosts[{not_yumi[0].name}].backend: testbed rehearse needs "
+                          "a physical protocol whose hosts have a hardware twin (host "
+                          f"{not_yumi[0].name}'s backend {not_yumi[0].backend!r} has none); "
+                          "run a twin protocol with testbed protocol")
 
 
 class HardwareTwinLab:

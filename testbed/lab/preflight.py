@@ -31,7 +31,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from testbed.core.backends import backend_of
+from testbed.core.backends import backend_lines, backend_of
 from testbed.core.config import FleetConfig
 from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault
@@ -42,6 +42,8 @@ def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], N
 
     from testbed.experiments.build import build_hosts
 
+    for line in backend_lines():
+        print_line(line)
     hosts = build_hosts(cfg, cfg.trial.seed)
     ok = True
     images: list[np.ndarray] = []
