@@ -54,6 +54,7 @@ from drivers.errors import AgentError, DriverError
 from drivers.hostlog import HostLog
 from drivers.link import AgentLink
 from drivers.session import HostSession, HostStatus, describe, remote_traceback
+from testbed.core.backend_registry import backend_of
 from testbed.core.host_config import HostConfig
 from testbed.core.types import NUM_ACTIONS, ArmObservation, Fault, PushResult
 
@@ -240,17 +241,17 @@ class HostFleet:
         """What each host is, as its agent said at hello (run.json ``hosts``, the
         optional call of ``testbed.core.hosts``): ``backend`` (the agent's own word:
         twin, twin-canned for a twin without physics, yumi), ``transport``, ``build``,
-        ``arms`` and, for a YuMi, ``controller`` (``serial``, ``robotware``, ``system``;
-        None where not known). A host that never answered: its config's backend, build
-        None. Read from memory, no request: the hello already said it all, and it never
-        carries a credential."""
+        ``arms`` and, for a backend with the ``controller`` capability (a YuMi),
+        ``controller`` (``serial``, ``robotware``, ``system``; None where not known). A
+        host that never answered: its config's backend, build None. Read from memory, no
+        request: the hello already said it all, and it never carries a credential."""
         out: dict[str, dict[str, Any]] = {}
         for s in self._sessions:
             status = s.status
             entry: dict[str, Any] = {"backend": status.backend or s.cfg.backend,
                                      "transport": s.cfg.transport, "build": status.build,
                                      "arms": list(s.arms)}
-            if entry["backend"] == "yumi":
+            if backend_of(s.cfg).capabilities.controller:
                 said = status.controller or {}
                 entry["controller"] = ({k: said.get(k) for k in p.CONTROLLER_KEYS}
                                        if said else None)

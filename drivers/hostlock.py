@@ -114,15 +114,6 @@ def normalise_url(url: str) -> str:
     return f"{scheme}://{host}{f':{port}' if port else ''}{path}"
 
 
-def lock_identity(backend: str, controller_url: str | None, lock_id: str | None) -> str | None:
-    """What this agent must own exclusively, or None (an unlocked twin agent)."""
-    if lock_id:
-        return lock_id
-    if backend == "yumi" and controller_url:
-        return normalise_url(controller_url)
-    return None
-
-
 def lock_path(lock_dir: str | os.PathLike[str], identity: str) -> Path:
     slug = re.sub(r"[^A-Za-z0-9._-]+", "_", identity).strip("_")[:60] or "robot"
     digest = hashlib.sha256(identity.encode()).hexdigest()[:12]

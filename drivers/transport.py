@@ -34,6 +34,7 @@ from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
+from drivers.backends.plugin import agent_plugin
 from drivers.errors import DeadlineExceeded, LinkClosed, TransportError
 from testbed.core.host_config import HostConfig
 
@@ -46,8 +47,8 @@ def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: floa
                calibrating: Collection[str] = ()) -> list[str]:
     """The agent's argv for ``host`` (no shell words; quoting is the transport's job).
 
-    Backend-specific fields are read with ``getattr``: a twin host's config has no
-    camera, a YuMi host's no physics. ``calibrating``: arms started in calibration mode
+    The backend's own flags are its plugin's (``BackendPlugin.agent_argv``: the same
+    object reads them in the agent). ``calibrating``: arms started in calibration mode
     (``--calibrate ARM``). The watchdog is one second past the heartbeat period: the
     session heartbeats every ``heartbeat_s`` during a call too, so a longer silence
     while a motion runs means the link stopped answering."""
@@ -56,26 +57,7 @@ def agent_argv(host: HostConfig, *, seed: int, python: str, idle_timeout_s: floa
             "--mirror", ",".join("1" if a.mirror else "0" for a in host.arms),
             "--seed", str(seed), "--idle-timeout", f"{idle_timeout_s:g}",
             "--watchdog", f"{host.heartbeat_s + 1:g}"]
-    if host.backend == "twin" and not getattr(host, "physics", True):
-        argv.append("--no-physics")
-    if host.backend == "yumi":
-        if (camera := getattr(host, "camera", None)) is not None:
-            argv += ["--camera", str(camera)]
-        if (cam_settings := getattr(host, "camera_settings", None)) is not None:
-            argv += ["--camera-settings", cam_settings.model_dump_json(exclude_none=True)]
-        if (url := getattr(host, "controller_url", None)) is not None:
-            argv += ["--controller-url", str(url)]
-        if (creds := getattr(host, "credentials_file", None)) is not None:
-            argv += ["--credentials-file", str(creds)]
-        if (limit := getattr(host, "motion_timeout_s", None)) is not None:
-            argv += ["--motion-timeout", f"{limit:g}"]
-        if (locks := getattr(host, "lock_dir", None)) is not None:
-            argv += ["--lock-dir", str(locks)]
-        for a in host.arms:
-            if (crop := getattr(a, "crop", None)) is not None:
-                argv += ["--crop", f"{a.name}=" + ",".join(str(v) for v in crop)]
-            if (cal := getattr(a, "calibration", None)) is not None:
-                argv += ["--calibration", f"{a.name}={cal}"]
+    argv += agent_plugin(host.backend).agent_argv(host)
     for arm in calibrating:
         argv += ["--calibrate", arm]
     if host.workdir is not None:

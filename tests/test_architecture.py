@@ -209,10 +209,11 @@ HOST_ENTRY_POINTS = ("drivers.agent", "drivers.build_id", "drivers.backends")
 """What a robot host runs: ``python -m drivers.agent`` and its backends, and ``python -m
 drivers.build_id`` (``scripts/setup.sh --host``); with every module of ``drivers.yumi``,
 ``testbed.core`` and ``testbed.perception`` (the host install's part of testbed)."""
-HOST_PACKAGES = ("numpy", "cv2", "pydantic", "typing_extensions", "tomli",
+HOST_PACKAGES = ("numpy", "cv2", "pydantic", "pydantic_core", "typing_extensions", "tomli",
                  "abb_robot_client", "abb_motion_program_exec")
 """What the host install provides besides the standard library (pyproject's base and
-its extras headless and yumi)."""
+its extras headless and yumi; pydantic_core comes with pydantic, whose own version pins
+it: the hosts' union of backend models builds its schema with it)."""
 REMOVED_IN_3_12 = ("distutils", "imp", "asynchat", "asyncore", "smtpd")
 
 

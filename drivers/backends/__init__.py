@@ -1,13 +1,15 @@
 """Host backends: what an agent drives (a twin cell, an ABB YuMi, any future robot).
 
-Why a lazy factory here: the agent chooses its backend from the command line, and a
-backend's heavy imports (pybullet for the twin, the ABB clients for the YuMi) must
-happen only in the agent that needs them, after the agent has claimed its stdout.
+Each backend is a plugin (``drivers/backends/plugin.py``, found by the registry in
+``testbed.core.backend_registry``): its folder holds its host model, its ``HostBackend`` and
+its declaration (the twin: ``drivers/backends/twin/``; the YuMi: ``drivers/yumi/``).
+A backend's heavy imports (pybullet for the twin, the ABB clients for the YuMi) happen
+only in the agent that needs them, after the agent has claimed its stdout.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
@@ -16,27 +18,11 @@ __all__ = ["ArmOutcome", "ArmView", "HostBackend", "make_backend"]
 
 
 def make_backend(kind: str, *, arms: Sequence[str], mirror: Sequence[bool], seed: int,
-                 physics: bool = True, crops: Mapping[str, tuple[int, int, int, int]] | None = None,
-                 calibrations: Mapping[str, str] | None = None, camera: str | None = None,
-                 controller_url: str | None = None, calibrating: Collection[str] = (),
-                 credentials_file: str | None = None, motion_timeout_s: float | None = None,
-                 camera_settings: Mapping[str, Any] | str | None = None) -> HostBackend:
-    """The agent's backend. ``calibrating``: yumi arms being calibrated (``--calibrate``):
-    they start with a provisional calibration; a twin has nothing to calibrate.
-    ``credentials_file`` and ``motion_timeout_s``: the YuMi controller's login file and
-    motion limit; ``camera_settings``: its camera's (a twin has none of them)."""
-    if kind == "twin":
-        from drivers.backends.twin import CannedTwinBackend, TwinBackend
+                 calibrating: Sequence[str] = (), **kwargs: Any) -> HostBackend:
+    """The backend ``kind``'s ``HostBackend``, built by its plugin
+    (``drivers.backends.plugin.BackendPlugin.make_backend``): ``kwargs`` are the
+    backend's own (a YuMi's ``camera``, ``controller_url``, ``crops``, ...)."""
+    from drivers.backends.plugin import agent_plugin
 
-        if not physics:
-            return CannedTwinBackend(seed, arms, mirror)
-        return TwinBackend(seed, arms, mirror)
-    if kind == "yumi":
-        from drivers.yumi.backend import build_yumi_backend
-
-        return build_yumi_backend(arms, mirror, crops or {}, calibrations or {}, camera,
-                                  controller_url, seed, calibrating=tuple(calibrating),
-                                  credentials_file=credentials_file,
-                                  motion_timeout_s=motion_timeout_s,
-                                  camera_settings=camera_settings)
-    raise ValueError(f"unknown backend {kind!r}; expected 'twin' or 'yumi'")
+    return agent_plugin(kind).make_backend(arms=arms, mirror=mirror, seed=seed,
+                                           calibrating=tuple(calibrating), **kwargs)

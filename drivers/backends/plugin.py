@@ -1,7 +1,7 @@
 """The agent's side of a backend plugin: its flags, how it builds its ``HostBackend``,
 and which robot it locks.
 
-Why: ``testbed.core.backends.Backend`` declares what the controller's rooms need of a
+Why: ``testbed.core.backend_registry.Backend`` declares what the controller's rooms need of a
 backend (its host model, capabilities, extra). The agent on the robot host needs three
 more things, and they belong in the same one object so that a robot stays one folder:
 the command-line flags its host config turns into (``agent_argv`` on the controller,
@@ -19,7 +19,7 @@ import argparse
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.backends import Backend, BackendError, backend, backends
+from testbed.core.backend_registry import Backend, BackendError, backend, backends
 
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend
@@ -58,6 +58,11 @@ class BackendPlugin(Backend):
         """The controller as it names itself (``serial``, ``robotware``, ``system``), asked
         before the lock and sent in the hello; None: no controller, or it cannot be asked.
         Backends with the ``controller`` capability override it."""
+        return None
+
+    def controller_address(self, args: argparse.Namespace) -> str | None:
+        """Where the robot's controller is (a URL), written into the robot's lock file so
+        that a refused user is told which controller is held; None: not known."""
         return None
 
     def robot_identity(self, args: argparse.Namespace,

@@ -3,7 +3,7 @@
 Why here, with the YuMi: the report is the YuMi's (RobotWare, options, tasks, our RAPID
 and its world zones, a V4L2 camera's settings and each crop's picture quality);
 ``testbed check`` asks any backend with the ``controller`` capability for its report
-(``testbed.core.backends.Backend.controller_report``) and prints it as given.
+(``testbed.core.backend_registry.Backend.controller_report``) and prints it as given.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The YuMi's declaration: what the registry (``testbed.core.backends``) finds of it.
+"""The YuMi's declaration: what the registry (``testbed.core.backend_registry``) finds of it.
 
 An ABB YuMi (IRB 14000) on an IRC5 controller, reached over Robot Web Services, with
 one overhead camera: both arms work over one table (a shared cell), each arm is
@@ -18,7 +18,7 @@ from urllib.parse import urlsplit
 
 from drivers.backends.plugin import BackendPlugin, arm_pairs
 from drivers.yumi.yumi_host import YumiHost
-from testbed.core.backends import Capabilities
+from testbed.core.backend_registry import Capabilities
 
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend
@@ -135,6 +135,9 @@ class YumiPlugin(BackendPlugin):
         from drivers.yumi.rws_controller import controller_info
 
         return controller_info(args.controller_url, args.credentials_file)
+
+    def controller_address(self, args: argparse.Namespace) -> str | None:
+        return args.controller_url
 
     def robot_identity(self, args: argparse.Namespace,
                        controller: Mapping[str, str] | None) -> str | None:

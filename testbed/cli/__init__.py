@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from testbed.cli.verbs import VERBS
-from testbed.core.backends import BackendError
+from testbed.core.backend_registry import BackendError
 from testbed.core.config import ConfigError
 from testbed.core.extras import missing_operator_module, needs_operator
 from testbed.core.interrupts import EXIT_INTERRUPTED, INTERRUPTS

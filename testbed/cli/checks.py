@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.backends import backend_of
+from testbed.core.backend_registry import backend_of
 from testbed.core.config import NAME_PATTERN, ConfigError, FleetConfig, load_fleet
 
 if TYPE_CHECKING:

@@ -137,7 +137,7 @@ def expand_path(text: str, field: str) -> str:
     return _VAR.sub(value, os.path.expanduser(text))
 
 
-from testbed.core.backends import host_models  # noqa: E402
+from testbed.core.backend_registry import host_models  # noqa: E402
 
 
 class _Hosts:

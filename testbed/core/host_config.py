@@ -3,7 +3,7 @@
 Why in core: every room that reaches a host (the transports, the session, deploy,
 preflight, a trial) needs where it is and how to reach it, and none of them may know
 which robots exist. A backend's own fields live with the backend, in its host model
-(a subclass of :class:`HostBase`, declared by its plugin: ``testbed.core.backends``);
+(a subclass of :class:`HostBase`, declared by its plugin: ``testbed.core.backend_registry``);
 :data:`HostConfig` is the union of every installed backend's model, chosen by
 ``backend``, built when a config is first validated (not at import: importing
 ``testbed`` loads no backend).
@@ -18,7 +18,7 @@ from pydantic import Field, GetCoreSchemaHandler, ValidationInfo, model_validato
 from pydantic_core import CoreSchema, core_schema
 from typing_extensions import Self
 
-from testbed.core.backends import DEFAULT_BACKEND, host_models
+from testbed.core.backend_registry import DEFAULT_BACKEND, host_models
 from testbed.core.config import (
     FieldProblem,
     Name,

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.backends import backend_of
+from testbed.core.backend_registry import backend_of
 from testbed.core.config import FleetConfig, HumanProfile, WebConsoleConfig
 from testbed.core.humans import Humans
 from testbed.experiments.scripted_humans import ScriptedHumans

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from testbed.core.backends import backend_of
+from testbed.core.backend_registry import backend_of
 from testbed.core.config import (
     ConfigError,
     FleetConfig,
@@ -47,7 +47,8 @@ if TYPE_CHECKING:
 
 
 class Protocol(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # defer_build: its fleet's hosts are a union of the installed backends (core/host_config.py)
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
 
     name: str
     trials: int = Field(3, ge=1, le=100)
@@ -70,7 +71,7 @@ class Protocol(BaseModel):
     evaluate_expert: bool = True
     """With ``evaluate_steps``: also ``eval-expert-t<k>``, every arm driven by the twin's
     scripted expert (the paper's expert row; twin hosts only)."""
-    fleet: FleetConfig = FleetConfig()
+    fleet: FleetConfig = Field(default_factory=FleetConfig)
 
     @model_validator(mode="before")
     @classmethod

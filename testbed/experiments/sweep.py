@@ -55,7 +55,8 @@ ALGORITHM_KEY = "algorithm"
 
 
 class Sweep(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # defer_build: its fleet's hosts are a union of the installed backends (core/host_config.py)
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
 
     name: str
     algorithm: str = "cur"
@@ -65,7 +66,7 @@ class Sweep(BaseModel):
     """Default ``runs/sweep-<name>``."""
     humans: Literal["scripted", "gui", "web"] = "scripted"
     grid: dict[str, list[Any]] = Field(min_length=1)
-    fleet: FleetConfig = FleetConfig()
+    fleet: FleetConfig = Field(default_factory=FleetConfig)
 
     @model_validator(mode="after")
     def _check(self) -> Sweep:

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_json
-from testbed.core.backends import backend_of
+from testbed.core.backend_registry import backend_of
 from testbed.core.config import ConfigError, FleetConfig
 from testbed.core.host_config import ArmConfig, HostConfig
 from testbed.perception import homography as cal

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from testbed.core.backends import backend_lines, backend_of
+from testbed.core.backend_registry import backend_lines, backend_of
 from testbed.core.config import ConfigError, FleetConfig
 from testbed.core.host_config import HostConfig
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.backends import backend_of
+from testbed.core.backend_registry import backend_of
 from testbed.core.config import ConfigError, FleetConfig
 
 if TYPE_CHECKING:

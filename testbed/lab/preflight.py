@@ -31,7 +31,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from testbed.core.backends import backend_lines, backend_of
+from testbed.core.backend_registry import backend_lines, backend_of
 from testbed.core.config import FleetConfig
 from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault

@@ -18,8 +18,9 @@ from driver_fakes import RecordingBackend, frames_of, lockstep_serve, wait_until
 
 from drivers import agent
 from drivers import wire as p
+from drivers.agent.agent_cli import _robot_identity, parse_args
 from drivers.errors import DeadlineExceeded
-from drivers.hostlock import lock_identity, lock_path, normalise_url
+from drivers.hostlock import lock_path, normalise_url
 
 ME = pwd.getpwuid(os.geteuid()).pw_name
 
@@ -217,7 +218,10 @@ def test_lock_identity_and_url_normalisation() -> None:
     assert normalise_url("TWIN+HTTP://LocalHost:4101/") == "twin+http://localhost:4101"
     assert normalise_url("http://10.0.0.5") == normalise_url("http://10.0.0.5:80/")
     assert normalise_url("https://robot/rws") == "https://robot:443/rws"
-    assert lock_identity("twin", None, None) is None
-    assert lock_identity("twin", None, "x") == "x"
-    assert lock_identity("yumi", "http://R:80", None) == "http://r:80"
+    twin = ["--backend", "twin"]
+    assert _robot_identity(parse_args(twin), None) is None  # a twin owns its own cell
+    assert _robot_identity(parse_args([*twin, "--lock-id", "x"]), None) == "x"
+    yumi = parse_args(["--backend", "yumi", "--controller-url", "http://R:80"])
+    assert _robot_identity(yumi, None) == "http://r:80"  # the controller could not say
+    assert _robot_identity(yumi, {"serial": "14000-501234"}) == "IRC5 14000-501234"
     assert lock_path("/d", "a/b").parent == Path("/d") and "/" not in lock_path("/d", "a/b").name

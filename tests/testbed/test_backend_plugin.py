@@ -37,7 +37,7 @@ import numpy as np
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from drivers.backends.plugin import BackendPlugin
-from testbed.core.backends import Capabilities
+from testbed.core.backend_registry import Capabilities
 from testbed.core.host_config import HostBase
 
 
@@ -262,7 +262,7 @@ def test_the_product_asks_capabilities_not_names() -> None:
     registry (and the built-in fleet's name, ``FleetConfig.name = "twin"``): anywhere
     else it is a branch on a robot's name, which the next robot would have to fork."""
     names = {"twin", "twin-canned", "yumi"}
-    allowed = ("drivers/yumi/", "drivers/backends/twin/", "testbed/core/backends.py")
+    allowed = ("drivers/yumi/", "drivers/backends/twin/", "testbed/core/backend_registry.py")
     found = []
     for folder in ("testbed", "drivers", "gui"):
         for p in sorted((ROOT / folder).rglob("*.py")):
@@ -281,7 +281,7 @@ def test_the_product_asks_capabilities_not_names() -> None:
 
 def test_the_registry_finds_the_products_backends_and_their_capabilities() -> None:
     from drivers.backends.plugin import agent_plugins
-    from testbed.core.backends import backend, backends, host_models
+    from testbed.core.backend_registry import backend, backends, host_models
 
     assert {"twin", "yumi"} <= set(backends())
     assert set(agent_plugins()) == set(backends())

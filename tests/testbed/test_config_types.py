@@ -3,7 +3,7 @@ is an error naming the field, for EVERY such field of every section (found by wa
 config models, so a field added later is covered without a line here).
 
 pydantic's lax mode would take ``mirror = "yes"`` as true and ``deadline_s = "20"`` as
-20.0; ``testbed.core.config._Strict`` refuses both, and a boolean where a number belongs.
+20.0; ``testbed.core.config.StrictModel`` refuses both, and a boolean where a number belongs.
 """
 
 from __future__ import annotations

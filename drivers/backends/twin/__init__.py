@@ -2,7 +2,7 @@
 
 One folder, as every backend: ``twin_host.py`` (its host model: the config fields it
 adds), ``twin_backend.py`` (the ``HostBackend``s the agent serves), ``twin_plugin.py``
-(the declaration the registry finds: ``testbed.core.backends``).
+(the declaration the registry finds: ``testbed.core.backend_registry``).
 """
 
 from __future__ import annotations

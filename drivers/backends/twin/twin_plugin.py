@@ -1,4 +1,4 @@
-"""The twin's declaration: what the registry (``testbed.core.backends``) finds of it.
+"""The twin's declaration: what the registry (``testbed.core.backend_registry``) finds of it.
 
 A simulation: no person at the robot, so scripted humans teleoperate it from its
 expert, protocols fan it out on Ray workers and evaluate the expert's row; its arms are
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from drivers.backends.plugin import BackendPlugin
 from drivers.backends.twin.twin_host import TwinHost
-from testbed.core.backends import Capabilities
+from testbed.core.backend_registry import Capabilities
 
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend

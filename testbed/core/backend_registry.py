@@ -143,7 +143,7 @@ def _load(ep: EntryPoint, where: str) -> Backend:
                            f"{type(exc).__name__}: {exc}") from None
     if not isinstance(obj, Backend):
         raise BackendError(f"backend {ep.name!r} ({ep.value}, {where}) is a "
-                           f"{type(obj).__name__}, not a testbed.core.backends.Backend")
+                           f"{type(obj).__name__}, not a testbed.core.backend_registry.Backend")
     if obj.name != ep.name or not _NAME.fullmatch(obj.name):
         raise BackendError(f"backend {ep.name!r} ({ep.value}, {where}) declares the name "
                            f"{obj.name!r}; the entry point's name must equal it (lowercase "
