@@ -23,22 +23,21 @@ from drivers.agent.agent_io import claim_stdout, fd_reader, fd_writer
 from drivers.agent.agent_session import EXIT_USAGE, serve
 from drivers.build_id import build_id
 from drivers.hostlock import RobotLock, default_lock_dir
+from testbed.core.backend_registry import BackendError
 
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend
-    from drivers.backends.plugin import BackendPlugin
 
 __all__ = ["BackendFactory", "backend_kwargs", "main", "parse_args"]
 
 log = logging.getLogger("drivers.agent")
 
 
-def _common_parser() -> argparse.ArgumentParser:
-    from drivers.backends.plugin import agent_plugins
-
+def _common_parser(names: Sequence[str]) -> argparse.ArgumentParser:
+    """The flags every agent has, whatever its robot; ``names``: the installed backends."""
     ap = argparse.ArgumentParser(prog="python -m drivers.agent",
                                  description="Serve one robot host's arms on stdin/stdout.")
-    ap.add_argument("--backend", choices=sorted(agent_plugins()), required=True,
+    ap.add_argument("--backend", choices=sorted(names), required=True,
                     help="the robot this host has (any installed backend plugin)")
     ap.add_argument("--host", default="host", help="host name, for messages")
     ap.add_argument("--arms", default="left,right")
@@ -66,20 +65,23 @@ def _common_parser() -> argparse.ArgumentParser:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """The common flags, then the chosen backend's own (its plugin adds them), so
-    ``--help`` after ``--backend NAME`` shows them and an unknown flag is an error."""
-    ap = _common_parser()
-    known, _ = ap.parse_known_args(argv)
-    plugin = _plugin(known.backend)
-    plugin.add_agent_arguments(ap.add_argument_group(f"{plugin.name} backend"))
-    args = ap.parse_args(argv)
-    args.plugin = plugin
+    ``--help`` after ``--backend NAME`` shows them and an unknown flag is an error.
+
+    Two phases: ``--backend`` alone first, by a parser without ``--help`` (a full parser
+    would print its help, without the backend's flags, and exit before they are added),
+    then every flag. A broken plugin raises ``BackendError`` (:func:`main`: one line)."""
+    from drivers.backends.plugin import agent_plugins
+
+    plugins = agent_plugins()
+    first = argparse.ArgumentParser(add_help=False)
+    first.add_argument("--backend", default=None)
+    chosen = plugins.get(first.parse_known_args(argv)[0].backend)
+    ap = _common_parser(plugins)
+    if chosen is not None:
+        chosen.add_agent_arguments(ap.add_argument_group(f"{chosen.name} backend"))
+    args = ap.parse_args(argv)  # an unknown or missing backend: a usage error, exit 2
+    args.plugin = plugins[args.backend]
     return args
-
-
-def _plugin(name: str) -> BackendPlugin:
-    from drivers.backends.plugin import agent_plugin
-
-    return agent_plugin(name)
 
 
 BackendFactory = Callable[[argparse.Namespace, dict[str, Any]], "HostBackend"]
@@ -129,7 +131,11 @@ def main(argv: Sequence[str] | None = None, *,
     an arm that moves for seconds, behind the real agent: ``tests/drivers/slow_arm.py``);
     the command line never reaches it."""
     frames_fd = claim_stdout()
-    args = parse_args(argv)
+    try:
+        args = parse_args(argv)
+    except BackendError as exc:  # a broken plugin on this host: one line, not a traceback
+        print(f"python -m drivers.agent: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     logging.basicConfig(stream=sys.stderr, level=logging.WARNING,
                         format=f"%(asctime)s agent[{args.host}] %(levelname)s %(message)s")
     log.setLevel(logging.INFO)  # our lifecycle lines (a few per session), not others

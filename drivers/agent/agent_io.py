@@ -28,6 +28,8 @@ def claim_stdout() -> int:
 
 
 def fd_reader(fd: int) -> Callable[[int, float], bytes]:
+    """``read(n, deadline)`` on ``fd``, non-blocking: DeadlineExceeded past the deadline,
+    so the session's idle timeout and watchdog run even when no byte comes."""
     os.set_blocking(fd, False)
 
     def read(n: int, deadline: float) -> bytes:
@@ -45,6 +47,8 @@ def fd_reader(fd: int) -> Callable[[int, float], bytes]:
 
 
 def fd_writer(fd: int, timeout_s: float) -> Callable[[bytes], None]:
+    """``write(data)`` on ``fd``, whole or BrokenPipeError after ``timeout_s``: a
+    controller that stopped reading must not hang the agent (it then stops the arms)."""
     os.set_blocking(fd, False)
 
     def write(data: bytes) -> None:
