@@ -339,6 +339,21 @@ def run_protocol_scenario(root: Path, book: LearnerBook) -> dict[str, Any]:
 
 
 # ---- what is pinned -------------------------------------------------------------------
+def dump_json(value: Any, depth: int = 0) -> str:
+    """JSON with every item from depth 4 on one line (a step's row, an act call's
+    outputs) and every short one too: a changed step is a changed line of the diff."""
+    flat = json.dumps(value, sort_keys=True)
+    if depth >= 4 or len(flat) <= 96 or not isinstance(value, dict | list):
+        return flat
+    pad = " " * (depth + 1)
+    if isinstance(value, dict):
+        items = [f"{pad}{json.dumps(k)}: {dump_json(v, depth + 1)}"
+                 for k, v in sorted(value.items())]
+        return "{\n" + ",\n".join(items) + "\n" + " " * depth + "}"
+    items = [pad + dump_json(v, depth + 1) for v in value]
+    return "[\n" + ",\n".join(items) + "\n" + " " * depth + "]"
+
+
 def _rows(path: Path) -> list[dict[str, Any]]:
     rows = []
     for line in path.read_text().splitlines():

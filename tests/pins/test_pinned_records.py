@@ -57,6 +57,7 @@ from pin_replay import (
     TRACE,
     LearnerBook,
     differences,
+    dump_json,
     run_protocol_scenario,
     run_trial_scenario,
     use_book,
@@ -81,8 +82,8 @@ def _record(root: Path) -> None:
             use_book(mp, book)
             pins[name] = scenario(root / name, book)
         traces[name] = book.traces
-    TRACE.write_text(json.dumps(traces, sort_keys=True) + "\n")
-    RECORDS.write_text(json.dumps(pins, indent=1, sort_keys=True) + "\n")
+    TRACE.write_text(dump_json(traces) + "\n")
+    RECORDS.write_text(dump_json(pins) + "\n")
 
 
 @pytest.fixture(scope="module")
