@@ -15,8 +15,11 @@ from typing import Any
 
 import pytest
 
+from drivers.backends.twin.twin_host import TwinHost
+from drivers.yumi.yumi_host import YumiHost
 from testbed.cli import main
 from testbed.core import config as c
+from testbed.core.host_config import ArmConfig
 
 YUMI = {"name": "yumi0", "backend": "yumi", "camera": "0",
         "controller_url": "http://192.0.2.1",
@@ -25,8 +28,8 @@ BASE: dict[str, Any] = {"hosts": [{"name": "cell0"}, YUMI]}
 SECTIONS: list[tuple[type[Any], tuple[Any, ...]]] = [
     (c.FleetConfig, ()), (c.TrialConfig, ("trial",)), (c.HumansConfig, ("humans",)),
     (c.WebConsoleConfig, ("humans", "web")), (c.AlgorithmConfig, ("algorithm",)),
-    (c.LearningConfig, ("learning",)), (c.TwinHost, ("hosts", 0)), (c.YumiHost, ("hosts", 1)),
-    (c.ArmConfig, ("hosts", 1, "arms", 0)),
+    (c.LearningConfig, ("learning",)), (TwinHost, ("hosts", 0)), (YumiHost, ("hosts", 1)),
+    (ArmConfig, ("hosts", 1, "arms", 0)),
 ]
 
 
