@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.backend_registry import backend_of
+from testbed.core.backend_registry import backend_of, backends
 from testbed.core.config import ConfigError, FleetConfig
 
 if TYPE_CHECKING:
@@ -141,12 +141,14 @@ class TwinHost:
 
 def require_yumi(fleet: FleetConfig) -> None:
     """A rehearsal stands hardware twins where YuMi hosts are; twin hosts have none."""
-    not_yumi = [h for h in fleet.hosts if not backend_of(h).capabilities.hardware_twin]
-    if not_yumi:
-        raise ConfigError(f"fleet.hosts[{not_yumi[0].name}].backend: testbed rehearse needs "
-                          "a physical protocol whose hosts have a hardware twin (host "
-                          f"{not_yumi[0].name}'s backend {not_yumi[0].backend!r} has none); "
-                          "run a twin protocol with testbed protocol")
+    lacking = [h for h in fleet.hosts if not backend_of(h).capabilities.hardware_twin]
+    if lacking:
+        have = [n for n, b in backends().items() if b.capabilities.hardware_twin]
+        raise ConfigError(f"fleet.hosts[{lacking[0].name}].backend: testbed rehearse needs "
+                          "a physical protocol whose hosts have a hardware twin (backend = "
+                          f"{' or '.join(repr(n) for n in have)}; host {lacking[0].name}'s "
+                          f"{lacking[0].backend!r} has none); run a twin protocol with "
+                          "testbed protocol")
 
 
 class HardwareTwinLab:
