@@ -31,9 +31,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.core.config import LearningConfig
 from testbed.core.types import IMAGE_SIZE
 from testbed.learning import Learner
+from testbed.learning.learning_config import LearningConfig
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,10 +33,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.core.config import LearningConfig
 from testbed.core.types import IMAGE_SIZE
 from testbed.learning import Learner
 from testbed.learning.checkpoint import save_atomic
+from testbed.learning.learning_config import LearningConfig
 from testbed.records.store import FRAME_DTYPE, RunDataWriter
 
 CASES = {

@@ -20,13 +20,14 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from testbed.core.config import FleetConfig, LearningConfig, TrialConfig, default_twin_config
 from testbed.core.wrappers import HostsWrapper
 from testbed.experiments.build import build_hosts
+from testbed.experiments.fleet_config import FleetConfig, TrialConfig, default_twin_config
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import load_learner, pretrained_learner
 from testbed.experiments.trial import TrialOptions, run_trial
 from testbed.fleet.algorithms import ALGORITHMS
+from testbed.learning.learning_config import LearningConfig
 
 
 class SlowHosts(HostsWrapper):

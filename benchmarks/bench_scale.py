@@ -37,9 +37,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.core.config import FleetConfig, load_fleet
 from testbed.experiments.build import build_hosts
 from testbed.experiments.checkpointer import CheckpointWriter
+from testbed.experiments.fleet_config import FleetConfig, load_fleet
 from testbed.experiments.learners import pretrained_learner
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.algorithms import get_algorithm

@@ -46,10 +46,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_training import fill
 
-from testbed.core.config import LearningConfig
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.learning import Learner
 from testbed.learning.critics import CriticBatch
+from testbed.learning.learning_config import LearningConfig
 from testbed.learning.policy import ensemble_signals
 
 

@@ -27,8 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.core.config import LearningConfig
 from testbed.learning import Learner
+from testbed.learning.learning_config import LearningConfig
 
 
 def fill(learner: Learner, seed: int) -> np.ndarray:

@@ -13,7 +13,7 @@ Two halves, so the first can be checked without a network:
 
 * :func:`resolve_route` reads the host's config, and with ``ssh_alias`` its ssh config
   (``paramiko.SSHConfig``), into a :class:`Route`: the bastions, nearest first, then
-  the host. Precedence (``testbed.core.config._HostBase``): what the ssh config sets for
+  the host. Precedence (``testbed.core.host_config.HostBase``): what the ssh config sets for
   an alias wins; the host's ``port``/``user`` (the host itself only) and
   ``key_file``/``known_hosts`` (every hop) fill in what it leaves unsaid; then OpenSSH's
   defaults. ``ProxyJump a,b`` is followed as OpenSSH does: ``a`` by its own config

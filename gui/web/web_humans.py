@@ -46,7 +46,7 @@ from testbed.core.humans import Presence
 from testbed.core.types import FleetStatus
 
 if TYPE_CHECKING:
-    from testbed.core.config import WebConsoleConfig
+    from testbed.people.people_config import WebConsoleConfig
 
 _ANNOUNCED: set[tuple[str, ...]] = set()
 """The URLs printed so far by this process (each set once)."""
@@ -170,10 +170,10 @@ class WebHumans(ConsoleCore):
     @classmethod
     def from_config(cls, count: int, cfg: WebConsoleConfig | None = None, *,
                     names: Sequence[str] = ()) -> WebHumans:
-        """Built from ``[humans.web]`` (``testbed.core.config.WebConsoleConfig``) and the
+        """Built from ``[humans.web]`` (``testbed.people.people_config.WebConsoleConfig``) and the
         humans' ``names`` (``humans.people``; empty: "human i")."""
         if cfg is None:
-            from testbed.core.config import WebConsoleConfig
+            from testbed.people.people_config import WebConsoleConfig
 
             cfg = WebConsoleConfig()
         return cls(

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of
-from testbed.core.config import NAME_PATTERN, ConfigError, FleetConfig, load_fleet
+from testbed.core.config import NAME_PATTERN, ConfigError
+from testbed.experiments.fleet_config import FleetConfig, load_fleet
 
 if TYPE_CHECKING:
     from testbed.experiments.trial import TrialOptions
@@ -177,7 +178,7 @@ def resume_options(resume: Path) -> tuple[FleetConfig, TrialOptions]:
     if not resume.is_dir():
         raise ConfigError(f"--resume: no such run folder {str(resume)!r}")
     run = RunDir(resume)
-    cfg = run.read_config()
+    cfg = run.read_config(FleetConfig)
     options = run.read_meta().get("options")
     if not isinstance(options, dict):
         raise ConfigError(f"--resume: {resume} has no run.json with the trial's options; "

@@ -18,9 +18,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of
-from testbed.core.config import FleetConfig, HumanProfile, WebConsoleConfig
 from testbed.core.humans import Humans
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.people.people_config import HumanProfile, WebConsoleConfig
 
 if TYPE_CHECKING:
     from drivers.host_fleet import HostFleet

@@ -41,7 +41,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
+from testbed.experiments.fleet_config import FleetConfig
 
 if TYPE_CHECKING:
     from testbed.experiments.protocol import Protocol

@@ -16,10 +16,10 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from testbed.core.config import FleetConfig
 from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans
 from testbed.experiments.build import build_hosts
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.pretraining import (
     Progress,
     collect_demos,

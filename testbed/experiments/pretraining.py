@@ -26,10 +26,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
-from testbed.core.config import ConfigError, FleetConfig, LearningConfig
+from testbed.core.config import ConfigError
 from testbed.core.hosts import LoopHosts
 from testbed.core.humans import Humans
 from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
+from testbed.experiments.fleet_config import FleetConfig
+from testbed.learning.learning_config import LearningConfig
 
 if TYPE_CHECKING:  # the learning package imports torch: only when data is really built
     from testbed.learning.api import Transitions

@@ -26,14 +26,9 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from testbed.core.backend_registry import backend_of
-from testbed.core.config import (
-    ConfigError,
-    FleetConfig,
-    _one_line,
-    require_protocol,
-    validation_context,
-)
+from testbed.core.config import ConfigError, _one_line, validation_context
 from testbed.core.hosts import Hosts
+from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
 from testbed.experiments.report import Report, write_report
 from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS

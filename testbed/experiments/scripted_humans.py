@@ -3,7 +3,7 @@
 Why in ``experiments``: they are how a twin trial, protocol or sweep rehearses its
 operators (the paper's simulated experts); the fleet loop sees them only through the
 ``testbed.core.humans.Humans`` contract. Each human follows its
-``testbed.core.config.HumanProfile``: ``skill`` (how often its push is the expert's),
+``testbed.people.people_config.HumanProfile``: ``skill`` (how often its push is the expert's),
 ``latency`` (timesteps before its first action) and ``availability`` (the chance it can
 take new work at a step). The default profile is the paper's perfect expert, and its
 records are those of the humans before profiles existed.
@@ -19,7 +19,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.core.config import HumanProfile
 from testbed.core.humans import Presence
 from testbed.core.types import (
     NUM_ACTIONS,
@@ -28,6 +27,7 @@ from testbed.core.types import (
     HumanResponse,
     InterventionKind,
 )
+from testbed.people.people_config import HumanProfile
 
 __all__ = ["ScriptedHumans"]
 

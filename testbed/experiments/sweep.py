@@ -36,14 +36,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from testbed.core.config import (
-    ConfigError,
-    FleetConfig,
-    _one_line,
-    parse_config,
-    read_toml,
-    validation_context,
-)
+from testbed.core.config import ConfigError, _one_line, read_toml, validation_context
+from testbed.experiments.fleet_config import FleetConfig, parse_config
 from testbed.fleet.algorithms import ALGORITHM_NAMES
 
 if TYPE_CHECKING:

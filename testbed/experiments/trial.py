@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
 from testbed.core.host_config import HostConfig
 from testbed.core.hosts import Hosts, LoopHosts, hosts_info_of, stop_motion_of
 from testbed.core.humans import Humans, HumansStopRequested
@@ -40,6 +40,7 @@ from testbed.core.interrupts import critical
 from testbed.core.wrappers import HumansWrapper
 from testbed.experiments.build import build_hosts, code_identity, make_humans, shared_cells
 from testbed.experiments.checkpointer import CheckpointWriter
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import (
     keep_demos,
@@ -215,7 +216,7 @@ def _open_run(cfg: FleetConfig, opts: TrialOptions, resume: Path | None,
 def _humans_record(cfg: FleetConfig, opts: TrialOptions) -> dict[str, Any]:
     """run.json ``humans``: who answered the interventions, by index: each human's name
     (never a secret: a web console's tokens are elsewhere and never written) and, for
-    scripted humans, their profile (testbed/core/config.py ``HumanProfile``)."""
+    scripted humans, their profile (testbed/people/people_config.py ``HumanProfile``)."""
     scripted = opts.humans == "scripted"
     return {"kind": opts.humans, "people": [
         p.model_dump() if scripted else {"name": p.name} for p in cfg.humans.profiles]}
@@ -224,7 +225,7 @@ def _humans_record(cfg: FleetConfig, opts: TrialOptions) -> dict[str, Any]:
 def _resumed(path: Path) -> _Run:
     """A run folder with a checkpoint, its steps past the checkpoint dropped."""
     folder = RunDir(path)
-    cfg = folder.read_config()
+    cfg = folder.read_config(FleetConfig)
     meta = folder.read_meta()
     opts = TrialOptions(**meta["options"])
     if not folder.state.exists():

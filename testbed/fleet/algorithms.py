@@ -15,7 +15,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from testbed.core.config import AlgorithmConfig
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.allocator import Allocator
 from testbed.fleet.priorities import (
     CRITIC_OF_SIGNAL,

@@ -17,17 +17,31 @@ says what fraction of early states count as uncertain, which does.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
+from testbed.fleet.algorithm_config import AlgorithmConfig
 
 SIGNAL = {"u_hat": "uncertainty", "r_hat": "risk"}
 
 
-def resolve_thresholds(cfg: FleetConfig, learner: Any, only: Mapping[str, float] | None = None,
-                       ) -> tuple[FleetConfig, dict[str, Any]]:
+class _WithAlgorithm(Protocol):
+    """A config with an ``[algorithm]`` section (the fleet's: ``FleetConfig``)."""
+
+    @property
+    def algorithm(self) -> AlgorithmConfig: ...
+
+    def model_copy(self, *, update: Mapping[str, Any] | None = None, deep: bool = False
+                   ) -> Any: ...
+
+
+ConfigT = TypeVar("ConfigT", bound=_WithAlgorithm)
+
+
+def resolve_thresholds(cfg: ConfigT, learner: Any, only: Mapping[str, float] | None = None,
+                       ) -> tuple[ConfigT, dict[str, Any]]:
     """``cfg`` with the quantile thresholds (``only`` those, e.g. the ones the run's
     algorithm reads) replaced by their values on ``learner``'s data, and what was
     resolved (name -> quantile, value, signal, states). Unchanged when none is left."""
@@ -46,4 +60,5 @@ def resolve_thresholds(cfg: FleetConfig, learner: Any, only: Mapping[str, float]
         record[name] = {"quantile": q, "value": values[name], "signal": SIGNAL[name],
                         "states": int(data.size)}
     algorithm = cfg.algorithm.model_copy(update=values)
-    return cfg.model_copy(update={"algorithm": algorithm}), record
+    resolved: ConfigT = cfg.model_copy(update={"algorithm": algorithm})
+    return resolved, record

@@ -35,8 +35,9 @@ import numpy as np
 
 from testbed.core.atomic import atomic_write_json
 from testbed.core.backend_registry import backend_of
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
 from testbed.core.host_config import ArmConfig, HostConfig
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.perception import homography as cal
 
 CUBE_TOP_MM = 40.0
@@ -436,7 +437,7 @@ def calibrate(cfg: FleetConfig, opts: CalibrateOptions,
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """``testbed calibrate``: the parsed arguments checked, then :func:`calibrate`."""
-    from testbed.core.config import load_fleet
+    from testbed.experiments.fleet_config import load_fleet
 
     cfg = load_fleet(args.config)
     _, opts = resolve(cfg, args)

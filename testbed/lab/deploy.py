@@ -31,8 +31,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 from testbed.core.backend_registry import backend_lines, backend_of
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
 from testbed.core.host_config import HostConfig
+from testbed.experiments.fleet_config import FleetConfig
 
 if TYPE_CHECKING:
     from drivers.ssh_setup import Connection

@@ -31,7 +31,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of, backends
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
+from testbed.experiments.fleet_config import FleetConfig
 
 if TYPE_CHECKING:
     from drivers.testing.sshd import SshServer

@@ -15,10 +15,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
 from testbed.core.humans import Humans
 from testbed.core.types import HumanRequest, HumanResponse, InterventionKind
 from testbed.core.wrappers import HumansWrapper
+from testbed.experiments.fleet_config import FleetConfig
 
 if TYPE_CHECKING:
     from testbed.lab.hardware_twin import LabClient

@@ -32,9 +32,9 @@ from typing import Any, Final
 import numpy as np
 
 from testbed.core.backend_registry import backend_lines, backend_of
-from testbed.core.config import FleetConfig
 from testbed.core.host_config import HostConfig
 from testbed.core.types import ArmObservation, Fault
+from testbed.experiments.fleet_config import FleetConfig
 
 
 def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], None]) -> bool:

@@ -41,9 +41,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.config import ConfigError, FleetConfig
+from testbed.core.config import ConfigError
 from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.lab.camera_model import starting_calibration, true_model_error
 from testbed.lab.hardware_twin import HardwareTwinLab, RehearsalError, require_yumi
@@ -86,7 +87,7 @@ class RehearsalResult:
 
 def quick_learning(fleet: FleetConfig) -> FleetConfig:
     """The default twin trial's learning sizes (README command 1), the device kept."""
-    from testbed.core.config import default_twin_config
+    from testbed.experiments.fleet_config import default_twin_config
 
     quick = default_twin_config().learning.model_copy(update={"device": fleet.learning.device})
     return fleet.model_copy(update={"learning": quick})
@@ -185,7 +186,7 @@ def _calibrate_arm(fleet_file: Path, host: str, arm: str, say: Say) -> int:
     """What ``testbed calibrate --config FLEET_FILE --host HOST --arm ARM`` does and
     exits with: the fleet read from the file, the command's defaults, and for a
     ConfigError the command's one line on stderr and exit 2."""
-    from testbed.core.config import load_fleet
+    from testbed.experiments.fleet_config import load_fleet
     from testbed.lab.calibrate import calibrate, default_options
 
     try:

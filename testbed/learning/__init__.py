@@ -1,9 +1,10 @@
 """Learning: the policy ensemble, the safety and goal critics, augmentation, replay data.
 
-Importing this package imports torch (seconds, hundreds of MB), so nothing on the path of
-``import testbed`` imports it: the fleet loop and the CLI import it when a trial or a
-pretraining starts. ``Learner`` is the whole public surface the rest of the testbed
-needs; the modules behind it are documented in docs/notes/learning.md.
+Its learner imports torch (seconds, hundreds of MB), so nothing on the path of ``import
+testbed`` imports it: ``Learner`` and the rest are imported when first asked for (the
+fleet loop and the CLI ask when a trial or a pretraining starts), and the room's config
+(``learning_config.py``) loads without torch. ``Learner`` is the whole public surface the
+rest of the testbed needs; the modules behind it are documented in docs/notes/learning.md.
 """
 
 from __future__ import annotations
@@ -18,13 +19,38 @@ import os
 # setdefault: a lab that tunes OpenMP itself keeps its setting.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+import importlib.util
+from typing import TYPE_CHECKING, Any
+
 from testbed.core.extras import needs_operator
 
-try:  # torch and kornia: the operator install's (a host install says so in one line)
+if TYPE_CHECKING:
     from testbed.learning.api import EnsembleImpl, PolicyOutput, ProgressFn, Transitions
     from testbed.learning.learner import Learner
     from testbed.learning.runtime import LearningError
-except ImportError as exc:
-    raise needs_operator("testbed.learning", exc) from None
+
+for _package in ("torch", "kornia"):  # a host install says so in one line, at once
+    if importlib.util.find_spec(_package) is None:
+        raise needs_operator("testbed.learning", ModuleNotFoundError(
+            f"No module named {_package!r}", name=_package))
 
 __all__ = ["EnsembleImpl", "Learner", "LearningError", "PolicyOutput", "ProgressFn", "Transitions"]
+
+def __getattr__(name: str) -> Any:
+    """``Learner`` and the rest, imported (with torch) when first asked for, so that the
+    room's config (``learning_config.py``) loads without torch."""
+    if name == "EnsembleImpl":
+        from testbed.learning.api import EnsembleImpl as found
+    elif name == "PolicyOutput":
+        from testbed.learning.api import PolicyOutput as found
+    elif name == "ProgressFn":
+        from testbed.learning.api import ProgressFn as found
+    elif name == "Transitions":
+        from testbed.learning.api import Transitions as found
+    elif name == "Learner":
+        from testbed.learning.learner import Learner as found
+    elif name == "LearningError":
+        from testbed.learning.runtime import LearningError as found
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return found

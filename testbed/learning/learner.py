@@ -43,7 +43,6 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
-from testbed.core.config import LearningConfig
 from testbed.learning import checkpoint
 from testbed.learning.actor import Actor, infer
 from testbed.learning.api import (
@@ -56,6 +55,7 @@ from testbed.learning.api import (
 )
 from testbed.learning.critics import Combine, Critic, CriticBatch, CriticSpec
 from testbed.learning.data import PolicyData, TransitionBuffer
+from testbed.learning.learning_config import LearningConfig
 from testbed.learning.policy import PolicyEnsemble, ensemble_signals
 from testbed.learning.runtime import (
     STREAM_INIT,

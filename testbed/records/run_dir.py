@@ -23,7 +23,7 @@ from typing import Any
 import tomli_w
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
-from testbed.core.config import ConfigError, FleetConfig, parse_config
+from testbed.core.config import ConfigError, ModelT, StrictModel, parse_model
 
 CONFIG = "config.toml"
 STEPS = "steps.jsonl"
@@ -67,7 +67,7 @@ class RunDir:
     def start_learner(self) -> Path:
         return self.path / START_LEARNER
 
-    def write_config(self, cfg: FleetConfig) -> None:
+    def write_config(self, cfg: StrictModel) -> None:
         """config.toml, without the web console's tokens: a run folder is data a lab
         keeps, exports and shares, and a token is a credential. A resumed run makes
         new tokens (printed once), unless its operator passes the config that has them.
@@ -78,11 +78,13 @@ class RunDir:
             web["tokens"] = []
         atomic_write_bytes(self.path / CONFIG, tomli_w.dumps(data).encode())
 
-    def read_config(self) -> FleetConfig:
+    def read_config(self, model: type[ModelT]) -> ModelT:
+        """The run's resolved config as ``model`` (the fleet's: ``FleetConfig``, whose
+        room is above this one), or ConfigError in one line."""
         p = self.path / CONFIG
         if not p.exists():
             raise ConfigError(f"{self.path}: not a run folder (no {CONFIG}); check --resume")
-        return parse_config(tomllib.loads(p.read_text()), str(p))
+        return parse_model(model, tomllib.loads(p.read_text()), str(p))
 
     def write_meta(self, meta: dict[str, Any]) -> None:
         atomic_write_json(self.path / META, meta)

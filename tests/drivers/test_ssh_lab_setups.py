@@ -37,8 +37,9 @@ from drivers.ssh_setup import (
 )
 from drivers.testing.sshd import SshAgent, SshServer, free_port, keygen, sshd_available
 from drivers.transport import SshTransport
-from testbed.core.config import ConfigError, parse_config
+from testbed.core.config import ConfigError
 from testbed.core.types import ArmObservation, Fault
+from testbed.experiments.fleet_config import parse_config
 
 Servers = Callable[..., SshServer]
 

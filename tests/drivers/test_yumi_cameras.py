@@ -365,7 +365,8 @@ def test_camera_settings_go_from_the_config_through_the_agent_to_the_camera(
     from drivers import agent
     from drivers.transport import agent_argv
     from drivers.yumi.backend import build_yumi_backend
-    from testbed.core.config import ConfigError, parse_config
+    from testbed.core.config import ConfigError
+    from testbed.experiments.fleet_config import parse_config
 
     toml = ('[[hosts]]\nname = "yumi0"\nbackend = "yumi"\n'
             'camera = "/dev/v4l/by-id/usb-046d_HD_Pro_Webcam_C920_8F3A1B2C-video-index0"\n'

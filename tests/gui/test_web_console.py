@@ -352,8 +352,8 @@ def test_named_humans_on_their_links_pages_frames_and_the_fleets_text() -> None:
     ``make_humans(names=...)`` hands them on (a trial passes ``humans.people``'s)."""
     import io
 
-    from testbed.core.config import WebConsoleConfig
     from testbed.experiments.build import make_humans
+    from testbed.people.people_config import WebConsoleConfig
 
     built = make_humans("web", 2, WebConsoleConfig(port=0), names=["ana", "bo"])
     try:

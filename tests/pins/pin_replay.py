@@ -318,7 +318,7 @@ def use_book(monkeypatch: pytest.MonkeyPatch, book: LearnerBook) -> None:
 # ---- the scenarios --------------------------------------------------------------------
 def run_trial_scenario(root: Path, book: LearnerBook) -> dict[str, Any]:
     """``TRIAL`` as ``testbed trial --config trial.toml --name trial`` runs it."""
-    from testbed.core.config import parse_config
+    from testbed.experiments.fleet_config import parse_config
     from testbed.experiments.trial import TrialOptions, run_trial
 
     cfg = parse_config(TRIAL, "pins trial")

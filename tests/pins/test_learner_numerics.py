@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.core.config import LearningConfig
+from testbed.learning.learning_config import LearningConfig
 
 PINNED = Path(__file__).with_name("learner_numerics.json")
 RECORDING = os.environ.get("TESTBED_RECORD_DIGESTS") == "1"

@@ -21,7 +21,7 @@ from typing import Any
 import tomli_w
 
 from drivers.build_id import build_wheel
-from testbed.core.config import FleetConfig
+from testbed.experiments.fleet_config import FleetConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 OPERATOR_ONLY = ("torch", "pybullet", "kornia", "matplotlib")

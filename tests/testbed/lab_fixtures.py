@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from testbed.core.atomic import atomic_write_json
-from testbed.core.config import FleetConfig
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.lab.camera_model import true_calibration
 from testbed.lab.hardware_twin import HardwareTwinLab
 

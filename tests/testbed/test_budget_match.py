@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from testbed.core.config import ConfigError, parse_config
+from testbed.core.config import ConfigError
+from testbed.experiments.fleet_config import parse_config
 from testbed.experiments.protocol import Protocol, matched_budget, run_protocol
 from testbed.records.run_dir import RunDir
 from testbed.records.steps import RunWriter, read_steps

@@ -18,10 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from testbed.core.config import AlgorithmConfig, parse_config
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
 from testbed.experiments.build import shared_cells
+from testbed.experiments.fleet_config import parse_config
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
 from testbed.records.steps import RunWriter, read_steps

@@ -104,7 +104,7 @@ def test_a_long_name_is_cut_to_its_tile_and_a_count_mismatch_is_refused() -> Non
 def test_check_of_a_twin_fleet_writes_the_labelled_mosaic(tmp_path: Path) -> None:
     import cv2
 
-    from testbed.core.config import load_config
+    from testbed.experiments.fleet_config import load_config
     from testbed.lab.preflight import preflight
 
     cfg = load_config(Path(__file__).resolve().parents[2] / "protocols" / "twin.toml")

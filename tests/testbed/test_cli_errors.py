@@ -213,7 +213,7 @@ def test_scripted_humans_may_drive_a_hardware_twin() -> None:
     # A rehearsal's yumi hosts run on the hardware twin (its RWS on loopback), whose side
     # channel the scripted humans read: no error for them, nor for the twin fleet.
     from testbed.cli.checks import check_humans
-    from testbed.core.config import default_twin_config, parse_config
+    from testbed.experiments.fleet_config import default_twin_config, parse_config
 
     check_humans("scripted", parse_config(tomllib.loads(
         YUMI.format(url="http://127.0.0.1:4101"))))
@@ -224,8 +224,8 @@ def test_scripted_humans_may_drive_a_hardware_twin() -> None:
 @pytest.fixture(scope="module")
 def small_learner(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real learner.pt with ensemble_size 1 (the default config asks for 5)."""
-    from testbed.core.config import LearningConfig
     from testbed.learning import Learner
+    from testbed.learning.learning_config import LearningConfig
 
     path = tmp_path_factory.mktemp("learner") / "learner.pt"
     Learner(LearningConfig(ensemble_size=1), seed=0).save(path)

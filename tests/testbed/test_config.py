@@ -12,8 +12,8 @@ import pytest
 from drivers.backends.twin.twin_host import TwinHost
 from drivers.yumi.yumi_host import YumiHost
 from testbed.cli import main
-from testbed.core.config import (
-    ConfigError,
+from testbed.core.config import ConfigError
+from testbed.experiments.fleet_config import (
     default_twin_config,
     file_kind,
     load_config,

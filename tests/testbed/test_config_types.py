@@ -20,15 +20,19 @@ from drivers.yumi.yumi_host import YumiHost
 from testbed.cli import main
 from testbed.core import config as c
 from testbed.core.host_config import ArmConfig
+from testbed.experiments.fleet_config import FleetConfig, TrialConfig, parse_config
+from testbed.fleet.algorithm_config import AlgorithmConfig
+from testbed.learning.learning_config import LearningConfig
+from testbed.people.people_config import HumansConfig, WebConsoleConfig
 
 YUMI = {"name": "yumi0", "backend": "yumi", "camera": "0",
         "controller_url": "http://192.0.2.1",
         "arms": [{"name": "left", "crop": [0, 0, 300, 300], "calibration": "/c/l.json"}]}
 BASE: dict[str, Any] = {"hosts": [{"name": "cell0"}, YUMI]}
 SECTIONS: list[tuple[type[Any], tuple[Any, ...]]] = [
-    (c.FleetConfig, ()), (c.TrialConfig, ("trial",)), (c.HumansConfig, ("humans",)),
-    (c.WebConsoleConfig, ("humans", "web")), (c.AlgorithmConfig, ("algorithm",)),
-    (c.LearningConfig, ("learning",)), (TwinHost, ("hosts", 0)), (YumiHost, ("hosts", 1)),
+    (FleetConfig, ()), (TrialConfig, ("trial",)), (HumansConfig, ("humans",)),
+    (WebConsoleConfig, ("humans", "web")), (AlgorithmConfig, ("algorithm",)),
+    (LearningConfig, ("learning",)), (TwinHost, ("hosts", 0)), (YumiHost, ("hosts", 1)),
     (ArmConfig, ("hosts", 1, "arms", 0)),
 ]
 
@@ -75,7 +79,7 @@ def test_a_string_for_a_boolean_or_a_number_names_the_field(name: str, path: tup
         _set(data, path, ["0", 0, 300, 300] if is_list and value == "5" else
              [True, 0, 300, 300] if is_list else value)
         with pytest.raises(c.ConfigError) as info:
-            c.parse_config(data, "f.toml", check_files=False)
+            parse_config(data, "f.toml", check_files=False)
         line = str(info.value)
         assert "\n" not in line
         assert line.startswith(f"f.toml: {_spelt(path)}: must be a TOML "), line
@@ -85,7 +89,7 @@ def test_the_right_types_still_load() -> None:
     data = copy.deepcopy(BASE)
     _set(data, ("hosts", 1, "arms", 0, "mirror"), True)
     _set(data, ("hosts", 1, "deadline_s"), 20)  # an integer is a number
-    cfg = c.parse_config(data, "f.toml", check_files=False)
+    cfg = parse_config(data, "f.toml", check_files=False)
     assert cfg.hosts[1].arms[0].mirror is True and cfg.hosts[1].deadline_s == 20.0
 
 

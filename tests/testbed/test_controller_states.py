@@ -22,8 +22,8 @@ import pytest
 from lab_fixtures import calibrate_exactly, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
-from testbed.core.config import FleetConfig
 from testbed.core.types import Fault, PushResult
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.hardware_twin import HardwareTwinLab
 from testbed.lab.preflight import preflight

@@ -22,7 +22,7 @@ from lab_fixtures import calibrate_exactly, tiny_protocol
 from drivers.build_id import build_id
 from drivers.testing.sshd import sshd_available
 from testbed.cli import main
-from testbed.core.config import FleetConfig, load_fleet
+from testbed.experiments.fleet_config import FleetConfig, load_fleet
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.hardware_twin import HardwareTwinLab
 

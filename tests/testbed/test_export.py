@@ -368,7 +368,7 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
 
 def test_train_on_exports_and_a_merge(run: Path, tmp_path: Path) -> None:
     from testbed.cli.checks import check_policy
-    from testbed.core.config import load_fleet
+    from testbed.experiments.fleet_config import load_fleet
     from testbed.learning import Learner
 
     dataset_io.export([run], "npz", tmp_path / "a.npz")

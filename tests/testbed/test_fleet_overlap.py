@@ -15,12 +15,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from testbed.core.config import AlgorithmConfig, LearningConfig
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
 from testbed.learning import Learner
+from testbed.learning.learning_config import LearningConfig
 from testbed.records.steps import RunWriter
 
 ARMS = [f"h{i}/{a}" for i in range(3) for a in ("left", "right")]

@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.core.config import HumanProfile
 from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
 from testbed.experiments.report_humans import count_humans, merge
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.interventions import FirstActions
+from testbed.people.people_config import HumanProfile
 from testbed.records.steps import RecordError, validate_step
 
 IMG = np.zeros((64, 64, 3), np.uint8)
@@ -182,7 +182,7 @@ def test_a_less_skilled_scripted_human_succeeds_less_per_push_than_the_spread() 
 
 
 def test_people_in_the_config_name_the_humans(tmp_path: Path) -> None:
-    from testbed.core.config import HumansConfig
+    from testbed.people.people_config import HumansConfig
 
     h = HumansConfig.model_validate({"people": [{"name": "ana", "skill": 0.5},
                                                 {"name": "bo"}]})

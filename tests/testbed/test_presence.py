@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.core.config import AlgorithmConfig, WebConsoleConfig
 from testbed.core.humans import Humans, Presence, presence_of
 from testbed.core.types import (
     IMAGE_SIZE,
@@ -32,8 +31,10 @@ from testbed.core.types import (
 )
 from testbed.experiments.build import make_humans
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
+from testbed.people.people_config import WebConsoleConfig
 from testbed.records.steps import RecordError, RunWriter, read_steps, validate_step
 
 ARMS = ["h/a", "h/b", "h/c"]

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from testbed.core.config import AlgorithmConfig
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS, get_algorithm
 from testbed.fleet.priorities import (
     OrderedPriority,

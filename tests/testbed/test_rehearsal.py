@@ -22,7 +22,7 @@ from lab_fixtures import PHYSICAL, calibrate_exactly, tiny_policy, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
 from testbed.cli import main
-from testbed.core.config import FleetConfig
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.camera_model import true_calibration, true_model_error

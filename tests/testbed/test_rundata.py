@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.core.config import AlgorithmConfig
 from testbed.core.types import IMAGE_SIZE, ArmObservation, Fault, PushResult
 from testbed.experiments.scripted_humans import ScriptedHumans
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
 from testbed.learning.api import PolicyOutput

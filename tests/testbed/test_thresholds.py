@@ -11,16 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.core.config import (
-    AlgorithmConfig,
-    ConfigError,
-    FleetConfig,
-    LearningConfig,
-    parse_config,
-)
+from testbed.core.config import ConfigError
+from testbed.experiments.fleet_config import FleetConfig, parse_config
 from testbed.experiments.protocol import Protocol, run_protocol
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.thresholds import resolve_thresholds
 from testbed.learning import Learner, Transitions
+from testbed.learning.learning_config import LearningConfig
 
 
 @pytest.mark.parametrize("bad", ["q2", "0.75", "q", "quartile", "q-0.1"])

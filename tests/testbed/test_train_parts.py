@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed.core.config import AlgorithmConfig, FleetConfig
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.pretraining import load_transitions, pretrain_key
 from testbed.experiments.protocol import Protocol, pretrain_critics, run_protocol
+from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS, AlgorithmSpec, get_algorithm
 from testbed.fleet.priorities import LEARNED_SIGNALS, PrioritySignals
 

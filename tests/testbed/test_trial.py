@@ -20,6 +20,7 @@ import pytest
 import tomli_w
 import torch
 
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.learners import resume_learner
 from testbed.learning import Learner
 from testbed.records.metrics import summarize
@@ -212,7 +213,7 @@ def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
 
     # the learner resume rebuilds (start + the data replayed + the step's weights) is
     # the learner of a run of the same seed that ended at that step, exactly
-    rebuilt = resume_learner(RunDir(run).read_config(), RunDir(run), state)
+    rebuilt = resume_learner(RunDir(run).read_config(FleetConfig), RunDir(run), state)
     ref = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", "k-ref",
                "--steps", str(state["t"] + 1), cwd=workdir)
     assert ref.returncode == 0, ref.stderr[-3000:]

@@ -27,7 +27,7 @@ import pytest
 from lab_fixtures import calibrate_exactly, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
-from testbed.core.config import FleetConfig
+from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.hardware_twin import HardwareTwinLab
 

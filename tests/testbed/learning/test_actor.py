@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from testbed.core.config import LearningConfig
 from testbed.core.types import IMAGE_SIZE
 from testbed.learning import Learner
+from testbed.learning.learning_config import LearningConfig
 
 pytestmark = pytest.mark.timeout(600)
 

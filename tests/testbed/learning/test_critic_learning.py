@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from synthetic_pushing import Batch, roc_auc, transitions
 
-from testbed.core.config import LearningConfig
 from testbed.learning import Learner, Transitions
+from testbed.learning.learning_config import LearningConfig
 
 CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3)
 STEPS = 100

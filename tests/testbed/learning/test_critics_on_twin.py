@@ -34,8 +34,8 @@ from synthetic_pushing import roc_auc
 
 import sim_twin.cell as cell_module
 import sim_twin.geometry as geometry
-from testbed.core.config import LearningConfig
 from testbed.learning import Learner, Transitions
+from testbed.learning.learning_config import LearningConfig
 
 CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3, augmentation_factor=2)
 POLICY_STEPS = 100

@@ -14,9 +14,9 @@ import pytest
 import torch
 from synthetic_pushing import transitions
 
-from testbed.core.config import LearningConfig
 from testbed.learning import Learner, LearningError, PolicyOutput, Transitions
 from testbed.learning import checkpoint as ckpt
+from testbed.learning.learning_config import LearningConfig
 
 SMALL = LearningConfig(ensemble_size=2, batch_size=16, augmentation_factor=3, lr=1e-3,
                        gradient_steps=2, pretrain_steps=3)

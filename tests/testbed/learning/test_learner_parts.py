@@ -15,13 +15,13 @@ import pytest
 import torch
 from synthetic_pushing import transitions
 
-from testbed.core.config import LearningConfig
 from testbed.experiments.pretraining import CRITICS as OFFLINE_CRITICS
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.fleet.priorities import CRITIC_OF_SIGNAL
 from testbed.learning import Learner, Transitions
 from testbed.learning import checkpoint as ckpt
 from testbed.learning.learner import CRITICS, PARTS
+from testbed.learning.learning_config import LearningConfig
 
 SMALL = LearningConfig(ensemble_size=2, batch_size=16, augmentation_factor=2, lr=1e-3,
                        gradient_steps=2, pretrain_steps=3)

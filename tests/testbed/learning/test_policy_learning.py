@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from synthetic_pushing import HI, LO, expert, render, roc_auc
 
-from testbed.core.config import LearningConfig
 from testbed.learning import Learner
+from testbed.learning.learning_config import LearningConfig
 
 CENTRE = np.array([0.5, 0.5])
 CFG = LearningConfig(ensemble_size=3, batch_size=32, lr=1e-3, gradient_steps=1)

@@ -1,0 +1,185 @@
+"""The humans' config: ``[humans]``, ``[[humans.people]]`` and ``[humans.web]``.
+
+Why here: each room keeps its own schema (``testbed/core/config.py`` loads them all and
+says every error in one line); the humans' is read by the consoles, the scripted humans
+and the report.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Literal, Self
+
+from pydantic import Field, ValidationInfo, field_validator, model_validator
+
+from testbed.core.config import FieldProblem, Name, StrictModel, checking_files, expand_path
+
+__all__ = ["TOKEN_PATTERN", "HumanProfile", "HumansConfig", "WebConsoleConfig"]
+
+TOKEN_PATTERN = re.compile(r"[A-Za-z0-9_-]{16,}")
+"""A web console token: at least 16 characters, URL-safe (it travels in the link)."""
+
+_HOSTNAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?")
+
+
+class WebConsoleConfig(StrictModel):
+    """The browser console (``humans.kind = "web"``, TOML ``[humans.web]``).
+
+    Humans on their own devices come and go: ``grace_s`` and ``away_timeout_s`` bound
+    what an away human costs the fleet (``testbed.core.humans.Presence``). The server binds
+    to loopback unless ``host`` says otherwise: exposing it is a decision the config
+    must state, never a default. Without ``tokens`` each human gets a random token at
+    start (printed as their link). Tokens are credentials: a run's config.toml is
+    written without them (``RunDir.write_config``), so a resumed run makes new ones
+    unless its operator gives the config that has them.
+    """
+
+    host: str = "127.0.0.1"
+    """Bind address (an IP address or a host name); anything but loopback only when set."""
+    port: int = Field(8765, ge=0, le=65535)
+    """TCP port; 0 picks a free one at start."""
+    tokens: list[str] = Field(default_factory=list)
+    """One secret per human (``humans.count`` of them, unique, each >= 16 characters of
+    A-Z a-z 0-9 _ -); empty: a random one per human, made at start."""
+    certfile: str | None = None
+    """TLS certificate (PEM) for https; with ``keyfile``. Expands ``~`` and ``$VARS``."""
+    keyfile: str | None = None
+    """TLS private key (PEM) for https; with ``certfile``. Expands ``~`` and ``$VARS``."""
+    grace_s: float = Field(10.0, ge=0, allow_inf_nan=False)
+    """How long an away human's held intervention goes on before it is released."""
+    away_timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
+    """The longest the fleet waits on an away human's teleop answer in a step."""
+    teleop_timeout_s: float | None = Field(None, gt=0, allow_inf_nan=False)
+    """The longest it waits on a present human's answer (None: as long as it takes)."""
+
+    @field_validator("host")
+    @classmethod
+    def _host(cls, v: str) -> str:
+        import ipaddress
+
+        v = v.strip()
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            if not _HOSTNAME.fullmatch(v) or len(v) > 253:
+                raise ValueError("give an IP address or a host name to bind to, e.g. "
+                                 "127.0.0.1 (this machine only) or 0.0.0.0 (every "
+                                 "interface)") from None
+        return v
+
+    @model_validator(mode="after")
+    def _tokens_and_tls(self, info: ValidationInfo) -> Self:
+        for i, token in enumerate(self.tokens):
+            if not TOKEN_PATTERN.fullmatch(token):
+                # the token itself is a secret: named by its position, never echoed
+                raise FieldProblem(f"tokens[{i}]", f"a token of {len(token)} characters; "
+                                   "each needs >= 16 characters of A-Z a-z 0-9 _ - (e.g. "
+                                   "python -c 'import secrets; print(secrets."
+                                   "token_urlsafe(24))')")
+        if len(set(self.tokens)) != len(self.tokens):
+            raise FieldProblem("tokens", "two humans have the same token; give each "
+                               "human their own")
+        if (self.certfile is None) != (self.keyfile is None):
+            given, missing = (("certfile", "keyfile") if self.keyfile is None
+                              else ("keyfile", "certfile"))
+            raise FieldProblem(missing, f"{given} is set but {missing} is not; https "
+                               "needs both (or neither, for plain http)")
+        for name in ("certfile", "keyfile"):
+            raw = getattr(self, name)
+            if raw is None:
+                continue
+            path = expand_path(raw, name)
+            if checking_files(info) and not Path(path).is_file():
+                shown = repr(path) if path == raw else f"{path!r} (from {raw!r})"
+                raise FieldProblem(name, f"no such file {shown}; fix the path or create it")
+            object.__setattr__(self, name, path)  # frozen: only while validating
+        return self
+
+
+class HumanProfile(StrictModel):
+    """One human of the fleet (TOML ``[[humans.people]]``): a name, and for a scripted
+    human how it behaves.
+
+    The name is how the records and the report know the person (the per-human table);
+    it is recorded in every run (config.toml, run.json ``humans``), so it must never be
+    a secret: a web console's token is a separate field. ``skill``, ``latency`` and
+    ``availability`` describe a *scripted* human (``kind = "scripted"``), so a twin
+    protocol can rehearse operators who differ (``testbed.experiments.scripted_humans``);
+    a person at a console is measured, not described, so they are refused there.
+    """
+
+    name: Name
+    skill: float = Field(1.0, ge=0.0, le=1.0, allow_inf_nan=False)
+    """How often a teleop push is the expert's; otherwise one of the other three faces."""
+    latency: int = Field(0, ge=0, le=1000)
+    """Timesteps from an assignment to the first action (the twin runs as fast as it
+    can, so a latency in seconds would mean nothing there): a teleop's first push comes
+    at its ``latency``-th step, a hard reset takes ``latency`` steps more than t_R."""
+    availability: float = Field(1.0, gt=0.0, le=1.0, allow_inf_nan=False)
+    """The chance, each timestep, that the human can take a new intervention (else they
+    are away for that step's allocation; a held intervention goes on)."""
+
+    @property
+    def scripted_only(self) -> list[str]:
+        """The profile fields set away from a perfect, instant, always-there human."""
+        return [f for f, perfect in (("skill", 1.0), ("latency", 0), ("availability", 1.0))
+                if getattr(self, f) != perfect]
+
+
+class HumansConfig(StrictModel):
+    count: int = Field(2, ge=0, le=1000)
+    kind: Literal["scripted", "gui", "web"] = "scripted"
+    web: WebConsoleConfig = WebConsoleConfig()
+    """The browser console's settings (TOML ``[humans.web]``), read when kind is web."""
+    people: list[HumanProfile] = Field(default_factory=list)
+    """One entry per human, in index order (TOML ``[[humans.people]]``); empty: humans
+    named ``human0``, ``human1``, ... with perfect scripted profiles. Given without
+    ``count``, it sets the count."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _count_from_people(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "count" not in data and isinstance(
+                data.get("people"), list):
+            return {**data, "count": len(data["people"])}
+        return data
+
+    @model_validator(mode="after")
+    def _people(self) -> Self:
+        if self.people and len(self.people) != self.count:
+            raise FieldProblem("people", f"{len(self.people)} people for humans.count = "
+                               f"{self.count}; give one [[humans.people]] per human, or "
+                               "drop count")
+        names = [p.name for p in self.people]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise FieldProblem(f"people[{i}].name", f"{name!r} twice; each human "
+                                   "needs their own name")
+        if self.kind != "scripted":
+            for i, p in enumerate(self.people):
+                if p.scripted_only:
+                    raise FieldProblem(f"people[{i}].{p.scripted_only[0]}", "describes a "
+                                       f"scripted human, and humans.kind is {self.kind!r}: "
+                                       "a person at a console is measured, not described")
+        return self
+
+    @property
+    def names(self) -> list[str]:
+        """Each human's name, by index."""
+        return [p.name for p in self.people] or [f"human{i}" for i in range(self.count)]
+
+    @property
+    def profiles(self) -> list[HumanProfile]:
+        """Each human's profile, by index (perfect ones when ``people`` is empty)."""
+        return list(self.people) or [HumanProfile(name=n) for n in self.names]
+
+    @model_validator(mode="after")
+    def _one_token_per_human(self) -> Self:
+        tokens = self.web.tokens
+        if tokens and len(tokens) != self.count:
+            given = f"{len(tokens)} token{'s' if len(tokens) != 1 else ''}"
+            raise FieldProblem("web.tokens", f"{given} for humans.count = {self.count}; "
+                               "give one per human, or none (random ones are made at "
+                               "start)")
+        return self
