@@ -190,9 +190,25 @@ def resume_options(resume: Path) -> tuple[FleetConfig, TrialOptions]:
     if not run.state.exists():
         raise ConfigError(f"--resume: {resume}: no checkpoint yet (state.json); start a new "
                           "trial")
+    check_store_appendable(resume)
     check_device(cfg)
     check_humans(opts.humans, cfg, teleop=not opts.evaluate)
     return cfg, opts
+
+
+def check_store_appendable(resume: Path) -> None:
+    """A run whose data store has another frame layout (written by a build of another
+    format) is refused before anything starts: resuming would append frames of this
+    build's size under the stored dtype."""
+    from testbed.records import store
+
+    folder = resume / store.FOLDER
+    if not (folder / store.META).exists():
+        return
+    try:
+        store.check_appendable(folder, store.read_meta(folder))
+    except store.RunDataError as exc:
+        raise ConfigError(f"--resume: {exc}") from None
 
 
 def with_pretrain_steps(cfg: FleetConfig, steps: int | None) -> FleetConfig:

@@ -68,7 +68,8 @@ from testbed.records.store import RunDataWriter
 class LearnerLike(Protocol):
     def act(self, images: np.ndarray) -> Any: ...
 
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None: ...
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None: ...
 
     def add_transitions(
         self,

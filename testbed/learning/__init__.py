@@ -29,16 +29,17 @@ if TYPE_CHECKING:
     from testbed.learning.learner import Learner
     from testbed.learning.runtime import LearningError
 
-for _package in ("torch", "kornia"):  # a host install says so in one line, at once
-    if importlib.util.find_spec(_package) is None:
-        raise needs_operator("testbed.learning", ModuleNotFoundError(
-            f"No module named {_package!r}", name=_package))
-
 __all__ = ["EnsembleImpl", "Learner", "LearningError", "PolicyOutput", "ProgressFn", "Transitions"]
 
 def __getattr__(name: str) -> Any:
     """``Learner`` and the rest, imported (with torch) when first asked for, so that the
-    room's config (``learning_config.py``) loads without torch."""
+    room's config (``learning_config.py``) loads without torch. On a host install (no
+    torch, no kornia) asking for any of them says so in one line."""
+    if name in __all__:
+        for package in ("torch", "kornia"):
+            if importlib.util.find_spec(package) is None:
+                raise needs_operator("testbed.learning", ModuleNotFoundError(
+                    f"No module named {package!r}", name=package))
     if name == "EnsembleImpl":
         from testbed.learning.api import EnsembleImpl as found
     elif name == "PolicyOutput":

@@ -24,7 +24,7 @@ transition yet gives its share to the uniform part.
 from __future__ import annotations
 
 import hashlib
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import torch
@@ -72,8 +72,15 @@ def _digest(t: Tensor) -> str:
     return hashlib.blake2b(t.contiguous().numpy().data, digest_size=16).hexdigest()
 
 
+NO_LABELLER: Final = -1
+"""The labeller of a label no human of the fleet gave (theta_0's offline demonstrations)."""
+
+
 class PolicyData:
-    """Human-labelled (image, action) pairs, each with ``factor`` stored copies."""
+    """Human-labelled (image, action) pairs, each with ``factor`` stored copies, and who
+    gave each label (``labellers``: the fleet's human index, ``NO_LABELLER`` for an
+    offline demonstration), kept for learning that weighs labels by their labeller; the
+    sampling does not read it."""
 
     def __init__(self, ensemble_size: int, factor: int, seed: int) -> None:
         self.ensemble_size = ensemble_size
@@ -87,6 +94,7 @@ class PolicyData:
             "images": ((self.factor, *IMAGE_SHAPE), torch.uint8),
             "actions": ((), torch.int64),
             "weights": ((self.ensemble_size,), torch.float32),
+            "labellers": ((), torch.int16),
         }, capacity)
 
     def __len__(self) -> int:
@@ -97,10 +105,11 @@ class PolicyData:
         """``add`` calls so far (each chunk's augmentation seed follows from its index)."""
         return len(self._chunks)
 
-    def add(self, images: np.ndarray, actions: np.ndarray, chunk_seed: int | None = None
-            ) -> None:
-        """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,). The copies
-        and bootstrap weights come from ``chunk_seed`` (default: derived from the data's
+    def add(self, images: np.ndarray, actions: np.ndarray, chunk_seed: int | None = None,
+            labellers: np.ndarray | None = None) -> None:
+        """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,), each
+        labelled by ``labellers`` (N,) (default: ``NO_LABELLER``). The copies and
+        bootstrap weights come from ``chunk_seed`` (default: derived from the data's
         seed and the chunk's index)."""
         n = int(images.shape[0])
         if n == 0:
@@ -110,7 +119,10 @@ class PolicyData:
         gen = torch.Generator().manual_seed(chunk_seed)
         copies = augment_copies(torch.from_numpy(images), self.factor, gen)
         weights = torch.poisson(torch.ones(n, self.ensemble_size), generator=gen)
-        self._store.append(images=copies, actions=torch.from_numpy(actions), weights=weights)
+        who = (np.full(n, NO_LABELLER) if labellers is None
+               else np.asarray(labellers).reshape(n))
+        self._store.append(images=copies, actions=torch.from_numpy(actions), weights=weights,
+                           labellers=torch.from_numpy(who.astype(np.int16)))
         self._chunks.append((n, chunk_seed, _digest(copies)))
 
     def sample(self, batch: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
@@ -129,6 +141,10 @@ class PolicyData:
         copy = torch.randint(self.factor, index.shape, generator=gen)
         return self._store["images"][index, copy], self._store["actions"][index]
 
+    def labellers(self) -> np.ndarray:
+        """Who gave each label, in the order added (int16 (N,); -1: no human)."""
+        return self._store["labellers"].numpy().copy()
+
     def originals(self) -> np.ndarray:
         """The labelled images as they were added (uint8 (N, 64, 64, 3), a copy)."""
         return self._store["images"][:, 0].numpy().copy()
@@ -140,6 +156,7 @@ class PolicyData:
             "originals": self._store["images"][:, 0].clone(),
             "actions": self._store["actions"].clone(),
             "weights": self._store["weights"].clone(),
+            "labellers": self._store["labellers"].clone(),
             "chunks": [list(c) for c in self._chunks],
         }
 
@@ -147,6 +164,9 @@ class PolicyData:
         """Rebuild from originals; returns whether the re-made copies match the digests."""
         originals = state["originals"].numpy()
         actions = state["actions"].numpy()
+        who = state.get("labellers")  # checkpoints before labellers were kept: unknown
+        labellers = (np.full(originals.shape[0], NO_LABELLER) if who is None
+                     else who.numpy())
         start = 0
         self._store = self._new_store(capacity=max(256, originals.shape[0]))
         self._chunks = []
@@ -157,7 +177,8 @@ class PolicyData:
             entry = [chunk] if isinstance(chunk, int) else list(chunk)
             size = int(entry[0])
             seed = int(entry[1]) if len(entry) > 1 else derive_seed(self.seed, STREAM_AUGMENT, i)
-            self.add(originals[start : start + size], actions[start : start + size], seed)
+            self.add(originals[start : start + size], actions[start : start + size], seed,
+                     labellers[start : start + size])
             if len(entry) > 2:
                 same = same and self._chunks[-1][2] == entry[2]
             start += size

@@ -267,12 +267,24 @@ class Learner:
             }
 
     # ------------------------------------------------------------------ data
-    def add_human(self, images: npt.ArrayLike, actions: npt.ArrayLike) -> None:
-        """Human-labelled (image, action) pairs for the policy, stored x factor augmented."""
+    def add_human(self, images: npt.ArrayLike, actions: npt.ArrayLike,
+                  humans: npt.ArrayLike | None = None) -> None:
+        """Human-labelled (image, action) pairs for the policy, stored x factor augmented;
+        ``humans``: who gave each label (the fleet's human index; None: no human of the
+        fleet, e.g. an offline demonstration), kept beside it (``label_humans``)."""
         arr = check_images(images)
         acts = check_actions(actions, arr.shape[0])
+        who = None if humans is None else np.asarray(humans, dtype=np.int64).reshape(-1)
+        if who is not None and who.shape[0] != arr.shape[0]:
+            raise ValueError(f"humans: {who.shape[0]} labellers for {arr.shape[0]} labels")
         with self._lock:
-            self.policy_data.add(arr, acts)
+            self.policy_data.add(arr, acts, labellers=who)
+
+    @property
+    def label_humans(self) -> np.ndarray:
+        """Who gave each of the policy's labels, in the order added (-1: no human)."""
+        with self._lock:
+            return self.policy_data.labellers()
 
     def add_transitions(
         self,

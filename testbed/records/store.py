@@ -42,7 +42,12 @@ import numpy as np
 from testbed.core.atomic import atomic_write_json, fsync_dir
 from testbed.core.types import IMAGE_SIZE, Mode
 
-FORMAT: Final = "testbed.rundata/1"
+FORMAT_FAMILY: Final = "testbed.rundata/"
+FORMAT_VERSION: Final = 1
+"""The frame layout's version: bumped with every change of ``FRAME_DTYPE`` (a test pins
+each version's layout). Data of an older version stays readable (its dtype is in its
+meta.json); only this version's data is appended to (a resume)."""
+FORMAT: Final = f"{FORMAT_FAMILY}{FORMAT_VERSION}"
 FOLDER: Final = "data"
 META: Final = "meta.json"
 MODES: Final[tuple[str, ...]] = tuple(m.value for m in Mode)
@@ -88,9 +93,27 @@ def read_meta(folder: Path) -> dict[str, Any]:
     if not p.exists():
         raise RunDataError(f"{folder}: no {META}: not a run's data folder")
     meta = json.loads(p.read_text())
-    if meta.get("format") != FORMAT:
-        raise RunDataError(f"{p}: format {meta.get('format')!r}, expected {FORMAT}")
+    fmt = meta.get("format")
+    version = fmt.removeprefix(FORMAT_FAMILY) if isinstance(fmt, str) else ""
+    if not isinstance(fmt, str) or not fmt.startswith(FORMAT_FAMILY) or not version.isdigit():
+        raise RunDataError(f"{p}: format {fmt!r}, not a run's data ({FORMAT_FAMILY}N)")
+    if int(version) > FORMAT_VERSION:
+        raise RunDataError(f"{p}: format {fmt}, written by a newer build than this one "
+                           f"({FORMAT}); read it with that build")
     return meta
+
+
+def check_appendable(folder: Path, meta: dict[str, Any]) -> None:
+    """RunDataError (one line) unless this build's frames may be appended to ``folder``:
+    the same format version and frame layout, else a resume would write frames of
+    another size under the stored dtype."""
+    if meta.get("format") == FORMAT and meta.get("dtype") == frame_layout():
+        return
+    raise RunDataError(
+        f"{folder}: its frames are format {meta.get('format')} ({len(meta.get('dtype', []))} "
+        f"fields), this build writes {FORMAT} ({len(frame_layout())} fields); a run is "
+        "resumed only by a build of its own format: finish it with the build that wrote "
+        "it (run.json code), or keep its data (testbed export) and start a new run")
 
 
 def dtype_of(meta: dict[str, Any]) -> np.dtype:
@@ -99,7 +122,8 @@ def dtype_of(meta: dict[str, Any]) -> np.dtype:
                      for name, kind, shape in meta["dtype"]])
 
 
-def _descr() -> list[list[Any]]:
+def frame_layout() -> list[list[Any]]:
+    """``FRAME_DTYPE`` as meta.json records it: [name, numpy type, shape] per field."""
     fields = FRAME_DTYPE.fields or {}
     return [[name, fields[name][0].base.str, list(fields[name][0].shape)]
             for name in FRAME_DTYPE.names or ()]
@@ -170,6 +194,7 @@ class RunDataWriter:
         self.robots = list(robots)
         if (self.folder / META).exists():
             meta = read_meta(self.folder)
+            check_appendable(self.folder, meta)
             if meta["robots"] != self.robots:
                 raise RunDataError(f"{self.folder}: written for robots {meta['robots']}, "
                                    f"not {self.robots}")
@@ -180,7 +205,7 @@ class RunDataWriter:
             atomic_write_json(self.folder / META, {
                 "format": FORMAT, "robots": self.robots,
                 "steps_per_chunk": self.steps_per_chunk, "modes": list(MODES),
-                "dtype": _descr(), "itemsize": FRAME_DTYPE.itemsize,
+                "dtype": frame_layout(), "itemsize": FRAME_DTYPE.itemsize,
             })
         self.steps = self._cut(keep_steps)
         self._file: Any = None
@@ -237,7 +262,8 @@ class RunDataWriter:
 
 # ----------------------------------------------------------------- the learner's data
 class DataSink(Protocol):
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None: ...
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None: ...
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray,
                         next_images: np.ndarray, violation: np.ndarray,
@@ -261,10 +287,12 @@ def add_transitions(sink: DataSink, prev: np.ndarray, observed: np.ndarray,
 
 
 def add_labels(sink: DataSink, frames: np.ndarray) -> None:
-    """The policy's human labels of one step: every teleop push."""
+    """The policy's human labels of one step: every teleop push, with who gave it (the
+    frame's ``human``), so a learner can weigh a label by its labeller."""
     teleop = (frames["mode"] == _TELEOP) & (frames["action"] >= 0)
     if teleop.any():
-        sink.add_human(frames["image"][teleop], frames["action"][teleop].astype(np.int64))
+        sink.add_human(frames["image"][teleop], frames["action"][teleop].astype(np.int64),
+                       humans=frames["human"][teleop].astype(np.int64))
 
 
 def replay(sink: DataSink, data: RunData, steps: int) -> None:

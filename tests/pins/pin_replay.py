@@ -135,9 +135,10 @@ class RecordingLearner(_CallLog):
         self.trace["signals"] = {k: _floats(v) for k, v in sorted(got.items())}
         return got
 
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None:
         self._log_add_human(images, actions)
-        self.learner.add_human(images, actions)
+        self.learner.add_human(images, actions, humans)
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray,
                         next_images: np.ndarray, violation: np.ndarray,
@@ -205,7 +206,8 @@ class ReplayLearner(_CallLog):
             raise AssertionError(f"{self.run}: signals_on_data was not called when recorded")
         return {k: np.asarray(v, dtype=np.float32) for k, v in signals.items()}
 
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None:
         self._log_add_human(images, actions)
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray,

@@ -70,7 +70,8 @@ class _Learner:
         return SimpleNamespace(actions=np.full(n, 2), uncertainty=u, risk=z, goal_risk=z,
                                novelty=z)
 
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None:
         return None
 
     def add_transitions(self, *args: Any) -> None:

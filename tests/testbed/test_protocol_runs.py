@@ -166,7 +166,8 @@ class _Learner:
         return SimpleNamespace(actions=np.full(n, 2), uncertainty=z, risk=z, goal_risk=z,
                                novelty=z)
 
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None:
         raise AssertionError("no human label expected")
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray, *rest: Any) -> None:

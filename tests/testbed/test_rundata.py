@@ -3,6 +3,8 @@ cuts, and the replay that gives a resumed learner exactly what the loop gave it.
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -55,6 +57,45 @@ def test_frames_round_trip_across_chunks_and_a_torn_record_is_dropped(
     with open(tmp_path / "data" / "frames-00002.bin", "ab") as f:
         f.write(_step(8).tobytes()[: FRAME_DTYPE.itemsize * 2 + 100])
     assert RunData.of_run(tmp_path).num_steps == 8
+
+
+def test_a_store_of_another_frame_layout_is_read_but_never_appended_to(
+        tmp_path: Path) -> None:
+    """A run written by a build whose frame had other fields: its data stays readable
+    (export, report), and a resume, which would append frames of this build's layout
+    under the stored one, is refused in one line naming both formats; nothing changes."""
+    w = RunDataWriter(tmp_path, ARMS)
+    w.append(_step(0))
+    w.close()
+    meta_path = tmp_path / "data" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    old = dict(meta, format="testbed.rundata/0", dtype=[*meta["dtype"][:-2], meta["dtype"][-1]])
+    meta_path.write_text(json.dumps(old))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "data").iterdir()}
+    with pytest.raises(RunDataError) as err:
+        RunDataWriter(tmp_path, ARMS, keep_steps=1)
+    assert str(err.value).startswith(f"{tmp_path / 'data'}: its frames are format "
+                                     "testbed.rundata/0 (13 fields), this build writes "
+                                     f"{rundata.FORMAT} (14 fields)")
+    assert {p.name: p.read_bytes() for p in (tmp_path / "data").iterdir()} == before
+    assert RunData.of_run(tmp_path).dtype.names == tuple(n for n, _, _ in old["dtype"])
+    meta_path.write_text(json.dumps(dict(meta, format="testbed.rundata/99")))
+    with pytest.raises(RunDataError, match="written by a newer build"):
+        RunData.of_run(tmp_path)
+
+
+def test_the_frame_layout_changes_only_with_the_format_version() -> None:
+    """FRAME_DTYPE is the data store's format: a field added (docs/ARCHITECTURE.md, "A
+    new field in every step") must come with a new ``FORMAT`` version, so that a resume
+    of an older run is refused instead of appending frames of another size. The digest
+    of each version's layout is recorded here; a change of layout under the same
+    version fails until ``FORMAT`` is bumped and its digest added."""
+    layouts = {"testbed.rundata/1":
+               "9058da8d19d3392031af1ac38bb2cf89df57818d4c90ce91248f18f8d0e408d9"}
+    digest = hashlib.sha256(json.dumps(rundata.frame_layout()).encode()).hexdigest()
+    assert layouts.get(rundata.FORMAT) == digest, (
+        f"FRAME_DTYPE is not the layout of {rundata.FORMAT}: bump FORMAT in "
+        f"testbed/records/store.py and record {digest} for it here")
 
 
 def test_resume_cuts_the_store_back_to_the_checkpoint_and_appends_in_order(
@@ -132,8 +173,10 @@ class _Recorder:
         z = np.zeros(n, np.float32)
         return PolicyOutput(images.reshape(n, -1)[:, 1].astype(np.int64) % 4, probs, u, z, z, z)
 
-    def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
-        self.calls.append(("human", [np.array(images), np.array(actions)]))
+    def add_human(self, images: np.ndarray, actions: np.ndarray,
+                  humans: np.ndarray | None = None) -> None:
+        assert humans is not None  # the labeller travels with every label
+        self.calls.append(("human", [np.array(images), np.array(actions), np.array(humans)]))
 
     def add_transitions(self, *columns: np.ndarray) -> None:
         self.calls.append(("transitions", [np.array(c) for c in columns]))
@@ -183,5 +226,35 @@ def test_replay_gives_what_the_loop_gave_its_learner_across_a_resume(tmp_path: P
     replayed = _Recorder()
     rundata.replay(replayed, stored, 9)
     assert _same_calls(live, replayed)  # with no transition from step 4 into step 5
+    # who gave each label reached the learner: the rows' teleop humans, in order
+    given = np.concatenate([c[2] for k, c in live.calls if k == "human"]).tolist()
+    assert given == [r["human"] for row in rows for r in row["robots"]
+                     if r["mode"] == "teleop" and r["action"] is not None]
+    assert set(given) <= {0, 1} and given
     with pytest.raises(RunDataError, match="9 steps on disk"):
         rundata.replay(_Recorder(), stored, 10)
+
+
+@pytest.mark.slow
+def test_resuming_a_run_of_another_frame_layout_is_one_line_and_loses_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from testbed.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tiny.toml").write_text(
+        '[trial]\nsteps = 3\n[learning]\nensemble_size = 2\nbatch_size = 8\ndemos = 8\n'
+        'critic_transitions = 8\npretrain_steps = 1\n[humans]\ncount = 1\n'
+        '[[hosts]]\nname = "cell0"\n')
+    assert main(["trial", "--config", "tiny.toml", "--out", "runs", "--name", "old"]) == 0
+    run = tmp_path / "runs" / "old"
+    meta = json.loads((run / "data" / "meta.json").read_text())
+    meta["format"], meta["dtype"] = "testbed.rundata/0", meta["dtype"][:-1]
+    (run / "data" / "meta.json").write_text(json.dumps(meta))
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main(["trial", "--resume", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(
+        f"testbed trial: --resume: {run / 'data'}: its frames are format testbed.rundata/0")
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before

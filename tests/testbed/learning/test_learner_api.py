@@ -338,3 +338,29 @@ def test_training_state_into_an_old_one_reuses_its_tensors_and_equals_a_fresh_on
         p.add_(1.0)  # the learner's weights move on; the snapshot does not
     assert not torch.equal(learner.training_state()["policy"][next(iter(fresh["policy"]))],
                            again["policy"][next(iter(fresh["policy"]))])
+
+
+def test_who_gave_each_label_is_kept_saved_and_loaded(tmp_path: Path) -> None:
+    """The labeller reaches the learner with every label (``records.store.add_labels``
+    passes the frame's human), is kept beside it through a checkpoint, and changes no
+    number: a learner given the same labels without their labellers trains the same."""
+    rng = np.random.default_rng(3)
+    b = transitions(12, rng)
+    with_who, without = Learner(SMALL, 5), Learner(SMALL, 5)
+    with_who.add_human(b.images[:4], b.actions[:4])  # an offline demonstration: no human
+    with_who.add_human(b.images[4:], b.actions[4:], humans=[0, 1, 1, 0, 1, 1, 0, 1])
+    without.add_human(b.images[:4], b.actions[:4])
+    without.add_human(b.images[4:], b.actions[4:])
+    assert with_who.label_humans.tolist() == [-1] * 4 + [0, 1, 1, 0, 1, 1, 0, 1]
+    assert without.label_humans.tolist() == [-1] * 12
+    with_who.train_step()
+    without.train_step()
+    assert same(params(with_who), params(without))
+    loaded = Learner.load(with_who.save(tmp_path / "who.pt"))
+    assert loaded.label_humans.tolist() == with_who.label_humans.tolist()
+    with pytest.raises(ValueError, match="3 labellers for 2 labels"):
+        with_who.add_human(b.images[:2], b.actions[:2], humans=[0, 1, 1])
+    state = with_who.policy_data.state_dict()
+    del state["labellers"]  # a checkpoint written before labellers were kept
+    assert with_who.policy_data.load_state_dict(state)
+    assert with_who.label_humans.tolist() == [-1] * 12
