@@ -35,7 +35,7 @@ import numpy as np
 
 from testbed.core.types import IMAGE_SIZE, Mode
 from testbed.datasets.sources import Sources, load_demos
-from testbed.records.store import MODES, RunData
+from testbed.records.store import FRAME_DTYPE, MODES, RunData
 
 FORMAT: Final = "testbed.export/1"
 """``format`` of the codes' description (meta/testbed.json, an npz's ``meta``)."""
@@ -64,6 +64,9 @@ COLUMNS: Final[tuple[tuple[str, str, tuple[int, ...]], ...]] = (
     ("source_index", "int64", ()),
 )
 """Per-frame labels beside the image: (name, numpy dtype, shape of one frame's value)."""
+
+STORE_COLUMNS: Final = tuple(n for n in FRAME_DTYPE.names or () if n not in ("t", "image"))
+"""The data store's fields exported under their own names (``t`` is ``step``)."""
 
 INDEX_COLUMNS: Final[tuple[tuple[str, str], ...]] = (
     ("timestamp", "float32"), ("frame_index", "int64"), ("episode_index", "int64"),
@@ -151,15 +154,10 @@ def run_episodes(run: Path, steps: int, source_index: int) -> Iterator[Episode]:
         starts = np.flatnonzero(episode_starts(f))
         for lo, hi in zip(starts, [*starts[1:], len(f)], strict=True):
             e = f[lo:hi]
-            cols = {
-                "action": e["action"], "intervention": _intervention(e["mode"]),
-                "mode": e["mode"], "human": e["human"], "success": e["success"],
-                "violation": e["violation"], "observed": e["observed"],
-                "uncertainty": e["uncertainty"], "risk": e["risk"], "goal": e["goal"],
-                "wall_time": e["wall_time"], "step": e["t"], "arm": e["arm"],
-                "session": e["session"],
-                "source_index": np.full(len(e), source_index),
-            }
+            # every field of the store under its own name (a new one too), t as step
+            cols = {name: e[name] for name in STORE_COLUMNS}
+            cols.update(step=e["t"], intervention=_intervention(e["mode"]),
+                        source_index=np.full(len(e), source_index))
             yield Episode(_typed(cols), np.ascontiguousarray(e["image"]),
                           goal_task(e["goal"], e["observed"]), source_index, robot)
 

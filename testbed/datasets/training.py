@@ -27,6 +27,8 @@ class TrainingData:
 
     images: np.ndarray
     actions: np.ndarray
+    humans: np.ndarray
+    """Who gave each label (the run's human index; -1 an offline demonstration)."""
     transitions: dict[str, np.ndarray]
     """``testbed.experiments.pretraining.FIELDS`` -> arrays."""
 
@@ -35,6 +37,7 @@ class TrainingData:
         return TrainingData(
             np.concatenate([p.images for p in parts]),
             np.concatenate([p.actions for p in parts]),
+            np.concatenate([p.humans for p in parts]),
             {k: np.concatenate([p.transitions[k] for p in parts]) for k in DEMO_FIELDS})
 
 
@@ -51,7 +54,7 @@ def training_data(frames: Frames) -> TrainingData:
     pair = np.flatnonzero(pushed[:-1] & same & (c["step"][1:] == c["step"][:-1] + 1)
                           & c["observed"][1:])
     return TrainingData(
-        frames.images[label], c["action"][label],
+        frames.images[label], c["action"][label], c["human"][label].astype(np.int64),
         {"images": frames.images[pair], "actions": c["action"][pair],
          "next_images": frames.images[pair + 1], "violation": c["violation"][pair],
          "success": c["success"][pair]})

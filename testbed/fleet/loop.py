@@ -58,7 +58,7 @@ from testbed.core.types import (
 from testbed.fleet.algorithms import Algorithm
 from testbed.fleet.allocator import Allocator
 from testbed.fleet.interventions import FirstActions
-from testbed.fleet.priorities import PrioritySignals
+from testbed.fleet.priorities import LEARNED_SIGNALS, PrioritySignals
 from testbed.records import store as rundata
 from testbed.records.step_record import ArmStep, StepRecord
 from testbed.records.steps import RunWriter
@@ -208,15 +208,13 @@ class FleetLoop:
         faulted = np.array([not isinstance(observations.get(r), ArmObservation)
                             for r in self.robots])
         available, away, released = self._presence(t)
-        signals = PrioritySignals(
+        signals = PrioritySignals(  # every learned signal, by its name in PolicyOutput
             t=t,
             violating=violating & ~faulted,
-            uncertainty=np.asarray(out.uncertainty, dtype=float),
-            risk=np.asarray(out.risk, dtype=float),
-            goal_risk=np.asarray(out.goal_risk, dtype=float),
-            novelty=np.asarray(out.novelty, dtype=float),
             faulted=faulted,
             available=available,
+            **{name: np.asarray(getattr(out, name), dtype=float)
+               for name in sorted(LEARNED_SIGNALS)},
         )
         assignment = self.algorithm.step(signals)
         keys = np.asarray(self.algorithm.last_keys, dtype=float)

@@ -364,6 +364,7 @@ class Learner:
         steps: int | None = None,
         progress: ProgressFn | None = None,
         critics: Iterable[str] | None = None,
+        demo_humans: npt.ArrayLike | None = None,
     ) -> dict[str, float]:
         """Offline training (``testbed pretrain``), in the order the data arrives:
 
@@ -378,6 +379,8 @@ class Learner:
         ``cfg.pretrain_steps``. Returns the mean losses over the last 20 steps of each
         phase run (no key for a phase that ran no step). With ``steps`` None the critics
         take ``cfg.critic_steps`` (``critic_pretrain_steps``, else ``pretrain_steps``).
+        ``demo_humans``: who gave each demo label (``add_human``'s ``humans``; exported
+        runs' teleop labels keep their labeller, offline demonstrations are -1).
         """
         total = self.cfg.pretrain_steps if steps is None else int(steps)
         critic_total = self.cfg.critic_steps if steps is None else int(steps)
@@ -387,7 +390,8 @@ class Learner:
         result: dict[str, float] = {}
         with self._lock:
             if demo_images is not None:
-                self.add_human(demo_images, demo_actions)  # type: ignore[arg-type]
+                self.add_human(demo_images, demo_actions,  # type: ignore[arg-type]
+                               humans=demo_humans)
                 tail = [self._policy_update() for _ in _ticks("policy", total, progress)]
                 if tail:
                     result["policy_loss"] = float(np.mean(tail[-20:]))

@@ -209,12 +209,14 @@ def check_frames(rows: list[dict[str, Any]], images: np.ndarray, run: Path,
             assert (r["source_index"], r["arm"], r["mode"]) == (1, -1, MODES.index("teleop"))
             continue
         f = by_key[(r["arm"], r["step"])]
-        for name in ("session", "observed", "mode", "human", "action", "success",
-                     "violation"):
-            assert r[name] == f[name], (name, r, f)
-        for name in ("uncertainty", "risk", "wall_time"):
-            assert np.allclose(r[name], f[name], **nan_equal), (name, r)
-        assert np.allclose(np.asarray(r["goal"], np.float32), f["goal"], **nan_equal)
+        # Every field of the store (a new one too: the checklist "A new field in every
+        # step" of docs/ARCHITECTURE.md), t as step, the image below.
+        for name in set(FRAME_DTYPE.names or ()) - {"t", "image"}:
+            if FRAME_DTYPE[name].base.kind == "f":
+                assert np.allclose(np.asarray(r[name], FRAME_DTYPE[name].base), f[name],
+                                   **nan_equal), (name, r)
+            else:
+                assert np.array_equal(r[name], f[name]), (name, r, f)
         human = MODES[f["mode"]] in ("teleop", "reset")
         assert r["intervention"] == (episodes.HUMAN if human else episodes.POLICY)
         if exact_images:
@@ -341,10 +343,14 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
     class Sink:
         def __init__(self) -> None:
             self.labels: list[np.ndarray] = []
+            self.humans: list[np.ndarray] = []
             self.trans: list[tuple[np.ndarray, ...]] = []
 
-        def add_human(self, images: np.ndarray, actions: np.ndarray) -> None:
+        def add_human(self, images: np.ndarray, actions: np.ndarray,
+                      humans: np.ndarray | None = None) -> None:
+            assert humans is not None
             self.labels.append(actions)
+            self.humans.append(humans)
 
         def add_transitions(self, *cols: np.ndarray) -> None:
             self.trans.append(cols)
@@ -353,6 +359,9 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
     replay(sink, RunData.of_run(run), STEPS)
     data = training_data(dataset_io.load_frames(run))
     assert len(data.actions) == TELEOP_LABELS + DEMOS == sum(map(len, sink.labels)) + DEMOS
+    # who gave each label, as the learner had it; the demonstrations: no human (-1)
+    assert sorted(data.humans[data.humans >= 0]) == sorted(np.concatenate(sink.humans))
+    assert (data.humans == -1).sum() == DEMOS and len(set(data.humans[data.humans >= 0])) > 0
 
     def keyed(images: np.ndarray, actions: np.ndarray, nxt: np.ndarray, v: np.ndarray,
               s: np.ndarray) -> list[tuple[Any, ...]]:
@@ -534,3 +543,4 @@ def test_frame_dtype_fields_all_exported() -> None:
     """Every data store field has a column (t as step, image as the image)."""
     cols = {n for n, _, _ in episodes.COLUMNS}
     assert set(FRAME_DTYPE.names or ()) - {"t", "image"} <= cols and "step" in cols
+    assert set(episodes.STORE_COLUMNS) == set(FRAME_DTYPE.names or ()) - {"t", "image"}
