@@ -17,6 +17,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+from loop_fakes import QuietLearner
 
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
 from testbed.experiments.build import shared_cells
@@ -55,22 +56,12 @@ class _Hosts:
         return out
 
 
-class _Learner:
+class _Learner(QuietLearner):
     def act(self, images: np.ndarray) -> Any:
         n = len(images)
         z = np.zeros(n)
         return SimpleNamespace(actions=np.full(n, 2), uncertainty=z, risk=z, goal_risk=z,
                                novelty=z)
-
-    def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
-        return None
-
-    def add_transitions(self, *args: Any) -> None:
-        return None
-
-    def train_step(self) -> dict[str, float]:
-        return {}
 
 
 def _run(tmp: Path, cells: Mapping[str, str]) -> tuple[_Hosts, list[dict[str, Any]]]:

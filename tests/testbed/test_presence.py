@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from loop_fakes import QuietLearner
 
 from testbed.core.humans import Humans, Presence, presence_of
 from testbed.core.types import (
@@ -55,7 +56,7 @@ class _Hosts:
         return {r: PushResult(r, pushes.get(r), False, False) for r in ARMS}
 
 
-class _Learner:
+class _Learner(QuietLearner):
     """Acts with push 2; ``uncertainty(t)`` gives C.U.R.'s u per arm (its keys)."""
 
     def __init__(self, uncertainty: Callable[[int], list[float]]) -> None:
@@ -69,16 +70,6 @@ class _Learner:
         z = np.zeros(n)
         return SimpleNamespace(actions=np.full(n, 2), uncertainty=u, risk=z, goal_risk=z,
                                novelty=z)
-
-    def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
-        return None
-
-    def add_transitions(self, *args: Any) -> None:
-        return None
-
-    def train_step(self) -> dict[str, float]:
-        return {}
 
 
 class AwayHumans:

@@ -17,6 +17,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+from loop_fakes import QuietLearner
 
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
 from testbed.experiments.scripted_humans import ScriptedHumans
@@ -43,7 +44,7 @@ class _Hosts:
         return {r: PushResult(r, pushes.get(r), False, False) for r in ARMS}
 
 
-class _Learner:
+class _Learner(QuietLearner):
     """Every learned signal a value of its own: signal k of arm i is (k + 1) + i / 10."""
 
     def act(self, images: np.ndarray) -> Any:
@@ -51,16 +52,6 @@ class _Learner:
         values = {name: (k + 1) + np.arange(n) / 10
                   for k, name in enumerate(sorted(LEARNED_SIGNALS))}
         return SimpleNamespace(actions=np.full(n, 2), **values)
-
-    def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
-        return None
-
-    def add_transitions(self, *args: Any) -> None:
-        return None
-
-    def train_step(self) -> dict[str, float]:
-        return {}
 
 
 class _Recording:

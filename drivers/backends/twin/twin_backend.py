@@ -27,7 +27,23 @@ from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from testbed.core.types import IMAGE_SIZE
 
 
-class TwinBackend(HostBackend):
+class _TwinArms(HostBackend):
+    """The arms of a twin cell, as its agent was started with them (both twins)."""
+
+    def __init__(self, arms: Sequence[str], mirror: Sequence[bool]) -> None:
+        self._arms = tuple(arms)
+        self._mirror = tuple(bool(m) for m in mirror)
+
+    @property
+    def arm_names(self) -> tuple[str, ...]:
+        return self._arms
+
+    @property
+    def mirror(self) -> tuple[bool, ...]:
+        return self._mirror
+
+
+class TwinBackend(_TwinArms):
     """One ``sim_twin.TwinCell`` (its arms share one simulated camera)."""
 
     kind = "twin"
@@ -39,9 +55,8 @@ class TwinBackend(HostBackend):
             from sim_twin.cell import TwinCell  # pybullet only in the agent
 
             cell_factory = TwinCell
+        super().__init__(arms, mirror)
         self._factory = cell_factory
-        self._arms = tuple(arms)
-        self._mirror = tuple(bool(m) for m in mirror)
         self._cell = self._new_cell(seed)
         self._pushed_since_rest = False
         self._closed = False
@@ -58,14 +73,6 @@ class TwinBackend(HostBackend):
         old, self._cell = self._cell, self._new_cell(seed)
         self._pushed_since_rest = False
         old.close()
-
-    @property
-    def arm_names(self) -> tuple[str, ...]:
-        return self._arms
-
-    @property
-    def mirror(self) -> tuple[bool, ...]:
-        return self._mirror
 
     def prepare(self) -> None:
         """Render and read the next views now (after a push or reset, while the controller
@@ -138,7 +145,7 @@ def canned_image(arm_index: int, cube_xy: tuple[float, float], goal_xy: tuple[fl
     return img
 
 
-class CannedTwinBackend(HostBackend):
+class CannedTwinBackend(_TwinArms):
     """No physics: fixed images and seeded outcomes (``--no-physics``, benchmarks)."""
 
     kind = "twin-canned"
@@ -147,8 +154,7 @@ class CannedTwinBackend(HostBackend):
                  mirror: Sequence[bool] = (False, True)) -> None:
         from drivers.wire import encode_image
 
-        self._arms = tuple(arms)
-        self._mirror = tuple(bool(m) for m in mirror)
+        super().__init__(arms, mirror)
         self.reseed(seed)
         self._views: dict[str, ArmView] = {}
         self._goal = (0.7, 0.3)
@@ -160,14 +166,6 @@ class CannedTwinBackend(HostBackend):
         """Outcomes from ``seed`` again, every arm free (as a new agent)."""
         self._rng = np.random.default_rng(seed)
         self._violating = dict.fromkeys(self._arms, False)
-
-    @property
-    def arm_names(self) -> tuple[str, ...]:
-        return self._arms
-
-    @property
-    def mirror(self) -> tuple[bool, ...]:
-        return self._mirror
 
     def observe(self) -> dict[str, ArmView]:
         return {a: ArmView(v.image, self._violating[a], v.goal,
