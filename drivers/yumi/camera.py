@@ -62,6 +62,7 @@ import numpy.typing as npt
 
 from drivers.errors import BackendError
 from drivers.yumi.capture_settings import CaptureSettings, configure
+from drivers.yumi.frozen_frames import FROZEN_S, FrozenWatch
 from drivers.yumi.v4l2_devices import V4l2Devices, V4l2Node
 
 URL_SCHEMES = ("http://", "https://", "rtsp://")
@@ -309,6 +310,10 @@ class VideoCaptureCamera:
         if self._reader is not None:
             ok, frame = self._reader.fresh_frame(self._read_timeout_s)
             self.drained = self._reader.skipped
+            if not ok and self._reader.frozen_s >= FROZEN_S:
+                raise BackendError(f"camera {self._name!r} is frozen: its frames have been "
+                                   f"identical for {self._reader.frozen_s:.1f} s (a camera "
+                                   "whose picture stopped updating; restart it)")
         elif self._kind == "device":
             ok, frame = self._read_device()
         else:
@@ -416,9 +421,11 @@ class StreamReader:
     interval) was sent after the wait began. Cost: decoding every frame the camera sends
     (~3 ms per 640x480 JPEG here, ~5 % of a core at 15 fps).
 
-    Only this thread touches the ``cv2.VideoCapture`` (it is not thread-safe): it grabs,
-    and retrieves (colour conversion) only the frame that answers a request. A broken
-    stream is reopened once (a restarted camera); then every request fails.
+    Only this thread touches the ``cv2.VideoCapture`` (it is not thread-safe): it grabs
+    and retrieves (colour conversion) every frame, so that a camera whose frames stopped
+    changing (:mod:`drivers.yumi.frozen_frames`) fails the request instead of answering
+    with a picture of the past. A broken stream is reopened once (a restarted camera);
+    then every request fails.
     """
 
     def __init__(self, cap: Any, reopen: Any, name: str, read_timeout_s: float,
@@ -436,6 +443,10 @@ class StreamReader:
         self._stopping = False
         self.skipped = 0
         """Frames grabbed during the last request that did not count as fresh."""
+        self._watch = FrozenWatch()
+        self.frozen_s = 0.0
+        """How long the frames had been identical when the last request was answered
+        (at least ``FROZEN_S``: the request failed, the camera is frozen)."""
         self._thread = threading.Thread(target=self._run, name=f"camera {name}", daemon=True)
         self._thread.start()
 
@@ -465,19 +476,23 @@ class StreamReader:
                     self._cap.release()
                     self._cap = self._reopen()
                     self._last_arrival = None
+                    self._watch.reset()
                     continue
                 waited = now - t > 0.5 * self._interval()
                 if waited and self._last_arrival is not None:
                     self._intervals = [*self._intervals[-15:], now - self._last_arrival]
                 self._last_arrival = now
+                result = self._cap.retrieve()  # every frame: a frozen camera is seen
+                if result[0] and result[1] is not None:
+                    self._watch.feed(result[1], now)
                 with self._cond:
                     want = self._want_after
                 if want is None:
                     continue
                 if t >= want and waited:
-                    result = self._cap.retrieve()
                     with self._cond:
-                        self._result = result
+                        self.frozen_s = self._watch.frozen_for(now)
+                        self._result = (False, None) if self._watch.frozen(now) else result
                         self._want_after = None
                         self._cond.notify_all()
                 else:
@@ -496,6 +511,7 @@ class StreamReader:
             if self._failed:
                 return False, None
             self.skipped = 0
+            self.frozen_s = 0.0
             self._result = None
             self._want_after = time.monotonic()
             deadline = self._want_after + timeout_s

@@ -43,8 +43,9 @@ def frame_number(img: np.ndarray) -> int:
 
 
 class MjpegCamera:
-    """``with MjpegCamera(fps) as cam: cam.url``; ``busy``/``mute``/``stall`` switch failures
-    on: 503 "camera busy" to a new client, accept and say nothing, stop sending frames."""
+    """``with MjpegCamera(fps) as cam: cam.url``; ``busy``/``mute``/``stall``/``frozen``
+    switch failures on: 503 "camera busy" to a new client, accept and say nothing, stop
+    sending frames, send the same frame over and over (an encoder that hung)."""
 
     def __init__(self, fps: float = 15.0, size: tuple[int, int] = (320, 240)) -> None:
         self.fps = fps
@@ -53,6 +54,8 @@ class MjpegCamera:
         self.busy = False
         self.mute = False
         self.stall = threading.Event()
+        self.frozen = threading.Event()
+        self._jpg = b""
         self._stop = threading.Event()
         self._count = 0
         cam = self
@@ -93,10 +96,12 @@ class MjpegCamera:
                 if self.stall.is_set():
                     self._stop.wait(0.05)
                     continue
-                n = self._count
-                self._count += 1
-                self.produced[n] = time.monotonic()
-                jpg = cv2.imencode(".jpg", stamp(n, self.size))[1].tobytes()
+                if not (self.frozen.is_set() and self._jpg):  # frozen: the last one again
+                    n = self._count
+                    self._count += 1
+                    self.produced[n] = time.monotonic()
+                    self._jpg = cv2.imencode(".jpg", stamp(n, self.size))[1].tobytes()
+                jpg = self._jpg
                 h.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
                               + str(len(jpg)).encode() + b"\r\n\r\n" + jpg + b"\r\n")
                 self._stop.wait(1.0 / self.fps)  # paced from the end of the send

@@ -433,3 +433,28 @@ def test_calibration_mode_moves_the_tcp_shows_the_marker_and_saves(
         ArmCalibration.load(path, "left")
     finally:
         backend.close()
+
+
+def test_a_frozen_camera_is_an_error_naming_it_and_a_restarted_one_reads_again() -> None:
+    """An encoder that hung sends its last picture again and again, at the frame rate:
+    every frame decodes, so only their sameness tells (drivers/yumi/frozen_frames.py).
+    The stamped frames are noiseless, yet a live stream's frames all differ."""
+    from drivers.yumi.frozen_frames import FROZEN_S
+
+    with MjpegCamera(fps=15) as server:
+        cam = VideoCaptureCamera(server.url, fps=15, open_timeout_s=3, read_timeout_s=3)
+        try:
+            for _ in range(3):
+                cam.read()
+            server.frozen.set()
+            time.sleep(FROZEN_S + 0.3)
+            with pytest.raises(BackendError, match=r"is frozen: its frames have been "
+                                                   r"identical for \d") as e:
+                cam.read()
+            assert "\n" not in str(e.value) and server.url in str(e.value)
+            server.frozen.clear()
+            t0 = time.monotonic()
+            frame = cam.read()
+            assert server.produced[frame_number(frame)] >= t0 - 0.1  # fresh again
+        finally:
+            cam.close()
