@@ -48,6 +48,13 @@ The camera port (JSON unless said otherwise; errors are ``{"error": "..."}`` wit
 - ``GET /lab/camera`` -> the true camera model and the cell's layout (K, dist, R/t and
   rvec/tvec world mm -> camera, crops, mirror, workspaces_mm, rest_mm, marker, ...).
 - ``GET /lab/health`` -> ``{"ok": true}``.
+- ``POST /lab/fault`` ``{"kind", "arm"?}`` -> ``{"ok", "kind", "arm", "shows"}``: something
+  goes wrong in the cell (``kind``: guard_stop, motors_off, rapid_error, zone_stop,
+  camera_frozen; ``arm`` names the task of a RAPID error or a zone stop); 400 if that kind
+  is already active. ``POST /lab/clear`` ``{"kind"}`` -> ``{"ok", "kind", "arm",
+  "actions"}``: a person clears it as in the lab (``sim_twin.lab_faults``: reset the
+  guard and press Motors On, PP to Main, jog out of the zone, restart the camera).
+  ``GET /lab/faults`` -> ``{"active": {kind: arm}}``.
 
 The RWS port (``sim_twin.rws``; docs/notes/rws.md): RWS 1.0 as RobotWare 6 answers it,
 digest login as ``Default User``/``robotics`` or the ``--rws-credentials`` file's
@@ -88,6 +95,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from sim_twin.lab_faults import KINDS as FAULT_KINDS
+from sim_twin.lab_faults import TwinFaults
 from sim_twin.port_file import write_port
 from sim_twin.rws.digest_auth import DEFAULT_USERS
 from sim_twin.rws.irc5 import Identity, Irc5Controller
@@ -121,6 +130,8 @@ class FrameCache:
         self._jpegs: list[bytes] = []
         self._next = 0
         self.published = 0
+        self._frozen: bytes | None = None
+        """A frozen camera's one JPEG (``sim_twin.lab_faults``): sent again and again."""
 
     def publish(self) -> None:
         """Render the cell's current state (call with the cell lock held)."""
@@ -129,8 +140,17 @@ class FrameCache:
             self._clean, self._jpegs, self._next = clean, [], 0
             self.published += 1
 
+    def freeze(self, on: bool) -> None:
+        """A camera whose picture stopped updating (``on``) or restarted: frozen, every
+        frame is the byte-identical JPEG of the moment it froze, whatever the cell does."""
+        frame = self.jpeg() if on else None
+        with self._lock:
+            self._frozen = frame
+
     def jpeg(self) -> bytes:
         with self._lock:
+            if self._frozen is not None:
+                return self._frozen
             clean, jpegs = self._clean, self._jpegs
             if clean is None:
                 raise RuntimeError("no picture published yet")
@@ -166,6 +186,9 @@ class TwinServer(ThreadingHTTPServer):
         self.tcp_source: Callable[[], dict[str, tuple[float, float, float]]] | None = None
         """Where ``GET /lab/tcp`` reads the pushers without waiting for a motion to end
         (the controller's start hook keeps the latest sample); set by :class:`RwsSide`."""
+        self.faults: TwinFaults | None = None
+        """The faults a lab injects and a person clears (``/lab/fault``, ``/lab/clear``);
+        set by :func:`main` once the controller exists."""
         self._streams: set[socket.socket] = set()
         self._streams_lock = threading.Lock()
         with self.cell_lock:
@@ -239,6 +262,8 @@ class Handler(BaseHTTPRequestHandler):
             self._json(200, cell.camera_model)
         elif path == "/lab/health":
             self._json(200, {"ok": True})
+        elif path == "/lab/faults" and srv.faults is not None:
+            self._json(200, srv.faults.state())
         else:
             self._json(404, {"error": f"no such endpoint: GET {path}"})
 
@@ -256,7 +281,8 @@ class Handler(BaseHTTPRequestHandler):
     def do_POST(self) -> None:
         path = self.path.split("?", 1)[0]
         routes: dict[str, Callable[[Any], dict[str, Any]]] = {
-            "/lab/reset": self._reset, "/lab/place": self._place}
+            "/lab/reset": self._reset, "/lab/place": self._place,
+            "/lab/fault": self._fault, "/lab/clear": self._clear}
         if path not in routes:
             self._json(404, {"error": f"no such endpoint: POST {path}"})
             return
@@ -294,6 +320,25 @@ class Handler(BaseHTTPRequestHandler):
             srv.cell.place_cube(body["arm"], (float(xy[0]), float(xy[1])), float(yaw))
             srv.frames.publish()
         return {"ok": True}
+
+    def _fault(self, body: Any) -> dict[str, Any]:
+        """The lab makes something go wrong (``sim_twin.lab_faults``: a guard stop, ...)."""
+        faults = self._faults(body)
+        arm = body.get("arm")
+        if arm is not None and not isinstance(arm, str):
+            raise ValueError("arm must be an arm's name")
+        return {"ok": True, **faults.inject(body["kind"], arm)}
+
+    def _clear(self, body: Any) -> dict[str, Any]:
+        """A person clears a fault as in the lab (the actions: ``sim_twin.lab_faults``)."""
+        return {"ok": True, **self._faults(body).clear(body["kind"])}
+
+    def _faults(self, body: Any) -> TwinFaults:
+        if not isinstance(body, dict) or not isinstance(body.get("kind"), str):
+            raise ValueError(f'expected {{"kind": one of {list(FAULT_KINDS)}, "arm"?: NAME}}')
+        if self.server.faults is None:
+            raise ValueError("this twin has no controller to fault")
+        return self.server.faults
 
     def _stream(self) -> None:
         srv = self.server
@@ -448,6 +493,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     server = TwinServer(cell, a.host, a.port, a.fps, a.verbose)
     rws = RwsSide(server, a, zones, users)
     server.tcp_source = rws.motion.tcp_xyz
+    server.faults = TwinFaults(rws.controller, server.frames, cell, server.cell_lock,
+                               {u.arm: u.task for u in rws.controller.units.values()},
+                               {arm: z.zone_z for arm, z in zones.items()},
+                               server.frames.publish)
 
     def on_signal(signum: int, frame: object) -> None:
         threading.Thread(target=server.stop, daemon=True).start()
