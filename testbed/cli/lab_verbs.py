@@ -123,6 +123,10 @@ def _rehearse_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host-python", metavar="PYTHON",
                    help="run the agents with this robot host install's interpreter "
                         "(scripts/setup.sh --host), not this checkout")
+    p.add_argument("--faults", action="store_true",
+                   help="inject a guard stop, motors off, a RAPID error, a zone stop, a "
+                        "frozen camera and a lost SSH link into every run, at steps drawn "
+                        "from its seed, each cleared by a scripted person (faults.jsonl)")
 
 
 def cmd_rehearse(args: argparse.Namespace) -> int:
@@ -151,7 +155,8 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     try:
         result = rehearse(RehearsalOptions(path, args.trials, args.steps, args.humans,
                                            args.quick, Path(args.out) if args.out else None,
-                                           algorithms, args.realtime, args.host_python))
+                                           algorithms, args.realtime, args.host_python,
+                                           args.faults))
     except RehearsalError as exc:
         Console(stderr=True).print(f"testbed rehearse: {exc}", markup=False, highlight=False)
         return 1

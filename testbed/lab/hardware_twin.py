@@ -4,11 +4,12 @@ Why it exists: a rehearsal must reach its hosts the way a lab reaches its robots
 (OpenSSH, the host agent, ``--backend yumi``), so each YuMi host of the fleet becomes a
 ``python -m sim_twin.yumi_server`` process (the controller's Robot Web Services 1.0, as an
 IRC5 answers them, and an MJPEG camera) with an OpenSSH ``sshd`` on loopback in front of
-it; the agent's controller client is the one a lab's host runs. ``HardwareTwinLab`` starts and
-stops both, rewrites the fleet's host section to reach them, and is the lab's hands in
-fault drills (kill an agent, stop an sshd). ``LabClient`` is the lab's side channel to
-one twin (``/lab/*``: the truth, the lab hand, the true camera model): what a person in
-the lab has and the controller does not. The controller's decisions never read it.
+it; the agent's controller client is the one a lab's host runs. ``HardwareTwinLab``
+starts and stops both, rewrites the fleet's host section to reach them, and is the lab's
+hands in fault drills (kill an agent, stop an sshd; ``testbed.lab.fault_drills``).
+``LabClient`` is the lab's side channel to one twin (``/lab/*``: the truth, the lab
+hand, the true camera model, the faults a person clears): what a person in the lab has
+and the controller does not. The controller's decisions never read it.
 
 ``sim_twin`` runs in its own process and ``drivers.testing.sshd`` is imported inside
 the functions that start it, so importing this module starts and imports nothing.
@@ -99,6 +100,15 @@ class LabClient:
         """Where each pusher is now, also mid-motion (the twin's latest motion sample)."""
         out: dict[str, list[float]] = self._call("/lab/tcp")["tcp_mm"]
         return out
+
+    def fault(self, kind: str, arm: str | None = None) -> dict[str, Any]:
+        """Something goes wrong in the cell (``sim_twin.lab_faults``): a guard stop, the
+        motors off, a RAPID error or a zone stop in ``arm``'s task, a frozen camera."""
+        return self._call("/lab/fault", {"kind": kind, **({"arm": arm} if arm else {})})
+
+    def clear(self, kind: str) -> dict[str, Any]:
+        """A person clears ``kind`` as in the lab; ``actions``: what they did."""
+        return self._call("/lab/clear", {"kind": kind})
 
     def healthy(self) -> bool:
         try:

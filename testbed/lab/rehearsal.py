@@ -37,7 +37,7 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -47,6 +47,8 @@ from testbed.core.humans import Humans
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.lab.camera_model import starting_calibration, true_model_error
+from testbed.lab.fault_drills import FAULTS_FILE, RunFaults, fault_room
+from testbed.lab.fault_report import faults_table, finish_faults
 from testbed.lab.hardware_twin import HardwareTwinLab, RehearsalError, require_yumi
 from testbed.lab.lab_humans import ArmView, TwinLabHumans, arm_views
 from testbed.lab.rws_requests import RwsLogSlices, read_requests, requests_table
@@ -75,6 +77,8 @@ class RehearsalOptions:
     realtime: float = 0.0
     host_python: str | None = None
     """The agents' interpreter: a robot host install's (``scripts/setup.sh --host``)."""
+    faults: bool = False
+    """Inject the lab's faults into every run (``testbed.lab.fault_drills``)."""
 
 
 @dataclass
@@ -83,6 +87,8 @@ class RehearsalResult:
     report_markdown: str
     agreement: dict[str, dict[str, Any]]
     calibration: dict[str, dict[str, float]]
+    faults: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    """Run -> its faults with what the arms did (``--faults``; ``faults.jsonl``)."""
 
 
 def quick_learning(fleet: FleetConfig) -> FleetConfig:
@@ -117,10 +123,15 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
         calibration = _calibrate_all(lab, fleet, fleet_file, say)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
         hooks = _RehearsalHooks(lab, arm_views(fleet), opts.humans)
+        if opts.faults:
+            hooks.drills = RunFaults(lab, say)
+            say(fault_room(run_proto.steps))
         try:
             report = run_protocol(run_proto, out=str(folder), ask=False, hooks=hooks)
         finally:
             hooks.rws.end()
+            if hooks.drills is not None:
+                hooks.drills.end()
     agreement: dict[str, dict[str, Any]] = {}
     for run in sorted(p for p in folder.iterdir() if (p / "twin_truth.jsonl").exists()):
         agreement[run.name] = truth_agreement(run)
@@ -129,12 +140,16 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
         markdown = ("**Quick rehearsal:** the learning sizes are the default twin trial's, not "
                     "the protocol's.\n\n" + markdown)
     markdown += "\n" + agreement_table(agreement)
+    faults = {run.name: finish_faults(run) for run in sorted(folder.iterdir())
+              if (run / FAULTS_FILE).exists()} if opts.faults else {}
+    if faults:
+        markdown += "\n" + faults_table(faults)
     rws_logs = sorted(folder.glob("*/hosts/*.rws.jsonl"))
     if rws_logs:
         markdown += "\n## The controllers' RWS requests (all runs)\n\n" + requests_table(
             read_requests(rws_logs))
     (folder / "rehearsal.md").write_text(markdown, encoding="utf-8")
-    return RehearsalResult(folder, markdown, agreement, calibration)
+    return RehearsalResult(folder, markdown, agreement, calibration, faults)
 
 
 def _protocol_update(proto: Protocol, opts: RehearsalOptions, folder: Path) -> dict[str, Any]:
@@ -203,10 +218,14 @@ class _RehearsalHooks(TrialHooks):
     def __init__(self, lab: HardwareTwinLab, views: Mapping[str, ArmView], kind: str) -> None:
         self.lab, self.views, self.kind = lab, views, kind
         self.recorders: list[TruthRecorder] = []
+        self.drills: RunFaults | None = None
+        """``--faults``: each run's faults, injected and cleared between its steps."""
         self.rws = RwsLogSlices({n: h.rws_log for n, h in lab.hosts.items()})
         """Each run's share of the twins' RWS request logs, into its ``hosts/``."""
 
     def before_run(self, name: str) -> bool:
+        if self.drills is not None:
+            self.drills.end()  # the last run's: nothing stays broken
         self.lab.reset_all(name)
         return True
 
@@ -223,8 +242,12 @@ class _RehearsalHooks(TrialHooks):
         self.rws.begin(run.path)
         rec = TruthRecorder(hosts, self.lab.labs, self.views, run.path / "twin_truth.jsonl")
         self.recorders.append(rec)
+        if self.drills is not None:
+            self.drills.begin(run.path)
         return rec
 
     def on_step(self, outcome: StepOutcome) -> None:
         if self.recorders:
             self.recorders[-1].on_step(outcome.t)
+        if self.drills is not None:  # between step t and t + 1
+            self.drills.before_step(outcome.t + 1)
