@@ -1,0 +1,221 @@
+"""The YuMi cell's layout against the arm's kinematics: one FAULT line per thing to fix.
+
+Why: a table box whose far corner the arm cannot reach with the pusher down, a rest pose
+under the world zone's ceiling (every move to rest stops on the zone), in the camera's
+view (every picture is retaken) or against the other arm, and two arms whose paths meet,
+all pass every check that reads numbers alone and stop the robot on day one. This module
+puts the calibration's numbers through the arm's model (``drivers/yumi/irb14000.py``)
+for ``testbed check`` (``drivers/yumi/check_report.py``) and ``testbed calibrate`` (the
+plugin's ``layout_report``), and words what it finds in the style of the controller's
+FAULT lines: what, the number, what to change.
+
+Margins (mm): every corner :data:`~drivers.yumi.reach.REACH_MARGIN_MM` inside the
+reach; the rest pose's pusher tip :data:`ZONE_MARGIN_MM` above ``tb_zone_z``; the two
+arms' shapes :data:`ARM_GAP_MM` apart over both sweeps (each arm: its rest, its table
+box's corners at push and travel height, and the joint moves between rest and each
+corner); every link and the gripper :data:`TABLE_GAP_MM` above the table.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+
+from drivers.yumi.arm_shapes import Capsules, arm_capsules, min_distance, table_clearance
+from drivers.yumi.irb14000 import Pose
+from drivers.yumi.reach import (
+    DEFAULT_TOOL_Z_MM,
+    REACH_MARGIN_MM,
+    ArmTool,
+    CornerReach,
+    corner_reaches,
+    side_of,
+)
+
+__all__ = ["ARM_GAP_MM", "TABLE_GAP_MM", "ZONE_MARGIN_MM", "ArmLayout", "check_layout",
+           "layout_of"]
+
+ZONE_MARGIN_MM: Final = 20.0
+ARM_GAP_MM: Final = 25.0
+TABLE_GAP_MM: Final = 5.0
+VIEW_MARGIN: Final = 0.02
+"""A point this share of the frame outside its edge still counts as in view (as the
+driver's retake rule, ``drivers/yumi/backend.py``)."""
+JOINT_STEPS: Final = 8
+
+
+@dataclass(frozen=True)
+class ArmLayout:
+    """What the checks need of one arm (from its calibration and the controller)."""
+
+    name: str
+    tool: ArmTool
+    table_box_mm: tuple[float, float, float, float]
+    z_push_mm: float
+    z_travel_mm: float
+    rest_joints_deg: tuple[float, ...] | None = None
+    homography: Any = None
+    """pixel -> table mm (3x3) of the calibration, or None (not calibrated yet)."""
+    frame_size: tuple[int, int] | None = None
+    zone_z_mm: float | None = None
+    """``tb_zone_z`` of the arm's task, as the controller reports it."""
+
+
+def layout_of(name: str, cal: Mapping[str, Any], *, task: str | None = None,
+              frame_size: Sequence[int] | None = None, zone_z_mm: float | None = None
+              ) -> ArmLayout | None:
+    """An arm's layout from its calibration file's keys; None when its side cannot be
+    told (a task that is not an IRB 14000's, an arm not named left/right)."""
+    side = side_of(name, task or cal.get("task"))
+    if side is None or "table_box_mm" not in cal:
+        return None
+    tool = ArmTool(side, float(cal.get("tool_z_mm", DEFAULT_TOOL_Z_MM)),
+                   float(cal.get("arm_angle_deg", 0.0)),
+                   tuple(float(v) for v in cal.get("tool_quat_wxyz", (0, 0, 1, 0))))
+    rest = cal.get("rest_joints_deg")
+    return ArmLayout(name, tool, tuple(float(v) for v in cal["table_box_mm"]),  # type: ignore[arg-type]
+                     float(cal.get("z_push_mm", 10.0)), float(cal.get("z_travel_mm", 80.0)),
+                     None if rest is None else tuple(float(v) for v in rest),
+                     cal.get("homography"),
+                     None if frame_size is None else (int(frame_size[0]), int(frame_size[1])),
+                     zone_z_mm)
+
+
+def _pt(p: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{v:.0f}" for v in p) + ")"
+
+
+def reach_lines(lay: ArmLayout, reaches: Sequence[CornerReach]) -> tuple[list[str], list[str]]:
+    """One report line with every corner's margin; a FAULT reason per corner short of it."""
+    t = lay.tool
+    how = (f"pusher down, tool_z_mm {t.tool_z_mm:g}, arm angle {t.arm_angle_deg:g} deg")
+    figures = ", ".join(f"{_pt(c.tcp_mm)} {'-' if c.margin_mm is None else f'{c.margin_mm:.0f}'}"
+                        for c in reaches)
+    lines = [f"      {lay.name}: reach margin (mm) of the table box's corners at push and "
+             f"travel height ({how}): {figures}"]
+    faults = []
+    for c in reaches:
+        where = (f"arm {lay.name}: table box corner {_pt(c.tcp_mm)} mm "
+                 f"({'push' if c.tcp_mm[2] == lay.z_push_mm else 'travel'} height)")
+        if c.margin_mm is None:
+            faults.append(f"{where} cannot be reached with the {how}: {c.solution.reason}; "
+                          f"move the table box towards the shoulder or change the arm angle")
+        elif c.margin_mm < REACH_MARGIN_MM:
+            faults.append(f"{where} is only {c.margin_mm:.0f} mm inside the arm's reach "
+                          f"(want {REACH_MARGIN_MM:g} mm) with the {how}; move the table box "
+                          f"towards the shoulder")
+    return lines, faults
+
+
+def rest_pose(lay: ArmLayout) -> Pose | None:
+    return None if lay.rest_joints_deg is None else lay.tool.model.pose_abb(lay.rest_joints_deg)
+
+
+def rest_faults(lay: ArmLayout, pose: Pose) -> list[str]:
+    """The rest pose: within the joint limits, its pusher tip above ``tb_zone_z`` by the
+    margin, clear of the table, out of the camera's view."""
+    out: list[str] = []
+    tip = pose.tcp(lay.tool.tool_z_mm)
+    what = (f"arm {lay.name}: the rest pose (rest_joints_deg {list(lay.rest_joints_deg or ())}, "
+            f"tool_z_mm {lay.tool.tool_z_mm:g})")
+    if (over := lay.tool.model.limit_excess(pose.chain_deg)) is not None:
+        out.append(f"{what} has axis {over[0]} past its limit by {over[1]:.1f} deg")
+    if lay.zone_z_mm is not None and tip[2] < lay.zone_z_mm + ZONE_MARGIN_MM:
+        out.append(f"{what} puts the pusher's tip at z {tip[2]:.0f} mm, below the world "
+                   f"zone's tb_zone_z {lay.zone_z_mm:g} + {ZONE_MARGIN_MM:g} mm: every move "
+                   f"to rest would stop on the zone; choose rest joints that hold the tip "
+                   f"higher (robot/README.md)")
+    low, part = table_clearance(arm_capsules(pose, lay.tool.tool_z_mm))
+    if low < TABLE_GAP_MM:
+        out.append(f"{what} puts its {part} {low:.0f} mm above the table (want "
+                   f"{TABLE_GAP_MM:g} mm)")
+    if (seen := in_view(lay, pose)) is not None:
+        out.append(f"{what} is in the camera's view: its {seen}; every picture would be "
+                   f"retaken; move the rest pose out of the view")
+    return out
+
+
+def in_view(lay: ArmLayout, pose: Pose) -> str | None:
+    """Which of the pusher's tip and the flange the calibrated camera sees, or None.
+    Each point is mapped at its (x, y) through the calibration's homography, which holds
+    in the cube-top plane; a point higher up is seen further from the picture's centre
+    by a downward camera, so "outside" here is outside for it too."""
+    if lay.homography is None or lay.frame_size is None:
+        return None
+    h = np.asarray(lay.homography, dtype=np.float64)
+    w, ht = lay.frame_size
+    for name, p in (("pusher's tip", pose.tcp(lay.tool.tool_z_mm)),
+                    ("flange", pose.flange[:3, 3])):
+        u, v, s = np.linalg.solve(h, np.array([p[0], p[1], 1.0]))
+        if s <= 0:
+            continue
+        u, v = u / s, v / s
+        if -VIEW_MARGIN * w <= u <= (1 + VIEW_MARGIN) * w and \
+                -VIEW_MARGIN * ht <= v <= (1 + VIEW_MARGIN) * ht:
+            return f"{name} at ({p[0]:.0f}, {p[1]:.0f}, {p[2]:.0f}) mm is seen at pixel " \
+                   f"({u:.0f}, {v:.0f}) of the {w}x{ht} frame"
+    return None
+
+
+def sweep(lay: ArmLayout, reaches: Sequence[CornerReach]) -> Capsules:
+    """The arm's shapes over its work: every reachable corner's pose, the rest pose, and
+    the joint moves (MoveJ: joints interpolated) between rest and each corner."""
+    poses = [c.solution.pose for c in reaches if c.solution.pose is not None]
+    rest = rest_pose(lay)
+    moves: list[Pose] = []
+    if rest is not None:
+        r = np.array(rest.chain_deg)
+        for p in poses:
+            q = np.array(p.chain_deg)
+            moves += [lay.tool.model.pose(r + (q - r) * k / JOINT_STEPS)
+                      for k in range(1, JOINT_STEPS)]
+        poses = [rest, *poses]
+    return Capsules.join([arm_capsules(p, lay.tool.tool_z_mm) for p in poses + moves])
+
+
+def check_layout(arms: Sequence[ArmLayout]) -> tuple[list[str], list[str]]:
+    """(report lines, FAULT reasons) of one YuMi's arms: each arm's reach, rest pose and
+    table clearance; with two arms, their rests and their sweeps apart."""
+    lines: list[str] = []
+    faults: list[str] = []
+    sweeps: dict[str, Capsules] = {}
+    rests: dict[str, Capsules] = {}
+    for lay in arms:
+        reaches = corner_reaches(lay.tool, lay.table_box_mm, (lay.z_push_mm, lay.z_travel_mm))
+        got, bad = reach_lines(lay, reaches)
+        lines += got
+        faults += bad
+        if (rest := rest_pose(lay)) is not None:
+            faults += rest_faults(lay, rest)
+            rests[lay.name] = arm_capsules(rest, lay.tool.tool_z_mm)
+        sweeps[lay.name] = sweep(lay, reaches)
+    if len(arms) == 2:
+        a, b = arms[0].name, arms[1].name
+        got, bad = _apart(a, b, rests, sweeps)
+        lines += got
+        faults += bad
+    return lines, faults
+
+
+def _apart(a: str, b: str, rests: Mapping[str, Capsules], sweeps: Mapping[str, Capsules]
+           ) -> tuple[list[str], list[str]]:
+    lines: list[str] = []
+    faults: list[str] = []
+    if a in rests and b in rests:
+        gap, pa, pb = min_distance(rests[a], rests[b])
+        lines.append(f"      {a}/{b}: rest poses {gap:.0f} mm apart ({pa} / {pb})")
+        if gap < ARM_GAP_MM:
+            faults.append(f"arms {a} and {b}: at rest their {pa} and {pb} are {gap:.0f} mm "
+                          f"apart (want {ARM_GAP_MM:g} mm): choose rest joints clear of "
+                          f"the other arm")
+    gap, pa, pb = min_distance(sweeps[a], sweeps[b])
+    lines.append(f"      {a}/{b}: swept volumes (rest, table box corners, the moves "
+                 f"between) {gap:.0f} mm apart ({pa} / {pb})")
+    if gap < ARM_GAP_MM:
+        faults.append(f"arms {a} and {b}: on their way between rest and their table boxes "
+                      f"their {pa} and {pb} come {gap:.0f} mm close (want {ARM_GAP_MM:g} mm): "
+                      f"move the table boxes apart or the rest poses")
+    return lines, faults

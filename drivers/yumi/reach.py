@@ -1,0 +1,126 @@
+"""Can an arm reach its table box with the pusher down, and by how much: corners, margins.
+
+Why a module between the kinematics and the checks: the driver (before a motion),
+``testbed check`` and ``testbed calibrate`` (``drivers/yumi/layout_check.py``) and the
+layout's tests ask the same two questions of a target: is it reachable at this arm angle
+with this tool, and how far further out could it be (the reach margin, mm, measured
+horizontally away from the arm's shoulder, where a reach runs out first).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from drivers.yumi.irb14000 import Arm, Pose, arm
+from drivers.yumi.irb14000_ik import DOWN, Solution, quat_matrix, solve_down
+
+__all__ = ["DEFAULT_TOOL_Z_MM", "REACH_MARGIN_MM", "ArmTool", "CornerReach", "box_corners",
+           "corner_reaches",
+           "reach_margin", "side_of"]
+
+Mat = npt.NDArray[np.float64]
+REACH_MARGIN_MM: Final = 30.0
+"""How much further out than a table box's corner the arm must still reach: calibration
+error, a table box grown later, and the controller's own tolerance eat into it."""
+DEFAULT_TOOL_Z_MM: Final = 100.0
+"""The pusher's length (flange to tip) a check assumes when a calibration file has no
+``tool_z_mm``: ``tool_pusher``'s ``tframe`` in robot/rapid/TestbedTask_L.mod. (The driver
+then sends ``tool_z_mm`` 0, the flange as the TCP: a lab's file should say its pusher's
+length.)"""
+MARGIN_SPAN_MM: Final = 150.0
+"""The largest reach margin measured (a corner this far inside is simply "150+")."""
+
+
+def side_of(arm_name: str, task: str | None = None) -> str | None:
+    """``left``/``right`` of an IRB 14000 arm, from its task (``T_ROB_L``) or name."""
+    if task in ("T_ROB_L", "T_ROB_R"):
+        return "left" if task.endswith("L") else "right"
+    return arm_name if arm_name in ("left", "right") else None
+
+
+@dataclass(frozen=True)
+class ArmTool:
+    """How an arm holds its pusher: the side, the tool's length (flange to tip,
+    ``tool_z_mm``), the arm angle (axis 7) and the tool's orientation (a robtarget's
+    quaternion; default pointing down) its targets are sent with."""
+
+    side: str
+    tool_z_mm: float
+    arm_angle_deg: float = 0.0
+    tool_quat_wxyz: tuple[float, ...] = (0.0, 0.0, 1.0, 0.0)
+
+    @property
+    def model(self) -> Arm:
+        return arm(self.side)
+
+    @property
+    def rotation(self) -> Mat:
+        q = tuple(float(v) for v in self.tool_quat_wxyz)
+        return DOWN if q == (0.0, 0.0, 1.0, 0.0) else quat_matrix(q)
+
+    def solve(self, tcp_mm: Sequence[float], current: Sequence[float] | None = None
+              ) -> Solution:
+        return solve_down(self.model, tcp_mm, self.tool_z_mm, self.arm_angle_deg,
+                          self.rotation, current)
+
+
+def reach_margin(tool: ArmTool, tcp_mm: Sequence[float], pose: Pose,
+                 span_mm: float = MARGIN_SPAN_MM) -> float:
+    """How far (mm, to 2 mm) ``tcp_mm`` can move horizontally away from the shoulder and
+    stay reachable, from its solution ``pose`` (bisection, each solve seeded by the last
+    reachable one, as a linear move outward would go)."""
+    p = np.asarray(tcp_mm, dtype=np.float64)
+    d = p[:2] - tool.model.shoulder[:2]
+    d /= max(float(np.linalg.norm(d)), 1e-9)
+    lo, hi, seed = 0.0, span_mm, pose.chain_deg
+    if (far := tool.solve([*(p[:2] + d * hi), p[2]], seed)).ok:
+        return hi
+    while hi - lo > 2.0:
+        mid = (lo + hi) / 2
+        far = tool.solve([*(p[:2] + d * mid), p[2]], seed)
+        if far.ok:
+            lo, seed = mid, far.pose.chain_deg if far.pose is not None else seed
+        else:
+            hi = mid
+    return lo
+
+
+def box_corners(box: Sequence[float], z_mm: float) -> list[tuple[float, float, float]]:
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return [(x0, y0, z_mm), (x1, y0, z_mm), (x1, y1, z_mm), (x0, y1, z_mm)]
+
+
+@dataclass(frozen=True)
+class CornerReach:
+    """One corner of a table box at one height: its solution and its reach margin."""
+
+    tcp_mm: tuple[float, float, float]
+    solution: Solution
+    margin_mm: float | None
+    """None when the corner itself is not reachable."""
+
+
+def corner_reaches(tool: ArmTool, box: Sequence[float], heights: Sequence[float]
+                   ) -> list[CornerReach]:
+    """Every corner of ``box`` at every height in ``heights``, with its margin: solved as
+    the arm gets there, each corner at the first height from the box's centre (a move
+    inside the box) and at every later height from the same corner's previous solution
+    (a straight move up or down keeps the arm's configuration)."""
+    out: list[CornerReach] = []
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    centre = tool.solve((cx, cy, heights[0]))
+    seeds: list[Sequence[float] | None] = [
+        centre.pose.chain_deg if centre.pose is not None else None] * 4
+    for z in heights:
+        for k, c in enumerate(box_corners(box, z)):
+            sol = tool.solve(c, seeds[k])
+            margin = None if sol.pose is None else reach_margin(tool, c, sol.pose)
+            if sol.pose is not None:
+                seeds[k] = sol.pose.chain_deg
+            out.append(CornerReach(c, sol, margin))
+    return out
