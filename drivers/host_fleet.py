@@ -20,7 +20,9 @@ the 2-core test machine, worse under load; see docs/notes/drivers.md):
       3. a host that fails (error, deadline, EOF, malformed frame) -> Fault for its arms
 
     keeper thread (every 0.1 s): per host, start a reconnect (backoff) or a heartbeat
-    (write-only while a call holds the host's link: the agent's watchdog hears us)
+    (write-only while a call holds the host's link: the agent's watchdog hears us);
+    each observe() also retries a host that is down, at most once a second, so a host
+    whose link is back has its arms back at the next step, whatever the backoff
 
     stop_motion() (any thread, a signal handler included): ``stop`` to every agent,
     write-only, even mid-call; Ctrl-C during a call sends it to the hosts in flight
@@ -384,8 +386,13 @@ class HostFleet:
 
     # -- the API ----------------------------------------------------------------------
     def observe(self) -> dict[str, ArmObservation | Fault]:
-        """One picture per host, all hosts at once; a value for every robot."""
+        """One picture per host, all hosts at once; a value for every robot. A host that
+        is down is retried now (``HostSession.retry_for_call``): its arms are back at the
+        first step after its link is."""
         self._require_started()
+        now = time.monotonic()
+        for s in self._sessions:
+            s.retry_for_call(now)
 
         def parse(s: HostSession, link: AgentLink, frames: list[p.Frame]) -> Any:
             return p.parse_observe_reply(frames[0], s.arms, link.peer)

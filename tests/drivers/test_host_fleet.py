@@ -216,3 +216,36 @@ def test_local_agent_uses_the_controllers_interpreter_unless_absolute() -> None:
 
     assert LocalTransport.python_for(TwinHost(name="a")) == sys.executable
     assert LocalTransport.python_for(TwinHost(name="a", python="/opt/py")) == "/opt/py"
+
+
+class DownTransport(ThreadAgentTransport):
+    """A host whose link is gone while ``down`` (a cable out, its sshd stopped)."""
+
+    down = False
+    opened = 0
+
+    def open(self, argv: list[str], timeout_s: float) -> None:
+        DownTransport.opened += 1
+        if DownTransport.down:
+            raise ConnectionRefusedError("connection refused (the host's sshd is down)")
+        super().open(argv, timeout_s)
+
+
+def test_a_host_whose_link_is_back_reconnects_at_the_next_step_whatever_the_backoff(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(drivers.session, "make_transport", DownTransport)
+    monkeypatch.setattr(DownTransport, "down", True)
+    with HostFleet([local_host("h")], reconnect_backoff_s=30.0) as fleet:
+        assert not fleet.host_status()["h"].connected  # refused: next attempt in 30 s
+        tries = DownTransport.opened
+        assert isinstance(fleet.observe()["h/left"], Fault)  # a step: retried at once...
+        wait_until(lambda: DownTransport.opened > tries, 5, "the step's attempt")
+        assert isinstance(fleet.observe()["h/left"], Fault)  # ...but at most once a second
+        assert DownTransport.opened == tries + 1
+        DownTransport.down = False  # the link is back
+        time.sleep(drivers.session.STEP_RETRY_S)
+        t0 = time.monotonic()
+        fleet.observe()  # the next step retries, and its arms are back at once after
+        wait_until(lambda: fleet.host_status()["h"].connected, 5, "the reconnect")
+        assert time.monotonic() - t0 < 5.0  # not the 30 s backoff
+        assert isinstance(fleet.observe()["h/left"], ArmObservation)
