@@ -9,15 +9,15 @@ touched (issue 29, point 5).
 
 The schedule (:func:`fault_schedule`) is drawn from the run's seed, so a run's faults
 are the same each time it is rehearsed: every kind once (in ``steps >= MIN_STEPS``), in a
-shuffled order, each in a slot of its own (so at most one fault is active in the whole
-fleet, and so per host), on a host and an arm drawn at random, held 1 or 2 steps. A fault
-is injected between two steps (after the loop logged step ``step - 1``), and the
-scripted person clears it between steps ``clear - 1`` and ``clear``: both are
-reproducible, where a stop mid-motion would depend on timing. How each is injected and
-cleared is the twin's (``sim_twin.lab_faults``: the controller's states and event log,
-its camera), but for the lost link, which is the lab's network: the host's sshd is
-stopped (its sessions die with it) and started again; the fleet's own reconnect
-(``drivers.session.HostSession``: attempts with backoff) brings the agent back.
+shuffled order, each planned in a slot of its own, on a host and an arm drawn at random,
+held 1 or 2 steps. One fault is active at a time in the whole fleet (so at most one per
+host). A fault is injected between two steps (after the loop logged a step), and the
+scripted person clears it between two steps: reproducible, where a stop mid-motion would
+depend on timing. How each is injected and cleared is the twin's
+(``sim_twin.lab_faults``: the controller's states and event log, its camera), but for
+the lost link, which is the lab's network: the host's sshd is stopped (its sessions die
+with it) and started again; the fleet's own reconnect (``drivers.session.HostSession``:
+attempts with backoff) brings the agent back.
 
 :class:`FaultDrills` does it, one line on the console for each fault, and keeps the
 run's ``faults.jsonl`` (``testbed.lab.fault_report`` adds what the arms did).
@@ -29,7 +29,7 @@ import json
 import random
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -54,7 +54,11 @@ LEAD_STEPS = 2
 TAIL_STEPS = 3
 """Steps at a run's end without a fault: a host whose link was lost reconnects."""
 SLOT_STEPS = 4
-"""The fewest steps a fault takes: injected, held 1-2 steps, then a clean step."""
+"""The steps planned for each fault: injected, held 1-2 steps, the arms back."""
+MAX_POSTPONE = 3
+"""Steps a fault waits for its host to be at work before it is injected all the same."""
+ARM_KINDS = ("rapid_error", "zone_stop")
+"""Faults of one arm's RAPID task (the others are the whole host's)."""
 MIN_STEPS = LEAD_STEPS + TAIL_STEPS + SLOT_STEPS * len(FAULT_KINDS)
 """A run this long has every kind of fault (29 steps); a shorter one the first few."""
 FROZEN_SETTLE_S = 1.3
@@ -68,10 +72,11 @@ Say = Callable[[str], None]
 
 @dataclass(frozen=True)
 class PlannedFault:
-    """One fault of a run's schedule: injected before ``step``, cleared before ``clear``."""
+    """One fault of a run's schedule: injected before ``step`` at the earliest (see
+    :class:`FaultDrills` for when exactly), cleared ``held`` steps after."""
 
     step: int
-    clear: int
+    held: int
     kind: str
     host: str
     arm: str
@@ -91,63 +96,107 @@ def fault_schedule(seed: int, steps: int, hosts: Mapping[str, Sequence[str]]
     names = sorted(hosts)
     out = []
     for i, kind in enumerate(kinds[:n]):
-        start = first + i * slot
-        held = rng.randint(1, min(2, slot - 2))
-        step = start + rng.randint(0, slot - held - 1)  # the slot's last step is clean
+        held = rng.randint(1, 2)
+        step = first + i * slot + rng.randint(0, slot - SLOT_STEPS)
         host = rng.choice(names)
-        out.append(PlannedFault(step, step + held, kind, host, rng.choice(list(hosts[host]))))
+        out.append(PlannedFault(step, held, kind, host, rng.choice(list(hosts[host]))))
     return out
 
 
+@dataclass
+class _Active:
+    fault: PlannedFault
+    step: int
+    shows: str
+    wall: float
+    seen: int | None = None
+    """The first step a row showed the host's arms ``fault``."""
+
+
 class FaultDrills:
-    """Injects one run's faults and has the scripted person clear them, step by step."""
+    """Injects one run's faults and has the scripted person clear them, between steps.
+
+    One fault at a time, in the schedule's order: the next one is injected at its
+    planned step or later, once the last one's host has its arms back (a row without
+    ``fault``: a host whose link was lost first reconnects), and preferably into a host
+    that is at work (an arm of it pushed in the last step; after
+    :data:`MAX_POSTPONE` steps, whatever it does): a stop that strikes a host whose arms
+    wait for a person anyway shows nothing. The person clears it ``held`` steps after
+    it was injected. None is injected in a run's last :data:`TAIL_STEPS` steps."""
 
     def __init__(self, lab: HardwareTwinLab, schedule: Sequence[PlannedFault],
-                 folder: Path, say: Say) -> None:
+                 folder: Path, steps: int, say: Say) -> None:
         self.lab, self.schedule, self.say = lab, list(schedule), say
         self.path = folder / FAULTS_FILE
-        self.active: dict[PlannedFault, dict[str, Any]] = {}
+        self.last_step = steps - TAIL_STEPS
+        self.pending = list(schedule)
+        self.active: _Active | None = None
+        self.recovering: str | None = None
+        """The host of the last fault cleared, until a row shows its arms back."""
 
-    def before_step(self, t: int) -> None:
-        """Between steps ``t - 1`` and ``t``: clear what is due, then inject what is due."""
-        for f in [f for f in self.active if f.clear <= t]:
-            self._clear(f, t)
-        for f in self.schedule:
-            if f.step == t and f not in self.active:
-                self._inject(f)
+    def after_step(self, t: int, row: Mapping[str, Any]) -> None:
+        """Step ``t`` was logged (``row``); before step ``t + 1``: clear what is due,
+        then inject what is due."""
+        modes = {r["robot"]: r["mode"] for r in row["robots"]}
+        a = self.active
+        if a is not None:
+            if a.seen is None and "fault" in self._modes(modes, a.fault.host):
+                a.seen = t
+            if t + 1 >= a.step + a.fault.held:
+                self._clear(t + 1)
+        elif self.recovering is not None and "fault" not in self._modes(modes,
+                                                                        self.recovering):
+            self.recovering = None
+        if self.active is None and self.recovering is None and self.pending:
+            f = self.pending[0]
+            at_work = {"autonomous", "teleop"} & set(self._modes(modes, f.host))
+            if f.step <= t + 1 < self.last_step and (at_work or t + 1 >= f.step + MAX_POSTPONE):
+                self._inject(self.pending.pop(0), t + 1)
+
+    @staticmethod
+    def _modes(modes: Mapping[str, str], host: str) -> list[str]:
+        return [m for r, m in modes.items() if r.startswith(f"{host}/")]
 
     def end(self) -> None:
         """The run is over (finished or not): nothing stays broken for the next run."""
-        for f in list(self.active):
-            self._clear(f, None)
+        if self.active is not None:
+            self._clear(None)
+        for f in self.pending:
+            self.say(f"  not injected: {f.kind} (the run ended first)")
+        self.pending = []
 
-    def _inject(self, f: PlannedFault) -> None:
-        number = self.schedule.index(f) + 1
+    def _number(self, f: PlannedFault) -> str:
+        return f"{self.schedule.index(f) + 1}/{len(self.schedule)}"
+
+    def _inject(self, f: PlannedFault, step: int) -> None:
         if f.kind == LINK:
             self.lab.hosts[f.host].sshd.stop()
             shows = "sshd stopped: the link and the agent's session are gone"
         else:
             shows = self.lab.hosts[f.host].lab.fault(f.kind, f.arm)["shows"]
-        self.active[f] = {"shows": shows, "injected_at": time.time()}
-        self.say(f"FAULT {number}/{len(self.schedule)} before step {f.step} on {f.host}"
-                 f"{'/' + f.arm if f.kind in ('rapid_error', 'zone_stop') else ''}: "
-                 f"{FAULT_KINDS[f.kind]}; {shows}")
+        self.active = _Active(f, step, shows, time.time())
+        self.say(f"FAULT {self._number(f)} before step {step} on {f.host}"
+                 f"{'/' + f.arm if f.kind in ARM_KINDS else ''}: {FAULT_KINDS[f.kind]}; "
+                 f"{shows}")
         if f.kind == "camera_frozen":
             time.sleep(FROZEN_SETTLE_S)
 
-    def _clear(self, f: PlannedFault, t: int | None) -> None:
-        info = self.active.pop(f)
+    def _clear(self, t: int | None) -> None:
+        a, self.active = self.active, None
+        assert a is not None
+        f = a.fault
         if f.kind == LINK:
             self.lab.hosts[f.host].sshd.start()
             actions = ["started the host's sshd again (the link is back)"]
         else:
             actions = self.lab.hosts[f.host].lab.clear(f.kind)["actions"]
-        number = self.schedule.index(f) + 1
+        self.recovering = f.host
         when = f"before step {t}" if t is not None else "after the run"
-        self.say(f"  cleared {number}/{len(self.schedule)} {when} on {f.host}: "
-                 f"{'; '.join(actions)}")
-        row = {**asdict(f), "name": FAULT_KINDS[f.kind], "shows": info["shows"],
-               "cleared": t, "actions": actions}
+        self.say(f"  cleared {self._number(f)} {when} on {f.host}: {'; '.join(actions)}")
+        row = {"step": a.step, "planned": f.step, "kind": f.kind, "host": f.host,
+               "arm": f.arm, "name": FAULT_KINDS[f.kind], "shows": a.shows,
+               "injected_wall": round(a.wall, 3), "seen": a.seen, "cleared": t,
+               "actions": actions}
         with open(self.path, "a", encoding="utf-8") as out:
             out.write(json.dumps(row, separators=(",", ":")) + "\n")
 
@@ -174,12 +223,13 @@ class RunFaults:
         self.end()
         options = json.loads((run / "run.json").read_text(encoding="utf-8"))["options"]
         hosts = {name: h.arms for name, h in self.lab.hosts.items()}
-        schedule = fault_schedule(int(options["seed"]), int(options["steps"]), hosts)
-        self.drills = FaultDrills(self.lab, schedule, run, self.say)
+        steps = int(options["steps"])
+        schedule = fault_schedule(int(options["seed"]), steps, hosts)
+        self.drills = FaultDrills(self.lab, schedule, run, steps, self.say)
 
-    def before_step(self, t: int) -> None:
+    def after_step(self, t: int, row: Mapping[str, Any]) -> None:
         if self.drills is not None:
-            self.drills.before_step(t)
+            self.drills.after_step(t, row)
 
     def end(self) -> None:
         if self.drills is not None:

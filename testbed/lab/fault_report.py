@@ -52,6 +52,28 @@ def _arm_story(rows: Sequence[Mapping[str, Any]], robot: str, start: int, stop: 
     return {"fault_steps": fault_steps, "reason": text, "back": back}
 
 
+def _logged_reason(run: Path, f: Mapping[str, Any]) -> str | None:
+    """The first fault the host's log (``hosts/<host>.log``) names after the fault was
+    injected: a failed observe's reason, which the step's row does not carry."""
+    import datetime as dt
+
+    path = run / "hosts" / f"{f['host']}.log"
+    since = float(f.get("injected_wall") or 0.0)
+    if not path.exists():
+        return None
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        stamp, _, rest = line.partition(" fleet | fault for ")
+        if not rest:
+            continue
+        try:
+            when = dt.datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S.%f").timestamp()
+        except ValueError:
+            continue
+        if when >= since:
+            return " ".join(rest.partition(": ")[2].split())[:REASON_CHARS]
+    return None
+
+
 def finish_faults(run: Path) -> list[dict[str, Any]]:
     """Each fault of ``run`` with what its host's arms did (from ``steps.jsonl``), written
     back to ``faults.jsonl``; each arm's story runs until the next fault is injected."""
@@ -68,6 +90,10 @@ def finish_faults(run: Path) -> list[dict[str, Any]]:
                          if r["robot"].startswith(f"{f['host']}/")})
         f["arms"] = {robot: _arm_story(rows, robot, int(f["step"]), stop, f.get("cleared"))
                      for robot in robots}
+        logged = _logged_reason(run, f)  # a fault at observe is in the host's log only
+        for a in f["arms"].values():
+            if a["fault_steps"] and a["reason"] is None:
+                a["reason"] = logged
         backs = [a["back"] for a in f["arms"].values()]
         f["back"] = None if None in backs or not backs else max(backs)
     text = "".join(json.dumps(f, separators=(",", ":")) + "\n" for f in faults)

@@ -250,4 +250,4 @@ class _RehearsalHooks(TrialHooks):
         if self.recorders:
             self.recorders[-1].on_step(outcome.t)
         if self.drills is not None:  # between step t and t + 1
-            self.drills.before_step(outcome.t + 1)
+            self.drills.after_step(outcome.t, outcome.row)
