@@ -10,14 +10,14 @@ touched (issue 29, point 5).
 The schedule (:func:`fault_schedule`) is drawn from the run's seed, so a run's faults
 are the same each time it is rehearsed: every kind once (in ``steps >= MIN_STEPS``), in a
 shuffled order, each planned in a slot of its own, on a host and an arm drawn at random,
-held 1 or 2 steps. One fault is active at a time in the whole fleet (so at most one per
-host). A fault is injected between two steps (after the loop logged a step), and the
+held 1 or 2 steps. At most one fault is active per host (:class:`FaultDrills`).
+A fault is injected between two steps (after the loop logged a step), and the
 scripted person clears it between two steps: reproducible, where a stop mid-motion would
 depend on timing. How each is injected and cleared is the twin's
 (``sim_twin.lab_faults``: the controller's states and event log, its camera), but for
 the lost link, which is the lab's network: the host's sshd is stopped (its sessions die
 with it) and started again; the fleet's own reconnect (``drivers.session.HostSession``:
-attempts with backoff) brings the agent back.
+attempts with backoff, and one at each step's observe) brings the agent back.
 
 :class:`FaultDrills` does it, one line on the console for each fault, and keeps the
 run's ``faults.jsonl`` (``testbed.lab.fault_report`` adds what the arms did).
@@ -58,6 +58,8 @@ SLOT_STEPS = 4
 MAX_POSTPONE = 3
 """Steps a fault waits for its host to be at work before it is injected all the same."""
 ARM_KINDS = ("rapid_error", "zone_stop")
+AT_OBSERVE = ("camera_frozen", "link_lost")
+"""Faults the next observe meets, whatever the arms are doing."""
 """Faults of one arm's RAPID task (the others are the whole host's)."""
 MIN_STEPS = LEAD_STEPS + TAIL_STEPS + SLOT_STEPS * len(FAULT_KINDS)
 """A run this long has every kind of fault (29 steps); a shorter one the first few."""
@@ -116,13 +118,14 @@ class _Active:
 class FaultDrills:
     """Injects one run's faults and has the scripted person clear them, between steps.
 
-    One fault at a time, in the schedule's order: the next one is injected at its
-    planned step or later, once the last one's host has its arms back (a row without
-    ``fault``: a host whose link was lost first reconnects), and preferably into a host
-    that is at work (an arm of it pushed in the last step; after
-    :data:`MAX_POSTPONE` steps, whatever it does): a stop that strikes a host whose arms
-    wait for a person anyway shows nothing. The person clears it ``held`` steps after
-    it was injected. None is injected in a run's last :data:`TAIL_STEPS` steps."""
+    At most one fault per host at a time: a fault is injected at its planned step or
+    later, once its host is free (no fault active on it, and its arms back after the
+    last one: a row without ``fault``; a host whose link was lost first reconnects).
+    A stop of the controller shows only when an arm pushes, so one waits for its host
+    to be at work (an arm of it pushed in the last step; after :data:`MAX_POSTPONE`
+    steps, whatever it does). At most one fault is injected per step, in the schedule's
+    order among those whose host is free; none in a run's last :data:`TAIL_STEPS`
+    steps. The person clears a fault ``held`` steps after it was injected."""
 
     def __init__(self, lab: HardwareTwinLab, schedule: Sequence[PlannedFault],
                  folder: Path, steps: int, say: Say) -> None:
@@ -130,28 +133,32 @@ class FaultDrills:
         self.path = folder / FAULTS_FILE
         self.last_step = steps - TAIL_STEPS
         self.pending = list(schedule)
-        self.active: _Active | None = None
-        self.recovering: str | None = None
-        """The host of the last fault cleared, until a row shows its arms back."""
+        self.active: dict[str, _Active] = {}
+        """Host -> the fault active on it."""
+        self.recovering: set[str] = set()
+        """Hosts whose fault was cleared, until a row shows their arms back."""
 
     def after_step(self, t: int, row: Mapping[str, Any]) -> None:
         """Step ``t`` was logged (``row``); before step ``t + 1``: clear what is due,
         then inject what is due."""
         modes = {r["robot"]: r["mode"] for r in row["robots"]}
-        a = self.active
-        if a is not None:
-            if a.seen is None and "fault" in self._modes(modes, a.fault.host):
+        back = {h for h in self.recovering if "fault" not in self._modes(modes, h)}
+        self.recovering -= back
+        for host, a in list(self.active.items()):
+            if a.seen is None and "fault" in self._modes(modes, host):
                 a.seen = t
             if t + 1 >= a.step + a.fault.held:
-                self._clear(t + 1)
-        elif self.recovering is not None and "fault" not in self._modes(modes,
-                                                                        self.recovering):
-            self.recovering = None
-        if self.active is None and self.recovering is None and self.pending:
-            f = self.pending[0]
+                self._clear(host, t + 1)
+        if not t + 1 < self.last_step:
+            return
+        for f in self.pending:
+            if f.host in self.active or f.host in self.recovering or f.step > t + 1:
+                continue
             at_work = {"autonomous", "teleop"} & set(self._modes(modes, f.host))
-            if f.step <= t + 1 < self.last_step and (at_work or t + 1 >= f.step + MAX_POSTPONE):
-                self._inject(self.pending.pop(0), t + 1)
+            if at_work or f.kind in AT_OBSERVE or t + 1 >= f.step + MAX_POSTPONE:
+                self.pending.remove(f)
+                self._inject(f, t + 1)
+            return
 
     @staticmethod
     def _modes(modes: Mapping[str, str], host: str) -> list[str]:
@@ -159,10 +166,10 @@ class FaultDrills:
 
     def end(self) -> None:
         """The run is over (finished or not): nothing stays broken for the next run."""
-        if self.active is not None:
-            self._clear(None)
+        for host in list(self.active):
+            self._clear(host, None)
         for f in self.pending:
-            self.say(f"  not injected: {f.kind} (the run ended first)")
+            self.say(f"  not injected: {f.kind} on {f.host} (the run ended first)")
         self.pending = []
 
     def _number(self, f: PlannedFault) -> str:
@@ -174,23 +181,22 @@ class FaultDrills:
             shows = "sshd stopped: the link and the agent's session are gone"
         else:
             shows = self.lab.hosts[f.host].lab.fault(f.kind, f.arm)["shows"]
-        self.active = _Active(f, step, shows, time.time())
+        self.active[f.host] = _Active(f, step, shows, time.time())
         self.say(f"FAULT {self._number(f)} before step {step} on {f.host}"
                  f"{'/' + f.arm if f.kind in ARM_KINDS else ''}: {FAULT_KINDS[f.kind]}; "
                  f"{shows}")
         if f.kind == "camera_frozen":
             time.sleep(FROZEN_SETTLE_S)
 
-    def _clear(self, t: int | None) -> None:
-        a, self.active = self.active, None
-        assert a is not None
+    def _clear(self, host: str, t: int | None) -> None:
+        a = self.active.pop(host)
         f = a.fault
         if f.kind == LINK:
             self.lab.hosts[f.host].sshd.start()
             actions = ["started the host's sshd again (the link is back)"]
         else:
             actions = self.lab.hosts[f.host].lab.clear(f.kind)["actions"]
-        self.recovering = f.host
+        self.recovering.add(f.host)
         when = f"before step {t}" if t is not None else "after the run"
         self.say(f"  cleared {self._number(f)} {when} on {f.host}: {'; '.join(actions)}")
         row = {"step": a.step, "planned": f.step, "kind": f.kind, "host": f.host,

@@ -76,7 +76,7 @@ def _logged_reason(run: Path, f: Mapping[str, Any]) -> str | None:
 
 def finish_faults(run: Path) -> list[dict[str, Any]]:
     """Each fault of ``run`` with what its host's arms did (from ``steps.jsonl``), written
-    back to ``faults.jsonl``; each arm's story runs until the next fault is injected."""
+    back to ``faults.jsonl``; each arm's story runs until the next fault on its host."""
     from testbed.records.steps import read_steps
 
     faults = read_faults(run)
@@ -85,7 +85,7 @@ def finish_faults(run: Path) -> list[dict[str, Any]]:
     rows = read_steps(run / "steps.jsonl")
     end = max((int(r["t"]) for r in rows), default=-1) + 1
     for k, f in enumerate(faults):
-        stop = int(faults[k + 1]["step"]) if k + 1 < len(faults) else end
+        stop = next((int(g["step"]) for g in faults[k + 1:] if g["host"] == f["host"]), end)
         robots = sorted({r["robot"] for row in rows for r in row["robots"]
                          if r["robot"].startswith(f"{f['host']}/")})
         f["arms"] = {robot: _arm_story(rows, robot, int(f["step"]), stop, f.get("cleared"))
