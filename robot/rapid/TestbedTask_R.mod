@@ -19,8 +19,8 @@ MODULE TestbedTask_R
   ! tb_zone_lo to tb_zone_hi (x, y in mm, world; z unused). SET THESE FROM YOUR TABLE at
   ! install: the calibration's table_box_mm must lie inside the box, the other arm's
   ! workspace outside it, and tb_zone_z at or below the calibration's z_travel_mm.
-  CONST pos tb_zone_lo := [215,-375,0];
-  CONST pos tb_zone_hi := [585,-5,0];
+  CONST pos tb_zone_lo := [125,-395,0];
+  CONST pos tb_zone_hi := [495,-25,0];
   CONST num tb_zone_z := 80;
 
   PROC main()
