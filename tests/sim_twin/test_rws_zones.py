@@ -74,12 +74,12 @@ def test_the_zone_geometry() -> None:
         with pytest.raises(ValueError):
             ArmZone(*bad)  # type: ignore[arg-type]
     left = default_zone("left")
-    assert (left.x0, left.y0, left.x1, left.y1) == (215, 5, 585, 375)
+    assert (left.x0, left.y0, left.x1, left.y1) == (125, 25, 495, 395)
 
 
 def test_a_push_past_the_zone_box_stops_every_arm_at_its_face(twin: Any) -> None:
     c, _, cell, lock = twin()
-    box = default_zone("left")  # y up to 375 below 80 mm
+    box = default_zone("left")  # y up to 395 below 80 mm
     right_to = (500.0, -100.0, 150.0)
     entries = run(c, {
         "T_ROB_L": program([("J", (400, 300, 80), 500), ("L", (400, 300, 10), 200),
@@ -135,7 +135,7 @@ def test_the_zone_constants_read_over_rws_as_the_modules_declare_them(twin: Any)
             for n in ("tb_zone_lo", "tb_zone_hi", "tb_zone_z", "tb_floor_z", "tb_name")}
     assert read == {"tb_zone_lo": "[250,40,0]", "tb_zone_hi": "[550,330,0]",
                     "tb_zone_z": "70", "tb_floor_z": "2", "tb_name": '"testbed_T_ROB_L.bin"'}
-    assert c.get_rapid_variable("tb_zone_lo", "T_ROB_R/TestbedTask_R") == "[215,-375,0]"
+    assert c.get_rapid_variable("tb_zone_lo", "T_ROB_R/TestbedTask_R") == "[125,-395,0]"
     assert c.get_rapid_variable("TB_RAPID_VERSION", "T_ROB_R/TestbedMotion") == str(
         RAPID_VERSION)
     assert c.get_rapid_variable("tb_wz_floor", "T_ROB_L/TestbedMotion") != "[0]"
