@@ -31,12 +31,17 @@ import numpy.typing as npt
 # --- layout (mm) ------------------------------------------------------------------------
 WORKSPACE_MM: Final = 320.0
 """Side of one arm's square workspace (the plain twin's WORKSPACE_M)."""
-GAP_MM: Final = 60.0
-"""Table between the two workspaces (they sit either side of y = 0)."""
-WORKSPACE_X_MM: Final = 400.0
-"""x of the workspaces' centres (in front of the robot)."""
+GAP_MM: Final = 100.0
+"""Table between the two workspaces (they sit either side of y = 0): wide enough that
+the two grippers over the inner edges stay 30 mm apart (issue 29, the arms' capsules in
+``drivers/yumi/arm_shapes.py``)."""
+WORKSPACE_X_MM: Final = 310.0
+"""x of the workspaces' centres (in front of the robot): every corner reachable with a
+100 mm pusher pointing down at an arm angle of +-135 deg, the nearest 42 mm inside the
+reach (docs/notes/yumi-real.md, "Reach and kinematics"). At 400 mm the far outer corners
+were out of an IRB 14000's reach."""
 CUBE_MM: Final = 40.0
-TABLE_BOX_MM: Final = (80.0, -480.0, 760.0, 480.0)
+TABLE_BOX_MM: Final = (0.0, -480.0, 680.0, 480.0)
 """(x0, y0, x1, y1) of the finite table top; it covers the camera's whole view, and a
 cube pushed past its edge falls to the floor."""
 TABLE_THICKNESS_MM: Final = 40.0
@@ -52,16 +57,23 @@ MARKER_MM: Final = 36.0
 """Side of the ArUco marker's black square, centred on the cap (a 4 mm white margin)."""
 MARKER_DICT: Final = "DICT_4X4_50"
 MARKER_IDS: Final = {"left": 0, "right": 1}
+REST_JOINTS_DEG: Final = {"left": (-20.0, -20.0, 0.0, 150.0, 30.0, 70.0, 135.0),
+                          "right": (20.0, -20.0, 0.0, -150.0, 30.0, -70.0, -135.0)}
+"""Each arm's rest pose, ABB's joint order (axes 1-6, then axis 7): the arm raised out to
+its side, its pusher's tip far above the world zones and outside the camera's view, the
+two arms apart (``drivers/yumi/layout_check.py`` checks all of it)."""
 REST_MM: Final = {"left": (100.0, 450.0, 150.0), "right": (100.0, -450.0, 150.0)}
-"""Each TCP's rest point: behind and beside the table, far outside the camera's view."""
+"""Each TCP's rest point in the plain cell: behind and beside the table, far outside the
+camera's view. (The arms' rest is :data:`REST_JOINTS_DEG`; with a 100 mm pusher its tip is
+at (185, +-674, 447): a twin with arms should rest there, by the joints.)"""
 
 # --- camera -------------------------------------------------------------------------------
 WIDTH: Final = 640
 HEIGHT: Final = 480
-CAMERA_HEIGHT_MM: Final = 1200.0
+CAMERA_HEIGHT_MM: Final = 1300.0
 FOCAL_PX: Final = 1000.0
-"""A 320 mm workspace at the cube-top plane (z = 40 mm) images to 276 px; both
-workspaces and the gap fit the 640 px width with ~18 px to spare."""
+"""A 320 mm workspace at the cube-top plane (z = 40 mm) images to 254 px; both
+workspaces and the gap (740 mm) fit the 640 px width with ~26 px to spare."""
 PRINCIPAL_PX: Final = (319.5, 239.5)
 DIST: Final = (-0.03, 0.0, 0.0, 0.0, 0.0)
 """OpenCV (k1, k2, p1, p2, k3): mild barrel distortion (1 px at the workspace corners)."""

@@ -89,6 +89,8 @@ class ArmCalibration:
     stroke: float = 0.15
     """Push stroke length, canonical units past the start (cube moves ~ stroke - offset)."""
     pose: ArmPose | None = None
+    tool_z_mm: float | None = None
+    """The file's ``tool_z_mm`` as given (None: not given; the pose's is then 0)."""
 
     @classmethod
     def load(cls, path: str | Path, arm: str) -> ArmCalibration:
@@ -139,7 +141,8 @@ class ArmCalibration:
                            robconf=tuple(d.get("robconf", (0, 0, 0, 4))),
                            arm_angle_deg=float(d.get("arm_angle_deg", 0.0)),
                            tool_z_mm=float(d.get("tool_z_mm", 0.0)))
-        return cls(h, box, **nums, pose=pose)  # type: ignore[arg-type]
+        tool_z = float(d["tool_z_mm"]) if "tool_z_mm" in d else None
+        return cls(h, box, **nums, pose=pose, tool_z_mm=tool_z)  # type: ignore[arg-type]
 
     def pixel_to_table(self, u: float, v: float) -> tuple[float, float]:
         x, y, w = self.homography @ np.array([u, v, 1.0])
@@ -436,6 +439,8 @@ class YumiBackend(HostBackend):
                 "table_boxes": {task[n]: list(a.calibration.table_box_mm)
                                 for n, a in self._arms.items()},
                 "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()},
+                "layout": {n: {"task": task[n], **layout_keys(a.calibration)}
+                           for n, a in self._arms.items()},
                 "camera": camera_report(self._camera, {n: a.crop for n, a in self._arms.items()},
                                         frame=frame)}
 
@@ -499,6 +504,8 @@ class YumiBackend(HostBackend):
                              min(cal.max_speed_mm_s, 2 * cal.push_speed_mm_s), fine=False)
                     ] if z < cal.z_travel_mm - LIFT_TOLERANCE_MM else []
             out[arm] = lift + list(wps)
+        for arm, wps in out.items():
+            refuse_unreachable(arm, self._arms[arm].calibration, wps)
         self._controller.execute(out)
 
     def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
@@ -527,6 +534,48 @@ class YumiBackend(HostBackend):
                 self._camera.close()
             finally:
                 self._controller.close()
+
+
+def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
+    """What the layout's checks read of a calibration (``drivers/yumi/layout_check.py``):
+    the table box, the heights, the tool, the arm angle, the rest joints, the homography."""
+    out: dict[str, Any] = {"table_box_mm": list(cal.table_box_mm), "z_push_mm": cal.z_push_mm,
+                           "z_travel_mm": cal.z_travel_mm,
+                           "homography": cal.homography.tolist()}
+    if cal.tool_z_mm is not None:
+        out["tool_z_mm"] = cal.tool_z_mm
+    if cal.pose is not None:
+        out.update(rest_joints_deg=list(cal.pose.rest_joints_deg),
+                   arm_angle_deg=cal.pose.arm_angle_deg,
+                   tool_quat_wxyz=list(cal.pose.tool_quat_wxyz))
+    return out
+
+
+def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint]) -> None:
+    """BackendError, before anything moves, when a waypoint is one the arm cannot reach
+    with the pusher down at its arm angle (out of reach, past a joint limit, near a
+    singularity: ``drivers/yumi/irb14000_ik.py``): the controller would stop the task
+    half-way through the program; this names the point and the reason instead. It can
+    tell only what it knows: an arm whose calibration does not give its pusher's length
+    (``tool_z_mm``), or whose side cannot be told (not an IRB 14000 task, not named
+    left/right), is not checked here (``testbed check`` still judges its layout)."""
+    from drivers.yumi.layout_check import layout_of
+
+    lay = layout_of(arm, layout_keys(cal), task=cal.pose.task if cal.pose else None)
+    if lay is None or cal.tool_z_mm is None:
+        return
+    seed = None
+    for w in waypoints:
+        if w.xyz_mm is None:
+            continue
+        sol = lay.tool.solve(w.xyz_mm, seed)
+        if sol.pose is None:
+            x, y, z = w.xyz_mm
+            raise BackendError(
+                f"arm {arm}: target ({x:.0f}, {y:.0f}, {z:.0f}) mm cannot be reached with "
+                f"the pusher down (tool_z_mm {lay.tool.tool_z_mm:g}, arm angle "
+                f"{lay.tool.arm_angle_deg:g} deg): {sol.reason}; nothing was moved")
+        seed = sol.pose.chain_deg
 
 
 def write_atomic(path: Path, text: str) -> None:

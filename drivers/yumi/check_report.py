@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["camera_lines", "controller_report", "report_lines"]
+__all__ = ["camera_lines", "controller_report", "layout_report", "report_lines"]
 
 
 def controller_report(name: str, info: Mapping[str, Any]) -> tuple[list[str], list[str]]:
@@ -24,7 +24,30 @@ def controller_report(name: str, info: Mapping[str, Any]) -> tuple[list[str], li
     rep, boxes = info["controller"], info.get("table_boxes", {})
     lines = report_lines(name, rep, RAPID_VERSION)
     lines += camera_lines(name, info.get("camera") or {})
-    return lines, problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
+    faults = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
+    got, bad = layout_report(rep, info)
+    return lines + got, faults + bad
+
+
+def layout_report(rep: Mapping[str, Any], info: Mapping[str, Any]
+                  ) -> tuple[list[str], list[str]]:
+    """The arms' layout through the IRB 14000's kinematics (``drivers/yumi/
+    layout_check.py``): each arm's table box corners reachable with the pusher down, its
+    rest pose above its task's ``tb_zone_z``, out of the camera's view and clear of the
+    other arm, and the two arms' sweeps apart; from the calibration keys the host sends
+    (``layout``), the zones the controller reports and the camera's frame size."""
+    from drivers.yumi.layout_check import check_layout, layout_of
+
+    size = (info.get("camera") or {}).get("size")
+    arms = []
+    for arm, cal in (info.get("layout") or {}).items():
+        task = cal.get("task")
+        zone_z = ((rep.get("rapid") or {}).get(task) or {}).get("zones", {}).get("tb_zone_z")
+        lay = layout_of(arm, cal, task=task, frame_size=size,
+                        zone_z_mm=None if zone_z is None else float(zone_z))
+        if lay is not None:
+            arms.append(lay)
+    return check_layout(arms) if arms else ([], [])
 
 
 def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:

@@ -53,6 +53,16 @@ class YumiPlugin(BackendPlugin):
 
         return controller_report(host.name, info)
 
+    def layout_report(self, host: HostBase, calibrations: Mapping[str, Mapping[str, Any]],
+                      info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
+        """The arms' layout through the IRB 14000's kinematics, as ``testbed check``
+        words it (``drivers/yumi/check_report.py``), from calibration files."""
+        from drivers.yumi.check_report import layout_report
+
+        info = dict(info or {})
+        info["layout"] = {arm: dict(cal) for arm, cal in calibrations.items()}
+        return layout_report(info.get("controller") or {}, info)
+
     def agent_argv(self, host: HostBase) -> list[str]:
         argv: list[str] = []
         if (camera := getattr(host, "camera", None)) is not None:

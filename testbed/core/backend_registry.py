@@ -134,6 +134,14 @@ class Backend:
         capability override it."""
         return [], []
 
+    def layout_report(self, host: HostBase, calibrations: Mapping[str, Mapping[str, Any]],
+                      info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
+        """What ``testbed calibrate`` prints of the arms' layout after a fit: (report lines,
+        FAULT lines) of ``calibrations`` (arm -> its calibration file's keys) with the
+        controller's ``describe()`` ``info`` when it could be read. Backends whose arms
+        have kinematics (the YuMi's reach, rest pose, clearances) override it."""
+        return [], []
+
 
 def _load(ep: EntryPoint, where: str) -> Backend:
     try:

@@ -36,7 +36,7 @@ import numpy as np
 from testbed.core.atomic import atomic_write_json
 from testbed.core.backend_registry import backend_of
 from testbed.core.config import ConfigError
-from testbed.core.host_config import ArmConfig, HostConfig
+from testbed.core.host_config import HostConfig
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.perception import homography as cal
 
@@ -372,14 +372,52 @@ def _announce(host: str, opts: CalibrateOptions, box: cal.Box, say: Callable[[st
         f"z = {opts.z_mm:g} mm at every point")
 
 
-def _fit_and_save(fleet: Any, arm_cfg: ArmConfig, opts: CalibrateOptions, box: cal.Box,
+def verify_layout(fleet: Any, host: HostConfig, opts: CalibrateOptions,
+                  out: CalibrationOutcome, say: Callable[[str], None]) -> bool:
+    """The new calibration's layout, with the other arms' files, through the backend's
+    kinematics (a YuMi: every table box corner reachable with the pusher down, the rest
+    pose above the world zone, out of view, clear of the other arm; ``testbed check``
+    judges the same): its lines and one FAULT line each. The fit is still written (it is
+    right about the camera); the FAULT lines say what to change before a trial, which
+    ``testbed check`` then fails on. False on a FAULT."""
+    from drivers.errors import DriverError
+
+    assert out.data is not None
+    cals: dict[str, Any] = {opts.arm: {**out.data, "homography": out.fit.homography.tolist()
+                                       if out.fit is not None else out.data.get("homography")}}
+    for a in host.arms:
+        if a.name != opts.arm and a.calibration:
+            try:
+                _, text = read_host_file(host, a.calibration)
+                cals[a.name] = json.loads(text) if text else None
+            except (DriverError, ValueError):
+                cals[a.name] = None
+    info: dict[str, Any] = {"camera": {"size": list(out.frame_size or ())}}
+    try:
+        info.update(fleet.describe(host.name))
+        info["camera"] = {"size": list(out.frame_size or ())}
+    except Exception as exc:  # the zones stay unknown: their comparison is skipped
+        say(f"layout: the controller's zones not read ({exc})")
+    lines, faults = backend_of(host).layout_report(
+        host, {a: c for a, c in cals.items() if isinstance(c, dict)}, info)
+    for line in lines:
+        say(line.strip())
+    for why in faults:
+        say(f"FAULT {host.name}: {why}")
+    return not faults
+
+
+def _fit_and_save(fleet: Any, host: HostConfig, opts: CalibrateOptions, box: cal.Box,
                   existing: Mapping[str, Any] | None, say: Callable[[str], None]) -> int:
     """On the started ``fleet``: drive, fit, report, and write the file if it is good."""
+    arm_cfg = next(a for a in host.arms if a.name == opts.arm)
     out = run_calibration(fleet, opts, box, existing, say)
     if out.error is not None:
         say(f"FAILED: {out.error}; nothing written")
         return EXIT_FAILED
     ok = report(out, opts, arm_cfg.crop, say)
+    if out.data is not None:
+        verify_layout(fleet, host, opts, out, say)
     if opts.image is not None and out.last_frame is not None:
         import cv2
 
@@ -420,7 +458,7 @@ def calibrate(cfg: FleetConfig, opts: CalibrateOptions,
         if not status.connected:
             say(f"FAILED: host {host.name} did not start: {status.error}")
             return EXIT_FAILED
-        return _fit_and_save(fleet, arm_cfg, opts, box, existing, say)
+        return _fit_and_save(fleet, host, opts, box, existing, say)
     except Exception as exc:
         from drivers.errors import DriverError
 

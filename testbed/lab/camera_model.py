@@ -19,7 +19,15 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from testbed.lab.hardware_twin import HardwareTwinLab
 
-__all__ = ["project_plane", "starting_calibration", "true_calibration", "true_model_error"]
+REST_JOINTS_DEG = {"left": (-20.0, -20.0, 0.0, 150.0, 30.0, 70.0, 135.0),
+                   "right": (20.0, -20.0, 0.0, -150.0, 30.0, -70.0, -135.0)}
+"""The twin's rest joints (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``: the lab's
+rooms import no twin at import time, so the numbers are here too; a test keeps them
+equal). With the arm angle +-135 deg they pass ``testbed check``'s layout checks
+(docs/notes/yumi-real.md, "Reach and kinematics")."""
+
+__all__ = ["REST_JOINTS_DEG", "project_plane", "starting_calibration", "true_calibration",
+           "true_model_error"]
 
 
 def project_plane(cam: Mapping[str, Any], box_mm: Sequence[float], plane_z_mm: float,
@@ -52,8 +60,8 @@ def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
     h, _ = cv2.findHomography(px, pts[:, :2])
     side = "L" if arm.startswith("l") else "R"
     return {"homography": h.tolist(), "table_box_mm": box,
-            "rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
-                                -135.0 if side == "L" else 135.0],
+            "rest_joints_deg": list(REST_JOINTS_DEG["left" if side == "L" else "right"]),
+            "arm_angle_deg": 135.0 if side == "L" else -135.0,
             "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
 
 
