@@ -29,7 +29,9 @@ sizes for the default twin trial's.
 This module is the orchestration only: the twins and their sshds are
 ``testbed.lab.hardware_twin``, the lab's humans ``testbed.lab.lab_humans``, the truth
 and its scoring ``testbed.lab.twin_truth``, the true camera's figures
-``testbed.lab.camera_model``.
+``testbed.lab.camera_model``, and ``--faults``' drills (a guard stop, motors off, a
+RAPID error, a zone stop, a frozen camera, a lost link, each cleared by a scripted
+person) ``testbed.lab.fault_drills`` and ``testbed.lab.fault_report``.
 """
 
 from __future__ import annotations
