@@ -1,0 +1,186 @@
+"""The IRB 14000's arms on the operator's side: kinematics, refusals, the layout's checks.
+
+``drivers/yumi/irb14000.py`` (the chains), ``irb14000_ik.py`` (targets with the pusher
+down), ``arm_shapes.py`` (clearances) and ``layout_check.py`` (what ``testbed check``
+and ``testbed calibrate`` fail on, through ``check_report.controller_report``, the
+function ``testbed check`` calls for a YuMi host). The shipped layout
+(``sim_twin/yumi_geometry.py``, ``testbed/lab/camera_model.py``) must pass with margin;
+the rest pose shipped before issue 29 must not.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from driver_fakes import write_video
+
+from drivers.errors import BackendError
+from drivers.testing.fake_yumi import FakeYumiController
+from drivers.yumi.arm_shapes import arm_capsules, min_distance
+from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
+from drivers.yumi.camera import VideoCaptureCamera
+from drivers.yumi.check_report import controller_report
+from drivers.yumi.controller_state import RAPID_VERSION
+from drivers.yumi.irb14000 import JOINT_ORIGINS, abb_to_chain, arm, chain_to_abb
+from drivers.yumi.irb14000_ik import solve_pose
+from drivers.yumi.layout_check import check_layout, layout_of
+from drivers.yumi.reach import REACH_MARGIN_MM, ArmTool, corner_reaches
+from sim_twin.yumi_geometry import REST_JOINTS_DEG, CameraModel, workspace_mm
+from testbed.lab.camera_model import REST_JOINTS_DEG as LAB_REST_JOINTS
+from testbed.lab.camera_model import true_calibration
+
+OLD_REST = {"left": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0],
+            "right": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0]}
+"""The rest joints shipped before issue 29 (testbed/lab/camera_model.py)."""
+
+
+def test_forward_kinematics_keeps_the_links_rigid_and_the_arms_mirrored() -> None:
+    rng = np.random.default_rng(1)
+    left, right = arm("left"), arm("right")
+    for _ in range(50):
+        q = rng.uniform(left.lower, left.upper)
+        p = left.pose(q)
+        for k, (xyz, _) in enumerate(JOINT_ORIGINS):  # each link as long as described
+            assert np.linalg.norm(p.frames[k + 1][:3, 3] - p.frames[k][:3, 3]) == \
+                pytest.approx(math.hypot(*xyz), abs=1e-9)
+        mirrored = q * np.array([-1, 1, -1, 1, -1, 1, -1])
+        r = right.pose(mirrored).flange[:3, 3]  # the description's two shoulders mirror
+        # each other to its rounding (0.003 rad): a few mm at the arm's length
+        assert r == pytest.approx(p.flange[:3, 3] * np.array([1, -1, 1]), abs=5.0)
+    assert chain_to_abb(abb_to_chain([1, 2, 3, 4, 5, 6, 7])) == [1, 2, 3, 4, 5, 6, 7]
+
+
+def test_known_poses() -> None:
+    """All joints at zero stretch the left arm forward across the body at shoulder
+    height; the old rest joints (axis 7 -135 on the left) put its flange on the RIGHT side
+    of the body, high up: the arms cross there."""
+    zero = arm("left").pose([0.0] * 7).flange[:3, 3]
+    assert zero == pytest.approx([568.6, -5.0, 413.6], abs=0.5)
+    crossed = arm("left").pose_abb(OLD_REST["left"]).flange[:3, 3]
+    assert crossed[1] < -100 and crossed[2] > 450
+
+
+def test_ik_round_trips_random_joints_within_limits() -> None:
+    rng = np.random.default_rng(7)
+    for side in ("left", "right"):
+        model = arm(side)
+        solved = 0
+        for _ in range(40):
+            q = rng.uniform(model.lower + 5, model.upper - 5)
+            target = model.pose(q).flange
+            near = q + rng.uniform(-8, 8, 7)
+            near[2] = q[2]
+            sol = solve_pose(model, target, q[2], current=near)
+            if sol.kind == "singular":
+                continue
+            assert sol.pose is not None, sol.reason
+            assert sol.pose.chain_deg[2] == pytest.approx(q[2])  # the arm angle is kept
+            assert sol.pose.flange[:3, 3] == pytest.approx(target[:3, 3], abs=0.1)
+            assert sol.pose.flange[:3, :3] == pytest.approx(target[:3, :3], abs=1e-3)
+            assert model.limit_excess(sol.pose.chain_deg) is None
+            solved += 1
+        assert solved >= 30
+
+
+def test_an_unreachable_target_and_a_joint_limit_are_refused_with_the_number() -> None:
+    far = ArmTool("left", 100.0, 135.0).solve((900.0, 300.0, 10.0))
+    assert far.pose is None and far.kind == "reach"
+    n = float(re.fullmatch(r"out of reach by (\d+) mm", far.reason).group(1))  # type: ignore[union-attr]
+    assert 200 < n < 400
+    tight = ArmTool("left", 100.0, 60.0).solve((160.0, 50.0, 10.0))
+    assert tight.pose is None and tight.kind == "limit"
+    assert re.fullmatch(r"axis 2 past its limit by \d+\.\d deg", tight.reason)
+
+
+def shipped(side: str, **over: Any) -> dict[str, Any]:
+    """A side's calibration as the twin's true one, with a 100 mm pusher."""
+    cam = {**CameraModel.default().as_json(),
+           "workspaces_mm": {s: list(workspace_mm(s)) for s in ("left", "right")}}
+    return {**true_calibration(cam, side), "tool_z_mm": 100.0, **over}
+
+
+def check(cals: dict[str, dict[str, Any]], zone_z: float = 80.0) -> tuple[list[str], list[str]]:
+    """``testbed check``'s YuMi report of a ready controller and these calibrations."""
+    tasks = {a: c["task"] for a, c in cals.items()}
+    rep = {"options": ["616-1", "623-1", "604-2", "608-1"],
+           "state": {"opmode": "AUTO", "ctrlstate": "motoron", "execstate": "stopped"},
+           "tasks": {t: {"active": True, "excstate": "ready"} for t in tasks.values()},
+           "rapid": {t: {"version": RAPID_VERSION,
+                         "zones": {"tb_zone_lo": [125, -395, 0], "tb_zone_hi": [495, 395, 0],
+                                   "tb_zone_z": zone_z, "tb_floor_z": 0}}
+                     for t in tasks.values()}}
+    info = {"controller": rep, "camera": {"size": [640, 480]},
+            "layout": {a: {**c} for a, c in cals.items()}}
+    return controller_report("yumi-a", info)
+
+
+def test_every_corner_of_the_shipped_workspaces_is_reachable_with_margin() -> None:
+    t0 = time.perf_counter()
+    lines, faults = check({s: shipped(s) for s in ("left", "right")})
+    assert faults == []
+    assert time.perf_counter() - t0 < 5.0
+    for side in ("left", "right"):
+        cal = shipped(side)
+        tool = ArmTool(side, 100.0, cal["arm_angle_deg"])
+        for c in corner_reaches(tool, workspace_mm(side), (10.0, 80.0)):
+            assert c.margin_mm is not None and c.margin_mm >= REACH_MARGIN_MM, c
+    assert any("reach margin" in line for line in lines)
+    assert LAB_REST_JOINTS == REST_JOINTS_DEG  # the lab's copy of the twin's rest
+
+
+def test_the_old_rest_pose_with_a_100mm_pusher_is_a_fault() -> None:
+    cals = {s: shipped(s, rest_joints_deg=OLD_REST[s]) for s in ("left", "right")}
+    _, faults = check(cals)
+    assert any(re.match(r"arms left and right: at rest their \w[\w ()0-9]* and .* are -\d+ "
+                        r"mm apart", f) for f in faults), faults
+
+
+def test_a_rest_pose_below_the_zone_ceiling_or_in_view_is_a_fault() -> None:
+    low = ArmTool("left", 100.0, 135.0).solve((300.0, 210.0, 50.0))
+    assert low.pose is not None
+    cals = {"left": shipped("left", rest_joints_deg=low.pose.abb_deg)}
+    _, faults = check(cals)
+    assert any("puts the pusher's tip at z 50 mm, below the world zone's tb_zone_z 80"
+               in f for f in faults), faults
+    assert any("is in the camera's view" in f for f in faults), faults
+
+
+def test_arms_whose_sweeps_meet_are_a_fault() -> None:
+    """Two table boxes side by side with no gap: the grippers over the inner edges meet."""
+    cals = {"left": shipped("left", table_box_mm=[150, 0, 470, 320]),
+            "right": shipped("right", table_box_mm=[150, -320, 470, 0])}
+    lays = [layout_of(a, c) for a, c in cals.items()]
+    _, faults = check_layout([lay for lay in lays if lay is not None])
+    assert any(re.match(r"arms left and right: on their way .* come -?\d+ mm close", f)
+               for f in faults), faults
+    rest = {s: arm(s).pose_abb(REST_JOINTS_DEG[s]) for s in ("left", "right")}
+    gap, _, _ = min_distance(arm_capsules(rest["left"], 100.0),
+                             arm_capsules(rest["right"], 100.0))
+    assert gap >= 25.0
+
+
+def test_the_driver_refuses_an_unreachable_target_before_anything_moves(tmp_path: Path) -> None:
+    video = write_video(tmp_path / "cam.avi", [np.zeros((48, 64, 3), np.uint8)])
+    cal = shipped("left", homography=np.eye(3).tolist(), table_box_mm=[0, 0, 1000, 1000])
+    (tmp_path / "left.json").write_text(json.dumps(cal))
+    setup = ArmSetup("left", (0, 0, 32, 32), False,
+                     ArmCalibration.load(tmp_path / "left.json", "left"))
+    ctrl = FakeYumiController({"left": (185.0, 674.0, 448.0)})
+    backend = YumiBackend([setup], VideoCaptureCamera(str(video)), ctrl)
+    try:
+        with pytest.raises(BackendError, match=r"arm left: target \(900, 300, 80\) mm cannot "
+                                               r"be reached .*out of reach by \d+ mm; nothing "
+                                               r"was moved"):
+            backend.move_tcp("left", (900.0, 300.0, 10.0))
+        assert ctrl.programs == []
+        backend.move_tcp("left", (300.0, 200.0, 10.0))  # a reachable one still moves
+        assert len(ctrl.programs) == 1
+    finally:
+        backend.close()
