@@ -5,7 +5,15 @@ limit, the version (``TB_RAPID_VERSION``), the world zones (``tb_zones``: the bo
 twin supervises, its default zone = the modules' as shipped) and every symbol the twin
 declares as theirs (name, storage, type, and the CONSTs' values). rapidchecker checks
 syntax, indentation (2), upper-case keywords and whitespace; it cannot load a module
-into a controller, so robot/README.md ends with what to check on the robot."""
+into a controller, so robot/README.md ends with what to check on the robot.
+
+rapidchecker passes modules that RobotWare would run wrongly, so the semantic rules of
+issue 29 are checked here on the parsed text (each check also on a planted copy of the
+defect, and each fails on the issue-29 modules): every ``wzstationary`` is TASK PERS in
+a system module; the POWER_ON event routine and everything it reads are in system
+modules; ``main`` is in the program module; no ``Close`` without the opened flag; the
+RAM disk path as the manual writes it ("RAMDISK:/<name>"); the tool load is the gripper
+and the pusher, as robot/README.md derives it."""
 
 from __future__ import annotations
 
@@ -20,12 +28,16 @@ from drivers.yumi import yumi_controller
 from sim_twin.rws import testbed_rapid, world_zones
 
 RAPID = Path(__file__).resolve().parents[1] / "robot" / "rapid"
-MODULES = sorted(RAPID.glob("*.mod"))
+MODULES = sorted([*RAPID.glob("*.mod"), *RAPID.glob("*.sys")])
+
+
+def _file(module: str) -> Path:
+    return next(p for p in MODULES if p.stem == module)
 
 
 def test_there_is_a_shared_module_and_one_task_module_per_arm() -> None:
     assert [p.name for p in MODULES] == ["TestbedMotion.mod", "TestbedTask_L.mod",
-                                         "TestbedTask_R.mod"]
+                                         "TestbedTask_R.mod", "TestbedZones.sys"]
 
 
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: p.name)
@@ -35,7 +47,7 @@ def test_rapidchecker_finds_nothing(path: Path) -> None:
 
 
 def test_rapidchecker_would_catch_a_broken_module() -> None:
-    text = (RAPID / "TestbedTask_L.mod").read_text()
+    text = (RAPID / "TestbedMotion.mod").read_text()
     assert check_file(text.replace("  ENDPROC", "  endproc"))  # keyword case
     assert check_file(text.replace("    tb_run;", "   tb_run;"))  # indentation
     assert check_file(text.replace("tb_run;", "tb_run"))  # syntax
@@ -53,12 +65,13 @@ def test_the_modules_agree_with_the_driver_and_the_twin() -> None:
     assert _const(shared, "TB_FAILED") == yumi_controller.FAILED == testbed_rapid.FAILED
     assert int(_const(shared, "TB_MAX_CMDS")) == testbed_rapid.MAX_COMMANDS
     assert _const(shared, "TB_DIR") == "RAMDISK:"
+    assert "tb_path := TB_DIR + \"/\" + tb_name;" in shared
     for side in ("L", "R"):
         task = f"T_ROB_{side}"
         text = (RAPID / f"TestbedTask_{side}.mod").read_text()
         name = _const(text, "tb_name")
         assert name == yumi_controller.program_file(task)
-        assert f"RAMDISK:{name}" == testbed_rapid.testbed_program_file(task)
+        assert f"RAMDISK:/{name}" == testbed_rapid.testbed_program_file(task)
         assert "TASK PERS tooldata tool_pusher" in text
         assert float(_const(text, "tb_floor_z")) == 0.0  # the twin's default floor
         mass = re.search(r"tool_pusher := \[TRUE,\[\[[^]]*\],\[[^]]*\]\],\[([0-9.]+),", text)
@@ -75,14 +88,17 @@ def _decl(text: str, name: str) -> tuple[str, str, str]:
 def test_the_world_zones_and_the_version_agree_with_the_twin() -> None:
     shared = (RAPID / "TestbedMotion.mod").read_text()
     assert float(_const(shared, "TB_RAPID_VERSION")) == testbed_rapid.RAPID_VERSION
-    assert float(_const(shared, "TB_WZ_FAR")) == world_zones.FAR
-    body = shared[shared.index("  PROC tb_zones()"):]
+    zones = (RAPID / "TestbedZones.sys").read_text()
+    assert float(_const(zones, "TB_WZ_FAR")) == world_zones.FAR
+    body = zones[zones.index("  PROC tb_zones()"):]
     body = body[:body.index("  ENDPROC")]
     names = re.findall(r"WZLimSup \\Stat, (\w+), shape;", body)
     assert names == [b.name for b in world_zones.ArmZone(0, 0, 1, 1).boxes()]
     assert body.count("WZBoxDef \\Inside, shape, lo, hi;") == len(names)
-    for name in names:  # each a task-global VAR, as the manual's examples declare them
-        assert _decl(shared, name)[:2] == ("VAR", "wzstationary")
+    assert float(_const(zones, "TB_WZ_COUNT")) == len(names)
+    assert body.count("tb_zones_n := tb_zones_n + 1;") == len(names)
+    for name in names:  # each TASK PERS: kept at PP to Main, one per task
+        assert _decl(zones, name)[:2] == ("TASK PERS", "wzstationary")
     for side in ("L", "R"):
         text = (RAPID / f"TestbedTask_{side}.mod").read_text()
         lo = [float(v) for v in _decl(text, "tb_zone_lo")[2].strip("[]").split(",")]
@@ -107,8 +123,8 @@ def test_every_symbol_the_twin_declares_is_in_the_modules() -> None:
         decls = list(TestbedInstall(Irc5Controller(), hook).declarations())
     zone_consts = {"tb_zone_lo", "tb_zone_hi", "tb_zone_z", "tb_floor_z"}  # the CLI's
     for task, (module, name, type_name, value, storage) in decls:
-        text = (RAPID / f"{module}.mod").read_text()
-        if module != "TestbedMotion":
+        text = _file(module).read_text()
+        if module not in ("TestbedMotion", "TestbedZones"):
             assert module == f"TestbedTask_{task[-1]}"
         got = _decl(text, name)
         assert got[:2] == (storage, type_name), (module, name)
@@ -117,8 +133,203 @@ def test_every_symbol_the_twin_declares_is_in_the_modules() -> None:
 
 
 def test_rapidchecker_would_catch_a_broken_zone_routine() -> None:
-    text = (RAPID / "TestbedMotion.mod").read_text()
+    text = (RAPID / "TestbedZones.sys").read_text()
     assert not check_file(text)
     assert check_file(text.replace("WZLimSup \\Stat, tb_wz_floor, shape;",
                                    "WZLimSup \\Stat, tb_wz_floor, shape"))
     assert check_file(text.replace("    z0 := tb_floor_z", "   z0 := tb_floor_z"))
+
+
+# --- the semantics rapidchecker cannot see (issue 29) ----------------------------------------
+Texts = dict[str, str]
+"""module name -> its text (one task's modules: the shared ones and that task's)."""
+DECL = re.compile(r"^  (?:LOCAL )?(TASK PERS|PERS|CONST|VAR) (\w+) (\w+)(?:\{[^}]*\})?"
+                  r"(?: := (.*))?;$", re.M)
+EVENT_ROUTINES = ("tb_zones",)
+"""The routines robot/README.md makes POWER_ON event routines."""
+
+
+def _texts(side: str) -> Texts:
+    """The modules one task (``T_ROB_<side>``) loads."""
+    return {p.stem: p.read_text() for p in MODULES
+            if not p.stem.startswith("TestbedTask_") or p.stem.endswith(side)}
+
+
+def _is_system(text: str) -> bool:
+    """``MODULE name(SYSMODULE, ...)``: RAPID's system module attribute."""
+    m = re.match(r"MODULE \w+(?:\(([^)]*)\))?", text)
+    return bool(m and m.group(1) and "SYSMODULE" in m.group(1).replace(" ", "").split(","))
+
+
+def _declared(texts: Texts) -> dict[str, tuple[str, str, str, str]]:
+    """Module-scope name -> (module, storage, type, value)."""
+    return {m.group(3): (mod, m.group(1), m.group(2), m.group(4) or "")
+            for mod, text in texts.items() for m in DECL.finditer(text)}
+
+
+def _routine(texts: Texts, name: str) -> tuple[str, str]:
+    """(module, body) of PROC ``name``."""
+    for mod, text in texts.items():
+        m = re.search(rf"^  PROC {name}\(\)\n(.*?)^  ENDPROC", text, re.M | re.S)
+        if m:
+            return mod, m.group(1)
+    raise AssertionError(f"no PROC {name}")
+
+
+def wzstationary_problems(texts: Texts) -> list[str]:
+    """Every wzstationary must be TASK PERS (kept at PP to Main, one per task) in a system
+    module (kept at Reset RAPID)."""
+    return [f"{name} is {storage} in {mod}"
+            for name, (mod, storage, type_name, _) in _declared(texts).items()
+            if type_name == "wzstationary"
+            and (storage != "TASK PERS" or not _is_system(texts[mod]))]
+
+
+def event_routine_problems(texts: Texts) -> list[str]:
+    """An event routine, and every module-scope name it reads, must be in a system
+    module: Reset RAPID removes program modules while the event stays configured."""
+    out, decls = [], _declared(texts)
+    for routine in EVENT_ROUTINES:
+        mod, body = _routine(texts, routine)
+        if not _is_system(texts[mod]):
+            out.append(f"{routine} is in the program module {mod}")
+        code = re.sub(r"!.*", "", body)
+        for name in sorted(set(re.findall(r"\b[A-Za-z_]\w*\b", code)) & set(decls)):
+            if not _is_system(texts[decls[name][0]]):
+                out.append(f"{routine} reads {name} of the program module {decls[name][0]}")
+    return out
+
+
+def main_problems(texts: Texts) -> list[str]:
+    """One ``main`` per task, in a program module."""
+    mains = [mod for mod, text in texts.items() if re.search(r"^  PROC main\(\)", text, re.M)]
+    if len(mains) != 1:
+        return [f"main in {mains or 'no module'}"]
+    return [f"main is in the system module {mains[0]}"] if _is_system(texts[mains[0]]) else []
+
+
+def close_problems(texts: Texts) -> list[str]:
+    """Every ``Close dev`` sits under ``IF flag THEN`` where ``flag := TRUE`` follows the
+    ``Open ... dev``: an error handler must not close a device that was never opened."""
+    out = []
+    for mod, text in texts.items():
+        lines = [ln.strip() for ln in text.splitlines()]
+        for i, line in enumerate(lines):
+            m = re.fullmatch(r"Close (\w+);", line)
+            if not m:
+                continue
+            guard = next((re.fullmatch(r"IF (\w+) THEN", lines[j]) for j in range(i - 1,
+                          max(i - 3, -1), -1) if re.fullmatch(r"IF \w+ THEN", lines[j])), None)
+            opened = guard is not None and any(
+                re.match(rf"Open .*, {m.group(1)}\b", lines[j]) and
+                lines[j + 1] == f"{guard.group(1)} := TRUE;" for j in range(len(lines) - 1))
+            if not opened:
+                out.append(f"{mod} line {i + 1}: {line} without an opened-flag guard")
+    return out
+
+
+def _string(expr: str, texts: Texts) -> str:
+    """The value of a string expression of literals, CONSTs and a VAR assigned once."""
+    decls, out = _declared(texts), ""
+    for term in (s.strip() for s in expr.split("+")):
+        if term.startswith('"'):
+            out += term.strip('"')
+        elif decls.get(term, ("", ""))[1] == "CONST":
+            out += decls[term][3].strip('"')
+        else:
+            sets = [m.group(1) for text in texts.values()
+                    for m in re.finditer(rf"^\s*{term} := (.*);$", text, re.M)]
+            assert len(sets) == 1, f"{term} is set {len(sets)} times"
+            out += _string(sets[0], texts)
+    return out
+
+
+def path_problems(texts: Texts) -> list[str]:
+    """FileSize takes one path, in the manual's form: the device, a slash, the name."""
+    out = []
+    for text in texts.values():
+        for expr in re.findall(r"FileSize\((.+?)\)", text):
+            path = _string(expr, texts)
+            if not re.fullmatch(r"[A-Z]+:/[^/:]+", path):
+                out.append(f"FileSize({expr}) is {path!r}, not DEVICE:/name")
+    return out
+
+
+SEMANTICS = (wzstationary_problems, event_routine_problems, main_problems, close_problems,
+             path_problems)
+
+
+@pytest.mark.parametrize("side", ["L", "R"])
+@pytest.mark.parametrize("check", SEMANTICS, ids=lambda f: f.__name__)
+def test_the_modules_keep_robotwares_semantics(check: object, side: str) -> None:
+    assert check(_texts(side)) == []  # type: ignore[operator]
+
+
+PLANTED = {
+    wzstationary_problems: ("TestbedZones", "TASK PERS wzstationary tb_wz_xlo",
+                            "VAR wzstationary tb_wz_xlo"),
+    event_routine_problems: ("TestbedZones", "MODULE TestbedZones(SYSMODULE, NOSTEPIN)",
+                             "MODULE TestbedZones"),
+    main_problems: ("TestbedMotion", "  PROC main()\n    tb_run;\n  ENDPROC\n", ""),
+    close_problems: ("TestbedMotion", "    IF tb_open THEN\n      tb_open := FALSE;\n"
+                     "      Close tb_dev;\n    ENDIF\n", "    Close tb_dev;\n"),
+    path_problems: ("TestbedMotion", 'tb_path := TB_DIR + "/" + tb_name;',
+                    "tb_path := TB_DIR + tb_name;"),
+}
+
+
+@pytest.mark.parametrize("check", SEMANTICS, ids=lambda f: f.__name__)
+def test_each_semantic_check_catches_its_planted_defect(check: object) -> None:
+    module, good, bad = PLANTED[check]  # type: ignore[index]
+    texts = _texts("L")
+    assert good in texts[module]
+    texts[module] = texts[module].replace(good, bad)
+    assert check(texts), "the planted defect was not caught"  # type: ignore[operator]
+    event_problem = event_routine_problems({**_texts("L"), "TestbedTask_L": _texts("L")[
+        "TestbedTask_L"].replace("MODULE TestbedTask_L(SYSMODULE)", "MODULE TestbedTask_L")})
+    assert event_problem == [f"tb_zones reads {n} of the program module TestbedTask_L"
+                             for n in ("tb_floor_z", "tb_zone_hi", "tb_zone_lo", "tb_zone_z")]
+
+
+def test_the_readme_makes_tb_zones_the_power_on_routine() -> None:
+    readme = (RAPID.parent / "README.md").read_text()
+    for task in ("T_ROB_L", "T_ROB_R"):
+        assert f"Event `POWER_ON`, Routine `tb_zones`, Task `{task}`" in readme
+        assert f"File `HOME:/TestbedZones.sys`, Task `{task}`" in readme
+
+
+GRIPPER = (0.262, (7.8, 11.9, 50.7), (0.00022, 0.00024, 0.00009))
+"""The YuMi SmartGripper (servo, camera, vacuum) load: ABB's SmartGripper load table, the
+numbers of the lab's published YuMi RAPID (issue 29); kg, mm, kg m^2 about its CoG."""
+PUSHER = (0.010, (0.0, 0.0, 134.0), 100.0, 5.0)
+"""The pusher, an estimate until weighed (robot/README.md): kg, its CoG (mm), a rod of
+that length and radius (mm) along the tool's z axis."""
+
+
+def _combined() -> tuple[float, list[float], list[float]]:
+    """Mass, CoG and inertia (about the joint CoG, tool0 axes) of gripper + pusher."""
+    (mg, cg, ig), (mp, cp, length, r) = GRIPPER, PUSHER
+    mass = mg + mp
+    cog = [(mg * a + mp * b) / mass for a, b in zip(cg, cp, strict=True)]
+    rod = [mp * (3 * r * r + length * length) / 12e6] * 2 + [mp * r * r / 2e6]
+
+    def shift(m: float, c: tuple[float, ...]) -> list[float]:
+        d = [(c[k] - cog[k]) / 1000 for k in range(3)]
+        return [m * (d[(k + 1) % 3] ** 2 + d[(k + 2) % 3] ** 2) for k in range(3)]
+
+    inertia = [ig[k] + rod[k] + shift(mg, cg)[k] + shift(mp, cp)[k] for k in range(3)]
+    return mass, cog, inertia
+
+
+@pytest.mark.parametrize("side", ["L", "R"])
+def test_the_tool_load_is_the_gripper_and_the_pusher(side: str) -> None:
+    text = (RAPID / f"TestbedTask_{side}.mod").read_text()
+    load = _decl(text, "tool_pusher")[2]
+    nums = [float(v) for v in re.findall(r"-?\d+(?:\.\d+)?(?:E-?\d+)?", load)]
+    mass, cog, aom, inertia = nums[7], nums[8:11], nums[11:15], nums[15:18]
+    want_mass, want_cog, want_inertia = _combined()
+    assert mass == pytest.approx(want_mass, abs=0.0005) and mass > GRIPPER[0]
+    assert cog == pytest.approx(want_cog, abs=0.05)
+    assert aom == [1, 0, 0, 0]
+    assert inertia == pytest.approx(want_inertia, abs=0.000006)
+    assert all(v > 0 for v in inertia)

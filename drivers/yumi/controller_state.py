@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-RAPID_VERSION = 2
+RAPID_VERSION = 3
 """``TB_RAPID_VERSION`` of the robot/rapid/ modules this driver speaks to (TestbedMotion.mod;
 tests/drivers/test_yumi_controller_state.py keeps the two equal)."""
 REQUIRED_OPTIONS = {"616-1": "PC Interface", "623-1": "Multitasking",
@@ -46,6 +46,10 @@ OUR_ERRWRITES = range(80001, 80004)
 program, not a stopped task."""
 ZONE_SYMBOLS = ("tb_zone_lo", "tb_zone_hi", "tb_zone_z", "tb_floor_z")
 """The world-zone constants of each task module (robot/rapid/TestbedTask_L.mod)."""
+ZONES_MODULE = "TestbedZones"
+"""The system module whose POWER_ON routine ``tb_zones`` activates the zones and says so:
+``tb_zones_n`` (zones activated at the last power on, of ``TB_WZ_COUNT``) and
+``tb_zones_at`` (when), TASK PERS, so they survive PP to Main (issue 29)."""
 
 
 def one_line(text: object) -> str:
@@ -173,7 +177,27 @@ def rapid_of_task(rws: Any, task: str) -> dict[str, Any]:
     for name in ZONE_SYMBOLS:
         raw = _symbol(rws, task, module, name)
         zones[name] = _pos(raw) if name.endswith(("_lo", "_hi")) else _number(raw)
-    return {"version": None if version is None else int(version), "zones": zones}
+    active = {"n": _number(_symbol(rws, task, ZONES_MODULE, "tb_zones_n")),
+              "of": _number(_symbol(rws, task, ZONES_MODULE, "TB_WZ_COUNT")),
+              "at": (_symbol(rws, task, ZONES_MODULE, "tb_zones_at") or "").strip('"')}
+    return {"version": None if version is None else int(version), "zones": zones,
+            "zones_active": active}
+
+
+def zones_active_problem(task: str, active: Mapping[str, Any] | None) -> str | None:
+    """One line if ``task``'s world zones are not all active (``tb_zones_n`` short of
+    ``TB_WZ_COUNT``, or unreadable: TestbedZones.sys not loaded), else None."""
+    n, of = (active or {}).get("n"), (active or {}).get("of")
+    if n is None or of is None:
+        return (f"task {task}: cannot read {ZONES_MODULE}'s tb_zones_n: the system module "
+                f"TestbedZones.sys is not loaded, so no world zone is known to be active "
+                f"(robot/README.md, 'Install')")
+    if n < of:
+        return (f"task {task}: the world zones are NOT active ({n:g} of {of:g} activated "
+                f"at the last power on): tb_zones failed or is not the POWER_ON event "
+                f"routine; read the event log, fix it and restart the controller "
+                f"(robot/README.md, 'The zones')")
+    return None
 
 
 def identity_fields(system: Mapping[str, Any], ident: Mapping[str, Any]) -> dict[str, str]:
@@ -240,6 +264,9 @@ def problems(rep: Mapping[str, Any], tasks: Sequence[str],
                        f"driver needs {RAPID_VERSION}: load robot/rapid/ from this checkout")
         else:
             zones = ours.get("zones", {})
+            if "zones_active" in ours and (  # describe() always reads it
+                    why := zones_active_problem(task, ours["zones_active"])) is not None:
+                out.append(why)
             if (box := (table_boxes or {}).get(task)) is not None:
                 out += _zone_problems(task, zones, box)
             z, top = (travel_z or {}).get(task), zones.get("tb_zone_z")

@@ -1,6 +1,6 @@
 MODULE TestbedMotion
   ! The testbed's motion program interpreter: ONE copy of this module in EACH arm's task
-  ! (T_ROB_L and T_ROB_R), next to that task's TestbedTask_L / TestbedTask_R module.
+  ! (T_ROB_L and T_ROB_R), next to that task's TestbedTask_L / TestbedTask_R and TestbedZones.sys.
   !
   ! Why our own: abb_motion_program_exec's client names a task's program file after the
   ! task's trailing digits, so the YuMi's T_ROB_L and T_ROB_R would share one file and
@@ -22,10 +22,12 @@ MODULE TestbedMotion
   !      the file; or, when it refuses the file, ErrWrite (80001) "Testbed Motion
   !      Failed": reason, the file, the detail, "at byte <offset>". No log file, no
   !      signals: the driver reads the event log only.
-  !   4. at power on (tb_zones, an event routine: robot/README.md), defines this task's
-  !      stationary world zones from the task module's tb_zone_lo, tb_zone_hi, tb_zone_z
-  !      and tb_floor_z: below tb_zone_z the TCP stays in the xy box, and never goes
-  !      below tb_floor_z, whatever program runs.
+  !   4. the stationary world zones are NOT here: this is a program module, which
+  !      "Reset RAPID" removes. They are defined at every power on by tb_zones in the
+  !      system module TestbedZones.sys from the system module TestbedTask_L / _R's
+  !      tb_zone_lo, tb_zone_hi, tb_zone_z and tb_floor_z (issue 29).
+  ! main, the task's entry routine, is here (the same in both tasks): it must be in a
+  ! program module, and this is the only one of ours.
   ! A motion error (out of reach, collision, a stop, a world zone) is the controller's
   ! own: it stops the task and is in the event log with its own code; the driver
   ! reports it the same.
@@ -33,8 +35,18 @@ MODULE TestbedMotion
   ! tb_ prefix keeps them apart from the task's other names.
   ! The version of these modules' behaviour: bump it whenever they change. The driver
   ! and testbed check read it (RWS); the twin plays the version RAPID_VERSION in
-  ! sim_twin/rws/testbed_rapid.py. 2: the world zones (tb_zones).
-  CONST num TB_RAPID_VERSION := 2;
+  ! sim_twin/rws/testbed_rapid.py. 2: the world zones (tb_zones). 3: the zones in the
+  ! system module TestbedZones (TASK PERS, tb_zones_n), main here, the file's path as
+  ! "RAMDISK:/<name>", the error handler closes only a file it opened, the tool load
+  ! with the gripper (issue 29).
+  CONST num TB_RAPID_VERSION := 3;
+  ! The RAM disk device. Technical reference manual - RAPID Instructions, Functions and
+  ! Data types (RobotWare 6): Open takes the device as its object and the file name in
+  ! \File (its example: Open "HOME:" \File:= "LOGFILE1.DOC", ...); the functions that
+  ! take ONE path (FileSize, IsFile) take the device, a slash and the name, as in its
+  ! examples "HOME:/..." (FileSize). So the file is opened as TB_DIR \File:=tb_name and
+  ! sized (and named in every entry) as tb_path = "RAMDISK:/testbed_T_ROB_L.bin"; the old
+  ! TB_DIR + tb_name, "RAMDISK:testbed_T_ROB_L.bin", is not that form (issue 29).
   CONST string TB_DIR := "RAMDISK:";
   CONST num TB_VERSION := 10011;
   CONST num TB_MAX_CMDS := 64;
@@ -50,31 +62,14 @@ MODULE TestbedMotion
   ! every robtarget keeps at the calibrated value; slow, as it only moves out of rest.
   CONST num TB_V_REAX := 100;
 
-  ! The world zones (option 608-1 World Zones). Technical reference manual - RAPID
-  ! Instructions, Functions and Data types (RobotWare 6), WZBoxDef, WZLimSup and
-  ! wzstationary, as read for this module:
-  !   - WZBoxDef \Inside: a box with its sides parallel to the WORLD coordinate system,
-  !     given by two opposite corners (LowPoint, HighPoint: pos, mm) that differ in x,
-  !     y and z; stored in a shapedata variable for WZLimSup.
-  !   - WZLimSup \Stat: activates supervision of that shape as a STATIONARY zone: the
-  !     movement stops when the TCP reaches the zone, in any program and when jogging;
-  !     a stationary zone cannot be deactivated or erased from RAPID, and the manual
-  !     defines it in an event routine of the event POWER ON, so that it is active from
-  !     every start. The world zone is a wzstationary VARIABLE (as the manual's own
-  !     examples declare it: at module level, here global in the task); WZLimSup writes
-  !     the zone's identity into it, so it reads non-zero once tb_zones has run.
-  !   - The zones supervise the TCP of the tool in use: every motion here is
-  !     tool_pusher, so it is the pusher's tip that stays out.
-  ! The outer faces of every box are TB_WZ_FAR mm away: far beyond the YuMi's reach.
-  CONST num TB_WZ_FAR := 5000;
-  VAR wzstationary tb_wz_floor;
-  VAR wzstationary tb_wz_xlo;
-  VAR wzstationary tb_wz_xhi;
-  VAR wzstationary tb_wz_ylo;
-  VAR wzstationary tb_wz_yhi;
-
   LOCAL VAR errnum tb_err := -1;
   LOCAL VAR iodev tb_dev;
+  ! TRUE from Open to Close: the error handler (and the next run) closes tb_dev only if
+  ! it is open (an error before Open, e.g. no file, must not Close a device never
+  ! opened). A VAR: PP to Main resets it to FALSE and closes the task's files alike.
+  LOCAL VAR bool tb_open := FALSE;
+  ! "RAMDISK:/" + tb_name: FileSize's argument and the file named in every entry
+  LOCAL VAR string tb_path;
   LOCAL VAR rawbytes tb_raw;
   LOCAL VAR num tb_pos;
   LOCAL VAR num tb_n;
@@ -90,56 +85,32 @@ MODULE TestbedMotion
   LOCAL VAR num tb_wait{TB_MAX_CMDS};
   LOCAL PERS wobjdata tb_wobj := [FALSE,TRUE,"",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
 
-  ! --- the world zones: the POWER ON event routine of this task ---------------------------
-  PROC tb_zones()
-    VAR shapedata shape;
-    VAR pos lo;
-    VAR pos hi;
-    VAR num z0;
-    ! every box reaches from far below the floor; corners differ in x, y and z
-    z0 := tb_floor_z - TB_WZ_FAR;
-    ! below the floor, everywhere
-    lo := [-TB_WZ_FAR, -TB_WZ_FAR, z0];
-    hi := [TB_WZ_FAR, TB_WZ_FAR, tb_floor_z];
-    WZBoxDef \Inside, shape, lo, hi;
-    WZLimSup \Stat, tb_wz_floor, shape;
-    ! below tb_zone_z: the four slabs around the xy box [tb_zone_lo, tb_zone_hi]
-    lo := [-TB_WZ_FAR, -TB_WZ_FAR, z0];
-    hi := [tb_zone_lo.x, TB_WZ_FAR, tb_zone_z];
-    WZBoxDef \Inside, shape, lo, hi;
-    WZLimSup \Stat, tb_wz_xlo, shape;
-    lo := [tb_zone_hi.x, -TB_WZ_FAR, z0];
-    hi := [TB_WZ_FAR, TB_WZ_FAR, tb_zone_z];
-    WZBoxDef \Inside, shape, lo, hi;
-    WZLimSup \Stat, tb_wz_xhi, shape;
-    lo := [tb_zone_lo.x, -TB_WZ_FAR, z0];
-    hi := [tb_zone_hi.x, tb_zone_lo.y, tb_zone_z];
-    WZBoxDef \Inside, shape, lo, hi;
-    WZLimSup \Stat, tb_wz_ylo, shape;
-    lo := [tb_zone_lo.x, tb_zone_hi.y, z0];
-    hi := [tb_zone_hi.x, TB_WZ_FAR, tb_zone_z];
-    WZBoxDef \Inside, shape, lo, hi;
-    WZLimSup \Stat, tb_wz_yhi, shape;
+  ! --- the entry -------------------------------------------------------------------------
+  PROC main()
+    tb_run;
   ENDPROC
 
-  ! --- the entry: called from main in TestbedTask_L / TestbedTask_R ---------------------
   PROC tb_run()
     VAR num size;
     tb_n := 0;
     tb_pos := 0;
     tb_reason := "";
     tb_detail := "";
+    tb_path := TB_DIR + "/" + tb_name;
     IF tb_err < 0 BookErrNo tb_err;
-    size := FileSize(TB_DIR + tb_name);
+    ! a run stopped while reading left the file open: close it before opening again
+    tb_close;
+    size := FileSize(tb_path);
     Open TB_DIR \File:=tb_name, tb_dev \Read \Bin;
+    tb_open := TRUE;
     tb_header;
     WHILE tb_pos < size DO
       tb_command;
     ENDWHILE
-    Close tb_dev;
+    tb_close;
     tb_execute;
     ErrWrite \I, TB_DONE, GetTaskName() \RL2:="seqno " + NumToStr(tb_seqno, 0)
-      \RL3:="commands " + NumToStr(tb_n, 0) \RL4:=TB_DIR + tb_name;
+      \RL3:="commands " + NumToStr(tb_n, 0) \RL4:=tb_path;
   ERROR
     TEST ERRNO
     CASE ERR_FILEOPEN:
@@ -155,13 +126,21 @@ MODULE TestbedMotion
       ! tb_reason and tb_detail were set where the file was refused
     DEFAULT:
       ! not a refusal of ours: the controller's own error stops the task
-      Close tb_dev;
+      tb_close;
       RAISE;
     ENDTEST
-    Close tb_dev;
-    ErrWrite TB_FAILED, tb_reason \RL2:=TB_DIR + tb_name \RL3:=tb_detail
+    tb_close;
+    ErrWrite TB_FAILED, tb_reason \RL2:=tb_path \RL3:=tb_detail
       \RL4:="at byte " + NumToStr(tb_pos, 0);
     RETURN;
+  ENDPROC
+
+  ! Close the program file if (and only if) this task opened it.
+  PROC tb_close()
+    IF tb_open THEN
+      tb_open := FALSE;
+      Close tb_dev;
+    ENDIF
   ENDPROC
 
   ! --- reading the file ------------------------------------------------------------------

@@ -1,20 +1,34 @@
-MODULE TestbedTask_R
-  ! Task T_ROB_R (the right arm) of the testbed: its data for TestbedMotion and its
-  ! entry routine. Load into task T_ROB_R only, with TestbedMotion.mod next to it.
+MODULE TestbedTask_R(SYSMODULE)
+  ! Task T_ROB_R (the right arm) of the testbed: its data for TestbedMotion and for
+  ! the world zones. Load into task T_ROB_R only, with TestbedZones.sys and
+  ! TestbedMotion.mod next to it (robot/README.md, "Install").
+  !
+  ! A SYSTEM module (issue 29): the POWER_ON event routine tb_zones (TestbedZones.sys)
+  ! reads the zone constants below at every power on, also after "Reset RAPID", which
+  ! removes every program module; so they live in a module that stays. main (the
+  ! program's entry) is in TestbedMotion, the program module: RAPID wants it there.
   !
   ! The file this task reads, on the RAM disk: fixed per task, the name the driver
   ! uploads to (drivers/yumi/yumi_controller.py, program_file). The other arm's task
   ! reads its own file, so the two programs never share one.
   CONST string tb_name := "testbed_T_ROB_R.bin";
   ! The pusher. tframe is overwritten from every program's header (the calibration
-  ! file's tool_z_mm); the load is the pusher's own: WEIGH IT on day one and set mass
-  ! (kg) and the centre of gravity (mm, tool0 frame) here before the first motion.
-  TASK PERS tooldata tool_pusher := [TRUE,[[0,0,100],[1,0,0,0]],[0.1,[0,0,50],[1,0,0,0],0,0,0]];
+  ! file's tool_z_mm). The load is everything the flange carries: the YuMi SmartGripper
+  ! that holds the pusher AND the pusher (robot/README.md, "The tool load", says where
+  ! each number comes from and how a lab identifies its own):
+  !   gripper (servo, camera, vacuum): 0.262 kg, CoG (7.8, 11.9, 50.7) mm, inertia
+  !     0.00022, 0.00024, 0.00009 kgm2 (ABB's SmartGripper load table, the value the
+  !     lab's published YuMi RAPID uses);
+  !   pusher (estimate until weighed): 0.010 kg, a 100 mm rod of 10 mm diameter, its
+  !     centre 134 mm down the tool z axis;
+  !   together, about the joint centre of gravity: 0.272 kg, CoG (7.5, 11.5, 53.8) mm,
+  !     inertia 0.0003, 0.00032, 0.00009 kgm2 (axes of tool0: aom [1,0,0,0]).
+  TASK PERS tooldata tool_pusher := [TRUE,[[0,0,100],[1,0,0,0]],[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032,0.00009]];
   ! The floor (mm, world frame = wobj0, the frame the driver's targets use): no
   ! MoveJ/MoveL target below it (checked in the file) and no TCP below it, anywhere
   ! (the world zone tb_wz_floor).
   CONST num tb_floor_z := 0;
-  ! This arm's world zone (TestbedMotion, tb_zones; robot/README.md, "The zones"): below
+  ! This arm's world zone (TestbedZones, tb_zones; robot/README.md, "The zones"): below
   ! tb_zone_z (mm, world) the TCP of tool_pusher must stay inside the xy box from
   ! tb_zone_lo to tb_zone_hi (x, y in mm, world; z unused). SET THESE FROM YOUR TABLE at
   ! install: the calibration's table_box_mm must lie inside the box, the other arm's
@@ -22,8 +36,4 @@ MODULE TestbedTask_R
   CONST pos tb_zone_lo := [125,-395,0];
   CONST pos tb_zone_hi := [495,-25,0];
   CONST num tb_zone_z := 80;
-
-  PROC main()
-    tb_run;
-  ENDPROC
 ENDMODULE

@@ -19,6 +19,15 @@ The rules (each a line of docs/rws-checklist.md):
   mode stops a running program; a new operating mode turns the motors off.
 - A RAPID error (:meth:`task_error`, or a :class:`RapidError` from the start hook) writes
   an error entry (type 3) to the event log and stops the task and the execution.
+- ``resetpp`` (PP to Main) also sets every ``VAR`` of the active tasks back to its
+  declared value, as RAPID does; PERS and CONST keep theirs.
+- :meth:`restart` (``POST ctrl?action=restart``, ``restart-mode=restart|pstart``): a
+  restart erases the stationary world zones (:attr:`on_restart` hooks), stops RAPID,
+  leaves the motors off; ``pstart`` ("Reset RAPID") also removes every PROGRAM module
+  (system modules stay); then the configured POWER_ON event routines
+  (:attr:`event_routines`) run in their tasks, and one whose routine no loaded module
+  holds is an error entry (:data:`EVENT_ROUTINE_MISSING`), as on a controller whose
+  event routine lived in a program module that Reset RAPID removed.
 
 The seam for the motion (the later RAPID-semantics work): ``on_start(run)`` is called in
 a thread of its own after every accepted ``start``; execution reads ``running`` until it
@@ -57,6 +66,12 @@ START_FIELDS = ("regain", "execmode", "cycle", "condition", "stopatbp", "alltask
 HOOK_FAILED = 40000
 """The twin's own code for a start hook that failed with something else than a
 :class:`RapidError` (a bug in the twin, not a RAPID error)."""
+EVENT_ROUTINE_MISSING = 40999
+"""The twin's OWN code for "an event routine names a routine no loaded module holds"
+(RAPID domain): RobotWare's event for it was not in any manual the search tool had;
+docs/rws-checklist.md asks for the real one."""
+RESTART_MODES = {"restart": "Restart", "pstart": "Reset RAPID"}
+"""The restart modes the twin models (RWS ``restart-mode``; the FlexPendant's names)."""
 STATE_EVENTS = {
     "motoron": (10011, "Motors ON state", "The system is in the Motors ON state."),
     "motoroff": (10010, "Motors OFF state", "The system is in the Motors OFF state."),
@@ -105,6 +120,18 @@ class ProgramRun:
 
 
 StartHook = Callable[[ProgramRun], None]
+RestartHook = Callable[[str], None]
+"""Called with the restart mode, before the event routines run (e.g. the world zones
+the motion system forgets at a restart)."""
+
+
+@dataclass(frozen=True)
+class EventRoutine:
+    """One instance of system parameters Controller / Event Routine (CAB_EXEC_HOOKS)."""
+
+    event: str
+    routine: str
+    task: str
 
 
 @dataclass
@@ -141,6 +168,8 @@ class Irc5Controller:
         self.elog = EventLog()
         self.identity = identity or Identity()
         self.on_start = on_start
+        self.event_routines: list[EventRoutine] = []
+        self.on_restart: list[RestartHook] = []
         self._check(opmode=opmode, ctrlstate=ctrlstate, speedratio=speedratio)
         self.opmode, self.ctrlstate, self.speedratio = opmode, ctrlstate, int(speedratio)
         self.cycle, self._once_done = "forever", False
@@ -281,9 +310,52 @@ class Irc5Controller:
             for t in self.tasks.values():
                 if t.active:
                     t.excstate = "ready"
+                    self.symbols.reset_vars(t.name)  # PP to Main: VARs to their init
                     self.elog.write(10002, MSG_INFO, "Program pointer has been reset",
                                     desc=f"The program pointer of task {t.name} has been "
                                          "reset.", args=(t.name,))
+
+    # --- restarts and event routines ------------------------------------------------------
+    def restart(self, mode: str = "restart") -> None:
+        """A controller restart (``restart``) or "Reset RAPID" (``pstart``): RAPID stops,
+        the motors are off after it, the :attr:`on_restart` hooks run (the stationary
+        world zones are erased), ``pstart`` removes the program modules, then the
+        POWER_ON event routines run. ``ValueError`` for a mode the twin does not model."""
+        if mode not in RESTART_MODES:
+            raise ValueError(f"restart-mode {mode!r}: the twin models "
+                             f"{', '.join(RESTART_MODES)}")
+        with self._lock:
+            self._stop_current()
+            for hook in list(self.on_restart):
+                hook(mode)
+            if mode == "pstart":
+                self.symbols.drop_program_modules()
+            for t in self.tasks.values():
+                t.excstate = "ready"
+            if self.ctrlstate == "motoron":
+                self.ctrlstate = "motoroff"
+                self._log_ctrlstate("motoroff")
+            self._changed.notify_all()
+        self.run_event_routines("POWER_ON")
+
+    def run_event_routines(self, event: str) -> None:
+        """Run every configured event routine of ``event`` in its task, as RAPID does at
+        that event; a routine no loaded module holds is an error entry in its task."""
+        for er in [e for e in self.event_routines if e.event == event]:
+            routine = self.symbols.routine(er.task, er.routine)
+            if routine is None:
+                self.elog.write(
+                    EVENT_ROUTINE_MISSING, MSG_ERROR, "Event routine not found",
+                    desc=f"Task {er.task}: the {event} event routine {er.routine} is in no "
+                         "loaded module (a program module removed by Reset RAPID?).",
+                    actions="Load the module that holds it, as a system module, and "
+                            "restart.", args=(er.task, er.routine, event), src_name=er.task)
+                continue
+            try:
+                routine.body(er.task)
+            except RapidError as e:
+                self.elog.write(e.code, e.msgtype, e.title, desc=e.desc, args=e.args,
+                                src_name=er.task)
 
     def set_task_active(self, name: str | None, active: bool) -> None:
         """``rw/rapid/tasks/<name>?action=(de)activate``; ``None``: every task."""

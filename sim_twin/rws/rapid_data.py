@@ -10,6 +10,15 @@ and stores it re-printed the way RAPID prints values (``10``, ``0.5``, ``9E+09``
 Every motion task has the built-in ``tool0``, ``wobj0`` and ``load0`` (module ``BASE``).
 A symbol's URL may omit the module (``RAPID/T_ROB_L/reg1``) when the name is unique in
 the task, as the ABB client does; ``CONST`` symbols cannot be set.
+
+What RAPID does to data, so that the twin fails where a controller would (issue 29):
+a module is a PROGRAM module or a SYSTEM module (``MODULE X(SYSMODULE)``, and ``BASE``);
+"PP to Main" sets every ``VAR`` of the task back to its declared value
+(:meth:`SymbolTable.reset_vars`: a zone identity kept in a VAR reads ``[0]`` again,
+while PERS, TASK PERS and CONST keep theirs); "Reset RAPID" removes every program module
+and keeps the system modules (:meth:`SymbolTable.drop_program_modules`), their
+routines (:class:`Routine`, a Python stand-in for a RAPID routine the twin plays, e.g.
+an event routine) included.
 """
 
 from __future__ import annotations
@@ -17,7 +26,7 @@ from __future__ import annotations
 import math
 import re
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -141,10 +150,26 @@ class Symbol:
     value: str
     storage: str = "PERS"
     dims: tuple[int, ...] = ()
+    init: str = ""
+    """The declared value (what PP to Main gives a VAR back); "" = ``value``."""
 
     @property
     def path(self) -> str:
         return f"RAPID/{self.task}/{self.module}/{self.name}"
+
+
+RoutineBody = Callable[[str], None]
+"""What the twin does for a RAPID routine, called with the task's name."""
+
+
+@dataclass(frozen=True)
+class Routine:
+    """A routine of a loaded module (the twin plays its effect in Python)."""
+
+    task: str
+    module: str
+    name: str
+    body: RoutineBody
 
 
 class SymbolTable:
@@ -153,7 +178,10 @@ class SymbolTable:
     def __init__(self, motion_tasks: Iterable[str]) -> None:
         self._lock = threading.Lock()
         self._symbols: dict[tuple[str, str, str], Symbol] = {}
+        self._system: set[tuple[str, str]] = set()
+        self._routines: dict[tuple[str, str, str], Routine] = {}
         for t in motion_tasks:
+            self.declare_module(t, "BASE", system=True)
             self.declare(t, "BASE", "tool0", "tooldata", TOOL0)
             self.declare(t, "BASE", "wobj0", "wobjdata", WOBJ0)
             self.declare(t, "BASE", "load0", "loaddata", LOAD0)
@@ -164,7 +192,8 @@ class SymbolTable:
         if storage.upper() not in ("PERS", "VAR", "CONST", "TASK PERS"):
             raise ValueError(f"storage must be PERS, VAR, CONST or TASK PERS, got {storage!r}")
         text = format_value(check_value(type_name, value, dims))
-        s = Symbol(task, module, name, type_name.lower(), text, storage.upper(), tuple(dims))
+        s = Symbol(task, module, name, type_name.lower(), text, storage.upper(), tuple(dims),
+                   text)
         with self._lock:
             self._symbols[(task.upper(), module.upper(), name.upper())] = s
         return s
@@ -174,6 +203,63 @@ class SymbolTable:
         with self._lock:
             return self._symbols.pop((task.upper(), module.upper(), name.upper()),
                                      None) is not None
+
+    def declare_module(self, task: str, module: str, *, system: bool) -> None:
+        """Record whether ``module`` of ``task`` is a system module (``SYSMODULE``); a
+        module never declared counts as a program module."""
+        key = (task.upper(), module.upper())
+        with self._lock:
+            if system:
+                self._system.add(key)
+            else:
+                self._system.discard(key)
+
+    def is_system(self, task: str, module: str) -> bool:
+        with self._lock:
+            return (task.upper(), module.upper()) in self._system
+
+    def has_module(self, task: str, module: str) -> bool:
+        """Whether any symbol or routine of ``module`` is loaded in ``task``."""
+        key = (task.upper(), module.upper())
+        with self._lock:
+            return any(k[:2] == key for k in (*self._symbols, *self._routines))
+
+    def declare_routine(self, task: str, module: str, name: str, body: RoutineBody) -> None:
+        with self._lock:
+            self._routines[(task.upper(), module.upper(), name.upper())] = Routine(
+                task, module, name, body)
+
+    def routine(self, task: str, name: str) -> Routine | None:
+        """The routine ``name`` of ``task`` (any module), None if no module holds it."""
+        with self._lock:
+            return next((r for k, r in self._routines.items()
+                         if (k[0], k[2]) == (task.upper(), name.upper())), None)
+
+    def undeclare_routine(self, task: str, module: str, name: str) -> None:
+        with self._lock:
+            self._routines.pop((task.upper(), module.upper(), name.upper()), None)
+
+    def reset_vars(self, task: str) -> list[str]:
+        """PP to Main in ``task``: every VAR back to its declared value (in program and
+        system modules alike: the twin's assumption, docs/rws-checklist.md asks);
+        returns the paths of those that changed."""
+        changed = []
+        with self._lock:
+            for (t, _, _), s in self._symbols.items():
+                if t == task.upper() and s.storage == "VAR" and s.value != (s.init or s.value):
+                    s.value = s.init
+                    changed.append(s.path)
+        return changed
+
+    def drop_program_modules(self) -> list[str]:
+        """Reset RAPID: remove every symbol and routine of a program module (any task);
+        system modules stay. Returns the ``task/module`` names removed."""
+        with self._lock:
+            gone = {k[:2] for k in (*self._symbols, *self._routines)
+                    if k[:2] not in self._system}
+            self._symbols = {k: s for k, s in self._symbols.items() if k[:2] not in gone}
+            self._routines = {k: r for k, r in self._routines.items() if k[:2] not in gone}
+        return sorted(f"{t}/{m}" for t, m in gone)
 
     def find(self, parts: Sequence[str]) -> Symbol:
         """The symbol of a URL's ``RAPID/...`` parts: ``[task, module, name]``,

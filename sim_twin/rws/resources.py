@@ -72,6 +72,19 @@ def get_ctrl(c: Irc5Controller, req: Request, a: list[str]) -> Reply:
     return _one("ctrl", "ctrl/", {"_type": "ctrl-env", "_title": name, "_value": value})
 
 
+def restart_ctrl(c: Irc5Controller, req: Request, a: list[str]) -> Reply:
+    """``POST ctrl?action=restart`` ``restart-mode=restart|pstart`` (RWS 1.0's controller
+    restart; ``pstart`` is "Reset RAPID"): what a lab does after loading our system
+    modules, and what must leave the world zones on (issue 29). The other modes
+    (``istart``, ``xstart``, ``bstart``, ``shutdown``) are not modelled: 400."""
+    _need_action(req, "restart")
+    try:
+        c.restart(req.form.get("restart-mode", ""))
+    except ValueError as exc:
+        raise refused(400, GENERIC, str(exc)) from None
+    return NO_CONTENT
+
+
 def _options(c: Irc5Controller) -> list[dict[str, str]]:
     return [{"_type": "sys-option-li", "_title": str(i), "option": o}
             for i, o in enumerate(c.identity.options)]
@@ -253,6 +266,7 @@ def fileservice(c: Irc5Controller, req: Request, a: list[str]) -> Reply:
 
 ROUTES: list[tuple[tuple[str, ...], tuple[str, ...], Handler]] = [
     (("ctrl", "{}"), ("GET",), get_ctrl),
+    (("ctrl",), ("POST",), restart_ctrl),
     (("rw", "system", "**"), ("GET",), get_system),
     (("rw", "panel", "{}"), ("GET", "POST"), panel),
     (("rw", "rapid", "execution"), ("GET", "POST"), execution),

@@ -11,15 +11,24 @@ the values this twin was started with, and the lab side channel (``POST
 
 Per task (``T_ROB_L`` -> module ``TestbedTask_L``, ``T_ROB_R`` -> ``TestbedTask_R``):
 
-- ``TestbedTask_X``: ``tb_name`` (CONST string), ``tool_pusher`` (TASK PERS tooldata;
-  ``tframe`` z = the pusher's length until a program sets it), ``tb_floor_z``,
-  ``tb_zone_z`` (CONST num), ``tb_zone_lo`` = ``[x0,y0,0]``, ``tb_zone_hi`` =
-  ``[x1,y1,0]`` (CONST pos);
-- ``TestbedMotion``: ``TB_RAPID_VERSION``, ``TB_VERSION``, ``TB_MAX_CMDS``,
-  ``TB_WZ_FAR`` (CONST num), ``TB_DIR``, ``TB_DONE``, ``TB_FAILED`` (CONST string), and
-  the five ``wzstationary`` VARs ``tb_wz_floor``, ``tb_wz_xlo``, ``tb_wz_xhi``,
-  ``tb_wz_ylo``, ``tb_wz_yhi`` holding the identity ``WZLimSup`` gave each zone at power
-  on (``[0]`` would mean ``tb_zones`` never ran).
+- ``TestbedTask_X`` (a SYSTEM module): ``tb_name`` (CONST string), ``tool_pusher`` (TASK
+  PERS tooldata; ``tframe`` z = the pusher's length until a program sets it),
+  ``tb_floor_z``, ``tb_zone_z`` (CONST num), ``tb_zone_lo`` = ``[x0,y0,0]``,
+  ``tb_zone_hi`` = ``[x1,y1,0]`` (CONST pos);
+- ``TestbedZones`` (a SYSTEM module): ``TB_WZ_FAR``, ``TB_WZ_COUNT`` (CONST num), the five
+  TASK PERS ``wzstationary`` ``tb_wz_floor`` ... ``tb_wz_yhi`` (the identity ``WZLimSup``
+  gave each zone), ``tb_zones_n`` (how many zones ``tb_zones`` activated at the last
+  power on) and ``tb_zones_at`` (when), and the routine ``tb_zones``, the POWER_ON event
+  routine of each task (:attr:`Irc5Controller.event_routines`);
+- ``TestbedMotion`` (the PROGRAM module): ``TB_RAPID_VERSION``, ``TB_VERSION``,
+  ``TB_MAX_CMDS`` (CONST num), ``TB_DIR``, ``TB_DONE``, ``TB_FAILED`` (CONST string).
+
+The world zones the hook supervises (``hook.zones``) are those ``tb_zones`` activated
+since the last restart: a restart erases them (as the motion system does) and the
+POWER_ON event routine defines them again, if a loaded module still holds it. "Reset
+RAPID" (``pstart``) removes ``TestbedMotion`` (a start then runs nothing) and keeps the
+system modules, so the zones come back; the issue-29 modules, with everything in program
+modules, would lose them, and the twin shows it (tests/sim_twin/test_rws_zones.py).
 
 Not loaded: none of these symbols, and a start runs nothing (no ``Done`` entry), as on a
 controller whose tasks hold other programs.
@@ -27,10 +36,11 @@ controller whose tasks hold other programs.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from typing import Any
 
-from sim_twin.rws.irc5 import Irc5Controller
+from sim_twin.rws.irc5 import EventRoutine, Irc5Controller, RapidError
 from sim_twin.rws.motion_program import FILE_VERSION
 from sim_twin.rws.rapid_data import format_number
 from sim_twin.rws.testbed_rapid import (
@@ -40,11 +50,14 @@ from sim_twin.rws.testbed_rapid import (
     RAPID_VERSION,
     TestbedRapid,
 )
-from sim_twin.rws.world_zones import FAR
+from sim_twin.rws.world_zones import FAR, ArmZone
 
 SHARED_MODULE = "TestbedMotion"
-PUSHER_LOAD = "[0.1,[0,0,50],[1,0,0,0],0,0,0]"
-"""``tool_pusher``'s load in the task modules (a placeholder until the pushers are weighed)."""
+ZONES_MODULE = "TestbedZones"
+ZONES_ROUTINE = "tb_zones"
+PUSHER_LOAD = "[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032,0.00009]"
+"""``tool_pusher``'s load in the task modules: the SmartGripper and the pusher (robot/README.md,
+"The tool load")."""
 Decl = tuple[str, str, str, str, str]
 """(module, name, type, value, storage)"""
 
@@ -69,17 +82,25 @@ class TestbedInstall:
                  version: int = RAPID_VERSION) -> None:
         self.controller, self.hook = controller, hook
         self.loaded, self.version = False, int(version)
+        self.consts: dict[str, ArmZone] = dict(hook.zones)
+        """Each arm's zone constants (what ``TestbedTask_X`` declares)."""
+        hook.zones = {}  # none active until tb_zones has run
+        controller.on_restart.append(self._restarted)
+        for unit in hook.units:  # the lab's install step: the POWER_ON event routine
+            er = EventRoutine("POWER_ON", ZONES_ROUTINE, unit.task)
+            if er not in controller.event_routines:
+                controller.event_routines.append(er)
+        controller.on_start = None
         if loaded:
             self.set_loaded(True)
-        else:
-            controller.on_start = None
+            controller.run_event_routines("POWER_ON")  # the restart after the install
 
     def declarations(self) -> Iterator[tuple[str, Decl]]:
         """(task, declaration) of every symbol our modules put in the tasks."""
-        for i, unit in enumerate(self.hook.units):
-            z = self.hook.zones[unit.arm]
+        for unit in self.hook.units:
+            z = self.consts[unit.arm]
             mod = task_module(unit.task)
-            name = self.hook.program_file(unit.task).split(":", 1)[-1]
+            name = self.hook.program_file(unit.task).split(":", 1)[-1].lstrip("/")
             pusher = (f"[TRUE,[[0,0,{_num(self.hook.pusher_length_mm)}],[1,0,0,0]],"
                       f"{PUSHER_LOAD}]")
             yield from ((unit.task, d) for d in (
@@ -92,25 +113,76 @@ class TestbedInstall:
                 (SHARED_MODULE, "TB_RAPID_VERSION", "num", str(self.version), "CONST"),
                 (SHARED_MODULE, "TB_VERSION", "num", str(FILE_VERSION), "CONST"),
                 (SHARED_MODULE, "TB_MAX_CMDS", "num", str(MAX_COMMANDS), "CONST"),
-                (SHARED_MODULE, "TB_WZ_FAR", "num", _num(FAR), "CONST"),
                 (SHARED_MODULE, "TB_DIR", "string", '"RAMDISK:"', "CONST"),
                 (SHARED_MODULE, "TB_DONE", "string", f'"{DONE}"', "CONST"),
                 (SHARED_MODULE, "TB_FAILED", "string", f'"{FAILED}"', "CONST"),
+                (ZONES_MODULE, "TB_WZ_FAR", "num", _num(FAR), "CONST"),
+                (ZONES_MODULE, "TB_WZ_COUNT", "num", str(len(z.boxes())), "CONST"),
+                (ZONES_MODULE, "tb_zones_n", "num", "0", "TASK PERS"),
+                (ZONES_MODULE, "tb_zones_at", "string", '""', "TASK PERS"),
             ))
-            for k, box in enumerate(z.boxes()):
-                yield unit.task, (SHARED_MODULE, box.name, "wzstationary",
-                                  f"[{i * len(z.boxes()) + k + 1}]", "VAR")
+            for box in z.boxes():  # the init value [0]: WZLimSup writes the identity
+                yield unit.task, (ZONES_MODULE, box.name, "wzstationary", "[0]", "TASK PERS")
+
+    def _module_of(self, task: str) -> dict[str, bool]:
+        """Our modules in ``task`` -> whether each is a system module."""
+        return {task_module(task): True, ZONES_MODULE: True, SHARED_MODULE: False}
+
+    def _tb_zones(self, task: str) -> None:
+        """``tb_zones`` (TestbedZones.sys), run as the POWER_ON event routine of ``task``:
+        the count first to 0, each zone's identity and the count as WZLimSup activates
+        it, the time stamp last; the hook supervises the arm's zones from now on."""
+        unit = next(u for u in self.hook.units if u.task == task)
+        sym = self.controller.symbols
+        try:
+            sym.find([task, task_module(task), "tb_zone_lo"])
+        except Exception:
+            raise RapidError(40999, "Event routine failed", task=task,
+                             desc=f"tb_zones: {task_module(task)} (the zone constants) is "
+                                  "not loaded") from None
+        sym.set([task, ZONES_MODULE, "tb_zones_n"], "0")
+        sym.set([task, ZONES_MODULE, "tb_zones_at"], '""')
+        offset = self.hook.units.index(unit) * len(self.consts[unit.arm].boxes())
+        for k, box in enumerate(self.consts[unit.arm].boxes()):
+            sym.set([task, ZONES_MODULE, box.name], f"[{offset + k + 1}]")
+            sym.set([task, ZONES_MODULE, "tb_zones_n"], str(k + 1))
+        self.hook.zones[unit.arm] = self.consts[unit.arm]
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S")  # CDate() + " " + CTime()
+        sym.set([task, ZONES_MODULE, "tb_zones_at"], f'"{stamp}"')
+
+    def _restarted(self, mode: str) -> None:
+        """A restart erased the stationary zones; Reset RAPID removed our program module
+        (a start runs nothing until it is loaded again)."""
+        self.hook.zones.clear()
+        if mode == "pstart":
+            self.loaded = False
+            self.controller.on_start = None
+
+    @property
+    def zones_active(self) -> dict[str, bool]:
+        """Arm -> whether the motion system supervises its zones now (the truth)."""
+        return {u.arm: u.arm in self.hook.zones for u in self.hook.units}
 
     def set_loaded(self, loaded: bool) -> None:
         """Load (declare the symbols, start runs our RAPID) or unload; ``ValueError``
         while a program runs (a controller loads modules with RAPID stopped)."""
         if self.controller.running:
             raise ValueError("RAPID is running: stop it before loading or unloading modules")
+        sym = self.controller.symbols
+        present = {(u.task, m): sym.has_module(u.task, m)
+                   for u in self.hook.units for m in self._module_of(u.task)}
         for task, (module, name, type_name, value, storage) in self.declarations():
+            if not loaded:
+                sym.undeclare(task, module, name)
+            elif not present[(task, module)]:  # a module still loaded keeps its values
+                sym.declare(task, module, name, type_name, value, storage)
+        for unit in self.hook.units:
+            for module, system in self._module_of(unit.task).items():
+                sym.declare_module(unit.task, module, system=system)
             if loaded:
-                self.controller.symbols.declare(task, module, name, type_name, value, storage)
+                sym.declare_routine(unit.task, ZONES_MODULE, ZONES_ROUTINE, self._tb_zones)
             else:
-                self.controller.symbols.undeclare(task, module, name)
+                sym.undeclare_routine(unit.task, ZONES_MODULE, ZONES_ROUTINE)
         self.loaded = loaded
         self.controller.on_start = self.hook if loaded else None
 
@@ -127,7 +199,8 @@ class TestbedInstall:
     def lab_state(self) -> dict[str, Any]:
         """For ``GET /lab/controller``: what is installed."""
         return {"loaded": self.loaded, "version": self.version,
-                "zones": {u.arm: {"box_mm": list(self.hook.zones[u.arm].box),
-                                  "zone_z_mm": self.hook.zones[u.arm].zone_z,
-                                  "floor_z_mm": self.hook.zones[u.arm].floor_z}
+                "zones": {u.arm: {"box_mm": list(self.consts[u.arm].box),
+                                  "zone_z_mm": self.consts[u.arm].zone_z,
+                                  "floor_z_mm": self.consts[u.arm].floor_z,
+                                  "active": u.arm in self.hook.zones}
                           for u in self.hook.units}}

@@ -91,7 +91,9 @@ def _report(**kw: object) -> dict[str, object]:
         "tasks": {"T_ROB_L": {}, "T_ROB_R": {}},
         "rapid": {t: {"version": RAPID_VERSION, "zones": {
             "tb_zone_lo": [0.0, -300.0, 0.0], "tb_zone_hi": [500.0, 300.0, 0.0],
-            "tb_zone_z": 80.0, "tb_floor_z": 0.0}} for t in ("T_ROB_L", "T_ROB_R")}}
+            "tb_zone_z": 80.0, "tb_floor_z": 0.0},
+            "zones_active": {"n": 5.0, "of": 5.0, "at": "2026-01-02 03:04:05"}}
+            for t in ("T_ROB_L", "T_ROB_R")}}
     rep.update(kw)
     return rep
 
@@ -117,6 +119,22 @@ def test_check_problems_name_what_to_fix() -> None:
     assert low == ["task T_ROB_L: the calibration's z_travel_mm 60 is below the world zone's "
                    "tb_zone_z 80: a travel outside the zone box would stop the arm; raise "
                    "z_travel_mm to 80 or more"]
+
+
+def test_zones_defined_but_not_active_are_a_fault() -> None:
+    """tb_zones_n (TASK PERS in TestbedZones.sys) short of TB_WZ_COUNT: the POWER_ON
+    routine failed or never ran; unreadable: the system module is not loaded (issue 29)."""
+    tasks = ["T_ROB_L", "T_ROB_R"]
+    rapid = _report()["rapid"]
+    short = {**rapid, "T_ROB_R": {**rapid["T_ROB_R"],  # type: ignore[index,dict-item]
+                                  "zones_active": {"n": 2.0, "of": 5.0, "at": ""}}}
+    assert problems(_report(rapid=short), tasks) == [
+        "task T_ROB_R: the world zones are NOT active (2 of 5 activated at the last power "
+        "on): tb_zones failed or is not the POWER_ON event routine; read the event log, "
+        "fix it and restart the controller (robot/README.md, 'The zones')"]
+    gone = {**rapid, "T_ROB_L": {**rapid["T_ROB_L"],  # type: ignore[index,dict-item]
+                                 "zones_active": {"n": None, "of": None, "at": ""}}}
+    assert "TestbedZones.sys is not loaded" in problems(_report(rapid=gone), tasks)[0]
 
 
 def test_the_drivers_rapid_version_is_the_modules() -> None:
