@@ -63,9 +63,10 @@ DONE, FAILED = "Testbed Motion Done", "Testbed Motion Failed"
 MAX_COMMANDS = 64
 """The size of our RAPID's command arrays (``TB_MAX_CMDS`` in TestbedMotion.mod)."""
 SUPPORTED = (MoveAbsJ, MoveJ, MoveL, WaitTime)
-RAPID_VERSION = 2
+RAPID_VERSION = 3
 """``TB_RAPID_VERSION`` in TestbedMotion.mod: the behaviour of our modules this twin plays
-(2: the world zones). The driver and ``testbed check`` compare the controller's."""
+(2: the world zones; 3: the zones in a system module, issue 29). The driver and
+``testbed check`` compare the controller's."""
 WORLD_ZONE_CODE = 50000
 WORLD_ZONE_TITLE = "World zone reached"
 """The twin's OWN code and title for a ``WZLimSup`` stop (motion domain, 5xxxx, like the
@@ -76,8 +77,9 @@ The driver reports any error entry (type 3) as the step's failure, whatever its 
 
 
 def testbed_program_file(task: str) -> str:
-    """The file our RAPID's task ``task`` reads (``RAMDISK:`` + ``tb_name`` in its task module)."""
-    return f"RAMDISK:testbed_{task}.bin"
+    """The file our RAPID's task ``task`` reads and names in its entries (``tb_path``:
+    ``RAMDISK:/`` + ``tb_name`` of its task module)."""
+    return f"RAMDISK:/testbed_{task}.bin"
 
 
 def _refusal(reason: str, detail: str) -> RapidError:

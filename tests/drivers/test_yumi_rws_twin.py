@@ -73,7 +73,7 @@ def test_a_two_arm_step_moves_each_arm_to_its_own_target(yumi: Any) -> None:
     assert sorted(f["_title"] for f in ctrl.files.listdir("$TEMP")) == [
         "testbed_T_ROB_L.bin", "testbed_T_ROB_R.bin"]  # two files: no clash
     assert {t: tp.path for t, tp in motion.last_run.items()} == {
-        "T_ROB_L": "RAMDISK:testbed_T_ROB_L.bin", "T_ROB_R": "RAMDISK:testbed_T_ROB_R.bin"}
+        "T_ROB_L": "RAMDISK:/testbed_T_ROB_L.bin", "T_ROB_R": "RAMDISK:/testbed_T_ROB_R.bin"}
     got = tcps(cell, lock)
     assert got["left"] == pytest.approx(LEFT, abs=1.0)
     assert got["right"] == pytest.approx(RIGHT, abs=1.0)
@@ -121,7 +121,7 @@ def test_a_malformed_program_is_one_line_naming_the_entry(
     msg = str(info.value)
     assert "\n" not in msg
     assert msg.startswith("YuMi controller: event log 80001 'Testbed Motion Failed': ")
-    assert "Invalid motion program command; RAMDISK:testbed_T_ROB_L.bin; unknown opcode 99" \
+    assert "Invalid motion program command; RAMDISK:/testbed_T_ROB_L.bin; unknown opcode 99" \
         in msg
     assert tcps(cell, lock) == before
 
@@ -131,7 +131,7 @@ def test_a_target_below_the_table_is_refused_before_any_motion(yumi: Any) -> Non
     before = tcps(cell, lock)
     with pytest.raises(BackendError, match=r"^YuMi controller: event log 80001 'Testbed "
                                            r"Motion Failed': Target below the table; "
-                                           r"RAMDISK:testbed_T_ROB_R.bin; MoveL 2: z -5 mm"):
+                                           r"RAMDISK:/testbed_T_ROB_R.bin; MoveL 2: z -5 mm"):
         client.execute({"left": to(LEFT), "right": to((400.0, -200.0, -5.0))})
     got = tcps(cell, lock)
     assert got["right"] == before["right"]  # refused in full: not even the MoveJ

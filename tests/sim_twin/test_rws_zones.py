@@ -138,9 +138,10 @@ def test_the_zone_constants_read_over_rws_as_the_modules_declare_them(twin: Any)
     assert c.get_rapid_variable("tb_zone_lo", "T_ROB_R/TestbedTask_R") == "[125,-395,0]"
     assert c.get_rapid_variable("TB_RAPID_VERSION", "T_ROB_R/TestbedMotion") == str(
         RAPID_VERSION)
-    assert c.get_rapid_variable("tb_wz_floor", "T_ROB_L/TestbedMotion") != "[0]"
+    assert c.get_rapid_variable("tb_wz_floor", "T_ROB_L/TestbedZones") != "[0]"
+    assert c.get_rapid_variable("tb_zones_n", "T_ROB_L/TestbedZones") == "5"  # all active
     with pytest.raises(Exception, match="is a CONST"):  # the controller refuses a write
         c.set_rapid_variable("tb_zone_z", "500", "T_ROB_L/TestbedTask_L")
     run(c, {"T_ROB_L": program([("J", (400, 200, 100), 500)], tool_z_mm=12.5)})
     assert c.get_rapid_variable("tool_pusher", "T_ROB_L/TestbedTask_L").startswith(
-        "[TRUE,[[0,0,12.5],[1,0,0,0]],[0.1,")  # tb_header's tframe from the file
+        "[TRUE,[[0,0,12.5],[1,0,0,0]],[0.272,")  # tb_header's tframe from the file
