@@ -193,7 +193,10 @@ class YumiTwinCell:
         self._rng = np.random.default_rng(seed)
         self._noise_rng = np.random.default_rng([seed, 1])
         self._params = {a: CubeParams.draw(self._rng) for a in self.arms}
-        self._tcp = {a: REST_MM[self.sides[a]] for a in self.arms}
+        self.rest: dict[str, tuple[float, float, float]] = {
+            a: REST_MM[self.sides[a]] for a in self.arms}
+        """Where a "rest" waypoint takes each pusher (:meth:`set_rest`)."""
+        self._tcp = dict(self.rest)
         self._build_world()
         cam = self.camera
         self.crops = {a: cam.crop_box(workspace_mm(self.sides[a])) for a in self.arms}
@@ -275,6 +278,21 @@ class YumiTwinCell:
         x, y, z = (float(v) for v in xyz_mm)
         self._tcp[arm] = (x, y, z)
 
+    def set_rest(self, arm: str, xyz_mm: Sequence[float]) -> None:
+        """The arm's rest point: where the twin's arms hold the pusher at their rest
+        joints. An arm still at its old rest is put at the new one at once (the twin has
+        just started: nothing has moved yet)."""
+        new = (float(xyz_mm[0]), float(xyz_mm[1]), float(xyz_mm[2]))
+        if math.dist(self._tcp[arm], self.rest[arm]) < 1e-6:
+            self._tcp[arm] = new
+            body = self._body_pos(new)
+            pb.resetBasePositionAndOrientation(self.pushers[arm], body, [0, 0, 0, 1],
+                                               physicsClientId=self.client)
+            pb.changeConstraint(self._cid[arm], body, maxForce=_PUSHER_FORCE_N,
+                                physicsClientId=self.client)
+        self.rest[arm] = new
+        self.version += 1
+
     def halt(self, points: Mapping[str, Sequence[float]]) -> None:
         """A motion stopped at a given point (a world zone's face, which the last physics
         step may have passed by a fraction of a millimetre): each arm's pusher is pulled
@@ -321,7 +339,7 @@ class YumiTwinCell:
                     raise ValueError(f"{what}: speed_mm_s must be in (0, {MAX_SPEED_MM_S:g}], "
                                      f"got {speed:g}")
                 if kind == "rest":
-                    target = REST_MM[self.sides[arm]]
+                    target = self.rest[arm]
                 else:
                     xyz = wp.get("xyz_mm")
                     if not isinstance(xyz, Sequence) or isinstance(xyz, str) or len(xyz) != 3:
@@ -454,7 +472,7 @@ class YumiTwinCell:
             "crops": {a: list(self.crops[a]) for a in self.arms},
             "mirror": dict(self.mirror),
             "workspaces_mm": {a: list(workspace_mm(self.sides[a])) for a in self.arms},
-            "rest_mm": {a: list(REST_MM[self.sides[a]]) for a in self.arms},
+            "rest_mm": {a: list(self.rest[a]) for a in self.arms},
             "table_mm": list(TABLE_BOX_MM),
             "marker": {"dict": MARKER_DICT,
                        "ids": {a: MARKER_IDS[self.sides[a]] for a in self.arms},

@@ -108,6 +108,7 @@ from sim_twin.rws.rws_service import RwsService
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
 from sim_twin.rws.world_zones import ArmZone, default_zone, parse_zone
+from sim_twin.yumi_arms import DEFAULT_TOOL_MM
 from sim_twin.yumi_cell import YumiTwinCell
 from sim_twin.yumi_geometry import arm_side
 
@@ -186,6 +187,10 @@ class TwinServer(ThreadingHTTPServer):
         self.tcp_source: Callable[[], dict[str, tuple[float, float, float]]] | None = None
         """Where ``GET /lab/tcp`` reads the pushers without waiting for a motion to end
         (the controller's start hook keeps the latest sample); set by :class:`RwsSide`."""
+        self.arm_facts: dict[str, Any] = {}
+        """What the twin's arms add to ``GET /lab/camera``: the tool's length below the
+        flange (``tool_z_mm``) and each arm's rest joints (``rest_joints_deg``, ABB's
+        order), which a lab measures on its robot and writes into the calibration."""
         self.faults: TwinFaults | None = None
         """The faults a lab injects and a person clears (``/lab/fault``, ``/lab/clear``);
         set by :func:`main` once the controller exists."""
@@ -259,7 +264,7 @@ class Handler(BaseHTTPRequestHandler):
         elif path == "/lab/tcp":
             self._json(200, {"tcp_mm": self._tcp_now()})
         elif path == "/lab/camera":
-            self._json(200, cell.camera_model)
+            self._json(200, {**cell.camera_model, **srv.arm_facts})
         elif path == "/lab/health":
             self._json(200, {"ok": True})
         elif path == "/lab/faults" and srv.faults is not None:
@@ -403,8 +408,9 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="the controller's serial (ctrl/identity's ctrl-id; default "
                         "14000-500000): robot locks are keyed on it, so twins beside each "
                         "other need their own")
-    p.add_argument("--pusher-length-mm", type=float, default=0.0,
-                   help="the flange above the pusher's tip (RWS tool0 = flange)")
+    p.add_argument("--pusher-length-mm", type=float, default=DEFAULT_TOOL_MM,
+                   help="the flange above the pusher's tip (RWS tool0 = flange); the arms' "
+                        "gripper and pusher (default %(default)g)")
     p.add_argument("--no-rapid", action="store_true",
                    help="our RAPID modules not loaded: no testbed symbols, a start runs nothing")
     p.add_argument("--verbose", action="store_true", help="log every request to stderr")
@@ -493,6 +499,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     server = TwinServer(cell, a.host, a.port, a.fps, a.verbose)
     rws = RwsSide(server, a, zones, users)
     server.tcp_source = rws.motion.tcp_xyz
+    server.arm_facts = {"tool_z_mm": a.pusher_length_mm,
+                        "rest_joints_deg": {arm: list(rws.motion.arms.rest_joints(arm))
+                                            for arm in arms}}
     server.faults = TwinFaults(rws.controller, server.frames, cell, server.cell_lock,
                                {u.arm: u.task for u in rws.controller.units.values()},
                                {arm: z.zone_z for arm, z in zones.items()},

@@ -15,7 +15,7 @@ MODULE TestbedMotion
   !      object, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3 and WaitTime 5, at most
   !      TB_MAX_CMDS commands, no robtarget below tb_floor_z, speeds > 0);
   !   2. runs the commands with tool_pusher (tframe from the file, load from the task
-  !      module) in the file's work object; MoveJ with ConfJ On, MoveL with ConfL Off;
+  !      module) in the file's work object; MoveJ with ConfJ Off, MoveL with ConfL Off;
   !      the TCP speed from the file, orientation and axis speeds from TB_V_* below;
   !   3. waits until the arm is in position (WaitRob InPos) and writes
   !      ErrWrite info (80003) "Testbed Motion Done": task, "seqno <n>", "commands <k>",
@@ -344,10 +344,15 @@ MODULE TestbedMotion
 
   ! --- running it ------------------------------------------------------------------------
   PROC tb_execute()
-    ! MoveJ keeps the calibrated configuration (confdata from the calibration file): a
-    ! joint move never flips a wrist; MoveL may keep the configuration it starts in, as
-    ! a push is a short line whose targets come from pixels, not taught poses.
-    ConfJ \On;
+    ! ConfJ Off: the pushes' targets come from the picture, all over the workspace, and
+    ! with the pusher pointing down axis 6's quadrant (cf6), and axis 1's, change across
+    ! it: no one confdata a lab could measure holds for every target (the twin's IRB 14000
+    ! model: at the pushes' arm angle the left workspace's corners need different cf1,
+    ! cf4, cf6). With ConfJ On a MoveJ to a target in another quadrant stops the task
+    ! (50080). Off, the controller takes the closest configuration; the arm angle (axis
+    ! 7, from the calibration) still fixes the redundancy. MoveL keeps the configuration
+    ! it starts in, as a push is a short line.
+    ConfJ \Off;
     ConfL \Off;
     FOR i FROM 1 TO tb_n DO
       TEST tb_op{i}

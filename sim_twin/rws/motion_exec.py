@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sim_twin.constants import TIME_STEP_S
+from sim_twin.rws.arm_supervision import ArmStop, ArmSupervisor
 from sim_twin.rws.cell_link import CellPoses
 from sim_twin.rws.errors import RwsError
 from sim_twin.rws.event_log import MSG_INFO
@@ -98,8 +99,9 @@ from sim_twin.rws.motion_program import (
     program_failed,
     program_file_for_task,
 )
+from sim_twin.yumi_arms import DEFAULT_TOOL_MM
 from sim_twin.yumi_cell import MAX_SPEED_MM_S, Trajectory, YumiTwinCell
-from sim_twin.yumi_geometry import REST_MM
+from sim_twin.yumi_geometry import REST_JOINTS_DEG
 
 LOG_OPENED, LOG_CLOSED = "Motion Program Log File Opened", "Motion Program Log File Closed"
 JOINT_TOLERANCE_DEG = 0.01
@@ -239,6 +241,8 @@ class _ArmContext:
     rest_xyz: Vec3
     pusher_length_mm: float
     ratio: float
+    conf_j: bool = True
+    """ConfJ on: a MoveJ keeps its target's configuration (our RAPID sets it)."""
 
 
 def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
@@ -254,11 +258,13 @@ def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
                                                                   strict=True)):
             raise program_failed("Joint target not reachable on the twin",
                                  f"{what}: {[round(x, 3) for x in want]} is not the rest pose "
-                                 f"{list(ctx.rest_joints)} (the twin has no kinematics)",
+                                 f"{[round(x, 3) for x in ctx.rest_joints]} (the twin's cell "
+                                 "moves a pusher between the table and its rest point only)",
                                  task=task)
         ctx.here = ctx.rest_xyz
         return [{"kind": "rest", "xyz_mm": None, "fine": cmd.zone.finep,
-                 "speed_mm_s": _speed(cmd.speed, ctx.ratio, task, what)}]
+                 "speed_mm_s": _speed(cmd.speed, ctx.ratio, task, what),
+                 "joints_deg": list(want)}]
     assert isinstance(cmd, MoveJ | MoveL | MoveC)
     v = _speed(cmd.speed, ctx.ratio, task, what)
     end = cell_point(cmd.to_point, prog.tool, prog.wobj, ctx.pusher_length_mm, task=task,
@@ -274,8 +280,20 @@ def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
         pts = [end]
     kind = "move_j" if isinstance(cmd, MoveJ) else "move_l"
     ctx.here = end
+    arm = _arm_of(cmd.to_point, kind == "move_j" and ctx.conf_j)
     return [{"kind": kind, "xyz_mm": list(p), "speed_mm_s": v,
-             "fine": cmd.zone.finep if p is end else False} for p in pts]
+             "fine": cmd.zone.finep if p is end else False, **arm} for p in pts]
+
+
+def _arm_of(target: RobTarget, conf_on: bool) -> dict[str, Any]:
+    """What the arm supervision reads of a robtarget: its arm angle (axis 7, the first
+    external axis on a YuMi; an unset 9E9 keeps the arm's), its configuration and
+    whether the controller must keep it (MoveJ with ConfJ on)."""
+    out: dict[str, Any] = {"conf": [target.robconf.cf1, target.robconf.cf4,
+                                    target.robconf.cf6], "conf_on": conf_on}
+    if target.extax and abs(target.extax[0]) < 9e8:
+        out["arm_angle_deg"] = float(target.extax[0])
+    return out
 
 
 def arm_plan(ctx: _ArmContext) -> list[_Block | _Wait]:
@@ -385,7 +403,32 @@ class _Clock:
 
 
 class _ZoneHit(Exception):
-    """Raised from the cell's frame callback at a planned world-zone stop."""
+    """Raised from the cell's frame callback at a planned stop (a world zone, the arms)."""
+
+
+class ControllerStop(RapidError):
+    """An error of the controller itself (its kinematics, its motion supervision), not
+    one a RAPID module writes: it reaches the event log with its own code and title."""
+
+
+_CAUSES: dict[str, str] = {
+    "reach": "The target is farther from the arm's shoulder than the arm reaches with "
+             "this tool and arm angle.",
+    "limit": "The target is reachable only with a joint past its working range.",
+    "conf": "The target cannot be reached in the programmed configuration (confdata).",
+    "singular": "The linear path passes close to a singular arm configuration.",
+    "contact": "The arm met the other arm or the table: the motion supervision tripped.",
+}
+_ACTIONS: dict[str, str] = {
+    "reach": "Move the workspace closer to the arm or shorten the tool (testbed check "
+             "reports each corner's reach).",
+    "limit": "Change the arm angle or the target's orientation.",
+    "conf": "Program the target's configuration as the arm reaches it (jog there and "
+            "read the robtarget), or turn ConfJ off.",
+    "singular": "Use MoveJ, or change the arm angle or the path.",
+    "contact": "Jog the arms apart and check the workspaces, rest poses and paths "
+               "(testbed check reports the arms' clearance).",
+}
 
 
 @dataclass(frozen=True)
@@ -443,8 +486,12 @@ class CellMotion:
     most every ``on_frame_every_s`` simulated seconds while the arms move (at the samples)
     and once when a run's motion has ended, before execution reads stopped."""
 
+    conf_j = True
+    """ConfJ on: a MoveJ keeps its target's configuration (50080 if it cannot)."""
+
     def __init__(self, cell: YumiTwinCell, cell_lock: threading.Lock | threading.RLock,
-                 units: Sequence[MechUnit] = YUMI_UNITS, *, pusher_length_mm: float = 0.0,
+                 units: Sequence[MechUnit] = YUMI_UNITS, *,
+                 pusher_length_mm: float = DEFAULT_TOOL_MM,
                  frame_every_s: float = 0.02, on_frame: Callable[[], None] | None = None,
                  on_frame_every_s: float = 0.0) -> None:
         if frame_every_s < TIME_STEP_S:
@@ -457,7 +504,13 @@ class CellMotion:
         self._snap_lock = threading.Lock()
         with cell_lock:
             self._snap = dict(cell.tcp_xyz())
-        self.poses = CellPoses(self, threading.Lock(), self.units, self.pusher_length_mm)
+        self.arms = ArmSupervisor({a: cell.sides[a] for a in cell.arms}, self.pusher_length_mm,
+                                  {a: REST_JOINTS_DEG[cell.sides[a]] for a in cell.arms})
+        with cell_lock:  # the pushers rest where the arms' rest joints hold them
+            for arm in cell.arms:
+                cell.set_rest(arm, self.arms.tip(arm))
+        self.poses = CellPoses(self, threading.Lock(), self.units, self.pusher_length_mm,
+                               arms=self.arms)
         self.last_run: dict[str, TaskProgram] = {}
 
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
@@ -546,8 +599,9 @@ class CellMotion:
         plans = {}
         for tp in programs:
             arm = tp.unit.arm
-            ctx = _ArmContext(tp, tuple(here[arm]), tuple(self.poses.joints(tp.unit)),  # type: ignore[arg-type]
-                              REST_MM[self.cell.sides[arm]], self.pusher_length_mm, ratio)
+            ctx = _ArmContext(tp, tuple(here[arm]), self.arms.rest_joints(arm),  # type: ignore[arg-type]
+                              self.cell.rest[arm], self.pusher_length_mm, ratio,
+                              self.conf_j)
             plans[arm] = arm_plan(ctx)
         return plans
 
@@ -584,8 +638,9 @@ class CellMotion:
     def _move(self, run: ProgramRun, blocks: Mapping[str, _Block], log: _Log | None,
               t0: float, lead: str) -> float | None:
         """One ``cell.execute`` of every arm's block; its simulated time, None if stopped.
-        A planned world-zone stop (:meth:`_zone_stop`) halts every arm at that moment
-        and raises :meth:`_zone_error`'s RAPID error."""
+        The first planned stop, a world zone (:meth:`_zone_stop`) or the arms'
+        supervision (:class:`ArmSupervisor`: reach, limits, configuration, singularity,
+        contact), halts every arm at that moment and raises the controller's error."""
         programs = {a: b.waypoints for a, b in blocks.items()}
         with self.cell_lock:
             try:
@@ -594,26 +649,46 @@ class CellMotion:
                 task = next(u.task for u in self.units if u.arm in blocks)
                 raise program_failed("Motion refused by the twin cell", str(exc),
                                      task=task) from None
+            for arm, traj in trajs.items():
+                if traj.segments:
+                    self.arms.sync(arm, traj.segments[0].a)
+            stop_arm, tracks = self.arms.check(trajs, programs)
             zone = self._zone_stop(trajs)
-            # a zone stop is found at the physics step it falls in, not the next sample
-            every = self.frame_every_s if zone is None else TIME_STEP_S
-            sampler = _Sampler(self, run, blocks, trajs, log, t0, lead, every,
-                               None if zone is None else zone.t)
+            stop_t = min((s.t for s in (zone, stop_arm) if s is not None), default=None)
+            # a planned stop is found at the physics step it falls in, not the next sample
+            every = self.frame_every_s if stop_t is None else TIME_STEP_S
+            sampler = _Sampler(self, run, blocks, trajs, log, t0, lead, every, stop_t)
             try:
                 took = self.cell.execute(programs, on_frame=sampler, frame_every_s=every)
             except _Halted:
                 self._hold(trajs, sampler.last_t)
+                self.arms.commit(tracks, sampler.last_t)
                 self._refresh()
                 return None
             except _ZoneHit:
-                assert zone is not None
-                self.cell.halt({a: traj.at(zone.t) for a, traj in trajs.items()})
+                assert stop_t is not None
+                self.cell.halt({a: traj.at(stop_t) for a, traj in trajs.items()})
+                self.arms.commit(tracks, stop_t)
                 tcps = self._refresh()
-                raise self._zone_error(zone, tcps) from None
+                if zone is not None and zone.t <= stop_t:
+                    raise self._zone_error(zone, tcps) from None
+                assert stop_arm is not None
+                raise self._arm_error(stop_arm) from None
+            self.arms.commit(tracks, math.inf)
             tcps = self._refresh()
         if log is not None:
             log.sample(t0 + took, {a: b.cmd_nums[-1] for a, b in blocks.items()}, tcps)
         return took
+
+    def _arm_error(self, stop: ArmStop) -> RapidError:
+        """The controller's error for a stop of the arms' supervision."""
+        unit = next(u for u in self.units if u.arm == stop.arm)
+        every = "Every motion task stopped." if stop.every_task else \
+            f"Task {unit.task} stopped before the instruction."
+        return ControllerStop(stop.code, stop.title, task=unit.task,
+                          desc=f"Task {unit.task} ({unit.name}): {stop.detail}. {every}",
+                          causes=_CAUSES[stop.reason], actions=_ACTIONS[stop.reason],
+                          args=(unit.name, stop.detail))
 
     def _zone_stop(self, trajs: Mapping[str, Trajectory]) -> ZoneStop | None:
         """When a move of ``trajs`` would take a TCP into a world zone: the library's

@@ -43,7 +43,13 @@ from sim_twin.rws.errors import RwsError
 from sim_twin.rws.event_log import MSG_ERROR, MSG_INFO
 from sim_twin.rws.irc5 import ProgramRun, RapidError
 from sim_twin.rws.mechunits import MechUnit
-from sim_twin.rws.motion_exec import CellMotion, TaskProgram, ZoneStop, tool_offset
+from sim_twin.rws.motion_exec import (
+    CellMotion,
+    ControllerStop,
+    TaskProgram,
+    ZoneStop,
+    tool_offset,
+)
 from sim_twin.rws.motion_program import (
     ERRWRITE_ERROR,
     ERRWRITE_INFO,
@@ -128,6 +134,9 @@ class TestbedRapid(CellMotion):
     ``on_start``; without it RWS reads of them answer as if the modules were missing."""
 
     __test__ = False  # not a pytest class, whatever its name
+    conf_j = False
+    """Our RAPID moves with ConfJ off (robot/rapid/TestbedMotion.mod): a MoveJ takes the
+    configuration closest to the arm's, as the controller does (sim_twin/rws/arm_supervision.py)."""
 
     def __init__(self, *args: Any, files: Mapping[str, str] | None = None,
                  floor_z_mm: float = 0.0, zones: Mapping[str, ArmZone] | None = None,
@@ -173,7 +182,7 @@ class TestbedRapid(CellMotion):
                          for tp in accepted}
         try:
             done = self._rounds(run, plans, None, accepted[0].unit.arm)
-        except WorldZoneStop:
+        except (WorldZoneStop, ControllerStop):
             raise  # the controller's own error, not our RAPID's
         except RapidError as exc:
             task = exc.task or accepted[0].task

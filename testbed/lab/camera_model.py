@@ -25,9 +25,17 @@ REST_JOINTS_DEG = {"left": (-20.0, -20.0, 0.0, 150.0, 30.0, 70.0, 135.0),
 rooms import no twin at import time, so the numbers are here too; a test keeps them
 equal). With the arm angle +-135 deg they pass ``testbed check``'s layout checks
 (docs/notes/yumi-real.md, "Reach and kinematics")."""
+PUSH_ARM_ANGLE_DEG = 150.0
+"""The left arm's arm angle (axis 7) for its pushes (the right's: minus it). Every corner
+of the workspaces is reachable at +-135 deg too, but there the wrist passes within a few
+degrees of its singularity (axis 5 near 0) over the workspace and the twin's controller
+stops linear pushes with 50026; at +-150 deg the arm stays dexterous everywhere
+(docs/notes/yumi-real.md, "The twin's arms")."""
+DEFAULT_TOOL_Z_MM = 100.0
+"""The pusher's tip below the flange when the twin does not say (its default)."""
 
-__all__ = ["REST_JOINTS_DEG", "project_plane", "starting_calibration", "true_calibration",
-           "true_model_error"]
+__all__ = ["REST_JOINTS_DEG", "arm_facts", "project_plane", "starting_calibration",
+           "true_calibration", "true_model_error"]
 
 
 def project_plane(cam: Mapping[str, Any], box_mm: Sequence[float], plane_z_mm: float,
@@ -59,10 +67,20 @@ def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
     pts, px = project_plane(cam, box, plane_z_mm, n)
     h, _ = cv2.findHomography(px, pts[:, :2])
     side = "L" if arm.startswith("l") else "R"
-    return {"homography": h.tolist(), "table_box_mm": box,
-            "rest_joints_deg": list(REST_JOINTS_DEG["left" if side == "L" else "right"]),
-            "arm_angle_deg": 135.0 if side == "L" else -135.0,
+    return {"homography": h.tolist(), "table_box_mm": box, **arm_facts(arm, cam),
             "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+
+
+def arm_facts(arm: str, cam: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What a lab measures on its arm and writes into the calibration before the first
+    fit: the rest joints (jogged and read off the jointtarget), the pushes' arm angle and
+    the tool's length (the twin's, from its ``/lab/camera`` when given)."""
+    cam = cam or {}
+    side = "left" if arm.startswith("l") else "right"
+    rest = cam.get("rest_joints_deg", {}).get(arm) or REST_JOINTS_DEG[side]
+    return {"rest_joints_deg": [float(v) for v in rest],
+            "arm_angle_deg": PUSH_ARM_ANGLE_DEG if side == "left" else -PUSH_ARM_ANGLE_DEG,
+            "tool_z_mm": float(cam.get("tool_z_mm", DEFAULT_TOOL_Z_MM))}
 
 
 def true_model_error(cam: Mapping[str, Any], homography: Any, box_mm: Sequence[float],

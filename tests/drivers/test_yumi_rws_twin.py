@@ -23,8 +23,11 @@ from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.motion_exec import CellMotion
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
+from sim_twin.yumi_arms import rest_tip
 from sim_twin.yumi_cell import YumiTwinCell
-from sim_twin.yumi_geometry import REST_MM
+
+REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
+"""Where the twin's arms rest the pusher's tip (their rest joints, its 100 mm tool)."""
 
 PUSHER_MM = 100.0
 LEFT, RIGHT = (400.0, 200.0, 60.0), (420.0, -180.0, 40.0)
@@ -85,8 +88,8 @@ def test_a_two_arm_step_moves_each_arm_to_its_own_target(yumi: Any) -> None:
     client.execute({"left": [Waypoint("rest", None, 500.0)],  # the next step: seqno 2
                     "right": [Waypoint("rest", None, 500.0)]})
     got = tcps(cell, lock)
-    assert got["left"] == pytest.approx(REST_MM["left"], abs=1.0)
-    assert got["right"] == pytest.approx(REST_MM["right"], abs=1.0)
+    assert got["left"] == pytest.approx(REST_TIP["left"], abs=1.0)
+    assert got["right"] == pytest.approx(REST_TIP["right"], abs=1.0)
 
 
 def test_a_one_arm_step_moves_only_that_arm(yumi: Any) -> None:
@@ -187,7 +190,7 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     first, second = motion.last_run["T_ROB_L"].program.commands[:2]
     assert type(first).__name__ == "MoveL" and type(second).__name__ == "MoveAbsJ"
     assert list(first.to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
-    assert tcps(cell, lock)["left"] == pytest.approx(REST_MM["left"], abs=1.0)
+    assert tcps(cell, lock)["left"] == pytest.approx(REST_TIP["left"], abs=1.0)
     backend.move_tcp("left", low)
     backend.move_tcp("left", (300.0, 100.0, 20.0))  # from low to another point: up first
     cmds = motion.last_run["T_ROB_L"].program.commands
@@ -226,13 +229,16 @@ def test_a_push_past_the_world_zone_is_stopped_by_the_controller(yumi: Any,
         client.execute({"left": to(LEFT)})
     ctrl.resetpp()  # the FlexPendant's "PP to Main"
     # The same through the backend: a table box wider than the zone lets a point past it
-    # be asked for; the controller stops the arm where the zone begins, and says so.
+    # be asked for; the controller stops the arm where the zone begins, and says so: the
+    # pusher travels above the zone's height and comes down past its face, so it stops
+    # on the zone's top, over the point.
     backend = backend_on(client, motion, tmp_path, table_box=(
         zone.x0, zone.y0, zone.x1 + 80.0, zone.y1))
     with pytest.raises(BackendError, match=r"^YuMi controller: event log 50000 'World zone "
                                            r"reached'"):
         backend.move_tcp("left", (zone.x1 + 40.0, y, 20.0))
-    assert tcps(cell, lock)["left"][0] == pytest.approx(zone.x1, abs=0.5)
+    got = tcps(cell, lock)["left"]
+    assert (got[0], got[2]) == pytest.approx((zone.x1 + 40.0, zone.zone_z), abs=0.5)
     backend.close()
 
 

@@ -29,6 +29,7 @@ from drivers.yumi.camera import VideoCaptureCamera
 from drivers.yumi.controllers import make_controller
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
+from testbed.lab.camera_model import arm_facts
 
 # --- the camera seam: a network camera ------------------------------------------------
 
@@ -235,8 +236,7 @@ ARMS = ("left", "right")
 
 def rest_pose(arm: str) -> dict[str, Any]:
     """The twin's rest pose in a calibration file (the joints its RWS reports)."""
-    return {"rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
-                                -135.0 if arm == "left" else 135.0]}
+    return arm_facts(arm)
 
 
 @pytest.fixture(scope="module")

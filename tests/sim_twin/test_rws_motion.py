@@ -24,6 +24,7 @@ from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from abb_robot_client.rws import RWS
 
 from sim_twin.rws import Irc5Controller, MechUnit, RwsServer, serve
+from sim_twin.rws.arm_supervision import flange_at
 from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.motion_exec import CellMotion, arc_points
 from sim_twin.rws.motion_program import (
@@ -52,8 +53,12 @@ from sim_twin.rws.motion_program import (
     decode_program,
     program_file_for_task,
 )
+from sim_twin.yumi_arms import ArmModel, rest_tip
 from sim_twin.yumi_cell import ACCEL_MM_S2, YumiTwinCell
-from sim_twin.yumi_geometry import REST_MM
+from sim_twin.yumi_ik import configuration, solve
+
+REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
+"""Where the twin's arms rest the pusher's tip (their rest joints, its 100 mm tool)."""
 
 ROOT = Path(__file__).resolve().parents[2]
 PUSHER_MM = 100.0
@@ -63,8 +68,15 @@ EXT = [0.0] + [9e9] * 5
 LOAD = mpe.loaddata(0.001, [0, 0, 0.001], [1, 0, 0, 0], 0, 0, 0)
 
 
-def rt(x: float, y: float, z: float) -> Any:
-    return mpe.robtarget([x, y, z], DOWN, CONF, EXT)
+def rt(x: float, y: float, z: float, side: str = "left", tool_z: float = PUSHER_MM,
+       base: tuple[float, float, float] | None = None) -> Any:
+    """A tool-down robtarget with the configuration the twin's arm reaches it in (what a
+    lab reads off the robtarget after jogging there: the library's RAPID keeps ConfJ on);
+    ``base``: the target in the base frame when the program's work object moves it."""
+    bx, by, bz = base or (x, y, z)
+    pose = solve(ArmModel(side), flange_at((bx, by, bz), tool_z), 0.0, None).pose
+    c1, c4, c6 = (0, 0, 0) if pose is None else configuration(pose.chain_deg)
+    return mpe.robtarget([x, y, z], DOWN, mpe.confdata(c1, c4, c6, 0), EXT)
 
 
 def tool(z_mm: float) -> Any:
@@ -285,9 +297,9 @@ def test_the_commanded_speed_and_the_work_object(cell_twin: Any) -> None:
     m.enable_motion_logging()
     table = mpe.wobjdata(False, True, "", mpe.pose([300, 0, 0], [1, 0, 0, 0]),
                          mpe.pose([0, 0, 0], [1, 0, 0, 0]))
-    start = REST_MM["right"]
+    start = REST_TIP["right"]
     mp = mpe.MotionProgram(tool=tool(PUSHER_MM), wobj=table)
-    mp.MoveL(rt(100, -200, 100), mpe.v200, mpe.fine)  # (400, -200, 100) in the base frame
+    mp.MoveJ(rt(100, -200, 100, "right", base=(400, -200, 100)), mpe.v200, mpe.fine)
     log = m.execute_motion_program(mp, task="T_ROB_R")
     assert tcp(cell, lock, "right") == pytest.approx((400, -200, 100), abs=1.0)
     length = math.dist(start, (400, -200, 100))
@@ -296,7 +308,7 @@ def test_the_commanded_speed_and_the_work_object(cell_twin: Any) -> None:
     assert arrived == pytest.approx(expected, abs=0.1)
     m.abb_client.set_speedratio(50)  # the speed ratio scales every speed
     mp = mpe.MotionProgram(tool=tool(PUSHER_MM))
-    mp.MoveL(rt(400, -300, 100), mpe.v200, mpe.fine)
+    mp.MoveL(rt(400, -300, 100, "right"), mpe.v200, mpe.fine)
     log = m.execute_motion_program(mp, task="T_ROB_R")
     arrived = next(r[0] for r in log.data if math.dist(r[2:], (400, -300, 100)) < 1.0)
     assert arrived == pytest.approx(100 / 100 + 100 / ACCEL_MM_S2, abs=0.1)
@@ -307,11 +319,11 @@ def test_moveabsj_to_the_reported_joints_is_the_rest_and_other_joints_are_refuse
     s, _, cell, _, lock = cell_twin()
     m = mpe.MotionProgramExecClient(abb_client=client(s.url))
     mp = mpe.MotionProgram(tool=tool(PUSHER_MM))
-    mp.MoveL(rt(400, 200, 60), mpe.v500, mpe.fine)
+    mp.MoveJ(rt(400, 200, 60), mpe.v500, mpe.fine)
     j = m.abb_client.get_jointtarget("ROB_L")  # the pose the twin reports: its rest
     mp.MoveAbsJ(mpe.jointtarget(j.robax.tolist(), j.extax.tolist()), mpe.v500, mpe.fine)
     m.execute_motion_program(mp, task="T_ROB_L")
-    assert tcp(cell, lock, "left") == pytest.approx(REST_MM["left"], abs=1.0)
+    assert tcp(cell, lock, "left") == pytest.approx(REST_TIP["left"], abs=1.0)
     bad = mpe.MotionProgram()
     bad.MoveAbsJ(mpe.jointtarget([10, -130, 30, 0, 40, 0], j.extax.tolist()), mpe.v100, mpe.fine)
     with pytest.raises(Exception, match="Joint target not reachable on the twin"):
@@ -352,7 +364,7 @@ def test_multimove_with_numbered_tasks_moves_both_arms_at_once(cell_twin: Any) -
     for y in (200, -200):
         mp = mpe.MotionProgram(tool=tool(PUSHER_MM))
         mp.SyncMoveOn()
-        mp.MoveL(rt(400, y, 60), mpe.v500, mpe.fine)
+        mp.MoveJ(rt(400, y, 60, "left" if y > 0 else "right"), mpe.v500, mpe.fine)
         mp.SyncMoveOff()
         mps.append(mp)
     log = m.execute_multimove_motion_program(mps, ["T_ROB1", "T_ROB2"])
@@ -362,14 +374,15 @@ def test_multimove_with_numbered_tasks_moves_both_arms_at_once(cell_twin: Any) -
     assert tcp(cell, lock, "right") == pytest.approx((400, -200, 60), abs=1.0)
     assert log.column_headers[1::4] == ["ROB_1_cmd_num", "ROB_2_cmd_num"]
     mid = log.data[len(log.data) // 3]  # both arms on their way in one sample: together
-    assert math.dist(mid[2:5], REST_MM["left"]) > 10 and math.dist(mid[6:9], REST_MM["right"]) > 10
+    assert math.dist(mid[2:5], REST_TIP["left"]) > 10
+    assert math.dist(mid[6:9], REST_TIP["right"]) > 10
 
 
 def test_a_stop_mid_motion_leaves_the_pusher_between_start_and_target(cell_twin: Any) -> None:
     s, _, cell, _, lock = cell_twin(realtime=1.0)  # paced: the move takes ~6 s
     c = client(s.url)
     m = mpe.MotionProgramExecClient(abb_client=c)
-    start, target = REST_MM["left"], (400.0, 200.0, 150.0)
+    start, target = REST_TIP["left"], (400.0, 200.0, 150.0)
     mp = mpe.MotionProgram(tool=tool(PUSHER_MM))
     mp.MoveL(rt(*target), mpe.v60, mpe.fine)
     seq = m.execute_motion_program(mp, task="T_ROB_L", wait=False)
@@ -436,7 +449,7 @@ def test_python_m_sim_twin_rws_cell_runs_programs(tmp_path: Path, rapid: str) ->
             time.sleep(0.05)
         c = client(f"http://127.0.0.1:{int(port_file.read_text())}")
         mp = mpe.MotionProgram()  # tool0: the flange
-        mp.MoveL(rt(400, 200, 150), mpe.v500, mpe.fine)
+        mp.MoveJ(rt(400, 200, 150, tool_z=0.0), mpe.v500, mpe.fine)
         if rapid == "library":
             mpe.MotionProgramExecClient(abb_client=c).execute_motion_program(mp, task="T_ROB_L")
         else:  # the default: our RAPID, its own file, its symbols

@@ -26,8 +26,11 @@ import pytest
 from twin_rws import client, program, run, start
 
 from sim_twin.rws.testbed_rapid import DONE, RAPID_VERSION, WORLD_ZONE_CODE
+from sim_twin.yumi_arms import rest_tip
 from sim_twin.yumi_cell import YumiTwinCell
-from sim_twin.yumi_geometry import REST_MM
+
+REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
+"""Where the twin's arms rest the pusher's tip (their rest joints, its 100 mm tool)."""
 
 ROOT = Path(__file__).resolve().parents[2]
 LOGIN = ("lab user", "s3cret:with colon")
@@ -124,7 +127,7 @@ def test_the_command_lines_zone_is_read_over_rws_and_supervised(twin: Twin) -> N
     assert [(e.code, e.args[1]) for e in entries] == [(WORLD_ZONE_CODE, "tb_wz_xlo")]
     assert twin.tcp("left") == pytest.approx([ZONE[0], 200, 20], abs=1.0)
     back = run(c, {"T_ROB_L": program([("L", (ZONE[0], 200, 100), 300),
-                                       ("J", REST_MM["left"], 800)])}, seqno=2)
+                                       ("R", "left", 800)])}, seqno=2)
     assert [e.title for e in back] == [DONE]
 
 
@@ -137,7 +140,7 @@ def test_the_lab_side_unloads_and_versions_our_rapid_and_drops_an_option(twin: T
     with pytest.raises(Exception, match=r"no RAPID symbol"):
         c.get_rapid_variable("tb_zone_lo", "T_ROB_L/TestbedTask_L")
     entries = run(c, {"T_ROB_L": program([("J", (400, 200, 100), 800)])})
-    assert entries == [] and twin.tcp("left") == pytest.approx(list(REST_MM["left"]), abs=1)
+    assert entries == [] and twin.tcp("left") == pytest.approx(list(REST_TIP["left"]), abs=1)
     twin.lab({"rapid": "testbed", "rapid_version": 1})  # an older version loaded
     assert c.get_rapid_variable("TB_RAPID_VERSION", "T_ROB_R/TestbedMotion") == "1"
     assert twin.lab()["rapid"] == {**state["rapid"], "version": 1}
@@ -186,7 +189,7 @@ def test_no_rapid_declares_none_of_our_symbols_and_a_start_runs_nothing(tmp_path
         with pytest.raises(Exception, match=r"no RAPID symbol"):
             c.get_rapid_variable("TB_RAPID_VERSION", "T_ROB_L/TestbedMotion")
         assert run(c, {"T_ROB_L": program([("J", (400, 200, 100), 800)])}) == []
-        assert t.tcp("left") == pytest.approx(list(REST_MM["left"]), abs=1.0)
+        assert t.tcp("left") == pytest.approx(list(REST_TIP["left"]), abs=1.0)
         assert t.lab()["rapid"]["loaded"] is False
         t.lab({"rapid": "testbed"})  # loaded later (the lab's switch)
         assert run(c, {"T_ROB_L": program([("J", (400, 200, 100), 800)])}, seqno=2)[0].title \
@@ -199,10 +202,10 @@ def test_a_stop_at_real_time_halts_the_pusher_within_a_sample(tmp_path: Path) ->
     t = Twin(tmp_path, "--realtime", "1", "--arms", "left")
     try:
         c = client(t.rws_url)
-        begin, target = REST_MM["left"], (400.0, 200.0, 150.0)
+        begin, target = REST_TIP["left"], (400.0, 200.0, 150.0)
         start(c, {"T_ROB_L": program([("L", target, 60)])})  # ~6 s at real time
         time.sleep(0.3)
-        seen = c.get_robtarget("ROB_L").trans.tolist()  # the motion's latest sample
+        seen = c.get_robtarget("ROB_L", tool="tool_pusher").trans.tolist()  # latest sample
         t_stop = time.monotonic()
         c.stop()
         assert c.get_execution_state().ctrlexecstate == "stopped"

@@ -29,8 +29,11 @@ from sim_twin.rws.testbed_rapid import (
     TestbedRapid,
 )
 from sim_twin.rws.world_zones import ArmZone, default_zone, first_entry
+from sim_twin.yumi_arms import rest_tip
 from sim_twin.yumi_cell import Segment, YumiTwinCell
-from sim_twin.yumi_geometry import REST_MM
+
+REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
+"""Where the twin's arms rest the pusher's tip (their rest joints, its 100 mm tool)."""
 
 Made = tuple[Any, Irc5Controller, YumiTwinCell, threading.Lock]
 
@@ -95,7 +98,7 @@ def test_a_push_past_the_zone_box_stops_every_arm_at_its_face(twin: Any) -> None
     assert got["left"] == pytest.approx((400.0, box.y1, 10.0), abs=1.0)  # held at the face
     tip = c.get_robtarget("ROB_L", tool="tool_pusher").trans.tolist()
     assert tip == pytest.approx(list(got["left"]), abs=0.5)
-    start, now = REST_MM["right"], got["right"]  # the other arm stopped too, mid-way
+    start, now = REST_TIP["right"], got["right"]  # the other arm stopped too, mid-way
     along, total = math.dist(start, now), math.dist(start, right_to)
     assert 10.0 < along < total - 10.0
     # the arm moves away from the face (up, out of the zone's height) and on
@@ -122,10 +125,10 @@ def test_the_floor_zone_stops_a_target_below_it_in_another_work_object(twin: Any
 
 def test_travel_above_the_zone_height_outside_the_box_is_allowed(twin: Any) -> None:
     c, _, cell, lock = twin()
-    entries = run(c, {"T_ROB_L": program([("J", (150, 450, 120), 500),
-                                          ("L", (650, 450, 81), 300)])})
+    entries = run(c, {"T_ROB_L": program([("J", (150, 450, 120), 500),  # y 450: past the box
+                                          ("L", (500, 430, 81), 300)])})  # (as far as it reaches)
     assert [e.title for e in entries] == [DONE]
-    assert tcps(cell, lock)["left"] == pytest.approx((650, 450, 81), abs=1.0)
+    assert tcps(cell, lock)["left"] == pytest.approx((500, 430, 81), abs=1.0)
 
 
 def test_the_zone_constants_read_over_rws_as_the_modules_declare_them(twin: Any) -> None:

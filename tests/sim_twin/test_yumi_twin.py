@@ -24,6 +24,7 @@ import pytest
 import twin_rws
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 
+from sim_twin.yumi_arms import ArmModel, abb_to_chain
 from sim_twin.yumi_cell import RESET_NOISE, YumiTwinCell
 from sim_twin.yumi_geometry import WORKSPACE_MM, workspace_mm
 from testbed.perception.cube import find_cube
@@ -268,9 +269,10 @@ def test_server_stream_controller_and_lab(server: Server) -> None:
             jpg = cv2.imdecode(np.frombuffer(r.read(), np.uint8), cv2.IMREAD_COLOR)
         t1 = server.get("/lab/truth")["arms"]["left"]
         assert t1["cube_mm"][0] - t0["cube_mm"][0] > 20.0
-        assert t1["tcp_mm"] == pytest.approx([100, 450, 150], abs=1.0)
-        assert c.get_robtarget("ROB_L").trans.tolist() == pytest.approx([100, 450, 150],
-                                                                       abs=1.0)
+        assert t1["tcp_mm"] == pytest.approx(cam["rest_mm"]["left"], abs=1.0)  # its arm's rest
+        rest = ArmModel("left").pose(abb_to_chain(cam["rest_joints_deg"]["left"])).flange
+        assert c.get_robtarget("ROB_L").trans.tolist() == pytest.approx(  # tool0: the flange
+            rest[:3, 3].tolist(), abs=1.0)
         assert _cube_seen(jpg, cam, t1) < 0.6  # shown by the time execution read stopped
         assert _cube_seen(_fresh(cap), cam, t1) < 0.6  # and on the stream
     finally:

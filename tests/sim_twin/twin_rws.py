@@ -13,9 +13,13 @@ from typing import Any
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from abb_robot_client.rws import RWS
 
+from sim_twin.yumi_arms import DEFAULT_TOOL_MM
+from sim_twin.yumi_geometry import REST_JOINTS_DEG
+
 DOWN = [0.0, 0.0, 1.0, 0.0]
-Move = tuple[str, Sequence[float], float]
-"""("J" | "L", (x, y, z) mm, v_tcp mm/s)"""
+Move = tuple[str, Any, float]
+"""("J" | "L", (x, y, z) mm, v_tcp mm/s), or ("R", side, v_tcp): a joint move to that
+side's rest joints (sim_twin.yumi_geometry.REST_JOINTS_DEG), as the driver rests an arm."""
 
 
 def client(url: str, timeout_s: float = 20.0, **kw: Any) -> RWS:
@@ -26,19 +30,32 @@ def client(url: str, timeout_s: float = 20.0, **kw: Any) -> RWS:
     return c
 
 
+ARM_ANGLE_DEG = {"left": 150.0, "right": -150.0}
+"""The arm angle (axis 7) of the pushes (testbed/lab/camera_model.py PUSH_ARM_ANGLE_DEG)."""
+
+
 def rt(x: float, y: float, z: float) -> Any:
-    return mpe.robtarget([x, y, z], DOWN, mpe.confdata(0, 0, 0, 4), [0.0] + [9e9] * 5)
+    """A tool-down target; its arm angle the side's (left: y > 0). Our RAPID moves with
+    ConfJ off, so the confdata is not kept."""
+    angle = ARM_ANGLE_DEG["left" if y >= 0 else "right"]
+    return mpe.robtarget([x, y, z], DOWN, mpe.confdata(0, 0, 0, 4), [angle] + [9e9] * 5)
 
 
-def program(moves: Sequence[Move], tool_z_mm: float = 0.0, wobj: Any = None) -> Any:
-    """A program of MoveJ/MoveL stop points with a tool ``tool_z_mm`` long."""
+def program(moves: Sequence[Move], tool_z_mm: float = DEFAULT_TOOL_MM, wobj: Any = None
+            ) -> Any:
+    """A program of MoveJ/MoveL stop points with a tool ``tool_z_mm`` long (default: the
+    twin's own, so a target is where the pusher's tip goes)."""
     tool = mpe.tooldata(True, mpe.pose([0, 0, tool_z_mm], [1, 0, 0, 0]),
                         mpe.loaddata(0.1, [0, 0, 50], [1, 0, 0, 0], 0, 0, 0))
     mp = mpe.MotionProgram(tool=tool, wobj=wobj) if wobj is not None else \
         mpe.MotionProgram(tool=tool)
     for kind, xyz, v in moves:
         speed = mpe.speeddata(v, 500, 5000, 1000)
-        (mp.MoveJ if kind == "J" else mp.MoveL)(rt(*xyz), speed, mpe.fine)
+        if kind == "R":
+            j = REST_JOINTS_DEG[xyz]
+            mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6]] + [9e9] * 5), speed, mpe.fine)
+        else:
+            (mp.MoveJ if kind == "J" else mp.MoveL)(rt(*xyz), speed, mpe.fine)
     return mp
 
 

@@ -25,6 +25,7 @@ import pytest
 
 from drivers.yumi.backend import ArmCalibration
 from testbed.cli import main
+from testbed.lab.camera_model import arm_facts
 from testbed.perception import homography as cal
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,8 +35,7 @@ SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 90.0, "max_speed_mm_s": 400.0,
 
 def rest_pose(arm: str) -> dict[str, Any]:
     """The twin's rest pose as a lab writes it into an arm's starting file."""
-    return {"rest_joints_deg": [0.0, -130.0, 30.0, 0.0, 40.0, 0.0,
-                                -135.0 if arm == "left" else 135.0]}
+    return arm_facts(arm)
 
 
 class Twin:
@@ -200,7 +200,7 @@ def test_check_draws_the_full_frame_with_crops_and_calibration(
     assert "calibrated table box drawn" in out
     # the controller's report and the camera's, as read back, with each crop's figures
     assert re.search(r"yumi: controller YUMI_TWIN serial \S+, RobotWare 6\.", out)
-    assert "yumi: T_ROB_L: testbed RAPID version 2 (this checkout: 2); world zone box" in out
+    assert "yumi: T_ROB_L: testbed RAPID version 3 (this checkout: 3); world zone box" in out
     assert re.search(r"yumi: camera http://127\.0\.0\.1:\d+/camera\.mjpg \(stream\), "
                      r"640x480: width 640, height 480", out)
     for arm in ("left", "right"):

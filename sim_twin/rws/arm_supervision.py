@@ -1,0 +1,376 @@
+"""The twin controller's kinematics and motion supervision: each arm's joints along every
+move, the targets it refuses, and the moment two arms (or an arm and the table) meet.
+
+Why: the cell moves floating pushers; the robot moves 7-axis arms. Before a move runs,
+the twin solves every arm's joints along its path (:mod:`sim_twin.yumi_ik`, the arms of
+:mod:`sim_twin.yumi_arms`) and finds the first moment the controller would stop:
+
+==============================  =====  ================================================
+what                            code   the controller's title (IRC5 event log)
+==============================  =====  ================================================
+no joint angles reach a target  50050  Position outside reach
+reachable only past a limit     50027  Joint Out of Range
+MoveJ (ConfJ on): another conf  50080  Position not compatible
+MoveL through a singularity     50026  Close to singularity
+a link meets the other arm or   50204  Motion supervision
+the table (the pusher's tip on
+the table and cubes aside)
+==============================  =====  ================================================
+
+The codes and titles are the IRC5 operating manual's event messages as we know them;
+docs/rws-checklist.md asks a lab to confirm each on its controller. A kinematic stop
+stops the task at the moment its arm reaches the instruction it cannot do (the motion
+before it runs); motion supervision stops every task before the links touch
+(:data:`CONTACT_MM`), as collision detection stops the robot on contact.
+
+The path model: a MoveL's TCP moves in a straight line, its joints follow by the
+solution nearest the previous sample's (ConfL off: the closest configuration); a MoveJ's
+joints move linearly from the start's to the target's (the pusher in the cell still
+moves in a straight line: its path and the arm's differ a little between the ends, which
+only the collision watch sees). Not modelled: an arm against itself or the body, blending
+in zones, the arm angle's own limits beyond axis 7's range.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from sim_twin.yumi_arms import ArmModel, ArmPose, abb_to_chain, chain_to_abb, clearance
+from sim_twin.yumi_arms import table_clearance as table_gap
+from sim_twin.yumi_cell import Segment, Trajectory
+from sim_twin.yumi_ik import (
+    REACH_TOL_MM,
+    SINGULAR_SIGMA,
+    _descend,
+    configuration,
+    manipulability,
+    solve,
+)
+
+Mat = npt.NDArray[np.float64]
+SAMPLE_MM: Final = 15.0
+"""The path is checked at least every this many mm of TCP travel."""
+CONTACT_MM: Final = 2.0
+"""Motion supervision stops the arms when two shapes come this close."""
+JUMP_DEG: Final = 25.0
+"""A MoveL sample whose joints jump more than this from the previous one passed a
+singularity (the closest solution flipped)."""
+FLANGE_DOWN: Final = np.diag([1.0, -1.0, -1.0])
+"""The flange's rotation with the tool pointing down (the twin's only tool orientation)."""
+DOWN_COS: Final = math.cos(math.radians(1.0))
+"""A flange within 1 deg of pointing down: a MoveL that starts otherwise (from the rest
+pose) turns the tool while it moves, which the twin models as a joint move."""
+ERRORS: Final = {
+    "reach": (50050, "Position outside reach"),
+    "limit": (50027, "Joint Out of Range"),
+    "conf": (50080, "Position not compatible"),
+    "singular": (50026, "Close to singularity"),
+    "contact": (50204, "Motion supervision"),
+}
+
+
+@dataclass(frozen=True)
+class ArmStop:
+    """Where the controller stops: at ``t`` (s into the move), ``arm``'s task, why."""
+
+    t: float
+    arm: str
+    reason: str
+    detail: str
+
+    @property
+    def code(self) -> int:
+        return ERRORS[self.reason][0]
+
+    @property
+    def title(self) -> str:
+        return ERRORS[self.reason][1]
+
+    @property
+    def every_task(self) -> bool:
+        return self.reason == "contact"
+
+
+@dataclass
+class _Track:
+    """One arm's joint samples over a move: times (s) and chain angles (deg)."""
+
+    t: list[float] = field(default_factory=list)
+    q: list[list[float]] = field(default_factory=list)
+
+    def at(self, t: float) -> list[float]:
+        k = int(np.searchsorted(self.t, t))
+        if k <= 0:
+            return self.q[0]
+        if k >= len(self.t):
+            return self.q[-1]
+        t0, t1 = self.t[k - 1], self.t[k]
+        f = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
+        return [a + f * (b - a) for a, b in zip(self.q[k - 1], self.q[k], strict=True)]
+
+
+def flange_at(cell_xyz: Sequence[float], tool_mm: float) -> Mat:
+    """The flange pose (4x4) above a cell TCP (the pusher's bottom), the tool down."""
+    f = np.eye(4)
+    f[:3, :3] = FLANGE_DOWN
+    f[:3, 3] = (cell_xyz[0], cell_xyz[1], cell_xyz[2] + tool_mm)
+    return f
+
+
+class ArmSupervisor:
+    """Each arm's joints and the checks of every move. ``sides``: arm -> "left"/"right";
+    ``tool_mm``: the pusher's tip below the flange, along the flange's z (the gripper and
+    the pusher); ``rest_joints``: arm -> its rest pose (ABB's order: axes 1-6, then 7),
+    where the arms start."""
+
+    def __init__(self, sides: Mapping[str, str], tool_mm: float,
+                 rest_joints: Mapping[str, Sequence[float]]) -> None:
+        self.models = {a: ArmModel(s) for a, s in sides.items()}
+        self.tool_mm = float(tool_mm)
+        self.rest = {a: abb_to_chain(rest_joints[a]) for a in sides}
+        for arm, q in self.rest.items():
+            over = self.models[arm].limit_violation(q)
+            if over is not None:
+                raise ValueError(f"arm {arm}: its rest joints put axis {over[0]} "
+                                 f"{over[1]:.1f} deg past its limit")
+        self.joints = {a: list(q) for a, q in self.rest.items()}
+
+    def tip(self, arm: str, chain_deg: Sequence[float] | None = None
+            ) -> tuple[float, float, float]:
+        """The pusher's tip (the cell's TCP) for the arm's joints (default: its own)."""
+        return self.models[arm].tip(self.joints[arm] if chain_deg is None else chain_deg,
+                                    self.tool_mm)
+
+    def _any_solution(self, arm: str, xyz: Sequence[float], arm_angle: float) -> list[float]:
+        s = solve(self.models[arm], flange_at(xyz, self.tool_mm), arm_angle, None)
+        if s.pose is None:
+            raise ValueError(f"arm {arm}: no joints put the pusher at {list(xyz)} "
+                             f"({s.reason}: {s.detail})")
+        return list(s.pose.chain_deg)
+
+    def flange_pose(self, arm: str, tip: Sequence[float]
+                    ) -> tuple[tuple[float, float, float],
+                               tuple[float, float, float, float]] | None:
+        """The flange (position mm, quaternion wxyz) by the arm's joints when they hold the
+        pusher's tip at ``tip`` (within 1 mm) with the tool NOT pointing down (at rest);
+        None otherwise: on its way, or pointing down, where the pusher itself says where
+        the flange is (the cell's TCP plus the tool)."""
+        f = self.models[arm].pose(self.joints[arm]).flange
+        if f[:3, 2] @ FLANGE_DOWN[:3, 2] > DOWN_COS or math.dist(self.tip(arm), tip) > 1.0:
+            return None
+        x, y, z = (float(v) for v in f[:3, 3])
+        return (x, y, z), _quat(f[:3, :3])
+
+    def rest_joints(self, arm: str) -> tuple[float, ...]:
+        """The rest pose in ABB's joint order (axes 1-6, then 7)."""
+        return tuple(chain_to_abb(self.rest[arm]))
+
+    def abb_joints(self, arm: str) -> tuple[float, ...]:
+        return tuple(chain_to_abb(self.joints[arm]))
+
+    def robconf(self, arm: str) -> tuple[float, float, float, float]:
+        c1, c4, c6 = configuration(self.joints[arm])
+        return (float(c1), float(c4), float(c6), 0.0)
+
+    def sync(self, arm: str, cell_xyz: Sequence[float]) -> None:
+        """Make the arm's joints agree with its pusher when they do not (the lab's hand
+        moved it; a joint move stopped mid-way, whose pusher the cell moved in a line):
+        the solution clear of singularities closest to the joints it had."""
+        if math.dist(self.tip(arm), cell_xyz) < 0.5:
+            return
+        q = self.joints[arm]
+        s = solve(self.models[arm], flange_at(cell_xyz, self.tool_mm), q[2], None, current=q)
+        self.joints[arm] = list(s.pose.chain_deg) if s.pose is not None else \
+            self._any_solution(arm, cell_xyz, q[2])
+
+    # --- a move --------------------------------------------------------------------------
+    def check(self, trajs: Mapping[str, Trajectory],
+              meta: Mapping[str, Sequence[Mapping[str, object]]]
+              ) -> tuple[ArmStop | None, dict[str, _Track]]:
+        """The first stop of a move (None: it runs to its end) and each arm's joints."""
+        stops: list[ArmStop] = []
+        tracks: dict[str, _Track] = {}
+        for arm, traj in trajs.items():
+            track, stop = self._arm(arm, traj, meta.get(arm, ()))
+            tracks[arm] = track
+            if stop is not None:
+                stops.append(stop)
+        horizon = min((s.t for s in stops), default=math.inf)
+        contact = self._contact(tracks, horizon)
+        if contact is not None:
+            stops.append(contact)
+        return (min(stops, key=lambda s: s.t) if stops else None), tracks
+
+    def commit(self, tracks: Mapping[str, _Track], t: float) -> None:
+        """The arms' joints at ``t`` into the move (its end, or where it stopped)."""
+        for arm, track in tracks.items():
+            if track.t:
+                self.joints[arm] = list(track.at(t))
+
+    def _arm(self, arm: str, traj: Trajectory, meta: Sequence[Mapping[str, object]]
+             ) -> tuple[_Track, ArmStop | None]:
+        q = list(self.joints[arm])
+        track, t0 = _Track([0.0], [q]), 0.0
+        for k, seg in enumerate(traj.segments):
+            info = meta[k] if k < len(meta) else {}
+            angle = float(info.get("arm_angle_deg", q[2]))  # type: ignore[arg-type]
+            down = self.models[arm].pose(q).flange[:3, 2] @ FLANGE_DOWN[:3, 2] > DOWN_COS
+            if info.get("kind") in ("move_j", "rest") or not down:  # (from the rest pose)
+                stop = self._joint_move(arm, seg, info, angle, q, t0, track)
+            else:
+                stop = self._linear_move(arm, seg, angle, q, t0, track)
+            if stop is not None:
+                return track, stop
+            q = track.q[-1]
+            t0 += seg.duration
+        return track, None
+
+    def _joint_move(self, arm: str, seg: Segment, info: Mapping[str, object], angle: float,
+                    q: list[float], t0: float, track: _Track) -> ArmStop | None:
+        """A MoveJ (or a move to a joint target): solve the end, then interpolate joints."""
+        m = self.models[arm]
+        target = info.get("joints_deg")
+        if target is not None:
+            end = abb_to_chain(target)  # type: ignore[arg-type]
+        else:
+            end_or = self._target(arm, seg.b, angle, info.get("conf"), q,
+                                  bool(info.get("conf_on")))
+            if isinstance(end_or, ArmStop):
+                return ArmStop(t0, arm, end_or.reason, end_or.detail)
+            end = end_or
+        over = m.limit_violation(end)
+        if over is not None:
+            return ArmStop(t0, arm, "limit", f"axis {over[0]} {over[1]:.1f} deg past its limit")
+        n = max(1, math.ceil(seg.length / SAMPLE_MM))
+        for i in range(1, n + 1):
+            f = i / n
+            track.t.append(t0 + f * seg.duration)
+            track.q.append([a + f * (b - a) for a, b in zip(q, end, strict=True)])
+        return None
+
+    def _target(self, arm: str, xyz: Sequence[float], angle: float, conf: object,
+                current: list[float], conf_on: bool = True) -> list[float] | ArmStop:
+        """A joint move's end: in ``conf`` (ConfJ on, the most dexterous such solution),
+        else the most dexterous solution (ConfJ off: the twin's "closest configuration"
+        is the one farthest from a singularity, so the linear pushes that follow a joint
+        move start where the arm can follow a line)."""
+        s = solve(self.models[arm], flange_at(xyz, self.tool_mm), angle,
+                  conf if conf_on else None, current=None)  # type: ignore[arg-type]
+        if s.pose is None:
+            return ArmStop(0.0, arm, s.reason or "reach", f"target {_xyz(xyz)}: {s.detail}")
+        return list(s.pose.chain_deg)
+
+    def _linear_move(self, arm: str, seg: Segment, angle: float, q: list[float], t0: float,
+                     track: _Track) -> ArmStop | None:
+        """A MoveL: the TCP on a straight line, the joints the closest solution."""
+        m = self.models[arm]
+        start_angle = q[2]  # the arm angle turns with the line, as the TCP moves
+        n = max(1, math.ceil(seg.length / SAMPLE_MM), math.ceil(abs(angle - start_angle) / 5.0))
+        a, b = np.asarray(seg.a), np.asarray(seg.b)
+        for i in range(1, n + 1):
+            f = i / n
+            t = t0 + _time_fraction(seg, f)
+            xyz = a + f * (b - a)
+            seed = [*q[:2], start_angle + f * (angle - start_angle), *q[3:]]
+            pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=40)
+            stop = self._sample_stop(arm, m, pose, res, q, t, xyz)
+            if stop is not None:
+                return stop
+            q = list(pose.chain_deg)
+            track.t.append(t)
+            track.q.append(q)
+        return None
+
+    def _sample_stop(self, arm: str, m: ArmModel, pose: ArmPose, res: float,
+                     prev: list[float], t: float, xyz: Sequence[float]) -> ArmStop | None:
+        if res > REACH_TOL_MM:  # the arm cannot follow the line from where it is
+            s = solve(m, flange_at(xyz, self.tool_mm), pose.chain_deg[2], None, current=prev)
+            if s.pose is None:
+                return ArmStop(t, arm, s.reason or "reach", f"at {_xyz(xyz)}: {s.detail}")
+            over = m.limit_violation(pose.chain_deg)
+            if over is not None:
+                return ArmStop(t, arm, "limit", f"at {_xyz(xyz)}: axis {over[0]} "
+                                                f"{over[1]:.1f} deg past its limit on the way")
+            return ArmStop(t, arm, "singular", f"at {_xyz(xyz)}: the linear path leaves the "
+                                               "arm's configuration")
+        over = m.limit_violation(pose.chain_deg)
+        if over is not None:
+            return ArmStop(t, arm, "limit", f"at {_xyz(xyz)}: axis {over[0]} "
+                                            f"{over[1]:.1f} deg past its limit")
+        turn = abs(pose.chain_deg[2] - prev[2])  # the commanded arm angle's own change
+        jump = max(abs(x - y) for x, y in zip(pose.chain_deg, prev, strict=True))
+        if jump > JUMP_DEG + 3.0 * turn or manipulability(m, pose) < SINGULAR_SIGMA:
+            return ArmStop(t, arm, "singular", f"at {_xyz(xyz)}: the linear path passes "
+                                               "a wrist or arm singularity")
+        return None
+
+    def _contact(self, tracks: Mapping[str, _Track], horizon: float) -> ArmStop | None:
+        """The first moment (before ``horizon``) two shapes come within CONTACT_MM: the
+        first sample that does, then bisected back to where the gap closes."""
+        times = sorted({t for tr in tracks.values() for t in tr.t if t <= horizon})
+        prev = 0.0
+        for t in times:
+            if self._gaps(tracks, t)[0] < CONTACT_MM:
+                lo, hi = prev, t
+                for _ in range(12):
+                    mid = (lo + hi) / 2
+                    lo, hi = (mid, hi) if self._gaps(tracks, mid)[0] >= CONTACT_MM else (lo, mid)
+                _, arm, what = self._gaps(tracks, hi)
+                return ArmStop(lo, arm, "contact", what)
+            prev = t
+        return None
+
+    def _gaps(self, tracks: Mapping[str, _Track], t: float) -> tuple[float, str, str]:
+        """The smallest gap at ``t`` (an arm to the table, the two arms), whose, and what."""
+        arms = list(tracks)
+        shapes = {a: self.models[a].capsules(self.models[a].pose(tracks[a].at(t)),
+                                             self.tool_mm) for a in arms}
+        best = (math.inf, arms[0], "")
+        for a in arms:
+            gap, k = table_gap(shapes[a])
+            if gap < best[0]:
+                best = (gap, a, f"arm {a}: link {k + 1} {max(gap, 0.0):.0f} mm from the table")
+        if len(arms) == 2:
+            gap, i, j = clearance(shapes[arms[0]], shapes[arms[1]])
+            if gap < best[0]:
+                best = (gap, arms[0], f"arms {arms[0]} (link {i + 1}) and {arms[1]} "
+                                      f"(link {j + 1}) {max(gap, 0.0):.0f} mm apart")
+        return best
+
+
+def _time_fraction(seg: Segment, f: float) -> float:
+    """When the trapezoidal profile of ``seg`` has covered fraction ``f`` of its length."""
+    dur = float(seg.duration)
+    lo, hi = 0.0, dur
+    a, b = np.asarray(seg.a), np.asarray(seg.b)
+    length = float(np.linalg.norm(b - a))
+    if length <= 0.0:
+        return dur
+    for _ in range(30):
+        mid = (lo + hi) / 2
+        done = float(np.linalg.norm(np.asarray(seg.at(mid)) - a)) / length
+        lo, hi = (mid, hi) if done < f else (lo, mid)
+    return hi
+
+
+def _xyz(p: Sequence[float]) -> str:
+    return "[" + ",".join(f"{float(v):.1f}" for v in p) + "]"
+
+
+def _quat(r: Mat) -> tuple[float, float, float, float]:
+    """A rotation matrix's unit quaternion (w, x, y, z), w >= 0."""
+    w = math.sqrt(max(0.0, 1.0 + r[0, 0] + r[1, 1] + r[2, 2])) / 2.0
+    x = math.copysign(math.sqrt(max(0.0, 1.0 + r[0, 0] - r[1, 1] - r[2, 2])) / 2.0,
+                      r[2, 1] - r[1, 2])
+    y = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] + r[1, 1] - r[2, 2])) / 2.0,
+                      r[0, 2] - r[2, 0])
+    z = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] - r[1, 1] + r[2, 2])) / 2.0,
+                      r[1, 0] - r[0, 1])
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return (w / n, x / n, y / n, z / n)

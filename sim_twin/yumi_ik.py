@@ -1,0 +1,227 @@
+"""Inverse kinematics of a twin YuMi arm, as its controller solves a robtarget.
+
+Why: a robtarget is a TCP pose, a configuration (``confdata``: the quadrants of axes 1, 4
+and 6) and, on a YuMi, the arm angle (axis 7, ``extax.eax_a``). The controller finds the
+joint angles that put the tool there with axis 7 at that angle, in that configuration,
+and refuses a target it cannot reach, past a joint limit, or reachable only in another
+configuration. The twin does the same here, so the rehearsal refuses what the robot would.
+
+The solver: axis 7 fixed at the arm angle, the other six found by damped least squares on
+the flange pose (position mm, orientation weighted ``ROT_WEIGHT_MM`` mm per radian), from
+the arm's current joints and from a seed in the commanded configuration's quadrants.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from sim_twin.yumi_arms import CHAIN_AXES, ArmModel, ArmPose
+
+Mat = npt.NDArray[np.float64]
+ROT_WEIGHT_MM: Final = 200.0
+POS_TOL_MM: Final = 0.01
+ROT_TOL_RAD: Final = 1e-4
+REACH_TOL_MM: Final = 0.5
+"""A best residual above this is "out of reach"."""
+SINGULAR_SIGMA: Final = 0.02
+"""The smallest singular value of the scaled Jacobian (per radian, over the arm's size)
+below which a pose is "close to singularity"."""
+_FREE: Final = (0, 1, 3, 4, 5, 6)  # chain indices solved for (2: axis 7, the arm angle)
+
+
+@dataclass(frozen=True)
+class Solution:
+    """A solved target: its chain angles (deg) and pose; or why there is none."""
+
+    pose: ArmPose | None
+    reason: str | None = None
+    """None, or ``reach``, ``limit``, ``conf`` (see :func:`solve`)."""
+    detail: str = ""
+
+
+def quadrant(angle_deg: float) -> int:
+    """ABB's ``confdata`` quadrant of a joint angle: 0 for [0, 90), -1 for [-90, 0) ..."""
+    return math.floor(angle_deg / 90.0 + 1e-9)
+
+
+def rotation_error(current: Mat, target: Mat) -> Mat:
+    """The rotation vector (rad, base frame) that turns ``current`` into ``target``."""
+    r = target @ current.T
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1.0) / 2.0)))
+    if angle < 1e-9:
+        return np.zeros(3)
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    n = np.linalg.norm(axis)
+    if n < 1e-9:  # a half turn: the axis from the symmetric part
+        w, v = np.linalg.eigh((r + r.T) / 2.0)
+        axis = v[:, int(np.argmax(w))]
+        return axis * angle
+    return axis / n * angle
+
+
+def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 80
+             ) -> tuple[ArmPose, float]:
+    """Damped least squares from ``seed`` (chain deg); the pose and its residual (mm)."""
+    q = np.array(seed, dtype=np.float64)
+    lam = 1.0
+    pose = model.pose(q)
+    for _ in range(iters):
+        ep = flange[:3, 3] - pose.flange[:3, 3]
+        er = rotation_error(pose.flange[:3, :3], flange[:3, :3])
+        if np.linalg.norm(ep) < POS_TOL_MM and np.linalg.norm(er) < ROT_TOL_RAD:
+            break
+        j = model.jacobian(pose, pose.flange[:3, 3])[:, _FREE]
+        j[3:] *= ROT_WEIGHT_MM
+        e = np.concatenate([ep, er * ROT_WEIGHT_MM])
+        step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(6), e)
+        trial = q.copy()
+        trial[list(_FREE)] += np.degrees(np.clip(step, -0.3, 0.3))
+        tpose = model.pose(trial)
+        if _residual(tpose, flange) < _residual(pose, flange):
+            q, pose, lam = trial, tpose, max(lam * 0.5, 1e-3)
+        else:
+            lam *= 4.0
+    return pose, _residual(pose, flange)
+
+
+def _residual(pose: ArmPose, flange: Mat) -> float:
+    ep = np.linalg.norm(flange[:3, 3] - pose.flange[:3, 3])
+    er = np.linalg.norm(rotation_error(pose.flange[:3, :3], flange[:3, :3]))
+    return float(ep + er * ROT_WEIGHT_MM)
+
+
+def _seeds(current: Sequence[float] | None, conf: Sequence[float], arm_angle: float
+           ) -> list[list[float]]:
+    """The arm's current joints, then elbow and wrist variants in the quadrants of
+    ``conf`` (axis 1, 4 and 6 in the middle of theirs)."""
+    c1, c4, c6 = ((c + 0.5) * 90.0 for c in conf[:3])
+    out = [list(current)] if current is not None else []
+    out += [[c1, q2, 0.0, q3, c4, q5, c6] for q2 in (-130.0, -80.0) for q3 in (-60.0, 20.0)
+            for q5 in (40.0, 100.0)]
+    for s in out:
+        s[2] = arm_angle
+    return out
+
+
+BROAD: Final = tuple((q1, q2, q3, q4, q5) for q1 in (-120.0, -45.0, 45.0, 120.0)
+                     for q2 in (-140.0, -90.0, -40.0) for q3 in (-90.0, -30.0, 40.0)
+                     for q4 in (-90.0, 90.0) for q5 in (30.0, 100.0))
+"""Seeds over the whole joint space (axes 1, 2, 3, 4, 5; axis 6 at 0), for a target the
+seeds near the commanded configuration do not solve."""
+
+
+def solutions(model: ArmModel, flange: Mat, arm_angle_deg: float,
+              seeds: Sequence[Sequence[float]]) -> tuple[list[ArmPose], float]:
+    """Every seed's solution within ``REACH_TOL_MM`` (angles brought into range by whole
+    turns where they can be), and the best residual (mm)."""
+    found, best = [], math.inf
+    for seed in seeds:
+        s = list(seed)
+        s[2] = arm_angle_deg
+        pose, res = _descend(model, flange, s)
+        best = min(best, res)
+        if res <= REACH_TOL_MM:
+            found += _turns(model, _wrapped(model, pose))
+    return found, best
+
+
+def _turns(model: ArmModel, pose: ArmPose) -> list[ArmPose]:
+    """The pose and its twins a whole turn away on the axes whose range exceeds a turn
+    (4 and 6: +-290 and +-229 deg) that stay in range: the same flange, another margin
+    to the limits (the controller picks by its configuration, the twin by the margin)."""
+    out = [pose]
+    for k in range(7):
+        if model.upper[k] - model.lower[k] <= 360.0:
+            continue
+        for p in list(out):
+            for turn in (-360.0, 360.0):
+                q = list(p.chain_deg)
+                q[k] += turn
+                if model.lower[k] <= q[k] <= model.upper[k]:
+                    out.append(model.pose(q))
+    return out
+
+
+def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[float] | None,
+          current: Sequence[float] | None = None) -> Solution:
+    """The joints that put the flange at ``flange`` (4x4, base frame mm) with axis 7 at
+    ``arm_angle_deg``, in the configuration ``conf`` (cf1, cf4, cf6[, cfx]; None: any,
+    the closest to ``current``, else the most dexterous).
+
+    Refused, as the controller refuses: ``reach`` (no joint angles put the flange there:
+    the residual in mm), ``limit`` (only past a joint limit: which axis, by how much),
+    ``conf`` (only in another configuration than ``conf``: the quadrants found)."""
+    want = None if conf is None else tuple(int(c) for c in conf[:3])
+    near = _seeds(current, conf if conf is not None else (0, 0, 0), arm_angle_deg)
+    found, best = solutions(model, flange, arm_angle_deg, near)
+    hit = _pick(model, found, want, current)
+    if hit is None:
+        more, best2 = solutions(model, flange, arm_angle_deg,
+                                [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD])
+        found, best = found + more, min(best, best2)
+        hit = _pick(model, found, want, current)
+    if hit is not None:
+        return Solution(hit)
+    if not found:
+        return Solution(None, "reach", f"{best:.1f} mm short")
+    inside = [p for p in found if model.limit_violation(p.chain_deg) is None]
+    if not inside:
+        axis, over = min((model.limit_violation(p.chain_deg) or (0, 0.0) for p in found),
+                         key=lambda v: v[1])
+        return Solution(None, "limit", f"axis {axis} {over:.1f} deg past its limit")
+    got = sorted({configuration(p.chain_deg) for p in inside})
+    return Solution(None, "conf", f"reachable with cf1, cf4, cf6 in {[list(c) for c in got]}"
+                                  f", not {list(want or ())}")
+
+
+def _pick(model: ArmModel, found: Sequence[ArmPose], want: tuple[int, ...] | None,
+          current: Sequence[float] | None) -> ArmPose | None:
+    """The solution within the limits (in the configuration ``want``) the controller
+    would take: clear of singularities first, then the closest to ``current`` (without
+    one, the most dexterous, counting a joint within 30 deg of its limit against it: a
+    line that starts there soon runs out of travel)."""
+    ok = [p for p in found if model.limit_violation(p.chain_deg) is None
+          and (want is None or configuration(p.chain_deg) == want)]
+    if not ok:
+        return None
+
+    def cost(p: ArmPose) -> tuple[bool, float]:
+        dex = manipulability(model, p)
+        margin = float(np.min(np.minimum(np.subtract(p.chain_deg, model.lower),
+                                         np.subtract(model.upper, p.chain_deg))))
+        near = -dex * min(1.0, margin / 30.0) if current is None else float(
+            np.abs(np.subtract(p.chain_deg, current)).max())
+        return dex < 3 * SINGULAR_SIGMA, near
+
+    return min(ok, key=cost)
+
+
+def _wrapped(model: ArmModel, pose: ArmPose) -> ArmPose:
+    """The same pose with each angle brought into its range by whole turns when it can."""
+    q = list(pose.chain_deg)
+    for k in range(7):
+        for turn in (0.0, -360.0, 360.0):
+            if model.lower[k] <= q[k] + turn <= model.upper[k]:
+                q[k] += turn
+                break
+    return model.pose(q) if q != list(pose.chain_deg) else pose
+
+
+def configuration(chain_deg: Sequence[float]) -> tuple[int, int, int]:
+    """(cf1, cf4, cf6) of a chain angle vector."""
+    by_axis = dict(zip(CHAIN_AXES, chain_deg, strict=True))
+    return quadrant(by_axis[1]), quadrant(by_axis[4]), quadrant(by_axis[6])
+
+
+def manipulability(model: ArmModel, pose: ArmPose) -> float:
+    """The smallest singular value of the six free joints' Jacobian at the flange, with
+    positions over the arm's reach (0: singular)."""
+    j = model.jacobian(pose, pose.flange[:3, 3])[:, _FREE]
+    j[:3] /= 560.0
+    return float(np.linalg.svd(j, compute_uv=False)[-1])

@@ -1,0 +1,190 @@
+"""The hardware twin's arms: the IRB 14000's kinematics, and its controller refusing what
+the robot refuses, with the controller's codes.
+
+Through the UNCHANGED ABB client against a real ``TestbedRapid`` twin (our RAPID's start
+hook on a real ``YumiTwinCell``): a target out of reach (50050), a target reachable only
+past a joint limit (50027), two arms driven into each other (50204, stopped before the
+links touch, every task), an arm driven into the table (50204), and a MoveJ whose
+configuration the arm cannot keep (50080, ConfJ on: the library's RAPID). The model
+itself: forward and inverse kinematics agree, the link lengths are the published ones,
+and the operator's model (``drivers/yumi/irb14000.py``, written separately from the same
+numbers) puts every link where the twin's does.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+import twin_rws
+from abb_motion_program_exec import abb_motion_program_exec_client as mpe
+
+from sim_twin.rws import Irc5Controller, RwsServer
+from sim_twin.rws.arm_supervision import CONTACT_MM, flange_at
+from sim_twin.rws.mechunits import YUMI_UNITS
+from sim_twin.rws.motion_exec import CellMotion
+from sim_twin.rws.rws_service import RwsService
+from sim_twin.rws.testbed_install import TestbedInstall
+from sim_twin.rws.testbed_rapid import TestbedRapid
+from sim_twin.yumi_arms import _LINKS, ArmModel, abb_to_chain, clearance
+from sim_twin.yumi_cell import YumiTwinCell
+from sim_twin.yumi_ik import configuration, solve
+
+Made = tuple[Any, Irc5Controller, YumiTwinCell, Any]
+
+
+@pytest.fixture
+def twin() -> Iterator[Callable[..., Made]]:
+    made: list[tuple[RwsServer, YumiTwinCell]] = []
+
+    def make(hook: type[CellMotion] = TestbedRapid, tool_mm: float = 100.0) -> Made:
+        cell = YumiTwinCell(3)
+        motion = hook(cell, threading.Lock(), YUMI_UNITS, pusher_length_mm=tool_mm)
+        ctrl = Irc5Controller(units=YUMI_UNITS, poses=motion.poses,
+                              on_start=None if hook is TestbedRapid else motion)
+        service = RwsService(ctrl, program=TestbedInstall(ctrl, motion)) \
+            if hook is TestbedRapid else RwsService(ctrl)
+        server = RwsServer(service).start_thread()
+        made.append((server, cell))
+        return twin_rws.client(server.url), ctrl, cell, motion
+
+    yield make
+    for server, cell in made:
+        server.stop()
+        cell.close()
+
+
+def errors(entries: list[Any]) -> list[tuple[int, str]]:
+    return [(e.code, e.title) for e in entries if e.msgtype == 3]
+
+
+# --- the model --------------------------------------------------------------------------------
+def test_inverse_kinematics_finds_the_joints_forward_kinematics_went_from() -> None:
+    rng = np.random.default_rng(0)
+    for side in ("left", "right"):
+        m = ArmModel(side)
+        for _ in range(20):
+            q = rng.uniform(m.lower * 0.8, m.upper * 0.8)
+            flange = m.pose(q).flange
+            s = solve(m, flange, float(q[2]), configuration(q), current=q + rng.normal(0, 5, 7))
+            assert s.pose is not None, s.detail
+            assert np.abs(s.pose.flange - flange).max() < 0.05
+            assert configuration(s.pose.chain_deg) == configuration(q)
+
+
+def test_the_links_are_the_published_lengths() -> None:
+    """ABB's modified DH of the arm: the upper arm 251.5 mm, the forearm 265 mm, the
+    flange 36 mm beyond axis 6; offsets 30 and 27 mm. The joint origins must add up."""
+    links = [np.asarray(xyz) for xyz, _ in _LINKS]
+    assert float(links[1][1] + links[2][2]) == pytest.approx(251.5, abs=0.1)  # 2 -> 7 -> 3
+    assert float(links[3][1] + links[4][2]) == pytest.approx(265.0, abs=0.01)  # 3 -> 4 -> 5
+    assert float(links[5][1] + links[6][2]) == pytest.approx(36.0, abs=0.01)  # 6 -> flange
+    assert (abs(links[0][0]), abs(links[4][0])) == (30.0, 27.0)
+
+
+def test_the_operators_model_and_the_twins_agree_link_by_link() -> None:
+    """Two models written separately from the same published numbers: every joint origin
+    and the flange within 0.01 mm over random poses, both arms."""
+    from drivers.yumi.irb14000 import Arm
+
+    rng = np.random.default_rng(1)
+    for side in ("left", "right"):
+        ours, theirs = ArmModel(side), Arm(side)
+        for _ in range(10):
+            abb = rng.uniform(-60, 60, 7)
+            a = ours.pose(abb_to_chain(abb)).frames
+            b = theirs.pose_abb(abb).frames
+            assert np.abs(a - b).max() < 0.01
+
+
+# --- the controller refuses -------------------------------------------------------------------
+def test_a_target_out_of_reach_is_the_controllers_50050(twin: Callable[..., Made]) -> None:
+    c, _, cell, _ = twin()
+    before = cell.tcp_xyz()["left"]
+    entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", (900, 300, 50), 300)])})
+    assert errors(entries) == [(50050, "Position outside reach")]
+    assert "mm short" in entries[-1].desc
+    assert cell.tcp_xyz()["left"] == pytest.approx(before, abs=0.5)  # nothing moved
+
+
+def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) -> None:
+    """Beside the body, low: the flange is within reach, but every solution needs an axis
+    past its range (the arm would fold through itself)."""
+    c, _, cell, _ = twin()
+    m = ArmModel("left")
+    target = (40.0, 60.0, 120.0)
+    s = solve(m, flange_at(target, 100.0), 150.0, None)
+    assert s.reason == "limit", s  # what the model says of it
+    before = cell.tcp_xyz()["left"]
+    entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", target, 300)])})
+    assert errors(entries) == [(50027, "Joint Out of Range")]
+    assert "past its limit" in entries[-1].desc
+    assert cell.tcp_xyz()["left"] == pytest.approx(before, abs=0.5)
+
+
+def test_two_arms_driven_into_each_other_stop_before_contact(twin: Callable[..., Made]
+                                                             ) -> None:
+    c, _, cell, motion = twin()
+    entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", (330, 60, 120), 300),
+                                                            ("L", (330, -60, 120), 100)]),
+                               "T_ROB_R": twin_rws.program([("J", (330, -60, 120), 300),
+                                                            ("L", (330, 60, 120), 100)])})
+    assert errors(entries) == [(50204, "Motion supervision")]
+    assert "Every motion task stopped" in entries[-1].desc
+    arms = motion.arms
+    shapes = {a: arms.models[a].capsules(arms.models[a].pose(arms.joints[a]), arms.tool_mm)
+              for a in ("left", "right")}
+    gap, _, _ = clearance(shapes["left"], shapes["right"])
+    assert 0.0 <= gap < CONTACT_MM + 20.0  # stopped just before the links touch
+    tcp = cell.tcp_xyz()
+    assert tcp["left"][1] > tcp["right"][1]  # neither reached the other's side
+    assert c.get_execution_state().ctrlexecstate == "stopped"
+
+
+def test_an_arm_driven_into_the_table_is_stopped_by_motion_supervision(
+        twin: Callable[..., Made]) -> None:
+    """The pusher's tip may touch the table (the world zones watch it); the gripper that
+    holds it may not: a tool 30 mm long puts the gripper's housing on the table first."""
+    c, _, _, _ = twin()
+    short = twin_rws.program([("J", (300, 200, 120), 300), ("L", (300, 200, 5), 50)],
+                             tool_z_mm=100.0)
+    entries = twin_rws.run(c, {"T_ROB_L": short})
+    assert errors(entries) == [], entries  # with its real tool: fine, down to 5 mm
+    c2, _, cell2, _ = twin(tool_mm=30.0)  # the same gripper, its pusher cut short
+    entries = twin_rws.run(c2, {"T_ROB_L": twin_rws.program(
+        [("J", (300, 200, 120), 300), ("L", (300, 200, 5), 50)], tool_z_mm=30.0)})
+    assert errors(entries) == [(50204, "Motion supervision")]
+    assert "from the table" in entries[-1].desc
+    assert cell2.tcp_xyz()["left"][2] > 5.0 + 10.0  # stopped well above the target
+
+
+def test_the_librarys_movej_keeps_its_configuration_or_is_50080(twin: Callable[..., Made]
+                                                                 ) -> None:
+    """ConfJ is on in the library's RAPID: a MoveJ to a target in a configuration the arm
+    cannot take there is refused; the same target in the configuration the arm reaches it
+    in runs."""
+    c, _, cell, _ = twin(CellMotion)
+    m = ArmModel("left")
+    target = (330.0, 200.0, 60.0)
+    right = configuration(solve(m, flange_at(target, 100.0), 150.0, None).pose.chain_deg)  # type: ignore[union-attr]
+    wrong = (right[0] + 2, right[1], right[2])
+    exec_client = mpe.MotionProgramExecClient(abb_client=c)
+
+    def prog(conf: tuple[int, int, int]) -> Any:
+        mp = mpe.MotionProgram(tool=mpe.tooldata(True, mpe.pose([0, 0, 100], [1, 0, 0, 0]),
+                                                 mpe.loaddata(0.1, [0, 0, 50], [1, 0, 0, 0],
+                                                              0, 0, 0)))
+        mp.MoveJ(mpe.robtarget(list(target), twin_rws.DOWN, mpe.confdata(*conf, 0),
+                               [150.0] + [9e9] * 5), mpe.v500, mpe.fine)
+        return mp
+
+    with pytest.raises(Exception, match="Motion Program Failed"):
+        exec_client.execute_motion_program(prog(wrong), task="T_ROB_L")
+    entry = c.read_event_log()[0]
+    assert (entry.code, entry.title) == (50080, "Position not compatible")
+    c.resetpp()
+    exec_client.execute_motion_program(prog(right), task="T_ROB_L")
+    assert cell.tcp_xyz()["left"] == pytest.approx(target, abs=1.0)
