@@ -29,9 +29,12 @@ POS_TOL_MM: Final = 0.01
 ROT_TOL_RAD: Final = 1e-4
 REACH_TOL_MM: Final = 0.5
 """A best residual above this is "out of reach"."""
-SINGULAR_SIGMA: Final = 0.02
-"""The smallest singular value of the scaled Jacobian (per radian, over the arm's size)
-below which a pose is "close to singularity"."""
+SINGULAR_SIGMA: Final = 0.005
+"""The smallest singular value of the scaled Jacobian (per radian, positions over the
+arm's reach of 560 mm) below which a pose is "close to singularity": about a tenth of a
+degree of axis 5 from a wrist singularity without SingArea\\Wrist. The controller slows
+a line near one and stops it (50026) only this close, or when the line passes through
+(the joints flip: ``arm_supervision.JUMP_DEG``)."""
 _FREE: Final = (0, 1, 3, 4, 5, 6)  # chain indices solved for (2: axis 7, the arm angle)
 
 
@@ -65,34 +68,48 @@ def rotation_error(current: Mat, target: Mat) -> Mat:
     return axis / n * angle
 
 
-def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 80
-             ) -> tuple[ArmPose, float]:
+def _orientation(pose: ArmPose, flange: Mat, free_yaw: bool) -> tuple[Mat, Mat]:
+    """The orientation error (rad, base frame) and the matrix that keeps the part of an
+    angular velocity that matters: all of it, or with ``free_yaw`` (SingArea\\Wrist, a
+    pusher round about its own axis) only what tilts the tool's axis."""
+    if not free_yaw:
+        return rotation_error(pose.flange[:3, :3], flange[:3, :3]), np.eye(3)
+    z, want = pose.flange[:3, 2], flange[:3, 2]
+    tilt = np.cross(z, want)
+    s = float(np.linalg.norm(tilt))
+    angle = math.atan2(s, float(z @ want))
+    err = tilt / s * angle if s > 1e-12 else np.zeros(3)
+    return err, np.eye(3) - np.outer(z, z)
+
+
+def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 80,
+             free_yaw: bool = False) -> tuple[ArmPose, float]:
     """Damped least squares from ``seed`` (chain deg); the pose and its residual (mm)."""
     q = np.array(seed, dtype=np.float64)
     lam = 1.0
     pose = model.pose(q)
     for _ in range(iters):
         ep = flange[:3, 3] - pose.flange[:3, 3]
-        er = rotation_error(pose.flange[:3, :3], flange[:3, :3])
+        er, keep = _orientation(pose, flange, free_yaw)
         if np.linalg.norm(ep) < POS_TOL_MM and np.linalg.norm(er) < ROT_TOL_RAD:
             break
         j = model.jacobian(pose, pose.flange[:3, 3])[:, _FREE]
-        j[3:] *= ROT_WEIGHT_MM
+        j[3:] = keep @ j[3:] * ROT_WEIGHT_MM
         e = np.concatenate([ep, er * ROT_WEIGHT_MM])
         step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(6), e)
         trial = q.copy()
         trial[list(_FREE)] += np.degrees(np.clip(step, -0.3, 0.3))
         tpose = model.pose(trial)
-        if _residual(tpose, flange) < _residual(pose, flange):
+        if _residual(tpose, flange, free_yaw) < _residual(pose, flange, free_yaw):
             q, pose, lam = trial, tpose, max(lam * 0.5, 1e-3)
         else:
             lam *= 4.0
-    return pose, _residual(pose, flange)
+    return pose, _residual(pose, flange, free_yaw)
 
 
-def _residual(pose: ArmPose, flange: Mat) -> float:
+def _residual(pose: ArmPose, flange: Mat, free_yaw: bool = False) -> float:
     ep = np.linalg.norm(flange[:3, 3] - pose.flange[:3, 3])
-    er = np.linalg.norm(rotation_error(pose.flange[:3, :3], flange[:3, :3]))
+    er = np.linalg.norm(_orientation(pose, flange, free_yaw)[0])
     return float(ep + er * ROT_WEIGHT_MM)
 
 
@@ -117,14 +134,15 @@ seeds near the commanded configuration do not solve."""
 
 
 def solutions(model: ArmModel, flange: Mat, arm_angle_deg: float,
-              seeds: Sequence[Sequence[float]]) -> tuple[list[ArmPose], float]:
+              seeds: Sequence[Sequence[float]], free_yaw: bool = False
+              ) -> tuple[list[ArmPose], float]:
     """Every seed's solution within ``REACH_TOL_MM`` (angles brought into range by whole
     turns where they can be), and the best residual (mm)."""
     found, best = [], math.inf
     for seed in seeds:
         s = list(seed)
         s[2] = arm_angle_deg
-        pose, res = _descend(model, flange, s)
+        pose, res = _descend(model, flange, s, free_yaw=free_yaw)
         best = min(best, res)
         if res <= REACH_TOL_MM:
             found += _turns(model, _wrapped(model, pose))
@@ -149,23 +167,25 @@ def _turns(model: ArmModel, pose: ArmPose) -> list[ArmPose]:
 
 
 def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[float] | None,
-          current: Sequence[float] | None = None) -> Solution:
+          current: Sequence[float] | None = None, free_yaw: bool = False) -> Solution:
     """The joints that put the flange at ``flange`` (4x4, base frame mm) with axis 7 at
     ``arm_angle_deg``, in the configuration ``conf`` (cf1, cf4, cf6[, cfx]; None: any,
-    the closest to ``current``, else the most dexterous).
+    the closest to ``current``, else the most dexterous). ``free_yaw``: the tool's turn
+    about its own axis is free (SingArea\\Wrist with a round tool).
 
     Refused, as the controller refuses: ``reach`` (no joint angles put the flange there:
     the residual in mm), ``limit`` (only past a joint limit: which axis, by how much),
     ``conf`` (only in another configuration than ``conf``: the quadrants found)."""
     want = None if conf is None else tuple(int(c) for c in conf[:3])
     near = _seeds(current, conf if conf is not None else (0, 0, 0), arm_angle_deg)
-    found, best = solutions(model, flange, arm_angle_deg, near)
-    hit = _pick(model, found, want, current)
+    found, best = solutions(model, flange, arm_angle_deg, near, free_yaw)
+    hit = _pick(model, found, want, current, free_yaw)
     if hit is None:
         more, best2 = solutions(model, flange, arm_angle_deg,
-                                [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD])
+                                [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],
+                                free_yaw)
         found, best = found + more, min(best, best2)
-        hit = _pick(model, found, want, current)
+        hit = _pick(model, found, want, current, free_yaw)
     if hit is not None:
         return Solution(hit)
     if not found:
@@ -181,7 +201,7 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
 
 
 def _pick(model: ArmModel, found: Sequence[ArmPose], want: tuple[int, ...] | None,
-          current: Sequence[float] | None) -> ArmPose | None:
+          current: Sequence[float] | None, free_yaw: bool = False) -> ArmPose | None:
     """The solution within the limits (in the configuration ``want``) the controller
     would take: clear of singularities first, then the closest to ``current`` (without
     one, the most dexterous, counting a joint within 30 deg of its limit against it: a
@@ -192,7 +212,7 @@ def _pick(model: ArmModel, found: Sequence[ArmPose], want: tuple[int, ...] | Non
         return None
 
     def cost(p: ArmPose) -> tuple[bool, float]:
-        dex = manipulability(model, p)
+        dex = manipulability(model, p, free_yaw)
         margin = float(np.min(np.minimum(np.subtract(p.chain_deg, model.lower),
                                          np.subtract(model.upper, p.chain_deg))))
         near = -dex * min(1.0, margin / 30.0) if current is None else float(
@@ -219,9 +239,16 @@ def configuration(chain_deg: Sequence[float]) -> tuple[int, int, int]:
     return quadrant(by_axis[1]), quadrant(by_axis[4]), quadrant(by_axis[6])
 
 
-def manipulability(model: ArmModel, pose: ArmPose) -> float:
+def manipulability(model: ArmModel, pose: ArmPose, free_yaw: bool = False) -> float:
     """The smallest singular value of the six free joints' Jacobian at the flange, with
-    positions over the arm's reach (0: singular)."""
+    positions over the arm's reach (0: singular); with ``free_yaw`` of the five rows that
+    matter (the tool's turn about its own axis left out: a wrist singularity, axes 4 and
+    6 in line, costs nothing there)."""
     j = model.jacobian(pose, pose.flange[:3, 3])[:, _FREE]
     j[:3] /= 560.0
+    if free_yaw:
+        z = pose.flange[:3, 2]
+        e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        j = np.vstack([j[:3], np.cross(z, e1) @ j[3:], e1 @ j[3:]])
     return float(np.linalg.svd(j, compute_uv=False)[-1])

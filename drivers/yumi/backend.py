@@ -553,8 +553,10 @@ def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
 
 def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint]) -> None:
     """BackendError, before anything moves, when a waypoint is one the arm cannot reach
-    with the pusher down at its arm angle (out of reach, past a joint limit, near a
-    singularity: ``drivers/yumi/irb14000_ik.py``): the controller would stop the task
+    with the pusher down at its arm angle (out of reach, past a joint limit:
+    ``drivers/yumi/irb14000_ik.py``; a target whose solutions found here are all near a
+    singularity is left to the controller, which takes the configuration itself, ConfJ
+    off, and stops a line that passes one with 50026): the controller would stop the task
     half-way through the program; this names the point and the reason instead. It can
     tell only what it knows: an arm whose calibration does not give its pusher's length
     (``tool_z_mm``), or whose side cannot be told (not an IRB 14000 task, not named
@@ -569,6 +571,8 @@ def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoi
         if w.xyz_mm is None:
             continue
         sol = lay.tool.solve(w.xyz_mm, seed)
+        if sol.pose is None and sol.kind == "singular":
+            continue  # the controller picks the configuration (ConfJ off): its call
         if sol.pose is None:
             x, y, z = w.xyz_mm
             raise BackendError(

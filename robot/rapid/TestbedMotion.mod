@@ -15,7 +15,7 @@ MODULE TestbedMotion
   !      object, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3 and WaitTime 5, at most
   !      TB_MAX_CMDS commands, no robtarget below tb_floor_z, speeds > 0);
   !   2. runs the commands with tool_pusher (tframe from the file, load from the task
-  !      module) in the file's work object; MoveJ with ConfJ Off, MoveL with ConfL Off;
+  !      module) in the file's work object; ConfJ and ConfL Off, SingArea Wrist;
   !      the TCP speed from the file, orientation and axis speeds from TB_V_* below;
   !   3. waits until the arm is in position (WaitRob InPos) and writes
   !      ErrWrite info (80003) "Testbed Motion Done": task, "seqno <n>", "commands <k>",
@@ -351,9 +351,13 @@ MODULE TestbedMotion
     ! cf4, cf6). With ConfJ On a MoveJ to a target in another quadrant stops the task
     ! (50080). Off, the controller takes the closest configuration; the arm angle (axis
     ! 7, from the calibration) still fixes the redundancy. MoveL keeps the configuration
-    ! it starts in, as a push is a short line.
+    ! it starts in, as a push is a short line. SingArea Wrist: the pusher is round, so
+    ! the controller may turn the tool about its own axis to keep the wrist (axes 4 and
+    ! 6 in line when axis 5 is near 0, the forearm over a tool pointing down) away from
+    ! its singularity instead of stopping a push with 50026 "Close to singularity".
     ConfJ \Off;
     ConfL \Off;
+    SingArea \Wrist;
     FOR i FROM 1 TO tb_n DO
       TEST tb_op{i}
       CASE 1:

@@ -60,7 +60,8 @@ CONTACT_MM: Final = 2.0
 """Motion supervision stops the arms when two shapes come this close."""
 JUMP_DEG: Final = 25.0
 """A MoveL sample whose joints jump more than this from the previous one passed a
-singularity (the closest solution flipped)."""
+singularity (the closest solution flipped). With SingArea Wrist the wrist may turn fast
+through one (axes 4 and 6 trade the tool's free turn): only the distance counts."""
 FLANGE_DOWN: Final = np.diag([1.0, -1.0, -1.0])
 """The flange's rotation with the tool pointing down (the twin's only tool orientation)."""
 DOWN_COS: Final = math.cos(math.radians(1.0))
@@ -140,6 +141,9 @@ class ArmSupervisor:
                 raise ValueError(f"arm {arm}: its rest joints put axis {over[0]} "
                                  f"{over[1]:.1f} deg past its limit")
         self.joints = {a: list(q) for a, q in self.rest.items()}
+        self.free_yaw = False
+        """SingArea\\Wrist (our RAPID): the tool may turn about its own axis to keep the
+        wrist away from its singularity, so a line is judged by the tool's axis alone."""
 
     def tip(self, arm: str, chain_deg: Sequence[float] | None = None
             ) -> tuple[float, float, float]:
@@ -148,7 +152,8 @@ class ArmSupervisor:
                                     self.tool_mm)
 
     def _any_solution(self, arm: str, xyz: Sequence[float], arm_angle: float) -> list[float]:
-        s = solve(self.models[arm], flange_at(xyz, self.tool_mm), arm_angle, None)
+        s = solve(self.models[arm], flange_at(xyz, self.tool_mm), arm_angle, None,
+                  free_yaw=self.free_yaw)
         if s.pose is None:
             raise ValueError(f"arm {arm}: no joints put the pusher at {list(xyz)} "
                              f"({s.reason}: {s.detail})")
@@ -185,7 +190,8 @@ class ArmSupervisor:
         if math.dist(self.tip(arm), cell_xyz) < 0.5:
             return
         q = self.joints[arm]
-        s = solve(self.models[arm], flange_at(cell_xyz, self.tool_mm), q[2], None, current=q)
+        s = solve(self.models[arm], flange_at(cell_xyz, self.tool_mm), q[2], None, current=q,
+                  free_yaw=self.free_yaw)
         self.joints[arm] = list(s.pose.chain_deg) if s.pose is not None else \
             self._any_solution(arm, cell_xyz, q[2])
 
@@ -261,7 +267,8 @@ class ArmSupervisor:
         is the one farthest from a singularity, so the linear pushes that follow a joint
         move start where the arm can follow a line)."""
         s = solve(self.models[arm], flange_at(xyz, self.tool_mm), angle,
-                  conf if conf_on else None, current=None)  # type: ignore[arg-type]
+                  conf if conf_on else None, current=None,  # type: ignore[arg-type]
+                  free_yaw=self.free_yaw)
         if s.pose is None:
             return ArmStop(0.0, arm, s.reason or "reach", f"target {_xyz(xyz)}: {s.detail}")
         return list(s.pose.chain_deg)
@@ -278,7 +285,8 @@ class ArmSupervisor:
             t = t0 + _time_fraction(seg, f)
             xyz = a + f * (b - a)
             seed = [*q[:2], start_angle + f * (angle - start_angle), *q[3:]]
-            pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=40)
+            pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=40,
+                                 free_yaw=self.free_yaw)
             stop = self._sample_stop(arm, m, pose, res, q, t, xyz)
             if stop is not None:
                 return stop
@@ -290,7 +298,8 @@ class ArmSupervisor:
     def _sample_stop(self, arm: str, m: ArmModel, pose: ArmPose, res: float,
                      prev: list[float], t: float, xyz: Sequence[float]) -> ArmStop | None:
         if res > REACH_TOL_MM:  # the arm cannot follow the line from where it is
-            s = solve(m, flange_at(xyz, self.tool_mm), pose.chain_deg[2], None, current=prev)
+            s = solve(m, flange_at(xyz, self.tool_mm), pose.chain_deg[2], None, current=prev,
+                      free_yaw=self.free_yaw)
             if s.pose is None:
                 return ArmStop(t, arm, s.reason or "reach", f"at {_xyz(xyz)}: {s.detail}")
             over = m.limit_violation(pose.chain_deg)
@@ -305,7 +314,8 @@ class ArmSupervisor:
                                             f"{over[1]:.1f} deg past its limit")
         turn = abs(pose.chain_deg[2] - prev[2])  # the commanded arm angle's own change
         jump = max(abs(x - y) for x, y in zip(pose.chain_deg, prev, strict=True))
-        if jump > JUMP_DEG + 3.0 * turn or manipulability(m, pose) < SINGULAR_SIGMA:
+        flipped = jump > JUMP_DEG + 3.0 * turn and not self.free_yaw  # (Wrist: axes 4, 6 turn)
+        if flipped or manipulability(m, pose, self.free_yaw) < SINGULAR_SIGMA:
             return ArmStop(t, arm, "singular", f"at {_xyz(xyz)}: the linear path passes "
                                                "a wrist or arm singularity")
         return None

@@ -488,6 +488,8 @@ class CellMotion:
 
     conf_j = True
     """ConfJ on: a MoveJ keeps its target's configuration (50080 if it cannot)."""
+    sing_area_wrist = False
+    """SingArea\\Wrist: the tool may turn about its own axis near a wrist singularity."""
 
     def __init__(self, cell: YumiTwinCell, cell_lock: threading.Lock | threading.RLock,
                  units: Sequence[MechUnit] = YUMI_UNITS, *,
@@ -506,6 +508,7 @@ class CellMotion:
             self._snap = dict(cell.tcp_xyz())
         self.arms = ArmSupervisor({a: cell.sides[a] for a in cell.arms}, self.pusher_length_mm,
                                   {a: REST_JOINTS_DEG[cell.sides[a]] for a in cell.arms})
+        self.arms.free_yaw = self.sing_area_wrist
         with cell_lock:  # the pushers rest where the arms' rest joints hold them
             for arm in cell.arms:
                 cell.set_rest(arm, self.arms.tip(arm))

@@ -135,6 +135,8 @@ class TestbedRapid(CellMotion):
 
     __test__ = False  # not a pytest class, whatever its name
     conf_j = False
+    sing_area_wrist = True
+    """And SingArea \\Wrist: the pusher is round, its turn about its own axis is free."""
     """Our RAPID moves with ConfJ off (robot/rapid/TestbedMotion.mod): a MoveJ takes the
     configuration closest to the arm's, as the controller does (sim_twin/rws/arm_supervision.py)."""
 

@@ -85,6 +85,10 @@ def concat(*parts: Transitions) -> Transitions:
     )
 
 
+STALL_STEPS = 50
+"""Steps without one push that ran, after which the collection gives up (see _drive)."""
+
+
 def _drive(
     hosts: LoopHosts,
     count: int,
@@ -96,13 +100,16 @@ def _drive(
 ) -> Transitions:
     """Push every healthy arm with ``choose`` until ``count`` transitions are kept.
 
-    Violating arms get a hard reset from the humans (t_R steps, as in a trial).
+    Violating arms get a hard reset from the humans (t_R steps, as in a trial). When no
+    arm has pushed for :data:`STALL_STEPS` steps (every push refused or faulted: a layout
+    the arms cannot reach, a controller stopped) it stops with the last reason, instead
+    of waiting for ever.
     """
     imgs, acts, nxt, vio, suc = [], [], [], [], []
     reset_served: dict[str, int] = {}
     prev: dict[str, tuple[np.ndarray, int]] = {}
     pending_outcome: dict[str, tuple[bool, bool]] = {}
-    t = 0
+    t, idle, why = 0, 0, ""
     while len(acts) < count:
         obs = {r: o for r, o in hosts.observe().items() if isinstance(o, ArmObservation)}
         if not obs:
@@ -130,9 +137,17 @@ def _drive(
         results = hosts.execute(pushes, resets)
         for r, a in pushes.items():
             res = results.get(r)
-            if res is not None and hasattr(res, "success"):
+            if res is not None and hasattr(res, "success") and not getattr(res, "refused",
+                                                                            None):
                 prev[r] = (obs[r].image, a)
                 pending_outcome[r] = (bool(res.violation), bool(res.success))  # type: ignore[union-attr]
+            else:
+                why = str(getattr(res, "refused", None) or getattr(res, "reason", None) or
+                          "no answer")
+        idle = 0 if prev or not pushes else idle + 1
+        if idle >= STALL_STEPS:
+            raise RuntimeError(f"{label}: no arm pushed in {idle} steps; the last refusal: "
+                               f"{why}")
         t += 1
         if progress is not None:
             progress(label, min(len(acts), count), count)

@@ -116,7 +116,7 @@ def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) ->
     c, _, cell, _ = twin()
     m = ArmModel("left")
     target = (40.0, 60.0, 120.0)
-    s = solve(m, flange_at(target, 100.0), 150.0, None)
+    s = solve(m, flange_at(target, 100.0), twin_rws.ARM_ANGLE_DEG["left"], None)
     assert s.reason == "limit", s  # what the model says of it
     before = cell.tcp_xyz()["left"]
     entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", target, 300)])})

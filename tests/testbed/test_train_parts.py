@@ -105,3 +105,30 @@ def test_protocol_pretrains_once_and_each_run_trains_only_what_it_reads(
         trained = _counters(out / f"{name}-t0" / "learner.pt")
         online = {p: trained[p] - theta0[p] for p in trained}
         assert online == {p: STEPS if p in spec.train_parts else 0 for p in online}, name
+
+
+def test_a_collection_whose_pushes_are_all_refused_stops_with_the_reason() -> None:
+    """A layout the arms cannot reach (every push refused by the driver) used to keep the
+    collection waiting for ever; it stops after STALL_STEPS steps, naming the refusal."""
+    from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
+    from testbed.experiments.pretraining import STALL_STEPS, collect_demos
+    from testbed.experiments.scripted_humans import ScriptedHumans
+
+    class Refusing:
+        robot_names = ("h/left",)
+        steps = 0
+
+        def observe(self) -> dict[str, ArmObservation]:
+            img = np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
+            return {"h/left": ArmObservation("h/left", img, False, (0.5, 0.5), 1)}
+
+        def execute(self, pushes: dict[str, int], resets: list[str]) -> dict[str, PushResult]:
+            self.steps += 1
+            return {r: PushResult(r, a, False, False, refused="target out of reach")
+                    for r, a in pushes.items()}
+
+    hosts = Refusing()
+    with pytest.raises(RuntimeError, match=r"collect: no arm pushed in 50 steps; the last "
+                                           r"refusal: target out of reach"):
+        collect_demos(hosts, ScriptedHumans(), 10, t_R=2)  # type: ignore[arg-type]
+    assert hosts.steps == STALL_STEPS == 50
