@@ -200,6 +200,23 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
                                   f", not {list(want or ())}")
 
 
+def ranked(model: ArmModel, flange: Mat, arm_angle_deg: float, free_yaw: bool = False,
+           most: int = 8) -> list[ArmPose]:
+    """The distinct solutions within the limits, best first (as :func:`_pick` ranks them
+    without a current pose): the candidates of a ConfJ-off joint move."""
+    found, _ = solutions(model, flange, arm_angle_deg,
+                         [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],
+                         free_yaw)
+    out: list[ArmPose] = []
+    pool = [p for p in found if model.limit_violation(p.chain_deg) is None]
+    while pool and len(out) < most:
+        best = _pick(model, pool, None, None, free_yaw)
+        assert best is not None
+        out.append(best)
+        pool = [p for p in pool if np.abs(np.subtract(p.chain_deg, best.chain_deg)).max() > 1.0]
+    return out
+
+
 def _pick(model: ArmModel, found: Sequence[ArmPose], want: tuple[int, ...] | None,
           current: Sequence[float] | None, free_yaw: bool = False) -> ArmPose | None:
     """The solution within the limits (in the configuration ``want``) the controller

@@ -523,6 +523,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         server.serve_forever(poll_interval=0.2)
     finally:
+        gap, where = rws.motion.arms.closest
+        if where:
+            print(f"yumi_server: the arms came within {gap:.0f} mm of each other ({where})",
+                  file=sys.stderr, flush=True)
         rws.close()
         server.server_close()
         with server.cell_lock:

@@ -50,6 +50,7 @@ from sim_twin.yumi_ik import (
     _descend,
     configuration,
     manipulability,
+    ranked,
     solve,
 )
 
@@ -141,6 +142,9 @@ class ArmSupervisor:
                 raise ValueError(f"arm {arm}: its rest joints put axis {over[0]} "
                                  f"{over[1]:.1f} deg past its limit")
         self.joints = {a: list(q) for a, q in self.rest.items()}
+        self.closest: tuple[float, str] = (math.inf, "")
+        """The smallest gap seen between the two arms over every move that ran (mm), and
+        between which links (the rehearsal's figure; the twin logs it at exit)."""
         self.free_yaw = False
         """SingArea\\Wrist (our RAPID): the tool may turn about its own axis to keep the
         wrist away from its singularity, so a line is judged by the tool's axis alone."""
@@ -223,12 +227,19 @@ class ArmSupervisor:
              ) -> tuple[_Track, ArmStop | None]:
         q = list(self.joints[arm])
         track, t0 = _Track([0.0], [q]), 0.0
-        for k, seg in enumerate(traj.segments):
+        segs = traj.segments
+        for k, seg in enumerate(segs):
             info = meta[k] if k < len(meta) else {}
             angle = float(info.get("arm_angle_deg", q[2]))  # type: ignore[arg-type]
             down = self.models[arm].pose(q).flange[:3, 2] @ FLANGE_DOWN[:3, 2] > DOWN_COS
             if info.get("kind") in ("move_j", "rest") or not down:  # (from the rest pose)
-                stop = self._joint_move(arm, seg, info, angle, q, t0, track)
+                lines = []
+                for j in range(k + 1, len(segs)):
+                    nxt = meta[j] if j < len(meta) else {}
+                    if nxt.get("kind") != "move_l":
+                        break
+                    lines.append((segs[j], float(nxt.get("arm_angle_deg", angle))))  # type: ignore[arg-type]
+                stop = self._joint_move(arm, seg, info, angle, q, t0, track, lines)
             else:
                 stop = self._linear_move(arm, seg, angle, q, t0, track)
             if stop is not None:
@@ -238,15 +249,18 @@ class ArmSupervisor:
         return track, None
 
     def _joint_move(self, arm: str, seg: Segment, info: Mapping[str, object], angle: float,
-                    q: list[float], t0: float, track: _Track) -> ArmStop | None:
-        """A MoveJ (or a move to a joint target): solve the end, then interpolate joints."""
+                    q: list[float], t0: float, track: _Track,
+                    lines: Sequence[tuple[Segment, float]] = ()) -> ArmStop | None:
+        """A MoveJ (or a move to a joint target): solve the end, then interpolate joints.
+        ``lines``: the MoveLs that follow it (ConfJ off: the end is taken in a
+        configuration they can be run in, when there is one)."""
         m = self.models[arm]
         target = info.get("joints_deg")
         if target is not None:
             end = abb_to_chain(target)  # type: ignore[arg-type]
         else:
             end_or = self._target(arm, seg.b, angle, info.get("conf"), q,
-                                  bool(info.get("conf_on")))
+                                  bool(info.get("conf_on")), lines)
             if isinstance(end_or, ArmStop):
                 return ArmStop(t0, arm, end_or.reason, end_or.detail)
             end = end_or
@@ -261,17 +275,33 @@ class ArmSupervisor:
         return None
 
     def _target(self, arm: str, xyz: Sequence[float], angle: float, conf: object,
-                current: list[float], conf_on: bool = True) -> list[float] | ArmStop:
+                current: list[float], conf_on: bool = True,
+                lines: Sequence[tuple[Segment, float]] = ()) -> list[float] | ArmStop:
         """A joint move's end: in ``conf`` (ConfJ on, the most dexterous such solution),
-        else the most dexterous solution (ConfJ off: the twin's "closest configuration"
-        is the one farthest from a singularity, so the linear pushes that follow a joint
-        move start where the arm can follow a line)."""
-        s = solve(self.models[arm], flange_at(xyz, self.tool_mm), angle,
-                  conf if conf_on else None, current=None,  # type: ignore[arg-type]
-                  free_yaw=self.free_yaw)
+        else (ConfJ off, "the closest configuration") the most dexterous solution from
+        which the MoveLs that follow (``lines``) run: the configuration a lab that taught
+        its arm angle and rest pose well gets; the twin looks ahead for it."""
+        flange = flange_at(xyz, self.tool_mm)
+        s = solve(self.models[arm], flange, angle, conf if conf_on else None,  # type: ignore[arg-type]
+                  current=None, free_yaw=self.free_yaw)
+        if s.pose is not None and not conf_on and lines and \
+                not self._lines_run(arm, lines, list(s.pose.chain_deg)):
+            for cand in ranked(self.models[arm], flange, angle, self.free_yaw):
+                if self._lines_run(arm, lines, list(cand.chain_deg)):
+                    return list(cand.chain_deg)
         if s.pose is None:
             return ArmStop(0.0, arm, s.reason or "reach", f"target {_xyz(xyz)}: {s.detail}")
         return list(s.pose.chain_deg)
+
+    def _lines_run(self, arm: str, lines: Sequence[tuple[Segment, float]],
+                   q: list[float]) -> bool:
+        """Whether the MoveLs ``lines`` run from joints ``q`` without a stop."""
+        scratch = _Track([0.0], [q])
+        for seg, angle in lines:
+            if self._linear_move(arm, seg, angle, q, 0.0, scratch) is not None:
+                return False
+            q = scratch.q[-1]
+        return True
 
     def _linear_move(self, arm: str, seg: Segment, angle: float, q: list[float], t0: float,
                      track: _Track) -> ArmStop | None:
@@ -287,6 +317,8 @@ class ArmSupervisor:
             seed = [*q[:2], start_angle + f * (angle - start_angle), *q[3:]]
             pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=40,
                                  free_yaw=self.free_yaw)
+            if res > REACH_TOL_MM:  # slow to converge: longer, then the closest solution
+                pose, res = self._continued(m, xyz, seed, q) or (pose, res)
             stop = self._sample_stop(arm, m, pose, res, q, t, xyz)
             if stop is not None:
                 return stop
@@ -294,6 +326,24 @@ class ArmSupervisor:
             track.t.append(t)
             track.q.append(q)
         return None
+
+    def _continued(self, m: ArmModel, xyz: Sequence[float], seed: list[float],
+                   prev: list[float]) -> tuple[ArmPose, float] | None:
+        """A line's next sample when the quick descent did not converge: a long one from
+        the same seed, else the solution closest to ``prev`` if it is near (the arm
+        follows the line); None when the arm cannot follow it."""
+        flange = flange_at(xyz, self.tool_mm)
+        pose, res = _descend(m, flange, seed, iters=300, free_yaw=self.free_yaw)
+        if res <= REACH_TOL_MM:
+            return pose, res
+        s = solve(m, flange, seed[2], None, current=prev, free_yaw=self.free_yaw)
+        if s.pose is None:
+            return None
+        # with SingArea Wrist the wrist's two turning axes (4 and 6, chain 4 and 6) may
+        # spin through a wrist singularity; every other joint must stay near
+        moved = [abs(x - y) for k, (x, y) in enumerate(zip(s.pose.chain_deg, prev, strict=True))
+                 if not (self.free_yaw and k in (4, 6))]
+        return (s.pose, 0.0) if max(moved) < JUMP_DEG else None
 
     def _sample_stop(self, arm: str, m: ArmModel, pose: ArmPose, res: float,
                      prev: list[float], t: float, xyz: Sequence[float]) -> ArmStop | None:
@@ -326,6 +376,7 @@ class ArmSupervisor:
         times = sorted({t for tr in tracks.values() for t in tr.t if t <= horizon})
         prev = 0.0
         for t in times:
+            self._note_closest(tracks, t)
             if self._gaps(tracks, t)[0] < CONTACT_MM:
                 lo, hi = prev, t
                 for _ in range(12):
@@ -335,6 +386,16 @@ class ArmSupervisor:
                 return ArmStop(lo, arm, "contact", what)
             prev = t
         return None
+
+    def _note_closest(self, tracks: Mapping[str, _Track], t: float) -> None:
+        arms = list(tracks)
+        if len(arms) != 2 or not all(tracks[a].t for a in arms):
+            return
+        shapes = [self.models[a].capsules(self.models[a].pose(tracks[a].at(t)), self.tool_mm)
+                  for a in arms]
+        gap, i, j = clearance(shapes[0], shapes[1])
+        if gap < self.closest[0]:
+            self.closest = (gap, f"{arms[0]} link {i + 1}, {arms[1]} link {j + 1}")
 
     def _gaps(self, tracks: Mapping[str, _Track], t: float) -> tuple[float, str, str]:
         """The smallest gap at ``t`` (an arm to the table, the two arms), whose, and what."""
