@@ -83,8 +83,11 @@ def _orientation(pose: ArmPose, flange: Mat, free_yaw: bool) -> tuple[Mat, Mat]:
 
 
 def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 80,
-             free_yaw: bool = False) -> tuple[ArmPose, float]:
-    """Damped least squares from ``seed`` (chain deg); the pose and its residual (mm)."""
+             free_yaw: bool = False, joints: Sequence[int] = (0, 1, 3, 4, 5, 6)
+             ) -> tuple[ArmPose, float]:
+    """Damped least squares from ``seed`` (chain deg) moving ``joints`` (default: all but
+    axis 7, held at the arm angle); the pose and its residual (mm)."""
+    free = list(joints)
     q = np.array(seed, dtype=np.float64)
     lam = 1.0
     pose = model.pose(q)
@@ -93,12 +96,12 @@ def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 8
         er, keep = _orientation(pose, flange, free_yaw)
         if np.linalg.norm(ep) < POS_TOL_MM and np.linalg.norm(er) < ROT_TOL_RAD:
             break
-        j = model.jacobian(pose, pose.flange[:3, 3])[:, _FREE]
+        j = model.jacobian(pose, pose.flange[:3, 3])[:, free]
         j[3:] = keep @ j[3:] * ROT_WEIGHT_MM
         e = np.concatenate([ep, er * ROT_WEIGHT_MM])
         step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(6), e)
         trial = q.copy()
-        trial[list(_FREE)] += np.degrees(np.clip(step, -0.3, 0.3))
+        trial[free] += np.degrees(np.clip(step, -0.3, 0.3))
         tpose = model.pose(trial)
         if _residual(tpose, flange, free_yaw) < _residual(pose, flange, free_yaw):
             q, pose, lam = trial, tpose, max(lam * 0.5, 1e-3)
@@ -256,12 +259,13 @@ def configuration(chain_deg: Sequence[float]) -> tuple[int, int, int]:
     return quadrant(by_axis[1]), quadrant(by_axis[4]), quadrant(by_axis[6])
 
 
-def manipulability(model: ArmModel, pose: ArmPose, free_yaw: bool = False) -> float:
+def manipulability(model: ArmModel, pose: ArmPose, free_yaw: bool = False,
+                   joints: Sequence[int] = _FREE) -> float:
     """The smallest singular value of the six free joints' Jacobian at the flange, with
     positions over the arm's reach (0: singular); with ``free_yaw`` of the five rows that
     matter (the tool's turn about its own axis left out: a wrist singularity, axes 4 and
     6 in line, costs nothing there)."""
-    j = model.jacobian(pose, pose.flange[:3, 3])[:, _FREE]
+    j = model.jacobian(pose, pose.flange[:3, 3])[:, list(joints)]
     j[:3] /= 560.0
     if free_yaw:
         z = pose.flange[:3, 2]

@@ -59,6 +59,9 @@ SAMPLE_MM: Final = 15.0
 """The path is checked at least every this many mm of TCP travel."""
 CONTACT_MM: Final = 2.0
 """Motion supervision stops the arms when two shapes come this close."""
+ARM_ANGLE_EASE_DEG: Final = 20.0
+"""How far the twin lets axis 7 leave the robtarget's arm angle to pass a pocket (see
+``ArmSupervisor._arm_angle_eased``)."""
 JUMP_DEG: Final = 25.0
 """A MoveL sample whose joints jump more than this from the previous one passed a
 singularity (the closest solution flipped). With SingArea Wrist the wrist may turn fast
@@ -320,12 +323,31 @@ class ArmSupervisor:
             if res > REACH_TOL_MM:  # slow to converge: longer, then the closest solution
                 pose, res = self._continued(m, xyz, seed, q) or (pose, res)
             stop = self._sample_stop(arm, m, pose, res, q, t, xyz)
+            if stop is not None and stop.reason == "singular":
+                eased = self._arm_angle_eased(m, xyz, seed)
+                if eased is not None:
+                    pose, stop = eased, None
             if stop is not None:
                 return stop
             q = list(pose.chain_deg)
             track.t.append(t)
             track.q.append(q)
         return None
+
+    def _arm_angle_eased(self, m: ArmModel, xyz: Sequence[float], seed: list[float]
+                         ) -> ArmPose | None:
+        """Near a pocket where axis 7 held at the arm angle leaves the other six singular:
+        the pose with axis 7 free too, if it converges clear of singularities within
+        ARM_ANGLE_EASE_DEG of the angle asked for. The twin takes the robtarget's arm
+        angle as axis 7's value; ABB's arm angle is the elbow plane's, a parameterization
+        without these pockets, so the twin lets axis 7 ease rather than stop."""
+        pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=200,
+                             free_yaw=self.free_yaw, joints=range(7))
+        if res > REACH_TOL_MM or abs(pose.chain_deg[2] - seed[2]) > ARM_ANGLE_EASE_DEG or \
+                m.limit_violation(pose.chain_deg) is not None or \
+                manipulability(m, pose, self.free_yaw, range(7)) < SINGULAR_SIGMA:
+            return None
+        return pose
 
     def _continued(self, m: ArmModel, xyz: Sequence[float], seed: list[float],
                    prev: list[float]) -> tuple[ArmPose, float] | None:

@@ -25,12 +25,14 @@ REST_JOINTS_DEG = {"left": (-20.0, -20.0, 0.0, 150.0, 30.0, 70.0, 135.0),
 rooms import no twin at import time, so the numbers are here too; a test keeps them
 equal). With the arm angle +-135 deg they pass ``testbed check``'s layout checks
 (docs/notes/yumi-real.md, "Reach and kinematics")."""
-PUSH_ARM_ANGLE_DEG = 135.0
+PUSH_ARM_ANGLE_DEG = 130.0
 """The left arm's arm angle (axis 7) for its pushes (the right's: minus it): every point
 of the workspaces from the table to travel height reachable, the arm clear of
-singularities with our RAPID's SingArea Wrist (the twin's model: the smallest singular
-value over a 5 x 5 x 3 grid 0.013, 2.6 times its 50026 threshold; at +-150 deg 0.005, at
-+-120 deg a point out of reach; docs/notes/yumi-real.md, "The twin's arms")."""
+singularities with our RAPID's SingArea Wrist. Chosen on the twin's model: at +-135 deg a
+pocket near the right workspace's far outer corner, (308, -367) at push height, has a
+smallest singular value of 0.004 (the twin's controller stopped a push there with 50026
+in a rehearsal); at +-130 it has 0.024, and +-120 leaves a point out of reach
+(docs/notes/yumi-real.md, "The twin's arms")."""
 DEFAULT_TOOL_Z_MM = 100.0
 """The pusher's tip below the flange when the twin does not say (its default)."""
 

@@ -115,7 +115,7 @@ def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) ->
     past its range (the arm would fold through itself)."""
     c, _, cell, _ = twin()
     m = ArmModel("left")
-    target = (40.0, 60.0, 120.0)
+    target = (0.0, 60.0, 60.0)
     s = solve(m, flange_at(target, 100.0), twin_rws.ARM_ANGLE_DEG["left"], None)
     assert s.reason == "limit", s  # what the model says of it
     before = cell.tcp_xyz()["left"]

@@ -30,7 +30,7 @@ def client(url: str, timeout_s: float = 20.0, **kw: Any) -> RWS:
     return c
 
 
-ARM_ANGLE_DEG = {"left": 135.0, "right": -135.0}
+ARM_ANGLE_DEG = {"left": 130.0, "right": -130.0}
 """The arm angle (axis 7) of the pushes (testbed/lab/camera_model.py PUSH_ARM_ANGLE_DEG)."""
 
 
