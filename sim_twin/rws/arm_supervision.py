@@ -27,8 +27,12 @@ The path model: a MoveL's TCP moves in a straight line, its joints follow by the
 solution nearest the previous sample's (ConfL off: the closest configuration); a MoveJ's
 joints move linearly from the start's to the target's (the pusher in the cell still
 moves in a straight line: its path and the arm's differ a little between the ends, which
-only the collision watch sees). Not modelled: an arm against itself or the body, blending
-in zones, the arm angle's own limits beyond axis 7's range.
+only the collision watch sees). With ConfJ off a MoveJ's end is taken in a configuration
+the MoveLs after it can keep (the twin looks ahead); with SingArea Wrist (our RAPID) a
+line is judged by the tool's axis alone; the robtarget's arm angle is taken as axis 7's
+value, which may ease by up to ``ARM_ANGLE_EASE_DEG`` through a pocket where holding it
+leaves the other joints singular (ABB's arm angle is the elbow plane's). Not modelled:
+an arm against itself or the body, blending in zones.
 """
 
 from __future__ import annotations
