@@ -315,12 +315,14 @@ class ArmSupervisor:
         """A MoveL: the TCP on a straight line, the joints the closest solution."""
         m = self.models[arm]
         start_angle = q[2]  # the arm angle turns with the line, as the TCP moves
-        n = max(1, math.ceil(seg.length / SAMPLE_MM), math.ceil(abs(angle - start_angle) / 5.0))
-        a, b = np.asarray(seg.a), np.asarray(seg.b)
+        # evenly in time: at most SAMPLE_MM apart, as the TCP never exceeds seg.speed
+        n = max(1, math.ceil(seg.speed * seg.duration / SAMPLE_MM),
+                math.ceil(abs(angle - start_angle) / 5.0))
+        a = np.asarray(seg.a)
         for i in range(1, n + 1):
-            f = i / n
-            t = t0 + _time_fraction(seg, f)
-            xyz = a + f * (b - a)
+            t = t0 + seg.duration * i / n
+            xyz = np.asarray(seg.at(seg.duration * i / n))
+            f = float(np.linalg.norm(xyz - a) / seg.length) if seg.length > 0 else 1.0
             seed = [*q[:2], start_angle + f * (angle - start_angle), *q[3:]]
             pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=40,
                                  free_yaw=self.free_yaw)
@@ -398,12 +400,13 @@ class ArmSupervisor:
 
     def _contact(self, tracks: Mapping[str, _Track], horizon: float) -> ArmStop | None:
         """The first moment (before ``horizon``) two shapes come within CONTACT_MM: the
-        first sample that does, then bisected back to where the gap closes."""
+        first sample that does, then bisected back to where the gap closes. An arm that
+        does not move is there too, where it stands."""
+        tracks = {**{a: _Track([0.0], [list(q)]) for a, q in self.joints.items()}, **tracks}
         times = sorted({t for tr in tracks.values() for t in tr.t if t <= horizon})
         prev = 0.0
         for t in times:
-            self._note_closest(tracks, t)
-            if self._gaps(tracks, t)[0] < CONTACT_MM:
+            if self._gaps(tracks, t, note=True)[0] < CONTACT_MM:
                 lo, hi = prev, t
                 for _ in range(12):
                     mid = (lo + hi) / 2
@@ -413,18 +416,10 @@ class ArmSupervisor:
             prev = t
         return None
 
-    def _note_closest(self, tracks: Mapping[str, _Track], t: float) -> None:
-        arms = list(tracks)
-        if len(arms) != 2 or not all(tracks[a].t for a in arms):
-            return
-        shapes = [self.models[a].capsules(self.models[a].pose(tracks[a].at(t)), self.tool_mm)
-                  for a in arms]
-        gap, i, j = clearance(shapes[0], shapes[1])
-        if gap < self.closest[0]:
-            self.closest = (gap, f"{arms[0]} link {i + 1}, {arms[1]} link {j + 1}")
-
-    def _gaps(self, tracks: Mapping[str, _Track], t: float) -> tuple[float, str, str]:
-        """The smallest gap at ``t`` (an arm to the table, the two arms), whose, and what."""
+    def _gaps(self, tracks: Mapping[str, _Track], t: float, note: bool = False
+              ) -> tuple[float, str, str]:
+        """The smallest gap at ``t`` (an arm to the table, the two arms), whose, and what;
+        ``note``: keep the arms' gap in :attr:`closest` when it is the smallest yet."""
         arms = list(tracks)
         shapes = {a: self.models[a].capsules(self.models[a].pose(tracks[a].at(t)),
                                              self.tool_mm) for a in arms}
@@ -435,25 +430,12 @@ class ArmSupervisor:
                 best = (gap, a, f"arm {a}: link {k + 1} {max(gap, 0.0):.0f} mm from the table")
         if len(arms) == 2:
             gap, i, j = clearance(shapes[arms[0]], shapes[arms[1]])
+            if note and gap < self.closest[0]:
+                self.closest = (gap, f"{arms[0]} link {i + 1}, {arms[1]} link {j + 1}")
             if gap < best[0]:
                 best = (gap, arms[0], f"arms {arms[0]} (link {i + 1}) and {arms[1]} "
                                       f"(link {j + 1}) {max(gap, 0.0):.0f} mm apart")
         return best
-
-
-def _time_fraction(seg: Segment, f: float) -> float:
-    """When the trapezoidal profile of ``seg`` has covered fraction ``f`` of its length."""
-    dur = float(seg.duration)
-    lo, hi = 0.0, dur
-    a, b = np.asarray(seg.a), np.asarray(seg.b)
-    length = float(np.linalg.norm(b - a))
-    if length <= 0.0:
-        return dur
-    for _ in range(30):
-        mid = (lo + hi) / 2
-        done = float(np.linalg.norm(np.asarray(seg.at(mid)) - a)) / length
-        lo, hi = (mid, hi) if done < f else (lo, mid)
-    return hi
 
 
 def _xyz(p: Sequence[float]) -> str:

@@ -1,15 +1,18 @@
-"""The learner's side of a fleet-loop test that does not learn: a base for fakes.
+"""Fakes for fleet-loop tests: a learner that does not learn, hosts whose arms stay put.
 
 Why: the loop tests (presence, cell holds, priority signals) drive ``FleetLoop`` with a
-fake learner that only acts; the three calls it must also answer, and answer with
-nothing, are here once.
+fake learner that only acts (the three calls it must also answer, and answer with
+nothing, are here once) and, some of them, with arms that never leave their workspace.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+
+from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
 
 
 class QuietLearner:
@@ -24,3 +27,17 @@ class QuietLearner:
 
     def train_step(self) -> dict[str, float]:
         return {}
+
+
+class CalmHosts:
+    """Arms that never leave their workspace; the expert's face is always 1."""
+
+    def __init__(self, arms: Sequence[str]) -> None:
+        self.robot_names = list(arms)
+
+    def observe(self) -> dict[str, ArmObservation]:
+        img = np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
+        return {r: ArmObservation(r, img, False, (0.5, 0.5), 1) for r in self.robot_names}
+
+    def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
+        return {r: PushResult(r, pushes.get(r), False, False) for r in self.robot_names}

@@ -18,17 +18,14 @@ from typing import Any
 
 import numpy as np
 import pytest
-from loop_fakes import QuietLearner
+from loop_fakes import CalmHosts, QuietLearner
 
 from testbed.core.humans import Humans, Presence, presence_of
 from testbed.core.types import (
-    IMAGE_SIZE,
-    ArmObservation,
     FleetStatus,
     HumanRequest,
     HumanResponse,
     InterventionKind,
-    PushResult,
 )
 from testbed.experiments.build import make_humans
 from testbed.experiments.scripted_humans import ScriptedHumans
@@ -40,20 +37,6 @@ from testbed.records.steps import RecordError, RunWriter, read_steps, validate_s
 
 ARMS = ["h/a", "h/b", "h/c"]
 M = 2
-
-
-class _Hosts:
-    """Three arms that never leave their workspace; the expert's face is always 1."""
-
-    def __init__(self) -> None:
-        self.robot_names = list(ARMS)
-
-    def observe(self) -> dict[str, ArmObservation]:
-        img = np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
-        return {r: ArmObservation(r, img, False, (0.5, 0.5), 1) for r in ARMS}
-
-    def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
-        return {r: PushResult(r, pushes.get(r), False, False) for r in ARMS}
 
 
 class _Learner(QuietLearner):
@@ -110,7 +93,7 @@ def _run(tmp: Path, humans: Humans, steps: int, *, t_T: int,
                               len(ARMS), M, seed=0)
     tmp.mkdir()
     with RunWriter(tmp) as writer:
-        loop = FleetLoop(hosts=_Hosts(), humans=humans, learner=_Learner(uncertainty),
+        loop = FleetLoop(hosts=CalmHosts(ARMS), humans=humans, learner=_Learner(uncertainty),
                          algorithm=algorithm, writer=writer, steps=steps, num_humans=M,
                          t_T=t_T, t_R=2)
         try:

@@ -11,15 +11,14 @@ one of them is skipped, or when the loop stops carrying a signal it was given.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-from loop_fakes import QuietLearner
+from loop_fakes import CalmHosts, QuietLearner
 
-from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
+from testbed.core.types import IMAGE_SIZE
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import ALGORITHMS, get_algorithm
@@ -31,17 +30,6 @@ from testbed.records.steps import RunWriter
 ARMS = ["h/a", "h/b", "h/c"]
 ARMS_SIGNALS = {"t", "violating", "faulted", "available"}
 """``PrioritySignals`` fields that come from the arms and the humans, not the learner."""
-
-
-class _Hosts:
-    robot_names = ARMS
-
-    def observe(self) -> dict[str, ArmObservation]:
-        img = np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
-        return {r: ArmObservation(r, img, False, (0.5, 0.5), 1) for r in ARMS}
-
-    def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
-        return {r: PushResult(r, pushes.get(r), False, False) for r in ARMS}
 
 
 class _Learner(QuietLearner):
@@ -85,7 +73,7 @@ def test_the_loop_hands_every_learned_signal_to_the_priority_function(tmp_path: 
     recording = _Recording(algorithm.priority)
     algorithm.priority = recording
     with RunWriter(tmp_path) as writer:
-        loop = FleetLoop(hosts=_Hosts(), humans=ScriptedHumans(), learner=_Learner(),
+        loop = FleetLoop(hosts=CalmHosts(ARMS), humans=ScriptedHumans(), learner=_Learner(),
                          algorithm=algorithm, writer=writer, steps=2, num_humans=1,
                          t_T=1, t_R=1)
         try:
