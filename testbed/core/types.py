@@ -20,7 +20,7 @@ Conventions shared by every part:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import Enum, IntEnum
 from typing import Final
 
 import numpy as np
@@ -68,6 +68,37 @@ class Mode(_Named):
 class InterventionKind(_Named):
     TELEOP = "teleop"
     RESET = "reset"
+
+
+class FrameClass(IntEnum):
+    """Who produced a frame's action, as learning by class reads it (issue 30; the rules:
+    ``testbed/records/frame_classes.py``). Codes are stored in exports: append only."""
+
+    DEMO = 0
+    """An offline demonstration (theta_0's data; never among a run's frames)."""
+    ROBOT = 1
+    """The policy pushed (mode autonomous)."""
+    TELEOP = 2
+    """A human pushed (mode teleop, with an action)."""
+    RESET = 3
+    """A human's hard reset (mode reset): the recovery."""
+    PRE_INTERVENTION = 4
+    """A robot push among the arm's last k steps before a human took it, same episode."""
+    NONE = 5
+    """Nobody acted: idle, fault, refused, or a teleop step the human let pass."""
+
+
+class EpisodeOutcome(IntEnum):
+    """How the arm's episode that holds a frame ended. Codes are stored: append only."""
+
+    OPEN = 0
+    """Not ended in the records: the run stopped, or a resume cut it (a new goal)."""
+    SUCCESS = 1
+    VIOLATION = 2
+    GOAL_CHANGE = 3
+    """A new goal without a success (the twin's timeout after MAX_PUSHES_PER_GOAL)."""
+    UNKNOWN = 4
+    """A fault hid the end: the goal changed across frames that were not observed."""
 
 
 @dataclass(frozen=True, slots=True)
