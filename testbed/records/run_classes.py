@@ -26,14 +26,8 @@ from typing import Any, Final
 
 import numpy as np
 
-from testbed.core.types import (
-    DEFAULT_PRE_STEPS,
-    MAX_PUSHES_PER_GOAL,
-    EpisodeOutcome,
-    FrameClass,
-    Mode,
-)
-from testbed.records.frame_classes import Classes, classify
+from testbed.core.types import MAX_PUSHES_PER_GOAL, EpisodeOutcome, FrameClass, Mode
+from testbed.records.frame_classes import DEFAULT_PRE_STEPS, Classes, classify
 from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import FRAME_DTYPE, MODES, RunData, RunDataError
 

@@ -18,13 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.core.types import (
-    DEFAULT_PRE_STEPS,
-    MAX_PUSHES_PER_GOAL,
-    EpisodeOutcome,
-    FrameClass,
-)
-from testbed.records.frame_classes import ClassTracker, classify
+from testbed.core.types import MAX_PUSHES_PER_GOAL, EpisodeOutcome, FrameClass
+from testbed.records.frame_classes import DEFAULT_PRE_STEPS, ClassTracker, classify
 from testbed.records.run_classes import LABEL_DTYPE, pre_steps_of, run_classes
 from testbed.records.step_record import StepRecord
 from testbed.records.steps import RunWriter
