@@ -70,6 +70,12 @@ class InterventionKind(_Named):
     RESET = "reset"
 
 
+DEFAULT_PRE_STEPS: Final = 3
+"""k, the pre-intervention window in steps (``learning.pre_intervention_steps``; here so
+that learning's config and the records' rules share it): docs/notes/learning.md, "Frame
+classes", says how it was chosen from twin runs."""
+
+
 class FrameClass(IntEnum):
     """Who produced a frame's action, as learning by class reads it (issue 30; the rules:
     ``testbed/records/frame_classes.py``). Codes are stored in exports: append only."""
@@ -179,6 +185,29 @@ class RobotStatus:
     human: int | None = None
 
 
+@dataclass(frozen=True, slots=True)
+class HumanEstimate:
+    """What the run's own records say of one human so far (``testbed.fleet.operators``):
+    posterior means, each shrunk towards the fleet's pooled figure, so a human with no
+    data reads as the fleet's average. Shown live in the consoles' overview and read by
+    the matched allocation (``algorithm.operators = "matched"``)."""
+
+    human: int
+    """The human's index (the rows' ``human``; the config's ``humans.people`` order)."""
+    skill: float
+    """Successes per teleop push."""
+    violations: float
+    """Violations per teleop push (the cube taken out of the workspace)."""
+    reset_steps: float
+    """Steps a hard reset takes, from its assignment to its confirmation."""
+    latency_steps: float
+    """Steps from a teleop's assignment to its first push (0: at once)."""
+    pushes: int
+    """Teleop pushes seen (the evidence behind ``skill`` and ``violations``)."""
+    resets: int = 0
+    """Confirmed hard resets seen (the evidence behind ``reset_steps``)."""
+
+
 @dataclass(slots=True)
 class FleetStatus:
     """The live counters of a trial (the progress bar and the console overview)."""
@@ -192,3 +221,5 @@ class FleetStatus:
     rohe: float = 0.0
     robots: list[RobotStatus] = field(default_factory=list)
     paused: bool = False
+    operators: list[HumanEstimate] = field(default_factory=list)
+    """Per human, by index: the estimates so far (empty before the first step)."""

@@ -21,7 +21,7 @@ import io
 import json
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
@@ -203,6 +203,11 @@ _HOW_TO_REACH = frozenset({"transport", "address", "port", "user", "key_file", "
 rehearsal's fresh ports or a lab's new address do not throw theta_0 away."""
 
 
+ONLINE_ONLY: Final = frozenset({"compile_act", "weighting", "pre_intervention_steps",
+                                "class_weights"})
+"""Learning fields that do not shape theta_0: left out of its key."""
+
+
 def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = None) -> str:
     """What shaped theta_0: the learning config, the fleet's robots, the seed, and the
     critics pretrained (None: both). Both critics keep the key of before the critics
@@ -211,8 +216,10 @@ def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = No
              for h in cfg.hosts]
     which = critic_set(critics)
     fields: dict[str, Any] = {
-        # compile_act changes how act runs, not what theta_0 is
-        "learning": cfg.learning.model_dump(mode="json", exclude={"compile_act"}),
+        # compile_act changes how act runs, not what theta_0 is; the online weighting by
+        # class changes what the trial learns after theta_0 (pretraining samples the
+        # demonstrations alike whatever it says), so every way of a protocol shares theta_0
+        "learning": cfg.learning.model_dump(mode="json", exclude=ONLINE_ONLY),
         "hosts": hosts,
         "t_R": cfg.algorithm.t_R,
         "seed": seed,

@@ -56,7 +56,7 @@ from testbed.records.run_dir import RunDir, new_run_dir
 from testbed.records.steps import RunWriter, read_steps, truncate_torn_tail
 from testbed.records.store import FOLDER as DATA_FOLDER
 from testbed.records.store import META as DATA_META
-from testbed.records.store import RunDataWriter
+from testbed.records.store import RunData, RunDataWriter
 
 LOG = logging.getLogger(__name__)
 
@@ -367,6 +367,9 @@ def _run_steps(run: _Run, hosts: Hosts, humans: Humans, learner: Any, algorithm:
                          after_step=checkpoint, data=data,
                          session=len(run.meta.get("resumed", [])), cells=shared_cells(cfg))
         loop.restore_counters(run.prior_rows)
+        if run.start and data is not None:  # the open episodes, for learning by class
+            loop.restore_feed(frames for _, frames in
+                              RunData.of_run(run.dir.path).iter_steps(0, run.start))
         stopped_at = _steps(loop, run.start, opts.steps, hooks)
         checkpoints.wait()
         run.meta["checkpoint"] = checkpoints.stats()

@@ -15,6 +15,12 @@ copies separately would give each member nearly the same data). About 37 % of th
 images are outside any one member's bootstrap, which is what makes members disagree
 away from the data.
 
+Classes (issue 30): each sample keeps its ``FrameClass`` and its episode's outcome
+(``testbed/records/frame_classes.py``). With a class-weight table (``weighting =
+"intervention"``) a member draws in proportion to its bootstrap weight times its sample's
+class weight, so the classes reweigh the data without touching the bootstrap or the
+augmentation (an image's copies share both); without one, the draw is today's exactly.
+
 Critic minibatches are shared by both critics (one policy pass for pi(s') serves both):
 25 % violating transitions (the paper's 8.3.2, Recovery RL), 25 % successful ones (the goal
 critic's rare positive, "in the same manner"), the rest uniform; a class that has no
@@ -30,7 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from testbed.core.types import IMAGE_SIZE
+from testbed.core.types import IMAGE_SIZE, EpisodeOutcome, FrameClass
 from testbed.learning.api import Transitions
 from testbed.learning.augment import augment_copies
 from testbed.learning.runtime import STREAM_AUGMENT, derive_seed
@@ -95,6 +101,8 @@ class PolicyData:
             "actions": ((), torch.int64),
             "weights": ((self.ensemble_size,), torch.float32),
             "labellers": ((), torch.int16),
+            "classes": ((), torch.int8),
+            "outcomes": ((), torch.int8),
         }, capacity)
 
     def __len__(self) -> int:
@@ -106,9 +114,12 @@ class PolicyData:
         return len(self._chunks)
 
     def add(self, images: np.ndarray, actions: np.ndarray, chunk_seed: int | None = None,
-            labellers: np.ndarray | None = None) -> None:
+            labellers: np.ndarray | None = None, classes: np.ndarray | None = None,
+            outcomes: np.ndarray | None = None) -> None:
         """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,), each
-        labelled by ``labellers`` (N,) (default: ``NO_LABELLER``). The copies and
+        labelled by ``labellers`` (N,) (default: ``NO_LABELLER``), of ``classes`` (N,)
+        (``FrameClass``; default: TELEOP where a human labelled, else DEMO) in episodes
+        of ``outcomes`` (N,) (``EpisodeOutcome``; default OPEN). The copies and
         bootstrap weights come from ``chunk_seed`` (default: derived from the data's
         seed and the chunk's index)."""
         n = int(images.shape[0])
@@ -121,25 +132,43 @@ class PolicyData:
         weights = torch.poisson(torch.ones(n, self.ensemble_size), generator=gen)
         who = (np.full(n, NO_LABELLER) if labellers is None
                else np.asarray(labellers).reshape(n))
+        if classes is None:
+            classes = np.where(who >= 0, FrameClass.TELEOP, FrameClass.DEMO)
+        if outcomes is None:
+            outcomes = np.full(n, EpisodeOutcome.OPEN)
         self._store.append(images=copies, actions=torch.from_numpy(actions), weights=weights,
-                           labellers=torch.from_numpy(who.astype(np.int16)))
+                           labellers=torch.from_numpy(who.astype(np.int16)),
+                           classes=torch.from_numpy(np.asarray(classes, np.int8).reshape(n)),
+                           outcomes=torch.from_numpy(np.asarray(outcomes, np.int8).reshape(n)))
         self._chunks.append((n, chunk_seed, _digest(copies)))
 
-    def sample(self, batch: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
-        """Per-member bootstrap minibatches: images (E, B, 64, 64, 3), actions (E, B)."""
+    def sample(self, batch: int, gen: torch.Generator, class_weights: Tensor | None = None
+               ) -> tuple[Tensor, Tensor]:
+        """Per-member bootstrap minibatches: images (E, B, 64, 64, 3), actions (E, B).
+        ``class_weights`` (len(FrameClass), len(EpisodeOutcome)): each sample's weight by
+        its class and outcome, times its bootstrap weight (None: the bootstrap alone)."""
         n = len(self)
         if n == 0:
             raise ValueError("no policy data yet")
         weights = self._store["weights"]
+        per_sample = None
+        if class_weights is not None:
+            per_sample = class_weights[self._store["classes"].long(),
+                                       self._store["outcomes"].long()]
+            weights = weights * per_sample[:, None]
         rows = []
         for m in range(self.ensemble_size):
             w = weights[:, m]
             if float(w.sum()) <= 0.0:  # tiny data: this member's bootstrap came out empty
-                w = torch.ones(n)
+                w = torch.ones(n) if per_sample is None else per_sample
             rows.append(torch.multinomial(w, batch, replacement=True, generator=gen))
         index = torch.stack(rows)
         copy = torch.randint(self.factor, index.shape, generator=gen)
         return self._store["images"][index, copy], self._store["actions"][index]
+
+    def classes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each sample's ``FrameClass`` and episode outcome, in the order added (int8)."""
+        return (self._store["classes"].numpy().copy(), self._store["outcomes"].numpy().copy())
 
     def labellers(self) -> np.ndarray:
         """Who gave each label, in the order added (int16 (N,); -1: no human)."""
@@ -157,6 +186,8 @@ class PolicyData:
             "actions": self._store["actions"].clone(),
             "weights": self._store["weights"].clone(),
             "labellers": self._store["labellers"].clone(),
+            "classes": self._store["classes"].clone(),
+            "outcomes": self._store["outcomes"].clone(),
             "chunks": [list(c) for c in self._chunks],
         }
 
@@ -167,6 +198,9 @@ class PolicyData:
         who = state.get("labellers")  # checkpoints before labellers were kept: unknown
         labellers = (np.full(originals.shape[0], NO_LABELLER) if who is None
                      else who.numpy())
+        kinds, ends = state.get("classes"), state.get("outcomes")  # before issue 30: derived
+        classes = None if kinds is None else kinds.numpy()
+        outcomes = None if ends is None else ends.numpy()
         start = 0
         self._store = self._new_store(capacity=max(256, originals.shape[0]))
         self._chunks = []
@@ -177,8 +211,10 @@ class PolicyData:
             entry = [chunk] if isinstance(chunk, int) else list(chunk)
             size = int(entry[0])
             seed = int(entry[1]) if len(entry) > 1 else derive_seed(self.seed, STREAM_AUGMENT, i)
-            self.add(originals[start : start + size], actions[start : start + size], seed,
-                     labellers[start : start + size])
+            part = slice(start, start + size)
+            self.add(originals[part], actions[part], seed, labellers[part],
+                     None if classes is None else classes[part],
+                     None if outcomes is None else outcomes[part])
             if len(entry) > 2:
                 same = same and self._chunks[-1][2] == entry[2]
             start += size

@@ -13,6 +13,13 @@ loop joins training before act(), but a lock costs nothing and rules out a torn 
                  └──► safety / goal Critic ──► risk, goal_risk
     every push ──► add_transitions ──► TransitionBuffer ──► critic minibatches (25 % / 25 %)
 
+Learning by class (issue 30): with ``learning.weighting = "intervention"`` the fleet loop
+also gives the robot's own pushes as their episodes end (``add_robot``, fed by
+``testbed.records.frame_classes.LabelFeed``), and each sample counts by its class and its
+episode's outcome (``class_weights``) when a member draws its minibatch; pretraining
+draws the demonstrations alike (theta_0 is the same for every weighting). ``"uniform"``
+is today's training, draw for draw.
+
 Parts (issue 13): a learner trains online only the parts its algorithm uses
 (``train``: a subset of policy, safety, goal; default all three) and ``act`` computes
 only the critics it reads (``read``; default both): C.U.R. trains the policy and the
@@ -43,6 +50,7 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
+from testbed.core.types import EpisodeOutcome, FrameClass
 from testbed.learning import checkpoint
 from testbed.learning.actor import Actor, infer
 from testbed.learning.api import (
@@ -55,7 +63,7 @@ from testbed.learning.api import (
 )
 from testbed.learning.critics import Combine, Critic, CriticBatch, CriticSpec
 from testbed.learning.data import PolicyData, TransitionBuffer
-from testbed.learning.learning_config import LearningConfig
+from testbed.learning.learning_config import ClassWeights, LearningConfig
 from testbed.learning.policy import PolicyEnsemble, ensemble_signals
 from testbed.learning.runtime import (
     STREAM_INIT,
@@ -117,6 +125,20 @@ def _copy_into(dst: Any, src: Any) -> bool:
     return False
 
 
+def class_table(w: ClassWeights) -> torch.Tensor:
+    """Each (FrameClass, EpisodeOutcome)'s weight: a robot push counts ``robot`` in an
+    episode that succeeded and ``robot_failed`` in any other (one still open, too: an
+    episode that never ended is not a success); resets and frames nobody acted in carry
+    no action and count 0."""
+    table = torch.zeros(len(FrameClass), len(EpisodeOutcome), dtype=torch.float32)
+    table[FrameClass.DEMO] = w.demo
+    table[FrameClass.TELEOP] = w.teleop
+    table[FrameClass.PRE_INTERVENTION] = w.pre_intervention
+    table[FrameClass.ROBOT] = w.robot_failed
+    table[FrameClass.ROBOT, EpisodeOutcome.SUCCESS] = w.robot
+    return table
+
+
 def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]:
     """range(total) that reports each finished step to ``progress``."""
     for i in range(total):
@@ -164,6 +186,8 @@ class Learner:
         """Critic minibatches (one shared pi(s') each), whichever critics they updated."""
         self.safety_updates = 0
         self.goal_updates = 0
+        self._class_table = (class_table(cfg.class_weights)
+                             if cfg.weighting == "intervention" else None)
         self.train_parts: frozenset[str] = frozenset(PARTS)
         self.read_critics: frozenset[str] = frozenset(CRITICS)
         self.set_parts(train=train, read=read)
@@ -281,6 +305,43 @@ class Learner:
             self.policy_data.add(arr, acts, labellers=who)
 
     @property
+    def robot_frames(self) -> bool:
+        """Whether this learner learns from the robot's own pushes too (``weighting =
+        "intervention"``): the fleet loop then feeds it ``add_robot``."""
+        return self._class_table is not None
+
+    @property
+    def pre_intervention_steps(self) -> int:
+        """k of the frame classes (``learning.pre_intervention_steps``)."""
+        return self.cfg.pre_intervention_steps
+
+    def add_robot(self, images: npt.ArrayLike, actions: npt.ArrayLike,
+                  classes: npt.ArrayLike, outcomes: npt.ArrayLike) -> None:
+        """The robot's own pushes of ended episodes (``FrameClass`` ROBOT or
+        PRE_INTERVENTION, with their ``EpisodeOutcome``): kept where their class weight
+        is above 0 (``class_weights``), augmented and bootstrapped as a human's label.
+        Ignored by a learner that does not learn from them (``robot_frames``)."""
+        if self._class_table is None:
+            return
+        arr = check_images(images)
+        acts = check_actions(actions, arr.shape[0])
+        cls = np.asarray(classes, dtype=np.int64).reshape(-1)
+        ends = np.asarray(outcomes, dtype=np.int64).reshape(-1)
+        if cls.shape[0] != arr.shape[0] or ends.shape[0] != arr.shape[0]:
+            raise ValueError(f"add_robot: {arr.shape[0]} images, {cls.shape[0]} classes, "
+                             f"{ends.shape[0]} outcomes")
+        keep = self._class_table[torch.from_numpy(cls), torch.from_numpy(ends)].numpy() > 0
+        if keep.any():
+            with self._lock:
+                self.policy_data.add(arr[keep], acts[keep], classes=cls[keep],
+                                     outcomes=ends[keep])
+
+    def label_classes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each policy sample's ``FrameClass`` and episode outcome, in the order added."""
+        with self._lock:
+            return self.policy_data.classes()
+
+    @property
     def label_humans(self) -> np.ndarray:
         """Who gave each of the policy's labels, in the order added (-1: no human)."""
         with self._lock:
@@ -322,8 +383,9 @@ class Learner:
             losses.update(self._critic_update(critics))
         return losses
 
-    def _policy_update(self) -> float:
-        images, actions = self.policy_data.sample(self.cfg.batch_size, self._sampler)
+    def _policy_update(self, weighted: bool = True) -> float:
+        images, actions = self.policy_data.sample(
+            self.cfg.batch_size, self._sampler, self._class_table if weighted else None)
         loss, per_member = self.policy.loss(images.to(self.device), actions.to(self.device))
         self.policy_optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -392,7 +454,8 @@ class Learner:
             if demo_images is not None:
                 self.add_human(demo_images, demo_actions,  # type: ignore[arg-type]
                                humans=demo_humans)
-                tail = [self._policy_update() for _ in _ticks("policy", total, progress)]
+                tail = [self._policy_update(weighted=False)
+                        for _ in _ticks("policy", total, progress)]
                 if tail:
                     result["policy_loss"] = float(np.mean(tail[-20:]))
             if transitions is not None:

@@ -12,8 +12,28 @@ from typing import Literal
 from pydantic import Field
 
 from testbed.core.config import StrictModel
+from testbed.core.types import DEFAULT_PRE_STEPS
 
-__all__ = ["LearningConfig"]
+__all__ = ["ClassWeights", "LearningConfig"]
+
+
+def _weight(default: float, what: str) -> float:
+    return Field(default, ge=0.0, le=100.0, allow_inf_nan=False, description=what)  # type: ignore[no-any-return]
+
+
+class ClassWeights(StrictModel):
+    """``[learning.class_weights]``: how much each class of sample counts when
+    ``weighting = "intervention"`` (a member draws its minibatch in proportion to its
+    bootstrap weight times this). 0 leaves the class out. The defaults and how they were
+    chosen: docs/notes/learning.md, "Learning by class"."""
+
+    demo: float = _weight(1.0, "an offline demonstration")
+    teleop: float = _weight(2.0, "a human's teleop push (a correction)")
+    robot: float = _weight(1.0, "the policy's push in an episode that succeeded")
+    pre_intervention: float = _weight(
+        0.0, "the policy's push among its last k before a human took the arm")
+    robot_failed: float = _weight(
+        0.0, "the policy's push in an episode that did not succeed (violation, goal change)")
 
 
 class LearningConfig(StrictModel):
@@ -35,6 +55,15 @@ class LearningConfig(StrictModel):
         False, description="run the fleet loop's forward pass through torch.compile: "
         "1.65x faster at 100 arms on 2 CPU cores, ~20 s to compile, needs a C compiler "
         "(falls back to eager with a warning); not worth it for a few arms")
+
+    weighting: Literal["uniform", "intervention"] = Field(
+        "uniform", description="uniform: the policy learns from demonstrations and human "
+        "labels alike (Fleet-DAgger); intervention: also from the robot's own pushes, each "
+        "sample weighted by its class (class_weights; docs/notes/learning.md)")
+    pre_intervention_steps: int = Field(
+        DEFAULT_PRE_STEPS, ge=0, le=1000, description="k: the robot's last k steps on an arm "
+        "before a human took it are pre-intervention (testbed/records/frame_classes.py)")
+    class_weights: ClassWeights = Field(default_factory=ClassWeights)
 
     @property
     def critic_steps(self) -> int:

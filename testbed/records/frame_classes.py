@@ -40,11 +40,10 @@ from typing import Any, Final, Protocol
 
 import numpy as np
 
-from testbed.core.types import EpisodeOutcome, FrameClass, Mode
+from testbed.core.types import DEFAULT_PRE_STEPS, EpisodeOutcome, FrameClass, Mode
 
-DEFAULT_PRE_STEPS: Final = 3
-"""k, the pre-intervention window in steps (``learning.pre_intervention_steps``):
-docs/notes/learning.md, "Frame classes", says how it was chosen from twin runs."""
+__all__ = ["DEFAULT_PRE_STEPS", "ClassTracker", "Classes", "LabelFeed", "Settled",
+           "classify", "frame_class"]
 
 _MODE_CODE: Final = {m: i for i, m in enumerate(m.value for m in Mode)}
 _AUTONOMOUS: Final = _MODE_CODE[Mode.AUTONOMOUS.value]

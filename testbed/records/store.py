@@ -41,6 +41,7 @@ import numpy as np
 
 from testbed.core.atomic import atomic_write_json, fsync_dir
 from testbed.core.types import IMAGE_SIZE, Mode
+from testbed.records.frame_classes import LabelFeed
 
 FORMAT_FAMILY: Final = "testbed.rundata/"
 FORMAT_VERSION: Final = 1
@@ -295,16 +296,28 @@ def add_labels(sink: DataSink, frames: np.ndarray) -> None:
                        humans=frames["human"][teleop].astype(np.int64))
 
 
+def label_feed(sink: object, num_arms: int) -> LabelFeed | None:
+    """The feed of the robot's own pushes for a sink that learns from them (its
+    ``robot_frames``; ``Learner`` with ``weighting = "intervention"``), else None."""
+    if not getattr(sink, "robot_frames", False):
+        return None
+    return LabelFeed(num_arms, int(sink.pre_intervention_steps))  # type: ignore[attr-defined]
+
+
 def replay(sink: DataSink, data: RunData, steps: int) -> None:
     """Give ``sink`` what the fleet loop gave its learner over steps [0, steps): in the
     same order and chunks (so the augmentation seeds and bootstrap weights are the
-    same), no transition across a resume (a new session: the world may have moved)."""
+    same), no transition across a resume (a new session: the world may have moved);
+    the robot's own pushes as their episodes ended, to a sink that takes them."""
     if data.num_steps < steps:  # before any call: the sink is left untouched
         raise RunDataError(f"{data.folder}: {data.num_steps} steps on disk, "
                            f"the checkpoint needs {steps}")
+    feed = label_feed(sink, len(data.robots))
     prev: np.ndarray | None = None
     for _, frames in data.iter_steps(0, steps):
         if prev is not None and prev["session"][0] == frames["session"][0]:
             add_transitions(sink, prev, frames["observed"], frames["image"])
         add_labels(sink, frames)
+        if feed is not None:
+            feed.step(sink, frames)  # type: ignore[arg-type]
         prev = frames
