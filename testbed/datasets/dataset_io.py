@@ -34,6 +34,22 @@ def require_export_extra(video: bool) -> None:
 def load_frames(path: Path, flag: str = "--data") -> Frames:
     """A dataset to train on: an npz of ``testbed export`` (or a folder holding
     ``frames.npz``), a LeRobot dataset of ``testbed export``, or run/protocol folders."""
+    frames = _read_export(path, flag)
+    if frames is not None:
+        for note in frames.notes:
+            sys.stderr.write(f"testbed: {note}\n")
+        return frames
+    if path.is_dir():
+        src = find_sources([path], flag)
+        for note in src.notes:
+            sys.stderr.write(f"testbed: {note}\n")
+        return gather(iter_episodes(src))
+    raise ConfigError(f"{flag}: {str(path)!r} is neither an npz, a LeRobot dataset nor a "
+                      "run folder of the testbed")
+
+
+def _read_export(path: Path, flag: str) -> Frames | None:
+    """An export of ``testbed export`` at ``path`` (npz or LeRobot), or None."""
     if path.is_file() and path.suffix == ".npz":
         return read_npz(path)
     if path.is_dir() and (path / NPZ_NAME).is_file():
@@ -44,13 +60,7 @@ def load_frames(path: Path, flag: str = "--data") -> Frames:
         from testbed.datasets.lerobot import read_dataset
 
         return read_dataset(path, flag)
-    if path.is_dir():
-        src = find_sources([path], flag)
-        for note in src.notes:
-            sys.stderr.write(f"testbed: {note}\n")
-        return gather(iter_episodes(src))
-    raise ConfigError(f"{flag}: {str(path)!r} is neither an npz, a LeRobot dataset nor a "
-                      "run folder of the testbed")
+    return None
 
 
 @dataclass

@@ -17,7 +17,10 @@ image, a frame without action) becomes an episode with ``intervention`` -1.
 
 Every frame keeps the data store's labels (``t`` is called ``step``) plus
 ``intervention`` (as in Sirius: -1 offline demonstration, 1 a human acted -- teleop or
-hard reset --, 0 otherwise) and ``source_index`` (which run or demos file); with those
+hard reset --, 0 otherwise), ``source_index`` (which run or demos file), and its class,
+its class episode's outcome and index (``frame_class``, ``episode_outcome``,
+``class_episode``: ``testbed.datasets.class_columns``, the rules of
+``testbed.records.frame_classes`` with the run's own k); with those
 ``testbed.datasets.training`` recovers the learner's data exactly.
 
 Nothing here imports torch, pyarrow or PyAV: numpy alone.
@@ -27,14 +30,17 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 
 from testbed.core.types import IMAGE_SIZE, Mode
+from testbed.datasets import class_columns
 from testbed.datasets.sources import Sources, load_demos
+from testbed.records.frame_classes import DEFAULT_PRE_STEPS
+from testbed.records.run_classes import pre_steps_of, run_classes
 from testbed.records.store import FRAME_DTYPE, MODES, RunData
 
 FORMAT: Final = "testbed.export/1"
@@ -49,6 +55,9 @@ UNKNOWN_GOAL_TASK: Final = "push the cube to its goal (goal not observed)"
 COLUMNS: Final[tuple[tuple[str, str, tuple[int, ...]], ...]] = (
     ("action", "int64", ()),
     ("intervention", "int64", ()),
+    ("frame_class", "int64", ()),
+    ("episode_outcome", "int64", ()),
+    ("class_episode", "int64", ()),
     ("mode", "int64", ()),
     ("human", "int64", ()),
     ("success", "bool", ()),
@@ -102,6 +111,8 @@ class Frames:
     """``COLUMNS`` and ``INDEX_COLUMNS``."""
     images: np.ndarray
     tasks: list[str]
+    notes: list[str] = field(default_factory=list)
+    """What reading it back derived or could not (one line each; the verbs print them)."""
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
@@ -149,15 +160,18 @@ def run_episodes(run: Path, steps: int, source_index: int) -> Iterator[Episode]:
     data = RunData.of_run(run)
     frames = data.frames(0, steps)
     n_arms = len(data.robots)
+    classes = run_classes(run, steps=steps)  # the same steps, the run's own k
     for arm, robot in enumerate(data.robots):
         f = frames[arm::n_arms]
+        cls = class_columns.of_run(classes, arm)
         starts = np.flatnonzero(episode_starts(f))
         for lo, hi in zip(starts, [*starts[1:], len(f)], strict=True):
             e = f[lo:hi]
             # every field of the store under its own name (a new one too), t as step
             cols = {name: e[name] for name in STORE_COLUMNS}
             cols.update(step=e["t"], intervention=_intervention(e["mode"]),
-                        source_index=np.full(len(e), source_index))
+                        source_index=np.full(len(e), source_index),
+                        **{k: v[lo:hi] for k, v in cls.items()})
             yield Episode(_typed(cols), np.ascontiguousarray(e["image"]),
                           goal_task(e["goal"], e["observed"]), source_index, robot)
 
@@ -191,11 +205,12 @@ def demo_episodes(path: Path, source_index: int) -> Iterator[Episode]:
     """Offline demonstrations as episodes: each chain's pushes, then its last next
     image as a final frame with no action (so its last transition is kept)."""
     d = load_demos(path)
-    for chain in demo_chains(d["images"], d["next_images"]):
+    for k, chain in enumerate(demo_chains(d["images"], d["next_images"])):
         n = len(chain) + 1
         idx = np.asarray(chain)
         images = np.concatenate([d["images"][idx], d["next_images"][idx[-1:]]])
-        cols = {
+        outcome = class_columns.demo_outcome(d["success"][idx], d["violation"][idx])
+        cols = {**class_columns.of_demo(n, outcome, k),
             "action": _then(d["actions"][idx], -1),
             "intervention": np.full(n, DEMO), "mode": np.full(n, MODE_CODE[Mode.TELEOP]),
             "human": np.full(n, -1), "success": _then(d["success"][idx], False),
@@ -266,6 +281,20 @@ def gather(episodes: Iterable[Episode], fps: int = FPS) -> Frames:
                   list(numbering.tasks))
 
 
+def with_classes(frames: Frames, where: str) -> Frames:
+    """``frames`` read from an export written before the class columns: with them
+    derived from its own columns (``class_columns.derive``), and a note saying so."""
+    c = frames.columns
+    if all(k in c for k in class_columns.CLASS_COLUMNS):
+        return frames
+    c.update(class_columns.derive(c, c["intervention"] == DEMO, c["episode_index"]))
+    frames.notes.append(
+        f"{where}: exported before frame classes; frame_class, episode_outcome and "
+        "class_episode derived from its columns with the default k "
+        f"({DEFAULT_PRE_STEPS}), not the run's own")
+    return frames
+
+
 def testbed_meta(src: Sources, fps: int = FPS) -> dict[str, Any]:
     """What the columns' codes mean, and where the frames came from (meta/testbed.json
     of a LeRobot export, ``meta`` of an npz)."""
@@ -277,9 +306,10 @@ def testbed_meta(src: Sources, fps: int = FPS) -> dict[str, Any]:
             options = {}
         runs.append({"path": str(run), "steps": steps, "robots": RunData.of_run(run).robots,
                      "algorithm": options.get("label") or options.get("algorithm"),
-                     "seed": options.get("seed")})
+                     "seed": options.get("seed"), "pre_intervention_steps": pre_steps_of(run)})
     return {"format": FORMAT, "fps": fps, "modes": list(MODES),
             "intervention": {str(DEMO): "offline demonstration", str(POLICY):
                              "no human acted (policy, idle, fault, refused)",
                              str(HUMAN): "a human acted (teleop or hard reset)"},
+            **class_columns.codes(),
             "sources": src.names, "runs": runs, "notes": src.notes}

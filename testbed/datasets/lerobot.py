@@ -46,6 +46,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from testbed.core.config import ConfigError
+from testbed.datasets.class_columns import CLASS_COLUMNS, CLASS_NAMES, OUTCOME_NAMES
 from testbed.datasets.episodes import (
     COLUMNS,
     FPS,
@@ -54,6 +55,7 @@ from testbed.datasets.episodes import (
     Episode,
     Frames,
     Numbering,
+    with_classes,
 )
 from testbed.datasets.stats import Stats
 from testbed.datasets.video import (
@@ -77,7 +79,11 @@ DATA_FILE_MB: Final = 100
 VIDEO_FILE_MB: Final = 200
 PNG_LEVEL: Final = 6
 """zlib level of the PNGs (LeRobot's for ``image`` features); bench_export.py."""
-NAMES: Final[dict[str, list[str]]] = {"action": ["face"], "goal": ["x", "y"]}
+NAMES: Final[dict[str, list[str]]] = {"action": ["face"], "goal": ["x", "y"],
+                                      "frame_class": CLASS_NAMES,
+                                      "episode_outcome": OUTCOME_NAMES}
+"""info.json's ``names`` of a feature: its entries' names, or a code's meaning by value
+(``frame_class`` 4 is ``names[4]``, "pre_intervention")."""
 
 
 # ----------------------------------------------------------------- the schema
@@ -313,7 +319,7 @@ def read_dataset(root: Path, flag: str = "--data") -> Frames:
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise ConfigError(f"{flag}: {root} is LeRobot {info.get('codebase_version')}, "
                           f"not {CODEBASE_VERSION}")
-    missing = [n for n, _, _ in COLUMNS if n not in feats]
+    missing = [n for n, _, _ in COLUMNS if n not in feats and n not in CLASS_COLUMNS]
     if missing or IMAGE_KEY not in feats:
         raise ConfigError(f"{flag}: {root} is a LeRobot dataset without the testbed's "
                           f"columns ({', '.join(missing[:3]) or IMAGE_KEY}); give one "
@@ -322,6 +328,8 @@ def read_dataset(root: Path, flag: str = "--data") -> Frames:
     table = pa.concat_tables([pq.read_table(f) for f in files]).sort_by("index")
     cols: dict[str, np.ndarray] = {}
     for name, dtype, shape in COLUMNS:
+        if name not in table.column_names:  # a class column of an older export
+            continue
         col = table.column(name).combine_chunks()
         if shape:
             col = col.flatten()
@@ -335,7 +343,7 @@ def read_dataset(root: Path, flag: str = "--data") -> Frames:
     else:
         images = _video_frames(root, info, cols["episode_index"], cols["frame_index"])
     tasks = pq.read_table(root / TASKS_PATH).sort_by("task_index").column("task").to_pylist()
-    return Frames(cols, images, [str(t) for t in tasks])
+    return with_classes(Frames(cols, images, [str(t) for t in tasks]), str(root))
 
 
 def _video_frames(root: Path, info: dict[str, Any], episode: np.ndarray,

@@ -16,7 +16,8 @@ from typing import Any, Final
 import numpy as np
 
 from testbed.core.config import ConfigError
-from testbed.datasets.episodes import COLUMNS, INDEX_COLUMNS, Frames
+from testbed.datasets.class_columns import CLASS_COLUMNS
+from testbed.datasets.episodes import COLUMNS, INDEX_COLUMNS, Frames, with_classes
 
 NPZ_NAME: Final = "frames.npz"
 
@@ -44,11 +45,15 @@ def write_npz(frames: Frames, meta: dict[str, Any], path: Path) -> None:
 
 
 def read_npz(path: Path) -> Frames:
-    """An npz of ``write_npz`` back in memory; ConfigError if it is not one."""
+    """An npz of ``write_npz`` back in memory; ConfigError if it is not one. One written
+    before the class columns gets them derived (``with_classes``, a note)."""
     with np.load(path) as z:
         names = [n for n, _, _ in COLUMNS] + [n for n, _ in INDEX_COLUMNS]
-        missing = [n for n in ("image", "tasks", *names) if n not in z.files]
+        missing = [n for n in ("image", "tasks", *names)
+                   if n not in z.files and n not in CLASS_COLUMNS]
         if missing:
             raise ConfigError(f"--data: {path} is not an npz of testbed export (missing "
                               f"{', '.join(missing[:3])})")
-        return Frames({n: z[n] for n in names}, z["image"], [str(t) for t in z["tasks"]])
+        frames = Frames({n: z[n] for n in names if n in z.files}, z["image"],
+                        [str(t) for t in z["tasks"]])
+    return with_classes(frames, str(path))

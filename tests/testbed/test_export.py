@@ -334,7 +334,7 @@ def test_npz_has_the_same_frames_and_fields(run: Path, tmp_path: Path) -> None:
     meta = json.loads(str(arrays["meta"]))
     assert meta["sources"][1].startswith("demos:") and meta["modes"] == list(MODES)
     assert meta["runs"] == [{"path": str(run), "steps": STEPS, "robots": ROBOTS,
-                             "algorithm": "cur", "seed": 0}]
+                             "algorithm": "cur", "seed": 0, "pre_intervention_steps": 3}]
 
 
 def test_training_data_is_what_the_learner_had(run: Path) -> None:
