@@ -22,8 +22,10 @@ What a reviewer needs beyond mean +- std (:mod:`testbed.experiments.report_table
 ``--reference``) paired by trial with an exact sign-flip p-value, the same for the
 evaluations and, per point, for a sweep (its reference: the grid's first point); the
 humans by name (``report_humans``); a line for any two algorithms or points whose
-records are identical. ``report.html`` (``report_html``) is all of it on one
-self-contained page, with the metadata that decides the numbers.
+records are identical; per run, its frames per class and its episodes per outcome
+(``report_classes``: what learning by class has to learn from). ``report.html``
+(``report_html``) is all of it on one self-contained page, with the metadata that
+decides the numbers.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
+from testbed.experiments.report_classes import ClassCounts, class_counts, classes_table
 from testbed.experiments.report_humans import HumanCounts, count_humans
 from testbed.experiments.report_tables import (
     Table,
@@ -82,6 +85,8 @@ class RunRecord:
     human_counts: list[HumanCounts] = field(default_factory=list)
     digest: str = ""
     """``steps_digest``: equal for runs with identical records."""
+    classes: ClassCounts | None = None
+    """Frames per class, episodes per outcome (``report_classes``); None: unreadable."""
 
     def __post_init__(self) -> None:
         self.group = self.group or self.algorithm
@@ -164,7 +169,7 @@ def load_run(path: Path) -> RunRecord:
     return RunRecord(path, algorithm, num_humans, summary, curves, rohe_parts(steps),
                      group=point, meta=meta, config=config, humans=names,
                      human_counts=count_humans(steps, num_humans),
-                     digest=steps_digest(steps))
+                     digest=steps_digest(steps), classes=class_counts(path))
 
 
 def _human_names(humans: dict[str, Any], count: int) -> list[str]:
@@ -444,4 +449,6 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
             title="Evaluation (the paper's 8.3.4, Table 2): each final policy alone, "
                   "humans for hard resets only"))
         tables += learning_tables(evaluations, EVAL_METRICS, reference, EVAL_PREFIX, "eval")
+    tables.append(classes_table([(r.path.name, r.group, r.classes)
+                                 for r in [*learning, *evaluations]]))
     return tables

@@ -379,3 +379,26 @@ def test_an_older_store_layout_falls_back_to_the_rows(tmp_path: Path) -> None:
     assert rc.source == "steps.jsonl"
     assert rc.notes[0] == ("its data store (format testbed.rundata/1) has no goal: classes "
                            "from steps.jsonl, no images")
+
+
+def test_the_report_counts_each_runs_classes_and_says_where_they_came_from(
+        tmp_path: Path) -> None:
+    from testbed.experiments.report import write_report
+
+    write_run(tmp_path / "runs" / "cur-t0", (A0, A1),
+              config="[learning]\npre_intervention_steps = 1\n")
+    write_run(tmp_path / "runs" / "cur-t1", (A0, A1), store=False)
+    rep = write_report([tmp_path / "runs"], tmp_path / "rep")
+    table = next(t for t in rep.tables if t.key == "classes")
+    # frames: robot, pre-intervention, teleop, reset, none; episodes: success,
+    # violation, goal change, unknown, open
+    assert table.rows == [
+        ["cur-t0", "cur", "1", "14", "1", "3", "1", "3", "1", "1", "0", "0", "2"],
+        ["cur-t1", "cur", "3", "10", "5", "3", "1", "3", "1", "1", "0", "0", "2"]]
+    assert table.notes == ["cur-t1: no data store: classes from steps.jsonl, no images; "
+                           "no goals in steps.jsonl: an end hidden by a fault is not seen "
+                           "(no UNKNOWN); an episode ended by a new goal without a success "
+                           "(a timeout) runs on into the next"]
+    csv = (tmp_path / "rep" / "report-classes.csv").read_text().splitlines()
+    assert csv[1].startswith("cur-t0,cur,1,data store,14,1,")
+    assert "Frame classes per run" in (tmp_path / "rep" / "report.md").read_text()
