@@ -8,6 +8,7 @@ one line.
 from __future__ import annotations
 
 import re
+from typing import Literal
 
 from pydantic import Field, field_validator
 
@@ -46,6 +47,11 @@ class AlgorithmConfig(StrictModel):
     random_budget: float | str = Field(
         0.3, description="Random: the mean fraction of humans busy, or 'match:<algorithm>' "
         "(in a protocol: the fraction that algorithm's run of the same trial used)")
+    operators: Literal["blind", "matched"] = Field(
+        "blind", description="who gets an arm: 'blind', Algorithm 1 (the free humans in "
+        "index order, as interchangeable); 'matched', the human expected to gain most on "
+        "it, from the run's own records (testbed/fleet/operators.py), and a teleop left "
+        "to the policy when every free human is expected to do worse than it")
 
     @field_validator("u_hat", "r_hat")
     @classmethod

@@ -100,13 +100,28 @@ class Algorithm:
     def teleop(self) -> bool:
         return self.spec.teleop
 
-    def step(self, signals: PrioritySignals) -> npt.NDArray[np.int64]:
-        """Compute the keys and allocate; returns (N,) human per arm, -1 for none."""
+    @property
+    def matched(self) -> bool:
+        """``algorithm.operators = "matched"``: the caller hands :meth:`step` the
+        humans' expected gains (``testbed.fleet.operators.OperatorModel.gains``)."""
+        return self.params.operators == "matched"
+
+    def step(self, signals: PrioritySignals,
+             gains: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
+        """Compute the keys and allocate; returns (N,) human per arm, -1 for none.
+
+        ``gains``: (M, N) per human and arm, for the matched pairing (the keys are
+        computed first either way: it works with every priority function); ``None``:
+        Algorithm 1. Refused when the config says ``operators = "blind"``, so a blind
+        run can never be matched by accident.
+        """
+        if gains is not None and not self.matched:
+            raise ValueError('gains given to an algorithm with operators = "blind"')
         keys = self.priority.keys(signals)
         available = (None if signals.available is None
                      else signals.available_array(self.allocator.num_humans))
         assignment = self.allocator.step(
-            keys, signals.violating_array(self.allocator.num_robots), available)
+            keys, signals.violating_array(self.allocator.num_robots), available, gains)
         self.last_keys = keys
         return assignment
 

@@ -40,6 +40,15 @@ intervention; it starts at 0 on the first timestep. A kind change restarts it: t
 contract's teleop-to-reset conversion, and (our decision) a finished reset whose arm
 is chosen again for teleoperation, so that the new teleop is held its full t_T.
 
+``gains`` (optional, float (M, N): human h's expected gain on arm i this step, from
+``testbed.fleet.operators.OperatorModel``) turns on the matched pairing
+(``algorithm.operators = "matched"``): the candidates in key order each go to the free
+human with the highest gain on it, and a teleop candidate that every free human is
+expected to do worse on than the policy stays autonomous (:meth:`Allocator._pair_matched`).
+Everything before the pairing (held interventions, away humans, the candidates, their
+order, the tie draw) is the same; with equal gains for every human the pairing is
+Algorithm 1's, arm for arm. Without ``gains``, Algorithm 1 exactly as before.
+
 Tie-breaking draws ``rng.random(N)`` once per step (always, so the stream does not
 depend on the keys); among equal keys the larger draw goes first. The state, RNG
 included, round-trips through JSON (``state_dict``) so a crashed trial resumes with
@@ -80,6 +89,11 @@ _KIND_TO_STR: Final[dict[int, str | None]] = {
 }
 _STR_TO_KIND: Final[dict[str | None, int]] = {v: k for k, v in _KIND_TO_STR.items()}
 _STATE_VERSION: Final = 1
+GAIN_TOLERANCE: Final = 1e-9
+"""How far below 0 a best gain must be for the matched allocation to leave a teleop
+candidate autonomous: a gain of 0 up to rounding (no evidence either way) is not."""
+_NewState = tuple[npt.NDArray[np.int64], npt.NDArray[np.int8], npt.NDArray[np.int64]]
+"""Per human: the arm, kind code and served count being decided this step."""
 
 
 def lex_positive(keys: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.bool_]:
@@ -199,7 +213,8 @@ class Allocator:
 
     # ------------------------------------------------------------------- update
     def step(self, keys: npt.ArrayLike, violating: npt.ArrayLike,
-             available: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
+             available: npt.ArrayLike | None = None,
+             gains: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
         """Allocate for one timestep; return (N,) human index per arm, -1 for none.
 
         ``keys`` is (N, K) (a 1-D (N,) array is read as K = 1), compared
@@ -207,17 +222,22 @@ class Allocator:
         ``available`` is bool (M,) or ``None`` (every human available): a human who is
         not available gets no new arm and keeps no arm it is not held on, but stays on
         a held intervention (:meth:`release_human` ends that).
+        ``gains`` is ``None`` (Algorithm 1: the free humans are interchangeable) or
+        (M, N) float, human h's expected gain on arm i this step
+        (``testbed.fleet.operators.OperatorModel.gains``): the matched allocation
+        (:meth:`_pair_matched`). Held interventions, away humans and the tie draw are
+        the same either way.
         """
         key_arr = self._check_keys(keys)
         viol = self._check_violating(violating)
         avail = self._check_available(available)
+        gain_arr = None if gains is None else self._check_gains(gains)
         n, m = self.num_robots, self.num_humans
         # Drawn every step whatever the keys, so the stream (and resume) is key-independent.
         tie = self._rng.random(n)
         self._steps += 1
 
         prev_arm = self._human_arm
-        had_arm = prev_arm >= 0
         kind, served, held = self._carry_over(viol)
 
         arm_held = np.zeros(n, dtype=bool)
@@ -238,31 +258,90 @@ class Allocator:
                 # then the tie draw; negated for a descending order.
                 sort_rows = np.vstack([tie[candidates], key_arr[candidates, ::-1].T])
                 order = np.lexsort(-sort_rows)
-                chosen = candidates[order[:num_free]]
-
-                chosen_mask = np.zeros(n, dtype=bool)
-                chosen_mask[chosen] = True
-                # A free human whose last arm is chosen again keeps it: no needless switch.
-                keep = free & had_arm & chosen_mask[np.maximum(prev_arm, 0)]
-                keep_arms = prev_arm[keep]
-                kept_kind = np.where(viol[keep_arms], KIND_RESET, KIND_TELEOP).astype(np.int8)
-                same = kept_kind == kind[keep]
-                new_arm[keep] = keep_arms
-                new_kind[keep] = kept_kind
-                new_served[keep] = np.where(same, served[keep], 0)
-
-                taken = np.zeros(n, dtype=bool)
-                taken[keep_arms] = True
-                rest_arms = chosen[~taken[chosen]]  # still in key order
-                rest_humans = np.flatnonzero(free & ~keep)[: rest_arms.size]
-                new_arm[rest_humans] = rest_arms
-                new_kind[rest_humans] = np.where(viol[rest_arms], KIND_RESET, KIND_TELEOP)
-                new_served[rest_humans] = 0
+                ranked = candidates[order]
+                new = (new_arm, new_kind, new_served)
+                if gain_arr is None:
+                    self._pair_blind(ranked[:num_free], free, kind, served, viol, new)
+                else:
+                    self._pair_matched(ranked, num_free, free, kind, served, viol, gain_arr,
+                                       new)
 
         self._human_arm = new_arm.astype(np.int64)
         self._human_kind = new_kind
         self._human_served = new_served.astype(np.int64)
         return self.assignment
+
+    def _pair_blind(self, chosen: npt.NDArray[np.int64], free: npt.NDArray[np.bool_],
+                    kind: npt.NDArray[np.int8], served: npt.NDArray[np.int64],
+                    viol: npt.NDArray[np.bool_], new: _NewState) -> None:
+        """Algorithm 1's pairing: the ``chosen`` arms (the top F candidates, in key
+        order) go to the free humans; one whose last arm is chosen keeps it, the others
+        take the rest in index order. Writes ``new`` (arm, kind, served per human)."""
+        new_arm, new_kind, new_served = new
+        n = self.num_robots
+        prev_arm = self._human_arm
+        had_arm = prev_arm >= 0
+        chosen_mask = np.zeros(n, dtype=bool)
+        chosen_mask[chosen] = True
+        # A free human whose last arm is chosen again keeps it: no needless switch.
+        keep = free & had_arm & chosen_mask[np.maximum(prev_arm, 0)]
+        keep_arms = prev_arm[keep]
+        kept_kind = np.where(viol[keep_arms], KIND_RESET, KIND_TELEOP).astype(np.int8)
+        same = kept_kind == kind[keep]
+        new_arm[keep] = keep_arms
+        new_kind[keep] = kept_kind
+        new_served[keep] = np.where(same, served[keep], 0)
+
+        taken = np.zeros(n, dtype=bool)
+        taken[keep_arms] = True
+        rest_arms = chosen[~taken[chosen]]  # still in key order
+        rest_humans = np.flatnonzero(free & ~keep)[: rest_arms.size]
+        new_arm[rest_humans] = rest_arms
+        new_kind[rest_humans] = np.where(viol[rest_arms], KIND_RESET, KIND_TELEOP)
+        new_served[rest_humans] = 0
+
+    def _pair_matched(self, ranked: npt.NDArray[np.int64], num_free: int,
+                      free: npt.NDArray[np.bool_], kind: npt.NDArray[np.int8],
+                      served: npt.NDArray[np.int64], viol: npt.NDArray[np.bool_],
+                      gains: npt.NDArray[np.float64], new: _NewState) -> None:
+        """The matched pairing (``algorithm.operators = "matched"``; docs/notes/core.md,
+        "Allocation rules"): the candidates in key order (``ranked``), each to the free
+        human with the highest gain on it, until no free human is left.
+
+        * A teleop candidate (not violating) whose best remaining gain is below 0 (the
+          policy alone is expected to do better than every free human) stays
+          autonomous; the humans stay free for the next candidate. A violating arm
+          always gets a person (a reset's gain is positive anyway).
+        * Ties (equal gains) go, in this order, to the arm's own human of the last
+          step, then to a human who would not keep an arm among the top F (Algorithm
+          1's keepers), then to the lowest index. So humans with equal gains are paired
+          exactly as :meth:`_pair_blind` pairs them: the same arms, the same humans,
+          the same kinds and served counts. With unequal gains, keeping one's own arm
+          is this tie-break only: the top arm goes to the best person, whoever held it.
+        """
+        new_arm, new_kind, new_served = new
+        prev_arm = self._human_arm
+        top = np.zeros(self.num_robots, dtype=bool)
+        top[ranked[:num_free]] = True
+        keeper = free & (prev_arm >= 0) & top[np.maximum(prev_arm, 0)]
+        left = free.copy()
+        for arm in ranked:
+            pool = np.flatnonzero(left)
+            if pool.size == 0:
+                break
+            g = gains[pool, arm]
+            best = g.max()
+            if not viol[arm] and best < -GAIN_TOLERANCE:
+                continue  # the policy alone is expected to do better: autonomous
+            tied = pool[g == best]
+            own = tied[prev_arm[tied] == arm]
+            others = tied[~keeper[tied]]
+            j = int(own[0] if own.size else others[0] if others.size else tied[0])
+            k = KIND_RESET if viol[arm] else KIND_TELEOP
+            new_arm[j] = arm
+            new_kind[j] = k
+            new_served[j] = served[j] if prev_arm[j] == arm and kind[j] == k else 0
+            left[j] = False
 
     def release(self, robot: int) -> int | None:
         """Free the human on arm ``robot`` now (e.g. its host faulted for good).
@@ -384,6 +463,19 @@ class Allocator:
 
     def _check_violating(self, violating: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         return _bool_mask("violating", violating, self.num_robots)
+
+    def _check_gains(self, gains: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """The (M, N) expected gains of the matched allocation, checked."""
+        try:
+            arr = np.asarray(gains, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"gains must be a float array (M, N): {exc}") from None
+        if arr.shape != (self.num_humans, self.num_robots):
+            raise ValueError(f"gains must have shape ({self.num_humans}, {self.num_robots}) "
+                             f"(humans x arms), got {np.shape(gains)}")
+        if not np.isfinite(arr).all():
+            raise ValueError("gains must be finite (no NaN or infinity)")
+        return arr
 
     def _check_available(self, available: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
         """The (M,) mask of humans present this step; ``None`` means all of them."""

@@ -58,6 +58,7 @@ from testbed.core.types import (
 from testbed.fleet.algorithms import Algorithm
 from testbed.fleet.allocator import Allocator
 from testbed.fleet.interventions import FirstActions
+from testbed.fleet.operators import OperatorModel
 from testbed.fleet.priorities import LEARNED_SIGNALS, PrioritySignals
 from testbed.records import store as rundata
 from testbed.records.step_record import ArmStep, StepRecord
@@ -183,10 +184,13 @@ class FleetLoop:
             make_actor() if overlap_act and callable(make_actor) else None)
         self.status = FleetStatus(t=0, steps=steps)
         self._first_actions = FirstActions()
+        self.operators = OperatorModel(num_humans, t_T, t_R)
+        """What the rows say of each human (``status.operators``; the matched gains)."""
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
-        """Rebuild the live counters from the records of a resumed trial."""
+        """Rebuild the live counters (the humans' estimates too) from the records of a
+        resumed trial."""
         for row in rows:
             self._count(row)
         self._first_actions.restore(rows)
@@ -200,6 +204,8 @@ class FleetLoop:
             s.human_actions += r["mode"] in (Mode.TELEOP, Mode.RESET)
         n = max(len(self.robots), 1)
         s.rohe = (self.num_humans / n) * s.successes / (1 + s.human_actions)
+        self.operators.observe(row)
+        s.operators = self.operators.estimates()
 
     # ---- one timestep ---------------------------------------------------------------
     def _decide(self, t: int, observations: Mapping[str, ArmObservation | Fault],
@@ -216,7 +222,9 @@ class FleetLoop:
             **{name: np.asarray(getattr(out, name), dtype=float)
                for name in sorted(LEARNED_SIGNALS)},
         )
-        assignment = self.algorithm.step(signals)
+        gains = (self.operators.gains(signals.violating) if self.algorithm.matched
+                 else None)  # "blind": Algorithm 1, whatever the rows say
+        assignment = self.algorithm.step(signals, gains)
         keys = np.asarray(self.algorithm.last_keys, dtype=float)
         requests = self._requests(observations, assignment, faulted, keys, out)
         responses = self.humans.act(requests, t) if requests else {}
