@@ -127,3 +127,23 @@ def test_the_runs_own_k_decides_its_windows(run: Path, tmp_path: Path) -> None:
     assert c["frame_class"][arm0][order].tolist() == [PI, T, R, R, R, NO, RS, RS, R, PI, T, R]
     with np.load(tmp_path / "x.npz") as z:
         assert json.loads(str(z["meta"]))["runs"][0]["pre_intervention_steps"] == 1
+
+
+def test_a_lerobot_export_from_before_the_classes_reads_back_with_them_derived(
+        run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import pyarrow.parquet as pq
+
+    out = tmp_path / "ds"
+    dataset_io.export([run], "lerobot", out, "png")
+    want = read_npz(dataset_io.export([run], "npz", tmp_path / "x.npz").path)
+    for f in (out / "data").glob("chunk-*/file-*.parquet"):  # as an older export wrote it
+        table = pq.read_table(f)
+        pq.write_table(table.drop_columns(list(CLASS_COLUMNS)), f)
+    info = json.loads((out / "meta" / "info.json").read_text())
+    for name in CLASS_COLUMNS:
+        del info["features"][name]
+    (out / "meta" / "info.json").write_text(json.dumps(info))
+    frames = dataset_io.load_frames(out)
+    for name in CLASS_COLUMNS:
+        assert np.array_equal(frames.columns[name], want.columns[name]), name
+    assert "exported before frame classes" in capsys.readouterr().err
