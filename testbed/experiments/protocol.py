@@ -41,6 +41,19 @@ if TYPE_CHECKING:
     from testbed.fleet.loop import StepOutcome
 
 
+class Way(BaseModel):
+    """``[ways.<name>]``: an algorithm run another way (issue 30: C.U.R. with learning by
+    class, with operators the allocator knows), its fleet fields set as a sweep's grid
+    sets them (dotted names under ``fleet``). A way is named in ``algorithms`` like an
+    algorithm; its runs, report rows and pairs carry its name."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    algorithm: str
+    set: dict[str, Any] = Field(default_factory=dict)
+    """Fleet fields this way sets, e.g. ``{"learning.weighting" = "intervention"}``."""
+
+
 class Protocol(BaseModel):
     # defer_build: its fleet's hosts are a union of the installed backends (core/host_config.py)
     model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
@@ -67,6 +80,12 @@ class Protocol(BaseModel):
     """With ``evaluate_steps``: also ``eval-expert-t<k>``, every arm driven by the twin's
     scripted expert (the paper's expert row; twin hosts only)."""
     fleet: FleetConfig = Field(default_factory=FleetConfig)
+    ways: dict[str, Way] = Field(default_factory=dict)
+    """Algorithms run another way (:class:`Way`), by the name ``algorithms`` gives them."""
+    evaluate_start: bool = False
+    """With ``evaluate_steps``: also ``eval-theta0-t<k>``, the policy every run of trial
+    k starts from (theta_0), so the report can say what each run's humans taught: the
+    learning gain per human action, (eval successes - theta_0's) / human actions."""
 
     @model_validator(mode="before")
     @classmethod
@@ -84,9 +103,21 @@ class Protocol(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> Protocol:
-        bad = [a for a in self.algorithms if a not in ALGORITHM_NAMES]
+        for name, way in self.ways.items():
+            if name in ALGORITHM_NAMES or name in ("expert", START):
+                raise ValueError(f"ways.{name}: the name of an algorithm; name the way "
+                                 "otherwise (e.g. cur-weighted)")
+            if way.algorithm not in ALGORITHM_NAMES:
+                raise ValueError(f"ways.{name}.algorithm: unknown algorithm "
+                                 f"{way.algorithm!r}; use {', '.join(ALGORITHM_NAMES)}")
+            try:
+                self.fleet_of(name)
+            except ConfigError as exc:
+                raise ValueError(f"ways.{name}.set: {exc}") from None
+        bad = [a for a in self.algorithms if a not in ALGORITHM_NAMES and a not in self.ways]
         if bad:
-            raise ValueError(f"unknown algorithm {bad[0]!r}; use {', '.join(ALGORITHM_NAMES)}")
+            raise ValueError(f"unknown algorithm {bad[0]!r}; use {', '.join(ALGORITHM_NAMES)}"
+                             " or a way of [ways]")
         if self.seeds is not None and len(self.seeds) != self.trials:
             raise ValueError("seeds must have one seed per trial")
         match = self.fleet.algorithm.budget_match
@@ -96,6 +127,20 @@ class Protocol(BaseModel):
                 f"fleet.algorithm.random_budget = 'match:{match}': {match!r} must be "
                 "another of the protocol's algorithms (its run sets Random's budget)")
         return self
+
+    def algorithm_of(self, name: str) -> str:
+        """The algorithm a name of ``algorithms`` runs (a way's, or the name itself)."""
+        way = self.ways.get(name)
+        return way.algorithm if way is not None else name
+
+    def fleet_of(self, name: str) -> FleetConfig:
+        """The fleet a name of ``algorithms`` runs: ``fleet``, with a way's fields set."""
+        way = self.ways.get(name)
+        if way is None or not way.set:
+            return self.fleet
+        from testbed.experiments.sweep import SweepPoint
+
+        return SweepPoint(dict(way.set)).apply(self.fleet)
 
     def seed(self, k: int) -> int:
         return self.seeds[k] if self.seeds is not None else k
@@ -133,6 +178,10 @@ class Protocol(BaseModel):
         order.remove("random")
         order.insert(order.index(match) + 1, "random")
         return order
+
+
+START = "theta0"
+"""The name of the policy every run of a trial starts from, in evaluation runs."""
 
 
 def pretrain_critics(algorithms: list[str]) -> list[str]:
@@ -237,8 +286,11 @@ def _prompts(proto: Protocol, k: int, first_in_trial: bool) -> bool:
 def _evaluate_all(proto: Protocol, folder: Path, hooks: TrialHooks) -> None:
     """The paper's evaluation of every final policy (and the expert row on twins)."""
     for k in range(proto.trials):
-        for algorithm in proto.run_order(k):
+        order = proto.run_order(k)
+        for algorithm in order:
             evaluate_run(proto, folder, algorithm, k, hooks)
+        if proto.evaluate_start and order:
+            evaluate_run(proto, folder, START, k, hooks, start_of=order[0])
         if proto.evaluate_expert and all(backend_of(h).capabilities.simulated
                                          for h in proto.fleet.hosts):
             evaluate_run(proto, folder, "expert", k, hooks)
@@ -253,11 +305,13 @@ def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
     call this."""
     from testbed.experiments.trial import TrialOptions
 
-    cfg = proto.fleet
+    cfg = proto.fleet_of(algorithm)
     order = proto.run_order(k)
-    opts = TrialOptions(algorithm=algorithm, steps=proto.steps, seed=proto.seed(k),
-                        out=str(folder), humans=proto.humans, name=f"{algorithm}-t{k}",
-                        pretrain_critics=pretrain_critics(proto.algorithms))
+    opts = TrialOptions(algorithm=proto.algorithm_of(algorithm), steps=proto.steps,
+                        seed=proto.seed(k), out=str(folder), humans=proto.humans,
+                        name=f"{algorithm}-t{k}", label=algorithm,
+                        pretrain_critics=pretrain_critics(
+                            [proto.algorithm_of(a) for a in proto.algorithms]))
     run_meta: dict[str, Any] = {
         **(meta or {}),
         "protocol": {"name": proto.name, "trial": k, "position": order.index(algorithm),
@@ -300,24 +354,27 @@ def run_named(cfg: FleetConfig, opts: TrialOptions, folder: Path, *,
 
 
 def evaluate_run(proto: Protocol, folder: Path, algorithm: str, k: int,
-                 hooks: TrialHooks | None = None) -> None:
+                 hooks: TrialHooks | None = None, *, start_of: str | None = None) -> None:
     """``eval-<algorithm>-t<k>``: the final policy of ``<algorithm>-t<k>`` alone for
     ``proto.evaluate_steps`` steps, C-prioritised hard resets only (``testbed evaluate``);
-    skipped when done or disabled, redone when it died before finishing."""
+    skipped when done or disabled, redone when it died before finishing. ``start_of``:
+    evaluate instead the policy run ``<start_of>-t<k>`` started from (``START``)."""
     from testbed.experiments.progress import TrialProgress
     from testbed.experiments.trial import TrialOptions, run_trial
 
     expert = algorithm == "expert"  # the twin's scripted expert: no run, no policy file
-    source = RunDir(folder / f"{algorithm}-t{k}")
+    source = RunDir(folder / f"{start_of or algorithm}-t{k}")
+    policy = source.start_learner if start_of is not None else source.learner
     name = f"eval-{algorithm}-t{k}"
     run = RunDir(folder / name)
     if (proto.evaluate_steps == 0 or run.summary.exists()
-            or not (expert or source.learner.exists())):
+            or not (expert or policy.exists())):
         return
     if run.path.exists():
         _discard(run.path)
     evaluates = ({"policy": None, "run": None, "algorithm": "expert"} if expert
-                 else evaluated(source.learner))
+                 else {**evaluated(policy), "algorithm": START} if start_of is not None
+                 else evaluated(policy))
     opts = TrialOptions(algorithm="bc", steps=proto.evaluate_steps, seed=proto.seed(k),
                         out=str(folder), humans=proto.humans, policy=evaluates["policy"],
                         evaluate=True, name=name, label=evaluation_label(algorithm),

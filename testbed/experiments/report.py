@@ -40,6 +40,7 @@ import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
 from testbed.experiments.report_classes import ClassCounts, class_counts, classes_table
+from testbed.experiments.report_gain import gain_tables
 from testbed.experiments.report_humans import HumanCounts, count_humans
 from testbed.experiments.report_tables import (
     Table,
@@ -449,6 +450,8 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
             title="Evaluation (the paper's 8.3.4, Table 2): each final policy alone, "
                   "humans for hard resets only"))
         tables += learning_tables(evaluations, EVAL_METRICS, reference, EVAL_PREFIX, "eval")
+        if learning:
+            tables += gain_tables(learning, evaluations, reference or PAPER_FIRST, trial_label)
     tables.append(classes_table([(r.path.name, r.group, r.classes)
                                  for r in [*learning, *evaluations]]))
     return tables

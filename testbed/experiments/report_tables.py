@@ -52,12 +52,16 @@ class Table:
         return buf.getvalue()
 
 
+RATIOS = frozenset({"rohe", "learning_gain"})
+"""Metrics that are ratios (four decimals); the others are counts."""
+
+
 def _fmt(metric: str) -> str:
-    return "{:.4f}" if metric == "rohe" else "{:.1f}"
+    return "{:.4f}" if metric in RATIOS else "{:.1f}"
 
 
 def _signed(x: float, metric: str) -> str:
-    return f"{x:+.4f}" if metric == "rohe" else f"{x:+.1f}"
+    return f"{x:+.4f}" if metric in RATIOS else f"{x:+.1f}"
 
 
 def _cell(iv: Interval, metric: str) -> str:

@@ -33,7 +33,7 @@ console's business (its timeout inside ``act``), not the loop's.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -186,6 +186,8 @@ class FleetLoop:
         self._first_actions = FirstActions()
         self.operators = OperatorModel(num_humans, t_T, t_R)
         """What the rows say of each human (``status.operators``; the matched gains)."""
+        self._feed = rundata.label_feed(learner, len(self.robots))
+        """The robot's own pushes, to a learner that learns from them, as episodes end."""
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
@@ -206,6 +208,13 @@ class FleetLoop:
         s.rohe = (self.num_humans / n) * s.successes / (1 + s.human_actions)
         self.operators.observe(row)
         s.operators = self.operators.estimates()
+
+    def restore_feed(self, steps: Iterable[np.ndarray]) -> None:
+        """A resumed trial: the episodes still open after the steps already run (the
+        data store's frames of them, in order), so the robot pushes that end later reach
+        the learner as they would have in an unbroken run (the replay gave it the rest)."""
+        if self._feed is not None and self.algorithm.learns:
+            self._feed.catch_up(steps)
 
     # ---- one timestep ---------------------------------------------------------------
     def _decide(self, t: int, observations: Mapping[str, ArmObservation | Fault],
@@ -383,6 +392,8 @@ class FleetLoop:
         self._last = frames
         if self.algorithm.learns:
             rundata.add_labels(self.learner, frames)
+            if self._feed is not None:
+                self._feed.step(self.learner, frames)  # type: ignore[arg-type]
         self.status.t = t + 1
         self.status.robots = [
             RobotStatus(r, a.mode, seen.images[i] if not d.faulted[i] else None,
