@@ -330,6 +330,8 @@ class ConsoleCore:
         seq = self._seq
         if wid == OVERVIEW:
             frame = draw.render_overview(self._status, num_robots=self._num_robots,
+                                         humans=[self.human_label(h)
+                                                 for h in range(self.num_humans)],
                                          **self._flags(wid))
         else:
             desk = self._desks[wid]

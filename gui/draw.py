@@ -22,7 +22,14 @@ from gui.keys import ARROW_NAMES, KEY_NAMES
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.scene import workspace_polygon
 from gui.view import ConsoleView, Phase, human_label
-from testbed.core.types import SUCCESS_RADIUS, FleetStatus, InterventionKind, Mode, RobotStatus
+from testbed.core.types import (
+    SUCCESS_RADIUS,
+    FleetStatus,
+    HumanEstimate,
+    InterventionKind,
+    Mode,
+    RobotStatus,
+)
 
 Frame = npt.NDArray[np.uint8]
 Colour = tuple[int, int, int]
@@ -231,6 +238,8 @@ OVERVIEW_LABEL_H: Final = 20
 OVERVIEW_HEADER_H: Final = 52
 OVERVIEW_MIN_WIDTH: Final = 620
 OVERVIEW_COLUMNS: Final = 4
+OVERVIEW_HUMAN_H: Final = 20
+"""Height of one human's line under the tiles (their estimates, ``FleetStatus.operators``)."""
 
 
 def overview_tile_rect(index: int, num_robots: int) -> tuple[int, int, int, int]:
@@ -245,13 +254,35 @@ def overview_tile_rect(index: int, num_robots: int) -> tuple[int, int, int, int]
     return x0, y0, x0 + tw, y0 + tw
 
 
-def overview_size(num_robots: int) -> tuple[int, int]:
-    """(width, height) of the overview for a fleet of this size."""
+def overview_size(num_robots: int, num_humans: int = 0) -> tuple[int, int]:
+    """(width, height) of the overview for a fleet of this size: the tiles, then one
+    line per human (``num_humans``; none: the tiles alone)."""
     n = max(num_robots, 1)
     cols = min(n, OVERVIEW_COLUMNS)
     rows = math.ceil(n / OVERVIEW_COLUMNS)
     tw = 64 * OVERVIEW_TILE_SCALE + 2 * OVERVIEW_BORDER
-    return max(cols * tw, OVERVIEW_MIN_WIDTH), OVERVIEW_HEADER_H + rows * (tw + OVERVIEW_LABEL_H)
+    lines = num_humans * OVERVIEW_HUMAN_H + (6 if num_humans else 0)
+    return (max(cols * tw, OVERVIEW_MIN_WIDTH),
+            OVERVIEW_HEADER_H + rows * (tw + OVERVIEW_LABEL_H) + lines)
+
+
+def human_line(label: str, estimate: HumanEstimate | None) -> str:
+    """One human's line of the overview: who, and what their records say so far (the
+    web overview's row has the same figures)."""
+    if estimate is None:
+        return f"{label}: no estimate yet"
+    return (f"{label}:  skill {estimate.skill:.2f}   reset {estimate.reset_steps:.1f} steps"
+            f"   latency {estimate.latency_steps:.1f} steps   pushes {estimate.pushes}")
+
+
+def _human_lines(img: Frame, labels: Sequence[str], status: FleetStatus | None,
+                 num_robots: int) -> None:
+    """Each human's line under the tiles, by index."""
+    estimates = {e.human: e for e in status.operators} if status is not None else {}
+    _, top = overview_size(num_robots)
+    for h, label in enumerate(labels):
+        text = _fit(human_line(label, estimates.get(h)), img.shape[1] - 16)
+        _text(img, text, (8, top + 6 + (h + 1) * OVERVIEW_HUMAN_H - 5), DIM_TEXT, 0.42)
 
 
 def _tile(img: Frame, index: int, n: int, robot: RobotStatus) -> None:
@@ -277,11 +308,17 @@ def render_overview(
     confirming_stop: bool = False,
     stop_requested: bool = False,
     num_robots: int | None = None,
+    humans: Sequence[str] | None = None,
 ) -> Frame:
-    """The fleet overview: counters, then every arm's latest image with a mode border."""
+    """The fleet overview: counters, every arm's latest image with a mode border, then
+    one line per human with their estimates (``humans``: each human's label, by index;
+    None: "human i" for each estimate in ``status.operators``)."""
     robots = list(status.robots) if status is not None else []
     n = num_robots if num_robots is not None else len(robots)
-    width, height = overview_size(n)
+    if humans is None:
+        count = len(status.operators) if status is not None else 0
+        humans = [human_label(h, None) for h in range(count)]
+    width, height = overview_size(n, len(humans))
     img = np.full((height, width, 3), BACKGROUND[0], dtype=np.uint8)
     if status is None:
         _text(img, "fleet overview: waiting for the first step", (8, 22), TEXT, 0.5)
@@ -294,6 +331,7 @@ def render_overview(
         _text(img, _fit(line2, width, 0.5), (8, 42), TEXT, 0.5)
         for i, robot in enumerate(robots[:n]):
             _tile(img, i, n, robot)
+    _human_lines(img, humans, status, n)
     if paused or (status is not None and status.paused):
         _banner(img, ["PAUSED", "p or space: resume"], BANNER_PAUSE, height // 2)
     if stop_requested:

@@ -31,7 +31,7 @@ import functools
 import html
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from importlib import resources
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -86,6 +86,19 @@ def fleet_doc(status: FleetStatus, names: Sequence[str] = ()) -> dict[str, Any]:
         "robots": [_robot_doc(r.robot, r.mode.value, r.human, names)
                    for r in status.robots],
     }
+
+
+def operators_doc(status: FleetStatus | None,
+                  name_of: Callable[[int], dict[str, str]]) -> list[dict[str, Any]]:
+    """The overview's rows of the humans' estimates (``FleetStatus.operators``), by
+    index, each with its ``name`` when the human has one: text the page shows as a
+    table, so a reader finds a person's figures by their name."""
+    if status is None:
+        return []
+    return [{"human": int(e.human), **name_of(e.human), "skill": float(e.skill),
+             "violations": float(e.violations), "reset_steps": float(e.reset_steps),
+             "latency_steps": float(e.latency_steps), "pushes": int(e.pushes),
+             "resets": int(e.resets)} for e in status.operators]
 
 
 def _robot_doc(robot: str, mode: str, human: int | None,
@@ -226,6 +239,7 @@ class WebHumans(ConsoleCore):
                                  "phase": self._desks[h].view().phase.value,
                                  **self._name_of(h)}
                                 for h in range(self.num_humans)]
+            header["operators"] = operators_doc(self._status, self._name_of)
             if self._history:
                 header["point"] = self._history[-1]
         else:

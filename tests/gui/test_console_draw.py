@@ -12,7 +12,7 @@ from gui import draw
 from gui.desk import Desk
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.view import ConsoleView, Phase
-from testbed.core.types import SUCCESS_RADIUS, FleetStatus, Mode, RobotStatus
+from testbed.core.types import SUCCESS_RADIUS, FleetStatus, HumanEstimate, Mode, RobotStatus
 
 LAYOUT = ConsoleLayout(scale=6)
 CUBE = CubeMarker((28 / 64, 36 / 64), 0.0, 4 / 64)  # arm_image()'s cube
@@ -136,6 +136,47 @@ def test_overview_mosaic_borders_and_counters() -> None:
     assert (frame[: draw.OVERVIEW_HEADER_H] != draw.BACKGROUND[0]).any(axis=-1).sum() > 800
     paused = draw.render_overview(status, paused=True)
     assert (paused != frame).any()
+
+
+def test_the_overview_has_a_line_per_human_with_their_estimates(
+    monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Under the tiles, one line per human by label: skill, reset time, latency and the
+    pushes behind them (``FleetStatus.operators``); a human without one says so."""
+    drawn: list[tuple[str, tuple[int, int]]] = []
+    put_text = draw._text
+
+    def recording(img: np.ndarray, text: str, org: tuple[int, int], *args: Any,
+                  **kwargs: Any) -> None:
+        drawn.append((text, org))
+        put_text(img, text, org, *args, **kwargs)
+
+    monkeypatch.setattr(draw, "_text", recording)
+    robots = [RobotStatus(f"cell0/arm{i}", Mode.AUTONOMOUS, arm_image()) for i in range(3)]
+    ops = [HumanEstimate(0, 0.351, 0.01, 5.0, 0.0, 42, 3),
+           HumanEstimate(1, 0.125, 0.08, 7.25, 1.9, 17, 2)]
+    status = FleetStatus(12, 250, 3, 1, 4, 20, 0.125, robots, operators=ops)
+    labels = ["ana (human 0)", "bo (human 1)", "human 2"]
+    frame = draw.render_overview(status, humans=labels)
+    assert frame.shape[:2][::-1] == draw.overview_size(3, 3)
+    assert draw.overview_size(3, 3)[1] > draw.overview_size(3)[1] + 3 * 19
+    lines = [(text, org) for text, org in drawn if text.startswith(tuple(labels))]
+    assert [t for t, _ in lines] == [
+        "ana (human 0):  skill 0.35   reset 5.0 steps   latency 0.0 steps   pushes 42",
+        "bo (human 1):  skill 0.12   reset 7.2 steps   latency 1.9 steps   pushes 17",
+        "human 2: no estimate yet"]
+    _, tiles_end = draw.overview_size(3)
+    assert all(tiles_end < y < frame.shape[0] for _, (_, y) in lines)
+    band = frame[tiles_end:]
+    assert (band != draw.BACKGROUND[0]).any(axis=-1).sum() > 600  # the text is there
+    # without labels: "human i" for each estimate; with neither, the overview of before
+    drawn.clear()
+    plain = draw.render_overview(status)
+    assert [t.split(":")[0] for t, _ in drawn if t.startswith("human ")] == [
+        "human 0", "human 1"]
+    assert plain.shape[:2][::-1] == draw.overview_size(3, 2)
+    before = draw.render_overview(FleetStatus(12, 250, robots=robots))
+    assert before.shape[:2][::-1] == draw.overview_size(3)
 
 
 def test_overview_before_the_first_step() -> None:

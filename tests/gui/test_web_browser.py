@@ -49,7 +49,7 @@ from gui.web.browser import (
     page_state,
     press_key,
 )
-from testbed.core.types import FleetStatus, Mode, RobotStatus
+from testbed.core.types import FleetStatus, HumanEstimate, Mode, RobotStatus
 from testbed.records.steps import read_steps
 
 pytestmark = pytest.mark.browser
@@ -165,6 +165,16 @@ def test_a_key_and_a_tap_push_their_own_humans_arms(
     who = pages[0].find_element(By.ID, "humans").text  # unnamed humans: "human i"
     assert who.startswith("human 0: away \u00b7 human 1: "), who
     assert web._posted[OVERVIEW] > 0
+    # a row per human with what the records say of them (FleetStatus.operators)
+    assert not pages[0].find_element(By.ID, "operators").is_displayed()
+    web.show(5, FleetStatus(5, 24, operators=[
+        HumanEstimate(0, 0.351, 0.01, 5.0, 0.0, 42, 3),
+        HumanEstimate(1, 0.126, 0.08, 7.4, 1.9, 17, 2)]))
+    _wait(lambda: pages[0].find_element(By.ID, "operators").is_displayed(), "the rows")
+    rows = [[td.text for td in tr.find_elements(By.TAG_NAME, "td")] for tr in
+            pages[0].find_elements(By.CSS_SELECTOR, "#operators tbody tr")]
+    assert rows == [["human 0", "0.35", "0.01", "5.0", "0.0", "42"],
+                    ["human 1", "0.13", "0.08", "7.4", "1.9", "17"]], rows
 
 
 IDLE_PANEL = """

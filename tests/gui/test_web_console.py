@@ -61,7 +61,7 @@ from websockets.sync.client import ClientConnection, connect
 from gui import ConsoleUnavailable, StopRequested
 from gui.view import Phase
 from gui.web.web_humans import WebHumans
-from testbed.core.types import FleetStatus, Mode, RobotStatus
+from testbed.core.types import FleetStatus, HumanEstimate, Mode, RobotStatus
 
 TOKENS = ["human0-token-aaaaaaaaaaaa", "human1-token-bbbbbbbbbbbb"]
 GRACE_S = 0.5
@@ -388,6 +388,17 @@ def test_named_humans_on_their_links_pages_frames_and_the_fleets_text() -> None:
             assert fleet["robots"] == [
                 {"robot": "cell0/left", "mode": "teleop", "human": 1, "name": "<b>bo</b>"},
                 {"robot": "cell0/right", "mode": "autonomous", "human": None}]
+            # the overview's rows of the humans' estimates, by name
+            assert overview.latest["operators"] == []
+            web.show(4, FleetStatus(4, 10, operators=[
+                HumanEstimate(0, 0.35, 0.01, 5.0, 0.0, 42, 3),
+                HumanEstimate(1, 0.125, 0.08, 7.25, 1.9, 17, 2)]))
+            head = overview.wait_frame(lambda h: h["operators"] != [])
+            assert head["operators"] == [
+                {"human": 0, "name": "ana", "skill": 0.35, "violations": 0.01,
+                 "reset_steps": 5.0, "latency_steps": 0.0, "pushes": 42, "resets": 3},
+                {"human": 1, "name": "<b>bo</b>", "skill": 0.125, "violations": 0.08,
+                 "reset_steps": 7.25, "latency_steps": 1.9, "pushes": 17, "resets": 2}]
 
 
 # ---- 3: who acts for whom, and what each input means ----------------------------------------

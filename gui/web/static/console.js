@@ -246,6 +246,26 @@ const TestbedConsole = (() => {
     document.getElementById("humans").replaceChildren(...items);
   }
 
+  // One row per human: what the run's records say of them so far (FleetStatus.operators,
+  // the same figures as the OpenCV overview's lines); names as text, never markup.
+  function showOperators(rows) {
+    const table = document.getElementById("operators");
+    table.hidden = rows.length === 0;
+    table.tBodies[0].replaceChildren(...rows.map((x) => {
+      const tr = document.createElement("tr");
+      tr.dataset.human = String(x.human);
+      [label(x.human, x.name), x.skill.toFixed(2), x.violations.toFixed(2),
+       x.reset_steps.toFixed(1), x.latency_steps.toFixed(1), String(x.pushes)]
+        .forEach((text, i) => {
+          const td = document.createElement("td");
+          td.textContent = text;
+          if (i > 0) td.className = "num";
+          tr.appendChild(td);
+        });
+      return tr;
+    }));
+  }
+
   function overviewPage() {
     const curves = document.getElementById("curves");
     const draw = frameDrawer(document.getElementById("mosaic"), (head) => {
@@ -262,6 +282,7 @@ const TestbedConsole = (() => {
           `human actions ${last.human_actions}  idle ${last.idle}  ROHE ${last.rohe}`;
       }
       showHumans(head.humans || []);
+      showOperators(head.operators || []);
       showFlags(head);
       drawCurves(curves, state.points);
     });
