@@ -39,9 +39,17 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
+from testbed.core.types import HumanEstimate
 from testbed.experiments.report_classes import ClassCounts, class_counts, classes_table
 from testbed.experiments.report_gain import gain_tables
-from testbed.experiments.report_humans import HumanCounts, count_humans
+from testbed.experiments.report_humans import (
+    HumanCounts,
+    Profile,
+    RunHumans,
+    count_humans,
+    estimate_humans,
+    scripted_profiles,
+)
 from testbed.experiments.report_tables import (
     Table,
     humans_table,
@@ -84,6 +92,10 @@ class RunRecord:
     humans: list[str] = field(default_factory=list)
     """The humans' names, by index."""
     human_counts: list[HumanCounts] = field(default_factory=list)
+    human_estimates: list[HumanEstimate] = field(default_factory=list)
+    """What the fleet's model said of each human at the run's end (``report_humans``)."""
+    human_profiles: list[Profile | None] = field(default_factory=list)
+    """Each scripted human's profile (None: a person at a console)."""
     digest: str = ""
     """``steps_digest``: equal for runs with identical records."""
     classes: ClassCounts | None = None
@@ -170,6 +182,10 @@ def load_run(path: Path) -> RunRecord:
     return RunRecord(path, algorithm, num_humans, summary, curves, rohe_parts(steps),
                      group=point, meta=meta, config=config, humans=names,
                      human_counts=count_humans(steps, num_humans),
+                     human_estimates=estimate_humans(steps, num_humans,
+                                                     config.get("algorithm", {})),
+                     human_profiles=scripted_profiles(config.get("humans", {}), num_humans,
+                                                      config.get("algorithm", {})),
                      digest=steps_digest(steps), classes=class_counts(path))
 
 
@@ -442,8 +458,9 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
         if all(r.group == r.algorithm for r in learning):  # not for sweeps
             tables.append(rohe_table(learning))
         groups = _groups(learning)
-        tables.append(humans_table({g: [(r.humans, r.human_counts) for r in rs]
-                                    for g, rs in groups.items()}))
+        tables.append(humans_table({g: [RunHumans(r.humans, r.human_counts,
+                                                  r.human_estimates, r.human_profiles)
+                                        for r in rs] for g, rs in groups.items()}))
     if evaluations:
         tables.append(mean_std_table(
             evaluations, EVAL_METRICS, key="eval",

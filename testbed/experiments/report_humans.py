@@ -15,6 +15,11 @@ held an arm and how well their pushes did. Everything here comes from ``steps.js
 
 Names come from the run's ``config.toml`` (``[[humans.people]]``; without them
 ``human0``, ``human1``, ...), so the table says "ana", not "human 0".
+
+Beside the counts, each human's estimates at the run's end as the fleet itself made
+them online (``testbed.fleet.operators.OperatorModel`` fed the same rows:
+:func:`estimate_humans`), and for scripted humans the profile they came from
+(:func:`scripted_profiles`), so a reader sees estimate against truth.
 """
 
 from __future__ import annotations
@@ -24,7 +29,13 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["HumanCounts", "count_humans", "merge"]
+from testbed.core.types import HumanEstimate
+from testbed.fleet.algorithm_config import AlgorithmConfig
+from testbed.fleet.operators import OperatorModel
+from testbed.people.people_config import HumanProfile
+
+__all__ = ["HumanCounts", "Profile", "RunHumans", "count_humans", "estimate_humans", "merge",
+           "scripted_profiles"]
 
 
 @dataclass(slots=True)
@@ -112,3 +123,58 @@ def merge(runs: Sequence[HumanCounts]) -> HumanCounts:
         m.first_push_s += c.first_push_s
         m.reset_steps += c.reset_steps
     return m
+
+
+@dataclass(frozen=True, slots=True)
+class Profile:
+    """What a scripted human was told to be (``[[humans.people]]``): the truth the
+    estimates are read against."""
+
+    skill: float
+    """The chance a teleop push is the expert's (not a success rate: the expert's own
+    pushes succeed only part of the time)."""
+    latency: int
+    """Steps before a first action."""
+    reset_steps: int
+    """Steps a hard reset takes: t_R + latency (``ScriptedHumans``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class RunHumans:
+    """One run's humans, by index, for the per-human table."""
+
+    names: list[str]
+    counts: list[HumanCounts]
+    estimates: list[HumanEstimate] = field(default_factory=list)
+    """At the run's end (:func:`estimate_humans`); empty: not estimated."""
+    profiles: list[Profile | None] = field(default_factory=list)
+    """Scripted humans' profiles (:func:`scripted_profiles`); None for a person."""
+
+
+def estimate_humans(rows: Iterable[Mapping[str, Any]], num_humans: int,
+                    algorithm: Mapping[str, Any]) -> list[HumanEstimate]:
+    """Per human index: what the fleet's own model said of them after the run's last
+    row (``algorithm``: the run's ``[algorithm]`` table, for t_T and t_R)."""
+    defaults = AlgorithmConfig()
+    model = OperatorModel(num_humans, int(algorithm.get("t_T", defaults.t_T)),
+                          int(algorithm.get("t_R", defaults.t_R)))
+    model.observe_all(rows)
+    return model.estimates()
+
+
+def scripted_profiles(humans: Mapping[str, Any], num_humans: int,
+                      algorithm: Mapping[str, Any]) -> list[Profile | None]:
+    """Per human index: the scripted profile of a run's ``[humans]`` table (its
+    ``people``; defaults: the perfect, instant expert), or None for every human when
+    the humans were people at a console (``kind`` gui or web)."""
+    if humans.get("kind", "scripted") != "scripted":
+        return [None] * num_humans
+    t_R = int(algorithm.get("t_R", AlgorithmConfig().t_R))
+    people = list(humans.get("people") or [])
+    out: list[Profile | None] = []
+    for h in range(num_humans):
+        given = people[h] if h < len(people) else {}
+        skill = float(given.get("skill", HumanProfile.model_fields["skill"].default))
+        latency = int(given.get("latency", HumanProfile.model_fields["latency"].default))
+        out.append(Profile(skill, latency, t_R + latency))
+    return out

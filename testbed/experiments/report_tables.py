@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from testbed.experiments.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, paired
-from testbed.experiments.report_humans import HumanCounts, merge
+from testbed.experiments.report_humans import RunHumans, merge
 
 __all__ = ["Table", "humans_table", "identical_groups", "interval_table", "paired_table",
            "steps_digest"]
@@ -169,45 +169,85 @@ def _paired_note(reference: str, pair_counts: Sequence[int]) -> str:
 
 HUMAN_HEADER = ["algorithm", "human", "teleops", "resets", "steps held", "pushes",
                 "success / push", "violations (teleop)", "to first push (steps)",
-                "to first push (s)", "reset took (steps)"]
+                "to first push (s)", "reset took (steps)", "skill est. (profile)",
+                "latency est. (profile)", "reset est. (profile)"]
+_ESTIMATE_CSV = ["skill_estimate", "skill_profile", "latency_estimate", "latency_profile",
+                 "reset_estimate", "reset_profile"]
 
 
 def _mean(xs: Sequence[float], fmt: str) -> str:
     return "-" if not xs else fmt.format(sum(xs) / len(xs))
 
 
-def humans_table(per_group: Mapping[str, Sequence[tuple[list[str], list[HumanCounts]]]]
-                 ) -> Table:
+def _estimates(runs: Sequence[RunHumans], name: str) -> list[tuple[float, Any]]:
+    """(estimate, profile) of skill, latency and reset for human ``name``: the mean of
+    its runs' end-of-run estimates, and its profile's figure (when every run's profile
+    agrees; else None). NaN and None where nothing was estimated or scripted."""
+    ests = [r.estimates[r.names.index(name)] for r in runs
+            if name in r.names and len(r.estimates) == len(r.names)]
+    profs = {r.profiles[r.names.index(name)] for r in runs
+             if name in r.names and len(r.profiles) == len(r.names)}
+    prof = profs.pop() if len(profs) == 1 else None
+    out: list[tuple[float, Any]] = []
+    for est, truth in (("skill", "skill"), ("latency_steps", "latency"),
+                       ("reset_steps", "reset_steps")):
+        value = (sum(getattr(e, est) for e in ests) / len(ests)) if ests else math.nan
+        out.append((value, None if prof is None else getattr(prof, truth)))
+    return out
+
+
+def _beside(value: float, truth: Any, fmt: str) -> str:
+    """``0.342 (1)``: an estimate with the profile's figure beside it."""
+    if math.isnan(value):
+        return "-"
+    return fmt.format(value) + ("" if truth is None else f" ({truth:g})")
+
+
+def humans_table(per_group: Mapping[str, Sequence[RunHumans]]) -> Table:
     """Per algorithm and human (by name): their interventions, time held, time to act,
-    and their pushes' outcomes, summed over the trials (``per_group``: name -> per run
-    (names, counts))."""
+    and their pushes' outcomes, summed over the trials; then what the fleet's own model
+    estimated of them (mean over the trials' ends) beside their scripted profile
+    (``per_group``: name -> its runs' humans)."""
     rows: list[list[str]] = []
     csv_rows: list[list[Any]] = [[h.replace(" / ", "_per_").replace(" ", "_")
-                                  for h in HUMAN_HEADER]]
+                                  for h in HUMAN_HEADER[:-3]] + _ESTIMATE_CSV]
     for group, runs in per_group.items():
         names: list[str] = []
-        for run_names, _ in runs:
-            names += [n for n in run_names if n not in names]
+        for run in runs:
+            names += [n for n in run.names if n not in names]
         for name in names:
-            c = merge([counts[run_names.index(name)] for run_names, counts in runs
-                       if name in run_names])
+            c = merge([run.counts[run.names.index(name)] for run in runs
+                       if name in run.names])
+            est = _estimates(runs, name)
             rate = "-" if math.isnan(c.success_rate) else f"{c.success_rate:.3f}"
             cells = [group, name, str(c.teleops), str(c.resets), str(c.steps_held),
                      str(c.pushes), rate, str(c.violations),
                      _mean(c.first_push_steps, "{:.2f}"), _mean(c.first_push_s, "{:.2f}"),
-                     _mean(c.reset_steps, "{:.2f}")]
+                     _mean(c.reset_steps, "{:.2f}"),
+                     *(_beside(v, t, f) for (v, t), f in zip(est, ("{:.3f}", "{:.2f}",
+                                                                  "{:.2f}"), strict=True))]
             rows.append(cells)
             csv_rows.append([group, name, c.teleops, c.resets, c.steps_held, c.pushes,
                              _num(c.success_rate), c.violations,
                              *(_num(sum(x) / len(x)) if x else "" for x in
-                               (c.first_push_steps, c.first_push_s, c.reset_steps))])
+                               (c.first_push_steps, c.first_push_s, c.reset_steps)),
+                             *(x for v, t in est for x in (_num(v), "" if t is None else t))])
     notes = ["Summed over each algorithm's trials. An intervention starts where a human "
              "is put on an arm; \"to first push\" is from that step to their first push "
              "(0: they pushed on the step they were assigned), in steps and in the "
              "seconds their console measured (scripted humans: steps only; '-': no "
              "console measured it); \"reset took\" is the steps from the "
              "assignment to the confirmation. A push is a teleop step the host executed; "
-             "its success and violation are that step's."]
+             "its success and violation are that step's.",
+             "est.: what the fleet's own model (testbed/fleet/operators.py; the matched "
+             "allocation ranks humans by it) said of the human at the end of each run, "
+             "averaged over the trials: successes per teleop push, steps to the first "
+             "push, steps a reset took, each shrunk towards the fleet's pooled figure "
+             "(a human with few pushes reads near the average). In parentheses, a "
+             "scripted human's profile: its skill is the chance a push is the expert's "
+             "(the expert's own pushes succeed only part of the time, so compare the "
+             "order of the estimates, not their values, with it), its latency in steps, "
+             "and its reset, t_R + latency."]
     return Table("humans", "The humans (per algorithm, summed over trials)", HUMAN_HEADER,
                  rows, notes, csv_rows)
 
