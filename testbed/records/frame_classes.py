@@ -127,8 +127,9 @@ class ClassTracker:
         f = row[0]
         out: list[Settled] = []
         observed, session = bool(f["observed"]), int(f["session"])
-        if arm.violated and int(f["mode"]) not in _AFTER_VIOLATION:
-            out.append(self._settle(arm, EpisodeOutcome.VIOLATION))
+        if arm.violated:  # a reset confirmed early shows the new goal: still the violation's
+            if int(f["mode"]) not in _AFTER_VIOLATION:
+                out.append(self._settle(arm, EpisodeOutcome.VIOLATION))
         elif observed and arm.goal is not None and arm.rows and not np.allclose(
                 f["goal"], arm.goal, atol=GOAL_TOLERANCE, equal_nan=False):
             ending = (EpisodeOutcome.OPEN if session != arm.goal_session

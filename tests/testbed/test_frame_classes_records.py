@@ -123,9 +123,6 @@ def test_the_arms_are_apart_and_a_handover_between_humans_is_no_takeover() -> No
     assert c.outcomes[1::2].tolist() == [SUCCESS] * 5
 
 
-@pytest.mark.xfail(strict=True, reason="frame_classes: a reset confirmed before t_R ends "
-                   "(a console human) shows the new goal while the arm is still in mode "
-                   "reset, and the violated episode is closed as GOAL_CHANGE")
 def test_a_reset_confirmed_early_still_ends_its_episode_as_a_violation() -> None:
     """The allocator holds a reset t_R steps (docs/notes/core.md, rule 2) even when the
     person confirms sooner: the frames after the confirmation are mode reset with the
@@ -157,8 +154,8 @@ def random_run(rng: np.random.Generator, steps: int, arms: int) -> np.ndarray:
             r["action"] = rng.integers(0, 4) if pushes else -1
             r["success"] = pushes and rng.random() < 0.08
             r["violation"] = pushes and not r["success"][0] and rng.random() < 0.05
-            if rng.random() < 0.05 and not tail[a]:  # (a twin's goal changes when the
-                goals[a] = rng.integers(0, 3)         # reset ends: test_a_reset_confirmed...)
+            if rng.random() < 0.05 and not tail[a]:  # (a goal seen during a reset:
+                goals[a] = rng.integers(0, 3)         # test_a_reset_confirmed...)
             tail[a] |= bool(r["violation"][0])
             r["observed"] = MODES[mode] != "fault"
             r["goal"] = (0.1 * goals[a], 0.5) if r["observed"][0] else (np.nan, np.nan)
