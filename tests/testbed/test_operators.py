@@ -305,6 +305,24 @@ def test_the_best_human_takes_the_top_arm_even_from_its_last_holder() -> None:
     assert alloc.served.tolist() == [1, 1]
 
 
+def test_matched_with_humans_who_leave_and_come_back() -> None:
+    """The expert away: the careless one is no stand-in for a teleop (the arm stays the
+    policy's) but takes a reset; gone mid-reset: released, the arm a candidate again;
+    back: the top arm is the expert's again."""
+    model = _expert_and_careless(t_T=1, t_R=2)
+    alloc = Allocator(2, 2, min_teleop_steps=1, hard_reset_steps=2, seed=0)
+    calm = np.zeros(2, dtype=bool)
+    keys = np.array([2.0, 1.0])
+    both, expert_away = np.array([True, True]), np.array([False, True])
+    assert alloc.step(keys, calm, both, model.gains(calm)).tolist() == [0, -1]
+    assert alloc.step(keys, calm, expert_away, model.gains(calm)).tolist() == [-1, -1]
+    viol = np.array([False, True])
+    assert alloc.step(keys, viol, expert_away, model.gains(viol)).tolist() == [-1, 1]
+    assert alloc.release_human(1) == 1  # gone past the grace period
+    assert alloc.step(keys, viol, both, model.gains(viol)).tolist() == [0, 1]
+    assert alloc.kinds == ["teleop", "reset"]
+
+
 def test_bad_gains_are_clear_value_errors() -> None:
     alloc = Allocator(2, 2, 1, 1, seed=0)
     calm = np.zeros(2, dtype=bool)
