@@ -25,9 +25,9 @@ the per-human table):
 The estimates are posterior means with pseudo-counts, in two levels (so a newcomer
 starts at the fleet's pooled average, and the pooled average itself starts somewhere):
 
-=================  ====================================  ==============================
+=================  ====================================  ================================
 estimate           a human's own, shrunk towards          the humans' pool, shrunk towards
-=================  ====================================  ==============================
+=================  ====================================  ================================
 skill              the pool, weight ``PRIOR_PUSHES``      the policy's success per push,
                                                           weight ``POOL_PUSHES``
 violations         the pool, weight ``PRIOR_PUSHES``      the policy's violations per
@@ -37,7 +37,7 @@ latency (steps)    the pool, weight ``PRIOR_TIMES``       0 (Algorithm 1's assum
                                                           weight ``PRIOR_TIMES``
 reset (steps)      the pool, weight ``PRIOR_TIMES``       t_R (the rules' minimum),
                                                           weight ``PRIOR_TIMES``
-=================  ====================================  ==============================
+=================  ====================================  ================================
 
 The policy's own rates are Beta(1, 1) posterior means (Laplace's rule): it pushes on
 nearly every arm at every step, so its prior is gone after a step or two.
