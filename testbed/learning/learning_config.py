@@ -31,7 +31,7 @@ class ClassWeights(StrictModel):
     teleop: float = _weight(2.0, "a human's teleop push (a correction)")
     robot: float = _weight(1.0, "the policy's push in an episode that succeeded")
     pre_intervention: float = _weight(
-        0.0, "the policy's push among its last k before a human took the arm")
+        0.5, "the policy's push among its last k before a human took the arm")
     robot_failed: float = _weight(
         0.0, "the policy's push in an episode that did not succeed (violation, goal change)")
 

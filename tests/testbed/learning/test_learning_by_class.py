@@ -136,13 +136,16 @@ def test_the_loop_feeds_robot_pushes_by_class_and_a_resume_rebuilds_the_same_lea
     fed = set(zip(classes.tolist(), outcomes.tolist(), strict=True))
     assert (FrameClass.ROBOT, EpisodeOutcome.SUCCESS) in fed  # the robot's good pushes
     assert (FrameClass.TELEOP, EpisodeOutcome.OPEN) in fed  # labels, as they come
-    assert all(c in (FrameClass.DEMO, FrameClass.TELEOP) or (
+    assert any(c == FrameClass.PRE_INTERVENTION for c, _ in fed)  # kept at its weight
+    assert all(c in (FrameClass.DEMO, FrameClass.TELEOP, FrameClass.PRE_INTERVENTION) or (
         c == FrameClass.ROBOT and o == EpisodeOutcome.SUCCESS) for c, o in fed), fed
-    # exactly the ROBOT frames of succeeded episodes that classify() finds in the store
+    # exactly the robot frames that classify() finds in the store and the weights keep:
+    # ROBOT in succeeded episodes, PRE_INTERVENTION in any (robot_failed is 0)
     got = classify(RunData.of_run(tmp_path / "whole").frames(), len(ARMS), 2)
     want = (got.classes == FrameClass.ROBOT) & (got.outcomes == EpisodeOutcome.SUCCESS)
+    pre = (got.classes == FrameClass.PRE_INTERVENTION) & (got.outcomes != EpisodeOutcome.OPEN)
     assert int(np.count_nonzero(classes == FrameClass.ROBOT)) == int(want.sum()) > 0
-    assert np.count_nonzero(got.classes == FrameClass.PRE_INTERVENTION) > 0
+    assert int(np.count_nonzero(classes == FrameClass.PRE_INTERVENTION)) == int(pre.sum()) > 0
 
     # the same run stopped after step cut - 1 and resumed: the learner rebuilt the way
     # a resume does (start, data replayed, the step's training state), the loop's open
