@@ -1,0 +1,323 @@
+"""``testbed plan RUNS... --robots 4,8,16 --humans 1,2,4``: how many people for how many arms.
+
+Why: a physical sweep of fleet sizes costs a lab days of robots and people; the runs it
+already has say how often its arms ask for help and how long its people take. This
+module fits those per algorithm (:mod:`testbed.experiments.plan_fit`), replays Algorithm
+1 on them for every N x M point (:mod:`testbed.experiments.plan_sim`) and writes:
+
+* ``plan.md`` (also printed): per algorithm, the fitted processes, a table of every
+  point's predictions with intervals, the check at the runs' own point (predicted
+  against measured), where one more human stops paying, and the one-line answer to "one
+  more person or two more arms";
+* ``plan.csv``: one row per algorithm, point and metric (``algorithm, point, N, M,
+  metric, mean, low, high``), for comparing with a measured sweep;
+* ``plan-<algorithm>.png``: the paper's figure 7 (successes, idle time, hard resets,
+  human actions, ROHE, utilisation against M, one line per N, shaded interval).
+
+Intervals: per replicate the fitted rates are redrawn from their posteriors
+(``PlanFit.draw``) and one run (or the mean of ``runs`` runs, as a sweep averages its
+seeds) is simulated with them; the interval is the central ``LEVEL`` of the
+replicates. The same draw serves every point of a replicate, so differences between
+points (the marginal human, person against arms) are paired.
+
+"Stops paying" (per N, along the grid's M): going from M to the next M' stops paying
+when the successes it adds per added human fall below ``min_gain`` of the successes at
+M (default 5%), or when ROHE falls. Why both: ROHE = (M/N) S/(1+A) grows with M by
+itself, so it can rise while the extra person adds almost nothing a lab can use; and a
+fall in ROHE means the added successes do not cover the added help even by the paper's
+own measure. 5%: below that a person's effect is inside a trial's noise at the paper's
+sizes (docs/notes/plan.md).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import re
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from testbed.core.atomic import atomic_write_bytes
+from testbed.core.config import ConfigError
+from testbed.experiments.plan_fit import BIN_STEPS, METRICS, Draws, PlanFit, fit_runs
+from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
+
+__all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "write_plan"]
+
+LEVEL: Final = 0.95
+FloatArray = npt.NDArray[np.float64]
+Point = tuple[int, int]
+TITLES: Final = {"successes": "successes", "hard_resets": "hard resets",
+                 "idle_time": "idle time", "human_actions": "human actions",
+                 "rohe": "ROHE", "utilisation": "utilisation", "wait": "wait (steps)",
+                 "unserved": "unserved requests"}
+FIGURE: Final = ("successes", "idle_time", "hard_resets", "human_actions", "rohe",
+                 "utilisation")
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """What ``testbed plan`` was asked (its flags)."""
+
+    robots: tuple[int, ...]
+    humans: tuple[int, ...]
+    steps: int | None = None
+    """Steps per planned run (default: the fit's longest run)."""
+    replicates: int = 200
+    runs: int = 1
+    """Simulated runs averaged per replicate: a sweep's seeds per point."""
+    bin_steps: int = BIN_STEPS
+    min_gain: float = 0.05
+    seed: int = 0
+
+
+@dataclass
+class AlgorithmPlan:
+    """One algorithm's fit and its predictions, per point: metric -> (R,) values."""
+
+    fit: PlanFit
+    steps: int
+    points: dict[Point, dict[str, FloatArray]]
+    check: dict[str, FloatArray]
+    """The runs' own point simulated at the runs' own length (against ``fit.measured``)."""
+    knees: list[str] = field(default_factory=list)
+    answer: str = ""
+
+
+@dataclass
+class Plan:
+    folder: Path
+    markdown: str
+    plans: list[AlgorithmPlan]
+    files: list[Path]
+    notes: list[str]
+
+
+def write_plan(dirs: list[Path], options: PlanOptions, out: Path) -> Plan:
+    """Fit, simulate, and write plan.md, plan.csv and one PNG per algorithm in ``out``."""
+    found = find_runs(dirs)
+    if not found:
+        raise ConfigError("RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below "
+                          "the folders given)")
+    fits, notes = fit_runs(found, options.bin_steps)
+    plans = [plan_algorithm(fit, options) for fit in fits]
+    out.mkdir(parents=True, exist_ok=True)
+    files = [out / "plan.md", out / "plan.csv"]
+    md = "\n".join(_markdown(p, options) for p in plans)
+    md += "".join(f"\n{n}.\n" for n in notes)
+    atomic_write_bytes(files[0], md.encode())
+    atomic_write_bytes(files[1], _csv(plans).encode())
+    for p in plans:
+        png = out / f"plan-{_slug(p.fit.label)}.png"
+        atomic_write_bytes(png, _figure(p, options))
+        files.append(png)
+    return Plan(out, md, plans, files, notes)
+
+
+def find_runs(dirs: list[Path]) -> list[Path]:
+    """Run folders (with a steps.jsonl) among or below ``dirs`` (as the report finds them)."""
+    found: list[Path] = []
+    for d in dirs:
+        if (d / "steps.jsonl").exists():
+            found.append(d)
+        else:
+            found.extend(sorted(p.parent for p in d.glob("*/steps.jsonl")))
+    return found
+
+
+def _slug(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", label)
+
+
+def plan_algorithm(fit: PlanFit, options: PlanOptions) -> AlgorithmPlan:
+    """Every point of the grid, the runs' own point and its two neighbours (one more
+    person, two more arms), all with the same posterior draws."""
+    steps = options.steps or fit.steps
+    draws = fit.draw(options.replicates, np.random.default_rng([options.seed, 1]))
+    draws = _repeat(draws, options.runs)
+    shape = FleetShape(fit.t_T, fit.t_R, fit.t_I, fit.bin_steps, fit.order,
+                       fit.initial_period)
+    n0, m0 = fit.own
+    wanted = [(n, m) for n in options.robots for m in options.humans]
+    wanted += [p for p in ((n0, m0), (n0, m0 + 1), (n0 + 2, m0)) if p not in wanted]
+
+    def run(point: Point, length: int, salt: int) -> dict[str, FloatArray]:
+        n, m = point
+        values = simulate(sim_params(draws, m), shape, n, m, length,
+                          seed=np.random.SeedSequence([options.seed, n, m, salt]))
+        return {k: v.reshape(options.replicates, options.runs).mean(axis=1)
+                for k, v in values.items()}
+
+    points = {p: run(p, steps, 0) for p in wanted}
+    plan = AlgorithmPlan(fit, steps, points, run((n0, m0), fit.steps, 1))
+    plan.knees = [_knee(plan, n, options) for n in options.robots]
+    plan.answer = _answer(plan)
+    return plan
+
+
+def _repeat(draws: Draws, k: int) -> Draws:
+    """Each replicate's draw ``k`` times in a row (its ``k`` simulated runs)."""
+    if k == 1:
+        return draws
+    keep = {"latency_values", "reset_values"}
+    return replace(draws, **{f.name: np.repeat(getattr(draws, f.name), k, axis=0)
+                             for f in fields(draws) if f.name not in keep})
+
+
+def _iv(v: FloatArray) -> tuple[float, float, float]:
+    lo, hi = np.quantile(v, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
+    return float(v.mean()), float(lo), float(hi)
+
+
+def _fmt(metric: str, x: float) -> str:
+    return (f"{x:.3f}" if metric in ("rohe", "utilisation", "unserved")
+            else f"{x:.2f}" if metric == "wait" else f"{x:.1f}")
+
+
+def _cell(metric: str, v: FloatArray) -> str:
+    mean, lo, hi = _iv(v)
+    return f"{_fmt(metric, mean)} [{_fmt(metric, lo)}, {_fmt(metric, hi)}]"
+
+
+def _knee(plan: AlgorithmPlan, n: int, options: PlanOptions) -> str:
+    """Where one more human stops paying at N = n (module doc), in one line."""
+    ms = sorted(options.humans)
+    for m, nxt in itertools.pairwise(ms):
+        a, b = plan.points[(n, m)], plan.points[(n, nxt)]
+        base = np.maximum(a["successes"], 1.0)
+        gain = (b["successes"] - a["successes"]) / (nxt - m) / base
+        d_rohe = b["rohe"] - a["rohe"]
+        g, glo, ghi = _iv(gain)
+        if g < options.min_gain or d_rohe.mean() < 0:
+            why = (f"ROHE falls {_iv(a['rohe'])[0]:.3f} -> {_iv(b['rohe'])[0]:.3f}"
+                   if d_rohe.mean() < 0 else f"below {options.min_gain:.0%}")
+            return (f"N={n}: one more human stops paying after M={m} (M={m}->{nxt}: "
+                    f"{g:+.1%} successes per added human [{glo:+.1%}, {ghi:+.1%}]; {why})")
+    if len(ms) < 2:
+        return f"N={n}: one value of M only; nothing to compare"
+    return (f"N={n}: every added human still pays up to M={ms[-1]}, the grid's largest "
+            f"(at least {options.min_gain:.0%} more successes each, ROHE not falling)")
+
+
+def _answer(plan: AlgorithmPlan) -> str:
+    """"One more person or two more arms", decided by successes (paired by replicate)."""
+    n, m = plan.fit.own
+    here, person, arms = (plan.points[(n, m)], plan.points[(n, m + 1)],
+                          plan.points[(n + 2, m)])
+    dp = person["successes"] - here["successes"]
+    da = arms["successes"] - here["successes"]
+    diff, lo, hi = _iv(da - dp)
+    choice = ("two more arms" if lo > 0 else "one more person" if hi < 0
+              else "either (the difference is inside the interval)")
+    r0, rp, ra = (_iv(x["rohe"])[0] for x in (here, person, arms))
+    return (f"{plan.fit.label} at N={n}, M={m}: {choice}: one more person "
+            f"{_cell('successes', dp)} successes (ROHE {r0:.3f} -> {rp:.3f}), two more "
+            f"arms {_cell('successes', da)} (ROHE {r0:.3f} -> {ra:.3f}); arms minus "
+            f"person {diff:+.1f} [{lo:+.1f}, {hi:+.1f}]")
+
+
+def _markdown(plan: AlgorithmPlan, options: PlanOptions) -> str:
+    fit = plan.fit
+    n0, m0 = fit.own
+    head = (f"## Plan: {fit.label}\n\nFit: {len(fit.runs)} run(s) of {fit.algorithm} "
+            f"({', '.join(p.name for p in fit.runs)}) at N={n0}, M={m0}, up to {fit.steps} "
+            f"steps (t_T={fit.t_T}, t_R={fit.t_R}); predicted for {plan.steps} steps, "
+            f"{options.replicates} replicates"
+            + (f" of the mean of {options.runs} runs" if options.runs > 1 else "")
+            + f", {LEVEL:.0%} intervals.\n")
+    cols = ["N", "M", *(TITLES[m] for m in METRICS)]
+    lines = [head, "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    grid = [(n, m) for n in options.robots for m in options.humans]
+    for p in grid:
+        lines.append(f"| {p[0]} | {p[1]} | "
+                     + " | ".join(_cell(k, plan.points[p][k]) for k in METRICS) + " |")
+    lines += ["", *_check(plan), "", *_processes(fit), "", "Where one more human stops "
+              f"paying (successes per added human below {options.min_gain:.0%} of those "
+              "at M, or ROHE falling):", "", *(f"- {k}" for k in plan.knees), "",
+              f"One more person or two more arms? {plan.answer}.", *fit.notes, ""]
+    return "\n".join(lines)
+
+
+def _check(plan: AlgorithmPlan) -> list[str]:
+    """The runs' own point: what they measured against what the plan predicts for it."""
+    fit = plan.fit
+    measured = {k: np.array([m[k] for m in fit.measured]) for k in METRICS}
+    cols = ["", *(TITLES[m] for m in METRICS)]
+    return [f"Check at the runs' own point (N={fit.own[0]}, M={fit.own[1]}, "
+            f"{fit.steps} steps):", "", "| " + " | ".join(cols) + " |",
+            "|" + "---|" * len(cols),
+            "| measured (mean of runs) | " + " | ".join(
+                _fmt(k, float(measured[k].mean())) for k in METRICS) + " |",
+            "| predicted | " + " | ".join(_cell(k, plan.check[k]) for k in METRICS) + " |"]
+
+
+def _processes(fit: PlanFit) -> list[str]:
+    """What the fit found, in two small tables: by phase, and by human."""
+    b = fit.bins
+    req, cont = fit.requests.means(b), fit.continues.means(b)
+    pol = fit.policy.array(b)
+    lines = ["Fitted, by phase (posterior means; pushes: the policy's):", "",
+             "| steps | teleop requests per arm-step | teleop goes on | policy pushes | "
+             "success per push | violation per push |", "|---|---|---|---|---|---|"]
+    for i in range(b):
+        pushes = pol[i].sum()
+        rate = (pol[i] / pushes) if pushes else np.full(3, np.nan)
+        lines.append(f"| {i * fit.bin_steps}-{(i + 1) * fit.bin_steps - 1} | {req[i]:.3f} | "
+                     f"{cont[i]:.3f} | {int(pushes)} | {rate[0]:.3f} | {rate[1]:.3f} |")
+    lines += ["", "| human | pushes | success per push | violation per push | latency "
+              "(steps) | reset (steps) | available |", "|---|---|---|---|---|---|---|"]
+    for h in fit.humans:
+        tot = h.pushes.total()
+        n = tot.sum()
+        lat = f"{np.mean(h.latency):.2f}" if h.latency else "-"
+        rst = f"{np.mean(h.reset_steps):.2f}" if h.reset_steps else "-"
+        avail = h.present / (h.present + h.away) if h.present + h.away else 1.0
+        lines.append(f"| {h.name} | {int(n)} | "
+                     + (f"{tot[0] / n:.3f} | {tot[1] / n:.3f}" if n else "- | -")
+                     + f" | {lat} | {rst} | {avail:.3f} |")
+    return lines
+
+
+def _csv(plans: list[AlgorithmPlan]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["algorithm", "point", "N", "M", "metric", "mean", "low", "high"])
+    for p in plans:
+        for (n, m), values in p.points.items():
+            for k in METRICS:
+                mean, lo, hi = _iv(values[k])
+                w.writerow([p.fit.label, f"N{n}-M{m}", n, m, k, round(mean, 6),
+                            round(lo, 6), round(hi, 6)])
+    return buf.getvalue()
+
+
+def _figure(plan: AlgorithmPlan, options: PlanOptions) -> bytes:
+    """The paper's figure 7 for the plan: each metric against M, one line per N."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ms = sorted(options.humans)
+    fig, axes = plt.subplots(2, 3, figsize=(12.6, 7.2))
+    for ax, metric in zip(axes.flat, FIGURE, strict=True):
+        for n in options.robots:
+            stats = np.array([_iv(plan.points[(n, m)][metric]) for m in ms])
+            ax.plot(ms, stats[:, 0], marker="o", label=f"N = {n}")
+            ax.fill_between(ms, stats[:, 1], stats[:, 2], alpha=0.2)
+        ax.set_title(TITLES[metric])
+        ax.set_xlabel("humans M")
+        ax.set_xticks(ms)
+        ax.grid(alpha=0.3)
+    axes.flat[0].legend()
+    fig.suptitle(f"Plan: {plan.fit.label} ({plan.steps} steps, {LEVEL:.0%} intervals)")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()
