@@ -244,3 +244,121 @@ REPORT = Verb(
     "report.md, report.html (one self-contained page with the curves and the runs' "
     "metadata), CSVs, curves.png.",
     add_arguments=_report_arguments, run=cmd_report)
+
+
+# ---- plan -------------------------------------------------------------------------------
+TRIALS_METRICS = ["successes", "hard_resets", "idle_time", "human_actions", "rohe"]
+"""The report's metrics (``testbed.experiments.report.METRICS``), named here so that
+``testbed --help`` imports no report."""
+TRIALS_DEFAULTS = {"metric": "rohe", "alpha": 0.05, "power": 0.8, "max_trials": 30}
+"""``--trials``'s flags: None when not given, so one given without ``--trials`` is named."""
+
+
+def _positive_list(text: str) -> tuple[int, ...]:
+    """An argparse type: ``4,8,16``, sorted, each once."""
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(
+            f"expected a comma-separated list of positive integers, got {text!r}")
+    return tuple(sorted(set(values)))
+
+
+def _fraction(text: str) -> float:
+    """An argparse type: a number strictly between 0 and 1."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not 0.0 < v < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number between 0 and 1, got {text!r}")
+    return v
+
+
+def _plan_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dirs", nargs="+", metavar="RUN_OR_PROTOCOL_DIR")
+    p.add_argument("--robots", type=_positive_list, metavar="N,N,...",
+                   help="fleet sizes to plan for, e.g. 4,8,16")
+    p.add_argument("--humans", type=_positive_list, metavar="M,M,...",
+                   help="numbers of humans to plan for, e.g. 1,2,4")
+    p.add_argument("--steps", type=positive, metavar="T",
+                   help="steps per planned run (default: the runs' longest)")
+    p.add_argument("--replicates", type=positive, default=200, metavar="R",
+                   help="posterior draws behind each interval (default 200)")
+    p.add_argument("--runs", type=positive, default=1, metavar="K",
+                   help="simulated runs averaged per replicate, as a sweep averages its "
+                   "seeds (default 1: the interval of one run)")
+    p.add_argument("--bin-steps", type=positive, default=25, metavar="S",
+                   help="steps per phase of the fitted rates (default 25)")
+    p.add_argument("--min-gain", type=_fraction, default=0.05, metavar="F",
+                   help="an added human pays while it adds at least this share of "
+                   "successes (default 0.05) and ROHE does not fall")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", metavar="DIR", help="where to write plan.md, plan.csv and the "
+                   "figures (default: first dir)")
+    g = p.add_argument_group("trials a comparison needs (--trials)")
+    g.add_argument("--trials", action="store_true",
+                   help="instead: from a pilot protocol, the trials each comparison needs")
+    g.add_argument("--reference", metavar="ALGORITHM",
+                   help="what the others are compared with (default: as testbed report)")
+    g.add_argument("--metric", choices=TRIALS_METRICS, help="default rohe")
+    g.add_argument("--alpha", type=_fraction, help="default 0.05")
+    g.add_argument("--power", type=_fraction, help="default 0.8")
+    g.add_argument("--max-trials", type=positive, metavar="K", help="default 30")
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    dirs = [Path(d) for d in args.dirs]
+    for d in dirs:
+        if not d.is_dir():
+            raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no such folder {str(d)!r}")
+    trial_flags = ["reference", *TRIALS_DEFAULTS]
+    if args.trials:
+        return _plan_trials(args, dirs)
+    for name in trial_flags:
+        if getattr(args, name) is not None:
+            raise ConfigError(f"--{name.replace('_', '-')}: only with --trials")
+    for flag in ("robots", "humans"):
+        if getattr(args, flag) is None:
+            raise ConfigError(f"--{flag}: required (a comma-separated list of positive "
+                              "integers, e.g. --robots 4,8,16 --humans 1,2,4), or give --trials")
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    from testbed.experiments.plan import PlanOptions, write_plan
+
+    options = PlanOptions(args.robots, args.humans, args.steps, args.replicates, args.runs,
+                          args.bin_steps, args.min_gain, args.seed)
+    plan = write_plan(dirs, options, Path(args.out) if args.out else dirs[0])
+    print(plan.markdown)
+    print("plan: " + ", ".join(str(f) for f in plan.files))
+    return 0
+
+
+def _plan_trials(args: argparse.Namespace, dirs: list[Path]) -> int:
+    """``--trials``: the trials planner (issue 31's second part), when this build has it."""
+    try:
+        from testbed.experiments.plan_trials import plan_trials
+    except ModuleNotFoundError as exc:
+        if exc.name != "testbed.experiments.plan_trials":
+            raise
+        raise ConfigError("--trials: this build has no trials planner yet "
+                          "(testbed.experiments.plan_trials)") from None
+    given = {k: getattr(args, k) for k in TRIALS_DEFAULTS}
+    opts = {k: TRIALS_DEFAULTS[k] if v is None else v for k, v in given.items()}
+    print(plan_trials(dirs, reference=args.reference, metric=str(opts["metric"]),
+                      alpha=float(opts["alpha"]), power=float(opts["power"]),
+                      max_trials=int(opts["max_trials"])))
+    return 0
+
+
+PLAN = Verb(
+    "plan", help="how many people for how many arms (or, --trials, how many trials)",
+    description="From finished runs or protocols: fit per algorithm how often arms ask "
+    "for a teleop or a reset and how long each human takes, then replay Algorithm 1 for "
+    "every N x M point: utilisation, wait, idle time, hard resets, human actions, "
+    "successes and ROHE with intervals; plan.md, plan.csv, plan-<algorithm>.png (the "
+    "paper's figure 7), where one more human stops paying, and one more person or two "
+    "more arms. With --trials: the trials each comparison against the reference needs.",
+    add_arguments=_plan_arguments, run=cmd_plan)

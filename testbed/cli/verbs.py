@@ -18,6 +18,7 @@ VERBS: tuple[Verb, ...] = (
     run_verbs.PROTOCOL,
     run_verbs.SWEEP,
     data_verbs.REPORT,
+    data_verbs.PLAN,
     lab_verbs.DEPLOY,
     lab_verbs.CHECK,
     lab_verbs.CALIBRATE,
