@@ -1,0 +1,105 @@
+"""The planner's simulation is Algorithm 1, and replays the loop's world.
+
+* ``BatchAllocator`` (the planner's vectorised allocation) against the real
+  ``testbed.fleet.allocator.Allocator`` on the same requests, step by step: the same
+  assignments, kinds and served counts, with keys that tie (so the tie draw, reproduced
+  from each allocator's seed, decides too), away humans, M above and below N, K = 1..3.
+* the whole simulation gives the same numbers whichever engine allocates (the real
+  allocators one replicate after another, or the batch), for each key order.
+* with the world's true rates (no fit), the simulation's means are the real loop's
+  (``plan_fakes``: the real ``FleetLoop`` and scripted humans in a world of known rates)
+  at fleet sizes other than the fit's: what makes it a model of the loop.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from plan_fakes import World, run_world
+
+from testbed.experiments.plan_fit import METRICS, Draws, KeyOrder, fit_runs
+from testbed.experiments.plan_sim import BatchAllocator, FleetShape, sim_params, simulate
+from testbed.fleet.allocator import Allocator
+from testbed.people.people_config import HumanProfile
+
+
+@pytest.mark.parametrize(("n", "m", "k"), [(7, 3, 2), (3, 5, 3), (9, 1, 1), (6, 6, 2)])
+def test_the_batch_allocator_is_algorithm_1_on_the_same_requests(n: int, m: int,
+                                                                  k: int) -> None:
+    replicates, t_T, t_R = 5, 2, 3
+    real = [Allocator(n, m, t_T, t_R, seed=s) for s in range(replicates)]
+    streams = [np.random.default_rng(s) for s in range(replicates)]  # the allocators' own
+    batch = BatchAllocator(replicates, n, m, t_T, t_R)
+    rng = np.random.default_rng(42)
+    viol = np.zeros((replicates, n), dtype=bool)
+    kinds_seen: set[int] = set()
+    for _ in range(400):
+        viol = (viol & (rng.random((replicates, n)) > 0.3)) | (rng.random((replicates, n)) < 0.1)
+        keys = rng.choice([-1.0, 0.0, 0.0, 0.5, 1.0], size=(replicates, n, k))  # ties galore
+        available = rng.random((replicates, m)) < 0.8
+        tie = np.stack([s.random(n) for s in streams])
+        human, kind, served = batch.step(keys, viol, available, tie)
+        for r, a in enumerate(real):
+            assert a.step(keys[r], viol[r], available[r]).tolist() == human[r].tolist()
+            assert a.kind_codes.tolist() == kind[r].tolist()
+            assert a.served.tolist() == served[r].tolist()
+        kinds_seen |= set(kind.ravel().tolist())
+    assert kinds_seen == {0, 1, 2}  # teleops and resets both happened
+
+
+def truth(world: World, replicates: int, bins: int, bin_steps: int, *,
+          available: tuple[float, float] = (1.0, 0.7), eligible: float = 1.0) -> Draws:
+    """The world's own rates as one draw per replicate (no fit): ana instant, bo 2
+    steps late to a first push and to finish a reset, and away 30% of the time."""
+    req = np.array([world.request(b * bin_steps) for b in range(bins)])
+    s, v = world.policy
+    hs, hv = world.human
+    return Draws(
+        request=np.tile(req, (replicates, 1)), cont=np.tile(req, (replicates, 1)),
+        eligible=np.full((replicates, bins), eligible),
+        policy=np.tile([s, v, 1 - s - v], (replicates, bins, 1)),
+        human=np.tile([hs, hv, 1 - hs - hv], (replicates, 2, 1)),
+        available=np.tile(available, (replicates, 1)),
+        latency_values=np.array([0, 2]),
+        latency_cdf=np.tile([[1.0, 1.0], [0.0, 1.0]], (replicates, 1, 1)),
+        reset_values=np.array([world.t_R, world.t_R + 2]),
+        reset_cdf=np.tile([[1.0, 1.0], [0.0, 1.0]], (replicates, 1, 1)))
+
+
+@pytest.mark.parametrize(("order", "initial"), [("resets_first", True),
+                                                ("teleops_first", False), ("mixed", False)])
+def test_the_simulation_allocates_as_the_real_allocator(order: KeyOrder,
+                                                        initial: bool) -> None:
+    world = World(policy=(0.2, 0.06))
+    draws = truth(world, 8, 3, 50, eligible=0.6)
+    shape = FleetShape(world.t_T, world.t_R, 20, 50, order, initial)
+    got = {engine: simulate(sim_params(draws, 3), shape, 7, 3, 120, seed=5, engine=engine)
+           for engine in ("batch", "real")}
+    for metric in METRICS:
+        np.testing.assert_array_equal(got["batch"][metric], got["real"][metric])
+    busy = got["batch"]
+    assert (busy["hard_resets"] > 0).all() and (busy["human_actions"] > 0).all()
+    assert (busy["unserved"] > 0).all()  # the humans were short: the allocation mattered
+
+
+def test_the_simulation_with_the_true_rates_measures_what_the_loop_measures(
+        tmp_path: Path) -> None:
+    # The loop's runs at two fleet sizes against the simulation's 400 replicates of the
+    # same world: every metric's mean within 3.5 standard errors (with these seeds the
+    # largest is ~1.5).
+    world = World(policy=(0.2, 0.02))
+    people = [HumanProfile(name="ana"), HumanProfile(name="bo", latency=2, availability=0.7)]
+    shape = FleetShape(world.t_T, world.t_R, 0, 50, "resets_first", False)
+    draws = truth(world, 400, 4, 50)
+    for n, m in ((4, 1), (9, 3)):
+        sim = simulate(sim_params(draws, m), shape, n, m, 200, seed=1)
+        runs = [run_world(tmp_path / f"n{n}m{m}s{s}", world, arms=n, steps=200, seed=100 + s,
+                          people=[people[h % 2] for h in range(m)]) for s in range(6)]
+        measured = fit_runs(runs, 50)[0][0].measured
+        for metric in METRICS:
+            x = np.array([row[metric] for row in measured])
+            v = sim[metric]
+            se = np.sqrt(v.var() / x.size + v.var() / v.size)
+            assert abs(x.mean() - v.mean()) <= 3.5 * se + 1e-9, (n, m, metric, x, v.mean())
