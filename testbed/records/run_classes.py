@@ -26,6 +26,7 @@ from typing import Any, Final
 
 import numpy as np
 
+from testbed.core.backend_registry import DEFAULT_BACKEND, BackendError, backend
 from testbed.core.types import MAX_PUSHES_PER_GOAL, EpisodeOutcome, FrameClass, Mode
 from testbed.records.frame_classes import DEFAULT_PRE_STEPS, Classes, classify
 from testbed.records.steps import RecordError, read_steps
@@ -191,9 +192,16 @@ def row_frames(rows: Sequence[dict[str, Any]], robots: Sequence[str],
 
 
 def _twin_fleet(run: Path) -> bool:
-    """Every host of the run's config is a twin (``backend`` absent or "twin")."""
+    """Every host of the run's config is simulated (its backend's capability: the twin's
+    timeout is a rule of the simulation); a backend not installed here is not."""
     hosts = _config(run).get("hosts")
-    return bool(hosts) and all(h.get("backend", "twin") == "twin" for h in hosts)
+    if not hosts:
+        return False
+    try:
+        return all(backend(str(h.get("backend", DEFAULT_BACKEND))).capabilities.simulated
+                   for h in hosts)
+    except BackendError:
+        return False
 
 
 def _resumed(run: Path) -> list[float]:
