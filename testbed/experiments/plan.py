@@ -47,7 +47,8 @@ from testbed.core.config import ConfigError
 from testbed.experiments.plan_fit import BIN_STEPS, METRICS, Draws, PlanFit, fit_runs
 from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
 
-__all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "write_plan"]
+__all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "find_runs", "plan_algorithm",
+           "write_fits", "write_plan"]
 
 LEVEL: Final = 0.95
 FloatArray = npt.NDArray[np.float64]
@@ -105,6 +106,13 @@ def write_plan(dirs: list[Path], options: PlanOptions, out: Path) -> Plan:
         raise ConfigError("RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below "
                           "the folders given)")
     fits, notes = fit_runs(found, options.bin_steps)
+    return write_fits(fits, notes, options, out)
+
+
+def write_fits(fits: list[PlanFit], notes: list[str], options: PlanOptions,
+               out: Path) -> Plan:
+    """Plan every fit and write the files (``write_plan`` after the fit; a benchmark's
+    made-up fit)."""
     plans = [plan_algorithm(fit, options) for fit in fits]
     out.mkdir(parents=True, exist_ok=True)
     files = [out / "plan.md", out / "plan.csv"]
