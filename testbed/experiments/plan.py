@@ -25,8 +25,8 @@ when the successes it adds per added human fall below ``min_gain`` of the succes
 M (default 5%), or when ROHE falls. Why both: ROHE = (M/N) S/(1+A) grows with M by
 itself, so it can rise while the extra person adds almost nothing a lab can use; and a
 fall in ROHE means the added successes do not cover the added help even by the paper's
-own measure. 5%: below that a person's effect is inside a trial's noise at the paper's
-sizes (docs/notes/plan.md).
+own measure. 5%: below that a person's effect is inside the trial-to-trial spread of
+successes (~8% on the twin; docs/notes/plan.md).
 """
 
 from __future__ import annotations

@@ -88,7 +88,7 @@ def test_the_simulation_with_the_true_rates_measures_what_the_loop_measures(
         tmp_path: Path) -> None:
     # The loop's runs at two fleet sizes against the simulation's 400 replicates of the
     # same world: every metric's mean within 3.5 standard errors (with these seeds the
-    # largest is ~1.5).
+    # largest is ~1.3).
     world = World(policy=(0.2, 0.02))
     people = [HumanProfile(name="ana"), HumanProfile(name="bo", latency=2, availability=0.7)]
     shape = FleetShape(world.t_T, world.t_R, 0, 50, "resets_first", False)
