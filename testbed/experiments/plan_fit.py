@@ -387,6 +387,9 @@ def _count(fit: PlanFit, run: _Run) -> None:
         counter.row(row)
     fit.measured.append(run_metrics(run.rows, run.num_humans, n, counter.requests,
                                     counter.served))
+    if not sum(fit.requests.n) + sum(fit.continues.n) and not fit.notes:
+        fit.notes.append("Its rows carry no keys (written before keys were recorded): "
+                         "the teleop request rate is the prior's 0.5, not a fit.")
 
 
 class _RunCounter:
