@@ -14,6 +14,14 @@ square), so no algorithm always meets the freshest cubes or the most tired opera
 Each run's run.json records its trial, its position and the trial's order. A run the
 operator stopped with Esc stays ``stopped`` (no summary, left out of the report); the
 protocol stops there and goes on from it when run again.
+
+With ``until = { reference = "cur", metric = "rohe", alpha = 0.05, max_trials = 12 }``
+(:class:`Until`) ``trials`` is the minimum: after each complete trial an anytime-valid
+test per algorithm against the reference (:mod:`testbed.experiments.sequential`) decides
+whether to run one more, up to ``max_trials``; each trial's e-values go to
+``<out>/sequential.json`` and the report's sequential table. The decision is recomputed
+from the finished runs, so running the file again resumes where it stopped, and a
+larger ``max_trials`` continues it. Without ``until``, exactly the ``trials`` trials.
 """
 
 from __future__ import annotations
@@ -23,20 +31,28 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from testbed.core.backend_registry import backend_of
 from testbed.core.config import ConfigError, _one_line, validation_context
 from testbed.core.hosts import Hosts
 from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
-from testbed.experiments.report import Report, write_report
+from testbed.experiments.report import METRICS, PAPER_FIRST, Report, write_report
 from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 
 if TYPE_CHECKING:
     from testbed.core.host_config import HostConfig
     from testbed.core.humans import Humans
+    from testbed.experiments.sequential import Decision
     from testbed.experiments.trial import TrialOptions
     from testbed.fleet.loop import StepOutcome
 
@@ -52,6 +68,27 @@ class Way(BaseModel):
     algorithm: str
     set: dict[str, Any] = Field(default_factory=dict)
     """Fleet fields this way sets, e.g. ``{"learning.weighting" = "intervention"}``."""
+
+
+class Until(BaseModel):
+    """``until = {...}``: run trials until every algorithm's comparison with
+    ``reference`` on ``metric`` is settled at ``alpha`` (an anytime-valid test,
+    :mod:`testbed.experiments.sequential`), or cannot be within ``max_trials``; the
+    protocol's ``trials`` is then the minimum."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    reference: str = PAPER_FIRST
+    metric: str = "rohe"
+    alpha: float = Field(0.05, gt=0, lt=1)
+    max_trials: int = Field(12, ge=1, le=100)
+
+    @field_validator("metric")
+    @classmethod
+    def _metric(cls, v: str) -> str:
+        if v not in METRICS:
+            raise ValueError(f"unknown metric {v!r}; use {', '.join(METRICS)}")
+        return v
 
 
 class Protocol(BaseModel):
@@ -86,6 +123,8 @@ class Protocol(BaseModel):
     """With ``evaluate_steps``: also ``eval-theta0-t<k>``, the policy every run of trial
     k starts from (theta_0), so the report can say what each run's humans taught: the
     learning gain per human action, (eval successes - theta_0's) / human actions."""
+    until: Until | None = None
+    """Stop when the answer is settled (:class:`Until`); None: exactly ``trials``."""
 
     @model_validator(mode="before")
     @classmethod
@@ -118,7 +157,9 @@ class Protocol(BaseModel):
         if bad:
             raise ValueError(f"unknown algorithm {bad[0]!r}; use {', '.join(ALGORITHM_NAMES)}"
                              " or a way of [ways]")
-        if self.seeds is not None and len(self.seeds) != self.trials:
+        if self.until is not None:
+            self._check_until(self.until)
+        elif self.seeds is not None and len(self.seeds) != self.trials:
             raise ValueError("seeds must have one seed per trial")
         match = self.fleet.algorithm.budget_match
         if (match is not None and "random" in self.algorithms
@@ -127,6 +168,26 @@ class Protocol(BaseModel):
                 f"fleet.algorithm.random_budget = 'match:{match}': {match!r} must be "
                 "another of the protocol's algorithms (its run sets Random's budget)")
         return self
+
+    def _check_until(self, until: Until) -> None:
+        if until.reference not in self.algorithms:
+            raise ValueError(f"until.reference: {until.reference!r} is not one of the "
+                             f"algorithms ({', '.join(self.algorithms)})")
+        if len(self.algorithms) < 2:
+            raise ValueError("until: needs at least two algorithms (one against the "
+                             "reference)")
+        if until.max_trials < self.trials:
+            raise ValueError(f"until.max_trials ({until.max_trials}) is below trials "
+                             f"({self.trials}), the minimum")
+        if self.seeds is not None and len(self.seeds) < self.trials:
+            raise ValueError("seeds must have one seed per trial (with until: at least "
+                             "trials, the minimum; trials beyond the list get seeds after "
+                             "its largest)")
+
+    @property
+    def max_trials(self) -> int:
+        """The most trials this protocol runs: ``until.max_trials``, else ``trials``."""
+        return self.until.max_trials if self.until is not None else self.trials
 
     def algorithm_of(self, name: str) -> str:
         """The algorithm a name of ``algorithms`` runs (a way's, or the name itself)."""
@@ -143,7 +204,15 @@ class Protocol(BaseModel):
         return SweepPoint(dict(way.set)).apply(self.fleet)
 
     def seed(self, k: int) -> int:
-        return self.seeds[k] if self.seeds is not None else k
+        """Trial ``k``'s seed: ``seeds[k]``, else ``k``. A trial beyond the listed seeds
+        (only with ``until``) gets ``max(seeds) + 1 + (k - len(seeds))``: distinct from
+        every listed seed and from each other, and the same whatever ``max_trials`` is,
+        so raising it later keeps the trials already run."""
+        if self.seeds is None:
+            return k
+        if k < len(self.seeds):
+            return self.seeds[k]
+        return max(self.seeds) + 1 + (k - len(self.seeds))
 
     def run_order(self, k: int) -> list[str]:
         """The algorithms of trial ``k`` in the order they run.
@@ -241,38 +310,105 @@ def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True, *,
     A run the operator stops (Esc) ends the protocol: the report then covers the
     finished runs and says which one is stopped; ``testbed protocol FILE`` again
     resumes it.
+
+    With ``until``: after each complete trial, :func:`sequential_decision` says whether
+    to run the next (at least ``trials``, at most ``until.max_trials``); the
+    evaluations wait till the end and cover the trials run.
     """
     from testbed.core.config import ConfigError
-    from testbed.experiments.trial import STOPPED
 
     hooks = hooks if hooks is not None else TrialHooks()
     folder = Path(out or proto.out)
     folder.mkdir(parents=True, exist_ok=True)
-    total = proto.trials * len(proto.algorithms)
-    index = 0
-    for k in range(proto.trials):
-        first_in_trial = True
-        for algorithm in proto.run_order(k):
-            index += 1
-            name = f"{algorithm}-t{k}"
-            run = RunDir(folder / name)
-            if run.summary.exists():
-                continue
-            what = "resume" if run.state.exists() else "start"
-            if not hooks.before_run(name) and ask and _prompts(proto, k, first_in_trial):
-                _prompt(f"run {index}/{total} ({what} {name}): {proto.prompt}")
-            first_in_trial = False
-            summary = run_protocol_run(proto, folder, k, algorithm, hooks=hooks)
-            if summary.get("status") == STOPPED:
-                note = (f"protocol stopped: {name} was stopped at step "
-                        f"{summary.get('stopped_at')}; run the protocol again to resume it")
-                sys.stderr.write(note + "\n")
-                try:
-                    return write_report([folder], folder)  # it names the stopped run
-                except ConfigError:  # nothing finished yet
-                    return Report(folder, note + "\n", [], [note])
-    _evaluate_all(proto, folder, hooks)
-    return write_report([folder], folder)
+    cache: dict[Path, dict[str, Any]] = {}
+    done = 0
+    while done < proto.max_trials:
+        note = _run_trial(proto, folder, done, ask, hooks)
+        if note is not None:  # a run was stopped (Esc)
+            sys.stderr.write(note + "\n")
+            try:
+                return write_report([folder], folder)  # it names the stopped run
+            except ConfigError:  # nothing finished yet
+                return Report(folder, note + "\n", [], [note])
+        done += 1
+        if proto.until is not None and sequential_decision(proto, folder, done, cache).stop:
+            break
+    _evaluate_all(proto, folder, hooks, done)
+    # with until, the report pairs against its reference, as the test did
+    return write_report([folder], folder,
+                        proto.until.reference if proto.until is not None else None)
+
+
+def _run_trial(proto: Protocol, folder: Path, k: int, ask: bool, hooks: TrialHooks
+               ) -> str | None:
+    """Every run of trial ``k`` not yet complete, in its order; a note when one was
+    stopped (Esc), else None."""
+    from testbed.experiments.trial import STOPPED
+
+    total = proto.max_trials * len(proto.algorithms)
+    first_in_trial = True
+    for position, algorithm in enumerate(proto.run_order(k)):
+        index = k * len(proto.algorithms) + position + 1
+        name = f"{algorithm}-t{k}"
+        run = RunDir(folder / name)
+        if run.summary.exists():
+            continue
+        what = "resume" if run.state.exists() else "start"
+        if not hooks.before_run(name) and ask and _prompts(proto, k, first_in_trial):
+            _prompt(f"run {index}/{total} ({what} {name}): {proto.prompt}")
+        first_in_trial = False
+        summary = run_protocol_run(proto, folder, k, algorithm, hooks=hooks)
+        if summary.get("status") == STOPPED:
+            return (f"protocol stopped: {name} was stopped at step "
+                    f"{summary.get('stopped_at')}; run the protocol again to resume it")
+    return None
+
+
+def sequential_decision(proto: Protocol, folder: Path, done: int,
+                        cache: dict[Path, dict[str, Any]] | None = None) -> Decision:
+    """After ``done`` complete trials of ``proto`` (with ``until``) in ``folder``: every
+    algorithm's difference from the reference on the metric in each, recomputed from
+    its steps.jsonl as the report does, the stopping decision
+    (:func:`testbed.experiments.sequential.decide`), and each trial's e-values written
+    to ``folder/sequential.json``. ``cache``: summaries already read, by run folder."""
+    from testbed.core.atomic import atomic_write_json
+    from testbed.experiments.sequential import RECORD, decide, record
+
+    until = proto.until
+    if until is None:
+        raise ValueError("sequential_decision: the protocol has no until")
+    cache = {} if cache is None else cache
+    values = {a: [_summary(folder / f"{a}-t{k}", cache)[until.metric] for k in range(done)]
+              for a in proto.algorithms}
+    ref = values[until.reference]
+    diffs = {a: [float(x) - float(r) for x, r in zip(v, ref, strict=True)]
+             for a, v in values.items() if a != until.reference}
+    decision = decide(diffs, alpha=until.alpha, min_trials=proto.trials,
+                      max_trials=until.max_trials)
+    atomic_write_json(folder / RECORD, record(
+        decision, reference=until.reference, metric=until.metric,
+        seeds=[proto.seed(k) for k in range(done)]))
+    if decision.stop:
+        sys.stderr.write(f"protocol {proto.name}: stops after {done} trial(s): "
+                         f"{decision.why} (e-values in {folder / RECORD})\n")
+    return decision
+
+
+def _summary(path: Path, cache: dict[Path, dict[str, Any]]) -> dict[str, Any]:
+    """A finished run's metrics from its steps.jsonl, with the humans its config.toml
+    names (as the report's ``load_run`` reads them)."""
+    if path not in cache:
+        import tomllib
+
+        from testbed.records.metrics import summarize
+        from testbed.records.steps import read_steps
+
+        cfg = path / "config.toml"
+        config = tomllib.loads(cfg.read_text()) if cfg.exists() else {}
+        humans = int(config.get("humans", {}).get("count", 2))
+        cache[path] = summarize(read_steps(RunDir(path).steps), algorithm="",
+                                num_humans=humans)
+    return cache[path]
 
 
 def _prompts(proto: Protocol, k: int, first_in_trial: bool) -> bool:
@@ -283,9 +419,10 @@ def _prompts(proto: Protocol, k: int, first_in_trial: bool) -> bool:
     return proto.prompt_when == "between_trials" and k > 0 and first_in_trial
 
 
-def _evaluate_all(proto: Protocol, folder: Path, hooks: TrialHooks) -> None:
-    """The paper's evaluation of every final policy (and the expert row on twins)."""
-    for k in range(proto.trials):
+def _evaluate_all(proto: Protocol, folder: Path, hooks: TrialHooks, trials: int) -> None:
+    """The paper's evaluation of every final policy of the first ``trials`` trials (and
+    the expert row on twins)."""
+    for k in range(trials):
         order = proto.run_order(k)
         for algorithm in order:
             evaluate_run(proto, folder, algorithm, k, hooks)
@@ -439,11 +576,13 @@ def _prompt(text: str) -> None:
 
 __all__: list[Any] = [
     "Protocol",
+    "Until",
     "evaluate_run",
     "load_protocol",
     "matched_budget",
     "pretrain_critics",
     "run_named",
     "run_protocol",
+    "sequential_decision",
     "williams_square",
 ]

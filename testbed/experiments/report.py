@@ -23,7 +23,9 @@ What a reviewer needs beyond mean +- std (:mod:`testbed.experiments.report_table
 evaluations and, per point, for a sweep (its reference: the grid's first point); the
 humans by name (``report_humans``); a line for any two algorithms or points whose
 records are identical; per run, its frames per class and its episodes per outcome
-(``report_classes``: what learning by class has to learn from). ``report.html``
+(``report_classes``: what learning by class has to learn from); for a protocol run
+with ``until``, what its sequential test settled and when (``report_sequential``, from
+its ``sequential.json``). ``report.html``
 (``report_html``) is all of it on one self-contained page, with the metadata that
 decides the numbers.
 """
@@ -50,6 +52,7 @@ from testbed.experiments.report_humans import (
     estimate_humans,
     scripted_profiles,
 )
+from testbed.experiments.report_sequential import place_sequential
 from testbed.experiments.report_tables import (
     Table,
     humans_table,
@@ -427,7 +430,7 @@ def write_report(dirs: list[Path], out: Path, reference: str | None = None) -> R
     if not runs:
         raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no finished run; {notes[0]}")
     out.mkdir(parents=True, exist_ok=True)
-    sections = _sections(runs, reference)
+    sections = place_sequential(_sections(runs, reference), dirs)  # a protocol's until
     md = "\n".join(t.markdown() for t in sections) + "".join(f"\n{n}\n" for n in notes)
     for t in sections:
         if t.csv_rows:
