@@ -242,6 +242,8 @@ def test_the_decision_the_protocol_takes_from_its_runs_and_the_report_table(
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "Sequential test: each algorithm against cur on successes" in md
     assert (tmp_path / "rep" / "report-sequential.csv").exists()
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert '<section id="sequential">' in page and "after 6 trials (t5): below cur" in page
     # a file this build cannot read: said, not a crash
     (out / RECORD).write_text('{"format": "sequential/0"}')
     report = write_report([out], tmp_path / "rep2")
