@@ -126,7 +126,8 @@ def cmd_protocol(args: argparse.Namespace) -> int:
         folder = Path(args.out or proto.out)
         run_protocol_on_ray(proto, folder, address=args.ray, workers=args.workers,
                             cpus_per_trial=args.cpus_per_trial)
-        report = write_report([folder], folder)
+        report = write_report([folder], folder,
+                              proto.until.reference if proto.until is not None else None)
     else:
         report = run_protocol(proto, out=args.out, ask=not args.yes)
     print(report.markdown)

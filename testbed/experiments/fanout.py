@@ -115,11 +115,11 @@ def _protocol_run(proto: Protocol, folder: str, k: int, algorithm: str, threads:
 
 
 def _evaluation(proto: Protocol, folder: str, k: int, algorithm: str, threads: int,
-                *after: Any) -> None:
+                *after: Any, start_of: str | None = None) -> None:
     from testbed.experiments.protocol import evaluate_run
 
     _threads(threads)
-    evaluate_run(proto, Path(folder), algorithm, k)
+    evaluate_run(proto, Path(folder), algorithm, k, start_of=start_of)
 
 
 def _sweep_run(sweep: Sweep, folder: str, index: int, threads: int, *after: Any) -> str:
@@ -140,8 +140,14 @@ def _cpus(ray: Any) -> int:
 def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = None,
                         workers: int | None = None, cpus_per_trial: int = 1) -> None:
     """Every run of ``proto`` as a Ray task (dependencies as in the serial order:
-    Random after the run it matches, each evaluation after its run), theta_0 first."""
-    from testbed.experiments.protocol import pretrain_critics
+    Random after the run it matches, each evaluation after its run), theta_0 first.
+
+    With ``until``, trials go out in waves: the first ``trials`` at once, then one trial
+    at a time, and after each wave :func:`sequential_decision` reads the finished trials
+    exactly as the serial loop does, so a fanned-out protocol stops after the trial the
+    serial one stops after and runs no trial past it. Evaluations of finished trials run
+    beside the next wave."""
+    from testbed.experiments.protocol import pretrain_critics, sequential_decision
 
     check_fanout(proto.fleet, proto.humans, f"protocol {proto.name!r}")
     ray = _init(address, workers)
@@ -151,25 +157,54 @@ def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = 
                            cpus_per_trial))
         trial = _remote(ray, _protocol_run, cpus_per_trial)
         evaluation = _remote(ray, _evaluation, cpus_per_trial)
-        refs = []
-        match = proto.fleet.algorithm.budget_match
-        for k in range(proto.trials):
-            done: dict[str, Any] = {}
-            for algorithm in proto.run_order(k):  # the matched run comes before Random
-                after = [done[match]] if algorithm == "random" and match in done else []
-                done[algorithm] = trial.remote(proto, str(folder), k, algorithm,
-                                               cpus_per_trial, *after)
-                refs.append(done[algorithm])
-            if proto.evaluate_steps:
-                for algorithm, ref in done.items():
-                    refs.append(evaluation.remote(proto, str(folder), k, algorithm,
-                                                  cpus_per_trial, ref))
-                if proto.evaluate_expert:
-                    refs.append(evaluation.remote(proto, str(folder), k, "expert",
-                                                  cpus_per_trial))
-        ray.get(refs)
+        evaluations: list[Any] = []
+        cache: dict[Path, dict[str, Any]] = {}
+        done, wave = 0, proto.trials
+        while done < proto.max_trials:
+            runs: list[Any] = []
+            for k in range(done, min(done + wave, proto.max_trials)):
+                refs = _trial_tasks(proto, folder, k, trial, cpus_per_trial)
+                runs.extend(refs.values())
+                evaluations.extend(_evaluation_tasks(proto, folder, k, evaluation,
+                                                     cpus_per_trial, refs))
+            ray.get(runs)
+            done = min(done + wave, proto.max_trials)
+            if proto.until is None or sequential_decision(proto, folder, done, cache).stop:
+                break
+            wave = 1
+        ray.get(evaluations)
     finally:
         ray.shutdown()
+
+
+def _trial_tasks(proto: Protocol, folder: Path, k: int, trial: Any, cpus: int
+                 ) -> dict[str, Any]:
+    """Trial ``k``'s runs as tasks, by algorithm (the matched run before Random)."""
+    match = proto.fleet.algorithm.budget_match
+    done: dict[str, Any] = {}
+    for algorithm in proto.run_order(k):
+        after = [done[match]] if algorithm == "random" and match in done else []
+        done[algorithm] = trial.remote(proto, str(folder), k, algorithm, cpus, *after)
+    return done
+
+
+def _evaluation_tasks(proto: Protocol, folder: Path, k: int, evaluation: Any, cpus: int,
+                      runs: dict[str, Any]) -> list[Any]:
+    """Trial ``k``'s evaluations as tasks, each after the run it evaluates: every final
+    policy, theta_0 (``evaluate_start``) and the expert row, as the serial
+    ``_evaluate_all`` does."""
+    from testbed.experiments.protocol import START
+
+    if not proto.evaluate_steps:
+        return []
+    refs = [evaluation.remote(proto, str(folder), k, a, cpus, ref) for a, ref in runs.items()]
+    order = proto.run_order(k)
+    if proto.evaluate_start and order:
+        refs.append(evaluation.remote(proto, str(folder), k, START, cpus, runs[order[0]],
+                                      start_of=order[0]))
+    if proto.evaluate_expert:
+        refs.append(evaluation.remote(proto, str(folder), k, "expert", cpus))
+    return refs
 
 
 def run_sweep_on_ray(sweep: Sweep, folder: Path, *, address: str | None = None,

@@ -96,3 +96,43 @@ def test_a_protocol_on_two_ray_workers_matches_the_serial_run_and_survives_a_kil
     assert len(workers) >= 2  # the runs were spread over more than one worker process
     report = (tmp_path / "fan" / "report.md").read_text()
     assert "| cur | 2 |" in report and "| eval:cur | 2 |" in report
+
+
+SEQUENTIAL = {
+    "name": "seqfan", "trials": 2, "algorithms": ["bc", "random"], "steps": 4,
+    "seeds": [0, 1], "evaluate_steps": 2, "evaluate_expert": False, "humans": "scripted",
+    "until": {"reference": "bc", "metric": "human_actions", "max_trials": 8},
+    "fleet": {"hosts": [{"name": "cell0"}], "humans": {"count": 1},
+              "algorithm": {"random_budget": 1.0},
+              "learning": {"ensemble_size": 2, "batch_size": 16, "demos": 16,
+                           "critic_transitions": 8, "pretrain_steps": 4}},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_until_on_ray_workers_stops_after_the_serial_runs_trial(tmp_path: Path) -> None:
+    """``until`` fanned out: the first trials at once, then one at a time, the same
+    decision after the same trial as the serial loop, no trial run past it, and every
+    finished trial evaluated."""
+    pytest.importorskip("ray")
+    from testbed.experiments.sequential import RECORD
+
+    (tmp_path / "seq.toml").write_text(tomli_w.dumps(SEQUENTIAL))
+    serial = _cli("protocol", "seq.toml", "--yes", "--out", "serial", cwd=tmp_path, threads=1)
+    _, err = serial.communicate(timeout=600)
+    assert serial.returncode == 0, err[-3000:]
+    fan = _cli("protocol", "seq.toml", "--out", "fan", "--workers", "2", cwd=tmp_path)
+    out, err = fan.communicate(timeout=600)
+    assert fan.returncode == 0, err[-3000:]
+
+    decided = json.loads((tmp_path / "serial" / RECORD).read_text())
+    assert decided["stop"] and 2 < decided["trials_done"] < 8  # it went on, then stopped
+    assert json.loads((tmp_path / "fan" / RECORD).read_text()) == decided
+    done = decided["trials_done"]
+    runs = sorted(p.name for p in (tmp_path / "fan").glob("*-t*"))
+    assert runs == sorted(p.name for p in (tmp_path / "serial").glob("*-t*"))
+    assert runs == sorted(f"{e}{a}-t{k}" for e in ("", "eval-") for a in ("bc", "random")
+                          for k in range(done))
+    assert f"stops after {done} trial(s)" in err
+    assert "Sequential test: each algorithm against bc on human_actions" in out
