@@ -45,7 +45,13 @@ from testbed.core.config import ConfigError, _one_line, validation_context
 from testbed.core.hosts import Hosts
 from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
-from testbed.experiments.report import METRICS, PAPER_FIRST, Report, write_report
+from testbed.experiments.report import (
+    METRICS,
+    PAPER_FIRST,
+    Report,
+    run_summary,
+    write_report,
+)
 from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 
@@ -395,19 +401,9 @@ def sequential_decision(proto: Protocol, folder: Path, done: int,
 
 
 def _summary(path: Path, cache: dict[Path, dict[str, Any]]) -> dict[str, Any]:
-    """A finished run's metrics from its steps.jsonl, with the humans its config.toml
-    names (as the report's ``load_run`` reads them)."""
+    """A finished run's metrics as the report reads them (``run_summary``), by folder."""
     if path not in cache:
-        import tomllib
-
-        from testbed.records.metrics import summarize
-        from testbed.records.steps import read_steps
-
-        cfg = path / "config.toml"
-        config = tomllib.loads(cfg.read_text()) if cfg.exists() else {}
-        humans = int(config.get("humans", {}).get("count", 2))
-        cache[path] = summarize(read_steps(RunDir(path).steps), algorithm="",
-                                num_humans=humans)
+        cache[path] = run_summary(path)
     return cache[path]
 
 

@@ -176,7 +176,7 @@ def load_run(path: Path) -> RunRecord:
     algorithm = (opts.get("label") or (evaluation_label(None) if opts.get("evaluate") else None)
                  or opts.get("algorithm") or path.name.split("-t")[0])
     config = _config(path)
-    num_humans = int(config.get("humans", {}).get("count", 2))
+    num_humans = humans_of(config)
     names = _human_names(config.get("humans", {}), num_humans)
     steps = read_steps(path / "steps.jsonl")
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)
@@ -190,6 +190,19 @@ def load_run(path: Path) -> RunRecord:
                      human_profiles=scripted_profiles(config.get("humans", {}), num_humans,
                                                       config.get("algorithm", {})),
                      digest=steps_digest(steps), classes=class_counts(path))
+
+
+def humans_of(config: dict[str, Any]) -> int:
+    """A run's number of humans from its config.toml (2 when it names none, the
+    default of runs written before humans were configurable)."""
+    return int(config.get("humans", {}).get("count", 2))
+
+
+def run_summary(path: Path) -> dict[str, Any]:
+    """A finished run's metrics (``summarize``) as the report computes them, without
+    the rest of its record: what the sequential test reads after each trial."""
+    return summarize(read_steps(path / "steps.jsonl"), algorithm="",
+                     num_humans=humans_of(_config(path)))
 
 
 def _human_names(humans: dict[str, Any], count: int) -> list[str]:
