@@ -298,6 +298,9 @@ def _plan_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", metavar="DIR", help="where to write plan.md, plan.csv and the "
                    "figures (default: first dir)")
+    p.add_argument("--against", nargs="+", metavar="DIR",
+                   help="measured runs (a sweep of the planned points) to put beside the "
+                   "predictions: plan.md's last table and plan-check.csv")
     g = p.add_argument_group("trials a comparison needs (--trials)")
     g.add_argument("--trials", action="store_true",
                    help="instead: from a pilot protocol, the trials each comparison needs")
@@ -316,6 +319,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise ConfigError(f"RUN_OR_PROTOCOL_DIR: no such folder {str(d)!r}")
     trial_flags = ["reference", *TRIALS_DEFAULTS]
     if args.trials:
+        if args.against:
+            raise ConfigError("--against: only without --trials (it checks a plan of "
+                              "--robots x --humans)")
         return _plan_trials(args, dirs)
     for name in trial_flags:
         if getattr(args, name) is not None:
@@ -330,7 +336,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     options = PlanOptions(args.robots, args.humans, args.steps, args.replicates, args.runs,
                           args.bin_steps, args.min_gain, args.seed)
-    plan = write_plan(dirs, options, Path(args.out) if args.out else dirs[0])
+    against = [Path(d) for d in args.against or []]
+    for d in against:
+        if not d.is_dir():
+            raise ConfigError(f"--against: no such folder {str(d)!r}")
+    plan = write_plan(dirs, options, Path(args.out) if args.out else dirs[0], against)
     print(plan.markdown)
     print("plan: " + ", ".join(str(f) for f in plan.files))
     return 0

@@ -47,8 +47,8 @@ from testbed.core.config import ConfigError
 from testbed.experiments.plan_fit import BIN_STEPS, METRICS, Draws, PlanFit, fit_runs
 from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
 
-__all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "find_runs", "plan_algorithm",
-           "write_fits", "write_plan"]
+__all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "find_runs", "fmt_metric",
+           "interval", "plan_algorithm", "write_fits", "write_plan"]
 
 LEVEL: Final = 0.95
 FloatArray = npt.NDArray[np.float64]
@@ -99,14 +99,26 @@ class Plan:
     notes: list[str]
 
 
-def write_plan(dirs: list[Path], options: PlanOptions, out: Path) -> Plan:
-    """Fit, simulate, and write plan.md, plan.csv and one PNG per algorithm in ``out``."""
+def write_plan(dirs: list[Path], options: PlanOptions, out: Path,
+               against: list[Path] | None = None) -> Plan:
+    """Fit, simulate, and write plan.md, plan.csv and one PNG per algorithm in ``out``;
+    with ``against`` (measured runs), their points beside the predictions at the end of
+    plan.md and in plan-check.csv (:mod:`testbed.experiments.plan_check`)."""
     found = find_runs(dirs)
     if not found:
         raise ConfigError("RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below "
                           "the folders given)")
     fits, notes = fit_runs(found, options.bin_steps)
-    return write_fits(fits, notes, options, out)
+    plan = write_fits(fits, notes, options, out)
+    if against:
+        from testbed.experiments.plan_check import check_csv, check_markdown, check_plans
+
+        checks, check_notes = check_plans(plan.plans, against, options)
+        plan.markdown += "\n" + check_markdown(checks, check_notes)
+        atomic_write_bytes(plan.files[0], plan.markdown.encode())
+        plan.files.insert(2, out / "plan-check.csv")
+        atomic_write_bytes(plan.files[2], check_csv(checks).encode())
+    return plan
 
 
 def write_fits(fits: list[PlanFit], notes: list[str], options: PlanOptions,
@@ -177,19 +189,21 @@ def _repeat(draws: Draws, k: int) -> Draws:
                              for f in fields(draws) if f.name not in keep})
 
 
-def _iv(v: FloatArray) -> tuple[float, float, float]:
+def interval(v: FloatArray) -> tuple[float, float, float]:
+    """The replicates' mean and central ``LEVEL`` interval."""
     lo, hi = np.quantile(v, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
     return float(v.mean()), float(lo), float(hi)
 
 
-def _fmt(metric: str, x: float) -> str:
+def fmt_metric(metric: str, x: float) -> str:
+    """A metric's value as the plan's tables print it."""
     return (f"{x:.3f}" if metric in ("rohe", "utilisation", "unserved")
             else f"{x:.2f}" if metric == "wait" else f"{x:.1f}")
 
 
 def _cell(metric: str, v: FloatArray) -> str:
-    mean, lo, hi = _iv(v)
-    return f"{_fmt(metric, mean)} [{_fmt(metric, lo)}, {_fmt(metric, hi)}]"
+    mean, lo, hi = interval(v)
+    return f"{fmt_metric(metric, mean)} [{fmt_metric(metric, lo)}, {fmt_metric(metric, hi)}]"
 
 
 def _knee(plan: AlgorithmPlan, n: int, options: PlanOptions) -> str:
@@ -200,9 +214,9 @@ def _knee(plan: AlgorithmPlan, n: int, options: PlanOptions) -> str:
         base = np.maximum(a["successes"], 1.0)
         gain = (b["successes"] - a["successes"]) / (nxt - m) / base
         d_rohe = b["rohe"] - a["rohe"]
-        g, glo, ghi = _iv(gain)
+        g, glo, ghi = interval(gain)
         if g < options.min_gain or d_rohe.mean() < 0:
-            why = (f"ROHE falls {_iv(a['rohe'])[0]:.3f} -> {_iv(b['rohe'])[0]:.3f}"
+            why = (f"ROHE falls {interval(a['rohe'])[0]:.3f} -> {interval(b['rohe'])[0]:.3f}"
                    if d_rohe.mean() < 0 else f"below {options.min_gain:.0%}")
             return (f"N={n}: one more human stops paying after M={m} (M={m}->{nxt}: "
                     f"{g:+.1%} successes per added human [{glo:+.1%}, {ghi:+.1%}]; {why})")
@@ -219,10 +233,10 @@ def _answer(plan: AlgorithmPlan) -> str:
                           plan.points[(n + 2, m)])
     dp = person["successes"] - here["successes"]
     da = arms["successes"] - here["successes"]
-    diff, lo, hi = _iv(da - dp)
+    diff, lo, hi = interval(da - dp)
     choice = ("two more arms" if lo > 0 else "one more person" if hi < 0
               else "either (the difference is inside the interval)")
-    r0, rp, ra = (_iv(x["rohe"])[0] for x in (here, person, arms))
+    r0, rp, ra = (interval(x["rohe"])[0] for x in (here, person, arms))
     return (f"{plan.fit.label} at N={n}, M={m}: {choice}: one more person "
             f"{_cell('successes', dp)} successes (ROHE {r0:.3f} -> {rp:.3f}), two more "
             f"arms {_cell('successes', da)} (ROHE {r0:.3f} -> {ra:.3f}); arms minus "
@@ -260,7 +274,7 @@ def _check(plan: AlgorithmPlan) -> list[str]:
             f"{fit.steps} steps):", "", "| " + " | ".join(cols) + " |",
             "|" + "---|" * len(cols),
             "| measured (mean of runs) | " + " | ".join(
-                _fmt(k, float(measured[k].mean())) for k in METRICS) + " |",
+                fmt_metric(k, float(measured[k].mean())) for k in METRICS) + " |",
             "| predicted | " + " | ".join(_cell(k, plan.check[k]) for k in METRICS) + " |"]
 
 
@@ -268,15 +282,20 @@ def _processes(fit: PlanFit) -> list[str]:
     """What the fit found, in two small tables: by phase, and by human."""
     b = fit.bins
     req, cont = fit.requests.means(b), fit.continues.means(b)
-    pol = fit.policy.array(b)
-    lines = ["Fitted, by phase (posterior means; pushes: the policy's):", "",
-             "| steps | teleop requests per arm-step | teleop goes on | policy pushes | "
-             "success per push | violation per push |", "|---|---|---|---|---|---|"]
+    again = fit.persists.means(b, prior=fit.requests.pooled())
+    pol, ask = fit.policy.array(b), fit.asking.array(b)
+    lines = ["Fitted, by phase (posterior means; pushes: the policy's, of a calm arm and "
+             "of one whose request no one took):", "",
+             "| steps | teleop requests per arm-step | teleop goes on | asks again, unserved "
+             "| calm pushes | success per push | violation per push | unserved pushes | "
+             "their violations per push |", "|---|---|---|---|---|---|---|---|---|"]
     for i in range(b):
-        pushes = pol[i].sum()
+        pushes, left = pol[i].sum(), ask[i].sum()
         rate = (pol[i] / pushes) if pushes else np.full(3, np.nan)
         lines.append(f"| {i * fit.bin_steps}-{(i + 1) * fit.bin_steps - 1} | {req[i]:.3f} | "
-                     f"{cont[i]:.3f} | {int(pushes)} | {rate[0]:.3f} | {rate[1]:.3f} |")
+                     f"{cont[i]:.3f} | {again[i]:.3f} | {int(pushes)} | {rate[0]:.3f} | "
+                     f"{rate[1]:.3f} | {int(left)} | "
+                     + (f"{ask[i][1] / left:.3f} |" if left else "- |"))
     lines += ["", "| human | pushes | success per push | violation per push | latency "
               "(steps) | reset (steps) | available |", "|---|---|---|---|---|---|---|"]
     for h in fit.humans:
@@ -298,7 +317,7 @@ def _csv(plans: list[AlgorithmPlan]) -> str:
     for p in plans:
         for (n, m), values in p.points.items():
             for k in METRICS:
-                mean, lo, hi = _iv(values[k])
+                mean, lo, hi = interval(values[k])
                 w.writerow([p.fit.label, f"N{n}-M{m}", n, m, k, round(mean, 6),
                             round(lo, 6), round(hi, 6)])
     return buf.getvalue()
@@ -315,7 +334,7 @@ def _figure(plan: AlgorithmPlan, options: PlanOptions) -> bytes:
     fig, axes = plt.subplots(2, 3, figsize=(12.6, 7.2))
     for ax, metric in zip(axes.flat, FIGURE, strict=True):
         for n in options.robots:
-            stats = np.array([_iv(plan.points[(n, m)][metric]) for m in ms])
+            stats = np.array([interval(plan.points[(n, m)][metric]) for m in ms])
             ax.plot(ms, stats[:, 0], marker="o", label=f"N = {n}")
             ax.fill_between(ms, stats[:, 1], stats[:, 2], alpha=0.2)
         ax.set_title(TITLES[metric])

@@ -15,11 +15,14 @@ process                counted from the rows (by phase: bins of ``bin_steps`` st
 teleop requests        an arm not violating and not held (a teleop under t_T, a
                        reset under t_R) whose key is > 0; apart: right after a
                        teleop of its own (``continues``: how long teleops run past
-                       t_T), else (``requests``)
+                       t_T), right after a request no one took (``persists``: an
+                       unattended arm keeps asking), else (``requests``)
 reset eligibility      a violating arm's key > 0 (only for keys without ``c``,
                        e.g. the ``u`` ablation; with ``c`` it is the rule: always,
                        or from t_I for C.U.R.)
-policy pushes          per autonomous push: success, violation, neither
+policy pushes          per autonomous push: success, violation, neither; apart:
+                       the pushes of an arm whose request no one took (``asking``:
+                       the neglected arm, whose key said it was at risk)
 each human's pushes    per teleop push: success, violation, neither
 latency                per teleop: ``first.steps`` of its first push
 reset length           per confirmed reset: ``first.steps + 1``
@@ -34,6 +37,15 @@ humans' pool with ``PRIOR_PUSHES`` pseudo-pushes, the pool towards the policy wi
 ``POOL_PUSHES``; times towards the pool with ``PRIOR_TIMES``) so a human with few pushes
 reads as the fleet's average; a phase bin's rate shrinks towards the run's whole rate
 with ``PRIOR_BIN`` pseudo arm-steps, so a sparse bin is not a coin of its own.
+
+Why the neglected arm is a process of its own: on the twin a policy push while the arm's
+own key asked for a human violates 10-15 times as often as one from a calm arm (0.095
+against 0.003 per push over the fit's runs; docs/notes/plan.md), because C.U.R.'s key
+asks exactly when the risk critic expects a violation; and an arm that asked and got no
+one asks again 2-3 times as often as a calm one. How many requests go unserved depends
+on M, so a rate pooled over both would carry the fit's M to every other M: one human
+would get too few resets and four too many. This is Olsen and Wood's neglect: an
+unattended robot's performance decays, and the plan replays it per arm.
 """
 
 from __future__ import annotations
@@ -122,21 +134,25 @@ class Rates:
         n[:len(self.n)] = self.n[:bins]
         return k, n
 
-    def pooled(self) -> float:
-        """The whole run's rate, Laplace's rule (the bins' prior mean)."""
-        return (sum(self.k) + 1.0) / (sum(self.n) + 2.0)
+    def pooled(self, prior: float | None = None) -> float:
+        """The whole run's rate (the bins' prior mean): Laplace's rule, or shrunk to
+        ``prior`` with ``PRIOR_BIN`` pseudo-trials (a process with few trials reads as
+        the one it splits from)."""
+        if prior is None:
+            return (sum(self.k) + 1.0) / (sum(self.n) + 2.0)
+        return (sum(self.k) + PRIOR_BIN * prior) / (sum(self.n) + PRIOR_BIN)
 
-    def draw(self, bins: int, replicates: int, rng: np.random.Generator
-             ) -> npt.NDArray[np.float64]:
+    def draw(self, bins: int, replicates: int, rng: np.random.Generator,
+             prior: float | None = None) -> npt.NDArray[np.float64]:
         """(R, bins) rates from each bin's Beta posterior, shrunk to the pooled rate."""
         k, n = self.arrays(bins)
-        p = self.pooled()
+        p = self.pooled(prior)
         return rng.beta(k + PRIOR_BIN * p, n - k + PRIOR_BIN * (1.0 - p),
                         size=(replicates, bins))
 
-    def means(self, bins: int) -> npt.NDArray[np.float64]:
+    def means(self, bins: int, prior: float | None = None) -> npt.NDArray[np.float64]:
         k, n = self.arrays(bins)
-        p = self.pooled()
+        p = self.pooled(prior)
         return (k + PRIOR_BIN * p) / (n + PRIOR_BIN)
 
 
@@ -188,8 +204,12 @@ class Draws:
     """(R, B) the same right after a teleop of its own (the teleop goes on)."""
     eligible: npt.NDArray[np.float64]
     """(R, B) P(a violating arm's key > 0): used only for keys without ``c``."""
+    persist: npt.NDArray[np.float64]
+    """(R, B) the same right after a request no one took."""
     policy: npt.NDArray[np.float64]
-    """(R, B, 3) per autonomous push: P(success), P(violation), P(neither)."""
+    """(R, B, 3) per autonomous push of a calm arm: P(success), P(violation), P(neither)."""
+    asking: npt.NDArray[np.float64]
+    """(R, B, 3) per autonomous push of an arm whose request no one took."""
     human: npt.NDArray[np.float64]
     """(R, H, 3) per teleop push of human h."""
     available: npt.NDArray[np.float64]
@@ -221,8 +241,10 @@ class PlanFit:
     """C.U.R.: a violating arm's key is -1 (no human) while t < t_I."""
     requests: Rates = field(default_factory=Rates)
     continues: Rates = field(default_factory=Rates)
+    persists: Rates = field(default_factory=Rates)
     eligible: Rates = field(default_factory=Rates)
     policy: Outcomes = field(default_factory=Outcomes)
+    asking: Outcomes = field(default_factory=Outcomes)
     humans: list[HumanFit] = field(default_factory=list)
     measured: list[dict[str, float]] = field(default_factory=list)
     """Per run: the plan's metrics as the run measured them (:func:`run_metrics`)."""
@@ -240,9 +262,13 @@ class PlanFit:
     def draw(self, replicates: int, rng: np.random.Generator) -> Draws:
         """Every fitted parameter, redrawn from its posterior once per replicate."""
         b, r = self.bins, replicates
-        pol_total = self.policy.total()
+        pol_total = self.policy.total() + self.asking.total()
         pol_mean = (pol_total + 1.0) / (pol_total.sum() + 3.0)
-        pol = self.policy.array(b) + PRIOR_BIN * pol_mean
+        calm_total, ask_total = self.policy.total(), self.asking.total()
+        calm_mean = (calm_total + POOL_PUSHES * pol_mean) / (calm_total.sum() + POOL_PUSHES)
+        ask_mean = (ask_total + POOL_PUSHES * pol_mean) / (ask_total.sum() + POOL_PUSHES)
+        pol = self.policy.array(b) + PRIOR_BIN * calm_mean
+        asking = self.asking.array(b) + PRIOR_BIN * ask_mean
         humans = self.humans or [HumanFit(0, "human0")]
         pool = sum((h.pushes.total() for h in humans), np.zeros(3))
         pool_mean = (pool + POOL_PUSHES * pol_mean) / (pool.sum() + POOL_PUSHES)
@@ -251,8 +277,10 @@ class PlanFit:
         reset_values, reset_cdf = _times([h.reset_steps for h in humans], self.t_R, r, rng)
         return Draws(
             request=self.requests.draw(b, r, rng), cont=self.continues.draw(b, r, rng),
+            persist=self.persists.draw(b, r, rng, prior=self.requests.pooled()),
             eligible=self.eligible.draw(b, r, rng),
             policy=_dirichlet(np.broadcast_to(pol, (r, b, 3)), rng),
+            asking=_dirichlet(np.broadcast_to(asking, (r, b, 3)), rng),
             human=_dirichlet(np.broadcast_to(human, (r, len(humans), 3)), rng),
             available=np.stack([_availability(h, r, rng) for h in humans], axis=1),
             latency_values=lat_values, latency_cdf=lat_cdf,
@@ -387,7 +415,7 @@ def _count(fit: PlanFit, run: _Run) -> None:
         counter.row(row)
     fit.measured.append(run_metrics(run.rows, run.num_humans, n, counter.requests,
                                     counter.served))
-    if not sum(fit.requests.n) + sum(fit.continues.n) and not fit.notes:
+    if not sum(fit.requests.n) + sum(fit.continues.n) + sum(fit.persists.n) and not fit.notes:
         fit.notes.append("Its rows carry no keys (written before keys were recorded): "
                          "the teleop request rate is the prior's 0.5, not a fit.")
 
@@ -398,8 +426,8 @@ class _RunCounter:
     def __init__(self, fit: PlanFit, num_humans: int) -> None:
         self.fit = fit
         self.num_humans = num_humans
-        self.prev: dict[str, tuple[str, int]] = {}
-        """Robot -> (mode, served) of the last row."""
+        self.prev: dict[str, tuple[str, int, bool]] = {}
+        """Robot -> (mode, served, whether its key asked) of the last row."""
         self.requests = 0
         self.served = 0
 
@@ -410,23 +438,23 @@ class _RunCounter:
         for h in range(self.num_humans):
             fit.humans[h].present += h not in away
             fit.humans[h].away += h in away
-        now: dict[str, tuple[str, int]] = {}
+        now: dict[str, tuple[str, int, bool]] = {}
         for r in row["robots"]:
             mode = str(r["mode"])
-            now[r["robot"]] = (mode, int(r.get("served") or 0))
+            key = r.get("key")
+            asked = bool(key) and _lex_positive(key)
+            now[r["robot"]] = (mode, int(r.get("served") or 0), asked)
             if mode in _SKIP:
                 continue
-            self._keys(r, mode, b)
-            self._pushes(r, mode, b)
+            self._keys(r, mode, b, asked)
+            self._pushes(r, mode, b, asked)
         self.prev = now
 
-    def _keys(self, r: Mapping[str, Any], mode: str, b: int) -> None:
+    def _keys(self, r: Mapping[str, Any], mode: str, b: int, asked: bool) -> None:
         """The request processes: what the arm's key asked for, where it mattered."""
-        key = r.get("key")
-        if not key:
+        if not r.get("key"):
             return
-        asked = _lex_positive(key)
-        pm, ps = self.prev.get(r["robot"], ("autonomous", 0))
+        pm, ps, pa = self.prev.get(r["robot"], ("autonomous", 0, False))
         if mode in _IDLE:  # violating: could it get a person at all?
             if mode == "idle" or r.get("served") == 0:
                 self.fit.eligible.add(b, asked)
@@ -434,17 +462,21 @@ class _RunCounter:
         t_T, t_R = self.fit.t_T, self.fit.t_R
         if (pm == "teleop" and ps + 1 < t_T) or (pm == "reset" and ps + 1 < t_R):
             return  # held: its key decided nothing
-        (self.fit.continues if pm == "teleop" else self.fit.requests).add(b, asked)
+        rates = (self.fit.continues if pm == "teleop"
+                 else self.fit.persists if pm == "autonomous" and pa else self.fit.requests)
+        rates.add(b, asked)
         if asked:
             self.requests += 1
             self.served += mode == "teleop"
 
-    def _pushes(self, r: Mapping[str, Any], mode: str, b: int) -> None:
-        """Pushes and their outcomes; a human's first actions (as ``report_humans``)."""
+    def _pushes(self, r: Mapping[str, Any], mode: str, b: int, asked: bool) -> None:
+        """Pushes and their outcomes (an autonomous arm's apart when its request went
+        unserved); a human's first actions (as ``report_humans``)."""
         pushed = r.get("action") is not None
         if mode == "autonomous":
             if pushed:
-                self.fit.policy.add(b, bool(r["success"]), bool(r["violation"]))
+                (self.fit.asking if asked else self.fit.policy).add(
+                    b, bool(r["success"]), bool(r["violation"]))
             return
         h = r.get("human")
         if h is None or not 0 <= int(h) < self.num_humans:

@@ -25,10 +25,12 @@ What one arm does at step t of a replicate (docs/notes/plan.md says what is assu
   waits (``idle``); a human on it resets it (``reset``), done after the steps drawn for
   that human when the reset started, and never before t_R (the allocator holds it);
 * not violating and not held: it asks for a teleop with the phase's request rate (the
-  continuation rate right after a teleop of its own); a human on it teleoperates, with
-  no push before the latency drawn for that human when the teleop started;
+  continuation rate right after a teleop of its own, the persistence rate right after a
+  request no one took); a human on it teleoperates, with no push before the latency
+  drawn for that human when the teleop started;
 * a push (the policy's, or a human's after their latency) succeeds, violates or neither,
-  with the phase's policy rates or the human's own.
+  with the phase's policy rates (those of a neglected arm when its request went
+  unserved this step) or the human's own.
 
 Keys are two columns whose order is the algorithm's (``plan_fit.KeyOrder``); every
 candidate carries a fresh uniform draw so no two keys tie and the tie draw never decides
@@ -232,6 +234,8 @@ class _State:
     served: IntArray
     need: IntArray
     """Per arm: the steps its current intervention's human needs (latency or reset)."""
+    waiting: BoolArray
+    """Per arm: it asked last step and no one took it (it pushed on its own)."""
 
 
 def simulate(params: SimParams, shape: FleetShape, num_robots: int, num_humans: int,
@@ -245,7 +249,8 @@ def simulate(params: SimParams, shape: FleetShape, num_robots: int, num_humans: 
                           if engine == "batch" else
                           RealAllocators(r, n, m, shape.t_T, shape.t_R, seed=0))
     state = _State(np.zeros((r, n), bool), np.zeros((r, n), np.int8),
-                   np.zeros((r, n), np.int64), np.zeros((r, n), np.int64))
+                   np.zeros((r, n), np.int64), np.zeros((r, n), np.int64),
+                   np.zeros((r, n), bool))
     totals = {k: np.zeros(r) for k in ("successes", "hard_resets", "idle_time",
                                         "human_actions", "idle", "requests", "served")}
     for t in range(steps):
@@ -260,7 +265,8 @@ def _keys(t: int, params: SimParams, shape: FleetShape, state: _State,
     r, n = state.viol.shape
     b = min(t // shape.bin_steps, d.request.shape[1] - 1)
     after_teleop = (state.kind == KIND_TELEOP) & (state.served + 1 >= shape.t_T)
-    p = np.where(after_teleop, d.cont[:, b, None], d.request[:, b, None])
+    p = np.where(after_teleop, d.cont[:, b, None],
+                 np.where(state.waiting, d.persist[:, b, None], d.request[:, b, None]))
     u = rng.random((r, n, 3))
     held = (((state.kind == KIND_TELEOP) & (state.served + 1 < shape.t_T))
             | ((state.kind == KIND_RESET) & ((state.served + 1 < shape.t_R) | state.viol)))
@@ -305,7 +311,8 @@ def _step(t: int, params: SimParams, shape: FleetShape, alloc: _Allocators, stat
         rst = _pick(params.reset_cdf[nr, h], d.reset_values, u)
         state.need[nr, na] = np.where(is_reset, rst, lat)
     pushes = (~state.viol & ~has) | (teleop & (served >= state.need))
-    probs = np.broadcast_to(d.policy[:, b, None, :], (r, n, 3)).copy()
+    asking = open_requests & ~has  # asked, no one came: the neglected arm pushes
+    probs = np.where(asking[..., None], d.asking[:, b, None, :], d.policy[:, b, None, :])
     tr, ta = np.nonzero(teleop)
     probs[tr, ta] = params.human[tr, human[tr, ta]]
     u = rng.random((r, n))
@@ -313,7 +320,7 @@ def _step(t: int, params: SimParams, shape: FleetShape, alloc: _Allocators, stat
     violation = pushes & ~success & (u < probs[..., 0] + probs[..., 1])
     done = resetting & (served + 1 >= state.need)
     state.viol = (state.viol & ~done) | violation
-    state.kind, state.served = kind, served
+    state.kind, state.served, state.waiting = kind, served, asking
     totals["successes"] += success.sum(axis=1)
     totals["hard_resets"] += violation.sum(axis=1)
     totals["idle_time"] += (idle | resetting).sum(axis=1)

@@ -8,6 +8,11 @@ push with fixed chances (the policy's face 2, the expert's face 1: a scripted hu
 skill 1), the learner's uncertainty is a fresh uniform draw per arm-step, so an arm asks
 for a teleop (C.U.R.'s u >= u_hat) with probability ``1 - u_hat(t)``. A run of a few
 hundred steps takes about a second.
+
+With ``neglected`` and ``persist`` set, the world also has neglect (as the twin has): an
+arm that asked and got no one (the policy pushed it: its face) pushes with the
+``neglected`` chances, and asks again with ``persist`` the next step. Hosts and learner
+share what each arm asked (``Neglect``) to know it.
 """
 
 from __future__ import annotations
@@ -49,6 +54,10 @@ class World:
     """Per teleop push (the expert's face)."""
     t_T: int = 3
     t_R: int = 4
+    neglected: tuple[float, float] | None = None
+    """Per push of an arm whose request no one took; None: the policy's."""
+    persist: float | None = None
+    """P(it asks again) the step after; None: ``request(t)``."""
 
     def request(self, t: int) -> float:
         return self.request_early if t < self.switch else self.request_late
@@ -58,12 +67,23 @@ U_HAT = 0.5
 """The threshold; the learner scales its draws so that P(u >= U_HAT) is the world's."""
 
 
+@dataclass
+class Neglect:
+    """What each arm's key asked this step, and whether it was left alone after asking
+    last step (index by arm)."""
+
+    asked: list[bool]
+    waiting: list[bool]
+
+
 class KnownHosts:
     """Arms whose pushes succeed or violate with the world's chances."""
 
-    def __init__(self, arms: Sequence[str], world: World, seed: int) -> None:
+    def __init__(self, arms: Sequence[str], world: World, seed: int,
+                 neglect: Neglect | None = None) -> None:
         self.robot_names = list(arms)
         self.world = world
+        self.neglect = neglect
         self.rng = np.random.default_rng(seed)
         self.violating = dict.fromkeys(arms, False)
         self.image = np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
@@ -74,14 +94,20 @@ class KnownHosts:
 
     def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
         out: dict[str, Any] = {}
-        for r in self.robot_names:
+        for i, r in enumerate(self.robot_names):
             if r in resets:
                 self.violating[r] = False
             action = pushes.get(r)
+            left = (self.neglect is not None and action == POLICY_FACE
+                    and self.neglect.asked[i])
+            if self.neglect is not None:
+                self.neglect.waiting[i] = left
             if action is None:
                 out[r] = PushResult(r, None, False, False)
                 continue
-            s, v = self.world.human if action == EXPERT_FACE else self.world.policy
+            s, v = (self.world.human if action == EXPERT_FACE
+                    else self.world.neglected if left and self.world.neglected
+                    else self.world.policy)
             u = self.rng.random()
             success, violation = u < s, s <= u < s + v
             self.violating[r] = self.violating[r] or violation
@@ -92,16 +118,21 @@ class KnownHosts:
 class KnownLearner(QuietLearner):
     """Pushes face 2; its uncertainty is above ``U_HAT`` with the world's request rate."""
 
-    def __init__(self, world: World, seed: int) -> None:
+    def __init__(self, world: World, seed: int, neglect: Neglect | None = None) -> None:
         self.world = world
         self.rng = np.random.default_rng(seed)
         self.t = 0
+        self.neglect = neglect
 
     def act(self, images: np.ndarray) -> Any:
         n = len(images)
-        p = self.world.request(self.t)
+        p: Any = self.world.request(self.t)
+        if self.neglect is not None and self.world.persist is not None:
+            p = np.where(self.neglect.waiting, self.world.persist, p)
         self.t += 1
         asks = self.rng.random(n) < p
+        if self.neglect is not None:
+            self.neglect.asked[:] = asks.tolist()
         u = np.where(asks, U_HAT + (1 - U_HAT) * (1 - self.rng.random(n)),
                      U_HAT * self.rng.random(n))
         z = np.zeros(n)
@@ -117,8 +148,11 @@ def run_world(folder: Path, world: World, *, arms: int, people: Sequence[HumanPr
     params = AlgorithmConfig(t_T=world.t_T, t_R=world.t_R, t_I=0, u_hat=U_HAT, r_hat=1.0)
     algorithm = get_algorithm("cur", params, arms, m, seed=seed)
     folder.mkdir(parents=True)
+    neglect = (Neglect([False] * arms, [False] * arms)
+               if world.neglected is not None or world.persist is not None else None)
     with RunWriter(folder) as writer:
-        loop = FleetLoop(hosts=KnownHosts(names, world, seed), learner=KnownLearner(world, seed),
+        loop = FleetLoop(hosts=KnownHosts(names, world, seed, neglect),
+                         learner=KnownLearner(world, seed, neglect),
                          humans=ScriptedHumans(people, seed=seed, robots=names),
                          algorithm=algorithm, writer=writer, steps=steps, num_humans=m,
                          t_T=world.t_T, t_R=world.t_R, overlap_act=False)

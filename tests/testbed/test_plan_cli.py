@@ -163,3 +163,41 @@ def test_trials_without_the_trials_planner_is_one_line(
     monkeypatch.setitem(sys.modules, "testbed.experiments.plan_trials", None)
     line = one_line(["plan", str(protocol), "--trials"], capsys)
     assert line.startswith("testbed plan: --trials: this build has no trials planner")
+
+
+def test_against_puts_a_measured_sweep_beside_the_plan(
+        protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The same world measured at N=4, M=1 and N=6, M=3 (2 runs each, 120 steps), one
+    point outside the grid and one of another length: per point and metric the measured
+    mean and the interval, the count inside, and a note for each point left out."""
+    sweep = tmp_path / "sweep"
+    people = [HumanProfile(name="ana"), HumanProfile(name="bo", latency=1)]
+    for n, m, steps in ((4, 1, 120), (6, 3, 120), (8, 1, 120), (4, 2, 60)):
+        for s in (0, 1):
+            run_world(sweep / f"n{n}m{m}-{steps}-s{s}", World(), arms=n, steps=steps,
+                      seed=10 + s, people=[people[h % 2] for h in range(m)])
+    out = tmp_path / "out"
+    assert main(["plan", str(protocol), "--robots", "4,6", "--humans", "1,2,3",
+                 "--replicates", "100", "--runs", "2", "--out", str(out),
+                 "--against", str(sweep)]) == 0
+    printed = capsys.readouterr().out
+    md = (out / "plan.md").read_text()
+    assert md in printed and "## Predicted and measured: cur" in md
+    assert "--against: cur N=8, M=1 left out: not in the plan's grid" in md
+    assert "--against: cur N=4, M=2 left out: its runs have 60 steps, the plan 120" in md
+    with (out / "plan-check.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {(r["N"], r["M"], r["runs"]) for r in rows} == {("4", "1", "2"), ("6", "3", "2")}
+    assert len(rows) == 2 * len(METRICS)
+    for r in rows:  # the measured mean and the plan's interval for that point and metric
+        assert r["inside"] == str(int(float(r["low"]) <= float(r["measured"])
+                                      <= float(r["high"]))), r
+    inside = {k: sum(int(r["inside"]) for r in rows if r["metric"] == k) for k in METRICS}
+    assert inside["human_actions"] >= 1 and inside["idle_time"] >= 1  # the true world
+    counts = next(line for line in md.splitlines() if line.startswith("Inside the interval"))
+    assert counts.startswith("Inside the interval, of 2 point(s): successes "
+                             f"{inside['successes']},")
+    row = next(line for line in md.splitlines() if line.startswith("| 4 | 1 | 2 |"))
+    assert row.count("[") == len(METRICS) and ("in" in row or "OUT" in row)
+    line = one_line(["plan", str(protocol), "--trials", "--against", str(sweep)], capsys)
+    assert "--against: only without --trials" in line

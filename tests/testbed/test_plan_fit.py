@@ -127,3 +127,28 @@ def test_evaluations_and_unfinished_runs_are_left_out_with_a_note(runs: list[Pat
     assert any("unfinished (running" in n and "cur-t9" in n for n in notes)
     with pytest.raises(ConfigError, match="RUN_OR_PROTOCOL_DIR: no finished run to fit"):
         fit_runs(folders)
+
+
+NEGLECT = World(policy=(0.2, 0.01), neglected=(0.1, 0.15), persist=0.7)
+
+
+def test_the_fit_recovers_the_neglected_arm(tmp_path: Path) -> None:
+    """In a world where an arm that asked and got no one violates 15 times as often and
+    asks again at 0.7, the fit finds both, apart from the calm arm's rates (one human
+    for 6 arms: many requests go unserved)."""
+    runs = [run_world(tmp_path / f"cur-t{s}", NEGLECT, arms=6, people=PEOPLE[:1], steps=300,
+                      seed=s) for s in (1, 2)]
+    fits, _ = fit_runs(runs, BIN)
+    f = fits[0]
+    calm, asking = f.policy.total(), f.asking.total()
+    assert asking.sum() > 200 and calm.sum() > 200
+    assert near(calm[1], calm.sum(), 0.01) and near(calm[0], calm.sum(), 0.2)
+    assert near(asking[1], asking.sum(), 0.15) and near(asking[0], asking.sum(), 0.1)
+    k, n = f.persists.arrays(f.bins)
+    assert n.sum() > 200 and near(k.sum(), n.sum(), 0.7)
+    k, n = f.requests.arrays(f.bins)
+    late = slice(NEGLECT.switch // BIN, None)
+    assert near(k[late].sum(), n[late].sum(), NEGLECT.request_late)
+    d = f.draw(2000, np.random.default_rng(0))
+    assert abs(d.asking[..., 1].mean() - asking[1] / asking.sum()) < 0.02
+    assert abs(d.persist.mean() - k.sum() / n.sum()) > 0.3  # persist is not the request rate
