@@ -86,23 +86,24 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
                               "(or web)")
 
 
-def check_policy(path: str, cfg: FleetConfig) -> None:
+def check_policy(path: str, cfg: FleetConfig, what: str = "--policy") -> None:
     """``--policy`` is a learner checkpoint this config can load (same ensemble size and
-    augmentation factor): found now, not after the hosts have started."""
+    augmentation factor): found now, not after the hosts have started. ``what``: the
+    flag or field that named it, for the one-line error."""
     p = Path(path)
     if not p.is_file():
-        raise ConfigError(f"--policy: no such file {path!r}; give a learner.pt")
+        raise ConfigError(f"{what}: no such file {path!r}; give a learner.pt")
     from testbed.learning import checkpoint
 
     try:
         saved = checkpoint.load(p)["cfg"]
     except Exception as exc:  # torch's many ways of saying "not a checkpoint"
         why = " ".join(str(exc).split())[:160]
-        raise ConfigError(f"--policy: {path} is not a learner checkpoint ({why}); give the "
+        raise ConfigError(f"{what}: {path} is not a learner checkpoint ({why}); give the "
                           "learner.pt of a trial or of testbed pretrain") from None
     for field in ("ensemble_size", "augmentation_factor"):
         if saved.get(field) != getattr(cfg.learning, field):
-            raise ConfigError(f"--policy: {path} has learning.{field} = {saved.get(field)}, "
+            raise ConfigError(f"{what}: {path} has learning.{field} = {saved.get(field)}, "
                               f"the config {getattr(cfg.learning, field)}; use the "
                               "checkpoint's value in the config")
 

@@ -23,6 +23,7 @@ from testbed.cli.checks import (
     check_device,
     check_humans,
     check_out_dir,
+    check_policy,
     load_config,
     resume_options,
     trial_options,
@@ -157,6 +158,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     for run in sweep.runs():
         check_device(run.fleet)
         check_humans(sweep.humans, run.fleet)
+        if sweep.policy is not None:
+            check_policy(sweep.policy, run.fleet, f"{args.file}: policy")
     if args.workers is not None or args.ray is not None:
         from testbed.experiments.fanout import run_sweep_on_ray
 

@@ -223,7 +223,7 @@ def run_sweep_on_ray(sweep: Sweep, folder: Path, *, address: str | None = None,
     try:
         pre = _remote(ray, _pretrain, _cpus(ray))
         fleets = {pretrain_key(r.fleet, PRETRAIN_SEED, critic_set(critics)): r.fleet
-                  for r in runs}
+                  for r in runs} if sweep.policy is None else {}  # a held policy: none
         ray.get([pre.remote(f, str(folder), critics, cpus_per_trial)
                  for f in fleets.values()])
         task = _remote(ray, _sweep_run, cpus_per_trial)

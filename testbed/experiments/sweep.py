@@ -61,6 +61,11 @@ class Sweep(BaseModel):
     humans: Literal["scripted", "gui", "web"] = "scripted"
     grid: dict[str, list[Any]] = Field(min_length=1)
     fleet: FleetConfig = Field(default_factory=FleetConfig)
+    policy: str | None = None
+    """Every run starts from this learner checkpoint (``testbed trial --policy``), e.g. a
+    protocol's theta_0 (``<run>/learner-start.pt``, its data included) instead of
+    pretraining one per fleet: a sweep of fleet sizes that holds the policy (and the
+    thresholds resolved on its data) fixed, as ``testbed plan`` assumes."""
 
     @model_validator(mode="after")
     def _check(self) -> Sweep:
@@ -154,6 +159,9 @@ def load_sweep(path: Path) -> Sweep:
         sweep.runs()
     except ConfigError as err:
         raise ConfigError(f"{path}: {err}") from None
+    if sweep.policy is not None and not Path(sweep.policy).is_file():
+        raise ConfigError(f"{path}: policy: no such file {sweep.policy!r}; give a learner.pt "
+                          "(a run's learner-start.pt is its theta_0)")
     return sweep
 
 
@@ -176,7 +184,7 @@ def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
     run = sweep.runs()[index]
     opts = TrialOptions(algorithm=run.algorithm, steps=sweep.steps, seed=run.seed,
                         out=str(folder), humans=sweep.humans, name=run.name,
-                        pretrain_critics=pretrain_critics_of(sweep))
+                        pretrain_critics=pretrain_critics_of(sweep), policy=sweep.policy)
     # "index": the point's place in the grid, so the report lists points in the grid's
     # order (1, 3, 5, 10, 20), not their names' (1, 10, 20, 3, 5)
     run_meta = {**(meta or {}), "sweep": {"name": sweep.name, "point": run.point.label,

@@ -118,3 +118,25 @@ def test_a_small_sweep_runs_to_its_report(tmp_path: Path) -> None:
                            capture_output=True, text=True, cwd=tmp_path, timeout=120,
                            env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert again.returncode == 0 and again.stdout == cli.stdout  # finished runs skipped
+    # policy: a second sweep of 4 arms starts every run from the first run's theta_0
+    # (its data included): no pretraining of its own, and the same resolved threshold
+    start = out / "humans.count-1-s0" / "learner-start.pt"
+    held = _write(tmp_path, steps=3, seeds=[0], grid={"humans.count": [1]},
+                  out=str(tmp_path / "held"), policy=str(start), fleet={
+                      "learning": {"ensemble_size": 2, "batch_size": 16, "demos": 30,
+                                   "critic_transitions": 20, "pretrain_steps": 4},
+                      "hosts": [{"name": "cell0"}, {"name": "cell1"}]})
+    cli = subprocess.run([sys.executable, "-m", "testbed.cli", "sweep", str(held)],
+                         capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert cli.returncode == 0, cli.stderr[-3000:]
+    run = tmp_path / "held" / "humans.count-1-s0"
+    assert json.loads((run / "run.json").read_text())["options"]["policy"] == str(start)
+    assert not (tmp_path / "held" / ".pretrained").exists()
+    assert len({r["robot"] for r in read_steps(run / "steps.jsonl")[0]["robots"]}) == 4
+
+
+def test_a_sweeps_policy_must_be_a_file(tmp_path: Path) -> None:
+    path = _write(tmp_path, policy=str(tmp_path / "none.pt"))
+    with pytest.raises(ConfigError, match=r"policy: no such file .*none\.pt.*learner-start"):
+        load_sweep(path)
