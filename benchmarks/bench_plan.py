@@ -40,6 +40,7 @@ from testbed.experiments.plan_fit import (
     fit_runs,
 )
 from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
+from testbed.experiments.plan_trouble import TroubleCounts
 from testbed.records.steps import read_steps
 
 BUDGET_S = 10.0
@@ -64,6 +65,12 @@ def twin_like_fit() -> PlanFit:
     ana.latency, ana.reset_steps, ana.present = [0] * 120, [5] * 20, 720
     bo.pushes = Outcomes(counts=[[52, 4, 144]])
     fit.humans = [ana, bo]
+    fit.trouble = TroubleCounts(  # the twin fit's figures (docs/notes/plan.md)
+        calm_ask=np.array([[150, 650], [140, 620], [110, 640], [100, 610], [70, 500.0]]),
+        trouble_ask=np.array([270, 290.0]), to_trouble=np.array([170, 2000.0]),
+        recover=np.array([30, 280.0]), fixed=np.array([400, 480.0]),
+        start=np.array([5, 60.0]), calm_push=fit.policy.array(5),
+        trouble_push=np.array([4, 25, 85.0]))
     fit.measured = [dict.fromkeys(("successes", "hard_resets", "idle_time", "human_actions",
                                    "rohe", "utilisation", "wait", "unserved"), 0.0)]
     return fit

@@ -184,9 +184,13 @@ def _repeat(draws: Draws, k: int) -> Draws:
     """Each replicate's draw ``k`` times in a row (its ``k`` simulated runs)."""
     if k == 1:
         return draws
-    keep = {"latency_values", "reset_values"}
-    return replace(draws, **{f.name: np.repeat(getattr(draws, f.name), k, axis=0)
-                             for f in fields(draws) if f.name not in keep})
+    keep = {"latency_values", "reset_values", "trouble"}
+    trouble = replace(draws.trouble, **{f.name: np.repeat(getattr(draws.trouble, f.name), k,
+                                                          axis=0)
+                                        for f in fields(draws.trouble)})
+    return replace(draws, trouble=trouble,
+                   **{f.name: np.repeat(getattr(draws, f.name), k, axis=0)
+                      for f in fields(draws) if f.name not in keep})
 
 
 def interval(v: FloatArray) -> tuple[float, float, float]:
@@ -279,23 +283,34 @@ def _check(plan: AlgorithmPlan) -> list[str]:
 
 
 def _processes(fit: PlanFit) -> list[str]:
-    """What the fit found, in two small tables: by phase, and by human."""
+    """What the fit found, in two small tables and a line: by phase (the requests seen,
+    and the calm arm of the trouble model), the trouble state, and by human."""
     b = fit.bins
-    req, cont = fit.requests.means(b), fit.continues.means(b)
-    again = fit.persists.means(b, prior=fit.requests.pooled())
-    pol, ask = fit.policy.array(b), fit.asking.array(b)
-    lines = ["Fitted, by phase (posterior means; pushes: the policy's, of a calm arm and "
-             "of one whose request no one took):", "",
-             "| steps | teleop requests per arm-step | teleop goes on | asks again, unserved "
-             "| calm pushes | success per push | violation per push | unserved pushes | "
-             "their violations per push |", "|---|---|---|---|---|---|---|---|---|"]
+    req = fit.requests.means(b)
+    c = fit.trouble
+    assert c is not None
+    calm_ask = (c.calm_ask[:, 0] + 1) / (c.calm_ask[:, 1] + 2)
+    pushes = c.calm_push.sum(-1)
+    lines = ["Fitted, by phase (requests: what the rows show of arms neither violating nor "
+             "held; the rest: the calm arm of the trouble model, expected counts):", "",
+             "| steps | requests per arm-step | a calm arm asks | calm pushes | "
+             "success per push | violation per push |", "|---|---|---|---|---|---|"]
     for i in range(b):
-        pushes, left = pol[i].sum(), ask[i].sum()
-        rate = (pol[i] / pushes) if pushes else np.full(3, np.nan)
+        rate = c.calm_push[i] / pushes[i] if pushes[i] else np.full(3, np.nan)
         lines.append(f"| {i * fit.bin_steps}-{(i + 1) * fit.bin_steps - 1} | {req[i]:.3f} | "
-                     f"{cont[i]:.3f} | {again[i]:.3f} | {int(pushes)} | {rate[0]:.3f} | "
-                     f"{rate[1]:.3f} | {int(left)} | "
-                     + (f"{ask[i][1] / left:.3f} |" if left else "- |"))
+                     f"{calm_ask[i]:.3f} | {pushes[i]:.0f} | {rate[0]:.3f} | {rate[1]:.3f} |")
+    tp = c.trouble_push / max(c.trouble_push.sum(), 1.0)
+
+    def r(kn: FloatArray) -> str:
+        return f"{(kn[0] + 1) / (kn[1] + 2):.3f}"
+
+    lines += ["", f"In trouble (the arm's hidden state, {c.trouble_ask[1]:.0f} of "
+              f"{c.trouble_ask[1] + c.calm_ask[:, 1].sum():.0f} arm-steps): it asks "
+              f"{r(c.trouble_ask)} a step, its policy pushes succeed {tp[0]:.3f} and violate "
+              f"{tp[1]:.3f}; a calm arm on its own falls into trouble {r(c.to_trouble)} a "
+              f"step, a troubled one recovers alone {r(c.recover)}; after a human's push "
+              f"it is calm {r(c.fixed)}; after a violation (and at the start) troubled "
+              f"{r(c.start)}."]
     lines += ["", "| human | pushes | success per push | violation per push | latency "
               "(steps) | reset (steps) | available |", "|---|---|---|---|---|---|---|"]
     for h in fit.humans:

@@ -15,14 +15,11 @@ process                counted from the rows (by phase: bins of ``bin_steps`` st
 teleop requests        an arm not violating and not held (a teleop under t_T, a
                        reset under t_R) whose key is > 0; apart: right after a
                        teleop of its own (``continues``: how long teleops run past
-                       t_T), right after a request no one took (``persists``: an
-                       unattended arm keeps asking), else (``requests``)
+                       t_T), else (``requests``)
 reset eligibility      a violating arm's key > 0 (only for keys without ``c``,
                        e.g. the ``u`` ablation; with ``c`` it is the rule: always,
                        or from t_I for C.U.R.)
-policy pushes          per autonomous push: success, violation, neither; apart:
-                       the pushes of an arm whose request no one took (``asking``:
-                       the neglected arm, whose key said it was at risk)
+policy pushes          per autonomous push: success, violation, neither
 each human's pushes    per teleop push: success, violation, neither
 latency                per teleop: ``first.steps`` of its first push
 reset length           per confirmed reset: ``first.steps + 1``
@@ -38,14 +35,10 @@ humans' pool with ``PRIOR_PUSHES`` pseudo-pushes, the pool towards the policy wi
 reads as the fleet's average; a phase bin's rate shrinks towards the run's whole rate
 with ``PRIOR_BIN`` pseudo arm-steps, so a sparse bin is not a coin of its own.
 
-Why the neglected arm is a process of its own: on the twin a policy push while the arm's
-own key asked for a human violates 10-15 times as often as one from a calm arm (0.095
-against 0.003 per push over the fit's runs; docs/notes/plan.md), because C.U.R.'s key
-asks exactly when the risk critic expects a violation; and an arm that asked and got no
-one asks again 2-3 times as often as a calm one. How many requests go unserved depends
-on M, so a rate pooled over both would carry the fit's M to every other M: one human
-would get too few resets and four too many. This is Olsen and Wood's neglect: an
-unattended robot's performance decays, and the plan replays it per arm.
+Those counts describe the runs (the plan's tables, the tests); what the simulation
+replays of the arms is the trouble model fitted on the same rows
+(:mod:`testbed.experiments.plan_trouble`: each arm calm or in trouble, its requests and
+its policy's pushes by that hidden state), and of the humans the rows above.
 """
 
 from __future__ import annotations
@@ -63,6 +56,14 @@ import numpy as np
 import numpy.typing as npt
 
 from testbed.core.config import ConfigError
+from testbed.experiments.plan_trouble import (
+    ArmSequences,
+    TroubleCounts,
+    TroubleDraws,
+    arm_sequences,
+    draw_trouble,
+    fit_trouble,
+)
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import ALGORITHMS, get_algorithm
 from testbed.fleet.operators import POOL_PUSHES, PRIOR_PUSHES, PRIOR_TIMES
@@ -134,28 +135,23 @@ class Rates:
         n[:len(self.n)] = self.n[:bins]
         return k, n
 
-    def pooled(self, prior: float | None = None) -> float:
-        """The whole run's rate (the bins' prior mean): Laplace's rule, or shrunk to
-        ``prior`` with ``PRIOR_BIN`` pseudo-trials (a process with few trials reads as
-        the one it splits from)."""
-        if prior is None:
-            return (sum(self.k) + 1.0) / (sum(self.n) + 2.0)
-        return (sum(self.k) + PRIOR_BIN * prior) / (sum(self.n) + PRIOR_BIN)
+    def pooled(self) -> float:
+        """The whole run's rate, Laplace's rule (the bins' prior mean)."""
+        return (sum(self.k) + 1.0) / (sum(self.n) + 2.0)
 
-    def draw(self, bins: int, replicates: int, rng: np.random.Generator,
-             prior: float | None = None) -> npt.NDArray[np.float64]:
+    def draw(self, bins: int, replicates: int, rng: np.random.Generator
+             ) -> npt.NDArray[np.float64]:
         """(R, bins) rates from each bin's Beta posterior, shrunk to the pooled rate."""
         k, n = self.arrays(bins)
-        p = self.pooled(prior)
+        p = self.pooled()
         return rng.beta(k + PRIOR_BIN * p, n - k + PRIOR_BIN * (1.0 - p),
                         size=(replicates, bins))
 
     def draw_weighted(self, k: npt.NDArray[np.float64], n: npt.NDArray[np.float64],
-                      rng: np.random.Generator, prior: float | None = None
-                      ) -> npt.NDArray[np.float64]:
+                      rng: np.random.Generator) -> npt.NDArray[np.float64]:
         """As :meth:`draw`, from counts ``k``, ``n`` (R, bins) reweighted per replicate
         (:meth:`PlanFit.draw`'s bootstrap over runs); the prior stays the pooled one."""
-        p = self.pooled(prior)
+        p = self.pooled()
         return rng.beta(k + PRIOR_BIN * p, n - k + PRIOR_BIN * (1.0 - p))
 
     def merge(self, other: Rates) -> None:
@@ -166,9 +162,9 @@ class Rates:
             self.k[b] += k
             self.n[b] += n
 
-    def means(self, bins: int, prior: float | None = None) -> npt.NDArray[np.float64]:
+    def means(self, bins: int) -> npt.NDArray[np.float64]:
         k, n = self.arrays(bins)
-        p = self.pooled(prior)
+        p = self.pooled()
         return (k + PRIOR_BIN * p) / (n + PRIOR_BIN)
 
 
@@ -205,10 +201,8 @@ class Processes:
 
     requests: Rates = field(default_factory=Rates)
     continues: Rates = field(default_factory=Rates)
-    persists: Rates = field(default_factory=Rates)
     eligible: Rates = field(default_factory=Rates)
     policy: Outcomes = field(default_factory=Outcomes)
-    asking: Outcomes = field(default_factory=Outcomes)
 
 
 @dataclass
@@ -232,18 +226,10 @@ class Draws:
     fitted human (H) where they are a person's; :mod:`testbed.experiments.plan_sim`
     maps the planned humans onto them."""
 
-    request: npt.NDArray[np.float64]
-    """(R, B) P(a teleop request) of an arm neither violating nor held."""
-    cont: npt.NDArray[np.float64]
-    """(R, B) the same right after a teleop of its own (the teleop goes on)."""
+    trouble: TroubleDraws
+    """Each arm's requests and policy pushes: calm or in trouble (:mod:`plan_trouble`)."""
     eligible: npt.NDArray[np.float64]
     """(R, B) P(a violating arm's key > 0): used only for keys without ``c``."""
-    persist: npt.NDArray[np.float64]
-    """(R, B) the same right after a request no one took."""
-    policy: npt.NDArray[np.float64]
-    """(R, B, 3) per autonomous push of a calm arm: P(success), P(violation), P(neither)."""
-    asking: npt.NDArray[np.float64]
-    """(R, B, 3) per autonomous push of an arm whose request no one took."""
     human: npt.NDArray[np.float64]
     """(R, H, 3) per teleop push of human h."""
     available: npt.NDArray[np.float64]
@@ -275,13 +261,19 @@ class PlanFit:
     """C.U.R.: a violating arm's key is -1 (no human) while t < t_I."""
     requests: Rates = field(default_factory=Rates)
     continues: Rates = field(default_factory=Rates)
-    persists: Rates = field(default_factory=Rates)
     eligible: Rates = field(default_factory=Rates)
     policy: Outcomes = field(default_factory=Outcomes)
-    asking: Outcomes = field(default_factory=Outcomes)
     humans: list[HumanFit] = field(default_factory=list)
     per_run: list[Processes] = field(default_factory=list)
     """Each run's own counts of the processes above (their sum), for the bootstrap."""
+    sequences: list[ArmSequences] = field(default_factory=list)
+    """Each run's arms, for the trouble model's fit."""
+    trouble: TroubleCounts | None = None
+    """The trouble model's expected counts at its fit (:func:`fit_trouble`), summed."""
+    trouble_runs: list[TroubleCounts] = field(default_factory=list)
+    """The same per run, for the bootstrap."""
+    trouble_loglik: float = float("nan")
+    """The trouble model's log-likelihood per observed step at its fit."""
     measured: list[dict[str, float]] = field(default_factory=list)
     """Per run: the plan's metrics as the run measured them (:func:`run_metrics`)."""
     notes: list[str] = field(default_factory=list)
@@ -305,51 +297,41 @@ class PlanFit:
         hold for the whole run); on the twin the fit's 4 runs' request rates were 0.19 to
         0.30 where the binomial error of one run is 0.01, and a posterior that pooled
         every arm-step alike gave intervals too narrow for a new run's seeds."""
-        b, r = self.bins, replicates
+        r = replicates
         w = (rng.dirichlet(np.ones(len(self.per_run)), size=r) * len(self.per_run)
              if len(self.per_run) >= 2 else None)
-        pol_total = self.policy.total() + self.asking.total()
+        pol_total = self.policy.total()
         pol_mean = (pol_total + 1.0) / (pol_total.sum() + 3.0)
-        calm_total, ask_total = self.policy.total(), self.asking.total()
-        calm_mean = (calm_total + POOL_PUSHES * pol_mean) / (calm_total.sum() + POOL_PUSHES)
-        ask_mean = (ask_total + POOL_PUSHES * pol_mean) / (ask_total.sum() + POOL_PUSHES)
-        pol = self._outcomes("policy", w, r, b) + PRIOR_BIN * calm_mean
-        asking = self._outcomes("asking", w, r, b) + PRIOR_BIN * ask_mean
         humans = self.humans or [HumanFit(0, "human0")]
         pool = sum((h.pushes.total() for h in humans), np.zeros(3))
         pool_mean = (pool + POOL_PUSHES * pol_mean) / (pool.sum() + POOL_PUSHES)
         human = np.stack([h.pushes.total() + PRIOR_PUSHES * pool_mean for h in humans])
         lat_values, lat_cdf = _times([h.latency for h in humans], 0, r, rng)
         reset_values, reset_cdf = _times([h.reset_steps for h in humans], self.t_R, r, rng)
+        if self.trouble is None:
+            self.fit_trouble()
+        assert self.trouble is not None
         return Draws(
-            request=self._rates("requests", w, r, rng),
-            cont=self._rates("continues", w, r, rng),
-            persist=self._rates("persists", w, r, rng, prior=self.requests.pooled()),
+            trouble=draw_trouble(self.trouble, self.trouble_runs, w, r, rng),
             eligible=self._rates("eligible", w, r, rng),
-            policy=_dirichlet(pol, rng), asking=_dirichlet(asking, rng),
             human=_dirichlet(np.broadcast_to(human, (r, len(humans), 3)), rng),
             available=np.stack([_availability(h, r, rng) for h in humans], axis=1),
             latency_values=lat_values, latency_cdf=lat_cdf,
             reset_values=reset_values, reset_cdf=reset_cdf)
 
+    def fit_trouble(self) -> None:
+        """The trouble model's EM over the runs' arms (:func:`plan_trouble.fit_trouble`)."""
+        self.trouble, self.trouble_runs, self.trouble_loglik = fit_trouble(
+            self.sequences, self.bin_steps, self.bins)
 
     def _rates(self, name: str, w: npt.NDArray[np.float64] | None, r: int,
-               rng: np.random.Generator, prior: float | None = None
-               ) -> npt.NDArray[np.float64]:
-        """(R, B) draws of one request process: pooled, or over reweighted runs."""
+               rng: np.random.Generator) -> npt.NDArray[np.float64]:
+        """(R, B) draws of one rate: pooled, or over reweighted runs."""
         pooled: Rates = getattr(self, name)
         if w is None:
-            return pooled.draw(self.bins, r, rng, prior)
+            return pooled.draw(self.bins, r, rng)
         k, n = zip(*(getattr(p, name).arrays(self.bins) for p in self.per_run), strict=True)
-        return pooled.draw_weighted(w @ np.stack(k), w @ np.stack(n), rng, prior)
-
-    def _outcomes(self, name: str, w: npt.NDArray[np.float64] | None, r: int, b: int
-                  ) -> npt.NDArray[np.float64]:
-        """(R, B, 3) counts of one push process: pooled, or over reweighted runs."""
-        if w is None:
-            return np.broadcast_to(getattr(self, name).array(b), (r, b, 3)).copy()
-        per_run = np.stack([getattr(p, name).array(b) for p in self.per_run])
-        return np.einsum("rk,kbc->rbc", w, per_run)
+        return pooled.draw_weighted(w @ np.stack(k), w @ np.stack(n), rng)
 
 
 def _dirichlet(alpha: npt.NDArray[np.float64], rng: np.random.Generator
@@ -457,6 +439,8 @@ def fit_runs(paths: Iterable[Path], bin_steps: int = BIN_STEPS
                              "the plan replays blind Algorithm 1, so who gets which arm "
                              "may differ.")
         _count(fit, run)
+    for fit in fits.values():
+        fit.fit_trouble()
     notes = [f"{len(names)} run(s) left out, {why}: " + ", ".join(names[:4])
              + (f" and {len(names) - 4} more" if len(names) > 4 else "")
              for why, names in left.items()]
@@ -479,11 +463,12 @@ def _count(fit: PlanFit, run: _Run) -> None:
     for row in run.rows:
         counter.row(row)
     fit.per_run.append(counter.proc)
-    for name in ("requests", "continues", "persists", "eligible", "policy", "asking"):
+    fit.sequences.append(arm_sequences(run.rows))
+    for name in ("requests", "continues", "eligible", "policy"):
         getattr(fit, name).merge(getattr(counter.proc, name))
     fit.measured.append(run_metrics(run.rows, run.num_humans, n, counter.requests,
                                     counter.served))
-    if not sum(fit.requests.n) + sum(fit.continues.n) + sum(fit.persists.n) and not fit.notes:
+    if not sum(fit.requests.n) + sum(fit.continues.n) and not fit.notes:
         fit.notes.append("Its rows carry no keys (written before keys were recorded): "
                          "the teleop request rate is the prior's 0.5, not a fit.")
 
@@ -496,8 +481,8 @@ class _RunCounter:
         self.num_humans = num_humans
         self.proc = Processes()
         """The run's own counts of the arms' processes (the humans' go to the fit)."""
-        self.prev: dict[str, tuple[str, int, bool]] = {}
-        """Robot -> (mode, served, whether its key asked) of the last row."""
+        self.prev: dict[str, tuple[str, int]] = {}
+        """Robot -> (mode, served) of the last row."""
         self.requests = 0
         self.served = 0
 
@@ -508,23 +493,23 @@ class _RunCounter:
         for h in range(self.num_humans):
             fit.humans[h].present += h not in away
             fit.humans[h].away += h in away
-        now: dict[str, tuple[str, int, bool]] = {}
+        now: dict[str, tuple[str, int]] = {}
         for r in row["robots"]:
             mode = str(r["mode"])
-            key = r.get("key")
-            asked = bool(key) and _lex_positive(key)
-            now[r["robot"]] = (mode, int(r.get("served") or 0), asked)
+            now[r["robot"]] = (mode, int(r.get("served") or 0))
             if mode in _SKIP:
                 continue
-            self._keys(r, mode, b, asked)
-            self._pushes(r, mode, b, asked)
+            self._keys(r, mode, b)
+            self._pushes(r, mode, b)
         self.prev = now
 
-    def _keys(self, r: Mapping[str, Any], mode: str, b: int, asked: bool) -> None:
+    def _keys(self, r: Mapping[str, Any], mode: str, b: int) -> None:
         """The request processes: what the arm's key asked for, where it mattered."""
-        if not r.get("key"):
+        key = r.get("key")
+        if not key:
             return
-        pm, ps, pa = self.prev.get(r["robot"], ("autonomous", 0, False))
+        asked = _lex_positive(key)
+        pm, ps = self.prev.get(r["robot"], ("autonomous", 0))
         if mode in _IDLE:  # violating: could it get a person at all?
             if mode == "idle" or r.get("served") == 0:
                 self.proc.eligible.add(b, asked)
@@ -532,21 +517,17 @@ class _RunCounter:
         t_T, t_R = self.fit.t_T, self.fit.t_R
         if (pm == "teleop" and ps + 1 < t_T) or (pm == "reset" and ps + 1 < t_R):
             return  # held: its key decided nothing
-        rates = (self.proc.continues if pm == "teleop"
-                 else self.proc.persists if pm == "autonomous" and pa else self.proc.requests)
-        rates.add(b, asked)
+        (self.proc.continues if pm == "teleop" else self.proc.requests).add(b, asked)
         if asked:
             self.requests += 1
             self.served += mode == "teleop"
 
-    def _pushes(self, r: Mapping[str, Any], mode: str, b: int, asked: bool) -> None:
-        """Pushes and their outcomes (an autonomous arm's apart when its request went
-        unserved); a human's first actions (as ``report_humans``)."""
+    def _pushes(self, r: Mapping[str, Any], mode: str, b: int) -> None:
+        """Pushes and their outcomes; a human's first actions (as ``report_humans``)."""
         pushed = r.get("action") is not None
         if mode == "autonomous":
             if pushed:
-                (self.proc.asking if asked else self.proc.policy).add(
-                    b, bool(r["success"]), bool(r["violation"]))
+                self.proc.policy.add(b, bool(r["success"]), bool(r["violation"]))
             return
         h = r.get("human")
         if h is None or not 0 <= int(h) < self.num_humans:

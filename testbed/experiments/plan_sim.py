@@ -24,13 +24,15 @@ What one arm does at step t of a replicate (docs/notes/plan.md says what is assu
 * violating: its key is the algorithm's ``c`` (eligible from t_I for C.U.R.), else it
   waits (``idle``); a human on it resets it (``reset``), done after the steps drawn for
   that human when the reset started, and never before t_R (the allocator holds it);
-* not violating and not held: it asks for a teleop with the phase's request rate (the
-  continuation rate right after a teleop of its own, the persistence rate right after a
-  request no one took); a human on it teleoperates, with no push before the latency
-  drawn for that human when the teleop started;
+* not violating: it is calm or in trouble (:mod:`testbed.experiments.plan_trouble`) and
+  its key asks for a teleop with that state's rate (a calm arm's by phase); a human on
+  it teleoperates, with no push before the latency drawn for that human when the teleop
+  started;
 * a push (the policy's, or a human's after their latency) succeeds, violates or neither,
-  with the phase's policy rates (those of a neglected arm when its request went
-  unserved this step) or the human's own.
+  with the policy's rates in the arm's state or the human's own;
+* then its state moves: after a human's push it is calm with the fitted chance, after a
+  violating step it starts afresh, else a calm arm falls into trouble and a troubled one
+  recovers with the fitted rates.
 
 Keys are two columns whose order is the algorithm's (``plan_fit.KeyOrder``); every
 candidate carries a fresh uniform draw so no two keys tie and the tie draw never decides
@@ -234,8 +236,8 @@ class _State:
     served: IntArray
     need: IntArray
     """Per arm: the steps its current intervention's human needs (latency or reset)."""
-    waiting: BoolArray
-    """Per arm: it asked last step and no one took it (it pushed on its own)."""
+    trouble: BoolArray
+    """Per arm: in trouble (else calm)."""
 
 
 def simulate(params: SimParams, shape: FleetShape, num_robots: int, num_humans: int,
@@ -250,7 +252,7 @@ def simulate(params: SimParams, shape: FleetShape, num_robots: int, num_humans: 
                           RealAllocators(r, n, m, shape.t_T, shape.t_R, seed=0))
     state = _State(np.zeros((r, n), bool), np.zeros((r, n), np.int8),
                    np.zeros((r, n), np.int64), np.zeros((r, n), np.int64),
-                   np.zeros((r, n), bool))
+                   rng.random((r, n)) < params.draws.trouble.start[:, None])
     totals = {k: np.zeros(r) for k in ("successes", "hard_resets", "idle_time",
                                         "human_actions", "idle", "requests", "served")}
     for t in range(steps):
@@ -262,11 +264,10 @@ def _keys(t: int, params: SimParams, shape: FleetShape, state: _State,
           rng: np.random.Generator) -> tuple[FloatArray, BoolArray]:
     """This step's keys (R, N, 2) and which arms are open teleop requests."""
     d = params.draws
+    arm = d.trouble
     r, n = state.viol.shape
-    b = min(t // shape.bin_steps, d.request.shape[1] - 1)
-    after_teleop = (state.kind == KIND_TELEOP) & (state.served + 1 >= shape.t_T)
-    p = np.where(after_teleop, d.cont[:, b, None],
-                 np.where(state.waiting, d.persist[:, b, None], d.request[:, b, None]))
+    b = min(t // shape.bin_steps, arm.calm_ask.shape[1] - 1)
+    p = np.where(state.trouble, arm.trouble_ask[:, None], arm.calm_ask[:, b, None])
     u = rng.random((r, n, 3))
     held = (((state.kind == KIND_TELEOP) & (state.served + 1 < shape.t_T))
             | ((state.kind == KIND_RESET) & ((state.served + 1 < shape.t_R) | state.viol)))
@@ -292,8 +293,9 @@ def _step(t: int, params: SimParams, shape: FleetShape, alloc: _Allocators, stat
           totals: dict[str, FloatArray], rng: np.random.Generator) -> None:
     """One step of every replicate: keys, Algorithm 1, the humans, the pushes."""
     d = params.draws
+    arm = d.trouble
     r, n = state.viol.shape
-    b = min(t // shape.bin_steps, d.policy.shape[1] - 1)
+    b = min(t // shape.bin_steps, arm.calm_ask.shape[1] - 1)
     keys, open_requests = _keys(t, params, shape, state, rng)
     available = rng.random(params.available.shape) < params.available
     human, kind, served = alloc.step(keys, state.viol, available)
@@ -311,16 +313,24 @@ def _step(t: int, params: SimParams, shape: FleetShape, alloc: _Allocators, stat
         rst = _pick(params.reset_cdf[nr, h], d.reset_values, u)
         state.need[nr, na] = np.where(is_reset, rst, lat)
     pushes = (~state.viol & ~has) | (teleop & (served >= state.need))
-    asking = open_requests & ~has  # asked, no one came: the neglected arm pushes
-    probs = np.where(asking[..., None], d.asking[:, b, None, :], d.policy[:, b, None, :])
+    probs = np.where(state.trouble[..., None], arm.trouble_push[:, None, :],
+                     arm.calm_push[:, b, None, :])
     tr, ta = np.nonzero(teleop)
     probs[tr, ta] = params.human[tr, human[tr, ta]]
     u = rng.random((r, n))
     success = pushes & (u < probs[..., 0])
     violation = pushes & ~success & (u < probs[..., 0] + probs[..., 1])
     done = resetting & (served + 1 >= state.need)
+    # The hidden state moves: afresh after a violating step, fixed by a human's push,
+    # else it drifts (plan_trouble's kinds, in the same order).
+    v = rng.random((r, n))
+    drift = np.where(state.trouble, v >= arm.recover[:, None], v < arm.to_trouble[:, None])
+    fixed = v >= arm.fixed[:, None]
+    afresh = v < arm.start[:, None]
+    human_push = teleop & pushes
+    state.trouble = np.where(state.viol, afresh, np.where(human_push, fixed, drift))
     state.viol = (state.viol & ~done) | violation
-    state.kind, state.served, state.waiting = kind, served, asking
+    state.kind, state.served = kind, served
     totals["successes"] += success.sum(axis=1)
     totals["hard_resets"] += violation.sum(axis=1)
     totals["idle_time"] += (idle | resetting).sum(axis=1)

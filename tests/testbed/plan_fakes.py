@@ -9,10 +9,12 @@ skill 1), the learner's uncertainty is a fresh uniform draw per arm-step, so an 
 for a teleop (C.U.R.'s u >= u_hat) with probability ``1 - u_hat(t)``. A run of a few
 hundred steps takes about a second.
 
-With ``neglected`` and ``persist`` set, the world also has neglect (as the twin has): an
-arm that asked and got no one (the policy pushed it: its face) pushes with the
-``neglected`` chances, and asks again with ``persist`` the next step. Hosts and learner
-share what each arm asked (``Neglect``) to know it.
+With ``trouble`` set, each arm also has the planner's hidden state (as the twin has,
+``testbed.experiments.plan_trouble``): calm, it asks and pushes as above; in trouble, it
+asks with ``trouble.ask`` and its policy pushes with ``trouble.push``; after a step on its
+own it falls into trouble or recovers, after a human's push (the expert's face) it is
+calm with ``trouble.fixed``, after a violating step troubled with ``trouble.start``.
+Hosts and learner share each arm's state (``ArmStates``).
 """
 
 from __future__ import annotations
@@ -41,6 +43,18 @@ EXPERT_FACE = 1
 
 
 @dataclass(frozen=True)
+class Trouble:
+    """The hidden state's rates (``plan_trouble``'s model, set by hand)."""
+
+    ask: float = 0.9
+    push: tuple[float, float] = (0.05, 0.2)
+    to_trouble: float = 0.08
+    recover: float = 0.05
+    fixed: float = 0.9
+    start: float = 0.1
+
+
+@dataclass(frozen=True)
 class World:
     """The truth the planner should find."""
 
@@ -54,10 +68,8 @@ class World:
     """Per teleop push (the expert's face)."""
     t_T: int = 3
     t_R: int = 4
-    neglected: tuple[float, float] | None = None
-    """Per push of an arm whose request no one took; None: the policy's."""
-    persist: float | None = None
-    """P(it asks again) the step after; None: ``request(t)``."""
+    trouble: Trouble | None = None
+    """The arms' hidden state; None: always calm."""
 
     def request(self, t: int) -> float:
         return self.request_early if t < self.switch else self.request_late
@@ -68,22 +80,21 @@ U_HAT = 0.5
 
 
 @dataclass
-class Neglect:
-    """What each arm's key asked this step, and whether it was left alone after asking
-    last step (index by arm)."""
+class ArmStates:
+    """Each arm's hidden state (by index) and the generator that moves it."""
 
-    asked: list[bool]
-    waiting: list[bool]
+    troubled: np.ndarray
+    rng: np.random.Generator
 
 
 class KnownHosts:
     """Arms whose pushes succeed or violate with the world's chances."""
 
     def __init__(self, arms: Sequence[str], world: World, seed: int,
-                 neglect: Neglect | None = None) -> None:
+                 states: ArmStates | None = None) -> None:
         self.robot_names = list(arms)
         self.world = world
-        self.neglect = neglect
+        self.states = states
         self.rng = np.random.default_rng(seed)
         self.violating = dict.fromkeys(arms, False)
         self.image = np.zeros((IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
@@ -95,18 +106,18 @@ class KnownHosts:
     def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for i, r in enumerate(self.robot_names):
+            was_violating = self.violating[r]
             if r in resets:
                 self.violating[r] = False
             action = pushes.get(r)
-            left = (self.neglect is not None and action == POLICY_FACE
-                    and self.neglect.asked[i])
-            if self.neglect is not None:
-                self.neglect.waiting[i] = left
+            troubled = self.states is not None and bool(self.states.troubled[i])
+            if self.states is not None and self.world.trouble is not None:
+                self._move(i, was_violating, action == EXPERT_FACE, self.world.trouble)
             if action is None:
                 out[r] = PushResult(r, None, False, False)
                 continue
             s, v = (self.world.human if action == EXPERT_FACE
-                    else self.world.neglected if left and self.world.neglected
+                    else self.world.trouble.push if troubled and self.world.trouble
                     else self.world.policy)
             u = self.rng.random()
             success, violation = u < s, s <= u < s + v
@@ -115,24 +126,36 @@ class KnownHosts:
         return out
 
 
+    def _move(self, i: int, was_violating: bool, human_push: bool, tr: Trouble) -> None:
+        """The arm's state after this step (plan_trouble's kinds, in its order)."""
+        assert self.states is not None
+        u = self.states.rng.random()
+        if was_violating:
+            self.states.troubled[i] = u < tr.start
+        elif human_push:
+            self.states.troubled[i] = u >= tr.fixed
+        elif self.states.troubled[i]:
+            self.states.troubled[i] = u >= tr.recover
+        else:
+            self.states.troubled[i] = u < tr.to_trouble
+
+
 class KnownLearner(QuietLearner):
     """Pushes face 2; its uncertainty is above ``U_HAT`` with the world's request rate."""
 
-    def __init__(self, world: World, seed: int, neglect: Neglect | None = None) -> None:
+    def __init__(self, world: World, seed: int, states: ArmStates | None = None) -> None:
         self.world = world
         self.rng = np.random.default_rng(seed)
         self.t = 0
-        self.neglect = neglect
+        self.states = states
 
     def act(self, images: np.ndarray) -> Any:
         n = len(images)
         p: Any = self.world.request(self.t)
-        if self.neglect is not None and self.world.persist is not None:
-            p = np.where(self.neglect.waiting, self.world.persist, p)
+        if self.states is not None and self.world.trouble is not None:
+            p = np.where(self.states.troubled, self.world.trouble.ask, p)
         self.t += 1
         asks = self.rng.random(n) < p
-        if self.neglect is not None:
-            self.neglect.asked[:] = asks.tolist()
         u = np.where(asks, U_HAT + (1 - U_HAT) * (1 - self.rng.random(n)),
                      U_HAT * self.rng.random(n))
         z = np.zeros(n)
@@ -148,11 +171,13 @@ def run_world(folder: Path, world: World, *, arms: int, people: Sequence[HumanPr
     params = AlgorithmConfig(t_T=world.t_T, t_R=world.t_R, t_I=0, u_hat=U_HAT, r_hat=1.0)
     algorithm = get_algorithm("cur", params, arms, m, seed=seed)
     folder.mkdir(parents=True)
-    neglect = (Neglect([False] * arms, [False] * arms)
-               if world.neglected is not None or world.persist is not None else None)
+    states = None
+    if world.trouble is not None:
+        rng = np.random.default_rng([seed, 7])
+        states = ArmStates(rng.random(arms) < world.trouble.start, rng)
     with RunWriter(folder) as writer:
-        loop = FleetLoop(hosts=KnownHosts(names, world, seed, neglect),
-                         learner=KnownLearner(world, seed, neglect),
+        loop = FleetLoop(hosts=KnownHosts(names, world, seed, states),
+                         learner=KnownLearner(world, seed, states),
                          humans=ScriptedHumans(people, seed=seed, robots=names),
                          algorithm=algorithm, writer=writer, steps=steps, num_humans=m,
                          t_T=world.t_T, t_R=world.t_R, overlap_act=False)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from plan_fakes import World, run_world
+from plan_fakes import Trouble, World, run_world
 
 from testbed.core.config import ConfigError
 from testbed.experiments.plan_fit import PlanFit, fit_runs, key_order
@@ -83,8 +83,11 @@ def test_the_fit_recovers_each_humans_times_and_availability(fit: PlanFit) -> No
 
 def test_the_posterior_draws_centre_on_the_fit(fit: PlanFit) -> None:
     d = fit.draw(4000, np.random.default_rng(0))
-    assert np.abs(d.request.mean(axis=0) - fit.requests.means(fit.bins)).max() < 0.01
-    assert np.abs(d.policy.sum(axis=-1) - 1).max() < 1e-9
+    # a world without trouble: whatever EM calls trouble, a calm arm asks at the world's
+    # rate by phase, and the draws are distributions
+    assert d.trouble.calm_ask.shape == (4000, fit.bins)
+    assert abs(d.trouble.calm_ask[:, -1].mean() - WORLD.request_late) < 0.05
+    assert np.abs(d.trouble.calm_push.sum(axis=-1) - 1).max() < 1e-9
     assert d.available[:, 0].mean() > 0.99 and abs(d.available[:, 1].mean() - 0.7) < 0.05
     # Each human's times: their own observations (and a little of the pool's).
     cdf = d.latency_cdf.mean(axis=0)
@@ -129,26 +132,33 @@ def test_evaluations_and_unfinished_runs_are_left_out_with_a_note(runs: list[Pat
         fit_runs(folders)
 
 
-NEGLECT = World(policy=(0.2, 0.01), neglected=(0.1, 0.15), persist=0.7)
+TROUBLE = World(policy=(0.2, 0.005), trouble=Trouble())
 
 
-def test_the_fit_recovers_the_neglected_arm(tmp_path: Path) -> None:
-    """In a world where an arm that asked and got no one violates 15 times as often and
-    asks again at 0.7, the fit finds both, apart from the calm arm's rates (one human
-    for 6 arms: many requests go unserved)."""
-    runs = [run_world(tmp_path / f"cur-t{s}", NEGLECT, arms=6, people=PEOPLE[:1], steps=300,
+def test_the_fit_recovers_the_hidden_trouble(tmp_path: Path) -> None:
+    """Arms with the planner's hidden state (plan_fakes.Trouble: into trouble at 0.08 a
+    step, then asking at 0.9 and violating at 0.2 a push until a human's push fixes it
+    at 0.9): EM finds every rate from the rows alone, apart from the calm arm's."""
+    runs = [run_world(tmp_path / f"cur-t{s}", TROUBLE, arms=6, people=PEOPLE[:1], steps=300,
                       seed=s) for s in (1, 2)]
     fits, _ = fit_runs(runs, BIN)
     f = fits[0]
-    calm, asking = f.policy.total(), f.asking.total()
-    assert asking.sum() > 200 and calm.sum() > 200
-    assert near(calm[1], calm.sum(), 0.01) and near(calm[0], calm.sum(), 0.2)
-    assert near(asking[1], asking.sum(), 0.15) and near(asking[0], asking.sum(), 0.1)
-    k, n = f.persists.arrays(f.bins)
-    assert n.sum() > 200 and near(k.sum(), n.sum(), 0.7)
-    k, n = f.requests.arrays(f.bins)
-    late = slice(NEGLECT.switch // BIN, None)
-    assert near(k[late].sum(), n[late].sum(), NEGLECT.request_late)
-    d = f.draw(2000, np.random.default_rng(0))
-    assert abs(d.asking[..., 1].mean() - asking[1] / asking.sum()) < 0.02
-    assert abs(d.persist.mean() - k.sum() / n.sum()) > 0.3  # persist is not the request rate
+    c, tr = f.trouble, TROUBLE.trouble
+    assert c is not None and tr is not None and len(f.trouble_runs) == 2
+
+    def rate(kn: np.ndarray) -> float:
+        return float(kn[0] / kn[1])
+
+    assert abs(rate(c.trouble_ask) - tr.ask) < 0.06
+    assert abs(rate(c.to_trouble) - tr.to_trouble) < 0.03
+    assert abs(rate(c.recover) - tr.recover) < 0.04
+    assert abs(rate(c.fixed) - tr.fixed) < 0.06
+    assert abs(rate(c.start) - tr.start) < 0.08
+    assert abs(c.trouble_push[1] / c.trouble_push.sum() - tr.push[1]) < 0.05
+    calm = c.calm_push.sum(0)
+    assert abs(calm[1] / calm.sum() - 0.005) < 0.01 and abs(calm[0] / calm.sum() - 0.2) < 0.03
+    ask = c.calm_ask[:, 0] / c.calm_ask[:, 1]
+    assert np.all(np.abs(ask[:2] - TROUBLE.request_early) < 0.06)
+    assert np.all(np.abs(ask[2:] - TROUBLE.request_late) < 0.06)
+    # the per-run counts add up to the whole, for the bootstrap over runs
+    assert np.allclose(sum(r.calm_ask for r in f.trouble_runs), c.calm_ask)

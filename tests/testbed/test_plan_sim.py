@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from plan_fakes import World, run_world
+from plan_fakes import Trouble, World, run_world
 
 from testbed.experiments.plan_fit import METRICS, Draws, KeyOrder, fit_runs
 from testbed.experiments.plan_sim import BatchAllocator, FleetShape, sim_params, simulate
+from testbed.experiments.plan_trouble import TroubleDraws
 from testbed.fleet.allocator import Allocator
 from testbed.people.people_config import HumanProfile
 
@@ -54,16 +55,23 @@ def truth(world: World, replicates: int, bins: int, bin_steps: int, *,
     """The world's own rates as one draw per replicate (no fit): ana instant, bo 2
     steps late to a first push and to finish a reset, and away 30% of the time."""
     req = np.array([world.request(b * bin_steps) for b in range(bins)])
-    persist = req if world.persist is None else np.full(bins, world.persist)
+    tr = world.trouble or Trouble(ask=0.5, push=world.policy, to_trouble=0.0, recover=1.0,
+                                  fixed=1.0, start=0.0)  # never in trouble
     s, v = world.policy
-    ns, nv = world.neglected or world.policy
+    ts, tv = tr.push
     hs, hv = world.human
+    r = replicates
+
+    def each(x: float) -> np.ndarray:
+        return np.full(r, x)
+
+    hidden = TroubleDraws(
+        calm_ask=np.tile(req, (r, 1)), trouble_ask=each(tr.ask),
+        to_trouble=each(tr.to_trouble), recover=each(tr.recover), fixed=each(tr.fixed),
+        start=each(tr.start), calm_push=np.tile([s, v, 1 - s - v], (r, bins, 1)),
+        trouble_push=np.tile([ts, tv, 1 - ts - tv], (r, 1)))
     return Draws(
-        request=np.tile(req, (replicates, 1)), cont=np.tile(req, (replicates, 1)),
-        persist=np.tile(persist, (replicates, 1)),
-        eligible=np.full((replicates, bins), eligible),
-        policy=np.tile([s, v, 1 - s - v], (replicates, bins, 1)),
-        asking=np.tile([ns, nv, 1 - ns - nv], (replicates, bins, 1)),
+        trouble=hidden, eligible=np.full((replicates, bins), eligible),
         human=np.tile([hs, hv, 1 - hs - hv], (replicates, 2, 1)),
         available=np.tile(available, (replicates, 1)),
         latency_values=np.array([0, 2]),
@@ -89,14 +97,15 @@ def test_the_simulation_allocates_as_the_real_allocator(order: KeyOrder,
 
 
 @pytest.mark.parametrize("world", [
-    World(policy=(0.2, 0.02)),
-    World(policy=(0.2, 0.01), neglected=(0.1, 0.15), persist=0.7)], ids=["calm", "neglect"])
+    World(policy=(0.2, 0.02)), World(policy=(0.2, 0.005), trouble=Trouble())],
+    ids=["calm", "trouble"])
 def test_the_simulation_with_the_true_rates_measures_what_the_loop_measures(
         world: World, tmp_path: Path) -> None:
     # The loop's runs at two fleet sizes against the simulation's 400 replicates of the
     # same world: every metric's mean within 3.5 standard errors (with these seeds the
-    # largest is ~1.3). With neglect, an arm left alone after asking violates 15 times
-    # as often and asks again at 0.7: the simulation must leave the same arms alone.
+    # largest is ~1.3). With trouble, an arm falls into a state where it asks at 0.9 and
+    # violates 40 times as often until a human's push fixes it: the simulation must
+    # move the same hidden states as the loop's arms.
     people = [HumanProfile(name="ana"), HumanProfile(name="bo", latency=2, availability=0.7)]
     shape = FleetShape(world.t_T, world.t_R, 0, 50, "resets_first", False)
     draws = truth(world, 400, 4, 50)
