@@ -3,14 +3,14 @@
 Why a hidden state: on the twin an arm's requests and violations are not independent
 draws. An arm whose key asked and got no one asks again far more often than a calm one
 (0.42-0.60 against 0.19-0.30 per step over the fit's runs), the longer it has waited the
-more often (0.35 after one unserved step, 0.70 after two or three, 0.84 after four or
-more at 8 arms and 2 humans), and almost every violation of a policy push comes from
-such an arm (0.08-0.13 per push, against 0.003 from a calm one). How many arms wait
+more often (0.51 after one unserved step, 0.70 after two or three, 0.84 after four to
+nine at 8 arms and 2 humans), and almost every violation of a policy push comes from
+such an arm (0.08-0.13 per push, against 0.003-0.008 from a calm one). How many arms wait
 depends on how many people there are, so a model with one request rate carries the fit's
 M to every other M: with one person it sees too few requests, resets and idle arms, with
 four too many. This is neglect as the supervisory-control literature has it (Olsen and
 Goodrich 2003; Crandall et al. 2005): an unattended robot's state degrades until a
-person attends to it.
+person attends to it (docs/notes/plan.md has the figures and the validation).
 
 The model, per arm and step (an input-output HMM: what the humans did is an input):
 
