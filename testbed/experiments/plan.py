@@ -46,6 +46,7 @@ from testbed.core.atomic import atomic_write_bytes
 from testbed.core.config import ConfigError
 from testbed.experiments.plan_fit import BIN_STEPS, METRICS, Draws, PlanFit, fit_runs
 from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
+from testbed.experiments.report import find_runs  # the report's rule, re-exported
 
 __all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "find_runs", "fmt_metric",
            "interval", "plan_algorithm", "write_fits", "write_plan"]
@@ -137,17 +138,6 @@ def write_fits(fits: list[PlanFit], notes: list[str], options: PlanOptions,
         atomic_write_bytes(png, _figure(p, options))
         files.append(png)
     return Plan(out, md, plans, files, notes)
-
-
-def find_runs(dirs: list[Path]) -> list[Path]:
-    """Run folders (with a steps.jsonl) among or below ``dirs`` (as the report finds them)."""
-    found: list[Path] = []
-    for d in dirs:
-        if (d / "steps.jsonl").exists():
-            found.append(d)
-        else:
-            found.extend(sorted(p.parent for p in d.glob("*/steps.jsonl")))
-    return found
 
 
 def _slug(label: str) -> str:

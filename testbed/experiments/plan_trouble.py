@@ -125,6 +125,15 @@ class TroubleCounts:
         return cls(np.zeros((bins, 2)), *(np.zeros(2) for _ in range(5)),
                    np.zeros((bins, 3)), np.zeros(3))
 
+    @classmethod
+    def total(cls, parts: Sequence[TroubleCounts], bins: int) -> TroubleCounts:
+        """The sum of ``parts`` (zeros when there are none)."""
+        out = cls.zeros(bins)
+        for c in parts:
+            for f in fields(cls):
+                setattr(out, f.name, getattr(out, f.name) + getattr(c, f.name))
+        return out
+
     def weighted(self, others: Sequence[TroubleCounts], w: FloatArray) -> TroubleCounts:
         """``sum_k w[..., k] * others[k]`` with a leading replicate axis (w: (R, K))."""
         return TroubleCounts(**{f.name: np.einsum(
@@ -185,11 +194,8 @@ def fit_trouble(runs: Sequence[ArmSequences], bin_steps: int, bins: int
         if loglik / observed - last < TOLERANCE:
             break
         last = loglik / observed
-    per_run = []
-    for k in range(len(runs)):
-        mine = [c for c, r in zip(per_arm, run_of, strict=True) if r == k]
-        per_run.append(TroubleCounts(**{f.name: sum(getattr(c, f.name) for c in mine)
-                                        for f in fields(TroubleCounts)}))
+    per_run = [TroubleCounts.total([c for c, r in zip(per_arm, run_of, strict=True) if r == k],
+                                   bins) for k in range(len(runs))]
     return counts, per_run, last
 
 
@@ -250,9 +256,7 @@ def _e_step(p: _Params, ask: npt.NDArray[np.int8], push: npt.NDArray[np.int8],
     xi /= np.maximum(xi.sum((-1, -2), keepdims=True), 1e-300)
     per_arm = [_arm_counts(gamma[a], xi[a], ask[a], push[a], kind[a], valid[a], b_of, bins)
                for a in range(a_n)]
-    total = TroubleCounts(**{f.name: sum(getattr(c, f.name) for c in per_arm)
-                             for f in fields(TroubleCounts)})
-    return total, per_arm, float(np.log(scale).sum())
+    return TroubleCounts.total(per_arm, bins), per_arm, float(np.log(scale).sum())
 
 
 def _arm_counts(gamma: FloatArray, xi: FloatArray, ask: npt.NDArray[np.int8],

@@ -23,7 +23,9 @@ run.json ``sweep`` names its point, so ``testbed report`` groups the runs by poi
 one line per value in each panel (cumulative successes, hard resets, idle time, human
 actions, ROHE over timesteps), shading one standard deviation over the seeds. Runs
 that finished are skipped and one that died is resumed, as in a protocol. Every value
-is validated up front: a bad field or value exits 2 naming it.
+is validated up front: a bad field or value exits 2 naming it. ``policy`` (a learner
+checkpoint, e.g. ``<run>/learner-start.pt``) starts every run from it instead of
+pretraining a theta_0 per fleet: a sweep of fleet sizes that holds the policy.
 """
 
 from __future__ import annotations
