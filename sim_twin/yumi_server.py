@@ -413,6 +413,10 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "gripper and pusher (default %(default)g)")
     p.add_argument("--no-rapid", action="store_true",
                    help="our RAPID modules not loaded: no testbed symbols, a start runs nothing")
+    p.add_argument("--omit-motiontask", action="store_true",
+                   help="GET rw/rapid/tasks leaves the motiontask field out, as some "
+                        "controllers do (abb_motion_program_exec issue 4): the ABB "
+                        "client's start() then (de)activates no task")
     p.add_argument("--verbose", action="store_true", help="log every request to stderr")
     a = p.parse_args(argv)
     if not (math.isfinite(a.fps) and 0 < a.fps <= 60):
@@ -464,7 +468,8 @@ class RwsSide:
                                    else math.inf)
         identity = Identity() if a.serial is None else Identity(ctrl_id=a.serial)
         self.controller = Irc5Controller(units=units, poses=self.motion.poses,
-                                         identity=identity)
+                                         identity=identity,
+                                         omit_motiontask=a.omit_motiontask)
         self.install = TestbedInstall(self.controller, self.motion, loaded=not a.no_rapid)
         self.log = RequestLog(a.rws_log) if a.rws_log is not None else None
         service = RwsService(self.controller, users=users, max_sessions=a.max_sessions,

@@ -11,11 +11,13 @@ MODULE TestbedMotion
   ! Python writer's format; no RAPID code of any other project was used.
   !
   ! What it does (docs/notes/rws.md, "Our RAPID side"):
-  !   1. reads and checks the WHOLE file before the first motion (version, tool, work
-  !      object, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3 and WaitTime 5, at most
-  !      TB_MAX_CMDS commands, no robtarget below tb_floor_z, speeds > 0);
-  !   2. runs the commands with tool_pusher (tframe from the file, load from the task
-  !      module) in the file's work object; ConfJ and ConfL Off, SingArea Wrist;
+  !   1. reads and checks the WHOLE file before the first motion (version, tool frame
+  !      against tool_pusher's, work object, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3
+  !      and WaitTime 5, at most TB_MAX_CMDS commands, no robtarget below tb_floor_z,
+  !      speeds > 0);
+  !   2. runs the commands with tool_pusher (frame AND load from the task module: the
+  !      controller's, never the file's) in the file's work object; ConfJ and ConfL
+  !      Off, SingArea Wrist;
   !      the TCP speed from the file, orientation and axis speeds from TB_V_* below;
   !   3. waits until the arm is in position (WaitRob InPos) and writes
   !      ErrWrite info (80003) "Testbed Motion Done": task, "seqno <n>", "commands <k>",
@@ -38,8 +40,11 @@ MODULE TestbedMotion
   ! sim_twin/rws/testbed_rapid.py. 2: the world zones (tb_zones). 3: the zones in the
   ! system module TestbedZones (TASK PERS, tb_zones_n), main here, the file's path as
   ! "RAMDISK:/<name>", the error handler closes only a file it opened, the tool load
-  ! with the gripper (issue 29).
-  CONST num TB_RAPID_VERSION := 3;
+  ! with the gripper (issue 29). 4: the tool frame is the controller's (tool_pusher in
+  ! TestbedTask_L / _R, no longer set from the file): a file whose tframe differs from
+  ! it by more than TB_TOOL_MM or TB_TOOL_DEG is refused before any motion; tb_zones
+  ! writes "Testbed Zones Active" to the event log (issue 35).
+  CONST num TB_RAPID_VERSION := 4;
   ! The RAM disk device. Technical reference manual - RAPID Instructions, Functions and
   ! Data types (RobotWare 6): Open takes the device as its object and the file name in
   ! \File (its example: Open "HOME:" \File:= "LOGFILE1.DOC", ...); the functions that
@@ -52,6 +57,14 @@ MODULE TestbedMotion
   CONST num TB_MAX_CMDS := 64;
   CONST string TB_DONE := "Testbed Motion Done";
   CONST string TB_FAILED := "Testbed Motion Failed";
+  ! The tool frame check (issue 35; robot/README.md, "The tool frame"): the file's
+  ! tframe is what the operator side believes the pusher is (the calibration's
+  ! tool_z_mm); the controller's tool_pusher is what was measured on this robot. Apart
+  ! by more than 1 mm (translation) or 0.5 deg (rotation): the PC plans for another tool
+  ! than the robot runs, and the file is refused.
+  CONST num TB_TOOL_MM := 1;
+  CONST num TB_TOOL_DEG := 0.5;
+  CONST string TB_TOOL_DIFFERS := "Tool frame differs from tool_pusher";
   ! Orientation speed (deg/s): the pusher always points down, so this only paces the
   ! reorientation out of the rest pose; slow enough that the TCP speed, not a wrist
   ! swing, sets every push (a push is a straight line at constant orientation).
@@ -76,6 +89,9 @@ MODULE TestbedMotion
   LOCAL VAR num tb_seqno;
   LOCAL VAR string tb_reason;
   LOCAL VAR string tb_detail;
+  ! the refusal's last line: "" = "at byte <offset>"; the tool frame check puts
+  ! tool_pusher's frame there (one line of 80 characters holds one frame, not two)
+  LOCAL VAR string tb_last;
   LOCAL VAR num tb_op{TB_MAX_CMDS};
   LOCAL VAR num tb_cmd{TB_MAX_CMDS};
   LOCAL VAR robtarget tb_pt{TB_MAX_CMDS};
@@ -96,6 +112,7 @@ MODULE TestbedMotion
     tb_pos := 0;
     tb_reason := "";
     tb_detail := "";
+    tb_last := "";
     tb_path := TB_DIR + "/" + tb_name;
     IF tb_err < 0 BookErrNo tb_err;
     ! a run stopped while reading left the file open: close it before opening again
@@ -130,8 +147,8 @@ MODULE TestbedMotion
       RAISE;
     ENDTEST
     tb_close;
-    ErrWrite TB_FAILED, tb_reason \RL2:=tb_path \RL3:=tb_detail
-      \RL4:="at byte " + NumToStr(tb_pos, 0);
+    IF tb_last = "" tb_last := "at byte " + NumToStr(tb_pos, 0);
+    ErrWrite TB_FAILED, tb_reason \RL2:=tb_path \RL3:=tb_detail \RL4:=tb_last;
     RETURN;
   ENDPROC
 
@@ -271,6 +288,7 @@ MODULE TestbedMotion
 
   PROC tb_header()
     VAR num version;
+    VAR pose frame;
     VAR loaddata ignored;
     VAR string stamp;
     version := tb_num();
@@ -279,8 +297,10 @@ MODULE TestbedMotion
         + NumToStr(TB_VERSION, 0) + ")";
     ENDIF
     IF NOT tb_bool("tool robhold") tb_fail "Stationary tool not supported", "tool robhold";
-    ! the pusher's geometry is the calibration's (the file), its load the task module's
-    tool_pusher.tframe := tb_pose();
+    ! the pusher's frame and load are the controller's (tool_pusher, the task module):
+    ! the file's frame must be the same, its load is not used
+    frame := tb_pose();
+    tb_tool frame;
     ignored := tb_load();
     tb_wobj.robhold := tb_bool("wobj robhold");
     tb_wobj.ufprog := tb_bool("wobj ufprog");
@@ -296,6 +316,54 @@ MODULE TestbedMotion
     tb_seqno := tb_num();
     IF tb_num() <> 0 tb_fail "EGM not supported", "the file asks for an EGM configuration";
   ENDPROC
+
+  ! Refuse the file (before any motion) unless its tool frame is tool_pusher's within
+  ! TB_TOOL_MM and TB_TOOL_DEG. tool_pusher is never assigned here.
+  PROC tb_tool(pose file)
+    VAR num dist;
+    VAR num angle;
+    dist := Distance(file.trans, tool_pusher.tframe.trans);
+    angle := tb_angle(file.rot, tool_pusher.tframe.rot);
+    IF dist > TB_TOOL_MM OR angle > TB_TOOL_DEG THEN
+      tb_last := tb_clip("tool_pusher " + tb_frame(tool_pusher.tframe));
+      tb_fail TB_TOOL_DIFFERS, tb_clip("file " + tb_frame(file));
+    ENDIF
+  ENDPROC
+
+  ! The angle (deg) between two orientations: 2 * ACos(|a.b|) for unit quaternions (q
+  ! and -q are the same orientation). Computed as 4 * ASin(|a - s b| / 2), s the sign
+  ! of a.b: the same angle (|a - s b|^2 = 2 - 2 |a.b|), and well conditioned near 0,
+  ! where ACos of a dot product next to 1 resolves only about 0.04 deg in RAPID's
+  ! single-precision num. Both are normalised first; a zero quaternion is no
+  ! orientation (180).
+  FUNC num tb_angle(orient a, orient b)
+    VAR num na;
+    VAR num nb;
+    VAR num s := 1;
+    VAR num d;
+    na := Sqrt(a.q1 * a.q1 + a.q2 * a.q2 + a.q3 * a.q3 + a.q4 * a.q4);
+    nb := Sqrt(b.q1 * b.q1 + b.q2 * b.q2 + b.q3 * b.q3 + b.q4 * b.q4);
+    IF na = 0 OR nb = 0 RETURN 180;
+    IF a.q1 * b.q1 + a.q2 * b.q2 + a.q3 * b.q3 + a.q4 * b.q4 < 0 s := -1;
+    d := Sqrt(Pow(a.q1 / na - s * b.q1 / nb, 2) + Pow(a.q2 / na - s * b.q2 / nb, 2)
+      + Pow(a.q3 / na - s * b.q3 / nb, 2) + Pow(a.q4 / na - s * b.q4 / nb, 2)) / 2;
+    IF d > 1 d := 1;
+    RETURN 4 * ASin(d);
+  ENDFUNC
+
+  ! A frame as a line of the entry: [[x,y,z],[q1,q2,q3,q4]], mm to 0.1, q to 0.0001.
+  FUNC string tb_frame(pose p)
+    RETURN "[[" + NumToStr(p.trans.x, 1) + "," + NumToStr(p.trans.y, 1) + ","
+      + NumToStr(p.trans.z, 1) + "],[" + NumToStr(p.rot.q1, 4) + ","
+      + NumToStr(p.rot.q2, 4) + "," + NumToStr(p.rot.q3, 4) + ","
+      + NumToStr(p.rot.q4, 4) + "]]";
+  ENDFUNC
+
+  ! At most 80 characters: an event log line (and a RAPID string) holds no more.
+  FUNC string tb_clip(string s)
+    IF StrLen(s) > 80 RETURN StrPart(s, 1, 80);
+    RETURN s;
+  ENDFUNC
 
   PROC tb_command()
     VAR string what;

@@ -12,10 +12,17 @@ MODULE TestbedTask_R(SYSMODULE)
   ! uploads to (drivers/yumi/yumi_controller.py, program_file). The other arm's task
   ! reads its own file, so the two programs never share one.
   CONST string tb_name := "testbed_T_ROB_R.bin";
-  ! The pusher. tframe is overwritten from every program's header (the calibration
-  ! file's tool_z_mm). The load is everything the flange carries: the YuMi SmartGripper
-  ! that holds the pusher AND the pusher (robot/README.md, "The tool load", says where
-  ! each number comes from and how a lab identifies its own):
+  ! The pusher, held by the CONTROLLER (issue 35): its frame and its load are these, and
+  ! no program file changes them. tframe is the pusher's tip (the TCP the world zones
+  ! supervise) measured on this robot with the FlexPendant's 4-point TCP method
+  ! (robot/README.md, "The tool frame"); shipped: 184.2 mm down the flange's z (the
+  ! SmartGripper fingers' TCP at 114.2 mm + the rod's 70 mm beyond them). Every program
+  ! file carries the frame the operator side believes (the calibration's tool_z_mm);
+  ! TestbedMotion refuses a file whose frame differs from this one by more than 1 mm or
+  ! 0.5 deg, before any motion. After measuring, write the value here AND into the
+  ! calibration files' tool_z_mm. The load is everything the flange carries: the YuMi
+  ! SmartGripper that holds the pusher AND the pusher (robot/README.md, "The tool load",
+  ! says where each number comes from and how a lab identifies its own):
   !   gripper (servo, camera, vacuum): 0.262 kg, CoG (7.8, 11.9, 50.7) mm, inertia
   !     0.00022, 0.00024, 0.00009 kgm2 (ABB's SmartGripper load table, the value the
   !     lab's published YuMi RAPID uses);
@@ -23,7 +30,7 @@ MODULE TestbedTask_R(SYSMODULE)
   !     centre 134 mm down the tool z axis;
   !   together, about the joint centre of gravity: 0.272 kg, CoG (7.5, 11.5, 53.8) mm,
   !     inertia 0.0003, 0.00032, 0.00009 kgm2 (axes of tool0: aom [1,0,0,0]).
-  TASK PERS tooldata tool_pusher := [TRUE,[[0,0,100],[1,0,0,0]],[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032,0.00009]];
+  TASK PERS tooldata tool_pusher := [TRUE,[[0,0,184.2],[1,0,0,0]],[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032,0.00009]];
   ! The floor (mm, world frame = wobj0, the frame the driver's targets use): no
   ! MoveJ/MoveL target below it (checked in the file) and no TCP below it, anywhere
   ! (the world zone tb_wz_floor).

@@ -9,7 +9,7 @@ Usage::
         [--max-sessions 70] [--user NAME:PASSWORD ...] [--idle-timeout S]
         [--ramdisk-value '$TEMP'] [--opmode AUTO] [--ctrlstate motoron]
         [--cell --arms left,right --seed S --pusher-length-mm L --realtime R
-         --rapid testbed|library] [--verbose]
+         --rapid testbed|library] [--omit-motiontask] [--verbose]
 
 ``Default User`` / ``robotics`` always log in; ``--user`` adds more. With ``--cell`` the
 arms' positions come from a ``YumiTwinCell`` (PyBullet) made here and a RAPID start runs
@@ -21,6 +21,8 @@ the defaults of ``world_zones.default_zone``), ``library`` the library's
 ends at once. (``sim_twin.yumi_server`` serves the same RWS beside the hardware twin's
 camera, with zones and a request log.) It writes the port (a decimal line) to
 ``--port-file`` once listening, serves until SIGTERM/SIGINT and exits 0 (2 on a bad argument).
+``--omit-motiontask``: ``GET rw/rapid/tasks`` without the ``motiontask`` field
+(``Irc5Controller.omit_motiontask``: a controller as in abb_motion_program_exec issue 4).
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="with --cell: motion paced at this multiple of real time (0: unpaced)")
     p.add_argument("--rapid", default="testbed", choices=("testbed", "library"),
                    help="with --cell: whose RAPID a start plays (ours, or the library's)")
+    p.add_argument("--omit-motiontask", action="store_true",
+                   help="GET rw/rapid/tasks leaves the motiontask field out")
     p.add_argument("--verbose", action="store_true")
     a = p.parse_args(argv)
     try:
@@ -108,7 +112,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     users.update({name: pw for name, _, pw in (u.partition(":") for u in a.user)})
     controller = Irc5Controller(units=units, poses=poses, on_start=hook, opmode=a.opmode,
                                 ctrlstate=a.ctrlstate, files=FileStore(
-                                    ramdisk_value=a.ramdisk_value))
+                                    ramdisk_value=a.ramdisk_value),
+                                omit_motiontask=a.omit_motiontask)
     program: LabProgram | None = None
     if a.cell and a.rapid == "testbed":
         from sim_twin.rws.testbed_install import TestbedInstall

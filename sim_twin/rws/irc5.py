@@ -21,13 +21,20 @@ The rules (each a line of docs/rws-checklist.md):
   an error entry (type 3) to the event log and stops the task and the execution.
 - ``resetpp`` (PP to Main) also sets every ``VAR`` of the active tasks back to its
   declared value, as RAPID does; PERS and CONST keep theirs.
-- :meth:`restart` (``POST ctrl?action=restart``, ``restart-mode=restart|pstart``): a
-  restart erases the stationary world zones (:attr:`on_restart` hooks), stops RAPID,
+- :meth:`restart` (``POST ctrl?action=restart``, ``restart-mode=restart|pstart``): the
+  event log gets 10045 "System restarted" first (its description names the mode: a
+  restart or "Reset RAPID"; :data:`RESTARTED`), then a restart erases the stationary
+  world zones (:attr:`on_restart` hooks), stops RAPID,
   leaves the motors off; ``pstart`` ("Reset RAPID") also removes every PROGRAM module
   (system modules stay); then the configured POWER_ON event routines
   (:attr:`event_routines`) run in their tasks, and one whose routine no loaded module
   holds is an error entry (:data:`EVENT_ROUTINE_MISSING`), as on a controller whose
-  event routine lived in a program module that Reset RAPID removed.
+  event routine lived in a program module that Reset RAPID removed. Every TASK PERS
+  and PERS keeps its value through both (only a removed module's symbols are gone).
+- ``omit_motiontask``: ``GET rw/rapid/tasks`` leaves the ``motiontask`` field out, as some
+  controllers do (abb_motion_program_exec issue 4). abb_robot_client's ``get_tasks()``
+  then reads every task as not a motion task, so its ``start()`` activates and
+  deactivates nothing: every task that is active starts and runs what it holds.
 
 The seam for the motion (the later RAPID-semantics work): ``on_start(run)`` is called in
 a thread of its own after every accepted ``start``; execution reads ``running`` until it
@@ -72,6 +79,11 @@ EVENT_ROUTINE_MISSING = 40999
 docs/rws-checklist.md asks for the real one."""
 RESTART_MODES = {"restart": "Restart", "pstart": "Reset RAPID"}
 """The restart modes the twin models (RWS ``restart-mode``; the FlexPendant's names)."""
+RESTARTED = (10045, "System restarted")
+"""The entry every restart writes first (info; code 10045, operational, listed in
+``rw/elog/0`` with every other): RobotWare's "System restarted". That a controller
+writes it for "Reset RAPID" too, with the mode in its description, is assumed
+(docs/rws-checklist.md asks)."""
 STATE_EVENTS = {
     "motoron": (10011, "Motors ON state", "The system is in the Motors ON state."),
     "motoroff": (10010, "Motors OFF state", "The system is in the Motors OFF state."),
@@ -101,11 +113,15 @@ class TaskState:
     excstate: str = "ready"
     """ready | started | stopped | uninitialized"""
 
-    def item(self, list_item: bool) -> dict[str, Any]:
-        return {"_type": "rap-task-li" if list_item else "rap-task", "_title": self.name,
-                "name": self.name, "type": "norm", "taskstate": "linked",
-                "excstate": self.excstate, "active": "On" if self.active else "Off",
-                "motiontask": "TRUE" if self.motion else "FALSE"}
+    def item(self, list_item: bool, motiontask: bool = True) -> dict[str, Any]:
+        """The task as RWS lists it; ``motiontask`` False leaves that field out."""
+        out = {"_type": "rap-task-li" if list_item else "rap-task", "_title": self.name,
+               "name": self.name, "type": "norm", "taskstate": "linked",
+               "excstate": self.excstate, "active": "On" if self.active else "Off",
+               "motiontask": "TRUE" if self.motion else "FALSE"}
+        if not motiontask:
+            del out["motiontask"]
+        return out
 
 
 @dataclass
@@ -155,7 +171,7 @@ class Irc5Controller:
                  signals: Iterable[Signal] | None = None, files: FileStore | None = None,
                  on_start: StartHook | None = None, opmode: str = "AUTO",
                  ctrlstate: str = "motoron", speedratio: int = 100,
-                 identity: Identity | None = None) -> None:
+                 identity: Identity | None = None, omit_motiontask: bool = False) -> None:
         self._lock = threading.RLock()
         self._changed = threading.Condition(self._lock)
         self.units = {u.name.upper(): u for u in units}
@@ -168,6 +184,8 @@ class Irc5Controller:
         self.elog = EventLog()
         self.identity = identity or Identity()
         self.on_start = on_start
+        self.omit_motiontask = bool(omit_motiontask)
+        """``GET rw/rapid/tasks`` without the ``motiontask`` field (see the module)."""
         self.event_routines: list[EventRoutine] = []
         self.on_restart: list[RestartHook] = []
         self._check(opmode=opmode, ctrlstate=ctrlstate, speedratio=speedratio)
@@ -189,6 +207,10 @@ class Irc5Controller:
             cycle = "oncedone" if self.cycle == "once" and self._once_done else self.cycle
             return {"_type": "rap-execution", "_title": "execution",
                     "ctrlexecstate": "running" if self._run else "stopped", "cycle": cycle}
+
+    def task_item(self, task: TaskState, list_item: bool) -> dict[str, Any]:
+        """``task`` as ``GET rw/rapid/tasks`` answers it on this controller."""
+        return task.item(list_item, motiontask=not self.omit_motiontask)
 
     def task(self, name: str) -> TaskState:
         with self._lock:
@@ -317,14 +339,18 @@ class Irc5Controller:
 
     # --- restarts and event routines ------------------------------------------------------
     def restart(self, mode: str = "restart") -> None:
-        """A controller restart (``restart``) or "Reset RAPID" (``pstart``): RAPID stops,
-        the motors are off after it, the :attr:`on_restart` hooks run (the stationary
-        world zones are erased), ``pstart`` removes the program modules, then the
-        POWER_ON event routines run. ``ValueError`` for a mode the twin does not model."""
+        """A controller restart (``restart``) or "Reset RAPID" (``pstart``): the
+        :data:`RESTARTED` entry, RAPID stops, the motors are off after it, the
+        :attr:`on_restart` hooks run (the stationary world zones are erased), ``pstart``
+        removes the program modules, then the POWER_ON event routines run. PERS and TASK
+        PERS keep their values. ``ValueError`` for a mode the twin does not model."""
         if mode not in RESTART_MODES:
             raise ValueError(f"restart-mode {mode!r}: the twin models "
                              f"{', '.join(RESTART_MODES)}")
         with self._lock:
+            self.elog.write(RESTARTED[0], MSG_INFO, RESTARTED[1], src_name="SYS",
+                            desc=f"The system has been restarted ({RESTART_MODES[mode]}).",
+                            args=(RESTART_MODES[mode],))
             self._stop_current()
             for hook in list(self.on_restart):
                 hook(mode)

@@ -147,8 +147,8 @@ def tasks(c: Irc5Controller, req: Request, a: list[str]) -> Reply:
         c.set_task_active(a[0] if a else None, act == "activate")
         return NO_CONTENT
     if a:
-        return _one("rapid", "rw/rapid/", c.task(a[0]).item(list_item=False))
-    return Reply(200, Doc("rapid", "rw/rapid/", [t.item(list_item=True)
+        return _one("rapid", "rw/rapid/", c.task_item(c.task(a[0]), list_item=False))
+    return Reply(200, Doc("rapid", "rw/rapid/", [c.task_item(t, list_item=True)
                                                   for t in c.tasks.values()]))
 
 

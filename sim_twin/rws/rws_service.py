@@ -19,14 +19,17 @@ The lab side channel:
 - ``POST /lab/controller`` with any of ``{"opmode": "AUTO"|"MANR"|..., "ctrlstate":
   "motoron"|"motoroff"|"guardstop"|..., "speedratio": 0..100, "execution":
   "running"|"stopped", "options": [name, ...], "remove_option": "608-1", "rapid":
-  "testbed"|"none", "rapid_version": n, "task_error": {"task", "code", "title",
-  "desc"?, "causes"?, "actions"?, "args"?, "msgtype"?}}``, applied in that order ->
+  "testbed"|"none", "rapid_version": n, "event_routines": true|false,
+  "omit_motiontask": true|false, "task_error": {"task", "code", "title", "desc"?,
+  "causes"?, "actions"?, "args"?, "msgtype"?}}``, applied in that order ->
   the new state; ``400`` on a bad value (nothing changed when a value is malformed).
   ``options`` replaces what ``rw/system/options`` lists, ``remove_option`` drops one
   (by name or its number: ``608-1``); ``rapid`` loads or unloads our RAPID modules
   (their symbols, and what a start runs; only with RAPID stopped) and ``rapid_version``
-  sets the ``TB_RAPID_VERSION`` they report (only on a twin that plays our RAPID:
-  ``sim_twin.rws.testbed_install``).
+  sets the ``TB_RAPID_VERSION`` they report, ``event_routines`` configures (true) or
+  removes (false) ``tb_zones`` as each task's POWER_ON event routine (only on a twin
+  that plays our RAPID: ``sim_twin.rws.testbed_install``); ``omit_motiontask`` makes
+  ``GET rw/rapid/tasks`` leave the ``motiontask`` field out (``Irc5Controller``).
 - ``GET /lab/health`` -> ``{"ok": true}``.
 """
 
@@ -54,7 +57,7 @@ from sim_twin.rws.shapes import render, render_error
 
 FORM_TYPE = "application/x-www-form-urlencoded"
 LAB_KEYS = ("opmode", "ctrlstate", "speedratio", "execution", "options", "remove_option",
-            "rapid", "rapid_version", "task_error")
+            "rapid", "rapid_version", "event_routines", "omit_motiontask", "task_error")
 
 
 class LabProgram(Protocol):
@@ -64,6 +67,8 @@ class LabProgram(Protocol):
     def set_loaded(self, loaded: bool) -> None: ...
 
     def set_version(self, version: int) -> None: ...
+
+    def set_event_routines(self, configured: bool) -> None: ...
 
     def lab_state(self) -> dict[str, Any]: ...
 
@@ -175,6 +180,7 @@ class RwsService:
                 "max_sessions": self.sessions.max_sessions,
                 "refused_logins": self.sessions.refused,
                 "options": list(self.controller.identity.options),
+                "omit_motiontask": self.controller.omit_motiontask,
                 "rapid": None if self.program is None else self.program.lab_state()}
 
     def _check_lab(self, body: Mapping[str, Any]) -> None:
@@ -186,11 +192,15 @@ class RwsService:
         if err is not None and (not isinstance(err, Mapping) or not {"task", "code", "title"}
                                 <= set(err)):
             raise ValueError('task_error must be {"task", "code", "title", ...}')
-        if "rapid" in body or "rapid_version" in body:
+        if "rapid" in body or "rapid_version" in body or "event_routines" in body:
             if self.program is None:
-                raise ValueError("this twin plays no RAPID of ours (rapid, rapid_version)")
+                raise ValueError("this twin plays no RAPID of ours (rapid, rapid_version, "
+                                 "event_routines)")
             if body.get("rapid", "testbed") not in ("testbed", "none"):
                 raise ValueError('rapid must be "testbed" (loaded) or "none" (not loaded)')
+        for flag in ("event_routines", "omit_motiontask"):
+            if flag in body and not isinstance(body[flag], bool):
+                raise ValueError(f"{flag} must be true or false")
         opts = body.get("options")
         if opts is not None and (not isinstance(opts, list)
                                  or not all(isinstance(o, str) and o for o in opts)):
@@ -215,6 +225,10 @@ class RwsService:
             self.program.set_loaded(body["rapid"] == "testbed")
         if self.program is not None and "rapid_version" in body:
             self.program.set_version(body["rapid_version"])
+        if self.program is not None and "event_routines" in body:
+            self.program.set_event_routines(body["event_routines"])
+        if "omit_motiontask" in body:
+            self.controller.omit_motiontask = body["omit_motiontask"]
         err = body.get("task_error")
         if err is not None:
             extra = {k: err[k] for k in ("desc", "causes", "actions", "args", "msgtype")

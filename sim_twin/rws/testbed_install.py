@@ -12,16 +12,21 @@ the values this twin was started with, and the lab side channel (``POST
 Per task (``T_ROB_L`` -> module ``TestbedTask_L``, ``T_ROB_R`` -> ``TestbedTask_R``):
 
 - ``TestbedTask_X`` (a SYSTEM module): ``tb_name`` (CONST string), ``tool_pusher`` (TASK
-  PERS tooldata; ``tframe`` z = the pusher's length until a program sets it),
+  PERS tooldata, the CONTROLLER's tool frame and load: ``tframe`` z = the twin pusher's
+  true length, ``hook.pusher_length_mm``, as the lab's 4-point measurement would find
+  it; a lab changes it over RWS, ``action=set``, and no program file does),
   ``tb_floor_z``, ``tb_zone_z`` (CONST num), ``tb_zone_lo`` = ``[x0,y0,0]``,
   ``tb_zone_hi`` = ``[x1,y1,0]`` (CONST pos);
 - ``TestbedZones`` (a SYSTEM module): ``TB_WZ_FAR``, ``TB_WZ_COUNT`` (CONST num), the five
   TASK PERS ``wzstationary`` ``tb_wz_floor`` ... ``tb_wz_yhi`` (the identity ``WZLimSup``
   gave each zone), ``tb_zones_n`` (how many zones ``tb_zones`` activated at the last
-  power on) and ``tb_zones_at`` (when), and the routine ``tb_zones``, the POWER_ON event
-  routine of each task (:attr:`Irc5Controller.event_routines`);
+  power on) and ``tb_zones_at`` (when), ``TB_ZONES_ACTIVE`` (CONST string), and the
+  routine ``tb_zones``, the POWER_ON event routine of each task
+  (:attr:`Irc5Controller.event_routines`), which ends with the info entry
+  ``Testbed Zones Active`` (80003; the task, ``zones <n>``, the time);
 - ``TestbedMotion`` (the PROGRAM module): ``TB_RAPID_VERSION``, ``TB_VERSION``,
-  ``TB_MAX_CMDS`` (CONST num), ``TB_DIR``, ``TB_DONE``, ``TB_FAILED`` (CONST string).
+  ``TB_MAX_CMDS``, ``TB_TOOL_MM``, ``TB_TOOL_DEG`` (CONST num), ``TB_DIR``, ``TB_DONE``,
+  ``TB_FAILED``, ``TB_TOOL_DIFFERS`` (CONST string).
 
 The world zones the hook supervises (``hook.zones``) are those ``tb_zones`` activated
 since the last restart: a restart erases them (as the motion system does) and the
@@ -29,6 +34,11 @@ POWER_ON event routine defines them again, if a loaded module still holds it. "R
 RAPID" (``pstart``) removes ``TestbedMotion`` (a start then runs nothing) and keeps the
 system modules, so the zones come back; the issue-29 modules, with everything in program
 modules, would lose them, and the twin shows it (tests/sim_twin/test_rws_zones.py).
+Every restart keeps the TASK PERS (``tool_pusher``, ``tb_zones_n``, ``tb_zones_at`` read
+what they held until ``tb_zones`` runs again); only the ``Testbed Zones Active`` entry,
+newer than the restart's 10045, shows that it did. :meth:`TestbedInstall.set_event_routines`
+(lab: ``{"event_routines": false}``) removes the POWER_ON configuration as a lab could,
+so a restart defines no zones and writes no entry while ``tb_zones_n`` still reads 5.
 
 Not loaded: none of these symbols, and a start runs nothing (no ``Done`` entry), as on a
 controller whose tasks hold other programs.
@@ -40,21 +50,29 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
+from sim_twin.rws.event_log import MSG_INFO
 from sim_twin.rws.irc5 import EventRoutine, Irc5Controller, RapidError
-from sim_twin.rws.motion_program import FILE_VERSION
+from sim_twin.rws.motion_program import ERRWRITE_INFO, FILE_VERSION
 from sim_twin.rws.rapid_data import format_number
 from sim_twin.rws.testbed_rapid import (
     DONE,
     FAILED,
     MAX_COMMANDS,
     RAPID_VERSION,
+    TOOL_DEG,
+    TOOL_DIFFERS,
+    TOOL_MM,
     TestbedRapid,
+    task_module_of,
 )
 from sim_twin.rws.world_zones import FAR, ArmZone
 
 SHARED_MODULE = "TestbedMotion"
 ZONES_MODULE = "TestbedZones"
 ZONES_ROUTINE = "tb_zones"
+ZONES_ACTIVE = "Testbed Zones Active"
+"""``TB_ZONES_ACTIVE``: the header of the info entry (80003) ``tb_zones`` writes when all
+its zones are active; ``args``: the header, the task, ``zones <n>``, the time."""
 PUSHER_LOAD = "[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032,0.00009]"
 """``tool_pusher``'s load in the task modules: the SmartGripper and the pusher (robot/README.md,
 "The tool load")."""
@@ -62,9 +80,8 @@ Decl = tuple[str, str, str, str, str]
 """(module, name, type, value, storage)"""
 
 
-def task_module(task: str) -> str:
-    """Our task module of a motion task: ``T_ROB_L`` -> ``TestbedTask_L``."""
-    return f"TestbedTask_{task.rsplit('_', 1)[-1]}"
+task_module = task_module_of
+"""Our task module of a motion task: ``T_ROB_L`` -> ``TestbedTask_L``."""
 
 
 def _num(v: float) -> str:
@@ -86,10 +103,7 @@ class TestbedInstall:
         """Each arm's zone constants (what ``TestbedTask_X`` declares)."""
         hook.zones = {}  # none active until tb_zones has run
         controller.on_restart.append(self._restarted)
-        for unit in hook.units:  # the lab's install step: the POWER_ON event routine
-            er = EventRoutine("POWER_ON", ZONES_ROUTINE, unit.task)
-            if er not in controller.event_routines:
-                controller.event_routines.append(er)
+        self.set_event_routines(True)  # the lab's install step: the POWER_ON event routine
         controller.on_start = None
         if loaded:
             self.set_loaded(True)
@@ -113,6 +127,9 @@ class TestbedInstall:
                 (SHARED_MODULE, "TB_RAPID_VERSION", "num", str(self.version), "CONST"),
                 (SHARED_MODULE, "TB_VERSION", "num", str(FILE_VERSION), "CONST"),
                 (SHARED_MODULE, "TB_MAX_CMDS", "num", str(MAX_COMMANDS), "CONST"),
+                (SHARED_MODULE, "TB_TOOL_MM", "num", _num(TOOL_MM), "CONST"),
+                (SHARED_MODULE, "TB_TOOL_DEG", "num", _num(TOOL_DEG), "CONST"),
+                (SHARED_MODULE, "TB_TOOL_DIFFERS", "string", f'"{TOOL_DIFFERS}"', "CONST"),
                 (SHARED_MODULE, "TB_DIR", "string", '"RAMDISK:"', "CONST"),
                 (SHARED_MODULE, "TB_DONE", "string", f'"{DONE}"', "CONST"),
                 (SHARED_MODULE, "TB_FAILED", "string", f'"{FAILED}"', "CONST"),
@@ -120,6 +137,7 @@ class TestbedInstall:
                 (ZONES_MODULE, "TB_WZ_COUNT", "num", str(len(z.boxes())), "CONST"),
                 (ZONES_MODULE, "tb_zones_n", "num", "0", "TASK PERS"),
                 (ZONES_MODULE, "tb_zones_at", "string", '""', "TASK PERS"),
+                (ZONES_MODULE, "TB_ZONES_ACTIVE", "string", f'"{ZONES_ACTIVE}"', "CONST"),
             ))
             for box in z.boxes():  # the init value [0]: WZLimSup writes the identity
                 yield unit.task, (ZONES_MODULE, box.name, "wzstationary", "[0]", "TASK PERS")
@@ -131,7 +149,8 @@ class TestbedInstall:
     def _tb_zones(self, task: str) -> None:
         """``tb_zones`` (TestbedZones.sys), run as the POWER_ON event routine of ``task``:
         the count first to 0, each zone's identity and the count as WZLimSup activates
-        it, the time stamp last; the hook supervises the arm's zones from now on."""
+        it, the time stamp, then the ``Testbed Zones Active`` entry; the hook supervises
+        the arm's zones from now on."""
         unit = next(u for u in self.hook.units if u.task == task)
         sym = self.controller.symbols
         try:
@@ -149,6 +168,26 @@ class TestbedInstall:
         self.hook.zones[unit.arm] = self.consts[unit.arm]
         stamp = time.strftime("%Y-%m-%d %H:%M:%S")  # CDate() + " " + CTime()
         sym.set([task, ZONES_MODULE, "tb_zones_at"], f'"{stamp}"')
+        n = len(self.consts[unit.arm].boxes())
+        self.controller.elog.write(ERRWRITE_INFO, MSG_INFO, ZONES_ACTIVE, src_name=task,
+                                   args=(ZONES_ACTIVE, task, f"zones {n}", stamp))
+
+    def set_event_routines(self, configured: bool) -> None:
+        """Whether ``tb_zones`` is each task's POWER_ON event routine (system parameters,
+        Controller / Event Routine): the install step, or a lab that removed it."""
+        routines = self.controller.event_routines
+        for unit in self.hook.units:
+            er = EventRoutine("POWER_ON", ZONES_ROUTINE, unit.task)
+            if configured and er not in routines:
+                routines.append(er)
+            elif not configured and er in routines:
+                routines.remove(er)
+
+    @property
+    def event_routines(self) -> bool:
+        """Whether every task has ``tb_zones`` as its POWER_ON event routine."""
+        return all(EventRoutine("POWER_ON", ZONES_ROUTINE, u.task)
+                   in self.controller.event_routines for u in self.hook.units)
 
     def _restarted(self, mode: str) -> None:
         """A restart erased the stationary zones; Reset RAPID removed our program module
@@ -199,6 +238,7 @@ class TestbedInstall:
     def lab_state(self) -> dict[str, Any]:
         """For ``GET /lab/controller``: what is installed."""
         return {"loaded": self.loaded, "version": self.version,
+                "event_routines": self.event_routines,
                 "zones": {u.arm: {"box_mm": list(self.consts[u.arm].box),
                                   "zone_z_mm": self.consts[u.arm].zone_z,
                                   "floor_z_mm": self.consts[u.arm].floor_z,

@@ -30,13 +30,24 @@ What our RAPID does, and so this hook (docs/notes/rws.md, "Our RAPID side"):
    (:mod:`sim_twin.rws.world_zones`): when a task's TCP of ``tool_pusher`` (the
    program's tool) would enter one, EVERY arm stops at that moment (the offending pusher
    on the zone's face), the controller's own error (:data:`WORLD_ZONE_CODE`) goes to the
-   event log in that task, and execution stops: no ``Done`` entry. Each accepted
-   program's tool frame becomes ``tool_pusher``'s ``tframe`` (as ``tb_header`` does).
+   event log in that task, and execution stops: no ``Done`` entry.
+5. The tool is the CONTROLLER's (issue 35): ``tool_pusher``, the TASK PERS of the task
+   module (``TestbedTask_L`` / ``_R``; readable and writable over RWS), never the file's.
+   ``tb_header`` compares the file's ``tframe`` with ``tool_pusher.tframe`` and refuses
+   the file, before any motion, when they are more than :data:`TOOL_MM` apart in
+   translation or :data:`TOOL_DEG` in rotation (:func:`check_tool`: reason
+   :data:`TOOL_DIFFERS`, the detail line the file's frame, the last line
+   ``tool_pusher``'s). An accepted program moves, and is supervised, with
+   ``tool_pusher`` (:meth:`TestbedRapid.held_tool`): the motion executor gets the
+   program with the controller's tool in place of the file's, so the TCP it moves and
+   the zones watch is the controller's frame.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from sim_twin.rws.errors import RwsError
@@ -53,14 +64,17 @@ from sim_twin.rws.motion_exec import (
 from sim_twin.rws.motion_program import (
     ERRWRITE_ERROR,
     ERRWRITE_INFO,
+    LoadData,
     MotionProgramFile,
     MoveAbsJ,
     MoveJ,
     MoveL,
+    Pose,
+    ToolData,
     WaitTime,
     describe,
 )
-from sim_twin.rws.rapid_data import format_value, parse_value
+from sim_twin.rws.rapid_data import format_number, numbers, parse_value
 from sim_twin.rws.world_zones import ArmZone, default_zone, first_entry
 from sim_twin.yumi_cell import Trajectory
 
@@ -69,10 +83,17 @@ DONE, FAILED = "Testbed Motion Done", "Testbed Motion Failed"
 MAX_COMMANDS = 64
 """The size of our RAPID's command arrays (``TB_MAX_CMDS`` in TestbedMotion.mod)."""
 SUPPORTED = (MoveAbsJ, MoveJ, MoveL, WaitTime)
-RAPID_VERSION = 3
+RAPID_VERSION = 4
 """``TB_RAPID_VERSION`` in TestbedMotion.mod: the behaviour of our modules this twin plays
-(2: the world zones; 3: the zones in a system module, issue 29). The driver and
-``testbed check`` compare the controller's."""
+(2: the world zones; 3: the zones in a system module, issue 29; 4: the tool frame is the
+controller's and a file's must match it, tb_zones writes "Testbed Zones Active", issue
+35). The driver and ``testbed check`` compare the controller's."""
+TOOL_MM, TOOL_DEG = 1.0, 0.5
+"""``TB_TOOL_MM``, ``TB_TOOL_DEG``: how far a file's tool frame may be from
+``tool_pusher``'s (translation, mm; rotation, deg) before our RAPID refuses it."""
+TOOL_DIFFERS = "Tool frame differs from tool_pusher"
+"""``TB_TOOL_DIFFERS``: the reason line (``args[1]``) of that refusal."""
+
 WORLD_ZONE_CODE = 50000
 WORLD_ZONE_TITLE = "World zone reached"
 """The twin's OWN code and title for a ``WZLimSup`` stop (motion domain, 5xxxx, like the
@@ -91,6 +112,57 @@ def testbed_program_file(task: str) -> str:
 def _refusal(reason: str, detail: str) -> RapidError:
     return RapidError(ERRWRITE_ERROR, FAILED, desc=f"{reason}: {detail}",
                       args=(FAILED, reason, "", detail, ""))
+
+
+def angle_deg(a: Sequence[float], b: Sequence[float]) -> float:
+    """``tb_angle``: the angle between two orientations (quaternions, either sign),
+    ``2 acos(|a.b|)`` computed as ``4 asin(|a - s b| / 2)`` (``s`` the sign of ``a.b``) on
+    the normalised quaternions; 180 for a zero one."""
+    na, nb = math.sqrt(sum(x * x for x in a)), math.sqrt(sum(x * x for x in b))
+    if na == 0.0 or nb == 0.0:
+        return 180.0
+    s = -1.0 if sum(x * y for x, y in zip(a, b, strict=True)) < 0.0 else 1.0
+    d = math.sqrt(sum((x / na - s * y / nb) ** 2 for x, y in zip(a, b, strict=True))) / 2.0
+    return math.degrees(4.0 * math.asin(min(d, 1.0)))
+
+
+def frame_text(f: Pose) -> str:
+    """``tb_frame``: ``[[x,y,z],[q1,q2,q3,q4]]``, mm to 0.1 and q to 0.0001 (NumToStr
+    with 1 and 4 decimals, trailing zeros left off: assumed, docs/rws-checklist.md)."""
+    def n(v: float, dec: int) -> str:
+        return format_number(round(float(v), dec) + 0.0)
+    return (f"[[{','.join(n(v, 1) for v in f.trans)}],"
+            f"[{','.join(n(v, 4) for v in f.rot)}]]")
+
+
+def _clip(s: str) -> str:
+    return s[:80]  # tb_clip: an event log line holds at most 80 characters
+
+
+def check_tool(file_tool: ToolData, held: ToolData) -> None:
+    """``tb_header``'s tool checks: a robot-held tool whose frame is ``held``'s (the
+    controller's ``tool_pusher``) within :data:`TOOL_MM` and :data:`TOOL_DEG`."""
+    if not file_tool.robhold:
+        raise RapidError(ERRWRITE_ERROR, FAILED, desc="Stationary tool not supported",
+                         args=(FAILED, "Stationary tool not supported", "", "tool robhold",
+                               "at byte 8"))
+    f, h = file_tool.tframe, held.tframe
+    if math.dist(f.trans, h.trans) > TOOL_MM or angle_deg(f.rot, h.rot) > TOOL_DEG:
+        detail = _clip(f"file {frame_text(f)}")
+        last = _clip(f"tool_pusher {frame_text(h)}")
+        raise RapidError(ERRWRITE_ERROR, FAILED, desc=f"{TOOL_DIFFERS}: {detail}; {last}",
+                         args=(FAILED, TOOL_DIFFERS, "", detail, last))
+
+
+def tool_of(value: str) -> ToolData:
+    """A ``tooldata`` symbol's RAPID text as the decoder's record."""
+    v = parse_value(value)
+    if not isinstance(v, list) or len(v) != 3 or not isinstance(v[0], bool):
+        raise ValueError(f"not a tooldata: {value!r}")
+    f, load = numbers(v[1]), numbers(v[2])
+    return ToolData(v[0], Pose(tuple(f[:3]), tuple(f[3:7])),  # type: ignore[arg-type]
+                    LoadData(load[0], tuple(load[1:4]), tuple(load[4:8]),  # type: ignore[arg-type]
+                             load[8], load[9], load[10]))
 
 
 def check_program(program: MotionProgramFile, floor_z_mm: float) -> None:
@@ -128,7 +200,8 @@ class TestbedRapid(CellMotion):
     ``tb_floor_z``) and ``zones`` (arm -> :class:`ArmZone`, the task module's zone
     constants; default: the arm's workspace grown by
     :data:`~sim_twin.rws.world_zones.DEFAULT_MARGIN_MM`, ``tb_zone_z`` 80 mm, the floor).
-    ``last_run``: what each task of the latest run read (accepted or not). The modules'
+    ``last_run``: what each task of the latest run read (accepted or not; an accepted
+    one with ``tool_pusher`` as its tool, as it ran). The modules'
     symbols (``tool_pusher``, the zone constants, ``TB_RAPID_VERSION``...) are declared by
     ``sim_twin.rws.testbed_install.TestbedInstall(controller, hook)``, which also sets
     ``on_start``; without it RWS reads of them answer as if the modules were missing."""
@@ -154,11 +227,29 @@ class TestbedRapid(CellMotion):
     def program_file(self, task: str) -> str:
         return self.files.get(task.upper(), testbed_program_file(task))
 
+    def held_tool(self, run: ProgramRun, task: str) -> ToolData | None:
+        """``tool_pusher`` of ``task`` as the controller holds it now (None: the task
+        module is not loaded)."""
+        try:
+            sym = run.controller.symbols.find([task, task_module_of(task), "tool_pusher"])
+        except RwsError:
+            return None
+        return tool_of(sym.value)
+
     def _read(self, run: ProgramRun, unit: MechUnit) -> TaskProgram:
+        """The task's file, checked as ``tb_header`` and ``tb_command`` check it, with
+        the controller's ``tool_pusher`` in place of the file's tool (``last_run`` keeps
+        the program as read until it is accepted, then as it runs)."""
         tp = self.read_task(run, unit)
         self.last_run[unit.task] = tp
+        held = self.held_tool(run, unit.task)
+        if held is None:
+            raise _refusal("Reference error", f"tool_pusher: {task_module_of(unit.task)} "
+                                              "is not loaded")
+        check_tool(tp.program.tool, held)
         check_program(tp.program, self.floor_z_mm)
-        _set_tool_frame(run, unit.task, tp.program)
+        tp = replace(tp, program=replace(tp.program, tool=held))
+        self.last_run[unit.task] = tp
         return tp
 
     def _failed(self, run: ProgramRun, unit: MechUnit, exc: RapidError) -> None:
@@ -227,14 +318,7 @@ class TestbedRapid(CellMotion):
             args=(unit.task, zone.box.name, *(f"{v:g}" for v in p)))
 
 
-def _set_tool_frame(run: ProgramRun, task: str, program: MotionProgramFile) -> None:
-    """``tool_pusher.tframe := <the file's>`` (``tb_header``), when our RAPID is loaded."""
-    try:
-        sym = run.controller.symbols.find([task, "tool_pusher"])
-    except RwsError:
-        return  # not declared: the modules are not loaded (the twin's lab side)
-    value = parse_value(sym.value)
-    assert isinstance(value, list)
-    f = program.tool.tframe
-    value[1] = [[float(v) for v in f.trans], [float(v) for v in f.rot]]
-    run.controller.symbols.set([task, "tool_pusher"], format_value(value))
+
+def task_module_of(task: str) -> str:
+    """Our task module of a motion task: ``T_ROB_L`` -> ``TestbedTask_L``."""
+    return f"TestbedTask_{task.rsplit('_', 1)[-1]}"
