@@ -17,15 +17,19 @@ and the pusher, as robot/README.md derives it."""
 
 from __future__ import annotations
 
+import math
+import random
 import re
 import threading
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from rapidchecker.cli import check_file
 
 from drivers.yumi import yumi_controller
-from sim_twin.rws import testbed_rapid, world_zones
+from sim_twin.rws import testbed_install, testbed_rapid, world_zones
 
 RAPID = Path(__file__).resolve().parents[1] / "robot" / "rapid"
 MODULES = sorted([*RAPID.glob("*.mod"), *RAPID.glob("*.sys")])
@@ -333,3 +337,112 @@ def test_the_tool_load_is_the_gripper_and_the_pusher(side: str) -> None:
     assert aom == [1, 0, 0, 0]
     assert inertia == pytest.approx(want_inertia, abs=0.000006)
     assert all(v > 0 for v in inertia)
+
+
+# --- the tool frame is the controller's; zones active in the event log (issue 35) ------------
+PUSHER_TCP_MM = 114.2 + 70.0
+"""The pusher's tip down the flange's z: the SmartGripper fingers' TCP (ABB's gripper
+tooldata, 114.2 mm) and the 100 mm rod's 70 mm beyond them (30 mm held inside);
+robot/README.md, "The tool frame"."""
+
+
+@pytest.mark.parametrize("side", ["L", "R"])
+def test_tool_pusher_ships_the_pushers_measured_frame(side: str) -> None:
+    text = (RAPID / f"TestbedTask_{side}.mod").read_text()
+    storage, type_name, value = _decl(text, "tool_pusher")
+    assert (storage, type_name) == ("TASK PERS", "tooldata")
+    assert value.startswith("[TRUE,[[0,0,184.2],[1,0,0,0]],[0.272,")
+    assert float(value.split(",")[3].rstrip("]")) == pytest.approx(PUSHER_TCP_MM)
+
+
+def test_the_twins_pusher_is_the_shipped_tool_pusher() -> None:
+    """The twin's default pusher (its tool_pusher as declared) is the shipped frame."""
+    from sim_twin.yumi_arms import DEFAULT_TOOL_MM
+
+    assert abs(DEFAULT_TOOL_MM - PUSHER_TCP_MM) < 1e-9, DEFAULT_TOOL_MM
+
+
+def test_no_program_sets_the_tool_frame_and_the_header_checks_it() -> None:
+    """tb_header reads the file's tframe and hands it to tb_tool, which compares it with
+    tool_pusher's; nothing assigns tool_pusher (it was ``tool_pusher.tframe := tb_pose()``)."""
+    texts = _texts("L")
+    for mod, text in texts.items():
+        code = re.sub(r"!.*", "", text)
+        assert not re.search(r"^ {4,}tool_pusher\b[.\w]*\s*:=", code, re.M), mod
+    shared = texts["TestbedMotion"]
+    _, header = _routine({"TestbedMotion": shared}, "tb_header")
+    steps = [ln.strip() for ln in header.splitlines() if not ln.strip().startswith("!")]
+    i = steps.index("frame := tb_pose();")
+    assert steps[i + 1] == "tb_tool frame;"  # right after the frame: before any command
+    assert float(_const(shared, "TB_TOOL_MM")) == testbed_rapid.TOOL_MM
+    assert float(_const(shared, "TB_TOOL_DEG")) == testbed_rapid.TOOL_DEG
+    assert _const(shared, "TB_TOOL_DIFFERS") == testbed_rapid.TOOL_DIFFERS
+    body = re.search(r"^  PROC tb_tool\(pose file\)\n(.*?)^  ENDPROC", shared, re.M | re.S)
+    assert body and "IF dist > TB_TOOL_MM OR angle > TB_TOOL_DEG THEN" in body.group(1)
+    assert "tb_fail TB_TOOL_DIFFERS," in body.group(1)
+
+
+def _rapid_func(text: str, name: str) -> Any:
+    """A RAPID FUNC of plain arithmetic (``:=``, compact ``IF``, ``RETURN``, Sqrt, Pow,
+    ASin, ACos, Abs) as a Python function of the same parameters (records: attributes)."""
+    m = re.search(rf"^  FUNC num {name}\(([^)]*)\)\n(.*?)^  ENDFUNC", text, re.M | re.S)
+    assert m, name
+    params = [p.split()[-1] for p in m.group(1).split(",")]
+    code = " ".join(ln.strip() for ln in m.group(2).splitlines()
+                    if not ln.strip().startswith("!"))
+    out = [f"def {name}({', '.join(params)}):"]
+    for stmt in (s.strip() for s in code.split(";") if s.strip()):
+        stmt = re.sub(r"^VAR num (\w+)$", r"\1 = None", stmt)
+        stmt = re.sub(r"^VAR num ", "", stmt)
+        cond = re.match(r"IF (.*?) (RETURN .*|\w+ := .*)$", stmt)
+        if cond:
+            test = re.sub(r"(?<![<>:])=", "==", cond.group(1))
+            stmt = f"if {test}: {cond.group(2)}"
+        out.append("    " + stmt.replace(":=", "=").replace("RETURN", "return")
+                   .replace(" OR ", " or ").replace(" AND ", " and "))
+    env = {"Sqrt": math.sqrt, "Pow": pow, "Abs": abs,
+           "ASin": lambda x: math.degrees(math.asin(x)),
+           "ACos": lambda x: math.degrees(math.acos(x))}
+    exec("\n".join(out), env)  # our own module's text, in a test
+    return env[name]
+
+
+def test_tb_angle_is_the_angle_between_two_orientations() -> None:
+    """The RAPID of tb_angle, evaluated: 2 acos(|a.b|) of the normalised quaternions (q
+    and -q alike), exact for small angles, 180 for a zero quaternion; as the twin's."""
+    tb_angle = _rapid_func((RAPID / "TestbedMotion.mod").read_text(), "tb_angle")
+    rng = random.Random(3)
+
+    def orient(q: list[float]) -> SimpleNamespace:
+        return SimpleNamespace(q1=q[0], q2=q[1], q3=q[2], q4=q[3])
+
+    for _ in range(300):
+        a = [rng.gauss(0, 1) for _ in range(4)]
+        b = [rng.gauss(0, 1) for _ in range(4)]
+        dot = abs(sum(x * y for x, y in zip(a, b, strict=True))) / (
+            math.hypot(*a) * math.hypot(*b))
+        want = math.degrees(2 * math.acos(min(dot, 1.0)))
+        assert tb_angle(orient(a), orient(b)) == pytest.approx(want, abs=1e-6)
+        assert tb_angle(orient(a), orient(b)) == pytest.approx(testbed_rapid.angle_deg(a, b))
+        assert tb_angle(orient(a), orient([-v for v in a])) == pytest.approx(0, abs=1e-6)
+    half = math.radians(0.3) / 2
+    assert tb_angle(orient([1, 0, 0, 0]), orient([math.cos(half), 0, math.sin(half), 0])) \
+        == pytest.approx(0.3, rel=1e-9)
+    assert tb_angle(orient([0, 0, 0, 0]), orient([1, 0, 0, 0])) == 180
+
+
+def test_tb_zones_writes_zones_active_when_all_are_on() -> None:
+    zones = (RAPID / "TestbedZones.sys").read_text()
+    assert _const(zones, "TB_ZONES_ACTIVE") == testbed_install.ZONES_ACTIVE
+    _, body = _routine({"TestbedZones": zones}, "tb_zones")
+    code = [ln.strip() for ln in body.splitlines() if not ln.strip().startswith("!")]
+    last = " ".join(code[-2:])
+    assert last == ('ErrWrite \\I, TB_ZONES_ACTIVE, GetTaskName() \\RL2:="zones " + '
+                    'NumToStr(tb_zones_n, 0) \\RL3:=tb_zones_at;')
+    assert code[-3] == 'tb_zones_at := CDate() + " " + CTime();'  # after every WZLimSup
+
+
+def test_rapidchecker_would_catch_a_broken_tool_check() -> None:
+    text = (RAPID / "TestbedMotion.mod").read_text()
+    assert check_file(text.replace("    IF d > 1 d := 1;", "    IF d > 1 d := 1"))
+    assert check_file(text.replace("    tb_tool frame;", "   tb_tool frame;"))

@@ -198,6 +198,25 @@ def test_no_rapid_declares_none_of_our_symbols_and_a_start_runs_nothing(tmp_path
         assert t.close() == 0
 
 
+def test_omit_motiontask_lists_no_motion_task_and_a_one_arm_start_starts_both(
+        tmp_path: Path) -> None:
+    """``--omit-motiontask`` (abb_motion_program_exec issue 4): the ABB client reads no
+    motion task, so its start of T_ROB_L alone starts T_ROB_R too, which re-runs its file."""
+    t = Twin(tmp_path, "--omit-motiontask")
+    try:
+        c = client(t.rws_url)
+        assert not any(s.motiontask for s in c.get_tasks().values())
+        assert t.lab()["omit_motiontask"] is True
+        first = run(c, {"T_ROB_L": program([("J", (400, 200, 120), 800)]),
+                        "T_ROB_R": program([("J", (400, -200, 120), 800)])})
+        assert [e.args[1] for e in first] == ["T_ROB_L", "T_ROB_R"]
+        again = run(c, {"T_ROB_L": program([("J", (380, 180, 120), 800)])}, seqno=2)
+        assert [(e.args[1], e.args[2]) for e in again] == [("T_ROB_L", "seqno 2"),
+                                                           ("T_ROB_R", "seqno 1")]
+    finally:
+        assert t.close() == 0
+
+
 def test_a_stop_at_real_time_halts_the_pusher_within_a_sample(tmp_path: Path) -> None:
     t = Twin(tmp_path, "--realtime", "1", "--arms", "left")
     try:
