@@ -137,6 +137,40 @@ class FaultDrills:
         """Host -> the fault active on it."""
         self.recovering: set[str] = set()
         """Hosts whose fault was cleared, until a row shows their arms back."""
+        self._replay: dict[tuple[int, str], dict[str, Any]] | None = None
+        """While :meth:`resume` replays: the killed sessions' faults.jsonl rows by
+        (step injected, kind); the drills then touch nothing and say nothing."""
+        self._replayed: list[dict[str, Any]] = []
+
+    def resume(self, rows: Sequence[Mapping[str, Any]]) -> Callable[[], None]:
+        """A run resumed after its steps ``rows`` (those its checkpoint kept, the last
+        one's drills perhaps not done). The drills' decisions depend only on the rows,
+        so the steps before the last are replayed without touching the lab (their
+        faults.jsonl rows, written then, are kept; later ones, of steps the checkpoint
+        dropped, go); what returns, run before the resumed run's first step, puts the
+        faults active at that point back into the fresh twins (a restart of the
+        operator's side does not close a guard or bring a link back) and does the last
+        step's drills."""
+        from testbed.core.atomic import atomic_write_bytes
+        from testbed.lab.fault_report import read_faults
+
+        self._replay = {(int(r["step"]), str(r["kind"])): r for r in read_faults(self.path.parent)}
+        try:
+            for row in rows[:-1]:
+                self.after_step(int(row["t"]), row)
+        finally:
+            self._replay = None
+        text = "".join(json.dumps(r, separators=(",", ":")) + "\n" for r in self._replayed)
+        atomic_write_bytes(self.path, text.encode())
+
+        def first_step() -> None:
+            for host, a in list(self.active.items()):
+                self.active.pop(host)
+                self._inject(a.fault, a.step, again=True)
+                self.active[host].seen, self.active[host].wall = a.seen, a.wall
+            if rows:
+                self.after_step(int(rows[-1]["t"]), rows[-1])
+        return first_step
 
     def after_step(self, t: int, row: Mapping[str, Any]) -> None:
         """Step ``t`` was logged (``row``); before step ``t + 1``: clear what is due,
@@ -175,14 +209,20 @@ class FaultDrills:
     def _number(self, f: PlannedFault) -> str:
         return f"{self.schedule.index(f) + 1}/{len(self.schedule)}"
 
-    def _inject(self, f: PlannedFault, step: int) -> None:
+    def _inject(self, f: PlannedFault, step: int, again: bool = False) -> None:
+        if self._replay is not None:  # resume's replay: what the killed session did
+            old = self._replay.get((step, f.kind), {})
+            self.active[f.host] = _Active(f, step, str(old.get("shows", "")),
+                                          float(old.get("injected_wall", time.time())))
+            return
         if f.kind == LINK:
             self.lab.hosts[f.host].sshd.stop()
             shows = "sshd stopped: the link and the agent's session are gone"
         else:
             shows = self.lab.hosts[f.host].lab.fault(f.kind, f.arm)["shows"]
         self.active[f.host] = _Active(f, step, shows, time.time())
-        self.say(f"FAULT {self._number(f)} before step {step} on {f.host}"
+        self.say(f"FAULT {self._number(f)} {'still there after the restart, ' if again else ''}"
+                 f"before step {step} on {f.host}"
                  f"{'/' + f.arm if f.kind in ARM_KINDS else ''}: {FAULT_KINDS[f.kind]}; "
                  f"{shows}")
         if f.kind == "camera_frozen":
@@ -191,20 +231,30 @@ class FaultDrills:
     def _clear(self, host: str, t: int | None) -> None:
         a = self.active.pop(host)
         f = a.fault
+        self.recovering.add(f.host)
+        if self._replay is not None:  # resume's replay: the row the killed session wrote
+            old = self._replay.get((a.step, f.kind))
+            self._replayed.append({**(old or {}), "seen": a.seen, "cleared": t}
+                                  if old else self._row(a, t, ["(not recorded)"]))
+            return
         if f.kind == LINK:
             self.lab.hosts[f.host].sshd.start()
+            self.lab.record_pids()
             actions = ["started the host's sshd again (the link is back)"]
         else:
             actions = self.lab.hosts[f.host].lab.clear(f.kind)["actions"]
-        self.recovering.add(f.host)
         when = f"before step {t}" if t is not None else "after the run"
         self.say(f"  cleared {self._number(f)} {when} on {f.host}: {'; '.join(actions)}")
-        row = {"step": a.step, "planned": f.step, "kind": f.kind, "host": f.host,
-               "arm": f.arm, "name": FAULT_KINDS[f.kind], "shows": a.shows,
-               "injected_wall": round(a.wall, 3), "seen": a.seen, "cleared": t,
-               "actions": actions}
         with open(self.path, "a", encoding="utf-8") as out:
-            out.write(json.dumps(row, separators=(",", ":")) + "\n")
+            out.write(json.dumps(self._row(a, t, actions), separators=(",", ":")) + "\n")
+
+    @staticmethod
+    def _row(a: _Active, t: int | None, actions: list[str]) -> dict[str, Any]:
+        f = a.fault
+        return {"step": a.step, "planned": f.step, "kind": f.kind, "host": f.host,
+                "arm": f.arm, "name": FAULT_KINDS[f.kind], "shows": a.shows,
+                "injected_wall": round(a.wall, 3), "seen": a.seen, "cleared": t,
+                "actions": actions}
 
 
 def fault_room(steps: int) -> str:
@@ -225,13 +275,20 @@ class RunFaults:
         self.lab, self.say = lab, say
         self.drills: FaultDrills | None = None
 
-    def begin(self, run: Path) -> None:
+    def begin(self, run: Path, resumed: Sequence[Mapping[str, Any]] = ()
+              ) -> Callable[[], None] | None:
+        """The run's drills; for a run ``resumed`` after these steps, what to do before
+        its first step (:meth:`FaultDrills.resume`)."""
         self.end()
         options = json.loads((run / "run.json").read_text(encoding="utf-8"))["options"]
         hosts = {name: h.arms for name, h in self.lab.hosts.items()}
         steps = int(options["steps"])
         schedule = fault_schedule(int(options["seed"]), steps, hosts)
         self.drills = FaultDrills(self.lab, schedule, run, steps, self.say)
+        if not resumed:
+            (run / FAULTS_FILE).unlink(missing_ok=True)
+            return None
+        return self.drills.resume(resumed)
 
     def after_step(self, t: int, row: Mapping[str, Any]) -> None:
         if self.drills is not None:

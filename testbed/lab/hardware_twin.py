@@ -11,6 +11,13 @@ hands in fault drills (kill an agent, stop an sshd; ``testbed.lab.fault_drills``
 hand, the true camera model, the faults a person clears): what a person in the lab has
 and the controller does not. The controller's decisions never read it.
 
+The lab's processes die with the operator's (``testbed rehearse``), however it ends: a
+reaper child (:func:`reap_when_orphaned`) waits for its stdin to close (the operator
+exited, or was killed with SIGKILL) and kills what ``pids.json`` lists (the twins, the
+sshds and the agents under them), so a killed rehearsal leaves no twin holding a port or
+a robot lock; the next ``testbed rehearse`` on the folder also reaps what a killed
+reaper left (:func:`reap`), then resumes (``testbed.lab.rehearsal``).
+
 ``sim_twin`` runs in its own process and ``drivers.testing.sshd`` is imported inside
 the functions that start it, so importing this module starts and imports nothing.
 """
@@ -44,6 +51,8 @@ __all__ = ["HardwareTwinLab", "LabClient", "LabError", "RehearsalError", "TwinHo
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 """This checkout: the twins' working folder and the rewritten hosts' ``workdir``."""
 SERVER_START_S = 60.0
+PIDS_FILE = "pids.json"
+"""The lab's processes (twins, sshds) with their start times: what a reaper kills."""
 
 
 class LabError(RuntimeError):
@@ -176,6 +185,7 @@ class HardwareTwinLab:
         """A robot host install's interpreter (``scripts/setup.sh --host``) the agents run
         from, as on a lab's host: no checkout on their path. None: this checkout's."""
         self.hosts: dict[str, TwinHost] = {}
+        self._reaper: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
         from drivers.testing.sshd import sshd_available
@@ -184,6 +194,8 @@ class HardwareTwinLab:
             raise ConfigError("testbed rehearse needs OpenSSH's sshd and ssh-keygen "
                               "(Debian: apt-get install openssh-server)")
         self.root.mkdir(parents=True, exist_ok=True)
+        reap(self.root)  # a killed session's twins and sshds, if its reaper died too
+        self._reaper = _start_reaper(self.root)
         starting: list[tuple[str, tuple[str, ...], subprocess.Popen[bytes]]] = []
         try:
             for i, h in enumerate(self.fleet.hosts):
@@ -193,6 +205,7 @@ class HardwareTwinLab:
                 write_login(self._login_file(h.name))
                 proc = self._start_twin(h.name, arms, self.seed * 1000 + i)
                 starting.append((h.name, arms, proc))
+            self.record_pids(extra=[p for _, _, p in starting])
             for name, arms, proc in starting:
                 log = self.root / f"{name}-twin.log"
                 port = _wait_port(proc, self.root / f"{name}.port", log)
@@ -201,6 +214,7 @@ class HardwareTwinLab:
                 self.hosts[name] = TwinHost(name, arms, port, rws_port, proc, sshd,
                                             LabClient(f"http://127.0.0.1:{port}"),
                                             self._login_file(name), self._rws_log(name))
+                self.record_pids(extra=[p for _, _, p in starting])
         except BaseException:
             for _, _, proc in starting:
                 _terminate(proc)
@@ -250,12 +264,30 @@ class HardwareTwinLab:
                                  f"{' '.join(str(exc).split())[:300]}") from None
         return sshd
 
+    def record_pids(self, extra: Sequence[subprocess.Popen[bytes]] = ()) -> None:
+        """``pids.json``: every twin and sshd of the lab now (call it after an sshd was
+        started again), what the reaper kills should this process die."""
+        from testbed.core.atomic import atomic_write_json
+
+        procs = [*extra, *(h.proc for h in self.hosts.values()),
+                 *(h.sshd.proc for h in self.hosts.values() if h.sshd.proc is not None)]
+        entries = {p.pid: _proc_start(p.pid) for p in procs}
+        atomic_write_json(self.root / PIDS_FILE,
+                          [{"pid": pid, "start": st} for pid, st in entries.items() if st])
+
     def stop(self) -> None:
         for h in self.hosts.values():
             with contextlib.suppress(Exception):
                 h.sshd.stop()
             _terminate(h.proc)
         self.hosts = {}
+        if self._reaper is not None:  # stdin closed: it reaps what is left, and exits
+            with contextlib.suppress(OSError):
+                if self._reaper.stdin is not None:
+                    self._reaper.stdin.close()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self._reaper.wait(10.0)
+            self._reaper = None
 
     def __enter__(self) -> HardwareTwinLab:
         self.start()
@@ -317,6 +349,58 @@ class HardwareTwinLab:
                     os.kill(pid, signal.SIGKILL)
                     killed += 1
         return killed
+
+
+def _proc_start(pid: int) -> str | None:
+    """A process's start time (``/proc/PID/stat`` field 22): with the pid, who it is (a
+    pid reused by another process has another start time)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat[stat.rindex(")") + 2:].split()[19]
+
+
+def reap(root: Path) -> int:
+    """Kill the lab processes ``root/pids.json`` lists that still run as themselves
+    (same pid, same start time), and everything under them (an sshd's sessions and the
+    agents they run); returns how many were killed."""
+    from drivers.testing.sshd import _children
+
+    path = root / PIDS_FILE
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return 0
+    pids: list[int] = []
+    for e in entries:
+        pid = int(e["pid"])
+        if _proc_start(pid) == e["start"]:
+            pids += [pid, *_children(pid)]
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGKILL)
+    path.unlink(missing_ok=True)
+    return len(pids)
+
+
+def reap_when_orphaned(root: str) -> None:
+    """The reaper's body: wait until stdin closes (the operator's process is gone, by
+    exit or by SIGKILL), then :func:`reap` the lab."""
+    with contextlib.suppress(OSError, KeyboardInterrupt):
+        while sys.stdin.buffer.read(4096):
+            pass
+    reap(Path(root))
+
+
+def _start_reaper(root: Path) -> subprocess.Popen[bytes]:
+    """The lab's reaper: a child whose stdin is a pipe only this process holds, in its
+    own session (a Ctrl-C at the console must not take it before the lab is stopped)."""
+    code = ("import sys; from testbed.lab.hardware_twin import reap_when_orphaned; "
+            "reap_when_orphaned(sys.argv[1])")
+    return subprocess.Popen([sys.executable, "-c", code, str(root)], cwd=PROJECT_ROOT,
+                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
 
 
 def write_login(path: Path) -> None:

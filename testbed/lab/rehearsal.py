@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from testbed.core.atomic import atomic_write_json
 from testbed.core.config import ConfigError
 from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans
@@ -65,6 +66,12 @@ __all__ = ["RehearsalError", "RehearsalOptions", "RehearsalResult", "quick_learn
            "rehearse", "require_yumi"]
 
 Say = Callable[[str], None]
+CALIBRATED = "calibration.json"
+"""In the lab folder once every arm is calibrated: each arm's error against the true
+camera. A rehearsal run again keeps the calibrations (``_kept_calibration``)."""
+KEEP_MAX_PX = 1.5
+"""A kept calibration's largest error against the twin's camera (the calibration's own
+target, docs/notes/rehearsal.md)."""
 
 
 @dataclass
@@ -122,7 +129,10 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
         where = ", ".join(f"{n} (sshd :{h.sshd.port}, twin :{h.port})"
                           for n, h in lab.hosts.items())
         say(f"hardware twins: {where}")
-        calibration = _calibrate_all(lab, fleet, fleet_file, say)
+        calibration = _kept_calibration(lab, fleet, say)
+        if calibration is None:
+            calibration = _calibrate_all(lab, fleet, fleet_file, say)
+            atomic_write_json(lab.root / CALIBRATED, calibration)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
         hooks = _RehearsalHooks(lab, arm_views(fleet), opts.humans)
         if opts.faults:
@@ -174,6 +184,33 @@ def _rehearsal_fleet(fleet: FleetConfig, opts: RehearsalOptions) -> FleetConfig:
         fleet = quick_learning(fleet)
     humans = fleet.humans.model_copy(update={"kind": opts.humans})
     return fleet.model_copy(update={"humans": humans})
+
+
+def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say
+                      ) -> dict[str, dict[str, float]] | None:
+    """A rehearsal run again (resumed): the calibrations its first session made, when
+    every arm's still holds against the twin's true camera (the same seed gives the same
+    cell: a lab re-checks, it does not recalibrate); None: calibrate."""
+    if not (lab.root / CALIBRATED).exists():
+        return None
+    figures: dict[str, dict[str, float]] = {}
+    for h in fleet.hosts:
+        cam = lab.hosts[h.name].lab.camera()
+        for a in h.arms:
+            try:
+                data = json.loads(lab.calibration_path(h.name, a.name).read_text())
+                err = true_model_error(cam, data["homography"], cam["workspaces_mm"][a.name])
+            except (OSError, ValueError, KeyError):
+                return None
+            if not err["max_px"] <= KEEP_MAX_PX:
+                say(f"calibration of {h.name}/{a.name} no longer holds "
+                    f"(max {err['max_px']:.2f} px): calibrating every arm again")
+                return None
+            figures[f"{h.name}/{a.name}"] = err
+    worst = max(f["max_px"] for f in figures.values())
+    say(f"calibration: every arm's from the last session, checked against the twin's "
+        f"camera (max {worst:.2f} px)")
+    return figures
 
 
 def _calibrate_all(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path,
@@ -241,11 +278,20 @@ class _RehearsalHooks(TrialHooks):
         return TwinLabHumans(inner, self.lab.labs, self.views, expert=self.kind == "scripted")
 
     def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:
+        """The run's truth recorder; a resumed run (its checkpoint's step in
+        ``state.json``, ``steps.jsonl`` already cut back to it) starts after it, its
+        truth and faults cut back to it too, and its drills caught up."""
+        from testbed.records.steps import read_steps
+
         self.rws.begin(run.path)
-        rec = TruthRecorder(hosts, self.lab.labs, self.views, run.path / "twin_truth.jsonl")
+        start, rows = 0, []
+        if run.state.exists():
+            start = int(json.loads(run.state.read_text(encoding="utf-8"))["t"]) + 1
+            rows = [r for r in read_steps(run.steps) if int(r["t"]) < start]
+        first = self.drills.begin(run.path, rows) if self.drills is not None else None
+        rec = TruthRecorder(hosts, self.lab.labs, self.views, run.path / "twin_truth.jsonl",
+                            start=start, before_first_step=first)
         self.recorders.append(rec)
-        if self.drills is not None:
-            self.drills.begin(run.path)
         return rec
 
     def on_step(self, outcome: StepOutcome) -> None:

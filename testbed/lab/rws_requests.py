@@ -49,7 +49,8 @@ class RwsLogSlices:
                 f.seek(self._from.get(host, 0))
                 data = f.read()
             cut = data.rfind(b"\n") + 1  # whole lines only: the twin may be mid-write
-            (out / f"{host}.rws.jsonl").write_bytes(data[:cut])
+            with open(out / f"{host}.rws.jsonl", "ab") as dst:  # a resumed run's after
+                dst.write(data[:cut])
         self._run = None
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from testbed.lab.lab_humans import ArmView
 
 __all__ = ["BORDERLINE", "TruthRecorder", "agreement_table", "edge_distance",
-           "truth_agreement"]
+           "keep_truth_before", "truth_agreement"]
 
 BORDERLINE = 1.0 / 64.0
 """A cube this close (one canonical pixel, ~5 mm) to the workspace edge or to the success
@@ -74,14 +74,29 @@ class TruthRecorder(HostsWrapper):
     """
 
     def __init__(self, hosts: Hosts, labs: Mapping[str, LabClient],
-                 views: Mapping[str, ArmView], path: Path) -> None:
+                 views: Mapping[str, ArmView], path: Path, *, start: int = 0,
+                 before_first_step: Callable[[], None] | None = None) -> None:
         super().__init__(hosts)
         self.labs = labs
         self.views = views
         self.path = path
+        self.next_t = start
+        """The loop's next step: rows are written with it at ``execute``."""
+        self.before_first_step = before_first_step
+        """Called once, at the first observe (a resumed run: the drills' restart)."""
+        self._pretraining = False
         self._goals: dict[str, tuple[float, float]] = {}
         self._inside: dict[str, bool] = {}
-        self._pending: list[dict[str, Any]] = []
+        keep_truth_before(path, start)
+
+    def reseed(self, trial_seed: int) -> None:
+        """Pretraining reseeds the hosts to its own seed first and to the trial's after
+        (``testbed.experiments.learners.pretrained_learner``): its pushes are not the
+        trial's steps and write no truth."""
+        from testbed.experiments.learners import PRETRAIN_HOSTS_SEED
+
+        self._pretraining = trial_seed == PRETRAIN_HOSTS_SEED
+        super().reseed(trial_seed)
 
     def _truth(self) -> dict[str, tuple[tuple[float, float], bool]]:
         out: dict[str, tuple[tuple[float, float], bool]] = {}
@@ -98,10 +113,12 @@ class TruthRecorder(HostsWrapper):
         return out
 
     def observe(self) -> Mapping[str, ArmObservation | Fault]:
+        if self.before_first_step is not None:
+            first, self.before_first_step = self.before_first_step, None
+            first()
         obs = self.hosts.observe()
         self._goals = {r: o.goal for r, o in obs.items() if isinstance(o, ArmObservation)}
         self._inside = {r: inside for r, (_, inside) in self._truth().items()}
-        self._pending = []
         return obs
 
     def execute(self, pushes: Mapping[str, int], resets: Collection[str]
@@ -122,18 +139,32 @@ class TruthRecorder(HostsWrapper):
             rows.append({"robot": robot, "success": success, "violation": violation,
                          "cube_xy": [round(xy[0], 5), round(xy[1], 5)], "pushed": pushed,
                          "goal": None if goal is None else [round(g, 5) for g in goal]})
-        self._pending = rows
+        if not self._pretraining and rows:
+            # on disk before the step's row and its checkpoint: a kill after the
+            # checkpoint landed never loses them; a resume drops those past it
+            with open(self.path, "a", encoding="utf-8") as f:
+                f.write("".join(json.dumps({"t": self.next_t, **row}, separators=(",", ":"))
+                                + "\n" for row in rows))
         return results
 
     def on_step(self, t: int) -> None:
-        """The loop finished step ``t``: its truth rows go to disk (pretraining's pushes,
-        which pass through here too, are never written)."""
-        if not self._pending:
-            return
-        with open(self.path, "a", encoding="utf-8") as f:
-            for row in self._pending:
-                f.write(json.dumps({"t": t, **row}, separators=(",", ":")) + "\n")
-        self._pending = []
+        """The loop finished step ``t``; the next one is ``t + 1``."""
+        self.next_t = t + 1
+
+
+def keep_truth_before(path: Path, start: int) -> None:
+    """``twin_truth.jsonl`` cut back to the steps before ``start`` (a resumed run's first
+    step; its own and later rows were written by a session killed before its checkpoint
+    landed, and are written again): each step's rows once."""
+    if not path.exists():
+        return
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+    keep = [x for x in lines if x.endswith("\n") and x.strip()
+            and int(json.loads(x)["t"]) < start]
+    if len(keep) != len(lines):
+        from testbed.core.atomic import atomic_write_bytes
+
+        atomic_write_bytes(path, "".join(keep).encode())
 
 
 def _borderline(row: Mapping[str, Any], prev: Mapping[str, Any] | None) -> bool:

@@ -44,6 +44,9 @@ class FakeLab:
         self.done: list[tuple[str, str, str]] = []
         self.hosts = {h: SimpleNamespace(lab=self._twin(h), sshd=self._sshd(h)) for h in HOSTS}
 
+    def record_pids(self) -> None:
+        """The lab's pid file after an sshd restart (nothing to record here)."""
+
     def _twin(self, host: str) -> Any:
         def fault(kind: str, arm: str | None = None) -> dict[str, Any]:
             self.done.append(("fault", host, kind))
@@ -90,3 +93,55 @@ def test_drills_clear_after_the_delay_and_wait_for_the_arms_before_the_next_faul
     rows = [json.loads(x) for x in (tmp_path / FAULTS_FILE).read_text().splitlines()]
     assert [(r["kind"], r["step"], r["cleared"], r["seen"]) for r in rows] == [
         ("guard_stop", 2, 3, 2), ("rapid_error", 3, 4, 3), ("link_lost", 5, None, None)]
+
+
+def _drive(drills: FaultDrills, steps: range, rows: dict[int, dict[str, Any]]) -> None:
+    """Each step's row as the arms would show it (a host with a fault active: both its
+    arms ``fault``), then the drills between it and the next."""
+    for t in steps:
+        if t not in rows:
+            rows[t] = {"t": t, **row({h: "fault" for h in drills.active})}
+        drills.after_step(t, rows[t])
+
+
+def test_a_resumed_run_replays_its_drills_puts_the_active_fault_back_and_writes_each_once(
+        tmp_path: Path) -> None:
+    """A rehearsal killed after step 5's checkpoint landed, whose drills had already run
+    after step 6 (faults.jsonl has a row of a step the checkpoint dropped): the resumed
+    drills, on a fresh lab, end with the same faults.jsonl as a run never killed, the
+    fault active at the checkpoint is injected again before the first resumed step, and
+    nothing the killed session did before the checkpoint is done again."""
+    plan = [PlannedFault(2, 2, "guard_stop", "yumi-a", "left"),
+            PlannedFault(3, 1, "rapid_error", "yumi-b", "right"),
+            PlannedFault(5, 2, "motors_off", "yumi-b", "left"),
+            PlannedFault(9, 1, "link_lost", "yumi-a", "left")]
+    whole, killed, resumed = tmp_path / "whole", tmp_path / "killed", tmp_path / "resumed"
+    for d in (whole, killed, resumed):
+        d.mkdir()
+    rows: dict[int, dict[str, Any]] = {}
+    ref = FaultDrills(FakeLab(), plan, whole, 14, lambda _: None)  # type: ignore[arg-type]
+    _drive(ref, range(12), rows)
+    ref.end()
+    first = FaultDrills(FakeLab(), plan, killed, 14, lambda _: None)  # type: ignore[arg-type]
+    _drive(first, range(7), rows)  # after step 6's drills: killed (its checkpoint: 5)
+    (resumed / FAULTS_FILE).write_bytes((killed / FAULTS_FILE).read_bytes())
+    lab = FakeLab()
+    said: list[str] = []
+    again = FaultDrills(lab, plan, resumed, 14, said.append)  # type: ignore[arg-type]
+    before_first_step = again.resume([rows[t] for t in range(6)])
+    assert lab.done == []  # the replay touches nothing
+    before_first_step()  # motors off on yumi-b (before 5, held 2) is still there
+    assert lab.done == [("fault", "yumi-b", "motors_off")]
+    assert [x for x in said if "still there after the restart" in x]
+    _drive(again, range(6, 12), rows)
+    again.end()
+
+    def key(d: Path) -> list[tuple[Any, ...]]:
+        got = [json.loads(x) for x in (d / FAULTS_FILE).read_text().splitlines()]
+        return sorted((r["step"], r["kind"], r["host"], r["cleared"], r["seen"],
+                       tuple(r["actions"])) for r in got)
+
+    assert key(resumed) == key(whole)
+    assert len(key(resumed)) == len(plan)
+    assert lab.done == [("fault", "yumi-b", "motors_off"), ("clear", "yumi-b", "motors_off"),
+                        ("fault", "yumi-a", "link_lost"), ("clear", "yumi-a", "link_lost")]

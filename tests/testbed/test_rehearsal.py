@@ -24,6 +24,7 @@ from drivers.testing.sshd import sshd_available
 from testbed.cli import main
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
+from testbed.experiments.learners import PRETRAIN_HOSTS_SEED
 from testbed.experiments.protocol import load_protocol
 from testbed.lab.camera_model import true_calibration, true_model_error
 from testbed.lab.hardware_twin import HardwareTwinLab
@@ -271,19 +272,28 @@ def test_truth_recorder_writes_only_the_loops_steps(lab: tuple[HardwareTwinLab, 
     fleet = _fleet(twin_lab)
     twin_lab.reset_all()  # earlier drills may have left a cube out (a refused push)
     hosts = HostFleet(fleet.hosts[1:])
+    truth = tmp_path / "twin_truth.jsonl"
+    # a resumed run's first step is 7: rows of 7 and later (a killed session's) go
+    truth.write_text("".join(json.dumps({"t": t, "robot": "yumi-b/left"}) + "\n"
+                             for t in (5, 6, 7, 8)))
     rec = TruthRecorder(hosts, {"yumi-b": twin_lab.labs["yumi-b"]},
                         {r: v for r, v in arm_views(fleet).items() if r.startswith("yumi-b")},
-                        tmp_path / "twin_truth.jsonl")
+                        truth, start=7)
+    assert [json.loads(x)["t"] for x in truth.read_text().splitlines()] == [5, 6]
+    truth.write_text("")
     hosts.start()
     try:
+        rec.reseed(PRETRAIN_HOSTS_SEED)  # pretraining: its pushes are never written
         rec.observe()
-        rec.execute({"yumi-b/left": 2}, [])  # a pretraining push: never written
+        rec.execute({"yumi-b/left": 2}, [])
+        rec.reseed(5)  # the trial's seed: the loop's steps from here on
         rec.observe()
-        rec.execute({"yumi-b/right": 0}, [])
+        rec.execute({"yumi-b/right": 0}, [])  # on disk at once, before the step's row
+        assert len(truth.read_text().splitlines()) == 2
         rec.on_step(7)
     finally:
         hosts.close()
-    rows = [json.loads(x) for x in (tmp_path / "twin_truth.jsonl").read_text().splitlines()]
+    rows = [json.loads(x) for x in truth.read_text().splitlines()]
     assert [r["t"] for r in rows] == [7, 7]
     pushed = {r["robot"]: r["pushed"] for r in rows}
     assert pushed == {"yumi-b/left": False, "yumi-b/right": True}
