@@ -190,7 +190,11 @@ def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say
                       ) -> dict[str, dict[str, float]] | None:
     """A rehearsal run again (resumed): the calibrations its first session made, when
     every arm's still holds against the twin's true camera (the same seed gives the same
-    cell: a lab re-checks, it does not recalibrate); None: calibrate."""
+    cell: a lab re-checks, it does not recalibrate) and still says what the lab knows of
+    the arm (its tool, rest joints, arm angle: a new tool is a new calibration);
+    None: calibrate."""
+    from testbed.lab.camera_model import arm_facts
+
     if not (lab.root / CALIBRATED).exists():
         return None
     figures: dict[str, dict[str, float]] = {}
@@ -202,9 +206,15 @@ def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say
                 err = true_model_error(cam, data["homography"], cam["workspaces_mm"][a.name])
             except (OSError, ValueError, KeyError):
                 return None
-            if not err["max_px"] <= KEEP_MAX_PX:
-                say(f"calibration of {h.name}/{a.name} no longer holds "
-                    f"(max {err['max_px']:.2f} px): calibrating every arm again")
+            facts = arm_facts(a.name, cam)
+            stale = sorted(k for k, v in facts.items() if data.get(k) != v)
+            if stale or not err["max_px"] <= KEEP_MAX_PX:
+                say(f"calibration of {h.name}/{a.name} no longer holds ("
+                    + (f"{', '.join(stale)} changed" if stale else
+                       f"max {err['max_px']:.2f} px") + "): calibrating every arm again")
+                for g in fleet.hosts:  # from the lab's starting files, as on day one
+                    for x in g.arms:
+                        lab.calibration_path(g.name, x.name).unlink(missing_ok=True)
                 return None
             figures[f"{h.name}/{a.name}"] = err
     worst = max(f["max_px"] for f in figures.values())
