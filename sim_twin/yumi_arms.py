@@ -67,10 +67,11 @@ GRIPPER_MM: Final = (60.0, 40.0)
 radius (our estimate of the YuMi gripper's housing; its fingers and the pusher below it
 are the pusher's capsule)."""
 PUSHER_RADIUS_MM: Final = 12.0
-DEFAULT_TOOL_MM: Final = 100.0
-"""The hardware twin's tool when none is given: the pusher's tip 100 mm from the flange
-(the gripper's housing, its fingers and the pusher they hold; the layout's reach is
-checked with it, docs/notes/yumi-real.md)."""
+DEFAULT_TOOL_MM: Final = 184.2
+"""The hardware twin's pusher when none is given: its tip 184.2 mm from the flange along
+the flange's z (ABB's servo-gripper finger TCP at 114.2 mm, plus the 100 mm rod held 30 mm
+inside the fingers, 70 mm beyond them): the one pusher length of the project, the
+controller's ``tool_pusher`` as shipped (robot/README.md)."""
 
 
 def _rpy(r: float, p: float, y: float) -> Mat:

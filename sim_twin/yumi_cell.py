@@ -30,6 +30,7 @@ changed; sensor noise is added per frame on top.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -131,10 +132,40 @@ class Segment:
                 self.a[2] + f * (self.b[2] - self.a[2]))
 
 
+@dataclass(frozen=True, slots=True)
+class PathSegment:
+    """A move whose TCP follows given samples (``(t, xyz)``, t from the segment's start,
+    increasing, the last at its end): a joint move, whose pusher goes where the arm's
+    interpolated joints put it, not in a line. ``a``, ``b``, ``speed`` as :class:`Segment`."""
+
+    a: tuple[float, float, float]
+    b: tuple[float, float, float]
+    speed: float
+    samples: tuple[tuple[float, tuple[float, float, float]], ...]
+
+    @property
+    def length(self) -> float:
+        return math.dist(self.a, self.b)
+
+    @property
+    def duration(self) -> float:
+        return self.samples[-1][0]
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        prev_t, prev_p = 0.0, self.a
+        for ts, p in self.samples:
+            if t < ts:
+                f = (t - prev_t) / (ts - prev_t) if ts > prev_t else 1.0
+                return (prev_p[0] + f * (p[0] - prev_p[0]), prev_p[1] + f * (p[1] - prev_p[1]),
+                        prev_p[2] + f * (p[2] - prev_p[2]))
+            prev_t, prev_p = ts, p
+        return self.b
+
+
 class Trajectory:
     """An arm's program as a chain of segments in time."""
 
-    def __init__(self, segments: Sequence[Segment]) -> None:
+    def __init__(self, segments: Sequence[Segment | PathSegment]) -> None:
         self.segments = list(segments)
         self.duration = sum(s.duration for s in self.segments)
 
@@ -153,6 +184,23 @@ def _number(v: Any, what: str) -> float:
     if not math.isfinite(f):
         raise ValueError(f"{what} must be finite, got {v!r}")
     return f
+
+
+def _segment(a: tuple[float, float, float], b: tuple[float, float, float], speed: float,
+             path: Any, what: str) -> Segment | PathSegment:
+    """A waypoint's move: a line, or with ``path`` (the samples a twin with arms gives a
+    joint move: ``[(t, [x, y, z]), ...]``, t from the move's start) along them, ending at
+    ``b`` at the last sample's time."""
+    if path is None:
+        return Segment(a, b, speed)
+    try:
+        samples = tuple((float(t), (float(p[0]), float(p[1]), float(p[2]))) for t, p in path)
+    except (TypeError, ValueError, IndexError):
+        raise ValueError(f"{what}: path must be [[t, [x, y, z]], ...]") from None
+    if not samples or any(t1 <= t0 for (t0, _), (t1, _) in itertools.pairwise(samples)) or \
+            samples[0][0] <= 0.0:
+        raise ValueError(f"{what}: path times must increase from above 0")
+    return PathSegment(a, b, speed, (*samples[:-1], (samples[-1][0], b)))
 
 
 def _marker_texture(marker_id: int) -> npt.NDArray[np.uint8]:
@@ -345,9 +393,9 @@ class YumiTwinCell:
                     if not isinstance(xyz, Sequence) or isinstance(xyz, str) or len(xyz) != 3:
                         raise ValueError(f"{what}: xyz_mm must be [x, y, z] (mm)")
                     target = tuple(_number(v, f"{what}: xyz_mm") for v in xyz)  # type: ignore[assignment]
-                    if target[2] < 0.0:
+                    if target[2] < 0.0 and wp.get("joints_deg") is None:
                         raise ValueError(f"{what}: z = {target[2]:g} mm is below the table")
-                segs.append(Segment(here, target, speed))
+                segs.append(_segment(here, target, speed, wp.get("path"), what))
                 here = target
             plans[arm] = Trajectory(segs)
         return plans

@@ -57,15 +57,23 @@ MARKER_MM: Final = 36.0
 """Side of the ArUco marker's black square, centred on the cap (a 4 mm white margin)."""
 MARKER_DICT: Final = "DICT_4X4_50"
 MARKER_IDS: Final = {"left": 0, "right": 1}
-REST_JOINTS_DEG: Final = {"left": (-20.0, -20.0, 0.0, 150.0, 30.0, 70.0, 135.0),
-                          "right": (20.0, -20.0, 0.0, -150.0, 30.0, -70.0, -135.0)}
-"""Each arm's rest pose, ABB's joint order (axes 1-6, then axis 7): the arm raised out to
-its side, its pusher's tip far above the world zones and outside the camera's view, the
-two arms apart (``drivers/yumi/layout_check.py`` checks all of it)."""
+REST_JOINTS_DEG: Final = {"left": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+                          "right": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
+"""Each arm's rest pose, ABB's joint order (axes 1-6, then axis 7): ABB's folded home of
+the IRB 14000 with ABB's arm-angle signs (public YuMi RAPID: ``[[0,-130,30,0,40,0],
+[135,...]]`` for the left arm, -135 for the right). The arm hangs folded in front of the
+body, upper arm down, the gripper pointing forward and down: nothing held out sideways
+(the old pose held the tip 0.7 m to the side, a bystander hazard). An earlier rest chose
+that sideways pose because the folded home "crossed the arms behind the body": that pose
+had the arm angle's sign wrong. With the 184.2 mm pusher the tips rest at about
+(149, +-141, 115) mm, 15 mm above tb_zone_z + 20, the arms 35 mm apart, every link
+130 mm above the table; ``drivers/yumi/layout_check.py`` checks all of it (the tips hang
+over the workspaces' near edge, so a camera that sees the workspaces sees them:
+tests/sim_twin/test_yumi_arms.py states the figures)."""
 REST_MM: Final = {"left": (100.0, 450.0, 150.0), "right": (100.0, -450.0, 150.0)}
-"""Each TCP's rest point in the plain cell: behind and beside the table, far outside the
-camera's view. (The arms' rest is :data:`REST_JOINTS_DEG`; with a 100 mm pusher its tip is
-at (185, +-674, 447): a twin with arms should rest there, by the joints.)"""
+"""Each TCP's rest point in the plain cell (no arms): behind and beside the table, far
+outside the camera's view. A cell with arms (the RWS twin) rests its pushers where the
+rest joints hold them instead (``YumiTwinCell.set_rest``, ``sim_twin.yumi_arms.rest_tip``)."""
 
 # --- camera -------------------------------------------------------------------------------
 WIDTH: Final = 640

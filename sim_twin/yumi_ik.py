@@ -106,7 +106,7 @@ def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 8
         if _residual(tpose, flange, free_yaw) < _residual(pose, flange, free_yaw):
             q, pose, lam = trial, tpose, max(lam * 0.5, 1e-3)
         else:
-            lam *= 4.0
+            lam = min(lam * 4.0, 1e6)  # (unbounded, it overflows to NaN)
     return pose, _residual(pose, flange, free_yaw)
 
 
@@ -170,7 +170,8 @@ def _turns(model: ArmModel, pose: ArmPose) -> list[ArmPose]:
 
 
 def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[float] | None,
-          current: Sequence[float] | None = None, free_yaw: bool = False) -> Solution:
+          current: Sequence[float] | None = None, free_yaw: bool = False,
+          seeds: Sequence[Sequence[float]] = ()) -> Solution:
     """The joints that put the flange at ``flange`` (4x4, base frame mm) with axis 7 at
     ``arm_angle_deg``, in the configuration ``conf`` (cf1, cf4, cf6[, cfx]; None: any,
     the closest to ``current``, else the most dexterous). ``free_yaw``: the tool's turn
@@ -178,9 +179,14 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
 
     Refused, as the controller refuses: ``reach`` (no joint angles put the flange there:
     the residual in mm), ``limit`` (only past a joint limit: which axis, by how much),
-    ``conf`` (only in another configuration than ``conf``: the quadrants found)."""
+    ``conf`` (only in another configuration than ``conf``: the quadrants found).
+
+    ``seeds``: more starting joints (chain order), tried first without ranking by them:
+    the arm's present joints, so that a pose its own forward kinematics produced (the
+    rest pose, a stop mid-way) is always found, however far from the generic seeds."""
     want = None if conf is None else tuple(int(c) for c in conf[:3])
-    near = _seeds(current, conf if conf is not None else (0, 0, 0), arm_angle_deg)
+    near = [list(x) for x in seeds] + _seeds(current, conf if conf is not None else (0, 0, 0),
+                                             arm_angle_deg)
     found, best = solutions(model, flange, arm_angle_deg, near, free_yaw)
     hit = _pick(model, found, want, current, free_yaw)
     if hit is None:

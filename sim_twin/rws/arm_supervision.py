@@ -45,6 +45,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from sim_twin.rws.world_zones import ArmZone, ZoneBox
 from sim_twin.yumi_arms import ArmModel, ArmPose, abb_to_chain, chain_to_abb, clearance
 from sim_twin.yumi_arms import table_clearance as table_gap
 from sim_twin.yumi_cell import Segment, Trajectory
@@ -55,6 +56,7 @@ from sim_twin.yumi_ik import (
     configuration,
     manipulability,
     ranked,
+    rotation_error,
     solve,
 )
 
@@ -72,9 +74,12 @@ singularity (the closest solution flipped). With SingArea Wrist the wrist may tu
 through one (axes 4 and 6 trade the tool's free turn): only the distance counts."""
 FLANGE_DOWN: Final = np.diag([1.0, -1.0, -1.0])
 """The flange's rotation with the tool pointing down (the twin's only tool orientation)."""
-DOWN_COS: Final = math.cos(math.radians(1.0))
-"""A flange within 1 deg of pointing down: a MoveL that starts otherwise (from the rest
-pose) turns the tool while it moves, which the twin models as a joint move."""
+AGREE_MM: Final = 2.0
+"""The arm's tip and the cell's pusher this close: the arm's joints say where the flange
+is (the pusher sags a little on its constraint under load)."""
+JOINT_STEP_DEG: Final = 1.5
+"""A joint move is sampled at least every this many degrees of its largest joint's
+travel (at most about 25 mm of the tool's tip at full stretch), besides SAMPLE_MM."""
 ERRORS: Final = {
     "reach": (50050, "Position outside reach"),
     "limit": (50027, "Joint Out of Range"),
@@ -112,6 +117,8 @@ class _Track:
 
     t: list[float] = field(default_factory=list)
     q: list[list[float]] = field(default_factory=list)
+    ends: list[float] = field(default_factory=list)
+    """When each move that ran to its end ended (s)."""
 
     def at(self, t: float) -> list[float]:
         k = int(np.searchsorted(self.t, t))
@@ -124,12 +131,26 @@ class _Track:
         return [a + f * (b - a) for a, b in zip(self.q[k - 1], self.q[k], strict=True)]
 
 
-def flange_at(cell_xyz: Sequence[float], tool_mm: float) -> Mat:
-    """The flange pose (4x4) above a cell TCP (the pusher's bottom), the tool down."""
+def flange_at(cell_xyz: Sequence[float], tool_mm: float, rot: npt.ArrayLike | None = None
+              ) -> Mat:
+    """The flange pose (4x4) that holds a cell TCP (the pusher's bottom, ``tool_mm``
+    along the flange's z) with the flange's rotation ``rot`` (default: the tool down)."""
     f = np.eye(4)
-    f[:3, :3] = FLANGE_DOWN
-    f[:3, 3] = (cell_xyz[0], cell_xyz[1], cell_xyz[2] + tool_mm)
+    f[:3, :3] = FLANGE_DOWN if rot is None else np.asarray(rot, dtype=np.float64)
+    f[:3, 3] = np.asarray(cell_xyz, dtype=np.float64)[:3] - f[:3, 2] * tool_mm
     return f
+
+
+def turned(r0: Mat, r1: Mat, f: float) -> Mat:
+    """The rotation ``f`` of the way from ``r0`` to ``r1`` about one fixed axis (a
+    MoveL's orientation: interpolated evenly along the path, as the controller does)."""
+    w = rotation_error(r0, r1) * f
+    angle = float(np.linalg.norm(w))
+    if angle < 1e-12:
+        return r0.copy()
+    k = w / angle
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return (np.eye(3) + math.sin(angle) * kx + (1.0 - math.cos(angle)) * kx @ kx) @ r0
 
 
 class ArmSupervisor:
@@ -162,24 +183,16 @@ class ArmSupervisor:
         return self.models[arm].tip(self.joints[arm] if chain_deg is None else chain_deg,
                                     self.tool_mm)
 
-    def _any_solution(self, arm: str, xyz: Sequence[float], arm_angle: float) -> list[float]:
-        s = solve(self.models[arm], flange_at(xyz, self.tool_mm), arm_angle, None,
-                  free_yaw=self.free_yaw)
-        if s.pose is None:
-            raise ValueError(f"arm {arm}: no joints put the pusher at {list(xyz)} "
-                             f"({s.reason}: {s.detail})")
-        return list(s.pose.chain_deg)
-
     def flange_pose(self, arm: str, tip: Sequence[float]
                     ) -> tuple[tuple[float, float, float],
                                tuple[float, float, float, float]] | None:
         """The flange (position mm, quaternion wxyz) by the arm's joints when they hold the
-        pusher's tip at ``tip`` (within 1 mm) with the tool NOT pointing down (at rest);
-        None otherwise: on its way, or pointing down, where the pusher itself says where
-        the flange is (the cell's TCP plus the tool)."""
-        f = self.models[arm].pose(self.joints[arm]).flange
-        if f[:3, 2] @ FLANGE_DOWN[:3, 2] > DOWN_COS or math.dist(self.tip(arm), tip) > 1.0:
+        pusher's tip at ``tip`` (within :data:`AGREE_MM`), whatever the tool's direction
+        (at rest it points forward and down); None when they do not (the lab moved the
+        pusher): then the pusher itself says where the flange is."""
+        if math.dist(self.tip(arm), tip) > AGREE_MM:
             return None
+        f = self.models[arm].pose(self.joints[arm]).flange
         x, y, z = (float(v) for v in f[:3, 3])
         return (x, y, z), _quat(f[:3, :3])
 
@@ -196,15 +209,20 @@ class ArmSupervisor:
 
     def sync(self, arm: str, cell_xyz: Sequence[float]) -> None:
         """Make the arm's joints agree with its pusher when they do not (the lab's hand
-        moved it; a joint move stopped mid-way, whose pusher the cell moved in a line):
-        the solution clear of singularities closest to the joints it had."""
+        moved it): the joints nearest the arm's own that hold the pusher there, the tool
+        turned as it is now, else pointing down. Never refuses: a pusher no joints can
+        hold (the hand put it out of reach) leaves the joints where they were, and the
+        next move is judged from them, as the controller judges from its own joints."""
         if math.dist(self.tip(arm), cell_xyz) < 0.5:
             return
-        q = self.joints[arm]
-        s = solve(self.models[arm], flange_at(cell_xyz, self.tool_mm), q[2], None, current=q,
-                  free_yaw=self.free_yaw)
-        self.joints[arm] = list(s.pose.chain_deg) if s.pose is not None else \
-            self._any_solution(arm, cell_xyz, q[2])
+        q, m = self.joints[arm], self.models[arm]
+        now = m.pose(q).flange[:3, :3]
+        for rot in (now, FLANGE_DOWN):
+            s = solve(m, flange_at(cell_xyz, self.tool_mm, rot), q[2], None, current=q,
+                      free_yaw=self.free_yaw, seeds=[q])
+            if s.pose is not None:
+                self.joints[arm] = list(s.pose.chain_deg)
+                return
 
     # --- a move --------------------------------------------------------------------------
     def check(self, trajs: Mapping[str, Trajectory],
@@ -230,6 +248,60 @@ class ArmSupervisor:
             if track.t:
                 self.joints[arm] = list(track.at(t))
 
+    def tool_point(self, arm: str, chain_deg: Sequence[float], trans: Sequence[float]
+                   ) -> tuple[float, float, float]:
+        """The TCP of a tool whose frame's translation is ``trans`` (the tool in use),
+        for the arm's joints ``chain_deg``: the point the world zones watch."""
+        f = self.models[arm].pose(chain_deg).flange
+        x, y, z = (float(v) for v in f[:3, 3] + f[:3, :3] @ np.asarray(trans, dtype=float))
+        return (x, y, z)
+
+    def zone_entry(self, tracks: Mapping[str, _Track], zones: Mapping[str, ArmZone],
+                   tools: Mapping[str, Sequence[float]]
+                   ) -> tuple[float, str, ZoneBox, tuple[float, float, float]] | None:
+        """The first moment an arm's TCP of the tool in use (``tools``: arm -> the
+        tframe's translation) is inside one of its world zones along the path its joints
+        really take (a joint move's TCP is the forward kinematics of interpolated joints,
+        not a line): found at the first sample inside, then bisected back to the zone's
+        face. Returns (time, arm, box, the TCP there) or None. A TCP already inside at
+        the start stops at once, as ``WZLimSup`` refuses any motion inside the zone."""
+        hits = []
+        for arm, track in tracks.items():
+            zone, trans = zones.get(arm), tools.get(arm)
+            if zone is None or trans is None or not track.t:
+                continue
+            hit = self._track_entry(arm, track, zone, trans)
+            if hit is not None:
+                hits.append((hit[0], arm, hit[1], hit[2]))
+        return min(hits, key=lambda h: h[0]) if hits else None
+
+    def _track_entry(self, arm: str, track: _Track, zone: ArmZone, trans: Sequence[float]
+                     ) -> tuple[float, ZoneBox, tuple[float, float, float]] | None:
+        def at(t: float) -> tuple[float, float, float]:
+            return self.tool_point(arm, track.at(t), trans)
+
+        first = at(track.t[0])
+        box = zone.inside(first)
+        if box is not None:
+            return track.t[0], box, first
+        for k in range(1, len(track.t)):
+            box = zone.inside(at(track.t[k]))
+            if box is None:
+                continue
+            lo, hi = track.t[k - 1], track.t[k]
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if zone.inside(at(mid)) is not None else (mid, hi)
+            return lo, zone.inside(at(hi)) or box, at(lo)
+        return None
+
+    def tip_path(self, arm: str, track: _Track, t0: float, t1: float
+                 ) -> list[tuple[float, tuple[float, float, float]]]:
+        """The pusher's tip (the cell's TCP) at the track's samples in ``(t0, t1]``, times
+        from ``t0``: the path a joint move really gives the pusher, for the cell to follow."""
+        return [(t - t0, self.tip(arm, q)) for t, q in zip(track.t, track.q, strict=True)
+                if t0 < t <= t1 + 1e-9]
+
     def _arm(self, arm: str, traj: Trajectory, meta: Sequence[Mapping[str, object]]
              ) -> tuple[_Track, ArmStop | None]:
         q = list(self.joints[arm])
@@ -238,21 +310,22 @@ class ArmSupervisor:
         for k, seg in enumerate(segs):
             info = meta[k] if k < len(meta) else {}
             angle = float(info.get("arm_angle_deg", q[2]))  # type: ignore[arg-type]
-            down = self.models[arm].pose(q).flange[:3, 2] @ FLANGE_DOWN[:3, 2] > DOWN_COS
-            if info.get("kind") in ("move_j", "rest") or not down:  # (from the rest pose)
+            if info.get("kind") in ("move_j", "rest"):
                 lines = []
                 for j in range(k + 1, len(segs)):
                     nxt = meta[j] if j < len(meta) else {}
                     if nxt.get("kind") != "move_l":
                         break
-                    lines.append((segs[j], float(nxt.get("arm_angle_deg", angle))))  # type: ignore[arg-type]
+                    lines.append((segs[j], float(nxt.get("arm_angle_deg", angle)),  # type: ignore[arg-type]
+                                  _rot(nxt)))
                 stop = self._joint_move(arm, seg, info, angle, q, t0, track, lines)
             else:
-                stop = self._linear_move(arm, seg, angle, q, t0, track)
+                stop = self._linear_move(arm, seg, angle, q, t0, track, _rot(info))
             if stop is not None:
                 return track, stop
             q = track.q[-1]
             t0 += seg.duration
+            track.ends.append(t0)
         return track, None
 
     def _joint_move(self, arm: str, seg: Segment, info: Mapping[str, object], angle: float,
@@ -267,14 +340,15 @@ class ArmSupervisor:
             end = abb_to_chain(target)  # type: ignore[arg-type]
         else:
             end_or = self._target(arm, seg.b, angle, info.get("conf"), q,
-                                  bool(info.get("conf_on")), lines)
+                                  bool(info.get("conf_on")), lines, _rot(info))
             if isinstance(end_or, ArmStop):
                 return ArmStop(t0, arm, end_or.reason, end_or.detail)
             end = end_or
         over = m.limit_violation(end)
         if over is not None:
             return ArmStop(t0, arm, "limit", f"axis {over[0]} {over[1]:.1f} deg past its limit")
-        n = max(1, math.ceil(seg.length / SAMPLE_MM))
+        n = max(1, math.ceil(seg.length / SAMPLE_MM),
+                math.ceil(max(abs(b - a) for a, b in zip(q, end, strict=True)) / JOINT_STEP_DEG))
         for i in range(1, n + 1):
             f = i / n
             track.t.append(t0 + f * seg.duration)
@@ -283,14 +357,16 @@ class ArmSupervisor:
 
     def _target(self, arm: str, xyz: Sequence[float], angle: float, conf: object,
                 current: list[float], conf_on: bool = True,
-                lines: Sequence[tuple[Segment, float]] = ()) -> list[float] | ArmStop:
+                lines: Sequence[tuple[Segment, float, Mat | None]] = (),
+                rot: Mat | None = None) -> list[float] | ArmStop:
         """A joint move's end: in ``conf`` (ConfJ on, the most dexterous such solution),
         else (ConfJ off, "the closest configuration") the most dexterous solution from
         which the MoveLs that follow (``lines``) run: the configuration a lab that taught
-        its arm angle and rest pose well gets; the twin looks ahead for it."""
-        flange = flange_at(xyz, self.tool_mm)
+        its arm angle and rest pose well gets; the twin looks ahead for it. The arm's
+        present joints seed the search too (a target its own joints produced is found)."""
+        flange = flange_at(xyz, self.tool_mm, rot)
         s = solve(self.models[arm], flange, angle, conf if conf_on else None,  # type: ignore[arg-type]
-                  current=None, free_yaw=self.free_yaw)
+                  current=None, free_yaw=self.free_yaw, seeds=[current])
         if s.pose is not None and not conf_on and lines and \
                 not self._lines_run(arm, lines, list(s.pose.chain_deg)):
             for cand in ranked(self.models[arm], flange, angle, self.free_yaw):
@@ -300,37 +376,43 @@ class ArmSupervisor:
             return ArmStop(0.0, arm, s.reason or "reach", f"target {_xyz(xyz)}: {s.detail}")
         return list(s.pose.chain_deg)
 
-    def _lines_run(self, arm: str, lines: Sequence[tuple[Segment, float]],
+    def _lines_run(self, arm: str, lines: Sequence[tuple[Segment, float, Mat | None]],
                    q: list[float]) -> bool:
         """Whether the MoveLs ``lines`` run from joints ``q`` without a stop."""
         scratch = _Track([0.0], [q])
-        for seg, angle in lines:
-            if self._linear_move(arm, seg, angle, q, 0.0, scratch) is not None:
+        for seg, angle, rot in lines:
+            if self._linear_move(arm, seg, angle, q, 0.0, scratch, rot) is not None:
                 return False
             q = scratch.q[-1]
         return True
 
     def _linear_move(self, arm: str, seg: Segment, angle: float, q: list[float], t0: float,
-                     track: _Track) -> ArmStop | None:
-        """A MoveL: the TCP on a straight line, the joints the closest solution."""
+                     track: _Track, rot: Mat | None = None) -> ArmStop | None:
+        """A MoveL: the TCP on a straight line, the tool's orientation turned evenly from
+        the arm's present one to the target's (``rot``, default down) along it (a MoveL
+        from the rest pose turns the tool down as it goes; one to a target with the rest's
+        orientation keeps it), the joints the closest solution."""
         m = self.models[arm]
         start_angle = q[2]  # the arm angle turns with the line, as the TCP moves
+        r0 = m.pose(q).flange[:3, :3]
+        r1 = FLANGE_DOWN if rot is None else rot
+        turn = math.degrees(float(np.linalg.norm(rotation_error(r0, r1))))
         # evenly in time: at most SAMPLE_MM apart, as the TCP never exceeds seg.speed
         n = max(1, math.ceil(seg.speed * seg.duration / SAMPLE_MM),
-                math.ceil(abs(angle - start_angle) / 5.0))
+                math.ceil(abs(angle - start_angle) / 5.0), math.ceil(turn / 3.0))
         a = np.asarray(seg.a)
         for i in range(1, n + 1):
             t = t0 + seg.duration * i / n
             xyz = np.asarray(seg.at(seg.duration * i / n))
-            f = float(np.linalg.norm(xyz - a) / seg.length) if seg.length > 0 else 1.0
+            f = float(np.linalg.norm(xyz - a) / seg.length) if seg.length > 0 else i / n
             seed = [*q[:2], start_angle + f * (angle - start_angle), *q[3:]]
-            pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=40,
-                                 free_yaw=self.free_yaw)
+            flange = flange_at(xyz, self.tool_mm, turned(r0, r1, f))
+            pose, res = _descend(m, flange, seed, iters=40, free_yaw=self.free_yaw)
             if res > REACH_TOL_MM:  # slow to converge: longer, then the closest solution
-                pose, res = self._continued(m, xyz, seed, q) or (pose, res)
-            stop = self._sample_stop(arm, m, pose, res, q, t, xyz)
+                pose, res = self._continued(m, flange, seed, q) or (pose, res)
+            stop = self._sample_stop(arm, m, pose, res, q, t, xyz, flange)
             if stop is not None and stop.reason == "singular":
-                eased = self._arm_angle_eased(m, xyz, seed)
+                eased = self._arm_angle_eased(m, flange, seed)
                 if eased is not None:
                     pose, stop = eased, None
             if stop is not None:
@@ -340,31 +422,30 @@ class ArmSupervisor:
             track.q.append(q)
         return None
 
-    def _arm_angle_eased(self, m: ArmModel, xyz: Sequence[float], seed: list[float]
+    def _arm_angle_eased(self, m: ArmModel, flange: Mat, seed: list[float]
                          ) -> ArmPose | None:
         """Near a pocket where axis 7 held at the arm angle leaves the other six singular:
         the pose with axis 7 free too, if it converges clear of singularities within
         ARM_ANGLE_EASE_DEG of the angle asked for. The twin takes the robtarget's arm
         angle as axis 7's value; ABB's arm angle is the elbow plane's, a parameterization
         without these pockets, so the twin lets axis 7 ease rather than stop."""
-        pose, res = _descend(m, flange_at(xyz, self.tool_mm), seed, iters=200,
-                             free_yaw=self.free_yaw, joints=range(7))
+        pose, res = _descend(m, flange, seed, iters=200, free_yaw=self.free_yaw,
+                             joints=range(7))
         if res > REACH_TOL_MM or abs(pose.chain_deg[2] - seed[2]) > ARM_ANGLE_EASE_DEG or \
                 m.limit_violation(pose.chain_deg) is not None or \
                 manipulability(m, pose, self.free_yaw, range(7)) < SINGULAR_SIGMA:
             return None
         return pose
 
-    def _continued(self, m: ArmModel, xyz: Sequence[float], seed: list[float],
+    def _continued(self, m: ArmModel, flange: Mat, seed: list[float],
                    prev: list[float]) -> tuple[ArmPose, float] | None:
         """A line's next sample when the quick descent did not converge: a long one from
         the same seed, else the solution closest to ``prev`` if it is near (the arm
         follows the line); None when the arm cannot follow it."""
-        flange = flange_at(xyz, self.tool_mm)
         pose, res = _descend(m, flange, seed, iters=300, free_yaw=self.free_yaw)
         if res <= REACH_TOL_MM:
             return pose, res
-        s = solve(m, flange, seed[2], None, current=prev, free_yaw=self.free_yaw)
+        s = solve(m, flange, seed[2], None, current=prev, free_yaw=self.free_yaw, seeds=[prev])
         if s.pose is None:
             return None
         # with SingArea Wrist the wrist's two turning axes (4 and 6, chain 4 and 6) may
@@ -374,10 +455,11 @@ class ArmSupervisor:
         return (s.pose, 0.0) if max(moved) < JUMP_DEG else None
 
     def _sample_stop(self, arm: str, m: ArmModel, pose: ArmPose, res: float,
-                     prev: list[float], t: float, xyz: Sequence[float]) -> ArmStop | None:
+                     prev: list[float], t: float, xyz: Sequence[float], flange: Mat
+                     ) -> ArmStop | None:
         if res > REACH_TOL_MM:  # the arm cannot follow the line from where it is
-            s = solve(m, flange_at(xyz, self.tool_mm), pose.chain_deg[2], None, current=prev,
-                      free_yaw=self.free_yaw)
+            s = solve(m, flange, pose.chain_deg[2], None, current=prev,
+                      free_yaw=self.free_yaw, seeds=[prev])
             if s.pose is None:
                 return ArmStop(t, arm, s.reason or "reach", f"at {_xyz(xyz)}: {s.detail}")
             over = m.limit_violation(pose.chain_deg)
@@ -436,6 +518,12 @@ class ArmSupervisor:
                 best = (gap, arms[0], f"arms {arms[0]} (link {i + 1}) and {arms[1]} "
                                       f"(link {j + 1}) {max(gap, 0.0):.0f} mm apart")
         return best
+
+
+def _rot(info: Mapping[str, object]) -> Mat | None:
+    """A waypoint's flange rotation (``rot``: 3x3 rows), None: the tool down."""
+    r = info.get("rot")
+    return None if r is None else np.asarray(r, dtype=np.float64).reshape(3, 3)
 
 
 def _xyz(p: Sequence[float]) -> str:

@@ -53,6 +53,7 @@ import struct
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from sim_twin.constants import TIME_STEP_S
@@ -99,7 +100,8 @@ from sim_twin.rws.motion_program import (
     program_failed,
     program_file_for_task,
 )
-from sim_twin.yumi_arms import DEFAULT_TOOL_MM
+from sim_twin.rws.world_zones import ArmZone
+from sim_twin.yumi_arms import DEFAULT_TOOL_MM, abb_to_chain
 from sim_twin.yumi_cell import MAX_SPEED_MM_S, Trajectory, YumiTwinCell
 from sim_twin.yumi_geometry import REST_JOINTS_DEG
 
@@ -160,7 +162,9 @@ def _unit_quat(q: Sequence[float], what: str, task: str) -> Quat:
 
 
 def tool_offset(tool: ToolData, pusher_length_mm: float) -> Vec3:
-    """The program tool's TCP minus the cell's TCP (the pusher's bottom), base frame."""
+    """The program tool's TCP minus the cell's TCP (the pusher's bottom), base frame,
+    with the tool pointing down (the pushes; a tool turned otherwise: the arms'
+    :meth:`~sim_twin.rws.arm_supervision.ArmSupervisor.tool_point`)."""
     d = qrot(TOOL_DOWN, tool.tframe.trans)
     return (d[0], d[1], d[2] + pusher_length_mm)
 
@@ -168,6 +172,15 @@ def tool_offset(tool: ToolData, pusher_length_mm: float) -> Vec3:
 def cell_point(target: RobTarget, tool: ToolData, wobj: WobjData, pusher_length_mm: float,
                *, task: str, what: str) -> Vec3:
     """The cell TCP that puts the program tool's TCP at ``target`` (see the docstring)."""
+    return cell_pose(target, tool, wobj, pusher_length_mm, task=task, what=what)[0]
+
+
+def cell_pose(target: RobTarget, tool: ToolData, wobj: WobjData, pusher_length_mm: float,
+              *, task: str, what: str) -> tuple[Vec3, list[list[float]]]:
+    """The cell TCP (the pusher's tip: ``pusher_length_mm`` along the flange's z) and the
+    flange's rotation (3x3 rows) that put the program tool's TCP at ``target`` in its
+    orientation: any orientation (a MoveL from rest may keep the rest's), the flange being
+    the target's frame less the tool's ``tframe``."""
     if not tool.robhold:
         raise program_failed("Stationary tool not supported by the twin", what, task=task)
     if wobj.robhold or not wobj.ufprog or wobj.ufmec:
@@ -178,19 +191,17 @@ def cell_point(target: RobTarget, tool: ToolData, wobj: WobjData, pusher_length_
                      (wobj.uframe.trans, _unit_quat(wobj.uframe.rot, "uframe", task)))
     frame = _compose(frame, (wobj.oframe.trans, _unit_quat(wobj.oframe.rot, "oframe", task)))
     p, q = _compose(frame, (target.trans, _unit_quat(target.rot, what, task)))
-    flange_q = qnorm(qmul(q, qconj(_unit_quat(tool.tframe.rot, "tframe", task))))
-    off = _angle_deg(flange_q, TOOL_DOWN)
-    if off > ORIENT_TOLERANCE_DEG:
-        raise program_failed("Orientation not reachable on the twin",
-                             f"{what}: the flange would be {off:.1f} deg from tool-down "
-                             "(the pusher only points down)", task=task)
-    d = tool_offset(tool, pusher_length_mm)
-    out = (p[0] - d[0], p[1] - d[1], p[2] - d[2])
+    tq = _unit_quat(tool.tframe.rot, "tframe", task)
+    flange_q = qnorm(qmul(q, qconj(tq)))
+    d = qrot(flange_q, tool.tframe.trans)
+    z = qrot(flange_q, (0.0, 0.0, 1.0))
+    out = tuple(p[k] - d[k] + z[k] * pusher_length_mm for k in range(3))
     if out[2] < 0.0:
         raise program_failed("Position outside reach",
                              f"{what}: the pusher would be {-out[2]:.1f} mm below the table",
                              task=task)
-    return out
+    cols = [qrot(flange_q, e) for e in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))]
+    return out, [[cols[j][i] for j in range(3)] for i in range(3)]  # type: ignore[return-value]
 
 
 def _speed(s: SpeedData, ratio: float, task: str, what: str) -> float:
@@ -243,6 +254,8 @@ class _ArmContext:
     ratio: float
     conf_j: bool = True
     """ConfJ on: a MoveJ keeps its target's configuration (our RAPID sets it)."""
+    tip_of: Callable[[Sequence[float]], Vec3] | None = None
+    """The cell TCP the arm's joints (ABB order) put the pusher at (the twin's arms)."""
 
 
 def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
@@ -251,24 +264,11 @@ def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
     if isinstance(cmd, EGMRunJoint | EGMRunPose | EGMMoveL | EGMMoveC):
         raise program_failed("EGM not available on the twin", what, task=task)
     if isinstance(cmd, MoveAbsJ):
-        j = cmd.to_joint_pos
-        want = (*j.robax, j.extax[0])
-        if len(ctx.rest_joints) != len(want) or any(
-                abs(x - y) > JOINT_TOLERANCE_DEG for x, y in zip(want, ctx.rest_joints,
-                                                                  strict=True)):
-            raise program_failed("Joint target not reachable on the twin",
-                                 f"{what}: {[round(x, 3) for x in want]} is not the rest pose "
-                                 f"{[round(x, 3) for x in ctx.rest_joints]} (the twin's cell "
-                                 "moves a pusher between the table and its rest point only)",
-                                 task=task)
-        ctx.here = ctx.rest_xyz
-        return [{"kind": "rest", "xyz_mm": None, "fine": cmd.zone.finep,
-                 "speed_mm_s": _speed(cmd.speed, ctx.ratio, task, what),
-                 "joints_deg": list(want)}]
+        return [_joint_waypoint(ctx, cmd, what)]
     assert isinstance(cmd, MoveJ | MoveL | MoveC)
     v = _speed(cmd.speed, ctx.ratio, task, what)
-    end = cell_point(cmd.to_point, prog.tool, prog.wobj, ctx.pusher_length_mm, task=task,
-                     what=what)
+    end, rot = cell_pose(cmd.to_point, prog.tool, prog.wobj, ctx.pusher_length_mm, task=task,
+                         what=what)
     if isinstance(cmd, MoveC):
         via = cell_point(cmd.cir_point, prog.tool, prog.wobj, ctx.pusher_length_mm,
                          task=task, what=f"{what} (circle point)")
@@ -281,8 +281,31 @@ def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
     kind = "move_j" if isinstance(cmd, MoveJ) else "move_l"
     ctx.here = end
     arm = _arm_of(cmd.to_point, kind == "move_j" and ctx.conf_j)
-    return [{"kind": kind, "xyz_mm": list(p), "speed_mm_s": v,
+    return [{"kind": kind, "xyz_mm": list(p), "speed_mm_s": v, "rot": rot,
              "fine": cmd.zone.finep if p is end else False, **arm} for p in pts]
+
+
+def _joint_waypoint(ctx: _ArmContext, cmd: MoveAbsJ, what: str) -> Waypoint:
+    """A MoveAbsJ: any joint target (the arms judge its limits: 50027); the pusher goes
+    where those joints put it. A twin without arms knows one joint target, the rest."""
+    task = ctx.tp.task
+    j = cmd.to_joint_pos
+    want = (*j.robax, j.extax[0])
+    speed = _speed(cmd.speed, ctx.ratio, task, what)
+    if ctx.tip_of is not None and len(want) == 7 and all(math.isfinite(x) for x in want):
+        ctx.here = ctx.tip_of(want)
+        return {"kind": "move_j", "xyz_mm": list(ctx.here), "fine": cmd.zone.finep,
+                "speed_mm_s": speed, "joints_deg": list(want), "arm_angle_deg": want[6]}
+    if len(ctx.rest_joints) != len(want) or any(
+            abs(x - y) > JOINT_TOLERANCE_DEG for x, y in zip(want, ctx.rest_joints, strict=True)):
+        raise program_failed("Joint target not reachable on the twin",
+                             f"{what}: {[round(x, 3) for x in want]} is not the rest pose "
+                             f"{[round(x, 3) for x in ctx.rest_joints]} (the twin's cell "
+                             "moves a pusher between the table and its rest point only)",
+                             task=task)
+    ctx.here = ctx.rest_xyz
+    return {"kind": "rest", "xyz_mm": None, "fine": cmd.zone.finep, "speed_mm_s": speed,
+            "joints_deg": list(want)}
 
 
 def _arm_of(target: RobTarget, conf_on: bool) -> dict[str, Any]:
@@ -439,6 +462,8 @@ class ZoneStop:
     t: float
     arm: str
     box: Any
+    point: tuple[float, float, float] | None = None
+    """The TCP of the tool in use where it stops (on the zone's face)."""
 
 
 class _Sampler:
@@ -515,6 +540,16 @@ class CellMotion:
         self.poses = CellPoses(self, threading.Lock(), self.units, self.pusher_length_mm,
                                arms=self.arms)
         self.last_run: dict[str, TaskProgram] = {}
+        self.tools: dict[str, Vec3] = {}
+        """Each arm's tool in use (its tframe's translation) in the latest plans: the TCP
+        the world zones watch."""
+        if not hasattr(self, "zones"):
+            self.zones: dict[str, ArmZone] = {}
+            """The stationary world zones per arm (the library's RAPID defines none; our
+            RAPID's hook, ``TestbedRapid``, sets them)."""
+
+    def _tip_of(self, arm: str, joints_abb: Sequence[float]) -> Vec3:
+        return self.arms.tip(arm, abb_to_chain(joints_abb))
 
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
         """The cell's TCPs; while a motion holds the cell, the latest sample's."""
@@ -604,8 +639,9 @@ class CellMotion:
             arm = tp.unit.arm
             ctx = _ArmContext(tp, tuple(here[arm]), self.arms.rest_joints(arm),  # type: ignore[arg-type]
                               self.cell.rest[arm], self.pusher_length_mm, ratio,
-                              self.conf_j)
+                              self.conf_j, partial(self._tip_of, arm))
             plans[arm] = arm_plan(ctx)
+            self.tools[arm] = tp.program.tool.tframe.trans
         return plans
 
     def _rounds(self, run: ProgramRun, plans: Mapping[str, list[_Block | _Wait]],
@@ -646,17 +682,14 @@ class CellMotion:
         contact), halts every arm at that moment and raises the controller's error."""
         programs = {a: b.waypoints for a, b in blocks.items()}
         with self.cell_lock:
-            try:
-                trajs = self.cell.plan(programs)
-            except ValueError as exc:
-                task = next(u.task for u in self.units if u.arm in blocks)
-                raise program_failed("Motion refused by the twin cell", str(exc),
-                                     task=task) from None
+            trajs = self._planned(programs, blocks)
             for arm, traj in trajs.items():
                 if traj.segments:
                     self.arms.sync(arm, traj.segments[0].a)
             stop_arm, tracks = self.arms.check(trajs, programs)
-            zone = self._zone_stop(trajs)
+            programs = {a: _along(wps, self.arms, a, tracks.get(a)) for a, wps in programs.items()}
+            trajs = self._planned(programs, blocks)
+            zone = self._path_zone_stop(tracks)
             stop_t = min((s.t for s in (zone, stop_arm) if s is not None), default=None)
             # a planned stop is found at the physics step it falls in, not the next sample
             every = self.frame_every_s if stop_t is None else TIME_STEP_S
@@ -682,6 +715,22 @@ class CellMotion:
         if log is not None:
             log.sample(t0 + took, {a: b.cmd_nums[-1] for a, b in blocks.items()}, tcps)
         return took
+
+    def _planned(self, programs: Mapping[str, Sequence[Waypoint]],
+                 blocks: Mapping[str, _Block]) -> dict[str, Trajectory]:
+        try:
+            return self.cell.plan(programs)
+        except ValueError as exc:
+            task = next(u.task for u in self.units if u.arm in blocks)
+            raise program_failed("Motion refused by the twin cell", str(exc),
+                                 task=task) from None
+
+    def _path_zone_stop(self, tracks: Mapping[str, Any]) -> ZoneStop | None:
+        """When the TCP of each arm's tool in use (:attr:`tools`) first reaches one of its
+        world zones (:attr:`zones`) along the path the arm's joints really take (joint
+        moves included): :meth:`ArmSupervisor.zone_entry`."""
+        hit = self.arms.zone_entry(tracks, self.zones, self.tools)
+        return None if hit is None else ZoneStop(hit[0], hit[1], hit[2], hit[3])
 
     def _arm_error(self, stop: ArmStop) -> RapidError:
         """The controller's error for a stop of the arms' supervision."""
@@ -713,6 +762,25 @@ class CellMotion:
         program starts, is set to that point (``YumiTwinCell.hold``)."""
         for arm, traj in trajs.items():
             self.cell.hold(arm, traj.at(t))
+
+
+def _along(waypoints: Sequence[Waypoint], arms: ArmSupervisor, arm: str, track: Any
+           ) -> list[Waypoint]:
+    """The waypoints with each joint move's ``path``: the pusher's tip where the arm's
+    interpolated joints put it (``track``), so the cell's pusher goes where the arm
+    takes it, not in a line between the ends."""
+    if track is None:
+        return list(waypoints)
+    out, t0 = [], 0.0
+    ends = list(track.ends) + [math.inf] * (len(waypoints) - len(track.ends))
+    for wp, t1 in zip(waypoints, ends, strict=True):
+        if wp.get("kind") in ("move_j", "rest") and t0 < t1 < math.inf:
+            path = arms.tip_path(arm, track, t0, t1)
+            if path:
+                wp = {**wp, "path": [(t, list(p)) for t, p in path]}
+        out.append(wp)
+        t0 = t1
+    return out
 
 
 def _cumulative(durations: Any) -> list[float]:

@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from testbed.lab.hardware_twin import HardwareTwinLab
 
-REST_JOINTS_DEG = {"left": (-20.0, -20.0, 0.0, 150.0, 30.0, 70.0, 135.0),
-                   "right": (20.0, -20.0, 0.0, -150.0, 30.0, -70.0, -135.0)}
+REST_JOINTS_DEG = {"left": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+                   "right": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
 """The twin's rest joints (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``: the lab's
 rooms import no twin at import time, so the numbers are here too; a test keeps them
-equal). With the arm angle +-135 deg they pass ``testbed check``'s layout checks
-(docs/notes/yumi-real.md, "Reach and kinematics")."""
+equal): ABB's folded home with ABB's arm-angle signs (axis 7 +135 left, -135 right), the
+arms folded in front of the body, not held out sideways."""
 PUSH_ARM_ANGLE_DEG = 130.0
 """The left arm's arm angle (axis 7) for its pushes (the right's: minus it): every point
 of the workspaces from the table to travel height reachable, the arm clear of
@@ -33,8 +33,10 @@ pocket near the right workspace's far outer corner, (308, -367) at push height, 
 smallest singular value of 0.004 (the twin's controller stopped a push there with 50026
 in a rehearsal); at +-130 it has 0.024, and +-120 leaves a point out of reach
 (docs/notes/yumi-real.md, "The twin's arms")."""
-DEFAULT_TOOL_Z_MM = 100.0
-"""The pusher's tip below the flange when the twin does not say (its default)."""
+DEFAULT_TOOL_Z_MM = 184.2
+"""The pusher's tip below the flange when the twin does not say (its default, the
+project's one pusher length: ABB's servo-gripper finger TCP at 114.2 mm plus the rod's
+70 mm beyond the fingers; robot/README.md)."""
 
 __all__ = ["REST_JOINTS_DEG", "arm_facts", "project_plane", "starting_calibration",
            "true_calibration", "true_model_error"]

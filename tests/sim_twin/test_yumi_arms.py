@@ -29,7 +29,7 @@ from sim_twin.rws.motion_exec import CellMotion
 from sim_twin.rws.rws_service import RwsService
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
-from sim_twin.yumi_arms import _LINKS, ArmModel, abb_to_chain, clearance
+from sim_twin.yumi_arms import _LINKS, DEFAULT_TOOL_MM, ArmModel, abb_to_chain, clearance
 from sim_twin.yumi_cell import YumiTwinCell
 from sim_twin.yumi_ik import configuration, solve
 
@@ -40,7 +40,7 @@ Made = tuple[Any, Irc5Controller, YumiTwinCell, Any]
 def twin() -> Iterator[Callable[..., Made]]:
     made: list[tuple[RwsServer, YumiTwinCell]] = []
 
-    def make(hook: type[CellMotion] = TestbedRapid, tool_mm: float = 100.0) -> Made:
+    def make(hook: type[CellMotion] = TestbedRapid, tool_mm: float = DEFAULT_TOOL_MM) -> Made:
         cell = YumiTwinCell(3)
         motion = hook(cell, threading.Lock(), YUMI_UNITS, pusher_length_mm=tool_mm)
         ctrl = Irc5Controller(units=YUMI_UNITS, poses=motion.poses,
@@ -116,7 +116,7 @@ def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) ->
     c, _, cell, _ = twin()
     m = ArmModel("left")
     target = (0.0, 60.0, 60.0)
-    s = solve(m, flange_at(target, 100.0), twin_rws.ARM_ANGLE_DEG["left"], None)
+    s = solve(m, flange_at(target, DEFAULT_TOOL_MM), twin_rws.ARM_ANGLE_DEG["left"], None)
     assert s.reason == "limit", s  # what the model says of it
     before = cell.tcp_xyz()["left"]
     entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", target, 300)])})
@@ -150,7 +150,7 @@ def test_an_arm_driven_into_the_table_is_stopped_by_motion_supervision(
     holds it may not: a tool 30 mm long puts the gripper's housing on the table first."""
     c, _, _, _ = twin()
     short = twin_rws.program([("J", (300, 200, 120), 300), ("L", (300, 200, 5), 50)],
-                             tool_z_mm=100.0)
+                             tool_z_mm=DEFAULT_TOOL_MM)
     entries = twin_rws.run(c, {"T_ROB_L": short})
     assert errors(entries) == [], entries  # with its real tool: fine, down to 5 mm
     c2, _, cell2, _ = twin(tool_mm=30.0)  # the same gripper, its pusher cut short
@@ -169,7 +169,7 @@ def test_the_librarys_movej_keeps_its_configuration_or_is_50080(twin: Callable[.
     c, _, cell, _ = twin(CellMotion)
     m = ArmModel("left")
     target = (330.0, 200.0, 60.0)
-    right = configuration(solve(m, flange_at(target, 100.0), 150.0, None).pose.chain_deg)  # type: ignore[union-attr]
+    right = configuration(solve(m, flange_at(target, DEFAULT_TOOL_MM), 150.0, None).pose.chain_deg)  # type: ignore[union-attr]
     wrong = (right[0] + 2, right[1], right[2])
     exec_client = mpe.MotionProgramExecClient(abb_client=c)
 
