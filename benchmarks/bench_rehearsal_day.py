@@ -211,8 +211,9 @@ def main() -> int:
         f"x 4 arms = {total * 4} arm-steps; kills at {kills} logged steps")
     log("command (each session): " + " ".join(cmd))
     began = time.monotonic()
-    k, status, gone = 0, None, []
+    k, status, gone, launched = 0, None, [], []
     for at in [*kills, None]:
+        launched.append(time.time())
         status, g = session(cmd, out, k, at)
         k += 1
         if status is None:
@@ -225,13 +226,31 @@ def main() -> int:
         return 1
     left = lab_pids_alive(out)
     assert not left, f"lab processes left after the rehearsal: {left}"
-    return report(out, algorithms, args, wall, k, gone)
+    return report(out, algorithms, args, wall, launched, gone)
+
+
+def first_rows(runs: list[Path], launched: list[float]) -> list[float]:
+    """Seconds from each resumed session's launch to its first step logged: the
+    restart's cost (twins, sshds, the kept calibration's check, the agents, the run's
+    data replayed onto the learner)."""
+    from testbed.records.steps import read_steps
+
+    walls = sorted(float(r["wall_time"]) for run in runs
+                   for r in read_steps(run / "steps.jsonl") if r.get("wall_time"))
+    out = []
+    for when in launched[1:]:
+        after = [w for w in walls if w >= when]
+        if after:
+            out.append(after[0] - when)
+    return out
 
 
 def report(out: Path, algorithms: list[str], args: argparse.Namespace, wall: float,
-           sessions: int, gone: list[float]) -> int:
+           launched: list[float], gone: list[float]) -> int:
+    sessions = len(launched)
     runs = [out / f"{a}-t{t}" for t in range(args.trials) for a in algorithms]
     results = [check_run(r, args.steps) for r in runs]
+    restarts = first_rows(runs, launched)
     steady = [d for r in results for t, d in enumerate(r["durations"])
               if not any(s <= t < s + 3 for s in r["first_of_session"])]
     step_s = statistics.median(steady)
@@ -255,10 +274,12 @@ def report(out: Path, algorithms: list[str], args: argparse.Namespace, wall: flo
           f"x {total} steps = {reference:.0f} s; wall / reference {wall / reference:.2f}")
     print(f"time inside the steps (sum of duration_s) {in_steps:.0f} s; the rest "
           f"(calibration, pretraining, restarts, run changes) {wall - in_steps:.0f} s")
-    print("lab processes gone after each kill: "
-          + ", ".join(f"{g:.1f} s" for g in gone))
+    print("lab processes gone after each kill: " + ", ".join(f"{g:.1f} s" for g in gone))
+    print("each resumed session's first step, after its launch: "
+          + ", ".join(f"{g:.1f} s" for g in restarts))
+    odd = sum(r["disagreements"] - r["borderline"] for r in results)
     print(f"perception against the twin's truth: {agree:.2%} of {arm_steps} arm-steps "
-          f"(floor {MIN_AGREEMENT:.0%})")
+          f"(floor {MIN_AGREEMENT:.0%}); disagreements not borderline: {odd}")
     print("invariants: every step, frame, class, truth row and fault once; all held")
     if agree < MIN_AGREEMENT:
         print("FAIL: perception below the floor")
