@@ -24,12 +24,13 @@ from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import (
     DONE,
     RAPID_VERSION,
+    TOOL_DIFFERS,
     WORLD_ZONE_CODE,
     WORLD_ZONE_TITLE,
     TestbedRapid,
 )
 from sim_twin.rws.world_zones import ArmZone, default_zone, first_entry
-from sim_twin.yumi_arms import rest_tip
+from sim_twin.yumi_arms import DEFAULT_TOOL_MM, rest_tip
 from sim_twin.yumi_cell import Segment, YumiTwinCell
 
 REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
@@ -85,8 +86,8 @@ def test_a_push_past_the_zone_box_stops_every_arm_at_its_face(twin: Any) -> None
     box = default_zone("left")  # y up to 395 below 80 mm
     right_to = (500.0, -100.0, 150.0)
     entries = run(c, {
-        "T_ROB_L": program([("J", (400, 300, 80), 500), ("L", (400, 300, 10), 200),
-                            ("L", (400, 460, 10), 100)]),
+        "T_ROB_L": program([("J", (400, 300, 200), 500), ("L", (400, 300, 10), 200),
+                            ("L", (400, 460, 10), 100)]),  # (down from clear height)
         "T_ROB_R": program([("L", right_to, 50)])})  # slow: still on its way at the stop
     assert [(e.code, e.msgtype, e.title) for e in entries] == [
         (WORLD_ZONE_CODE, 3, WORLD_ZONE_TITLE)]  # the controller's error; no Done at all
@@ -117,7 +118,7 @@ def test_the_floor_zone_stops_a_target_below_it_in_another_work_object(twin: Any
     assert [(e.code, e.args[1]) for e in plain] == [(80001, "Target below the table")]
     assert tcps(cell, lock)["left"] == before  # refused by our RAPID before any motion
     # 40 mm in a work object 15 mm down passes the file's check, the floor zone stops it
-    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 120), 500),
+    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 200), 500),
                                           ("L", (400, 200, 40), 100)], wobj=low)}, seqno=2)
     assert [(e.code, e.args[1]) for e in entries] == [(WORLD_ZONE_CODE, "tb_wz_floor")]
     assert tcps(cell, lock)["left"] == pytest.approx((400, 200, 30), abs=1.0)
@@ -145,6 +146,7 @@ def test_the_zone_constants_read_over_rws_as_the_modules_declare_them(twin: Any)
     assert c.get_rapid_variable("tb_zones_n", "T_ROB_L/TestbedZones") == "5"  # all active
     with pytest.raises(Exception, match="is a CONST"):  # the controller refuses a write
         c.set_rapid_variable("tb_zone_z", "500", "T_ROB_L/TestbedTask_L")
-    run(c, {"T_ROB_L": program([("J", (400, 200, 100), 500)], tool_z_mm=12.5)})
+    refused = run(c, {"T_ROB_L": program([("J", (400, 200, 200), 500)], tool_z_mm=12.5)})
+    assert [(e.code, e.args[1]) for e in refused] == [(80001, TOOL_DIFFERS)]
     assert c.get_rapid_variable("tool_pusher", "T_ROB_L/TestbedTask_L").startswith(
-        "[TRUE,[[0,0,12.5],[1,0,0,0]],[0.272,")  # tb_header's tframe from the file
+        f"[TRUE,[[0,0,{DEFAULT_TOOL_MM:g}],[1,0,0,0]],[0.272,")  # the controller's, kept
