@@ -18,7 +18,6 @@ import twin_rws
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from twin_rws import our_twin, program, run, stay
 
-from sim_twin.rws.arm_supervision import flange_at
 from sim_twin.rws.testbed_rapid import WORLD_ZONE_CODE
 from sim_twin.yumi_arms import DEFAULT_TOOL_MM, ArmModel, abb_to_chain
 from sim_twin.yumi_geometry import REST_JOINTS_DEG
