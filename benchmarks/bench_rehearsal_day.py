@@ -188,6 +188,8 @@ def main() -> int:
                     "(overrides --kills)")
     ap.add_argument("--out", default=str(ROOT / "runs" / "rehearsal-day"))
     ap.add_argument("--fresh", action="store_true", help="delete --out first")
+    ap.add_argument("--camera-fps", type=float, default=30.0, help="the twins' camera "
+                    "(rehearse --camera-fps; default 30, a lab's USB camera's)")
     args = ap.parse_args()
 
     from testbed.experiments.protocol import load_protocol
@@ -206,7 +208,8 @@ def main() -> int:
         shutil.rmtree(out)
     cmd = [sys.executable, "-m", "testbed.cli", "rehearse", args.protocol, "--quick",
            "--faults", "--trials", str(args.trials), "--steps", str(args.steps),
-           "--out", str(out)] + (["--algorithms", ",".join(algorithms)] if args.algorithms else [])
+           "--out", str(out), "--camera-fps", f"{args.camera_fps:g}"] + (
+               ["--algorithms", ",".join(algorithms)] if args.algorithms else [])
     log(f"the day: {args.trials} trials x {len(algorithms)} algorithms x {args.steps} steps "
         f"x 4 arms = {total * 4} arm-steps; kills at {kills} logged steps")
     log("command (each session): " + " ".join(cmd))

@@ -127,6 +127,9 @@ def _rehearse_arguments(p: argparse.ArgumentParser) -> None:
                    help="inject a guard stop, motors off, a RAPID error, a zone stop, a "
                         "frozen camera and a lost SSH link into every run, at steps drawn "
                         "from its seed, each cleared by a scripted person (faults.jsonl)")
+    p.add_argument("--camera-fps", type=float, default=15.0, metavar="F",
+                   help="the twins' camera frame rate (default 15; a lab's USB camera is "
+                        "often 30: a picture made after the call comes sooner)")
 
 
 def cmd_rehearse(args: argparse.Namespace) -> int:
@@ -147,6 +150,8 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     check_device(proto.fleet)
     if args.realtime < 0:
         raise ConfigError("--realtime: must be >= 0")
+    if not 0 < args.camera_fps <= 60:
+        raise ConfigError("--camera-fps: must be in (0, 60]")
     if args.host_python is not None and not (Path(args.host_python).is_absolute()
                                              and Path(args.host_python).is_file()):
         raise ConfigError(f"--host-python: {args.host_python!r} is not an interpreter's "
@@ -156,7 +161,7 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
         result = rehearse(RehearsalOptions(path, args.trials, args.steps, args.humans,
                                            args.quick, Path(args.out) if args.out else None,
                                            algorithms, args.realtime, args.host_python,
-                                           args.faults))
+                                           args.faults, args.camera_fps))
     except RehearsalError as exc:
         Console(stderr=True).print(f"testbed rehearse: {exc}", markup=False, highlight=False)
         return 1

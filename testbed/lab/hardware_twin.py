@@ -175,12 +175,14 @@ class HardwareTwinLab:
     """Starts, rewrites for, and stops the hardware twin hosts of one rehearsal."""
 
     def __init__(self, fleet: FleetConfig, root: Path, *, seed: int = 0,
-                 realtime: float = 0.0, host_python: str | None = None) -> None:
+                 realtime: float = 0.0, host_python: str | None = None,
+                 camera_fps: float = 15.0) -> None:
         require_yumi(fleet)
         self.fleet = fleet
         self.root = root.resolve()  # sshd's config needs absolute paths
         self.seed = seed
         self.realtime = realtime
+        self.camera_fps = camera_fps
         self.host_python = host_python
         """A robot host install's interpreter (``scripts/setup.sh --host``) the agents run
         from, as on a lab's host: no checkout on their path. None: this checkout's."""
@@ -247,6 +249,7 @@ class HardwareTwinLab:
              "--rws-port-file", str(self.root / f"{host}.rws.port"),
              "--rws-credentials", str(self._login_file(host)),
              "--rws-log", str(self._rws_log(host)), "--realtime", f"{self.realtime:g}",
+             "--fps", f"{self.camera_fps:g}",
              "--serial", self._serial(host)],
             cwd=PROJECT_ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
             start_new_session=True)

@@ -88,6 +88,8 @@ class RehearsalOptions:
     """The agents' interpreter: a robot host install's (``scripts/setup.sh --host``)."""
     faults: bool = False
     """Inject the lab's faults into every run (``testbed.lab.fault_drills``)."""
+    camera_fps: float = 15.0
+    """The twins' camera frame rate: each read waits for a frame made after the call."""
 
 
 @dataclass
@@ -119,7 +121,7 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
     fleet = _rehearsal_fleet(proto.fleet, opts)
     folder.mkdir(parents=True, exist_ok=True)
     lab = HardwareTwinLab(fleet, folder / "lab", seed=proto.seed(0), realtime=opts.realtime,
-                          host_python=opts.host_python)
+                          host_python=opts.host_python, camera_fps=opts.camera_fps)
     with lab:
         fleet = lab.rewrite(fleet)
         fleet_dir = RunDir(folder / "lab" / "fleet")

@@ -59,7 +59,8 @@ def test_a_rehearsal_killed_mid_run_goes_on_when_run_again_and_keeps_every_row_o
     out = tmp_path / "rehearsal"
     run = out / "bc-t0"
     cmd = [sys.executable, "-m", "testbed.cli", "rehearse", str(tiny_protocol(tmp_path)),
-           "--steps", str(STEPS), "--algorithms", "bc", "--faults", "--out", str(out)]
+           "--steps", str(STEPS), "--algorithms", "bc", "--faults", "--out", str(out),
+           "--camera-fps", "30"]
     first_log = tmp_path / "first.log"
     with open(first_log, "wb") as log:
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
