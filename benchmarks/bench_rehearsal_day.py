@@ -252,7 +252,11 @@ def report(out: Path, algorithms: list[str], args: argparse.Namespace, wall: flo
            launched: list[float], gone: list[float]) -> int:
     sessions = len(launched)
     runs = [out / f"{a}-t{t}" for t in range(args.trials) for a in algorithms]
-    results = [check_run(r, args.steps) for r in runs]
+    try:
+        results = [check_run(r, args.steps) for r in runs]
+    except AssertionError as exc:  # an invariant broken: say which, plainly
+        print(f"FAIL: an invariant does not hold: {exc}")
+        return 1
     restarts = first_rows(runs, launched)
     steady = [d for r in results for t, d in enumerate(r["durations"])
               if not any(s <= t < s + 3 for s in r["first_of_session"])]
