@@ -50,6 +50,7 @@ import numpy.typing as npt
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from drivers.errors import BackendError
 from drivers.yumi.camera import Camera, expand_path, is_url
+from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy, leave_rest, to_rest
 from drivers.yumi.yumi_controller import ArmPose, Waypoint, YumiControllerClient
 from testbed.core.types import (
     FACE_DIRECTIONS,
@@ -69,7 +70,48 @@ CALIBRATION_BOX_MM = (-1000.0, -1000.0, 1000.0, 1000.0)
 """Table box of an arm being calibrated whose file has none: wide on purpose; the
 calibration command supplies the safe box it drives in (``move_tcp`` refuses outside)."""
 
+REST_TOLERANCE_MM = 10.0
+"""A pusher this close to its rest point is at rest: its next program starts with the
+joint move from rest to the gate (``drivers/yumi/paths.py``)."""
+KNOWN_KEYS = frozenset({
+    "homography", "table_box_mm", "z_push_mm", "z_travel_mm", "z_clear_mm", "gate_xy_mm",
+    "max_speed_mm_s", "push_speed_mm_s", "start_offset", "stroke", "task", "mechunit",
+    "rest_joints_deg", "tool_quat_wxyz", "robconf", "arm_angle_deg", "tool_z_mm"})
+TOOL_HOW = ("measure the pusher on the robot with the FlexPendant's 4-point TCP method and "
+            "write its z (mm, flange to tip; the shipped pusher: 184.2) as tool_z_mm, the "
+            "same value as tool_pusher's tframe in TestbedTask_L/_R (robot/README.md, "
+            "'The tool frame')")
+"""How a lab gets ``tool_z_mm``: said wherever it is missing."""
+
 log = logging.getLogger(__name__)
+
+
+def _tool_z(d: Mapping[str, Any], bad: Any) -> float:
+    """The file's ``tool_z_mm``: required (never a silent flange: world zones guard the
+    TCP of the tool in use, so a wrong tool moves every zone by the difference)."""
+    if "tool_z_mm" not in d:
+        raise bad(f"has no 'tool_z_mm' (the pusher's length): {TOOL_HOW}")
+    try:
+        z = float(d["tool_z_mm"])
+    except (TypeError, ValueError):
+        raise bad(f"'tool_z_mm' must be a number, got {d['tool_z_mm']!r}") from None
+    if not (math.isfinite(z) and 0 < z <= 500):
+        raise bad(f"'tool_z_mm' must be the pusher's length, 0 < tool_z_mm <= 500 mm, got "
+                  f"{z:g}: {TOOL_HOW}")
+    return z
+
+
+def _gate(d: Mapping[str, Any], box: Sequence[float], bad: Any) -> tuple[float, float] | None:
+    """The file's ``gate_xy_mm``, which must lie in the table box (None: not given)."""
+    if "gate_xy_mm" not in d:
+        return None
+    try:
+        gx, gy = (float(v) for v in d["gate_xy_mm"])
+    except (TypeError, ValueError):
+        raise bad("'gate_xy_mm' must be 2 numbers (x, y) mm") from None
+    if not (box[0] <= gx <= box[2] and box[1] <= gy <= box[3]):
+        raise bad(f"'gate_xy_mm' ({gx:g}, {gy:g}) must lie in the table box {tuple(box)}")
+    return (gx, gy)
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,8 +131,16 @@ class ArmCalibration:
     stroke: float = 0.15
     """Push stroke length, canonical units past the start (cube moves ~ stroke - offset)."""
     pose: ArmPose | None = None
-    tool_z_mm: float | None = None
-    """The file's ``tool_z_mm`` as given (None: not given; the pose's is then 0)."""
+    tool_z_mm: float = 0.0
+    """The pusher's length, flange to tip (mm): the frame every program file carries,
+    which our RAPID compares with the controller's ``tool_pusher`` (robot/README.md, "The
+    tool frame"). Required in a file: :meth:`from_dict` refuses one without it."""
+    z_clear_mm: float = DEFAULT_Z_CLEAR_MM
+    """Clear height (mm): every joint move to or from rest ends or starts at the arm's
+    gate at this height, every other move at or above travel height is straight
+    (``drivers/yumi/paths.py``)."""
+    gate_xy_mm: tuple[float, float] | None = None
+    """The gate's (x, y) when the file gives one (else a quarter into the table box)."""
 
     @classmethod
     def load(cls, path: str | Path, arm: str) -> ArmCalibration:
@@ -116,18 +166,22 @@ class ArmCalibration:
             raise bad("'homography' must be an invertible 3x3 matrix")
         if len(box) != 4 or box[0] >= box[2] or box[1] >= box[3]:
             raise bad("'table_box_mm' must be (x_min, y_min, x_max, y_max)")
-        known = {"homography", "table_box_mm", "z_push_mm", "z_travel_mm", "max_speed_mm_s",
-                 "push_speed_mm_s", "start_offset", "stroke", "task", "mechunit",
-                 "rest_joints_deg", "tool_quat_wxyz", "robconf", "arm_angle_deg", "tool_z_mm"}
-        if extra := set(d) - known:
+        if extra := set(d) - KNOWN_KEYS:
             raise bad(f"unknown key(s) {sorted(extra)}")
+        tool_z = _tool_z(d, bad)
         nums = {k: float(d[k]) for k in ("z_push_mm", "z_travel_mm", "max_speed_mm_s",
-                                         "push_speed_mm_s", "start_offset", "stroke") if k in d}
-        cal = cls(h, box, **nums)  # type: ignore[arg-type]
+                                         "push_speed_mm_s", "start_offset", "stroke",
+                                         "z_clear_mm") if k in d}
+        gate = _gate(d, box, bad)
+        cal = cls(h, box, **nums, tool_z_mm=tool_z, gate_xy_mm=gate)  # type: ignore[arg-type]
         if not 0 < cal.push_speed_mm_s <= cal.max_speed_mm_s <= 1000:
             raise bad("need 0 < push_speed_mm_s <= max_speed_mm_s <= 1000")
         if cal.z_push_mm >= cal.z_travel_mm:
             raise bad("z_push_mm must be below z_travel_mm")
+        if not cal.z_clear_mm >= cal.z_travel_mm:
+            raise bad(f"z_clear_mm ({cal.z_clear_mm:g}) must be at or above z_travel_mm "
+                      f"({cal.z_travel_mm:g}): the clear height is where the joint moves "
+                      f"to and from rest end (drivers/yumi/paths.py)")
         pose = None
         if "rest_joints_deg" in d:
             joints = tuple(float(v) for v in d["rest_joints_deg"])
@@ -140,9 +194,14 @@ class ArmCalibration:
                            tool_quat_wxyz=tuple(d.get("tool_quat_wxyz", (0, 0, 1, 0))),
                            robconf=tuple(d.get("robconf", (0, 0, 0, 4))),
                            arm_angle_deg=float(d.get("arm_angle_deg", 0.0)),
-                           tool_z_mm=float(d.get("tool_z_mm", 0.0)))
-        tool_z = float(d["tool_z_mm"]) if "tool_z_mm" in d else None
-        return cls(h, box, **nums, pose=pose, tool_z_mm=tool_z)  # type: ignore[arg-type]
+                           tool_z_mm=tool_z)
+        return cls(h, box, **nums, pose=pose, tool_z_mm=tool_z,  # type: ignore[arg-type]
+                   gate_xy_mm=gate)
+
+    @property
+    def gate_xy(self) -> tuple[float, float]:
+        """The arm's gate (``drivers/yumi/paths.py``)."""
+        return gate_xy(self.table_box_mm, self.gate_xy_mm)
 
     def pixel_to_table(self, u: float, v: float) -> tuple[float, float]:
         x, y, w = self.homography @ np.array([u, v, 1.0])
@@ -198,13 +257,27 @@ def plan_push(arm: ArmSetup, centre: Sequence[float], yaw: float, face: int) -> 
 
     vmax = cal.max_speed_mm_s
     vpush = min(cal.push_speed_mm_s, vmax)
-    return [
-        Waypoint("move_j", table(start, cal.z_travel_mm), vmax, fine=False),
-        Waypoint("move_l", table(start, cal.z_push_mm), min(vmax, 2 * vpush)),
-        Waypoint("move_l", table(end, cal.z_push_mm), vpush),
-        Waypoint("move_l", table(end, cal.z_travel_mm), min(vmax, 2 * vpush), fine=False),
-        Waypoint("rest", None, vmax),
-    ]
+    s_xy, e_xy = table(start, 0.0)[:2], table(end, 0.0)[:2]
+    down = [Waypoint("move_l", (*s_xy, cal.z_travel_mm), vmax, fine=False)
+            ] if cal.z_clear_mm > cal.z_travel_mm + LIFT_TOLERANCE_MM else []
+    return [*leave_rest(cal.gate_xy, s_xy, cal.z_clear_mm, vmax), *down,
+            Waypoint("move_l", (*s_xy, cal.z_push_mm), min(vmax, 2 * vpush)),
+            Waypoint("move_l", (*e_xy, cal.z_push_mm), vpush),
+            Waypoint("move_l", (*e_xy, cal.z_travel_mm), min(vmax, 2 * vpush), fine=False),
+            *to_rest(cal.gate_xy, e_xy, cal.z_clear_mm, vmax)]
+
+
+def rest_tip(arm: str, cal: ArmCalibration) -> tuple[float, float, float] | None:
+    """Where the model puts the pusher's tip at the calibration's rest joints (None: no
+    rest pose, or not an IRB 14000 arm the model can tell)."""
+    from drivers.yumi.irb14000 import arm as model
+    from drivers.yumi.reach import side_of
+
+    side = side_of(arm, cal.pose.task if cal.pose else None)
+    if side is None or cal.pose is None:
+        return None
+    tip = model(side).pose_abb(cal.pose.rest_joints_deg).tcp(cal.tool_z_mm)
+    return (float(tip[0]), float(tip[1]), float(tip[2]))
 
 
 class YumiBackend(HostBackend):
@@ -234,6 +307,11 @@ class YumiBackend(HostBackend):
         self._violating: dict[str, bool | None] = dict.fromkeys(self._arms, None)
         self._pushes = dict.fromkeys(self._arms, 0)
         self._pose: dict[str, Any] = dict.fromkeys(self._arms, None)
+        self._model_rest = {n: rest_tip(n, a.calibration) for n, a in self._arms.items()}
+        self._rest_tcp: dict[str, tuple[float, float, float]] = {}
+        """Each arm's rest point as the controller reported it after a program that ended
+        at rest (where the model's differs from the robot's by a few mm)."""
+        self._ended_at_rest: dict[str, bool] = {}
         self._closed = False
         self.retaken = 0
         """Pictures taken again because an arm was in view (for tests and logs)."""
@@ -439,6 +517,8 @@ class YumiBackend(HostBackend):
                 "table_boxes": {task[n]: list(a.calibration.table_box_mm)
                                 for n, a in self._arms.items()},
                 "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()},
+                "clear_z": {task[n]: a.calibration.z_clear_mm for n, a in self._arms.items()},
+                "tool_z": {task[n]: a.calibration.tool_z_mm for n, a in self._arms.items()},
                 "layout": {n: {"task": task[n], **layout_keys(a.calibration)}
                            for n, a in self._arms.items()},
                 "camera": camera_report(self._camera, {n: a.crop for n, a in self._arms.items()},
@@ -458,12 +538,12 @@ class YumiBackend(HostBackend):
         return self._camera.read()
 
     def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
-        """Calibration: above the point at travel height, then straight down to it.
+        """Calibration: from rest by joints to the gate, straight across at clear height
+        to above the point, straight down to it (``drivers/yumi/paths.py``); from the
+        previous point straight up to clear height first (:meth:`_move`).
 
         A point outside the arm's table box is refused (ValueError), never clipped: the
-        calibration fit needs the TCP where it was asked to be. A pusher low over the
-        table is lifted straight up first (:meth:`_move`), so its joint move does not
-        sweep the table.
+        calibration fit needs the TCP where it was asked to be.
         """
         if arm not in self._arms:
             raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
@@ -482,31 +562,65 @@ class YumiBackend(HostBackend):
             raise ValueError(f"arm {arm}: z = {z:g} mm is below the table top (z = 0)")
         vmax = cal.max_speed_mm_s
         vslow = min(vmax, 2 * cal.push_speed_mm_s)
-        self._move({arm: [Waypoint("move_j", (x, y, cal.z_travel_mm), vmax, fine=False),
+        down = [Waypoint("move_l", (x, y, cal.z_travel_mm), vmax, fine=False)
+                ] if z < cal.z_travel_mm < cal.z_clear_mm - LIFT_TOLERANCE_MM else []
+        self._move({arm: [*leave_rest(cal.gate_xy, (x, y), cal.z_clear_mm, vmax), *down,
                           Waypoint("move_l", (x, y, z), vslow)]})
         return self._controller.tcp_xyz()[arm]
 
-    def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
-        """Run ``programs`` (all arms at once), each pusher that is low lifted first.
+    def _at_rest(self, arm: str, tcp: Sequence[float]) -> bool:
+        """Is ``arm``'s pusher at its rest point (within :data:`REST_TOLERANCE_MM`)? The
+        point is the one the controller reported after a program that ended at rest, or
+        the model's at the rest joints; the first time a program ended at rest, the
+        controller's point is taken as the rest point (a model a few mm off the robot)."""
+        ref = self._rest_tcp.get(arm) or self._model_rest.get(arm)
+        if ref is not None and math.dist(tcp, ref) <= REST_TOLERANCE_MM:
+            return True
+        if self._ended_at_rest.get(arm) and arm not in self._rest_tcp:
+            self._rest_tcp[arm] = (float(tcp[0]), float(tcp[1]), float(tcp[2]))
+            return True
+        return False
 
-        A program's first move (a joint move to travel height, or the rest pose's
-        ``MoveAbsJ``) sweeps the pusher along a curve the TCP does not control: started
-        low over the table (a push that was stopped, a calibration point), it would drag
-        across the table or a cube. So a pusher below its arm's ``z_travel_mm`` first goes
-        straight up to it, where it is (the pusher's TCP, ``tool_pusher``, not the flange).
-        """
+    def _from_here(self, arm: str, tcp: Sequence[float], wps: Sequence[Waypoint]
+                   ) -> list[Waypoint]:
+        """A program written from rest (``move_j`` to the gate first) or the way to rest
+        (``[rest]``), for an arm that is NOT at rest: straight up to clear height where it
+        is, then straight on (``drivers/yumi/paths.py``). A joint move from an unknown
+        pose sweeps the tip along a curve nobody checked; a straight line at clear height
+        stays above the zones."""
+        cal = self._arms[arm].calibration
+        x, y, z = (float(v) for v in tcp)
+        vmax = cal.max_speed_mm_s
+        if wps and wps[0].kind == "rest":
+            return to_rest(cal.gate_xy, (x, y), cal.z_clear_mm, vmax)
+        lift = [Waypoint("move_l", (x, y, cal.z_clear_mm), min(vmax, 2 * cal.push_speed_mm_s))
+                ] if z < cal.z_clear_mm - LIFT_TOLERANCE_MM else []
+        return lift + list(wps[1:] if wps and wps[0].kind == "move_j" else wps)
+
+    def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
+        """Run ``programs`` (all arms at once). Each is written from rest (the joint move
+        to the gate first) or is the way to rest (``[rest]``): an arm at rest runs it as
+        written (the way to rest: nothing, the controller gives it a "stay"); an arm
+        elsewhere goes straight up to clear height first (:meth:`_from_here`). Every
+        target is checked reachable before anything moves (:func:`refuse_unreachable`)."""
         tcp = self._controller.tcp_xyz()
         out: dict[str, list[Waypoint]] = {}
         for arm, wps in programs.items():
-            cal = self._arms[arm].calibration
-            x, y, z = tcp[arm]
-            lift = [Waypoint("move_l", (x, y, cal.z_travel_mm),
-                             min(cal.max_speed_mm_s, 2 * cal.push_speed_mm_s), fine=False)
-                    ] if z < cal.z_travel_mm - LIFT_TOLERANCE_MM else []
-            out[arm] = lift + list(wps)
+            if self._at_rest(arm, tcp[arm]):
+                if wps and wps[0].kind != "move_j":
+                    continue  # at rest already: the way to rest is no move at all
+                out[arm] = list(wps)
+            else:
+                out[arm] = self._from_here(arm, tcp[arm], wps)
+        if not out:
+            return
         for arm, wps in out.items():
             refuse_unreachable(arm, self._arms[arm].calibration, wps)
+        for arm in out:
+            self._ended_at_rest[arm] = False  # until the program is known to have ended
         self._controller.execute(out)
+        for arm, wps in out.items():
+            self._ended_at_rest[arm] = wps[-1].kind == "rest"
 
     def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
         """Validate ``data`` as ``arm``'s calibration and replace its file atomically (a
@@ -520,6 +634,8 @@ class YumiBackend(HostBackend):
         if not isinstance(data, Mapping):
             raise ValueError(f"arm {arm}: calibration data must be an object, got "
                              f"{type(data).__name__}")
+        if "tool_z_mm" not in data:  # the frame this agent drove with: the controller's
+            data = {**data, "tool_z_mm": self._arms[arm].calibration.tool_z_mm}
         try:
             ArmCalibration.from_dict(data, arm, path)
         except BackendError as exc:
@@ -540,10 +656,9 @@ def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
     """What the layout's checks read of a calibration (``drivers/yumi/layout_check.py``):
     the table box, the heights, the tool, the arm angle, the rest joints, the homography."""
     out: dict[str, Any] = {"table_box_mm": list(cal.table_box_mm), "z_push_mm": cal.z_push_mm,
-                           "z_travel_mm": cal.z_travel_mm,
+                           "z_travel_mm": cal.z_travel_mm, "z_clear_mm": cal.z_clear_mm,
+                           "gate_xy_mm": list(cal.gate_xy), "tool_z_mm": cal.tool_z_mm,
                            "homography": cal.homography.tolist()}
-    if cal.tool_z_mm is not None:
-        out["tool_z_mm"] = cal.tool_z_mm
     if cal.pose is not None:
         out.update(rest_joints_deg=list(cal.pose.rest_joints_deg),
                    arm_angle_deg=cal.pose.arm_angle_deg,
@@ -558,13 +673,12 @@ def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoi
     singularity is left to the controller, which takes the configuration itself, ConfJ
     off, and stops a line that passes one with 50026): the controller would stop the task
     half-way through the program; this names the point and the reason instead. It can
-    tell only what it knows: an arm whose calibration does not give its pusher's length
-    (``tool_z_mm``), or whose side cannot be told (not an IRB 14000 task, not named
+    tell only what it knows: an arm whose side cannot be told (not an IRB 14000 task, not named
     left/right), is not checked here (``testbed check`` still judges its layout)."""
     from drivers.yumi.layout_check import layout_of
 
     lay = layout_of(arm, layout_keys(cal), task=cal.pose.task if cal.pose else None)
-    if lay is None or cal.tool_z_mm is None:
+    if lay is None:
         return
     seed = None
     for w in waypoints:
@@ -606,10 +720,14 @@ def write_atomic(path: Path, text: str) -> None:
             os.close(dfd)
 
 
-def provisional_calibration(path: str, arm: str) -> ArmCalibration:
-    """An arm being calibrated: the file's speeds, heights, table box and rest pose when
-    it has them, an identity homography (unused: pictures are off in calibration mode)
-    and, without a table box in the file, the wide :data:`CALIBRATION_BOX_MM`."""
+def provisional_calibration(path: str, arm: str, tool_z_mm: float | None = None
+                            ) -> ArmCalibration:
+    """An arm being calibrated: the file's speeds, heights, table box, tool and rest pose
+    when it has them, an identity homography (unused: pictures are off in calibration
+    mode) and, without a table box in the file, the wide :data:`CALIBRATION_BOX_MM`.
+    Without ``tool_z_mm`` in the file, ``tool_z_mm`` (the controller's ``tool_pusher``,
+    :func:`~drivers.yumi.rws_controller.controller_tools`) is the tool; without either,
+    a BackendError (never the flange)."""
     p = Path(path)
     d: dict[str, Any] = {}
     if p.exists():
@@ -621,7 +739,30 @@ def provisional_calibration(path: str, arm: str) -> ArmCalibration:
             raise BackendError(f"arm {arm}: calibration {p} is not a JSON object")
     d = {**d, "homography": np.eye(3).tolist()}
     d.setdefault("table_box_mm", list(CALIBRATION_BOX_MM))
+    if tool_z_mm is not None:
+        d.setdefault("tool_z_mm", float(tool_z_mm))
     return ArmCalibration.from_dict(d, arm, str(p))
+
+
+def _tool_of(path: str, arm: str, url: str, credentials_file: str | None) -> float | None:
+    """For an arm being calibrated whose file has no ``tool_z_mm``: the z of the
+    controller's ``tool_pusher`` in the arm's task (None when the file has it)."""
+    from drivers.yumi.rws_controller import controller_tools
+
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        d = {}
+    if not isinstance(d, dict) or "tool_z_mm" in d:
+        return None
+    task = str(d.get("task", f"T_ROB_{'L' if arm.startswith('l') else 'R'}"))
+    frame = controller_tools(url, [task], credentials_file).get(task)
+    if frame is None:
+        raise BackendError(f"arm {arm}: calibration {path} has no 'tool_z_mm' and the "
+                           f"controller's tool_pusher of {task} cannot be read: {TOOL_HOW}")
+    log.info("arm %s: tool_z_mm %g from the controller's tool_pusher (%s)", arm,
+             frame["trans"][2], task)
+    return float(frame["trans"][2])
 
 
 def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
@@ -659,7 +800,8 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
         if name not in calibrations:
             raise BackendError(f"arm {name}: --calibration {name}=FILE is required for yumi")
         paths[name] = expand_path(calibrations[name], f"arm {name}: calibration")
-        cal = (provisional_calibration(paths[name], name) if name in calibrating
+        cal = (provisional_calibration(paths[name], name, _tool_of(
+            paths[name], name, controller_url, credentials_file)) if name in calibrating
                else ArmCalibration.load(paths[name], name))
         setups.append(ArmSetup(name, crops[name], m, cal))
     if credentials_file is not None:

@@ -19,12 +19,14 @@ def controller_report(name: str, info: Mapping[str, Any]) -> tuple[list[str], li
     that would refuse a push or stop an arm (manual mode, motors off, a guard stop, a
     program running, a RAPID error, a missing option or module, a table box wider than
     its world zone) is a reason to fix first."""
-    from drivers.yumi.controller_state import RAPID_VERSION, problems
+    from drivers.yumi.controller_state import RAPID_VERSION, option_warnings, problems
 
     rep, boxes = info["controller"], info.get("table_boxes", {})
-    lines = report_lines(name, rep, RAPID_VERSION)
+    lines = report_lines(name, rep, RAPID_VERSION, info.get("tool_z"))
+    lines += [f"WARN  {name}: {w}" for w in option_warnings(rep)]
     lines += camera_lines(name, info.get("camera") or {})
-    faults = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"))
+    faults = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"),
+                      info.get("clear_z"), info.get("tool_z"))
     got, bad = layout_report(rep, info)
     return lines + got, faults + bad
 
@@ -35,23 +37,34 @@ def layout_report(rep: Mapping[str, Any], info: Mapping[str, Any]
     layout_check.py``): each arm's table box corners reachable with the pusher down, its
     rest pose above its task's ``tb_zone_z``, out of the camera's view and clear of the
     other arm, and the two arms' sweeps apart; from the calibration keys the host sends
-    (``layout``), the zones the controller reports and the camera's frame size."""
+    (``layout``), the zones and the tool frame (``tool_pusher``) the controller
+    reports, and the camera's frame size: the robot moves with the controller's tool, so
+    the layout is judged with it (the calibration's differing is its own FAULT)."""
     from drivers.yumi.layout_check import check_layout, layout_of
+    from drivers.yumi.reach import side_of
 
     size = (info.get("camera") or {}).get("size")
-    arms = []
+    arms, faults = [], []
     for arm, cal in (info.get("layout") or {}).items():
         task = cal.get("task")
-        zone_z = ((rep.get("rapid") or {}).get(task) or {}).get("zones", {}).get("tb_zone_z")
-        lay = layout_of(arm, cal, task=task, frame_size=size,
-                        zone_z_mm=None if zone_z is None else float(zone_z))
+        ours = (rep.get("rapid") or {}).get(task) or {}
+        tool = ours.get("tool")
+        lay = layout_of(arm, cal, task=task, frame_size=size, zones=ours.get("zones"),
+                        tool_z_mm=None if tool is None else float(tool["trans"][2]))
         if lay is not None:
             arms.append(lay)
-    return check_layout(arms) if arms else ([], [])
+        elif side_of(arm, task) is not None and "table_box_mm" in cal:
+            faults.append(f"arm {arm}: neither the calibration (tool_z_mm) nor the "
+                          f"controller (tool_pusher) gives the pusher's length: the layout "
+                          f"is not checked (robot/README.md, 'The tool frame')")
+    lines, bad = check_layout(arms) if arms else ([], [])
+    return lines, faults + bad
 
 
-def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:
-    """The controller's report as ``testbed check`` prints it (never a credential)."""
+def report_lines(name: str, rep: dict[str, Any], version: int,
+                 tool_z: Mapping[str, float] | None = None) -> list[str]:
+    """The controller's report as ``testbed check`` prints it (never a credential), with
+    each task's ``tool_pusher`` beside the calibration's ``tool_z_mm`` (``tool_z``)."""
     st = rep.get("state", {})
     ratio = st.get("speedratio")
     lines = [f"      {name}: controller {rep.get('system')} serial {rep.get('serial')}, "
@@ -70,7 +83,17 @@ def report_lines(name: str, rep: dict[str, Any], version: int) -> list[str]:
                      f"{'not loaded' if v is None else f'version {v}'} (this checkout: "
                      f"{version}); world zone box x {lo[0]}..{hi[0]}, y {lo[1]}..{hi[1]} mm "
                      f"below z {z.get('tb_zone_z')}, floor z {z.get('tb_floor_z')}")
+        lines.append(f"      {name}: {task}: {_tool_text(ours.get('tool'))}; the "
+                     f"calibration's tool_z_mm {(tool_z or {}).get(task, '?')}")
     return lines
+
+
+def _tool_text(tool: Mapping[str, Any] | None) -> str:
+    if tool is None:
+        return "tool_pusher not readable"
+    t, r = tool["trans"], tool["rot"]
+    return (f"tool_pusher tframe [[{t[0]:g},{t[1]:g},{t[2]:g}],[{r[0]:g},{r[1]:g},{r[2]:g},"
+            f"{r[3]:g}]], load {tool.get('mass', 0):g} kg (the controller's)")
 
 
 def camera_lines(name: str, cam: dict[str, Any]) -> list[str]:

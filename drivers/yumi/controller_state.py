@@ -14,28 +14,38 @@ it returned; nothing here imports it, so the module loads without the YuMi extra
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-RAPID_VERSION = 3
+RAPID_VERSION = 4
 """``TB_RAPID_VERSION`` of the robot/rapid/ modules this driver speaks to (TestbedMotion.mod;
 tests/drivers/test_yumi_controller_state.py keeps the two equal)."""
-REQUIRED_OPTIONS = {"616-1": "PC Interface", "623-1": "Multitasking",
+REQUIRED_OPTIONS = {"616-1": "PC Interface",
                     "604-": "MultiMove (604-1 Coordinated or 604-2 Independent)",
                     "608-1": "World Zones"}
 """RobotWare options our RAPID and this driver need, by the option number's prefix."""
+WARNED_OPTIONS = {"623-1": "Multitasking"}
+"""Options ``testbed check`` only warns about: no ABB source at hand says whether an IRB
+14000's two motion tasks need 623-1 or come with MultiMove (604-x) alone (assumed;
+docs/rws-checklist.md's options line settles it on day one)."""
+CLEAR_MARGIN_MM = 20.0
+"""How far above ``tb_zone_z`` the clear height must be."""
 OPMODE_TEXT = {"AUTO": "automatic", "MANR": "manual, reduced speed",
                "MANF": "manual, full speed"}
+MOTORS_ON = "switch the motors on on the FlexPendant (QuickSet menu, Motors On)"
+"""What a YuMi operator does (its controller is inside the robot: no cabinet button;
+the FlexPendant's QuickSet menu holds motors on/off and the operating mode; assumed until
+docs/rws-checklist.md's "Operating mode and motors on" line is filled in)."""
 CTRLSTATE_FIX = {
-    "motoroff": "the motors are off: press the Motors On button on the controller",
+    "motoroff": f"the motors are off: {MOTORS_ON}",
     "guardstop": "a guard stop is open (a safety circuit: door, light curtain, enabling "
-                 "device): close it, then press Motors On",
-    "emergencystop": "an emergency stop is pressed: release it, reset it and press "
-                     "Motors On",
+                 f"device): close it, then {MOTORS_ON}",
+    "emergencystop": f"an emergency stop is pressed: release it, reset it and {MOTORS_ON}",
     "emergencystopreset": "the emergency stop was released but not reset: reset it and "
-                          "press Motors On",
+                          f"{MOTORS_ON}",
     "sysfail": "the controller is in system failure: read its event log and restart it",
     "init": "the controller is still starting: wait for it",
 }
@@ -44,12 +54,28 @@ PP_RESET = 10002
 OUR_ERRWRITES = range(80001, 80004)
 """Our RAPID's own ``ErrWrite`` entries (80001 refused, 80003 done): refusals of one
 program, not a stopped task."""
+TOOL = "tool_pusher"
+"""Our RAPID's pusher: a TASK PERS tooldata in each task module, measured on the robot."""
 ZONE_SYMBOLS = ("tb_zone_lo", "tb_zone_hi", "tb_zone_z", "tb_floor_z")
 """The world-zone constants of each task module (robot/rapid/TestbedTask_L.mod)."""
 ZONES_MODULE = "TestbedZones"
 """The system module whose POWER_ON routine ``tb_zones`` activates the zones and says so:
 ``tb_zones_n`` (zones activated at the last power on, of ``TB_WZ_COUNT``) and
 ``tb_zones_at`` (when), TASK PERS, so they survive PP to Main (issue 29)."""
+
+
+RESTARTED = 10045
+"""The event "System restarted" every restart writes (also "Reset RAPID": its description
+names it; the codes assumed until docs/rws-checklist.md's restart line is filled in)."""
+ZONES_ACTIVE = "Testbed Zones Active"
+"""The title of the info entry (80003) ``tb_zones`` writes once every zone is active:
+the task, ``zones <n>``, the time (robot/rapid/TestbedZones.sys)."""
+ZONES_COUNT = 5
+"""``TB_WZ_COUNT`` of robot/rapid/TestbedZones.sys: the zones a Zones Active entry must
+name when the controller's own count cannot be read."""
+TOOL_MM, TOOL_DEG = 1.0, 0.5
+"""How far a calibration's tool may be from ``tool_pusher`` before our RAPID refuses its
+programs (translation mm, rotation deg; TestbedMotion.mod's ``tb_header``)."""
 
 
 def one_line(text: object) -> str:
@@ -111,8 +137,9 @@ def refusal(state: ControllerState) -> str | None:
     """Why a program must not start now (one line naming what to fix), or None."""
     if state.opmode != "AUTO":
         mode = OPMODE_TEXT.get(state.opmode, state.opmode)
-        return (f"the controller is in {mode} mode ({state.opmode}), not automatic: turn "
-                f"the key switch to Auto and confirm on the FlexPendant")
+        return (f"the controller is in {mode} mode ({state.opmode}), not automatic: choose "
+                f"Auto on the FlexPendant (QuickSet menu, operating mode; a YuMi has no "
+                f"key switch) and confirm it there")
     if state.ctrlstate != "motoron":
         fix = CTRLSTATE_FIX.get(state.ctrlstate, "turn the motors on")
         return f"the controller state is {state.ctrlstate}, not motoron: {fix}"
@@ -181,7 +208,102 @@ def rapid_of_task(rws: Any, task: str) -> dict[str, Any]:
               "of": _number(_symbol(rws, task, ZONES_MODULE, "TB_WZ_COUNT")),
               "at": (_symbol(rws, task, ZONES_MODULE, "tb_zones_at") or "").strip('"')}
     return {"version": None if version is None else int(version), "zones": zones,
-            "zones_active": active}
+            "zones_active": active, "tool": tool_frame(_symbol(rws, task, module, TOOL))}
+
+
+def tool_frame(text: str | None) -> dict[str, Any] | None:
+    """A ``tooldata`` in RAPID syntax (``[TRUE,[[0,0,184.2],[1,0,0,0]],[0.272,[7.5,...``)
+    as ``trans`` (mm), ``rot`` (quaternion w, x, y, z) and ``mass`` (kg); None unreadable."""
+    if text is None:
+        return None
+    nums = [float(v) for v in re.findall(r"-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?", text)]
+    if len(nums) < 8:
+        return None
+    return {"trans": nums[0:3], "rot": nums[3:7], "mass": nums[7]}
+
+
+def rotation_deg(wxyz: Sequence[float]) -> float:
+    """The angle (deg) of the rotation a quaternion (w, x, y, z) makes."""
+    n = math.sqrt(sum(float(v) ** 2 for v in wxyz)) or 1.0
+    return math.degrees(2 * math.acos(min(1.0, abs(float(wxyz[0])) / n)))
+
+
+def tool_problem(task: str, tool: Mapping[str, Any] | None, tool_z_mm: float | None
+                 ) -> str | None:
+    """One line when the calibration's tool (``[0, 0, tool_z_mm]``, no rotation) is not
+    the controller's ``tool_pusher`` within :data:`TOOL_MM` / :data:`TOOL_DEG` (every
+    program would be refused, 80001), or the controller's cannot be read; else None."""
+    if tool is None:
+        return (f"task {task}: the controller's tool_pusher cannot be read (TestbedTask "
+                f"module not loaded?): the tool frame is not known (robot/README.md, 'The "
+                f"tool frame')")
+    if tool_z_mm is None:
+        return None
+    tx, ty, tz = (float(v) for v in tool["trans"])
+    off = math.dist((tx, ty, tz), (0.0, 0.0, float(tool_z_mm)))
+    turn = rotation_deg(tool["rot"])
+    if off <= TOOL_MM and turn <= TOOL_DEG:
+        return None
+    return (f"task {task}: the calibration's tool_z_mm {tool_z_mm:g} is not the controller's "
+            f"tool_pusher ([{tx:g},{ty:g},{tz:g}], turned {turn:.2f} deg): {off:.1f} mm "
+            f"apart (allowed {TOOL_MM:g} mm, {TOOL_DEG:g} deg); our RAPID refuses every "
+            f"program; measure the pusher (FlexPendant 4-point TCP) and write the one "
+            f"value into tool_pusher and tool_z_mm (robot/README.md, 'The tool frame')")
+
+
+def zones_known(log: Sequence[Any], task: str) -> dict[str, Any]:
+    """Whether ``task``'s world zones are known active since the last restart, from the
+    event log (newest first): ``restart`` and ``active`` are the sequence numbers of the
+    newest 10045 and of the newest Zones Active entry of ``task`` (None: not in the log),
+    ``zones`` the count that entry names, ``known`` whether it is the newer of the two.
+    The order in the log decides, not the numbers (they wrap at 65535)."""
+    out: dict[str, Any] = {"restart": None, "active": None, "zones": None, "known": False}
+    for e in log:
+        if out["restart"] is None and e.code == RESTARTED:
+            out["restart"] = e.seqnum
+        args = [str(a) for a in (getattr(e, "args", None) or [])]
+        if out["active"] is None and e.code == 80003 and ZONES_ACTIVE in (
+                str(e.title), args[0] if args else "") and task in args[1:2]:
+            out["active"] = e.seqnum
+            m = re.search(r"zones (\d+)", " ".join(args))
+            out["zones"] = int(m.group(1)) if m else None
+            out["known"] = out["restart"] is None
+        if out["restart"] is not None and out["active"] is not None:
+            break
+    return out
+
+
+def zones_known_problem(task: str, known: Mapping[str, Any], count: float | None = None
+                        ) -> str | None:
+    """``testbed check``'s line when ``task``'s zones are not known active since the last
+    restart (:func:`zones_known`): no Zones Active entry newer than the newest 10045, or
+    one naming fewer zones than ``count`` (``TB_WZ_COUNT``; :data:`ZONES_COUNT`)."""
+    want = int(count) if count is not None else ZONES_COUNT
+    if known.get("known") and (known.get("zones") or 0) >= want:
+        return None
+    after = ("since the last restart (event log 10045, seq "
+             f"{known['restart']})" if known.get("restart") is not None
+             else "(no restart entry left in the event log either)")
+    got = (f"the newest {ZONES_ACTIVE!r} entry says zones {known.get('zones')}"
+           if known.get("known") else f"no {ZONES_ACTIVE!r} entry with zones {want} after it")
+    return (f"task {task}: the world zones are not known active {after}: {got}; restart "
+            f"the controller / check tb_zones is the POWER_ON event routine "
+            f"(robot/README.md, 'The zones')")
+
+
+def zones_refusal(log: Sequence[Any], tasks: Sequence[str]) -> str | None:
+    """The driver's refusal before a start: a task whose newest restart entry in the log
+    is newer than its newest Zones Active entry (the zones are not on since that
+    restart). A log where neither is left (a long day) is no refusal: the driver saw
+    every entry since its start, ``testbed check`` is the strict gate."""
+    for task in tasks:
+        k = zones_known(log, task)
+        if k["restart"] is not None and not k["known"]:
+            return (f"task {task}: the world zones are not known active since the last "
+                    f"restart (event log 10045, seq {k['restart']}, and no "
+                    f"{ZONES_ACTIVE!r} entry after it): restart the controller / check "
+                    f"tb_zones is the POWER_ON event routine (robot/README.md, 'The zones')")
+    return None
 
 
 def zones_active_problem(task: str, active: Mapping[str, Any] | None) -> str | None:
@@ -223,23 +345,38 @@ def describe(rws: Any, tasks: Sequence[str]) -> ControllerReport:
     for item in _state_items(system):
         if item.get("_type") == "sys-options-li":
             rep.options = [str(o.get("option", "")) for o in item.get("options", [])]
-    rep.state = asdict(read_state(rws))
+    log = rws.read_event_log()
+    rep.state = asdict(read_state(rws, log))
     for name, t in rws.get_tasks().items():
         rep.tasks[name] = {"type": t.type_, "active": bool(t.active),
                            "excstate": t.excstate, "motion": bool(t.motiontask)}
     for task in tasks:
-        rep.rapid[task] = rapid_of_task(rws, task)
+        rep.rapid[task] = {**rapid_of_task(rws, task), "zones_known": zones_known(log, task)}
     return rep
+
+
+def option_warnings(rep: Mapping[str, Any]) -> list[str]:
+    """``testbed check``'s WARN lines: options that may be needed (:data:`WARNED_OPTIONS`)."""
+    opts = rep.get("options") or []
+    return [f"RobotWare option {number} {name} is not listed: assumed not needed by an IRB "
+            f"14000 with MultiMove; if both arms do not start together, add it "
+            f"(docs/rws-checklist.md, options line)"
+            for number, name in WARNED_OPTIONS.items()
+            if not any(str(o).startswith(number) for o in opts)]
 
 
 def problems(rep: Mapping[str, Any], tasks: Sequence[str],
              table_boxes: Mapping[str, Sequence[float]] | None = None,
-             travel_z: Mapping[str, float] | None = None) -> list[str]:
+             travel_z: Mapping[str, float] | None = None,
+             clear_z: Mapping[str, float] | None = None,
+             tool_z: Mapping[str, float] | None = None) -> list[str]:
     """What must be fixed before a trial, one line each (``rep``: a
     :class:`ControllerReport` as a dict); ``table_boxes``: task -> the calibration's
     ``table_box_mm``, which must lie inside that task's world zone box; ``travel_z``:
     task -> the calibration's ``z_travel_mm``, at or above the zone's ``tb_zone_z`` (a
-    travel below it, outside the box, would stop the arm)."""
+    travel below it, outside the box, would stop the arm); ``clear_z``: its
+    ``z_clear_mm``, at least ``tb_zone_z`` + :data:`CLEAR_MARGIN_MM`; ``tool_z``: its
+    ``tool_z_mm``, which must be the controller's ``tool_pusher``."""
     out: list[str] = []
     opts = rep.get("options") or []
     for number, name in REQUIRED_OPTIONS.items():
@@ -267,13 +404,36 @@ def problems(rep: Mapping[str, Any], tasks: Sequence[str],
             if "zones_active" in ours and (  # describe() always reads it
                     why := zones_active_problem(task, ours["zones_active"])) is not None:
                 out.append(why)
+            if "zones_known" in ours and (why := zones_known_problem(
+                    task, ours["zones_known"], (ours.get("zones_active") or {}).get("of"))):
+                out.append(why)
+            if "tool" in ours and (why := tool_problem(task, ours["tool"],
+                                                       (tool_z or {}).get(task))):
+                out.append(why)
+            out += _height_problems(task, zones, (travel_z or {}).get(task),
+                                    (clear_z or {}).get(task))
             if (box := (table_boxes or {}).get(task)) is not None:
                 out += _zone_problems(task, zones, box)
-            z, top = (travel_z or {}).get(task), zones.get("tb_zone_z")
-            if z is not None and top is not None and z < top:
-                out.append(f"task {task}: the calibration's z_travel_mm {z:g} is below the "
-                           f"world zone's tb_zone_z {top:g}: a travel outside the zone box "
-                           f"would stop the arm; raise z_travel_mm to {top:g} or more")
+    return out
+
+
+def _height_problems(task: str, zones: Mapping[str, Any], travel: float | None,
+                     clear: float | None) -> list[str]:
+    """Travel height at or above ``tb_zone_z``; clear height (where the joint moves to
+    and from rest end) :data:`CLEAR_MARGIN_MM` above it."""
+    top = zones.get("tb_zone_z")
+    if top is None:
+        return []
+    out = []
+    if travel is not None and travel < top:
+        out.append(f"task {task}: the calibration's z_travel_mm {travel:g} is below the "
+                   f"world zone's tb_zone_z {top:g}: a travel outside the zone box would "
+                   f"stop the arm; raise z_travel_mm to {top:g} or more")
+    if clear is not None and clear < top + CLEAR_MARGIN_MM:
+        out.append(f"task {task}: the calibration's z_clear_mm {clear:g} is less than "
+                   f"{CLEAR_MARGIN_MM:g} mm above the world zone's tb_zone_z {top:g}: the "
+                   f"joint moves to and from rest end there (drivers/yumi/paths.py); raise "
+                   f"z_clear_mm to {top + CLEAR_MARGIN_MM:g} or more")
     return out
 
 

@@ -11,13 +11,19 @@ FAULT lines: what, the number, what to change.
 
 Margins (mm): every corner :data:`~drivers.yumi.reach.REACH_MARGIN_MM` inside the
 reach; the rest pose's pusher tip :data:`ZONE_MARGIN_MM` above ``tb_zone_z``; the two
-arms' shapes :data:`ARM_GAP_MM` apart over both sweeps (each arm: its rest, its table
-box's corners at push and travel height, and the joint moves between rest and each
-corner); every link and the gripper :data:`TABLE_GAP_MM` above the table.
+arms' shapes :data:`ARM_GAP_MM` apart over both sweeps; every link and the gripper
+:data:`TABLE_GAP_MM` above the table; the pusher's tip and the links
+:data:`PATH_MARGIN_MM` clear of the world zones (below ``tb_zone_z`` outside the zone
+box, and below ``tb_floor_z``, as the controller reports them) along every path the
+driver commands (``drivers/yumi/paths.py``): rest by joints to the gate, straight to
+above each corner of the table box at clear height, down to travel and push height, and
+back up, to the gate and by joints to rest. A joint move is swept as the controller
+interpolates it (every joint linearly, all together), a straight move as a line.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
@@ -26,14 +32,17 @@ import numpy as np
 
 from drivers.yumi.arm_shapes import Capsules, arm_capsules, min_distance, table_clearance
 from drivers.yumi.irb14000 import Pose
+from drivers.yumi.path_sweep import Worst, ZoneSpec, play, worst
+from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy, leave_rest, to_rest
 from drivers.yumi.reach import (
-    DEFAULT_TOOL_Z_MM,
     REACH_MARGIN_MM,
     ArmTool,
     CornerReach,
+    box_corners,
     corner_reaches,
     side_of,
 )
+from drivers.yumi.yumi_controller import Waypoint
 
 __all__ = ["ARM_GAP_MM", "TABLE_GAP_MM", "ZONE_MARGIN_MM", "ArmLayout", "check_layout",
            "layout_of"]
@@ -44,7 +53,8 @@ TABLE_GAP_MM: Final = 5.0
 VIEW_MARGIN: Final = 0.02
 """A point this share of the frame outside its edge still counts as in view (as the
 driver's retake rule, ``drivers/yumi/backend.py``)."""
-JOINT_STEPS: Final = 8
+PATH_MARGIN_MM: Final = 10.0
+"""How close the tip or a link may come to a world zone along a commanded path."""
 
 
 @dataclass(frozen=True)
@@ -62,26 +72,48 @@ class ArmLayout:
     frame_size: tuple[int, int] | None = None
     zone_z_mm: float | None = None
     """``tb_zone_z`` of the arm's task, as the controller reports it."""
+    z_clear_mm: float = DEFAULT_Z_CLEAR_MM
+    gate_xy_mm: tuple[float, float] | None = None
+    zone_box_mm: tuple[float, float, float, float] | None = None
+    """(x0, y0, x1, y1) of ``tb_zone_lo``/``tb_zone_hi``, as the controller reports them."""
+    floor_z_mm: float | None = None
+
+    @property
+    def gate(self) -> tuple[float, float]:
+        return gate_xy(self.table_box_mm, self.gate_xy_mm)
 
 
 def layout_of(name: str, cal: Mapping[str, Any], *, task: str | None = None,
-              frame_size: Sequence[int] | None = None, zone_z_mm: float | None = None
+              frame_size: Sequence[int] | None = None, zone_z_mm: float | None = None,
+              zones: Mapping[str, Any] | None = None, tool_z_mm: float | None = None
               ) -> ArmLayout | None:
     """An arm's layout from its calibration file's keys; None when its side cannot be
-    told (a task that is not an IRB 14000's, an arm not named left/right)."""
+    told (a task that is not an IRB 14000's, an arm not named left/right) or its tool is
+    not known. ``tool_z_mm``: the controller's ``tool_pusher`` (used before the file's:
+    the robot moves with the controller's); ``zones``: the task's zone constants as
+    :func:`~drivers.yumi.controller_state.rapid_of_task` reads them."""
     side = side_of(name, task or cal.get("task"))
-    if side is None or "table_box_mm" not in cal:
+    tool_z = tool_z_mm if tool_z_mm is not None else cal.get("tool_z_mm")
+    if side is None or "table_box_mm" not in cal or tool_z is None:
         return None
-    tool = ArmTool(side, float(cal.get("tool_z_mm", DEFAULT_TOOL_Z_MM)),
-                   float(cal.get("arm_angle_deg", 0.0)),
+    tool = ArmTool(side, float(tool_z), float(cal.get("arm_angle_deg", 0.0)),
                    tuple(float(v) for v in cal.get("tool_quat_wxyz", (0, 0, 1, 0))))
     rest = cal.get("rest_joints_deg")
+    z = dict(zones or {})
+    lo, hi = z.get("tb_zone_lo"), z.get("tb_zone_hi")
+    if zone_z_mm is None and z.get("tb_zone_z") is not None:
+        zone_z_mm = float(z["tb_zone_z"])
+    gate = cal.get("gate_xy_mm")
     return ArmLayout(name, tool, tuple(float(v) for v in cal["table_box_mm"]),  # type: ignore[arg-type]
                      float(cal.get("z_push_mm", 10.0)), float(cal.get("z_travel_mm", 80.0)),
                      None if rest is None else tuple(float(v) for v in rest),
                      cal.get("homography"),
                      None if frame_size is None else (int(frame_size[0]), int(frame_size[1])),
-                     zone_z_mm)
+                     zone_z_mm, float(cal.get("z_clear_mm", DEFAULT_Z_CLEAR_MM)),
+                     None if gate is None else (float(gate[0]), float(gate[1])),
+                     None if lo is None or hi is None else (float(lo[0]), float(lo[1]),
+                                                            float(hi[0]), float(hi[1])),
+                     None if z.get("tb_floor_z") is None else float(z["tb_floor_z"]))
 
 
 def _pt(p: Sequence[float]) -> str:
@@ -94,12 +126,12 @@ def reach_lines(lay: ArmLayout, reaches: Sequence[CornerReach]) -> tuple[list[st
     how = (f"pusher down, tool_z_mm {t.tool_z_mm:g}, arm angle {t.arm_angle_deg:g} deg")
     figures = ", ".join(f"{_pt(c.tcp_mm)} {'-' if c.margin_mm is None else f'{c.margin_mm:.0f}'}"
                         for c in reaches)
-    lines = [f"      {lay.name}: reach margin (mm) of the table box's corners at push and "
-             f"travel height ({how}): {figures}"]
+    lines = [f"      {lay.name}: reach margin (mm) of the table box's corners at push, "
+             f"travel and clear height ({how}): {figures}"]
     faults = []
     for c in reaches:
         where = (f"arm {lay.name}: table box corner {_pt(c.tcp_mm)} mm "
-                 f"({'push' if c.tcp_mm[2] == lay.z_push_mm else 'travel'} height)")
+                 f"({_height_name(lay, c.tcp_mm[2])} height)")
         if c.margin_mm is None:
             faults.append(f"{where} cannot be reached with the {how}: {c.solution.reason}; "
                           f"move the table box towards the shoulder or change the arm angle")
@@ -108,6 +140,10 @@ def reach_lines(lay: ArmLayout, reaches: Sequence[CornerReach]) -> tuple[list[st
                           f"(want {REACH_MARGIN_MM:g} mm) with the {how}; move the table box "
                           f"towards the shoulder")
     return lines, faults
+
+
+def _height_name(lay: ArmLayout, z: float) -> str:
+    return {lay.z_push_mm: "push", lay.z_travel_mm: "travel"}.get(z, "clear")
 
 
 def rest_pose(lay: ArmLayout) -> Pose | None:
@@ -160,38 +196,101 @@ def in_view(lay: ArmLayout, pose: Pose) -> str | None:
     return None
 
 
-def sweep(lay: ArmLayout, reaches: Sequence[CornerReach]) -> Capsules:
+def corner_programs(lay: ArmLayout, speed: float = 100.0) -> list[tuple[str, list[Waypoint]]]:
+    """The driver's program to each corner of the table box and back, as it writes a
+    push's (``drivers/yumi/backend.py``, ``plan_push``): from rest by joints to the gate,
+    straight to above the corner at clear height, down to travel and push height, up,
+    to the gate, by joints to rest (``drivers/yumi/paths.py``)."""
+    out = []
+    for c in box_corners(lay.table_box_mm, lay.z_push_mm):
+        xy = c[:2]
+        down = [Waypoint("move_l", (*xy, lay.z_travel_mm), speed)
+                ] if lay.z_clear_mm > lay.z_travel_mm + 1.0 else []
+        out.append((f"to corner {_pt(xy)} and back: ", [
+            *leave_rest(lay.gate, xy, lay.z_clear_mm, speed), *down,
+            Waypoint("move_l", (*xy, lay.z_push_mm), speed),
+            Waypoint("move_l", (*xy, lay.z_travel_mm), speed),
+            *to_rest(lay.gate, xy, lay.z_clear_mm, speed)]))
+    return out
+
+
+def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[Pose]]:
+    """(report lines, FAULT reasons, sampled poses) of the driver's paths to every
+    corner (:func:`corner_programs`) played through the model
+    (``drivers/yumi/path_sweep.py``): the tip and the links against the zones the
+    controller reports, the links above the table."""
+    zones = ZoneSpec(lay.zone_box_mm, lay.zone_z_mm, lay.floor_z_mm)
+    faults: list[str] = []
+    poses: list[Pose] = []
+    least: Worst | None = None
+    for label, wps in corner_programs(lay):
+        samples, err = play(lay.tool, rest.chain_deg, lay.rest_joints_deg, wps, label)
+        poses += [smp.pose for smp in samples[::4]]
+        if err is not None:
+            faults.append(f"arm {lay.name}: the driver's path {label}cannot be made: {err}; "
+                          f"move the gate (gate_xy_mm), lower z_clear_mm or shrink the "
+                          f"table box")
+            continue
+        w = worst(samples, lay.tool, zones)
+        if w is not None and (least is None or w.clearance < least.clearance):
+            least = w
+        low = min((table_clearance(arm_capsules(smp.pose, lay.tool.tool_z_mm))
+                   for smp in samples[::4]), default=None)
+        if low is not None and low[0] < TABLE_GAP_MM:
+            faults.append(f"arm {lay.name}: on the path {label}its {low[1]} comes {low[0]:.0f} "
+                          f"mm above the table (want {TABLE_GAP_MM:g} mm)")
+    g = lay.gate
+    how = (f"rest by joints to the gate ({g[0]:.0f}, {g[1]:.0f}, {lay.z_clear_mm:g}), "
+           f"straight to every corner and down, back the same way")
+    if least is None or math.isinf(least.clearance):
+        return [f"      {lay.name}: paths ({how}): the zones were not read, not swept"
+                ], faults, poses
+    lines = [f"      {lay.name}: paths ({how}): least clearance to the world zones "
+             f"{least.clearance:.0f} mm, the {least.part} at {_pt(least.point)} mm "
+             f"({least.leg})"]
+    if least.clearance < PATH_MARGIN_MM:
+        where = ("inside" if least.clearance < 0 else "from")
+        faults.append(f"arm {lay.name}: on the driver's path {least.leg} its {least.part} "
+                      f"comes to {_pt(least.point)} mm, {abs(least.clearance):.0f} mm "
+                      f"{where} a world zone (below tb_zone_z {lay.zone_z_mm:g} outside "
+                      f"the zone box, or below the floor; want {PATH_MARGIN_MM:g} mm clear): "
+                      f"a zone stop; move the gate (gate_xy_mm) or change the rest joints")
+    return lines, faults, poses
+
+
+def sweep(lay: ArmLayout, reaches: Sequence[CornerReach], paths: Sequence[Pose] = ()
+          ) -> Capsules:
     """The arm's shapes over its work: every reachable corner's pose, the rest pose, and
-    the joint moves (MoveJ: joints interpolated) between rest and each corner."""
+    the poses along the driver's paths (:func:`path_checks`)."""
     poses = [c.solution.pose for c in reaches if c.solution.pose is not None]
     rest = rest_pose(lay)
-    moves: list[Pose] = []
     if rest is not None:
-        r = np.array(rest.chain_deg)
-        for p in poses:
-            q = np.array(p.chain_deg)
-            moves += [lay.tool.model.pose(r + (q - r) * k / JOINT_STEPS)
-                      for k in range(1, JOINT_STEPS)]
         poses = [rest, *poses]
-    return Capsules.join([arm_capsules(p, lay.tool.tool_z_mm) for p in poses + moves])
+    return Capsules.join([arm_capsules(p, lay.tool.tool_z_mm) for p in [*poses, *paths]])
 
 
 def check_layout(arms: Sequence[ArmLayout]) -> tuple[list[str], list[str]]:
-    """(report lines, FAULT reasons) of one YuMi's arms: each arm's reach, rest pose and
-    table clearance; with two arms, their rests and their sweeps apart."""
+    """(report lines, FAULT reasons) of one YuMi's arms: each arm's reach, rest pose,
+    table clearance and paths against the zones; with two arms, their rests and their
+    sweeps apart."""
     lines: list[str] = []
     faults: list[str] = []
     sweeps: dict[str, Capsules] = {}
     rests: dict[str, Capsules] = {}
     for lay in arms:
-        reaches = corner_reaches(lay.tool, lay.table_box_mm, (lay.z_push_mm, lay.z_travel_mm))
+        reaches = corner_reaches(lay.tool, lay.table_box_mm,
+                                 (lay.z_push_mm, lay.z_travel_mm, lay.z_clear_mm))
         got, bad = reach_lines(lay, reaches)
         lines += got
         faults += bad
+        paths: list[Pose] = []
         if (rest := rest_pose(lay)) is not None:
             faults += rest_faults(lay, rest)
             rests[lay.name] = arm_capsules(rest, lay.tool.tool_z_mm)
-        sweeps[lay.name] = sweep(lay, reaches)
+            got, bad, paths = path_checks(lay, rest)
+            lines += got
+            faults += bad
+        sweeps[lay.name] = sweep(lay, reaches, paths)
     if len(arms) == 2:
         a, b = arms[0].name, arms[1].name
         got, bad = _apart(a, b, rests, sweeps)
@@ -212,8 +311,8 @@ def _apart(a: str, b: str, rests: Mapping[str, Capsules], sweeps: Mapping[str, C
                           f"apart (want {ARM_GAP_MM:g} mm): choose rest joints clear of "
                           f"the other arm")
     gap, pa, pb = min_distance(sweeps[a], sweeps[b])
-    lines.append(f"      {a}/{b}: swept volumes (rest, table box corners, the moves "
-                 f"between) {gap:.0f} mm apart ({pa} / {pb})")
+    lines.append(f"      {a}/{b}: swept volumes (rest, table box corners, the driver's paths "
+                 f"to them) {gap:.0f} mm apart ({pa} / {pb})")
     if gap < ARM_GAP_MM:
         faults.append(f"arms {a} and {b}: on their way between rest and their table boxes "
                       f"their {pa} and {pb} come {gap:.0f} mm close (want {ARM_GAP_MM:g} mm): "

@@ -19,7 +19,7 @@ import numpy.typing as npt
 from drivers.yumi.irb14000 import Arm, Pose, arm
 from drivers.yumi.irb14000_ik import DOWN, Solution, quat_matrix, solve_down
 
-__all__ = ["DEFAULT_TOOL_Z_MM", "REACH_MARGIN_MM", "ArmTool", "CornerReach", "box_corners",
+__all__ = ["REACH_MARGIN_MM", "ArmTool", "CornerReach", "box_corners",
            "corner_reaches",
            "reach_margin", "side_of"]
 
@@ -27,11 +27,6 @@ Mat = npt.NDArray[np.float64]
 REACH_MARGIN_MM: Final = 30.0
 """How much further out than a table box's corner the arm must still reach: calibration
 error, a table box grown later, and the controller's own tolerance eat into it."""
-DEFAULT_TOOL_Z_MM: Final = 100.0
-"""The pusher's length (flange to tip) a check assumes when a calibration file has no
-``tool_z_mm``: ``tool_pusher``'s ``tframe`` in robot/rapid/TestbedTask_L.mod. (The driver
-then sends ``tool_z_mm`` 0, the flange as the TCP: a lab's file should say its pusher's
-length.)"""
 MARGIN_SPAN_MM: Final = 150.0
 """The largest reach margin measured (a corner this far inside is simply "150+")."""
 

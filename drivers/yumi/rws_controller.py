@@ -27,12 +27,15 @@ from typing import Any
 
 from drivers.errors import BackendError
 from drivers.yumi.controller_state import (
+    _symbol,
     describe,
     entry_text,
     identity_fields,
     one_line,
     read_state,
     refusal,
+    tool_frame,
+    zones_refusal,
 )
 from drivers.yumi.credentials import FACTORY_PASSWORD, FACTORY_USER, RwsLogin
 from drivers.yumi.yumi_controller import ArmPose, Waypoint, _since, check_result, program_file
@@ -48,9 +51,15 @@ V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S = 100.0, 1000.0, 100.0
 """Orientation, linear and rotational external-axis speeds written into each program,
 the same as our RAPID's ``TB_V_*`` (which it uses whatever the file says)."""
 POLL_S = 0.05
-PUSHER_LOAD = (0.1, (0.0, 0.0, 50.0))
-"""The program file's load (kg, centre of gravity mm); our RAPID uses its own
-``tool_pusher`` load, weighed on day one (robot/README.md)."""
+TOOL_LOAD = (0.272, (7.5, 11.5, 53.8), (0.0003, 0.00032, 0.00009))
+"""The load the program file carries (kg, centre of gravity mm, inertia kgm2 about the
+axes of tool0): the one ``tool_pusher`` ships with in robot/rapid/TestbedTask_L.mod (the
+SmartGripper and the rod). Our RAPID ignores it and moves with its own ``tool_pusher``
+load (robot/README.md, "The tool load"); the file says it so that it is never a
+placeholder. Its frame is the calibration's ``tool_z_mm``, which the RAPID compares."""
+MOTION_TASKS = ("T_ROB_L", "T_ROB_R")
+"""The IRB 14000's two motion tasks: every program start gives BOTH a program (an arm
+with nothing to do a "stay"), so neither replays the file its RAM disk still holds."""
 
 
 def _patch_timeout(rws: Any, timeout_s: float, counter: list[int] | None = None) -> None:
@@ -111,6 +120,30 @@ def controller_info(url: str, credentials_file: str | None = None,
     return said or None
 
 
+def controller_tools(url: str, tasks: Sequence[str], credentials_file: str | None = None,
+                     timeout_s: float = 5.0) -> dict[str, dict[str, Any] | None]:
+    """Each task's ``tool_pusher`` as the controller holds it (``trans``, ``rot``, ``mass``;
+    None where it cannot be read), on a session of its own: for an arm being calibrated
+    whose file has no ``tool_z_mm`` yet (``drivers/yumi/backend.py``)."""
+    from abb_robot_client.rws import RWS
+
+    from drivers.yumi.credentials import read_login
+
+    login = _login_or_factory(read_login(credentials_file) if credentials_file else None,
+                              url)
+    rws = RWS(url.rstrip("/"), login.user, login.password)
+    _patch_timeout(rws, timeout_s)
+    try:
+        return {t: tool_frame(_symbol(rws, t, f"TestbedTask_{t.rsplit('_', 1)[-1]}", TOOL))
+                for t in tasks}
+    except Exception as exc:
+        raise BackendError(f"cannot read tool_pusher from the YuMi controller: "
+                           f"{one_line(exc)}") from exc
+    finally:
+        with contextlib.suppress(Exception):
+            rws.logout()
+
+
 def robot_identity(info: Mapping[str, str] | None) -> str | None:
     """The robot as the lock names it, ``"IRC5 <serial>"``; None without a serial."""
     serial = (info or {}).get("serial")
@@ -148,6 +181,7 @@ class RwsYumiController:
         self._stopping = threading.Event()
         self._last_entry: int | None = None
         self._ramdisk: str | None = None
+        self._idle_tools: dict[str, float] = {}
         self.timing: dict[str, float] = {}
         """Wall seconds of the last :meth:`execute`'s phases: ``checks`` (event log and
         state reads), ``upload`` (resetpp, RAM disk path, the files), ``start``, ``wait``
@@ -163,10 +197,7 @@ class RwsYumiController:
         """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read)."""
         mpe = self._mpe
         pose = self._arms[arm]
-        mass, cog = PUSHER_LOAD
-        tool = mpe.tooldata(True, mpe.pose([0, 0, pose.tool_z_mm], [1, 0, 0, 0]),
-                            mpe.loaddata(mass, list(cog), [1, 0, 0, 0], 0, 0, 0))
-        mp = mpe.MotionProgram(tool=tool)
+        mp = mpe.MotionProgram(tool=self._tool(arm, pose.tool_z_mm))
         extax = [pose.arm_angle_deg, 9e9, 9e9, 9e9, 9e9, 9e9]
         for w in waypoints:
             speed = mpe.speeddata(float(w.speed_mm_s), V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S)
@@ -183,11 +214,57 @@ class RwsYumiController:
             (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
         return mp
 
+    def _tool(self, arm: str, tool_z_mm: float | None) -> Any:
+        """The tooldata a program file carries: the calibration's frame (never a silent
+        flange: a pose without ``tool_z_mm`` is an error) and :data:`TOOL_LOAD`."""
+        if tool_z_mm is None:
+            raise BackendError(f"arm {arm}: no tool_z_mm (the pusher's length) to send; "
+                               f"the calibration file must give it (robot/README.md, 'The "
+                               f"tool frame')")
+        mpe = self._mpe
+        mass, cog, (ix, iy, iz) = TOOL_LOAD
+        return mpe.tooldata(True, mpe.pose([0, 0, float(tool_z_mm)], [1, 0, 0, 0]),
+                            mpe.loaddata(mass, list(cog), [1, 0, 0, 0], ix, iy, iz))
+
+    def stay(self, task: str) -> Any:
+        """The program of a task with nothing to do: one ``WaitTime 0`` (our RAPID runs it
+        and writes its Done entry; nothing moves), with the task's arm's tool frame, or,
+        for a task no arm of this host drives, the controller's own ``tool_pusher``."""
+        arm = next((a for a, p in self._arms.items() if p.task == task), None)
+        if arm is not None:
+            tool = self._tool(arm, self._arms[arm].tool_z_mm)
+        else:
+            if task not in self._idle_tools:
+                frame = tool_frame(_symbol(self._rws, task,
+                                           f"TestbedTask_{task.rsplit('_', 1)[-1]}", TOOL))
+                if frame is None:
+                    raise BackendError(f"YuMi controller: cannot read tool_pusher of task "
+                                       f"{task} for its stay program; is the testbed RAPID "
+                                       f"loaded? (robot/README.md)")
+                self._idle_tools[task] = frame["trans"][2]
+            tool = self._tool(task, self._idle_tools[task])
+        mp = self._mpe.MotionProgram(tool=tool)
+        mp.WaitTime(0)
+        return mp
+
+    def tasks(self) -> list[str]:
+        """Every task a start runs: the arms' and the other IRB 14000 motion task."""
+        mine = [p.task for p in self._arms.values()]
+        extra = [t for t in MOTION_TASKS if t not in mine] if set(mine) <= set(
+            MOTION_TASKS) else []
+        return mine + extra
+
     def execute(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
-        arms = [a for a in self._arms if a in programs]
-        if not arms:
+        """Run ``programs`` (arm -> waypoints) at once. EVERY motion task gets a program:
+        an arm not in ``programs`` (and a task no arm of this host drives) gets a
+        :meth:`stay`, so no task replays the file its RAM disk still holds (a controller
+        that omits ``motiontask`` lets abb_robot_client's start() run every task); both
+        tasks must report Done for this program (:func:`check_result`)."""
+        if not any(a in programs for a in self._arms):
             return
-        mps = {self._arms[a].task: self.program(a, programs[a]) for a in arms}
+        mps = {self._arms[a].task: self.program(a, programs[a]) for a in self._arms
+               if a in programs}
+        mps.update({t: self.stay(t) for t in self.tasks() if t not in mps})
         self._seqno = self._seqno % 60000 + 1  # float32-exact, and new for every step
         seqno = self._seqno
         self._stopping.clear()
@@ -210,16 +287,23 @@ class RwsYumiController:
         check_result(entries, list(mps), seqno)
 
     def _start(self, mps: Mapping[str, Any], seqno: int) -> int | None:
-        """Refuse unless the controller is ready; upload every task's program to ITS file
-        and start those tasks together. Returns the newest event log entry before."""
+        """Refuse unless the controller is ready and every task's zones are known active
+        since the last restart; activate every task (ourselves: the client's start()
+        does not when the controller omits ``motiontask``), THEN reset the program
+        pointers (a task activated after ``resetpp`` would start where it stopped), upload
+        every task's program to ITS file and start them together. Returns the newest
+        event log entry before."""
         rws = self._rws
         t0 = time.perf_counter()
         log_before = rws.read_event_log()
         prev = log_before[0].seqnum if log_before else None
         self._log_new(log_before)
-        if (why := refusal(read_state(rws, log_before))) is not None:
+        why = refusal(read_state(rws, log_before)) or zones_refusal(log_before, list(mps))
+        if why is not None:
             raise BackendError(f"YuMi controller: {why}; the motion was not started")
         t1 = time.perf_counter()
+        for task in mps:
+            rws.activate_task(task)
         rws.resetpp()
         if self._ramdisk is None:  # the controller's RAM disk folder does not move
             self._ramdisk = str(rws.get_ramdisk_path())

@@ -48,7 +48,9 @@ class ArmPose:
     tool_quat_wxyz: tuple[float, ...] = (0.0, 0.0, 1.0, 0.0)
     robconf: tuple[float, ...] = (0.0, 0.0, 0.0, 4.0)
     arm_angle_deg: float = 0.0
-    tool_z_mm: float = 0.0
+    tool_z_mm: float | None = None
+    """The pusher's length (the calibration's ``tool_z_mm``); None: not known, and the
+    controller client refuses to send a program (never the flange by default)."""
 
 
 class YumiControllerClient(Protocol):

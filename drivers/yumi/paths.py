@@ -1,0 +1,78 @@
+"""The paths every YuMi program takes between the rest pose and the table: one place.
+
+Why a module of its own: the driver (``drivers/yumi/backend.py``) commands these paths and
+``testbed check`` (``drivers/yumi/layout_check.py``) sweeps the pusher's tip and the links
+along the same ones against the world zones, so the two can never disagree about what the
+arm does. The zones (our RAPID's ``tb_zones``) forbid the tip below ``tb_zone_z`` outside
+the zone box; a joint move (MoveJ, MoveAbsJ) sweeps the tip along a curve nobody programs,
+and with ABB's folded rest pose (the pusher pointing forward and down) and the 184.2 mm
+pusher, a joint move from rest straight to a point over the table swings the tip under
+the zone's ceiling outside the box (the model: (164, 402, 27) mm on the way to the left
+table box's far corner at travel height; tests/drivers/test_yumi_paths_zones.py).
+
+So the only joint moves are between the rest pose and the arm's *gate*: a point at clear
+height ``z_clear_mm`` over the table box (a quarter of the box in from its near edge and
+from its edge nearer the body's centre line, or the calibration's ``gate_xy_mm``), whose
+joint path from rest the layout check proves clear of the zones. Everything else is a
+straight line (MoveL) inside the zone box: across at clear height, down and up where the
+push is. The box above ``tb_zone_z`` over the zone box is convex: a straight line between
+two points in it stays in it, so no straight leg can enter a zone.
+
+    rest --MoveJ--> gate --MoveL--> above the target at z_clear --MoveL--> down ...
+    ... up --MoveL--> z_clear where it is --MoveL--> gate --MoveAbsJ--> rest
+
+Why not higher: with the pusher pointing down, the IRB 14000 cannot hold a 184 mm tool
+much above the table near its body (the model: over the left box's inner near corner
+(150, 50) no higher than z 100-110; over its centre no higher than 150), so a clear
+height of 200 mm is out of reach for most of the box; 100 (``tb_zone_z`` 80 + 20) is not.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Final
+
+from drivers.yumi.yumi_controller import Waypoint
+
+__all__ = ["DEFAULT_Z_CLEAR_MM", "GATE_FRACTION", "gate_xy", "leave_rest", "to_rest"]
+
+DEFAULT_Z_CLEAR_MM: Final = 100.0
+"""The clear height when a calibration does not say: the shipped ``tb_zone_z`` (80) plus
+the 20 mm margin ``testbed check`` wants (``drivers/yumi/controller_state.py``)."""
+GATE_FRACTION: Final = 0.25
+"""How far into the table box the gate lies, from its near edge and from its inner edge,
+as a share of the box's depth and width."""
+
+
+def gate_xy(box: Sequence[float], gate: Sequence[float] | None = None
+            ) -> tuple[float, float]:
+    """The arm's gate (x, y) mm: ``gate`` when the calibration gives one, else a quarter
+    into ``box`` (x0, y0, x1, y1) from its near edge (x0, towards the body) and from its
+    inner edge (the y edge nearer the body's centre line, y = 0)."""
+    if gate is not None:
+        return (float(gate[0]), float(gate[1]))
+    x0, y0, x1, y1 = (float(v) for v in box)
+    gx = x0 + GATE_FRACTION * (x1 - x0)
+    if abs(y0) <= abs(y1):  # the inner edge is y0 (a left arm's box, y > 0)
+        return (gx, y0 + GATE_FRACTION * (y1 - y0))
+    return (gx, y1 - GATE_FRACTION * (y1 - y0))
+
+
+def leave_rest(gate: Sequence[float], target_xy: Sequence[float], z_clear_mm: float,
+               speed_mm_s: float) -> list[Waypoint]:
+    """From rest: by joints to the gate, then straight across at clear height to above
+    ``target_xy``. Both points stop exactly (``fine``): the joint path the layout check
+    swept starts and ends there, no corner of a zone is cut."""
+    return [Waypoint("move_j", (float(gate[0]), float(gate[1]), z_clear_mm), speed_mm_s),
+            Waypoint("move_l", (float(target_xy[0]), float(target_xy[1]), z_clear_mm),
+                     speed_mm_s)]
+
+
+def to_rest(gate: Sequence[float], here_xy: Sequence[float], z_clear_mm: float,
+            speed_mm_s: float) -> list[Waypoint]:
+    """To rest: straight up to clear height where the pusher is, straight across to the
+    gate, then by joints (MoveAbsJ) to the rest pose."""
+    return [Waypoint("move_l", (float(here_xy[0]), float(here_xy[1]), z_clear_mm),
+                     speed_mm_s),
+            Waypoint("move_l", (float(gate[0]), float(gate[1]), z_clear_mm), speed_mm_s),
+            Waypoint("rest", None, speed_mm_s)]
