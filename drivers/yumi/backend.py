@@ -591,8 +591,9 @@ class YumiBackend(HostBackend):
         cal = self._arms[arm].calibration
         x, y, z = (float(v) for v in tcp)
         vmax = cal.max_speed_mm_s
-        if wps and wps[0].kind == "rest":
-            return to_rest(cal.gate_xy, (x, y), cal.z_clear_mm, vmax)
+        if wps and wps[0].kind == "rest":  # above clear height already: no need to go down
+            way = to_rest(cal.gate_xy, (x, y), cal.z_clear_mm, vmax)
+            return way[1:] if z >= cal.z_clear_mm - LIFT_TOLERANCE_MM else way
         lift = [Waypoint("move_l", (x, y, cal.z_clear_mm), min(vmax, 2 * cal.push_speed_mm_s))
                 ] if z < cal.z_clear_mm - LIFT_TOLERANCE_MM else []
         return lift + list(wps[1:] if wps and wps[0].kind == "move_j" else wps)

@@ -372,6 +372,34 @@ def _announce(host: str, opts: CalibrateOptions, box: cal.Box, say: Callable[[st
         f"z = {opts.z_mm:g} mm at every point")
 
 
+def with_tool(fleet: Any, host: HostConfig, arm: str, data: Mapping[str, Any],
+              say: Callable[[str], None]) -> dict[str, Any]:
+    """``data`` with ``tool_z_mm``: the file's when it has one, else the controller's
+    ``tool_pusher`` (read through the agent's ``describe``); said either way, and a
+    calibration whose tool differs from the controller's by more than 1 mm is said too
+    (``testbed check`` fails on it: every program would be refused)."""
+    out = dict(data)
+    task = str(out.get("task", f"T_ROB_{'L' if arm.startswith('l') else 'R'}"))
+    try:
+        tool = (fleet.describe(host.name).get("controller", {}).get("rapid", {})
+                .get(task, {}).get("tool"))
+    except Exception as exc:  # an agent without describe(): the host side fills it
+        say(f"tool: the controller's tool_pusher not read ({exc})")
+        return out
+    if tool is None:
+        return out
+    z = float(tool["trans"][2])
+    if "tool_z_mm" not in out:
+        out["tool_z_mm"] = z
+        say(f"tool: tool_z_mm {z:g} from the controller's tool_pusher ({task})")
+    elif abs(float(out["tool_z_mm"]) - z) > 1.0:
+        say(f"FAULT {host.name}: the calibration's tool_z_mm {out['tool_z_mm']} is not the "
+            f"controller's tool_pusher z {z:g} ({task}): every program will be refused; "
+            f"measure the pusher and write one value into both (robot/README.md, 'The tool "
+            f"frame')")
+    return out
+
+
 def verify_layout(fleet: Any, host: HostConfig, opts: CalibrateOptions,
                   out: CalibrationOutcome, say: Callable[[str], None]) -> bool:
     """The new calibration's layout, with the other arms' files, through the backend's
@@ -417,6 +445,7 @@ def _fit_and_save(fleet: Any, host: HostConfig, opts: CalibrateOptions, box: cal
         return EXIT_FAILED
     ok = report(out, opts, arm_cfg.crop, say)
     if out.data is not None:
+        out.data = with_tool(fleet, host, opts.arm, out.data, say)
         verify_layout(fleet, host, opts, out, say)
     if opts.image is not None and out.last_frame is not None:
         import cv2

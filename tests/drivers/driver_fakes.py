@@ -375,8 +375,17 @@ def twin_picture(seed: int = 0, cubes: Mapping[str, tuple[float, float]] | None 
 def yumi_calibration(arm: str) -> dict[str, Any]:
     return {"homography": YUMI_HOMOGRAPHY, "table_box_mm": YUMI_BOXES[arm],
             "z_push_mm": 12.0, "z_travel_mm": 90.0, "max_speed_mm_s": 120.0,
-            "push_speed_mm_s": 40.0,
-            "rest_joints_deg": [0, -130, 30, 0, 40, 0, 135 if arm == "left" else -135]}
+            "push_speed_mm_s": 40.0, "tool_z_mm": 184.2, **_fake_side(arm)}
+
+
+def _fake_side(arm: str) -> dict[str, Any]:
+    """The fake cell's "left" arm works at y < 0 (its table box): on an IRB 14000 that is
+    the robot's right arm, T_ROB_R, so its reach and rest are judged with that arm's
+    model (the driver checks every target with it, issue 35); and the other way round."""
+    right = arm == "left"
+    return {"task": "T_ROB_R" if right else "T_ROB_L", "mechunit": "ROB_R" if right else "ROB_L",
+            "arm_angle_deg": -130.0 if right else 130.0,
+            "rest_joints_deg": [0, -130, 30, 0, 40, 0, -135 if right else 135]}
 
 
 def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,

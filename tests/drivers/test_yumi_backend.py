@@ -54,19 +54,24 @@ def inside_box(arm: str, w: Waypoint) -> bool:
 ])
 def test_push_maps_through_the_calibration(arm: str, face: int, axis: int, sign: int) -> None:
     wps = plan_push(setup(arm), (0.5, 0.5), 0.0, face)
-    assert [w.kind for w in wps] == ["move_j", "move_l", "move_l", "move_l", "rest"]
-    start, end = wps[1].xyz_mm, wps[2].xyz_mm
+    # by joints from rest to the gate, straight above the start at clear height, down to
+    # travel and push height, the stroke, up, straight to the gate, by joints to rest
+    assert [w.kind for w in wps] == ["move_j", "move_l", "move_l", "move_l", "move_l",
+                                     "move_l", "move_l", "move_l", "rest"]
+    start, end = wps[3].xyz_mm, wps[4].xyz_mm
     assert start is not None and end is not None
     assert sign * (end[axis] - start[axis]) == pytest.approx(0.15 * 256 * 1.25)
     assert end[1 - axis] == pytest.approx(start[1 - axis])
-    assert wps[1].xyz_mm[2] == wps[2].xyz_mm[2] == 12.0  # type: ignore[index]
-    assert wps[0].xyz_mm[2] == wps[3].xyz_mm[2] == 90.0  # type: ignore[index]
-    assert wps[2].speed_mm_s == 40.0 and all(w.speed_mm_s <= 120.0 for w in wps)
+    assert [w.xyz_mm[2] for w in wps[:-1]] == [  # type: ignore[index]
+        100.0, 100.0, 90.0, 12.0, 12.0, 90.0, 100.0, 100.0]
+    assert wps[0].xyz_mm == wps[7].xyz_mm and wps[0].xyz_mm[:2] == pytest.approx(  # type: ignore[index]
+        setup(arm).calibration.gate_xy)
+    assert wps[4].speed_mm_s == 40.0 and all(w.speed_mm_s <= 120.0 for w in wps)
 
 
 def test_push_follows_the_cube_yaw() -> None:
     wps = plan_push(setup("left"), (0.5, 0.5), math.radians(30), 3)
-    (x0, y0, _), (x1, y1, _) = wps[1].xyz_mm, wps[2].xyz_mm  # type: ignore[misc]
+    (x0, y0, _), (x1, y1, _) = wps[3].xyz_mm, wps[4].xyz_mm  # type: ignore[misc]
     assert math.degrees(math.atan2(x1 - x0, y1 - y0)) == pytest.approx(30, abs=1e-6)
 
 
@@ -75,7 +80,7 @@ def test_waypoints_are_clipped_into_the_table_box() -> None:
         for centre in [(0.01, 0.01), (0.99, 0.5), (0.5, 0.99), (0.0, 1.0)]:
             for arm in ("left", "right"):
                 assert all(inside_box(arm, w) for w in plan_push(setup(arm), centre, 0.3,
-                                                                  face)[:4])
+                                                                  face)[:-1])
 
 
 def test_calibration_errors_name_the_arm_and_the_file(tmp_path: Path) -> None:
@@ -106,7 +111,7 @@ def test_both_arms_move_in_one_program_and_end_at_rest(tmp_path: Path) -> None:
     for arm, wps in programs.items():
         assert wps[-1].kind == "rest" and all(inside_box(arm, w) for w in wps[:-1])
     backend.push({"left": 1})
-    assert [w.kind for w in ctrl.programs[-1]["right"]] == ["rest"]  # the other arm waits
+    assert "right" not in ctrl.programs[-1]  # at rest: it waits (the controller's "stay")
     assert ctrl.tcp_xyz() == YUMI_REST
     backend.close()
     assert ctrl.closed
@@ -118,7 +123,10 @@ def test_a_picture_with_an_arm_in_view_is_taken_again(tmp_path: Path) -> None:
     n = len(ctrl.programs)
     views = backend.observe()
     assert backend.retaken == 1
-    assert ctrl.programs[n] == {"left": [Waypoint("rest", None, 120.0)]}
+    # not at rest: straight up where it is, straight to the gate, by joints to rest
+    # (the fake reports it high up, z 300: no need to come down first)
+    assert [(w.kind, w.xyz_mm) for w in ctrl.programs[n]["left"]] == [
+        ("move_l", (*backend._arms["left"].calibration.gate_xy, 100.0)), ("rest", None)]
     assert not views["left"].violating
     ctrl.stuck.add("right")
     with pytest.raises(BackendError, match="no picture without an arm in view"):
@@ -167,12 +175,17 @@ def test_goal_is_drawn_into_the_image_like_the_twin(tmp_path: Path) -> None:
 
 def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    poses = {"left": ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135)),
-             "right": ArmPose("T_ROB_R", "ROB_R", (0, -130, 30, 0, 40, 0, -135))}
+    poses = {"left": ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135),
+                             tool_z_mm=184.2),
+             "right": ArmPose("T_ROB_R", "ROB_R", (0, -130, 30, 0, 40, 0, -135),
+                              tool_z_mm=184.2)}
     ctrl = RwsYumiController("http://127.0.0.1:1", poses, motion_timeout_s=0.3)
     wps = plan_push(setup("left"), (0.5, 0.5), 0.0, 3)
     rapid = ctrl.program("left", wps).get_program_rapid()
-    assert rapid.count("MoveL") == 3 and "MoveJ" in rapid and "MoveAbsJ" in rapid
+    assert rapid.count("MoveL") == 7 and rapid.count("MoveJ") == 1 and "MoveAbsJ" in rapid
+    flat = rapid.replace(" ", "")  # the shipped tool: its frame and tool_pusher's load
+    assert "[[0,0,184.2],[1,0,0,0]],[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032," \
+           "9e-05]" in flat or "0.00009]" in flat, flat
     assert "[40,100,1000,100]" in rapid.replace(" ", "").replace(".0", "")
     calls: list[tuple[object, ...]] = []
 
@@ -198,6 +211,9 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         def resetpp(self) -> None:
             calls.append(("resetpp",))
 
+        def activate_task(self, task: str) -> None:
+            calls.append(("activate", task))
+
         def get_ramdisk_path(self) -> str:
             return "$TEMP"
 
@@ -214,9 +230,23 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
     monkeypatch.setattr(ctrl, "_rws", Rws())
     with pytest.raises(BackendError, match=r"did not finish within motion_timeout_s = 0\.3 s"):
         ctrl.execute({"left": wps, "right": [Waypoint("rest", None, 100.0)]})
-    assert calls == [("resetpp",), ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+    assert calls == [("activate", "T_ROB_L"), ("activate", "T_ROB_R"), ("resetpp",),
+                     ("upload", "$TEMP/testbed_T_ROB_L.bin"),
                      ("upload", "$TEMP/testbed_T_ROB_R.bin"),
                      ("start", "once", ["T_ROB_L", "T_ROB_R"]), ("stop",)]
+    # one arm's program (calibration's move_tcp): the other task still gets a file, a
+    # "stay", is activated before the program pointers are reset, and starts: it never
+    # replays what its RAM disk held (issue 35)
+    calls.clear()
+    ctrl._rws.state = "stopped"
+    with pytest.raises(BackendError, match=r"did not finish within"):
+        ctrl.execute({"left": wps})
+    assert calls[:6] == [("activate", "T_ROB_L"), ("activate", "T_ROB_R"), ("resetpp",),
+                         ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+                         ("upload", "$TEMP/testbed_T_ROB_R.bin"),
+                         ("start", "once", ["T_ROB_L", "T_ROB_R"])]
+    stay = ctrl.stay("T_ROB_R").get_program_rapid()
+    assert "WaitTime" in stay and "Move" not in stay and "184.2" in stay
 
 
 def test_yumi_agent_with_an_unreachable_controller_faults_clearly(tmp_path: Path) -> None:
@@ -269,7 +299,8 @@ def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> No
     right = tmp_path / "right.json"
     right.write_text(json.dumps(yumi_calibration("right")))
     rest_only = tmp_path / "left-rest.json"  # what a lab writes before calibrating
-    rest_only.write_text(json.dumps({"rest_joints_deg": [0, -130, 30, 0, 40, 0, 135]}))
+    rest_only.write_text(json.dumps({"rest_joints_deg": [0, -130, 30, 0, 40, 0, 135],
+                                     "tool_z_mm": 184.2}))
     url = "http://127.0.0.1:9"
 
     def build(left: Path, calibrating: list[str]) -> YumiBackend:
@@ -281,8 +312,10 @@ def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> No
         build(rest_only, ["middle"])
     with pytest.raises(BackendError, match=r"arm left: cannot read calibration"):
         build(tmp_path / "none-yet.json", [])  # not calibrating: the file must exist
-    with pytest.raises(BackendError, match=r"arm left: .*'rest_joints_deg'.*rest pose"):
-        build(tmp_path / "none-yet.json", ["left"])
+    with pytest.raises(BackendError, match=r"arm left: calibration .*none-yet.json has no "
+                                           r"'tool_z_mm' and the controller's tool_pusher "
+                                           r"of T_ROB_L cannot be read: .*4-point TCP"):
+        build(tmp_path / "none-yet.json", ["left"])  # no file, no controller: no tool
     backend = build(rest_only, ["left"])
     assert backend._arms["left"].calibration.table_box_mm == CALIBRATION_BOX_MM
     with pytest.raises(BackendError, match="arm left is being calibrated"):
