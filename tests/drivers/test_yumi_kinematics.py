@@ -100,10 +100,10 @@ def test_an_unreachable_target_and_a_joint_limit_are_refused_with_the_number() -
 
 
 def shipped(side: str, **over: Any) -> dict[str, Any]:
-    """A side's calibration as the twin's true one, with a 100 mm pusher."""
+    """A side's calibration as the twin's true one, with the 184.2 mm pusher."""
     cam = {**CameraModel.default().as_json(),
            "workspaces_mm": {s: list(workspace_mm(s)) for s in ("left", "right")}}
-    return {**true_calibration(cam, side), "tool_z_mm": 100.0, **over}
+    return {**true_calibration(cam, side), "tool_z_mm": 184.2, **over}
 
 
 def check(cals: dict[str, dict[str, Any]], zone_z: float = 80.0) -> tuple[list[str], list[str]]:
@@ -128,8 +128,8 @@ def test_every_corner_of_the_shipped_workspaces_is_reachable_with_margin() -> No
     assert time.perf_counter() - t0 < 5.0
     for side in ("left", "right"):
         cal = shipped(side)
-        tool = ArmTool(side, 100.0, cal["arm_angle_deg"])
-        for c in corner_reaches(tool, workspace_mm(side), (10.0, 80.0)):
+        tool = ArmTool(side, 184.2, cal["arm_angle_deg"])
+        for c in corner_reaches(tool, workspace_mm(side), (10.0, 80.0, 100.0)):
             assert c.margin_mm is not None and c.margin_mm >= REACH_MARGIN_MM, c
     assert any("reach margin" in line for line in lines)
     assert LAB_REST_JOINTS == REST_JOINTS_DEG  # the lab's copy of the twin's rest
@@ -143,7 +143,7 @@ def test_the_old_rest_pose_with_a_100mm_pusher_is_a_fault() -> None:
 
 
 def test_a_rest_pose_below_the_zone_ceiling_or_in_view_is_a_fault() -> None:
-    low = ArmTool("left", 100.0, 135.0).solve((300.0, 210.0, 50.0))
+    low = ArmTool("left", 184.2, 135.0).solve((300.0, 210.0, 50.0))
     assert low.pose is not None
     cals = {"left": shipped("left", rest_joints_deg=low.pose.abb_deg)}
     _, faults = check(cals)
@@ -175,7 +175,7 @@ def test_the_driver_refuses_an_unreachable_target_before_anything_moves(tmp_path
     ctrl = FakeYumiController({"left": (185.0, 674.0, 448.0)})
     backend = YumiBackend([setup], VideoCaptureCamera(str(video)), ctrl)
     try:
-        with pytest.raises(BackendError, match=r"arm left: target \(900, 300, 80\) mm cannot "
+        with pytest.raises(BackendError, match=r"arm left: target \(\d+, \d+, 100\) mm cannot "
                                                r"be reached .*out of reach by \d+ mm; nothing "
                                                r"was moved"):
             backend.move_tcp("left", (900.0, 300.0, 10.0))

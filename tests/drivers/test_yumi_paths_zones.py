@@ -1,0 +1,182 @@
+"""Issue 35 on the operator's side: the paths to and from rest stay out of the world zones,
+the tool frame is never a silent flange, the zones are known active since the last
+restart, and ``testbed check`` words what the YuMi's operator really does.
+
+The arm's model (``drivers/yumi/irb14000.py``) plays the driver's own programs
+(``drivers/yumi/path_sweep.py``) from ABB's folded rest pose with the 184.2 mm pusher,
+against the shipped zones (robot/rapid/TestbedTask_L.mod: box x 125..495, y 25..395 for
+the left arm, below z 80; the floor at 0).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from drivers.errors import BackendError
+from drivers.yumi.backend import ArmCalibration, ArmSetup, plan_push, refuse_unreachable
+from drivers.yumi.controller_state import (
+    RAPID_VERSION,
+    ControllerState,
+    option_warnings,
+    problems,
+    refusal,
+    tool_problem,
+    zones_known,
+    zones_refusal,
+)
+from drivers.yumi.irb14000 import arm
+from drivers.yumi.layout_check import PATH_MARGIN_MM, check_layout, layout_of
+from drivers.yumi.path_sweep import ZoneSpec, play, worst
+from drivers.yumi.reach import ArmTool
+from drivers.yumi.yumi_controller import Waypoint
+
+PUSHER = 184.2
+REST = {"left": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+        "right": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
+BOX = {"left": (150.0, 50.0, 470.0, 370.0), "right": (150.0, -370.0, 470.0, -50.0)}
+ZONES = {"left": ZoneSpec((125.0, 25.0, 495.0, 395.0), 80.0, 0.0),
+         "right": ZoneSpec((125.0, -395.0, 495.0, -25.0), 80.0, 0.0)}
+
+
+def calibration(side: str, **over: Any) -> dict[str, Any]:
+    """A calibration of the shipped layout (an identity-like homography: the paths do
+    not depend on it), with the 184.2 mm pusher."""
+    return {"homography": [[0, 1, 0], [1, 0, 0], [0, 0, 1]], "table_box_mm": list(BOX[side]),
+            "z_push_mm": 10.0, "z_travel_mm": 80.0, "tool_z_mm": PUSHER,
+            "arm_angle_deg": 130.0 if side == "left" else -130.0,
+            "rest_joints_deg": list(REST[side]),
+            "task": "T_ROB_L" if side == "left" else "T_ROB_R", **over}
+
+
+def tool(side: str) -> ArmTool:
+    return ArmTool(side, PUSHER, 130.0 if side == "left" else -130.0)
+
+
+def rest_chain(side: str) -> tuple[float, ...]:
+    return arm(side).pose_abb(REST[side]).chain_deg
+
+
+def test_the_old_path_from_rest_dips_into_the_zone() -> None:
+    """The driver's first move before issue 35: rest by joints straight to travel height
+    over the table. Over the left box's far corner the tip swings under tb_zone_z outside
+    the box (the issue's (138, 403, 32)); raising travel height does not cure it."""
+    for z in (80.0, 100.0):
+        samples, err = play(tool("left"), rest_chain("left"), REST["left"],
+                            [Waypoint("move_j", (470.0, 370.0, z), 100.0)])
+        assert err is None
+        w = worst(samples, tool("left"), ZONES["left"])
+        assert w is not None and w.clearance < -10, w
+        assert w.point[2] < 80 and not (25 <= w.point[1] <= 395 and 125 <= w.point[0] <= 495)
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_the_drivers_push_paths_stay_clear_of_the_zones(side: str) -> None:
+    """Every push the driver plans (cubes over the workspace, every face), played from
+    rest through the model: the tip and the links stay PATH_MARGIN_MM clear of the
+    zones. Fails on the old planning (a joint move from rest to travel height)."""
+    setup = ArmSetup(side, (0, 0, 320, 320), False,
+                     ArmCalibration.from_dict(calibration(side), side))
+    least = 1e9
+    for centre in ((0.2, 0.2), (0.8, 0.2), (0.8, 0.8), (0.2, 0.8), (0.5, 0.5)):
+        for face in range(4):
+            wps = plan_push(setup, centre, 0.0, face)
+            samples, err = play(tool(side), rest_chain(side), REST[side], wps)
+            if err is not None:  # at the edge of reach (the inner near corner at clear
+                with pytest.raises(BackendError, match="nothing was moved"):  # height):
+                    refuse_unreachable(side, setup.calibration, wps)  # refused first
+                continue
+            w = worst(samples, tool(side), ZONES[side])
+            assert w is not None
+            least = min(least, w.clearance)
+            assert w.clearance >= PATH_MARGIN_MM, (centre, face, w)
+    assert least < 40  # the figure: the table box's 25 mm inside the zone box
+
+
+def test_the_layout_check_faults_a_path_that_dips_and_passes_the_shipped_one() -> None:
+    zones = {"tb_zone_lo": [125, 25, 0], "tb_zone_hi": [495, 395, 0], "tb_zone_z": 80,
+             "tb_floor_z": 0}
+    good = layout_of("left", calibration("left"), zones=zones)
+    assert good is not None
+    lines, faults = check_layout([good])
+    assert not [f for f in faults if "path" in f], faults
+    assert any(re.search(r"paths \(rest by joints to the gate \(230, 130, 100\).*least "
+                         r"clearance to the world zones \d+ mm", line) for line in lines)
+    bad = layout_of("left", calibration("left", gate_xy_mm=[230, 114]), zones=zones)
+    assert bad is not None
+    _, faults = check_layout([bad])
+    assert any(re.match(r"arm left: on the driver's path .*joint move .* comes to \(\d+, \d+, "
+                        r"\d+\) mm, \d+ mm (from|inside) a world zone", f) for f in faults), faults
+
+
+def test_a_calibration_without_tool_z_mm_is_an_error(tmp_path: Path) -> None:
+    f = tmp_path / "left.json"
+    d = calibration("left")
+    del d["tool_z_mm"]
+    f.write_text(json.dumps(d))
+    with pytest.raises(BackendError, match=rf"arm left: {re.escape(str(f))}: has no "
+                                           r"'tool_z_mm' .*4-point TCP.*robot/README.md, "
+                                           r"'The tool frame'"):
+        ArmCalibration.load(f, "left")
+    with pytest.raises(BackendError, match="z_clear_mm .* must be at or above z_travel_mm"):
+        ArmCalibration.from_dict(calibration("left", z_clear_mm=60.0), "left")
+
+
+def test_the_controllers_tool_frame_is_compared() -> None:
+    same = {"trans": [0.0, 0.0, 184.2], "rot": [1.0, 0.0, 0.0, 0.0], "mass": 0.272}
+    assert tool_problem("T_ROB_L", same, 184.6) is None
+    off = tool_problem("T_ROB_L", same, 100.0)
+    assert off is not None and "tool_z_mm 100 is not the controller's tool_pusher" in off
+    turned = {**same, "rot": [0.9999, 0.0141, 0.0, 0.0]}  # about 1.6 deg
+    assert tool_problem("T_ROB_L", turned, 184.2) is not None
+
+
+def entry(seq: int, code: int, title: str = "", args: tuple[str, ...] = ()) -> Any:
+    return SimpleNamespace(seqnum=seq, code=code, msgtype=1, title=title, args=list(args),
+                           desc="", causes="")
+
+
+def active(seq: int, task: str, n: int = 5) -> Any:
+    return entry(seq, 80003, "Testbed Zones Active",
+                 ("Testbed Zones Active", task, f"zones {n}", "2026-01-01"))
+
+
+def test_zones_must_be_known_active_since_the_last_restart() -> None:
+    fresh = [active(12, "T_ROB_R"), active(11, "T_ROB_L"), entry(10, 10045, "System restarted")]
+    stale = [entry(20, 10045, "System restarted"), *fresh]
+    assert zones_known(fresh, "T_ROB_L")["known"] and not zones_known(stale, "T_ROB_L")["known"]
+    assert zones_refusal(fresh, ["T_ROB_L", "T_ROB_R"]) is None
+    why = zones_refusal(stale, ["T_ROB_L", "T_ROB_R"])
+    assert why is not None and why.startswith("task T_ROB_L: the world zones are not known "
+                                              "active since the last restart")
+    assert zones_refusal([], ["T_ROB_L"]) is None  # a long day: neither left in the log
+    rep = {"options": ["608-1", "616-1", "604-1"],
+           "state": {"opmode": "AUTO", "ctrlstate": "motoron", "execstate": "stopped"},
+           "tasks": {"T_ROB_L": {}},
+           "rapid": {"T_ROB_L": {"version": RAPID_VERSION, "zones": {},
+                                 "zones_known": zones_known(stale, "T_ROB_L")}}}
+    faults = problems(rep, ["T_ROB_L"])
+    assert any("not known active since the last restart (event log 10045, seq 20)" in f
+               and "POWER_ON event routine" in f for f in faults), faults
+    rep["rapid"]["T_ROB_L"]["zones_known"] = zones_known(fresh, "T_ROB_L")
+    assert problems(rep, ["T_ROB_L"]) == []
+
+
+def test_the_operator_is_told_what_a_yumi_has() -> None:
+    manual = refusal(ControllerState("MANR", "motoron", "stopped"))
+    off = refusal(ControllerState("AUTO", "motoroff", "stopped"))
+    assert manual is not None and "turn the key switch" not in manual
+    assert "FlexPendant" in manual
+    assert off is not None and "Motors On button on the controller" not in off
+    assert "FlexPendant" in off
+    rep = {"options": ["608-1", "616-1", "604-2"]}
+    assert not [p for p in problems({**rep, "state": {"opmode": "AUTO",
+                                                      "ctrlstate": "motoron",
+                                                      "execstate": "stopped"}}, [])
+                if "623-1" in p]
+    assert [w for w in option_warnings(rep) if "623-1 Multitasking" in w]
