@@ -123,7 +123,7 @@ def test_a_calibration_without_tool_z_mm_is_an_error(tmp_path: Path) -> None:
                                            r"'tool_z_mm' .*4-point TCP.*robot/README.md, "
                                            r"'The tool frame'"):
         ArmCalibration.load(f, "left")
-    with pytest.raises(BackendError, match="z_clear_mm .* must be at or above z_travel_mm"):
+    with pytest.raises(BackendError, match=r"z_clear_mm .* must be at or above z_travel_mm"):
         ArmCalibration.from_dict(calibration("left", z_clear_mm=60.0), "left")
 
 
