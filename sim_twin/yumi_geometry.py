@@ -57,19 +57,29 @@ MARKER_MM: Final = 36.0
 """Side of the ArUco marker's black square, centred on the cap (a 4 mm white margin)."""
 MARKER_DICT: Final = "DICT_4X4_50"
 MARKER_IDS: Final = {"left": 0, "right": 1}
-REST_JOINTS_DEG: Final = {"left": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0),
-                          "right": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
-"""Each arm's rest pose, ABB's joint order (axes 1-6, then axis 7): ABB's folded home of
-the IRB 14000 with ABB's arm-angle signs (public YuMi RAPID: ``[[0,-130,30,0,40,0],
-[135,...]]`` for the left arm, -135 for the right). The arm hangs folded in front of the
-body, upper arm down, the gripper pointing forward and down: nothing held out sideways
-(the old pose held the tip 0.7 m to the side, a bystander hazard). An earlier rest chose
-that sideways pose because the folded home "crossed the arms behind the body": that pose
-had the arm angle's sign wrong. With the 184.2 mm pusher the tips rest at about
-(149, +-141, 115) mm, 15 mm above tb_zone_z + 20, the arms 35 mm apart, every link
-130 mm above the table; ``drivers/yumi/layout_check.py`` checks all of it (the tips hang
-over the workspaces' near edge, so a camera that sees the workspaces sees them:
-tests/sim_twin/test_yumi_arms.py states the figures)."""
+REST_JOINTS_DEG: Final = {"left": (40.0, -90.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+                          "right": (-40.0, -90.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
+"""Each arm's rest pose, ABB's joint order (axes 1-6, then axis 7): ABB's folded arm and
+wrist with axis 1 swung back and axis 2 raised. ABB's folded home of the IRB 14000 is
+``[0, -130, 30, 0, 40, 0]`` with the arm angle +135 (left) / -135 (right) (public YuMi
+RAPID: ``[[0,-130,30,0,40,0],[135,...]]``; an earlier rest held the arm out sideways, the
+tip 0.7 m to the side, a bystander hazard, because it had that sign wrong). Exactly that
+home cannot be the rest with the project's 184.2 mm pusher: its tip hangs at about
+(149, +-141, 115) mm, over the workspaces' near edge and inside the overhead camera's
+view (the driver's retake rule, which projects the TCP through the table homography with
+a 2 % margin, would retake for ever). So axes 3-7 stay ABB's (30, 0, 40, 0, +-135: the
+forearm and wrist folded, the pusher pointing down), axis 1 swings back 40 deg (away from
+the table: +40 left, -40 right) and axis 2 rises to -90.
+
+With the twin's model (``sim_twin.yumi_arms``) and the 184.2 mm pusher: the tip at
+(-117, +-276, 268) mm, the flange at (-155, +-253, 447), behind the robot's front and
+77 px outside the frame's 2 % margin in the table-plane projection (v 566 > 490; the tip
+itself projects off the 480 px frame at v 650); every link 348 mm over the table (the
+operator's model: 331), the arms' capsules 35 mm apart (at the shoulders, as in ABB's
+home), every joint 33.5 deg from its limit; the joint path from rest to (310, +-210, 100)
+with the pusher down stays above tb_zone_z + 20 outside the zone box
+(tests/sim_twin/test_yumi_arms.py states the twin's figures; ``drivers/yumi/layout_check.py``
+checks the operator's)."""
 REST_MM: Final = {"left": (100.0, 450.0, 150.0), "right": (100.0, -450.0, 150.0)}
 """Each TCP's rest point in the plain cell (no arms): behind and beside the table, far
 outside the camera's view. A cell with arms (the RWS twin) rests its pushers where the

@@ -19,12 +19,17 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from testbed.lab.hardware_twin import HardwareTwinLab
 
-REST_JOINTS_DEG = {"left": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0),
-                   "right": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
-"""The twin's rest joints (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``: the lab's
-rooms import no twin at import time, so the numbers are here too; a test keeps them
-equal): ABB's folded home with ABB's arm-angle signs (axis 7 +135 left, -135 right), the
-arms folded in front of the body, not held out sideways."""
+REST_JOINTS_DEG = {"left": (40.0, -90.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+                   "right": (-40.0, -90.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
+"""The twin's rest joints (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``, whose
+docstring gives the figures: the lab's rooms import no twin at import time, so the
+numbers are here too; a test keeps them equal): ABB's folded arm and wrist (axes 3-7 as
+ABB's home ``[0,-130,30,0,40,0]``, axis 7 +135 left, -135 right) with axis 1 swung back
+40 deg and axis 2 raised to -90. ABB's home itself cannot be the rest with the 184.2 mm
+pusher: its tip hangs at about (149, +-141, 115) mm, over the workspaces' near edge, in
+the camera's view (the driver's retake rule would retake for ever). This rest holds the
+tip at about (-117, +-276, 268) mm, outside the camera's view, the links over 330 mm
+above the table, the arms apart, no joint within 33 deg of its limit."""
 PUSH_ARM_ANGLE_DEG = 130.0
 """The left arm's arm angle (axis 7) for its pushes (the right's: minus it): every point
 of the workspaces from the table to travel height reachable, the arm clear of
