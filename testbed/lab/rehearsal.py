@@ -136,6 +136,7 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
             calibration = _calibrate_all(lab, fleet, fleet_file, say)
             atomic_write_json(lab.root / CALIBRATED, calibration)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
+        _same_theta_0(run_proto, folder)
         hooks = _RehearsalHooks(lab, arm_views(fleet), opts.humans)
         if opts.faults:
             hooks.drills = RunFaults(lab, say)
@@ -186,6 +187,35 @@ def _rehearsal_fleet(fleet: FleetConfig, opts: RehearsalOptions) -> FleetConfig:
         fleet = quick_learning(fleet)
     humans = fleet.humans.model_copy(update={"kind": opts.humans})
     return fleet.model_copy(update={"humans": humans})
+
+
+def _same_theta_0(proto: Protocol, folder: Path) -> None:
+    """A rehearsal run again starts the runs it has not started from the theta_0 its
+    first session pretrained. theta_0's cache key leaves out how a host is reached but
+    not its camera and controller URLs, and a new session's twins have new ports: without
+    this every session after a kill pretrained again (~4 min at the quick sizes) and its
+    runs started from another theta_0. Each algorithm's key under the first session's
+    fleet (kept in ``lab/fleet/first.toml``) is linked to its key under this one's."""
+    from testbed.experiments.fleet_config import load_fleet
+    from testbed.experiments.learners import PRETRAIN_SEED
+    from testbed.experiments.pretraining import pretrain_key
+    from testbed.experiments.protocol import pretrain_critics
+    from testbed.fleet.algorithms import ALGORITHMS
+
+    first = folder / "lab" / "fleet" / "first.toml"
+    if not first.exists():  # the first session: its fleet (with its twins' ports)
+        RunDir(first.parent).write_config(proto.fleet)
+        first.write_bytes((first.parent / "config.toml").read_bytes())
+        return
+    then = proto.model_copy(update={"fleet": load_fleet(first)})
+    both = pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
+    cache = folder / ".pretrained"
+    for a in proto.algorithms:
+        critics = sorted(set(ALGORITHMS[proto.algorithm_of(a)].critics) | set(both))
+        old = pretrain_key(then.fleet_of(a), PRETRAIN_SEED, critics)
+        new = pretrain_key(proto.fleet_of(a), PRETRAIN_SEED, critics)
+        if old != new and (cache / old).is_dir() and not (cache / new).exists():
+            (cache / new).symlink_to(old, target_is_directory=True)
 
 
 def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say

@@ -54,29 +54,57 @@ def _rows(run: Path) -> int:
     return path.read_bytes().count(b"\n") if path.exists() else 0
 
 
+def _check_run(run: Path, killed_at: int | None) -> None:
+    """Every step, frame and truth row of ``run`` once; its faults once, each cleared;
+    perception against the truth as in the faults test."""
+    rows = read_steps(run / "steps.jsonl")
+    assert [r["t"] for r in rows] == list(range(STEPS))  # every step once
+    robots = [x["robot"] for x in rows[0]["robots"]]
+    frames = RunData.of_run(run).frames()
+    assert [(int(f["t"]), int(f["arm"])) for f in frames] == [
+        (t, a) for t in range(STEPS) for a in range(len(robots))]  # every frame once
+    for f in frames:
+        x = rows[int(f["t"])]["robots"][int(f["arm"])]
+        assert MODES[int(f["mode"])] == x["mode"]
+        assert int(f["action"]) == (-1 if x.get("action") is None else int(x["action"]))
+    if killed_at is not None:
+        assert {int(f["session"]) for f in frames if int(f["t"]) >= killed_at} == {1}
+    truth = [(r["t"], r["robot"]) for r in map(
+        json.loads, (run / "twin_truth.jsonl").read_text().splitlines())]
+    assert sorted(truth) == [(t, r) for t in range(STEPS) for r in sorted(robots)]
+    faults = read_faults(run)  # 2 kinds fit in 14 steps; each once, each cleared
+    kinds = [f["kind"] for f in faults]
+    assert len(kinds) == 2 and len(set(kinds)) == 2, faults
+    assert all(f["actions"] and "(not recorded)" not in f["actions"] for f in faults)
+    a = truth_agreement(run)
+    assert all(d["borderline"] for d in a["disagreements"]), a["disagreements"]
+    assert a["rate"] >= 0.95, a
+
+
 def test_a_rehearsal_killed_mid_run_goes_on_when_run_again_and_keeps_every_row_once(
         tmp_path: Path) -> None:
     out = tmp_path / "rehearsal"
-    run = out / "bc-t0"
     cmd = [sys.executable, "-m", "testbed.cli", "rehearse", str(tiny_protocol(tmp_path)),
-           "--steps", str(STEPS), "--algorithms", "bc", "--faults", "--out", str(out),
-           "--camera-fps", "30"]
+           "--steps", str(STEPS), "--algorithms", "bc,fleet-ed", "--faults", "--out",
+           str(out), "--camera-fps", "30"]
     first_log = tmp_path / "first.log"
     with open(first_log, "wb") as log:
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 150
-        while _rows(run) < KILL_AT and proc.poll() is None and time.monotonic() < deadline:
+        while (max((_rows(r) for r in out.glob("*-t0")), default=0) < KILL_AT
+               and proc.poll() is None and time.monotonic() < deadline):
             time.sleep(0.05)
         assert proc.poll() is None, first_log.read_text()[-3000:]
-        assert _rows(run) >= KILL_AT, first_log.read_text()[-3000:]
         os.kill(proc.pid, signal.SIGKILL)  # the operator's process alone
         proc.wait()
     finally:
         if proc.poll() is None:
             proc.kill()
+    (run,) = [r for r in out.glob("*-t0") if _rows(r)]  # the run in progress
     killed_at = _rows(run)
+    assert killed_at >= KILL_AT, first_log.read_text()[-3000:]
     gone = time.monotonic() + 15
     while _alive(out) and time.monotonic() < gone:
         time.sleep(0.1)
@@ -89,27 +117,11 @@ def test_a_rehearsal_killed_mid_run_goes_on_when_run_again_and_keeps_every_row_o
     assert again.returncode == 0, said[-3000:]
     assert "calibration: every arm's from the last session" in said  # not calibrated again
     assert "calibrate yumi-a/left" not in said
+    assert "collect:" not in said  # the next run starts from the first session's theta_0
     assert not _alive(out)
     meta = json.loads((run / "run.json").read_text())
     assert meta["status"] == "complete" and len(meta["resumed"]) == 1
-    rows = read_steps(run / "steps.jsonl")
-    assert [r["t"] for r in rows] == list(range(STEPS))  # every step once
-    robots = [x["robot"] for x in rows[0]["robots"]]
-    frames = RunData.of_run(run).frames()
-    assert [(int(f["t"]), int(f["arm"])) for f in frames] == [
-        (t, a) for t in range(STEPS) for a in range(len(robots))]  # every frame once
-    for f in frames:
-        x = rows[int(f["t"])]["robots"][int(f["arm"])]
-        assert MODES[int(f["mode"])] == x["mode"]
-        assert int(f["action"]) == (-1 if x.get("action") is None else int(x["action"]))
-    assert {int(f["session"]) for f in frames if int(f["t"]) >= killed_at} == {1}
-    truth = [(r["t"], r["robot"]) for r in map(
-        json.loads, (run / "twin_truth.jsonl").read_text().splitlines())]
-    assert sorted(truth) == [(t, r) for t in range(STEPS) for r in sorted(robots)]
-    faults = read_faults(run)  # 2 kinds fit in 14 steps; each once, each cleared
-    kinds = [f["kind"] for f in faults]
-    assert len(kinds) == 2 and len(set(kinds)) == 2, faults
-    assert all(f["actions"] and "(not recorded)" not in f["actions"] for f in faults)
-    a = truth_agreement(run)
-    assert all(d["borderline"] for d in a["disagreements"]), a["disagreements"]
-    assert a["rate"] >= 0.95, a
+    _check_run(run, killed_at)
+    (other,) = [r for r in out.glob("*-t0") if r != run]
+    assert "resumed" not in json.loads((other / "run.json").read_text())
+    _check_run(other, None)
