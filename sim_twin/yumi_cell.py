@@ -443,17 +443,20 @@ class YumiTwinCell:
         return pace
 
     def _settle(self) -> int:
-        """Step until every cube is at rest (a fixed rule: deterministic). Returns steps."""
+        """Step until every cube and every pusher is at rest (a fixed rule:
+        deterministic; a pusher that trailed its constraint on a fast joint move has
+        arrived, as a fine point waits for the arm to be in position). Returns steps."""
         c = self.client
         for i in range(1, _SETTLE_MAX_STEPS + 1):
             pb.stepSimulation(physicsClientId=c)
             if i >= _SETTLE_MIN_STEPS and i % _SETTLE_CHECK_EVERY == 0 and all(
-                    self._still(a) for a in self.arms):
+                    self._still(self.cubes[a]) and self._still(self.pushers[a])
+                    for a in self.arms):
                 return i
         return _SETTLE_MAX_STEPS
 
-    def _still(self, arm: str) -> bool:
-        lin, ang = pb.getBaseVelocity(self.cubes[arm], physicsClientId=self.client)
+    def _still(self, body: int) -> bool:
+        lin, ang = pb.getBaseVelocity(body, physicsClientId=self.client)
         return (math.sqrt(sum(v * v for v in lin)) / M < _SETTLE_SPEED_MM_S
                 and math.sqrt(sum(w * w for w in ang)) < _SETTLE_SPIN_RAD_S)
 

@@ -169,6 +169,18 @@ def _turns(model: ArmModel, pose: ArmPose) -> list[ArmPose]:
     return out
 
 
+def _flipped(found: Sequence[ArmPose]) -> list[list[float]]:
+    """Seeds for the wrist's other solutions of poses found: axes 4 and 6 a half turn
+    round, axis 5 mirrored (exact for a spherical wrist; the IRB 14000's wrist offsets
+    make it a near seed), so a configuration the seeds near the arm missed is found."""
+    out: list[list[float]] = []
+    for p in found[:4]:
+        q = list(p.chain_deg)
+        for d4, d6 in ((180.0, 180.0), (-180.0, -180.0), (180.0, -180.0), (-180.0, 180.0)):
+            out.append([q[0], q[1], q[2], q[3], q[4] + d4, -q[5], q[6] + d6])
+    return out
+
+
 def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[float] | None,
           current: Sequence[float] | None = None, free_yaw: bool = False,
           seeds: Sequence[Sequence[float]] = ()) -> Solution:
@@ -189,6 +201,10 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
                                              arm_angle_deg)
     found, best = solutions(model, flange, arm_angle_deg, near, free_yaw)
     hit = _pick(model, found, want, current, free_yaw)
+    if hit is None and found and want is not None:  # the wrist's other solutions
+        more, _ = solutions(model, flange, arm_angle_deg, _flipped(found), free_yaw)
+        found = found + more
+        hit = _pick(model, found, want, current, free_yaw)
     if hit is None:
         more, best2 = solutions(model, flange, arm_angle_deg,
                                 [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],

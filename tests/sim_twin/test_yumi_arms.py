@@ -111,13 +111,16 @@ def test_a_target_out_of_reach_is_the_controllers_50050(twin: Callable[..., Made
 
 
 def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) -> None:
-    """Beside the body, low: the flange is within reach, but every solution needs an axis
-    past its range (the arm would fold through itself)."""
+    """High and close to the body, the pusher pointing down: the flange is within reach,
+    but every solution bends axis 5 past its range (with the 184.2 mm pusher and with the
+    gripper's own 114.2 mm TCP alike; the operator's model says the same,
+    tests/drivers/test_yumi_kinematics.py)."""
     c, _, cell, _ = twin()
     m = ArmModel("left")
-    target = (0.0, 60.0, 60.0)
-    s = solve(m, flange_at(target, DEFAULT_TOOL_MM), twin_rws.ARM_ANGLE_DEG["left"], None)
-    assert s.reason == "limit", s  # what the model says of it
+    target = (200.0, 300.0, 400.0)
+    for tool_mm in (DEFAULT_TOOL_MM, 114.2):  # what the model says of it
+        s = solve(m, flange_at(target, tool_mm), twin_rws.ARM_ANGLE_DEG["left"], None)
+        assert s.reason == "limit" and s.detail.startswith("axis 5 "), s
     before = cell.tcp_xyz()["left"]
     entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", target, 300)])})
     assert errors(entries) == [(50027, "Joint Out of Range")]
@@ -127,11 +130,14 @@ def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) ->
 
 def test_two_arms_driven_into_each_other_stop_before_contact(twin: Callable[..., Made]
                                                              ) -> None:
+    """Each arm by joints from rest to its side's table at z 100 (above tb_zone_z: the
+    world zones allow it anywhere; a joint move from rest straight to the table's inner
+    edge would dip into them first), then straight towards the other's side."""
     c, _, cell, motion = twin()
-    entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", (330, 60, 120), 300),
-                                                            ("L", (330, -60, 120), 100)]),
-                               "T_ROB_R": twin_rws.program([("J", (330, -60, 120), 300),
-                                                            ("L", (330, 60, 120), 100)])})
+    entries = twin_rws.run(c, {"T_ROB_L": twin_rws.program([("J", (310, 210, 100), 300),
+                                                            ("L", (310, 30, 100), 100)]),
+                               "T_ROB_R": twin_rws.program([("J", (310, -210, 100), 300),
+                                                            ("L", (310, -30, 100), 100)])})
     assert errors(entries) == [(50204, "Motion supervision")]
     assert "Every motion task stopped" in entries[-1].desc
     arms = motion.arms
@@ -169,12 +175,15 @@ def test_the_librarys_movej_keeps_its_configuration_or_is_50080(twin: Callable[.
     c, _, cell, _ = twin(CellMotion)
     m = ArmModel("left")
     target = (330.0, 200.0, 60.0)
-    right = configuration(solve(m, flange_at(target, DEFAULT_TOOL_MM), 150.0, None).pose.chain_deg)  # type: ignore[union-attr]
+    down = np.diag([-1.0, 1.0, -1.0])  # twin_rws.DOWN: a half turn about y
+    right = configuration(solve(m, flange_at(target, DEFAULT_TOOL_MM, down), 150.0,
+                                None).pose.chain_deg)  # type: ignore[union-attr]
     wrong = (right[0] + 2, right[1], right[2])
     exec_client = mpe.MotionProgramExecClient(abb_client=c)
 
     def prog(conf: tuple[int, int, int]) -> Any:
-        mp = mpe.MotionProgram(tool=mpe.tooldata(True, mpe.pose([0, 0, 100], [1, 0, 0, 0]),
+        frame = mpe.pose([0, 0, DEFAULT_TOOL_MM], [1, 0, 0, 0])  # the cell's pusher
+        mp = mpe.MotionProgram(tool=mpe.tooldata(True, frame,
                                                  mpe.loaddata(0.1, [0, 0, 50], [1, 0, 0, 0],
                                                               0, 0, 0)))
         mp.MoveJ(mpe.robtarget(list(target), twin_rws.DOWN, mpe.confdata(*conf, 0),
