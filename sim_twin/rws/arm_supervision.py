@@ -45,7 +45,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from sim_twin.rws.world_zones import ArmZone, ZoneBox
+from sim_twin.rws.world_zones import ArmZone, ZoneBox, time_at
 from sim_twin.yumi_arms import ArmModel, ArmPose, abb_to_chain, chain_to_abb, clearance
 from sim_twin.yumi_arms import table_clearance as table_gap
 from sim_twin.yumi_cell import Segment, Trajectory
@@ -351,7 +351,7 @@ class ArmSupervisor:
                 math.ceil(max(abs(b - a) for a, b in zip(q, end, strict=True)) / JOINT_STEP_DEG))
         for i in range(1, n + 1):
             f = i / n
-            track.t.append(t0 + f * seg.duration)
+            track.t.append(t0 + _time_of(seg, f))
             track.q.append([a + f * (b - a) for a, b in zip(q, end, strict=True)])
         return None
 
@@ -520,6 +520,15 @@ class ArmSupervisor:
         return best
 
 
+def _time_of(seg: Segment, f: float) -> float:
+    """When (s into ``seg``) a joint move is ``f`` of the way: as the segment's own TCP
+    speed profile covers that share of its length (the joints accelerate and brake with
+    it, so the pusher following them arrives, not jolts to a stop at full speed)."""
+    if f >= 1.0 or seg.length <= 0.0:
+        return f * seg.duration
+    return time_at(seg, f)
+
+
 def _rot(info: Mapping[str, object]) -> Mat | None:
     """A waypoint's flange rotation (``rot``: 3x3 rows), None: the tool down."""
     r = info.get("rot")
@@ -540,4 +549,7 @@ def _quat(r: Mat) -> tuple[float, float, float, float]:
     z = math.copysign(math.sqrt(max(0.0, 1.0 - r[0, 0] - r[1, 1] + r[2, 2])) / 2.0,
                       r[1, 0] - r[0, 1])
     n = math.sqrt(w * w + x * x + y * y + z * z)
-    return (w / n, x / n, y / n, z / n)
+    q = (w / n, x / n, y / n, z / n)
+    if q[0] < 1e-6 and max(q[1:], key=abs) < 0.0:  # a half turn: one sign, not rounding's
+        q = (-q[0], -q[1], -q[2], -q[3])
+    return q

@@ -142,7 +142,7 @@ class Segment(Protocol):
     def at(self, t: float) -> tuple[float, float, float]: ...
 
 
-def _time_at(seg: Segment, u: float) -> float:
+def time_at(seg: Segment, u: float) -> float:
     """The last time of ``seg`` before its point reaches fraction ``u`` of the way: a point
     on the near side of a face, so the stop point is never inside (bisection: the speed
     profile is a trapezoid, the distance travelled only grows)."""
@@ -169,7 +169,7 @@ def first_entry(segments: Iterable[Segment], zone: ArmZone, offset: Sequence[flo
         b = tuple(seg.b[k] + offset[k] for k in range(3))
         hit = zone.entry(a, b)
         if hit is not None:
-            return t0 + _time_at(seg, hit[0]), hit[1]
+            return t0 + time_at(seg, hit[0]), hit[1]
         t0 += seg.duration
     return None
 
