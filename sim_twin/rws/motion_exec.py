@@ -17,14 +17,16 @@ What a run does (a task is an arm: ``T_ROB_L`` -> ``left``, ``T_ROB_R`` -> ``rig
 2. The commands become cell waypoints: a robtarget is the TCP of the program's tool in
    its work object; the twin turns it into the pusher's bottom (flange = TCP minus the
    tool's ``tframe``, the flange pointing down; cell TCP = flange minus the pusher's
-   length, as :class:`~sim_twin.rws.cell_link.CellPoses` reports it). MoveJ and MoveL
-   are straight lines (the cell has no joints), MoveC a chain of chords through the
-   circle point, MoveAbsJ to the pose the twin reports as the arm's joints (its rest)
-   goes to the cell's rest point. Refused (80001, the task named): any other joint
-   target (the twin has no kinematics), a tool z not pointing down (the pusher is a
-   vertical cylinder), a moving work object or a stationary tool, a target below the
-   table, a speed <= 0, EGM (no EGM channel). Speeds are scaled by the controller's speed
-   ratio (at least 1 %) and capped at the YuMi's 1500 mm/s, as a controller caps ``vmax``.
+   length, as :class:`~sim_twin.rws.cell_link.CellPoses` reports it). The arms
+   (:class:`~sim_twin.rws.arm_supervision.ArmSupervisor`) solve every target: a MoveL's
+   TCP moves in a straight line, a MoveJ's and a MoveAbsJ's joints move evenly from the
+   arm's to the target's and the pusher goes where they put it (a curve), a MoveAbsJ to
+   any joints within the axes' ranges (past one: 50027); MoveC is a chain of chords
+   through the circle point. What they cannot do is the controller's own error (50050,
+   50027, 50080, 50026, 50204). Refused (80001, the task named): a moving work object or
+   a stationary tool, a target below the table, a speed <= 0, EGM (no EGM channel).
+   Speeds are scaled by the controller's speed ratio (at least 1 %) and capped at the
+   YuMi's 1500 mm/s, as a controller caps ``vmax``.
    Zones, CirPathMode and SyncMoveOn/Off are read and not modelled (every point is a stop
    point; the arms move at the same time but are not path-synchronised).
 3. Both arms' blocks of moves run in one ``cell.execute`` (MultiMove); a WaitTime holds
@@ -677,7 +679,7 @@ class CellMotion:
     def _move(self, run: ProgramRun, blocks: Mapping[str, _Block], log: _Log | None,
               t0: float, lead: str) -> float | None:
         """One ``cell.execute`` of every arm's block; its simulated time, None if stopped.
-        The first planned stop, a world zone (:meth:`_zone_stop`) or the arms'
+        The first planned stop, a world zone (:meth:`_path_zone_stop`) or the arms'
         supervision (:class:`ArmSupervisor`: reach, limits, configuration, singularity,
         contact), halts every arm at that moment and raises the controller's error."""
         programs = {a: b.waypoints for a, b in blocks.items()}
@@ -742,13 +744,8 @@ class CellMotion:
                           causes=_CAUSES[stop.reason], actions=_ACTIONS[stop.reason],
                           args=(unit.name, stop.detail))
 
-    def _zone_stop(self, trajs: Mapping[str, Trajectory]) -> ZoneStop | None:
-        """When a move of ``trajs`` would take a TCP into a world zone: the library's
-        RAPID defines none (our RAPID's hook does: ``TestbedRapid``)."""
-        return None
-
     def _zone_error(self, zone: ZoneStop, tcps: Mapping[str, Sequence[float]]) -> RapidError:
-        """The controller's error for a world-zone stop (see :meth:`_zone_stop`)."""
+        """The controller's error for a world-zone stop (see :meth:`_path_zone_stop`)."""
         raise NotImplementedError
 
     def _publish(self) -> None:

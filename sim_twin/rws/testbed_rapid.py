@@ -75,8 +75,7 @@ from sim_twin.rws.motion_program import (
     describe,
 )
 from sim_twin.rws.rapid_data import format_number, numbers, parse_value
-from sim_twin.rws.world_zones import ArmZone, default_zone, first_entry
-from sim_twin.yumi_cell import Trajectory
+from sim_twin.rws.world_zones import ArmZone, default_zone
 
 DONE, FAILED = "Testbed Motion Done", "Testbed Motion Failed"
 """The headers (``args[0]``) of our RAPID's event log entries; the driver reads them."""
@@ -289,22 +288,17 @@ class TestbedRapid(CellMotion):
                       f"commands {len(tp.program.commands)}", tp.path))
 
     # --- the world zones --------------------------------------------------------------------
-    def _zone_stop(self, trajs: Mapping[str, Trajectory]) -> ZoneStop | None:
-        """The first moment any arm's TCP of ``tool_pusher`` would reach its zones."""
-        hits = []
-        for arm, traj in trajs.items():
-            zone = self.zones.get(arm)
-            if zone is None:
-                continue
-            hit = first_entry(traj.segments, zone, self._offsets.get(arm, (0.0, 0.0, 0.0)))
-            if hit is not None:
-                hits.append(ZoneStop(hit[0], arm, hit[1]))
-        return min(hits, key=lambda z: z.t) if hits else None
-
     def _zone_error(self, zone: ZoneStop, tcps: Mapping[str, Sequence[float]]) -> RapidError:
+        """The controller's error for a world-zone stop (``CellMotion._path_zone_stop``:
+        along the path the arm's joints take): where the TCP of the tool in use stopped,
+        on the zone's face (``zone.point``; without one, the cell's TCP plus the tool's
+        offset)."""
         unit = next(u for u in self.units if u.arm == zone.arm)
-        off = self._offsets.get(zone.arm, (0.0, 0.0, 0.0))
-        p = [round(tcps[zone.arm][k] + off[k], 1) for k in range(3)]
+        if zone.point is not None:
+            p = [round(float(v), 1) + 0.0 for v in zone.point]
+        else:
+            off = self._offsets.get(zone.arm, (0.0, 0.0, 0.0))
+            p = [round(tcps[zone.arm][k] + off[k], 1) + 0.0 for k in range(3)]
         where = f"[{p[0]:g},{p[1]:g},{p[2]:g}]"
         return WorldZoneStop(
             WORLD_ZONE_CODE, WORLD_ZONE_TITLE, task=unit.task,

@@ -93,6 +93,9 @@ def test_a_push_past_the_zone_box_stops_every_arm_at_its_face(twin: Any) -> None
         (WORLD_ZONE_CODE, 3, WORLD_ZONE_TITLE)]  # the controller's error; no Done at all
     e = entries[0]
     assert e.args[:2] == ["T_ROB_L", "tb_wz_yhi"] and "tb_wz_yhi" in e.desc
+    at = [float(v) for v in e.args[2:5]]  # the TCP of tool_pusher where it stopped
+    assert at[1] == pytest.approx(box.y1, abs=0.1)  # on the face, as the joints put it
+    assert at == pytest.approx([400.0, box.y1, 10.0], abs=0.2)
     assert c.get_execution_state().ctrlexecstate == "stopped"
     assert c.get_tasks()["T_ROB_L"].excstate == "stopped"
     got = tcps(cell, lock)
