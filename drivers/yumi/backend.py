@@ -140,7 +140,7 @@ class ArmCalibration:
     gate at this height, every other move at or above travel height is straight
     (``drivers/yumi/paths.py``)."""
     gate_xy_mm: tuple[float, float] | None = None
-    """The gate's (x, y) when the file gives one (else a quarter into the table box)."""
+    """The gate's (x, y) when the file gives one (else the table box's centre)."""
 
     @classmethod
     def load(cls, path: str | Path, arm: str) -> ArmCalibration:

@@ -67,6 +67,10 @@ class Solution:
     reason: str = ""
     shortfall_mm: float = 0.0
     """How far the closest reachable point is from the target (``reach``)."""
+    near: Pose | None = None
+    """``singular``: the least singular solution found. The controller moves there
+    (SingArea Wrist, ConfJ off: ``drivers/yumi/backend.py``'s ``refuse_unreachable``
+    leaves such a target to it), so a path sweep goes on through it."""
 
     @property
     def ok(self) -> bool:
@@ -197,7 +201,8 @@ def solve_pose(model: Arm, flange: Mat, arm_angle_deg: float,
         return Solution(pose)
     if singular is not None:
         return Solution(None, "singular", f"near a singularity (the arm's smallest "
-                        f"singular value {singular[1]:.3f}, under {SINGULAR_SIGMA:g})")
+                        f"singular value {singular[1]:.3f}, under {SINGULAR_SIGMA:g})",
+                        near=singular[0])
     if over is not None:
         return Solution(None, "limit", f"axis {over[0]} past its limit by {over[1]:.1f} deg")
     return Solution(None, "reach", f"out of reach by {best_miss:.0f} mm",

@@ -13,8 +13,9 @@ Margins (mm): every corner :data:`~drivers.yumi.reach.REACH_MARGIN_MM` inside th
 reach; the rest pose's pusher tip :data:`ZONE_MARGIN_MM` above ``tb_zone_z``; the two
 arms' shapes :data:`ARM_GAP_MM` apart over both sweeps; every link and the gripper
 :data:`TABLE_GAP_MM` above the table; the pusher's tip and the links
-:data:`PATH_MARGIN_MM` clear of the world zones (below ``tb_zone_z`` outside the zone
-box, and below ``tb_floor_z``, as the controller reports them) along every path the
+:data:`PATH_MARGIN_MM` (on a joint move :data:`JOINT_MARGIN_MM`) clear of the world
+zones (below ``tb_zone_z`` outside the zone box, and below ``tb_floor_z``, as the
+controller reports them) along every path the
 driver commands (``drivers/yumi/paths.py``): rest by joints to the gate, straight to
 above each corner of the table box at clear height, down to travel and push height, and
 back up, to the gate and by joints to rest. A joint move is swept as the controller
@@ -44,8 +45,8 @@ from drivers.yumi.reach import (
 )
 from drivers.yumi.yumi_controller import Waypoint
 
-__all__ = ["ARM_GAP_MM", "TABLE_GAP_MM", "ZONE_MARGIN_MM", "ArmLayout", "check_layout",
-           "layout_of"]
+__all__ = ["ARM_GAP_MM", "JOINT_MARGIN_MM", "PATH_MARGIN_MM", "TABLE_GAP_MM",
+           "ZONE_MARGIN_MM", "ArmLayout", "check_layout", "layout_of"]
 
 ZONE_MARGIN_MM: Final = 20.0
 ARM_GAP_MM: Final = 25.0
@@ -54,7 +55,13 @@ VIEW_MARGIN: Final = 0.02
 """A point this share of the frame outside its edge still counts as in view (as the
 driver's retake rule, ``drivers/yumi/backend.py``)."""
 PATH_MARGIN_MM: Final = 10.0
-"""How close the tip or a link may come to a world zone along a commanded path."""
+"""How close the tip or a link may come to a world zone along a commanded straight move
+(a line the controller follows as programmed: the table box lies 25 mm inside the
+shipped zone box)."""
+JOINT_MARGIN_MM: Final = ZONE_MARGIN_MM
+"""How close along a joint move (rest to the gate and back): a curve nobody programs,
+whose model is a few mm off the robot, keeps the margin the clear height has over
+``tb_zone_z`` (20 mm)."""
 
 
 @dataclass(frozen=True)
@@ -218,11 +225,12 @@ def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[
     """(report lines, FAULT reasons, sampled poses) of the driver's paths to every
     corner (:func:`corner_programs`) played through the model
     (``drivers/yumi/path_sweep.py``): the tip and the links against the zones the
-    controller reports, the links above the table."""
+    controller reports (the joint moves :data:`JOINT_MARGIN_MM` clear, the straight ones
+    :data:`PATH_MARGIN_MM`), the links above the table."""
     zones = ZoneSpec(lay.zone_box_mm, lay.zone_z_mm, lay.floor_z_mm)
     faults: list[str] = []
     poses: list[Pose] = []
-    least: Worst | None = None
+    least: dict[bool, Worst] = {}  # joint legs (True) and straight legs apart
     for label, wps in corner_programs(lay):
         samples, err = play(lay.tool, rest.chain_deg, lay.rest_joints_deg, wps, label)
         poses += [smp.pose for smp in samples[::4]]
@@ -231,9 +239,10 @@ def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[
                           f"move the gate (gate_xy_mm), lower z_clear_mm or shrink the "
                           f"table box")
             continue
-        w = worst(samples, lay.tool, zones)
-        if w is not None and (least is None or w.clearance < least.clearance):
-            least = w
+        for joint in (True, False):
+            w = worst([smp for smp in samples if _is_joint(smp.leg) == joint], lay.tool, zones)
+            if w is not None and (joint not in least or w.clearance < least[joint].clearance):
+                least[joint] = w
         low = min((table_clearance(arm_capsules(smp.pose, lay.tool.tool_z_mm))
                    for smp in samples[::4]), default=None)
         if low is not None and low[0] < TABLE_GAP_MM:
@@ -242,20 +251,28 @@ def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[
     g = lay.gate
     how = (f"rest by joints to the gate ({g[0]:.0f}, {g[1]:.0f}, {lay.z_clear_mm:g}), "
            f"straight to every corner and down, back the same way")
-    if least is None or math.isinf(least.clearance):
+    if not least or all(math.isinf(w.clearance) for w in least.values()):
         return [f"      {lay.name}: paths ({how}): the zones were not read, not swept"
                 ], faults, poses
-    lines = [f"      {lay.name}: paths ({how}): least clearance to the world zones "
-             f"{least.clearance:.0f} mm, the {least.part} at {_pt(least.point)} mm "
-             f"({least.leg})"]
-    if least.clearance < PATH_MARGIN_MM:
-        where = ("inside" if least.clearance < 0 else "from")
-        faults.append(f"arm {lay.name}: on the driver's path {least.leg} its {least.part} "
-                      f"comes to {_pt(least.point)} mm, {abs(least.clearance):.0f} mm "
-                      f"{where} a world zone (below tb_zone_z {lay.zone_z_mm:g} outside "
-                      f"the zone box, or below the floor; want {PATH_MARGIN_MM:g} mm clear): "
-                      f"a zone stop; move the gate (gate_xy_mm) or change the rest joints")
+    lines = [f"      {lay.name}: paths ({how}): least clearance to the world zones"]
+    for joint, w in sorted(least.items(), reverse=True):
+        lines[0] += (f"{',' if not joint and True in least else ''} on the "
+                     f"{'joint' if joint else 'straight'} moves {w.clearance:.0f} mm, the "
+                     f"{w.part} at {_pt(w.point)} mm ({w.leg})")
+        want = JOINT_MARGIN_MM if joint else PATH_MARGIN_MM
+        if w.clearance < want:
+            where = ("inside" if w.clearance < 0 else "from")
+            faults.append(f"arm {lay.name}: on the driver's path {w.leg} its {w.part} comes "
+                          f"to {_pt(w.point)} mm, {abs(w.clearance):.0f} mm {where} a world "
+                          f"zone (below tb_zone_z {lay.zone_z_mm:g} outside the zone box, or "
+                          f"below the floor; want {want:g} mm clear): a zone stop; move the "
+                          f"gate (gate_xy_mm) or change the rest joints")
     return lines, faults, poses
+
+
+def _is_joint(leg: str) -> bool:
+    """A sample on a joint move (``drivers/yumi/path_sweep.py`` names its legs)."""
+    return "joint move" in leg
 
 
 def sweep(lay: ArmLayout, reaches: Sequence[CornerReach], paths: Sequence[Pose] = ()

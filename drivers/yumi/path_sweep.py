@@ -122,10 +122,11 @@ def play(tool: ArmTool, start_chain: Sequence[float], rest_abb: Sequence[float] 
         n = max(1, math.ceil(float(np.linalg.norm(np.asarray(xyz) - here)) / LINE_STEP_MM))
         for k in range(1, n + 1):
             sol = tool.solve(here + (np.asarray(xyz) - here) * k / n, q)
-            if sol.pose is None:
+            pose = sol.pose if sol.pose is not None else sol.near  # near a singularity:
+            if pose is None:  # the controller's call (SingArea Wrist), as the driver's
                 return out, f"on the way to {_pt(xyz)}: {sol.reason}"
-            q = list(sol.pose.chain_deg)
-            out.append(Sample(sol.pose, _tip(sol.pose, tool), leg))
+            q = list(pose.chain_deg)
+            out.append(Sample(pose, _tip(pose, tool), leg))
     return out, None
 
 

@@ -5,18 +5,29 @@ Why a module of its own: the driver (``drivers/yumi/backend.py``) commands these
 along the same ones against the world zones, so the two can never disagree about what the
 arm does. The zones (our RAPID's ``tb_zones``) forbid the tip below ``tb_zone_z`` outside
 the zone box; a joint move (MoveJ, MoveAbsJ) sweeps the tip along a curve nobody programs,
-and with ABB's folded rest pose (the pusher pointing forward and down) and the 184.2 mm
+and with the rest pose (the pusher folded behind the body's front) and the 184.2 mm
 pusher, a joint move from rest straight to a point over the table swings the tip under
-the zone's ceiling outside the box (the model: (164, 402, 27) mm on the way to the left
-table box's far corner at travel height; tests/drivers/test_yumi_paths_zones.py).
+the zone's ceiling outside the box (the model: (88, 299, 49) mm on the way to the left
+table box's far inner corner (470, 50) at travel height;
+tests/drivers/test_yumi_paths_zones.py).
 
 So the only joint moves are between the rest pose and the arm's *gate*: a point at clear
-height ``z_clear_mm`` over the table box (a quarter of the box in from its near edge and
-from its edge nearer the body's centre line, or the calibration's ``gate_xy_mm``), whose
-joint path from rest the layout check proves clear of the zones. Everything else is a
-straight line (MoveL) inside the zone box: across at clear height, down and up where the
-push is. The box above ``tb_zone_z`` over the zone box is convex: a straight line between
-two points in it stays in it, so no straight leg can enter a zone.
+height ``z_clear_mm`` over the centre of the table box (or the calibration's
+``gate_xy_mm``), whose joint path from rest the layout check proves clear of the zones.
+Why the centre: from the rest pose (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``:
+ABB's folded arm and wrist, axis 1 swung back 40 deg, axis 2 at -90) the model's joint
+path to a gate near the box's inner near corner skims the zone's ceiling outside the box
+(to (230, 130, 100), a quarter in: the tip 1 mm over ``tb_zone_z`` at (123, 200, 81));
+to the centre (310, 210, 100) it keeps 42 mm clear (the tip never under z 126 outside
+the box, 46 over ``tb_zone_z``), and the straight legs from there reach every corner of
+the shipped box (tests/drivers/test_yumi_paths_zones.py states the figures); from a gate
+further out, the straight leg to the box's inner near corner at clear height runs into a
+joint limit. The layout check sweeps the lab's own gate and FAULTs with the worst point.
+
+Everything else is a straight line (MoveL) inside the zone box: across at clear height,
+down and up where the push is. The box above ``tb_zone_z`` over the zone box is convex:
+a straight line between two points in it stays in it, so no straight leg can enter a
+zone.
 
     rest --MoveJ--> gate --MoveL--> above the target at z_clear --MoveL--> down ...
     ... up --MoveL--> z_clear where it is --MoveL--> gate --MoveAbsJ--> rest
@@ -39,16 +50,17 @@ __all__ = ["DEFAULT_Z_CLEAR_MM", "GATE_FRACTION", "gate_xy", "leave_rest", "to_r
 DEFAULT_Z_CLEAR_MM: Final = 100.0
 """The clear height when a calibration does not say: the shipped ``tb_zone_z`` (80) plus
 the 20 mm margin ``testbed check`` wants (``drivers/yumi/controller_state.py``)."""
-GATE_FRACTION: Final = 0.25
+GATE_FRACTION: Final = 0.5
 """How far into the table box the gate lies, from its near edge and from its inner edge,
-as a share of the box's depth and width."""
+as a share of the box's depth and width: its centre (see the module's docstring)."""
 
 
 def gate_xy(box: Sequence[float], gate: Sequence[float] | None = None
             ) -> tuple[float, float]:
-    """The arm's gate (x, y) mm: ``gate`` when the calibration gives one, else a quarter
-    into ``box`` (x0, y0, x1, y1) from its near edge (x0, towards the body) and from its
-    inner edge (the y edge nearer the body's centre line, y = 0)."""
+    """The arm's gate (x, y) mm: ``gate`` when the calibration gives one, else
+    :data:`GATE_FRACTION` (the centre) into ``box`` (x0, y0, x1, y1) from its near edge
+    (x0, towards the body) and from its inner edge (the y edge nearer the body's centre
+    line, y = 0)."""
     if gate is not None:
         return (float(gate[0]), float(gate[1]))
     x0, y0, x1, y1 = (float(v) for v in box)

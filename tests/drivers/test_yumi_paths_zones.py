@@ -3,7 +3,9 @@ the tool frame is never a silent flange, the zones are known active since the la
 restart, and ``testbed check`` words what the YuMi's operator really does.
 
 The arm's model (``drivers/yumi/irb14000.py``) plays the driver's own programs
-(``drivers/yumi/path_sweep.py``) from ABB's folded rest pose with the 184.2 mm pusher,
+(``drivers/yumi/path_sweep.py``) from the shipped rest pose (ABB's folded arm and wrist,
+axis 1 swung back 40 deg, axis 2 at -90: ``sim_twin/yumi_geometry.py``) with the
+184.2 mm pusher,
 against the shipped zones (robot/rapid/TestbedTask_L.mod: box x 125..495, y 25..395 for
 the left arm, below z 80; the floor at 0).
 """
@@ -31,14 +33,14 @@ from drivers.yumi.controller_state import (
     zones_refusal,
 )
 from drivers.yumi.irb14000 import arm
-from drivers.yumi.layout_check import PATH_MARGIN_MM, check_layout, layout_of
+from drivers.yumi.layout_check import JOINT_MARGIN_MM, PATH_MARGIN_MM, check_layout, layout_of
 from drivers.yumi.path_sweep import ZoneSpec, play, worst
 from drivers.yumi.reach import ArmTool
 from drivers.yumi.yumi_controller import Waypoint
 
 PUSHER = 184.2
-REST = {"left": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0),
-        "right": (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
+REST = {"left": (40.0, -90.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+        "right": (-40.0, -90.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
 BOX = {"left": (150.0, 50.0, 470.0, 370.0), "right": (150.0, -370.0, 470.0, -50.0)}
 ZONES = {"left": ZoneSpec((125.0, 25.0, 495.0, 395.0), 80.0, 0.0),
          "right": ZoneSpec((125.0, -395.0, 495.0, -25.0), 80.0, 0.0)}
@@ -62,17 +64,49 @@ def rest_chain(side: str) -> tuple[float, ...]:
     return arm(side).pose_abb(REST[side]).chain_deg
 
 
-def test_the_old_path_from_rest_dips_into_the_zone() -> None:
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_the_old_path_from_rest_dips_into_the_zone(side: str) -> None:
     """The driver's first move before issue 35: rest by joints straight to travel height
-    over the table. Over the left box's far corner the tip swings under tb_zone_z outside
-    the box (the issue's (138, 403, 32)); raising travel height does not cure it."""
+    over the table. Over the box's far inner corner the tip swings under tb_zone_z
+    outside the box (the model: (88, +-299, 49)); raising travel height does not cure it."""
+    s = 1.0 if side == "left" else -1.0
     for z in (80.0, 100.0):
-        samples, err = play(tool("left"), rest_chain("left"), REST["left"],
-                            [Waypoint("move_j", (470.0, 370.0, z), 100.0)])
+        samples, err = play(tool(side), rest_chain(side), REST[side],
+                            [Waypoint("move_j", (470.0, 50.0 * s, z), 100.0)])
         assert err is None
-        w = worst(samples, tool("left"), ZONES["left"])
+        w = worst(samples, tool(side), ZONES[side])
         assert w is not None and w.clearance < -10, w
-        assert w.point[2] < 80 and not (25 <= w.point[1] <= 395 and 125 <= w.point[0] <= 495)
+        assert w.point[2] < 80 and not (25 <= s * w.point[1] <= 395 and 125 <= w.point[0] <= 495)
+
+
+def test_the_old_gate_skims_the_zone_and_the_centre_keeps_clear() -> None:
+    """The gate H2 chose for ABB's exact home (a quarter into the box from its near and
+    inner edges, (230, 130, 100)) skims tb_zone_z outside the box from the shipped rest
+    (the tip 1 mm over it at about (123, 200, 81)): a zone stop on a robot a few mm off
+    the model. The default gate is now the box's centre: 42 mm clear, the tip never
+    under z 120 outside the zone box, on the way there and back (MoveAbsJ to rest)."""
+    from drivers.yumi.paths import gate_xy
+
+    for side in ("left", "right"):
+        s = 1.0 if side == "left" else -1.0
+        assert gate_xy(BOX[side]) == (310.0, 210.0 * s)
+        legs = {}
+        for g in ((230.0, 130.0 * s), gate_xy(BOX[side])):
+            there, err = play(tool(side), rest_chain(side), REST[side],
+                              [Waypoint("move_j", (*g, 100.0), 100.0)])
+            back, err2 = play(tool(side), there[-1].pose.chain_deg, REST[side],
+                              [Waypoint("rest", None, 100.0)])
+            assert err is None and err2 is None
+            legs[g] = [*there, *back]
+        old, centre = legs.values()
+        w_old = worst(old, tool(side), ZONES[side])
+        w = worst(centre, tool(side), ZONES[side])
+        assert w_old is not None and w_old.clearance < 10, w_old
+        assert w is not None and w.clearance >= 40, w
+        x0, y0, x1, y1 = ZONES[side].box or (0, 0, 0, 0)
+        outside = [p.tip[2] for p in centre
+                   if not (x0 <= p.tip[0] <= x1 and y0 <= p.tip[1] <= y1)]
+        assert outside and min(outside) > 80 + 40, min(outside)
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
@@ -105,13 +139,17 @@ def test_the_layout_check_faults_a_path_that_dips_and_passes_the_shipped_one() -
     assert good is not None
     lines, faults = check_layout([good])
     assert not [f for f in faults if "path" in f], faults
-    assert any(re.search(r"paths \(rest by joints to the gate \(230, 130, 100\).*least "
-                         r"clearance to the world zones \d+ mm", line) for line in lines)
-    bad = layout_of("left", calibration("left", gate_xy_mm=[230, 114]), zones=zones)
+    found = [re.search(r"paths \(rest by joints to the gate \(310, 210, 100\).*least "
+                       r"clearance to the world zones on the joint moves (\d+) mm.*on the "
+                       r"straight moves (\d+) mm", line) for line in lines]
+    joint, straight = next(f for f in found if f).groups()
+    assert int(joint) >= JOINT_MARGIN_MM + 20 and int(straight) >= PATH_MARGIN_MM, lines
+    bad = layout_of("left", calibration("left", gate_xy_mm=[230, 130]), zones=zones)
     assert bad is not None
     _, faults = check_layout([bad])
     assert any(re.match(r"arm left: on the driver's path .*joint move .* comes to \(\d+, \d+, "
-                        r"\d+\) mm, \d+ mm (from|inside) a world zone", f) for f in faults), faults
+                        r"\d+\) mm, \d+ mm (from|inside) a world zone .*want 20 mm clear",
+                        f) for f in faults), faults
 
 
 def test_a_calibration_without_tool_z_mm_is_an_error(tmp_path: Path) -> None:
