@@ -97,6 +97,9 @@ def _rot_z(q: float) -> Mat:
 
 
 _OFFSETS: Final = tuple(_frame(*link) for link in _LINKS)
+REACH_MM: Final = float(sum(math.hypot(*xyz) for xyz, _ in _LINKS[1:]))
+"""The farthest the flange can be from axis 2's origin (584.7 mm: every link from there
+in a line; the joints' ranges allow 580 at most, sampled): a bound, never an estimate."""
 
 
 def abb_to_chain(joints_deg: Sequence[float]) -> list[float]:
@@ -143,6 +146,25 @@ class ArmModel:
         frames[7] = m
         return ArmPose(tuple(float(q) for q in chain_deg), frames)
 
+    def frames_batch(self, chain_deg: npt.ArrayLike) -> Mat:
+        """(N, 8, 4, 4): :meth:`pose`'s frames for N chain angle vectors (N, 7) at once
+        (the inverse kinematics descends from many seeds together)."""
+        q = np.radians(np.asarray(chain_deg, dtype=np.float64).reshape(-1, 7))
+        n = q.shape[0]
+        if n == 1:  # one: the plain chain is quicker
+            return self.pose(np.degrees(q[0])).frames[None]
+        frames = np.empty((n, 8, 4, 4))
+        m = np.broadcast_to(self.base, (n, 4, 4)).copy()
+        for k in range(7):
+            frames[:, k] = m
+            c, s = np.cos(q[:, k])[:, None], np.sin(q[:, k])[:, None]
+            col0, col1 = m[:, :, 0].copy(), m[:, :, 1]
+            m[:, :, 0] = c * col0 + s * col1  # m @ rot_z(q): only columns 0 and 1 turn
+            m[:, :, 1] = c * col1 - s * col0
+            m = m @ _OFFSETS[k]
+        frames[:, 7] = m
+        return frames
+
     def tip(self, chain_deg: Sequence[float], tool_mm: float) -> tuple[float, float, float]:
         """The pusher's tip (the cell's TCP): ``tool_mm`` along the flange's z."""
         f = self.pose(chain_deg).flange
@@ -156,6 +178,14 @@ class ArmModel:
         z = pose.frames[:7, :3, 2]
         o = pose.frames[:7, :3, 3]
         return np.vstack([np.cross(z, p - o).T, z.T])
+
+    def reach_shortfall(self, point: npt.ArrayLike) -> float:
+        """How far (mm) ``point`` lies beyond anything the flange can reach (<= 0: maybe
+        reachable): its distance from the circle axis 2's origin turns on about axis 1,
+        less :data:`REACH_MM`. The controller's quick "outside reach"."""
+        p = np.linalg.solve(self.base, np.append(np.asarray(point, dtype=np.float64), 1.0))
+        (ox, _, oz), _ = _LINKS[0]
+        return math.hypot(math.hypot(p[0], p[1]) - ox, p[2] - oz) - REACH_MM
 
     def limit_violation(self, chain_deg: Sequence[float]) -> tuple[int, float] | None:
         """(ABB axis, degrees past its limit) of the worst joint out of range, or None."""
@@ -201,17 +231,39 @@ def segment_distance(a0: Mat, a1: Mat, b0: Mat, b1: Mat) -> float:
     return float(np.linalg.norm((a0 + d1 * s) - (b0 + d2 * t)))
 
 
+def segment_distances(a0: Mat, a1: Mat, b0: Mat, b1: Mat) -> Mat:
+    """:func:`segment_distance` of many pairs at once: (..., 3) arrays -> (...,)."""
+    d1, d2, r = a1 - a0, b1 - b0, a0 - b0
+    a, e = np.einsum("...i,...i", d1, d1), np.einsum("...i,...i", d2, d2)
+    f, c, b = (np.einsum("...i,...i", d2, r), np.einsum("...i,...i", d1, r),
+               np.einsum("...i,...i", d1, d2))
+    a_ok, e_ok = a >= 1e-12, e >= 1e-12
+    a_, e_ = np.where(a_ok, a, 1.0), np.where(e_ok, e, 1.0)
+    den = a * e - b * b
+    s = np.where(den > 1e-12, np.clip((b * f - c * e) / np.where(den > 1e-12, den, 1.0),
+                                      0.0, 1.0), 0.0)
+    t = (b * s + f) / e_
+    s = np.where(t < 0.0, np.clip(-c / a_, 0.0, 1.0),
+                 np.where(t > 1.0, np.clip((b - c) / a_, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    # the degenerate cases: a point against a segment, or two points
+    s = np.where(~a_ok, 0.0, np.where(~e_ok, np.clip(-c / a_, 0.0, 1.0), s))
+    t = np.where(~e_ok, 0.0, np.where(~a_ok, np.clip(f / e_, 0.0, 1.0), t))
+    gap = (a0 + d1 * s[..., None]) - (b0 + d2 * t[..., None])
+    return np.sqrt(np.einsum("...i,...i", gap, gap))
+
+
 def clearance(left: Sequence[tuple[Mat, Mat, float]],
               right: Sequence[tuple[Mat, Mat, float]]) -> tuple[float, int, int]:
     """The smallest gap between two sets of capsules (negative: they overlap), mm, and
-    the indices of the two shapes."""
-    best = (math.inf, -1, -1)
-    for i, (a0, a1, ra) in enumerate(left):
-        for j, (b0, b1, rb) in enumerate(right):
-            gap = segment_distance(a0, a1, b0, b1) - ra - rb
-            if gap < best[0]:
-                best = (gap, i, j)
-    return best
+    the indices of the two shapes (every pair at once)."""
+    la, lb = np.array([x[0] for x in left]), np.array([x[1] for x in left])
+    ra, rb = np.array([x[0] for x in right]), np.array([x[1] for x in right])
+    lr, rr = np.array([x[2] for x in left]), np.array([x[2] for x in right])
+    gaps = segment_distances(la[:, None], lb[:, None], ra[None], rb[None]) - \
+        lr[:, None] - rr[None]
+    i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
+    return float(gaps[i, j]), int(i), int(j)
 
 
 def table_clearance(shapes: Sequence[tuple[Mat, Mat, float]]) -> tuple[float, int]:

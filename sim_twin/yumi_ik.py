@@ -68,52 +68,97 @@ def rotation_error(current: Mat, target: Mat) -> Mat:
     return axis / n * angle
 
 
-def _orientation(pose: ArmPose, flange: Mat, free_yaw: bool) -> tuple[Mat, Mat]:
-    """The orientation error (rad, base frame) and the matrix that keeps the part of an
-    angular velocity that matters: all of it, or with ``free_yaw`` (SingArea\\Wrist, a
-    pusher round about its own axis) only what tilts the tool's axis."""
-    if not free_yaw:
-        return rotation_error(pose.flange[:3, :3], flange[:3, :3]), np.eye(3)
-    z, want = pose.flange[:3, 2], flange[:3, 2]
-    tilt = np.cross(z, want)
-    s = float(np.linalg.norm(tilt))
-    angle = math.atan2(s, float(z @ want))
-    err = tilt / s * angle if s > 1e-12 else np.zeros(3)
-    return err, np.eye(3) - np.outer(z, z)
+def _cross(a: Mat, b: Mat) -> Mat:
+    """Row-wise cross products of (..., 3) arrays (np.cross is slow on small arrays)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+def _orientation_batch(rot: Mat, flange: Mat, free_yaw: bool) -> tuple[Mat, Mat | None]:
+    """For flange rotations ``rot`` (N, 3, 3): the orientation errors (N, 3; rad, base
+    frame) towards ``flange``'s, and with ``free_yaw`` (SingArea\\Wrist, a pusher round
+    about its own axis) the matrices (N, 3, 3) that keep only what tilts the tool's axis
+    (None: all of an angular velocity matters)."""
+    if free_yaw:
+        z, want = rot[:, :, 2], flange[:3, 2]
+        tilt = _cross(z, np.broadcast_to(want, z.shape))
+        s = np.linalg.norm(tilt, axis=1)
+        angle = np.arctan2(s, z @ want)
+        err = np.where((s > 1e-12)[:, None], tilt / np.maximum(s, 1e-300)[:, None]
+                       * angle[:, None], 0.0)
+        return err, np.eye(3) - z[:, :, None] * z[:, None, :]
+    r = flange[:3, :3] @ np.swapaxes(rot, 1, 2)
+    angle = np.arccos(np.clip((np.trace(r, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    axis = np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
+                     r[:, 1, 0] - r[:, 0, 1]], axis=1)
+    n = np.linalg.norm(axis, axis=1)
+    err = np.where((n >= 1e-9)[:, None], axis / np.maximum(n, 1e-300)[:, None]
+                   * angle[:, None], 0.0)
+    for i in np.flatnonzero((n < 1e-9) & (angle > 1e-9)):  # a half turn: rare, exact
+        err[i] = rotation_error(rot[i], flange[:3, :3])
+    return err, None
+
+
+def _errors(frames: Mat, flange: Mat, free_yaw: bool) -> tuple[Mat, Mat, Mat | None]:
+    """Position (N, 3, mm) and orientation (N, 3, rad) errors of flange frames (N, 4, 4),
+    and the orientation's keep matrices (see :func:`_orientation_batch`)."""
+    ep = flange[:3, 3] - frames[:, :3, 3]
+    er, keep = _orientation_batch(frames[:, :3, :3], flange, free_yaw)
+    return ep, er, keep
+
+
+def descend_batch(model: ArmModel, flange: Mat, seeds: npt.ArrayLike, iters: int = 80,
+                  free_yaw: bool = False, joints: Sequence[int] = (0, 1, 3, 4, 5, 6)
+                  ) -> tuple[Mat, Mat]:
+    """Damped least squares from every seed (N, 7 chain deg) at once, moving ``joints``
+    (default: all but axis 7, held at the arm angle): the angles reached (N, 7) and their
+    residuals (N,: mm, the orientation weighted ``ROT_WEIGHT_MM`` per radian). Each seed
+    keeps its own damping and stops once within the tolerances: the same descent as one
+    seed at a time, a broad search costing one pass instead of one per seed."""
+    free = list(joints)
+    q = np.array(seeds, dtype=np.float64).reshape(-1, 7)
+    n = q.shape[0]
+    lam = np.ones(n)
+    frames = model.frames_batch(q)
+    ep, er, keep = _errors(frames[:, 7], flange, free_yaw)
+    res = np.linalg.norm(ep, axis=1) + np.linalg.norm(er, axis=1) * ROT_WEIGHT_MM
+    for _ in range(iters):
+        live = (np.linalg.norm(ep, axis=1) >= POS_TOL_MM) | \
+            (np.linalg.norm(er, axis=1) >= ROT_TOL_RAD)
+        if not live.any():
+            break
+        z, o = frames[:, :7, :3, 2], frames[:, :7, :3, 3]
+        p = frames[:, 7, :3, 3]
+        jp = _cross(z, p[:, None, :] - o)  # (N, 7, 3)
+        j = np.concatenate([np.swapaxes(jp, 1, 2), np.swapaxes(z, 1, 2)], axis=1)[:, :, free]
+        rot_rows = j[:, 3:] if keep is None else keep @ j[:, 3:]
+        j = np.concatenate([j[:, :3], rot_rows * ROT_WEIGHT_MM], axis=1)
+        e = np.concatenate([ep, er * ROT_WEIGHT_MM], axis=1)
+        a = j @ np.swapaxes(j, 1, 2) + (lam * lam)[:, None, None] * np.eye(6)
+        x = np.linalg.solve(a, e[:, :, None])[:, :, 0]
+        step = (np.swapaxes(j, 1, 2) @ x[:, :, None])[:, :, 0]
+        trial = q.copy()
+        trial[:, free] += np.degrees(np.clip(step, -0.3, 0.3))
+        tframes = model.frames_batch(trial)
+        tep, ter, tkeep = _errors(tframes[:, 7], flange, free_yaw)
+        tres = np.linalg.norm(tep, axis=1) + np.linalg.norm(ter, axis=1) * ROT_WEIGHT_MM
+        ok = live & (tres < res)
+        q[ok], frames[ok], ep[ok], er[ok], res[ok] = trial[ok], tframes[ok], tep[ok], \
+            ter[ok], tres[ok]
+        if keep is not None and tkeep is not None:
+            keep[ok] = tkeep[ok]
+        lam = np.where(ok, np.maximum(lam * 0.5, 1e-3),
+                       np.where(live, np.minimum(lam * 4.0, 1e6), lam))
+    return q, res
 
 
 def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 80,
              free_yaw: bool = False, joints: Sequence[int] = (0, 1, 3, 4, 5, 6)
              ) -> tuple[ArmPose, float]:
-    """Damped least squares from ``seed`` (chain deg) moving ``joints`` (default: all but
-    axis 7, held at the arm angle); the pose and its residual (mm)."""
-    free = list(joints)
-    q = np.array(seed, dtype=np.float64)
-    lam = 1.0
-    pose = model.pose(q)
-    for _ in range(iters):
-        ep = flange[:3, 3] - pose.flange[:3, 3]
-        er, keep = _orientation(pose, flange, free_yaw)
-        if np.linalg.norm(ep) < POS_TOL_MM and np.linalg.norm(er) < ROT_TOL_RAD:
-            break
-        j = model.jacobian(pose, pose.flange[:3, 3])[:, free]
-        j[3:] = keep @ j[3:] * ROT_WEIGHT_MM
-        e = np.concatenate([ep, er * ROT_WEIGHT_MM])
-        step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(6), e)
-        trial = q.copy()
-        trial[free] += np.degrees(np.clip(step, -0.3, 0.3))
-        tpose = model.pose(trial)
-        if _residual(tpose, flange, free_yaw) < _residual(pose, flange, free_yaw):
-            q, pose, lam = trial, tpose, max(lam * 0.5, 1e-3)
-        else:
-            lam = min(lam * 4.0, 1e6)  # (unbounded, it overflows to NaN)
-    return pose, _residual(pose, flange, free_yaw)
-
-
-def _residual(pose: ArmPose, flange: Mat, free_yaw: bool = False) -> float:
-    ep = np.linalg.norm(flange[:3, 3] - pose.flange[:3, 3])
-    er = np.linalg.norm(_orientation(pose, flange, free_yaw)[0])
-    return float(ep + er * ROT_WEIGHT_MM)
+    """:func:`descend_batch` from one seed: the pose and its residual (mm)."""
+    q, res = descend_batch(model, flange, [seed], iters, free_yaw, joints)
+    return model.pose(q[0]), float(res[0])
 
 
 def _seeds(current: Sequence[float] | None, conf: Sequence[float], arm_angle: float
@@ -141,15 +186,15 @@ def solutions(model: ArmModel, flange: Mat, arm_angle_deg: float,
               ) -> tuple[list[ArmPose], float]:
     """Every seed's solution within ``REACH_TOL_MM`` (angles brought into range by whole
     turns where they can be), and the best residual (mm)."""
-    found, best = [], math.inf
-    for seed in seeds:
-        s = list(seed)
-        s[2] = arm_angle_deg
-        pose, res = _descend(model, flange, s, free_yaw=free_yaw)
-        best = min(best, res)
-        if res <= REACH_TOL_MM:
-            found += _turns(model, _wrapped(model, pose))
-    return found, best
+    if not len(seeds):
+        return [], math.inf
+    start = np.array([list(s) for s in seeds], dtype=np.float64)
+    start[:, 2] = arm_angle_deg
+    q, res = descend_batch(model, flange, start, free_yaw=free_yaw)
+    found: list[ArmPose] = []
+    for k in np.flatnonzero(res <= REACH_TOL_MM):
+        found += _turns(model, _wrapped(model, model.pose(q[k])))
+    return found, float(res.min())
 
 
 def _turns(model: ArmModel, pose: ArmPose) -> list[ArmPose]:
@@ -196,6 +241,9 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
     ``seeds``: more starting joints (chain order), tried first without ranking by them:
     the arm's present joints, so that a pose its own forward kinematics produced (the
     rest pose, a stop mid-way) is always found, however far from the generic seeds."""
+    short = model.reach_shortfall(flange[:3, 3])
+    if short > REACH_TOL_MM:  # past the arm's length: no search needed
+        return Solution(None, "reach", f"{short:.1f} mm short")
     want = None if conf is None else tuple(int(c) for c in conf[:3])
     near = [list(x) for x in seeds] + _seeds(current, conf if conf is not None else (0, 0, 0),
                                              arm_angle_deg)

@@ -80,6 +80,12 @@ is (the pusher sags a little on its constraint under load)."""
 JOINT_STEP_DEG: Final = 1.5
 """A joint move is sampled at least every this many degrees of its largest joint's
 travel (at most about 25 mm of the tool's tip at full stretch), besides SAMPLE_MM."""
+CONTINUE_ITERS: Final = 120
+"""A line's sample that did not converge in the quick descent gets this many more
+iterations from the same seed before the twin looks for the closest solution."""
+LOOKAHEAD: Final = 4
+"""How many of a ConfJ-off MoveJ's best solutions the twin tries for the MoveLs after it
+(the controller's choice is among the few most dexterous)."""
 ERRORS: Final = {
     "reach": (50050, "Position outside reach"),
     "limit": (50027, "Joint Out of Range"),
@@ -369,7 +375,7 @@ class ArmSupervisor:
                   current=None, free_yaw=self.free_yaw, seeds=[current])
         if s.pose is not None and not conf_on and lines and \
                 not self._lines_run(arm, lines, list(s.pose.chain_deg)):
-            for cand in ranked(self.models[arm], flange, angle, self.free_yaw):
+            for cand in ranked(self.models[arm], flange, angle, self.free_yaw, LOOKAHEAD):
                 if self._lines_run(arm, lines, list(cand.chain_deg)):
                     return list(cand.chain_deg)
         if s.pose is None:
@@ -442,7 +448,7 @@ class ArmSupervisor:
         """A line's next sample when the quick descent did not converge: a long one from
         the same seed, else the solution closest to ``prev`` if it is near (the arm
         follows the line); None when the arm cannot follow it."""
-        pose, res = _descend(m, flange, seed, iters=300, free_yaw=self.free_yaw)
+        pose, res = _descend(m, flange, seed, iters=CONTINUE_ITERS, free_yaw=self.free_yaw)
         if res <= REACH_TOL_MM:
             return pose, res
         s = solve(m, flange, seed[2], None, current=prev, free_yaw=self.free_yaw, seeds=[prev])
