@@ -137,10 +137,10 @@ class ArmCalibration:
     tool frame"). Required in a file: :meth:`from_dict` refuses one without it."""
     z_clear_mm: float = DEFAULT_Z_CLEAR_MM
     """Clear height (mm): every joint move to or from rest ends or starts at the arm's
-    gate at this height, every other move at or above travel height is straight
+    gate at this height; every other move is straight, over the table box
     (``drivers/yumi/paths.py``)."""
     gate_xy_mm: tuple[float, float] | None = None
-    """The gate's (x, y) when the file gives one (else the table box's centre)."""
+    """The gate's (x, y) when the file gives one (else its default, ``drivers/yumi/paths.py``)."""
 
     @classmethod
     def load(cls, path: str | Path, arm: str) -> ArmCalibration:
@@ -258,13 +258,11 @@ def plan_push(arm: ArmSetup, centre: Sequence[float], yaw: float, face: int) -> 
     vmax = cal.max_speed_mm_s
     vpush = min(cal.push_speed_mm_s, vmax)
     s_xy, e_xy = table(start, 0.0)[:2], table(end, 0.0)[:2]
-    down = [Waypoint("move_l", (*s_xy, cal.z_travel_mm), vmax, fine=False)
-            ] if cal.z_clear_mm > cal.z_travel_mm + LIFT_TOLERANCE_MM else []
-    return [*leave_rest(cal.gate_xy, s_xy, cal.z_clear_mm, vmax), *down,
+    return [*leave_rest(cal.gate_xy, s_xy, cal.z_clear_mm, cal.z_travel_mm, vmax),
             Waypoint("move_l", (*s_xy, cal.z_push_mm), min(vmax, 2 * vpush)),
             Waypoint("move_l", (*e_xy, cal.z_push_mm), vpush),
             Waypoint("move_l", (*e_xy, cal.z_travel_mm), min(vmax, 2 * vpush), fine=False),
-            *to_rest(cal.gate_xy, e_xy, cal.z_clear_mm, vmax)]
+            *to_rest(cal.gate_xy, cal.z_clear_mm, vmax)]
 
 
 def rest_tip(arm: str, cal: ArmCalibration) -> tuple[float, float, float] | None:
@@ -538,8 +536,8 @@ class YumiBackend(HostBackend):
         return self._camera.read()
 
     def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
-        """Calibration: from rest by joints to the gate, straight across at clear height
-        to above the point, straight down to it (``drivers/yumi/paths.py``); from the
+        """Calibration: from rest by joints to the gate, straight to above the point at
+        travel height, straight down (or up) to it (``drivers/yumi/paths.py``); from the
         previous point straight up to clear height first (:meth:`_move`).
 
         A point outside the arm's table box is refused (ValueError), never clipped: the
@@ -562,10 +560,10 @@ class YumiBackend(HostBackend):
             raise ValueError(f"arm {arm}: z = {z:g} mm is below the table top (z = 0)")
         vmax = cal.max_speed_mm_s
         vslow = min(vmax, 2 * cal.push_speed_mm_s)
-        down = [Waypoint("move_l", (x, y, cal.z_travel_mm), vmax, fine=False)
-                ] if z < cal.z_travel_mm < cal.z_clear_mm - LIFT_TOLERANCE_MM else []
-        self._move({arm: [*leave_rest(cal.gate_xy, (x, y), cal.z_clear_mm, vmax), *down,
-                          Waypoint("move_l", (x, y, z), vslow)]})
+        way = leave_rest(cal.gate_xy, (x, y), cal.z_clear_mm, cal.z_travel_mm, vmax)
+        if abs(z - cal.z_travel_mm) > LIFT_TOLERANCE_MM:
+            way.append(Waypoint("move_l", (x, y, z), vslow))
+        self._move({arm: way})
         return self._controller.tcp_xyz()[arm]
 
     def _at_rest(self, arm: str, tcp: Sequence[float]) -> bool:
@@ -591,11 +589,10 @@ class YumiBackend(HostBackend):
         cal = self._arms[arm].calibration
         x, y, z = (float(v) for v in tcp)
         vmax = cal.max_speed_mm_s
-        if wps and wps[0].kind == "rest":  # above clear height already: no need to go down
-            way = to_rest(cal.gate_xy, (x, y), cal.z_clear_mm, vmax)
-            return way[1:] if z >= cal.z_clear_mm - LIFT_TOLERANCE_MM else way
         lift = [Waypoint("move_l", (x, y, cal.z_clear_mm), min(vmax, 2 * cal.push_speed_mm_s))
                 ] if z < cal.z_clear_mm - LIFT_TOLERANCE_MM else []
+        if wps and wps[0].kind == "rest":  # above clear height already: no need to go down
+            return lift + to_rest(cal.gate_xy, cal.z_clear_mm, vmax)
         return lift + list(wps[1:] if wps and wps[0].kind == "move_j" else wps)
 
     def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:

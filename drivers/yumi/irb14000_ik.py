@@ -68,7 +68,8 @@ class Solution:
     shortfall_mm: float = 0.0
     """How far the closest reachable point is from the target (``reach``)."""
     near: Pose | None = None
-    """``singular``: the least singular solution found. The controller moves there
+    """``singular``: the solution nearest the arm's joints (the first seed's, the arm's
+    own joints when given: a line goes on without a jump). The controller moves there
     (SingArea Wrist, ConfJ off: ``drivers/yumi/backend.py``'s ``refuse_unreachable``
     leaves such a target to it), so a path sweep goes on through it."""
 
@@ -182,6 +183,7 @@ def solve_pose(model: Arm, flange: Mat, arm_angle_deg: float,
     best_miss = math.inf
     over: tuple[int, float] | None = None
     singular: tuple[Pose, float] | None = None
+    near: Pose | None = None
     for seed in _seeds(model, arm_angle_deg, current):
         pose, ep, er = descend(model, flange, seed)
         if ep > 0.5 or er > 1e-3:
@@ -195,6 +197,7 @@ def solve_pose(model: Arm, flange: Mat, arm_angle_deg: float,
         pose = model.pose(q)
         sigma = smallest_sigma(model, pose)
         if sigma < SINGULAR_SIGMA:
+            near = near or pose  # the first: from ``current`` when given (a line goes on)
             singular = singular if singular is not None and singular[1] > sigma else (pose,
                                                                                      sigma)
             continue
@@ -202,7 +205,7 @@ def solve_pose(model: Arm, flange: Mat, arm_angle_deg: float,
     if singular is not None:
         return Solution(None, "singular", f"near a singularity (the arm's smallest "
                         f"singular value {singular[1]:.3f}, under {SINGULAR_SIGMA:g})",
-                        near=singular[0])
+                        near=near)
     if over is not None:
         return Solution(None, "limit", f"axis {over[0]} past its limit by {over[1]:.1f} deg")
     return Solution(None, "reach", f"out of reach by {best_miss:.0f} mm",

@@ -17,8 +17,8 @@ arms' shapes :data:`ARM_GAP_MM` apart over both sweeps; every link and the gripp
 zones (below ``tb_zone_z`` outside the zone box, and below ``tb_floor_z``, as the
 controller reports them) along every path the
 driver commands (``drivers/yumi/paths.py``): rest by joints to the gate, straight to
-above each corner of the table box at clear height, down to travel and push height, and
-back up, to the gate and by joints to rest. A joint move is swept as the controller
+above each corner of the table box at travel height, down to push height, and back up,
+straight to the gate and by joints to rest. A joint move is swept as the controller
 interpolates it (every joint linearly, all together), a straight move as a line.
 """
 
@@ -206,18 +206,16 @@ def in_view(lay: ArmLayout, pose: Pose) -> str | None:
 def corner_programs(lay: ArmLayout, speed: float = 100.0) -> list[tuple[str, list[Waypoint]]]:
     """The driver's program to each corner of the table box and back, as it writes a
     push's (``drivers/yumi/backend.py``, ``plan_push``): from rest by joints to the gate,
-    straight to above the corner at clear height, down to travel and push height, up,
-    to the gate, by joints to rest (``drivers/yumi/paths.py``)."""
+    straight to above the corner at travel height, down to push height, up, straight to
+    the gate, by joints to rest (``drivers/yumi/paths.py``)."""
     out = []
     for c in box_corners(lay.table_box_mm, lay.z_push_mm):
         xy = c[:2]
-        down = [Waypoint("move_l", (*xy, lay.z_travel_mm), speed)
-                ] if lay.z_clear_mm > lay.z_travel_mm + 1.0 else []
         out.append((f"to corner {_pt(xy)} and back: ", [
-            *leave_rest(lay.gate, xy, lay.z_clear_mm, speed), *down,
+            *leave_rest(lay.gate, xy, lay.z_clear_mm, lay.z_travel_mm, speed),
             Waypoint("move_l", (*xy, lay.z_push_mm), speed),
             Waypoint("move_l", (*xy, lay.z_travel_mm), speed),
-            *to_rest(lay.gate, xy, lay.z_clear_mm, speed)]))
+            *to_rest(lay.gate, lay.z_clear_mm, speed)]))
     return out
 
 
@@ -250,7 +248,7 @@ def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[
                           f"mm above the table (want {TABLE_GAP_MM:g} mm)")
     g = lay.gate
     how = (f"rest by joints to the gate ({g[0]:.0f}, {g[1]:.0f}, {lay.z_clear_mm:g}), "
-           f"straight to every corner and down, back the same way")
+           f"straight to every corner at travel height and down, back the same way")
     if not least or all(math.isinf(w.clearance) for w in least.values()):
         return [f"      {lay.name}: paths ({how}): the zones were not read, not swept"
                 ], faults, poses

@@ -12,25 +12,37 @@ table box's far inner corner (470, 50) at travel height;
 tests/drivers/test_yumi_paths_zones.py).
 
 So the only joint moves are between the rest pose and the arm's *gate*: a point at clear
-height ``z_clear_mm`` over the centre of the table box (or the calibration's
-``gate_xy_mm``), whose joint path from rest the layout check proves clear of the zones.
-Why the centre: from the rest pose (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``:
-ABB's folded arm and wrist, axis 1 swung back 40 deg, axis 2 at -90) the model's joint
-path to a gate near the box's inner near corner skims the zone's ceiling outside the box
-(to (230, 130, 100), a quarter in: the tip 1 mm over ``tb_zone_z`` at (123, 200, 81));
-to the centre (310, 210, 100) it keeps 42 mm clear (the tip never under z 126 outside
-the box, 46 over ``tb_zone_z``), and the straight legs from there reach every corner of
-the shipped box (tests/drivers/test_yumi_paths_zones.py states the figures); from a gate
-further out, the straight leg to the box's inner near corner at clear height runs into a
-joint limit. The layout check sweeps the lab's own gate and FAULTs with the worst point.
+height ``z_clear_mm`` over the table box (or the calibration's ``gate_xy_mm``), whose
+joint path from rest the layout check proves clear of the zones. Where by default: half
+way into the box from its near edge, five eighths out from its inner edge (the shipped
+left box: (310, 250)). Why, with the model, from the rest pose
+(``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``: ABB's folded arm and wrist, axis 1
+swung back 40 deg, axis 2 at -90) and the 184.2 mm pusher:
 
-Everything else is a straight line (MoveL) inside the zone box: across at clear height,
-down and up where the push is. The box above ``tb_zone_z`` over the zone box is convex:
-a straight line between two points in it stays in it, so no straight leg can enter a
-zone.
+- a gate near the box's inner near corner (a quarter in, (230, 130, 100)) skims the
+  zone's ceiling outside the box on the joint move: the tip 1 mm over ``tb_zone_z`` at
+  (123, 200, 81), a zone stop on a robot a few mm off the model;
+- from (310, 250) the joint moves keep 40 mm clear (the tip never under z 120 outside the
+  zone box; from the box's centre (310, 210): 36 mm) and every straight leg reaches its
+  corner (tests/drivers/test_yumi_paths_zones.py).
 
-    rest --MoveJ--> gate --MoveL--> above the target at z_clear --MoveL--> down ...
-    ... up --MoveL--> z_clear where it is --MoveL--> gate --MoveAbsJ--> rest
+The layout check sweeps the lab's own gate and FAULTs with the worst point.
+
+Everything else is a straight line (MoveL) inside the zone box: from the gate straight to
+above the target at travel height (a slant: clear height is needed where a joint move
+starts or ends, not over the box), down and up where the push is, and from travel height
+straight back to the gate. The column over the zone box above the floor is convex and the
+zones leave it free: a straight line between two points in it stays in it, so no straight
+leg can enter a zone. (Across at clear height first, then down, as before: from a gate
+out in the box the line to the box's inner near edge at clear height runs past a joint
+limit, (150, 64, 100) by 0.1 deg, (150, 124, 100) by 1.1 deg; at travel height it does
+not.)
+
+    rest --MoveJ--> gate (z_clear) --MoveL--> above the target (z_travel) --MoveL--> down
+    ... up --MoveL--> z_travel --MoveL--> gate (z_clear) --MoveAbsJ--> rest
+
+An arm found away from rest and from its program's start (a stopped program) first goes
+straight up to clear height where it is (``drivers/yumi/backend.py``, ``_from_here``).
 
 Why not higher: with the pusher pointing down, the IRB 14000 cannot hold a 184 mm tool
 much above the table near its body (the model: over the left box's inner near corner
@@ -45,46 +57,47 @@ from typing import Final
 
 from drivers.yumi.yumi_controller import Waypoint
 
-__all__ = ["DEFAULT_Z_CLEAR_MM", "GATE_FRACTION", "gate_xy", "leave_rest", "to_rest"]
+__all__ = ["DEFAULT_Z_CLEAR_MM", "GATE_DEPTH_FRACTION", "GATE_WIDTH_FRACTION", "gate_xy",
+           "leave_rest", "to_rest"]
 
 DEFAULT_Z_CLEAR_MM: Final = 100.0
 """The clear height when a calibration does not say: the shipped ``tb_zone_z`` (80) plus
 the 20 mm margin ``testbed check`` wants (``drivers/yumi/controller_state.py``)."""
-GATE_FRACTION: Final = 0.5
-"""How far into the table box the gate lies, from its near edge and from its inner edge,
-as a share of the box's depth and width: its centre (see the module's docstring)."""
+GATE_DEPTH_FRACTION: Final = 0.5
+"""How far into the table box the default gate lies from its near edge, as a share of
+the box's depth (see the module's docstring for why)."""
+GATE_WIDTH_FRACTION: Final = 0.625
+"""How far out from the table box's inner edge (nearer the body's centre line) the
+default gate lies, as a share of the box's width."""
 
 
 def gate_xy(box: Sequence[float], gate: Sequence[float] | None = None
             ) -> tuple[float, float]:
     """The arm's gate (x, y) mm: ``gate`` when the calibration gives one, else
-    :data:`GATE_FRACTION` (the centre) into ``box`` (x0, y0, x1, y1) from its near edge
-    (x0, towards the body) and from its inner edge (the y edge nearer the body's centre
-    line, y = 0)."""
+    :data:`GATE_DEPTH_FRACTION` into ``box`` (x0, y0, x1, y1) from its near edge (x0,
+    towards the body) and :data:`GATE_WIDTH_FRACTION` from its inner edge (the y edge
+    nearer the body's centre line, y = 0)."""
     if gate is not None:
         return (float(gate[0]), float(gate[1]))
     x0, y0, x1, y1 = (float(v) for v in box)
-    gx = x0 + GATE_FRACTION * (x1 - x0)
+    gx = x0 + GATE_DEPTH_FRACTION * (x1 - x0)
     if abs(y0) <= abs(y1):  # the inner edge is y0 (a left arm's box, y > 0)
-        return (gx, y0 + GATE_FRACTION * (y1 - y0))
-    return (gx, y1 - GATE_FRACTION * (y1 - y0))
+        return (gx, y0 + GATE_WIDTH_FRACTION * (y1 - y0))
+    return (gx, y1 - GATE_WIDTH_FRACTION * (y1 - y0))
 
 
 def leave_rest(gate: Sequence[float], target_xy: Sequence[float], z_clear_mm: float,
-               speed_mm_s: float) -> list[Waypoint]:
-    """From rest: by joints to the gate, then straight across at clear height to above
-    ``target_xy``. Both points stop exactly (``fine``): the joint path the layout check
-    swept starts and ends there, no corner of a zone is cut."""
+               z_travel_mm: float, speed_mm_s: float) -> list[Waypoint]:
+    """From rest: by joints to the gate at clear height, then straight to above
+    ``target_xy`` at travel height. Both points stop exactly (``fine``): the joint path
+    the layout check swept starts and ends there, no corner of a zone is cut."""
     return [Waypoint("move_j", (float(gate[0]), float(gate[1]), z_clear_mm), speed_mm_s),
-            Waypoint("move_l", (float(target_xy[0]), float(target_xy[1]), z_clear_mm),
+            Waypoint("move_l", (float(target_xy[0]), float(target_xy[1]), z_travel_mm),
                      speed_mm_s)]
 
 
-def to_rest(gate: Sequence[float], here_xy: Sequence[float], z_clear_mm: float,
-            speed_mm_s: float) -> list[Waypoint]:
-    """To rest: straight up to clear height where the pusher is, straight across to the
-    gate, then by joints (MoveAbsJ) to the rest pose."""
-    return [Waypoint("move_l", (float(here_xy[0]), float(here_xy[1]), z_clear_mm),
-                     speed_mm_s),
-            Waypoint("move_l", (float(gate[0]), float(gate[1]), z_clear_mm), speed_mm_s),
+def to_rest(gate: Sequence[float], z_clear_mm: float, speed_mm_s: float) -> list[Waypoint]:
+    """To rest from over the table box (at travel height or above): straight to the
+    gate at clear height, then by joints (MoveAbsJ) to the rest pose."""
+    return [Waypoint("move_l", (float(gate[0]), float(gate[1]), z_clear_mm), speed_mm_s),
             Waypoint("rest", None, speed_mm_s)]

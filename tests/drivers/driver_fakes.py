@@ -385,7 +385,7 @@ def _fake_side(arm: str) -> dict[str, Any]:
     right = arm == "left"
     return {"task": "T_ROB_R" if right else "T_ROB_L", "mechunit": "ROB_R" if right else "ROB_L",
             "arm_angle_deg": -130.0 if right else 130.0,
-            "rest_joints_deg": [0, -130, 30, 0, 40, 0, -135 if right else 135]}
+            "rest_joints_deg": [-40 if right else 40, -90, 30, 0, 40, 0, -135 if right else 135]}
 
 
 def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,

@@ -54,24 +54,26 @@ def inside_box(arm: str, w: Waypoint) -> bool:
 ])
 def test_push_maps_through_the_calibration(arm: str, face: int, axis: int, sign: int) -> None:
     wps = plan_push(setup(arm), (0.5, 0.5), 0.0, face)
-    # by joints from rest to the gate, straight above the start at clear height, down to
-    # travel and push height, the stroke, up, straight to the gate, by joints to rest
+    # by joints from rest to the gate at clear height, straight (a slant) to above the
+    # start at travel height, down to push height, the stroke, up, straight to the gate,
+    # by joints to rest
     assert [w.kind for w in wps] == ["move_j", "move_l", "move_l", "move_l", "move_l",
-                                     "move_l", "move_l", "move_l", "rest"]
-    start, end = wps[3].xyz_mm, wps[4].xyz_mm
+                                     "move_l", "rest"]
+    start, end = wps[2].xyz_mm, wps[3].xyz_mm
     assert start is not None and end is not None
     assert sign * (end[axis] - start[axis]) == pytest.approx(0.15 * 256 * 1.25)
     assert end[1 - axis] == pytest.approx(start[1 - axis])
     assert [w.xyz_mm[2] for w in wps[:-1]] == [  # type: ignore[index]
-        100.0, 100.0, 90.0, 12.0, 12.0, 90.0, 100.0, 100.0]
-    assert wps[0].xyz_mm == wps[7].xyz_mm and wps[0].xyz_mm[:2] == pytest.approx(  # type: ignore[index]
+        100.0, 90.0, 12.0, 12.0, 90.0, 100.0]
+    assert wps[1].xyz_mm[:2] == start[:2] and wps[4].xyz_mm[:2] == end[:2]  # type: ignore[index]
+    assert wps[0].xyz_mm == wps[5].xyz_mm and wps[0].xyz_mm[:2] == pytest.approx(  # type: ignore[index]
         setup(arm).calibration.gate_xy)
-    assert wps[4].speed_mm_s == 40.0 and all(w.speed_mm_s <= 120.0 for w in wps)
+    assert wps[3].speed_mm_s == 40.0 and all(w.speed_mm_s <= 120.0 for w in wps)
 
 
 def test_push_follows_the_cube_yaw() -> None:
     wps = plan_push(setup("left"), (0.5, 0.5), math.radians(30), 3)
-    (x0, y0, _), (x1, y1, _) = wps[3].xyz_mm, wps[4].xyz_mm  # type: ignore[misc]
+    (x0, y0, _), (x1, y1, _) = wps[2].xyz_mm, wps[3].xyz_mm  # type: ignore[misc]
     assert math.degrees(math.atan2(x1 - x0, y1 - y0)) == pytest.approx(30, abs=1e-6)
 
 
@@ -175,14 +177,14 @@ def test_goal_is_drawn_into_the_image_like_the_twin(tmp_path: Path) -> None:
 
 def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    poses = {"left": ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135),
+    poses = {"left": ArmPose("T_ROB_L", "ROB_L", (40, -90, 30, 0, 40, 0, 135),
                              tool_z_mm=184.2),
-             "right": ArmPose("T_ROB_R", "ROB_R", (0, -130, 30, 0, 40, 0, -135),
+             "right": ArmPose("T_ROB_R", "ROB_R", (-40, -90, 30, 0, 40, 0, -135),
                               tool_z_mm=184.2)}
     ctrl = RwsYumiController("http://127.0.0.1:1", poses, motion_timeout_s=0.3)
     wps = plan_push(setup("left"), (0.5, 0.5), 0.0, 3)
     rapid = ctrl.program("left", wps).get_program_rapid()
-    assert rapid.count("MoveL") == 7 and rapid.count("MoveJ") == 1 and "MoveAbsJ" in rapid
+    assert rapid.count("MoveL") == 5 and rapid.count("MoveJ") == 1 and "MoveAbsJ" in rapid
     flat = rapid.replace(" ", "")  # the shipped tool: its frame and tool_pusher's load
     assert "[[0,0,184.2],[1,0,0,0]],[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032," \
            "9e-05]" in flat or "0.00009]" in flat, flat
@@ -299,7 +301,7 @@ def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> No
     right = tmp_path / "right.json"
     right.write_text(json.dumps(yumi_calibration("right")))
     rest_only = tmp_path / "left-rest.json"  # what a lab writes before calibrating
-    rest_only.write_text(json.dumps({"rest_joints_deg": [0, -130, 30, 0, 40, 0, 135],
+    rest_only.write_text(json.dumps({"rest_joints_deg": [40, -90, 30, 0, 40, 0, 135],
                                      "tool_z_mm": 184.2}))
     url = "http://127.0.0.1:9"
 

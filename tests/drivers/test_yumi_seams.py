@@ -137,7 +137,7 @@ def test_file_paths_expand_home_and_variables(tmp_path: Path,
 
 # --- the controller seam: one client, built from the URL and the login file -------------
 def test_make_controller_builds_the_rws_client(tmp_path: Path) -> None:
-    pose = ArmPose("T_ROB_L", "ROB_L", (0, -130, 30, 0, 40, 0, 135), tool_z_mm=184.2)
+    pose = ArmPose("T_ROB_L", "ROB_L", (40, -90, 30, 0, 40, 0, 135), tool_z_mm=184.2)
     ctrl = make_controller("http://127.0.0.1:1", {"left": pose})
     assert isinstance(ctrl, RwsYumiController)
     with pytest.raises(BackendError, match=r"cannot read the arms' positions \(tool_pusher "
