@@ -197,3 +197,60 @@ def test_the_librarys_movej_keeps_its_configuration_or_is_50080(twin: Callable[.
     c.resetpp()
     exec_client.execute_motion_program(prog(right), task="T_ROB_L")
     assert cell.tcp_xyz()["left"] == pytest.approx(target, abs=1.0)
+
+
+# --- the rest pose ------------------------------------------------------------------------------
+def test_the_rest_pose_is_folded_clear_of_the_table_the_other_arm_and_the_camera() -> None:
+    """ABB's folded arm and wrist, axis 1 swung back 40 deg, axis 2 at -90
+    (sim_twin/yumi_geometry.py REST_JOINTS_DEG): with the 184.2 mm pusher the twin's model
+    holds the tip behind the robot's front and high, far from the zones, the other arm
+    and every joint limit, and outside the camera's frame with the driver's 2 % margin
+    (ABB's home itself, [0, -130, 30, 0, 40, 0, +-135], hangs the tip in the picture)."""
+    from sim_twin.yumi_arms import CHAIN_AXES, LIMITS_DEG, table_clearance
+    from sim_twin.yumi_geometry import HEIGHT, REST_JOINTS_DEG, CameraModel
+
+    assert REST_JOINTS_DEG == {"left": (40.0, -90.0, 30.0, 0.0, 40.0, 0.0, 135.0),
+                               "right": (-40.0, -90.0, 30.0, 0.0, 40.0, 0.0, -135.0)}
+    cam = CameraModel.default()
+    shapes = {}
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        m, q = ArmModel(side), abb_to_chain(REST_JOINTS_DEG[side])
+        tip, flange = m.tip(q, DEFAULT_TOOL_MM), m.pose(q).flange[:3, 3]
+        assert tip == pytest.approx((-117.0, sign * 276.0, 268.0), abs=2.0)
+        assert flange.tolist() == pytest.approx([-155.0, sign * 253.0, 447.0], abs=2.0)
+        shapes[side] = m.capsules(m.pose(q), DEFAULT_TOOL_MM)
+        assert table_clearance(shapes[side])[0] > 300.0  # every link (the twin's: 348)
+        assert tip[2] > 80.0 + 20.0 + 150.0  # far above tb_zone_z + 20
+        margin = min(min(a - LIMITS_DEG[ax][0], LIMITS_DEG[ax][1] - a)
+                     for a, ax in zip(q, CHAIN_AXES, strict=True))
+        assert margin > 33.0
+        v = cam.project((tip[0], tip[1], 0.0))[0][1]  # the driver's table-plane projection
+        assert v > HEIGHT * 1.02 + 70.0  # 77 px past the frame's 2 % margin
+        assert cam.project(tip)[0][1] > HEIGHT  # the tip itself: off the picture
+        home = ArmModel(side).tip(abb_to_chain((0, -130, 30, 0, 40, 0, sign * 135)),
+                                  DEFAULT_TOOL_MM)
+        assert 0 < cam.project((home[0], home[1], 0.0))[0][1] < HEIGHT  # ABB's: in view
+    assert clearance(shapes["left"], shapes["right"])[0] > 30.0  # the shoulders: 35 mm
+
+
+def test_the_overhead_camera_sees_no_pusher_at_rest(twin: Callable[..., Made]) -> None:
+    """The twin's arms rest the pushers where the rest joints hold them: its picture shows
+    no marker, the pusher's body and cap project below the frame, and a move to the table
+    brings the marker into view (ABB's home would leave both in the picture)."""
+    import cv2
+
+    _, _, cell, motion = twin()
+    assert cell.tcp_xyz()["left"] == pytest.approx(motion.arms.tip("left"), abs=1.0)
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+    at_rest = cell.render(noise=False)
+    _, ids, _ = det.detectMarkers(at_rest)
+    assert ids is None or len(ids) == 0
+    for arm, tcp in cell.tcp_xyz().items():  # the pusher's body and its cap: off the picture
+        body = [(tcp[0] + dx, tcp[1] + dy, tcp[2] + dz) for dx in (-22, 22) for dy in (-22, 22)
+                for dz in (0.0, 30.0)]
+        uv = cell.camera.project(body)
+        assert (uv[:, 1] > cell.camera.height).all(), (arm, uv)
+    cell.execute({"left": [{"kind": "move_l", "xyz_mm": [310.0, 210.0, 100.0],
+                            "speed_mm_s": 500.0, "fine": True}]})
+    _, ids, _ = det.detectMarkers(cell.render(noise=False))
+    assert ids is not None and ids.ravel().tolist() == [0]
