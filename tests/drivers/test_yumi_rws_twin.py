@@ -26,10 +26,10 @@ from sim_twin.rws.testbed_rapid import TestbedRapid
 from sim_twin.yumi_arms import rest_tip
 from sim_twin.yumi_cell import YumiTwinCell
 
-REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
-"""Where the twin's arms rest the pusher's tip (their rest joints, its 100 mm tool)."""
-
-PUSHER_MM = 100.0
+PUSHER_MM = 184.2
+"""The shipped pusher (the twin's and tool_pusher's)."""
+REST_TIP = {side: rest_tip(side, PUSHER_MM) for side in ("left", "right")}
+"""Where the twin's arms rest the pusher's tip (their rest joints, the pusher)."""
 LEFT, RIGHT = (400.0, 200.0, 60.0), (420.0, -180.0, 40.0)
 Made = tuple[RwsYumiController, Irc5Controller, YumiTwinCell, CellMotion, threading.Lock]
 
@@ -96,11 +96,15 @@ def test_a_one_arm_step_moves_only_that_arm(yumi: Any) -> None:
     client, ctrl, cell, motion, lock = yumi()
     before = tcps(cell, lock)
     client.execute({"right": to(RIGHT)})
-    assert list(motion.last_run) == ["T_ROB_R"]
+    # both tasks get a file and run it (issue 35: no stale program ever): the idle left
+    # one a "stay" (a single WaitTime), which moves nothing
+    assert sorted(motion.last_run) == ["T_ROB_L", "T_ROB_R"]
+    assert [type(c).__name__ for c in motion.last_run["T_ROB_L"].program.commands] == [
+        "WaitTime"]
     got = tcps(cell, lock)
     assert got["right"] == pytest.approx(RIGHT, abs=1.0)
     assert got["left"] == before["left"]
-    assert ctrl.task("T_ROB_L").active is False  # started alone, as the driver asked
+    assert ctrl.task("T_ROB_L").active is True  # activated by the driver, then resetpp
 
 
 def test_a_malformed_program_is_one_line_naming_the_entry(
@@ -148,7 +152,8 @@ def test_a_controller_without_our_rapid_is_named(yumi: Any) -> None:
                                            r"RAMDISK:motion_program.bin"):
         client.execute({"left": to(LEFT)})
     ctrl.on_start = None  # RAPID that ends at once and writes nothing
-    with pytest.raises(BackendError, match=r"T_ROB_L ended without the event log entry "
+    with pytest.raises(BackendError, match=r"task\(s\) T_ROB_L, T_ROB_R ended without the "
+                                           r"event log entry "
                                            r"'Testbed Motion Done' for program 2: is the "
                                            r"testbed RAPID \(robot/rapid/\) loaded"):
         client.execute({"left": to(LEFT)})
@@ -184,22 +189,27 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     backend = backend_on(client, motion, tmp_path)
     low = (400.0, 200.0, 15.0)
     assert backend.move_tcp("left", low) == pytest.approx(low, abs=1.0)
-    # The pusher is 15 mm over the table, its flange 115 mm: only a read with the pusher's
-    # tool sees that it is low. The rest move goes straight up first, then MoveAbsJ.
+    # The pusher is 15 mm over the table, its flange 199 mm: only a read with the pusher's
+    # tool sees that it is low. The rest move goes straight up to clear height first,
+    # straight to the gate, then MoveAbsJ (drivers/yumi/paths.py).
+    gate = backend._arms["left"].calibration.gate_xy
     backend.rest()
-    first, second = motion.last_run["T_ROB_L"].program.commands[:2]
-    assert type(first).__name__ == "MoveL" and type(second).__name__ == "MoveAbsJ"
-    assert list(first.to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
+    cmds = motion.last_run["T_ROB_L"].program.commands
+    assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveL", "MoveAbsJ"]
+    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 100.0], abs=1e-3)
+    assert list(cmds[1].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     assert tcps(cell, lock)["left"] == pytest.approx(REST_TIP["left"], abs=1.0)
     backend.move_tcp("left", low)
     backend.move_tcp("left", (300.0, 100.0, 20.0))  # from low to another point: up first
     cmds = motion.last_run["T_ROB_L"].program.commands
-    assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveJ", "MoveL"]
-    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
-    backend.rest()  # already at travel height or above: no lift
-    backend.move_tcp("left", (300.0, 100.0, 90.0))
-    assert [type(c).__name__ for c in motion.last_run["T_ROB_L"].program.commands] == [
-        "MoveJ", "MoveL"]
+    assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveL", "MoveL"]  # no joint move
+    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 100.0], abs=1e-3)
+    assert tcps(cell, lock)["left"] == pytest.approx((300.0, 100.0, 20.0), abs=1.0)
+    backend.rest()
+    backend.move_tcp("left", (300.0, 100.0, 90.0))  # from rest: by joints to the gate
+    cmds = motion.last_run["T_ROB_L"].program.commands
+    assert [type(c).__name__ for c in cmds] == ["MoveJ", "MoveL", "MoveL"]
+    assert list(cmds[0].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     backend.close()
 
 
