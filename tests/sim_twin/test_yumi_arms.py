@@ -233,6 +233,28 @@ def test_the_rest_pose_is_folded_clear_of_the_table_the_other_arm_and_the_camera
     assert clearance(shapes["left"], shapes["right"])[0] > 30.0  # the shoulders: 35 mm
 
 
+def test_the_joint_path_from_rest_to_the_gate_stays_over_the_zones() -> None:
+    """By joints from rest to (310, +-210, 100), the pusher down (the driver's first
+    move): outside the zone box the tip stays above tb_zone_z + 20 (the twin: 118 and
+    125 mm), every link over 150 mm above the table."""
+    from sim_twin.rws.world_zones import default_zone
+    from sim_twin.yumi_arms import table_clearance
+    from sim_twin.yumi_geometry import REST_JOINTS_DEG
+
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        m, zone = ArmModel(side), default_zone(side)
+        q0 = np.array(abb_to_chain(REST_JOINTS_DEG[side]))
+        s = solve(m, flange_at((310.0, sign * 210.0, 100.0), DEFAULT_TOOL_MM),
+                  sign * 130.0, None, free_yaw=True, seeds=[list(q0)])
+        assert s.pose is not None, s
+        for f in np.linspace(0.0, 1.0, 101):
+            q = q0 + f * (np.array(s.pose.chain_deg) - q0)
+            x, y, z = m.tip(q, DEFAULT_TOOL_MM)
+            if not (zone.x0 < x < zone.x1 and zone.y0 < y < zone.y1):
+                assert z >= zone.zone_z + 20.0, (side, f, (x, y, z))
+            assert table_clearance(m.capsules(m.pose(q), DEFAULT_TOOL_MM))[0] > 150.0
+
+
 def test_the_overhead_camera_sees_no_pusher_at_rest(twin: Callable[..., Made]) -> None:
     """The twin's arms rest the pushers where the rest joints hold them: its picture shows
     no marker, the pusher's body and cap project below the frame, and a move to the table
