@@ -133,8 +133,8 @@ def reach_lines(lay: ArmLayout, reaches: Sequence[CornerReach]) -> tuple[list[st
     how = (f"pusher down, tool_z_mm {t.tool_z_mm:g}, arm angle {t.arm_angle_deg:g} deg")
     figures = ", ".join(f"{_pt(c.tcp_mm)} {'-' if c.margin_mm is None else f'{c.margin_mm:.0f}'}"
                         for c in reaches)
-    lines = [f"      {lay.name}: reach margin (mm) of the table box's corners at push, "
-             f"travel and clear height ({how}): {figures}"]
+    lines = [f"      {lay.name}: reach margin (mm) of the table box's corners at push "
+             f"and travel height ({how}): {figures}"]
     faults = []
     for c in reaches:
         where = (f"arm {lay.name}: table box corner {_pt(c.tcp_mm)} mm "
@@ -293,8 +293,8 @@ def check_layout(arms: Sequence[ArmLayout]) -> tuple[list[str], list[str]]:
     sweeps: dict[str, Capsules] = {}
     rests: dict[str, Capsules] = {}
     for lay in arms:
-        reaches = corner_reaches(lay.tool, lay.table_box_mm,
-                                 (lay.z_push_mm, lay.z_travel_mm, lay.z_clear_mm))
+        reaches = corner_reaches(lay.tool, lay.table_box_mm,  # clear height: at the gate
+                                 (lay.z_push_mm, lay.z_travel_mm))  # only (the paths')
         got, bad = reach_lines(lay, reaches)
         lines += got
         faults += bad

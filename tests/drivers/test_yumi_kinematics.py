@@ -175,7 +175,7 @@ def test_the_driver_refuses_an_unreachable_target_before_anything_moves(tmp_path
     ctrl = FakeYumiController({"left": (185.0, 674.0, 448.0)})
     backend = YumiBackend([setup], VideoCaptureCamera(str(video)), ctrl)
     try:
-        with pytest.raises(BackendError, match=r"arm left: target \(\d+, \d+, 100\) mm cannot "
+        with pytest.raises(BackendError, match=r"arm left: target \(900, 300, 80\) mm cannot "
                                                r"be reached .*out of reach by \d+ mm; nothing "
                                                r"was moved"):
             backend.move_tcp("left", (900.0, 300.0, 10.0))
