@@ -154,7 +154,7 @@ def test_calibration_data_keeps_the_other_keys_and_loads() -> None:
     pts = cal.grid_points(BOX, (4, 3))
     fit = cal.fit_homography(cal.apply_homography(TRUE, pts), pts)
     old = {"homography": np.eye(3).tolist(), "table_box_mm": [0, 0, 1, 1], "z_push_mm": 12.0,
-           "rest_joints_deg": [40, -90, 30, 0, 40, 0, 135]}
+           "rest_joints_deg": [40, -90, 30, 0, 40, 0, 135], "tool_z_mm": 184.2}
     data = cal.calibration_data(old, fit, BOX)
     assert data["z_push_mm"] == 12.0 and data["rest_joints_deg"] == old["rest_joints_deg"]
     assert data["table_box_mm"] == list(BOX)
