@@ -79,6 +79,7 @@ def lab_pids_alive(out: Path) -> list[int]:
 def session(cmd: list[str], out: Path, k: int, kill_at: int | None) -> tuple[int | None, float]:
     """One ``testbed rehearse`` process; SIGKILLed once ``kill_at`` steps are logged.
     Returns (exit status or None when killed, seconds the lab needed to be gone)."""
+    out.parent.mkdir(parents=True, exist_ok=True)  # a fresh clone has no runs/ yet
     with open(out.parent / f"{out.name}-session{k}.log", "wb") as logf:
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=logf, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)

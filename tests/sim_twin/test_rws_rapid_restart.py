@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from twin_rws import client, program, run
 
-from drivers.yumi.controller_state import problems, rapid_of_task
+from drivers.yumi.controller_state import RAPID_VERSION, problems, rapid_of_task
 from sim_twin.rws import Irc5Controller, RwsServer
 from sim_twin.rws.irc5 import EVENT_ROUTINE_MISSING
 from sim_twin.rws.mechunits import YUMI_UNITS
@@ -120,7 +120,7 @@ def test_the_issue_29_layout_fails_on_the_twin_as_on_the_robot(twin: Any) -> Non
                                                   ("T_ROB_R", "tb_zones")}
     assert install.zones_active == {"left": False, "right": False}
     rep = {"T_ROB_L": rapid_of_task(c, "T_ROB_L")}
-    rep["T_ROB_L"]["version"] = 3
+    rep["T_ROB_L"]["version"] = RAPID_VERSION  # the layout, not the version, is judged
     faults = problems({"options": ["608-1", "616-1", "623-1", "604-1"],
                        "state": {"opmode": "AUTO", "ctrlstate": "motoron",
                                  "execstate": "stopped"},

@@ -122,7 +122,7 @@ def test_the_command_lines_zone_is_read_over_rws_and_supervised(twin: Twin) -> N
     assert c.get_rapid_variable("tb_zone_hi", "T_ROB_R/TestbedTask_R") == "[495,-25,0]"
     assert c.get_rapid_variable("TB_RAPID_VERSION", "T_ROB_L/TestbedMotion") == str(
         RAPID_VERSION)
-    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 70), 800), ("L", (400, 200, 20), 200),
+    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 100), 800), ("L", (400, 200, 20), 200),
                                           ("L", (200, 200, 20), 200)])})
     assert [(e.code, e.args[1]) for e in entries] == [(WORLD_ZONE_CODE, "tb_wz_xlo")]
     assert twin.tcp("left") == pytest.approx([ZONE[0], 200, 20], abs=1.0)
