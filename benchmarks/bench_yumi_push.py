@@ -6,13 +6,19 @@ polling until RAPID stops, the event log read for the result) is time the fleet 
 This runs the agent's unchanged controller client (``RwsYumiController``, the ABB
 ``RWS`` client underneath) against the RWS twin at REAL-TIME speed (``realtime = 1``:
 the twin's pushers move at the commanded speeds, as the robot's would), one two-arm push
-per step (above the start, down, the stroke, up, to rest), and splits each push's wall
+per step (the driver's path, ``drivers/yumi/paths.py``: rest by joints to the gate at clear
+height, straight to above the start at travel height, down, the stroke, up, straight to
+the gate, by joints to rest), then one-arm pushes (the other task runs the driver's "stay"
+program, issue 35: no task ever replays its old file), and splits each push's wall
 time by the client's own phase timers. The reference, measured in the same run, is the
 motion alone: the wall time of the twin controller's program run (our RAPID's semantics,
 ``TestbedRapid``), from the start request to its end. The ratio push / motion is the
 driver's overhead factor on the wire.
 
     .venv/bin/python benchmarks/bench_yumi_push.py [--pushes 10]
+
+Prints the figures: push wall time against the motion alone, each phase, RWS requests
+per push, for two-arm pushes and for one-arm pushes.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import threading
 import time
 from typing import Any
 
+from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy, leave_rest, to_rest
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, serve
@@ -32,7 +39,8 @@ from sim_twin.rws.testbed_rapid import TestbedRapid
 from sim_twin.yumi_cell import YumiTwinCell
 from sim_twin.yumi_geometry import workspace_mm
 
-PUSHER_MM = 100.0
+PUSHER_MM = 184.2
+Z_TRAVEL_MM = 80.0
 PHASES = ("checks", "upload", "start", "wait", "log")
 
 
@@ -53,15 +61,47 @@ class TimedRapid(TestbedRapid):
             self.runs.append(time.perf_counter() - t0)
 
 
-def push(centre: tuple[float, float]) -> list[Waypoint]:
-    """A push as ``plan_push`` makes one: 40 mm stroke at 50 mm/s, travel at 150 mm/s."""
-    x, y = centre
+def push(box: tuple[float, float, float, float]) -> list[Waypoint]:
+    """A push as ``plan_push`` makes one at the box's centre: 40 mm stroke at 50 mm/s,
+    travel at 150 mm/s, by the gate both ways."""
+    x, y = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
     start, end = (x - 30.0, y), (x + 10.0, y)
-    return [Waypoint("move_j", (*start, 80.0), 150.0, fine=False),
+    gate = gate_xy(box)
+    return [*leave_rest(gate, start, DEFAULT_Z_CLEAR_MM, Z_TRAVEL_MM, 150.0),
             Waypoint("move_l", (*start, 12.0), 100.0),
             Waypoint("move_l", (*end, 12.0), 50.0),
-            Waypoint("move_l", (*end, 80.0), 100.0, fine=False),
-            Waypoint("rest", None, 150.0)]
+            Waypoint("move_l", (*end, Z_TRAVEL_MM), 100.0, fine=False),
+            *to_rest(gate, DEFAULT_Z_CLEAR_MM, 150.0)]
+
+
+def timed(client: RwsYumiController, hook: TimedRapid, programs: dict[str, list[Waypoint]],
+          n: int) -> dict[str, Any]:
+    """``n`` executions of ``programs``: wall times, the motion alone, requests, phases."""
+    out: dict[str, Any] = {"wall": [], "requests": [], **{p: [] for p in PHASES}}
+    hook.runs.clear()
+    for _ in range(n):
+        n0 = client.requests
+        t0 = time.perf_counter()
+        client.execute(programs)
+        out["wall"].append(time.perf_counter() - t0)
+        out["requests"].append(client.requests - n0)
+        for p in PHASES:
+            out[p].append(client.timing.get(p, 0.0))
+    out["motion"] = list(hook.runs)
+    return out
+
+
+def report(title: str, r: dict[str, Any]) -> None:
+    motion, wall = statistics.median(r["motion"]), statistics.median(r["wall"])
+    print(f"{title} ({len(r['wall'])} pushes, medians):")
+    print(f"  push wall time      {wall * 1000:8.1f} ms")
+    print(f"  motion alone (ref)  {motion * 1000:8.1f} ms   (the twin controller's program run)")
+    for p in PHASES:
+        print(f"    {p:<8}          {statistics.median(r[p]) * 1000:8.1f} ms")
+    polling = statistics.median(w - m for w, m in zip(r["wait"], r["motion"], strict=True))
+    print(f"    of wait, polling past the motion's end {polling * 1000:6.1f} ms")
+    print(f"  RWS requests per push: {statistics.median(r['requests']):.0f}")
+    print(f"  ratio push / motion: {wall / motion:.3f}  (overhead {(wall - motion) * 1000:.0f} ms)")
 
 
 def main() -> None:
@@ -77,38 +117,18 @@ def main() -> None:
     poses = {u.arm: ArmPose(u.task, u.name, tuple(hook.poses.joints(u)), tool_z_mm=PUSHER_MM)
              for u in YUMI_UNITS}
     client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0)
-    walls: list[float] = []
-    phases: dict[str, list[float]] = {p: [] for p in PHASES}
-    requests: list[int] = []
     try:
         boxes = {u.arm: workspace_mm(cell.sides[u.arm]) for u in YUMI_UNITS}
-        centres = {a: ((b[0] + b[2]) / 2, (b[1] + b[3]) / 2) for a, b in boxes.items()}
-        client.execute({a: push(c) for a, c in centres.items()})  # warm: sessions, paths
-        hook.runs.clear()
-        for _ in range(a.pushes):
-            n0 = client.requests
-            t0 = time.perf_counter()
-            client.execute({arm: push(c) for arm, c in centres.items()})
-            walls.append(time.perf_counter() - t0)
-            requests.append(client.requests - n0)
-            for p in PHASES:
-                phases[p].append(client.timing.get(p, 0.0))
+        both = {a: push(b) for a, b in boxes.items()}
+        client.execute(both)  # warm: sessions, paths
+        two = timed(client, hook, both, a.pushes)
+        one = timed(client, hook, {"left": both["left"]}, a.pushes)  # the right: a stay
     finally:
         client.close()
         server.stop()
         cell.close()
-    motion = statistics.median(hook.runs)
-    wall = statistics.median(walls)
-    print(f"one two-arm push over RWS on the twin at real-time speed ({a.pushes} pushes, "
-          f"medians):")
-    print(f"  push wall time      {wall * 1000:8.1f} ms")
-    print(f"  motion alone (ref)  {motion * 1000:8.1f} ms   (the twin controller's program run)")
-    for p in PHASES:
-        print(f"    {p:<8}          {statistics.median(phases[p]) * 1000:8.1f} ms")
-    polling = statistics.median(w - m for w, m in zip(phases["wait"], hook.runs, strict=True))
-    print(f"    of wait, polling past the motion's end {polling * 1000:6.1f} ms")
-    print(f"  RWS requests per push: {statistics.median(requests):.0f}")
-    print(f"  ratio push / motion: {wall / motion:.3f}  (overhead {(wall - motion) * 1000:.0f} ms)")
+    report("one two-arm push over RWS on the twin at real-time speed", two)
+    report("one one-arm push (the other task a stay)", one)
 
 
 if __name__ == "__main__":
