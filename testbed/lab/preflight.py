@@ -13,7 +13,16 @@ mode, controller and RAPID state, speed ratio, tasks, our RAPID modules' version
 this checkout's and their world zones); anything that would refuse a push or stop an arm
 (manual mode, motors off, a guard stop, a program running, a task stopped by a RAPID
 error, a missing option or module, a table box wider than its world zone) is a FAULT
-line naming what to fix, and the check fails.
+line naming what to fix, and the check fails. Issue 35 adds, per task: the controller's
+``tool_pusher`` beside the calibration's ``tool_z_mm`` (more than 1 mm apart: a FAULT, our
+RAPID would refuse every program), the world zones known active since the last restart
+(a "Testbed Zones Active" entry newer than the last 10045), and the layout through the
+arm's model: each table box corner's reach, the rest pose, and the pusher's tip and the
+links along the paths the driver commands (rest by joints to the gate at clear height,
+straight everywhere else: ``drivers/yumi/paths.py``) against the world zones, a FAULT
+with the worst point when a joint move comes within 20 mm of them. The check ends with
+every arm at rest; an arm with nothing to do runs the driver's "stay" program, so no
+task replays the file its RAM disk still holds.
 
 A host with a real camera (yumi) also sends its FULL frame, written as
 ``check-<host>.png`` beside the mosaic with each arm's crop box, its workspace (the
