@@ -43,8 +43,25 @@ DEFAULT_TOOL_Z_MM = 184.2
 project's one pusher length: ABB's servo-gripper finger TCP at 114.2 mm plus the rod's
 70 mm beyond the fingers; robot/README.md)."""
 
-__all__ = ["REST_JOINTS_DEG", "arm_facts", "project_plane", "starting_calibration",
-           "true_calibration", "true_model_error"]
+INNER_EDGE_MM = 75.0
+"""Where the shipped table boxes stop on the side of the body's centre line (|y|, mm): the
+workspaces begin at 50, but with the 184.2 mm pusher two arms pushing at their boxes'
+inner far corners at once meet: the project's model puts the forearms 22 mm INTO each
+other at (470, +-50) (``testbed check``: a FAULT), the twin stops them with 50204 ("2 mm
+apart"); at 75 the model keeps them 29 mm apart (``drivers/yumi/layout_check.py`` wants
+25). A cube in the inner 25 mm is still seen and reached from the outside; a push that
+would start nearer the centre line is clipped into the box, as at every other edge."""
+
+__all__ = [
+    "INNER_EDGE_MM",
+    "REST_JOINTS_DEG",
+    "arm_facts",
+    "project_plane",
+    "push_box",
+    "starting_calibration",
+    "true_calibration",
+    "true_model_error",
+]
 
 
 def project_plane(cam: Mapping[str, Any], box_mm: Sequence[float], plane_z_mm: float,
@@ -76,8 +93,17 @@ def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
     pts, px = project_plane(cam, box, plane_z_mm, n)
     h, _ = cv2.findHomography(px, pts[:, :2])
     side = "L" if arm.startswith("l") else "R"
-    return {"homography": h.tolist(), "table_box_mm": box, **arm_facts(arm, cam),
+    return {"homography": h.tolist(), "table_box_mm": push_box(box), **arm_facts(arm, cam),
             "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+
+
+def push_box(workspace_mm: Sequence[float]) -> list[float]:
+    """The table box a lab writes for an arm of the twin: its workspace (x0, y0, x1, y1)
+    with the edge nearer the centre line held :data:`INNER_EDGE_MM` from it."""
+    x0, y0, x1, y1 = (float(v) for v in workspace_mm)
+    if y0 >= 0:  # a left arm's workspace: the inner edge is y0
+        return [x0, max(y0, INNER_EDGE_MM), x1, y1]
+    return [x0, y0, x1, min(y1, -INNER_EDGE_MM)]
 
 
 def arm_facts(arm: str, cam: Mapping[str, Any] | None = None) -> dict[str, Any]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import time
 from pathlib import Path
 from typing import Any
 
@@ -122,10 +121,8 @@ def check(cals: dict[str, dict[str, Any]], zone_z: float = 80.0) -> tuple[list[s
 
 
 def test_every_corner_of_the_shipped_workspaces_is_reachable_with_margin() -> None:
-    t0 = time.perf_counter()
     lines, faults = check({s: shipped(s) for s in ("left", "right")})
     assert faults == []
-    assert time.perf_counter() - t0 < 5.0
     for side in ("left", "right"):
         cal = shipped(side)
         tool = ArmTool(side, 184.2, cal["arm_angle_deg"])
@@ -184,3 +181,15 @@ def test_the_driver_refuses_an_unreachable_target_before_anything_moves(tmp_path
         assert len(ctrl.programs) == 1
     finally:
         backend.close()
+
+
+def test_boxes_to_the_workspaces_inner_edge_let_the_forearms_meet() -> None:
+    """Why the shipped table boxes stop 75 mm from the centre line
+    (testbed/lab/camera_model.py, INNER_EDGE_MM): boxes to the workspaces' inner edge
+    (|y| = 50) put both arms at their inner far corners at once, forearm into forearm,
+    which testbed check must FAULT (the twin stops it with 50204)."""
+    whole = {s: shipped(s, table_box_mm=list(workspace_mm(s))) for s in ("left", "right")}
+    _, faults = check(whole)
+    assert any("come" in f and "forearm" in f for f in faults), faults
+    assert all(abs(shipped(s)["table_box_mm"][1 if s == "left" else 3]) == 75.0
+               for s in ("left", "right"))
