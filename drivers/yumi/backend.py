@@ -589,11 +589,17 @@ class YumiBackend(HostBackend):
         cal = self._arms[arm].calibration
         x, y, z = (float(v) for v in tcp)
         vmax = cal.max_speed_mm_s
-        lift = [Waypoint("move_l", (x, y, cal.z_clear_mm), min(vmax, 2 * cal.push_speed_mm_s))
-                ] if z < cal.z_clear_mm - LIFT_TOLERANCE_MM else []
-        if wps and wps[0].kind == "rest":  # above clear height already: no need to go down
-            return lift + to_rest(cal.gate_xy, cal.z_clear_mm, vmax)
-        return lift + list(wps[1:] if wps and wps[0].kind == "move_j" else wps)
+        up = lift_height(arm, cal, x, y)
+        lift = [Waypoint("move_l", (x, y, up), min(vmax, 2 * cal.push_speed_mm_s))
+                ] if z < up - LIFT_TOLERANCE_MM else []
+        home = lift + to_rest(cal.gate_xy, cal.z_clear_mm, vmax)
+        if wps and wps[0].kind == "rest":
+            return home
+        # by rest, not straight on: ConfL Off and SingArea Wrist let axes 4 and 6 wind up
+        # over a string of straight moves (a calibration's grid: the twin stopped one with
+        # 50027, axis 4 past its limit mid-box); rest's MoveAbsJ unwinds them, and from rest
+        # the program runs the legs a push runs
+        return home + list(wps)
 
     def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
         """Run ``programs`` (all arms at once). Each is written from rest (the joint move
@@ -662,6 +668,20 @@ def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
                    arm_angle_deg=cal.pose.arm_angle_deg,
                    tool_quat_wxyz=list(cal.pose.tool_quat_wxyz))
     return out
+
+
+def lift_height(arm: str, cal: ArmCalibration, x: float, y: float) -> float:
+    """How high a pusher low at (x, y) goes straight up before it goes on: clear height
+    where the arm's model reaches it with the pusher down, else travel height (with the
+    184.2 mm pusher clear height is out of reach near the box's inner near edge: the
+    model, (151, 76, 100) past axis 3's limit by 1.1 deg). Both stay inside the zone box,
+    and from either the next leg is a straight line inside it."""
+    from drivers.yumi.layout_check import layout_of
+
+    lay = layout_of(arm, layout_keys(cal), task=cal.pose.task if cal.pose else None)
+    if lay is None or lay.tool.solve((x, y, cal.z_clear_mm)).pose is not None:
+        return cal.z_clear_mm
+    return cal.z_travel_mm
 
 
 def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint]) -> None:

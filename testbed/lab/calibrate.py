@@ -45,6 +45,10 @@ CUBE_TOP_MM = 40.0
 EXIT_FAILED = 1
 
 
+GRID_INSET_MM = 10.0
+"""How far inside the safe box the calibration's grid lies (its points, not its fit)."""
+
+
 @dataclass(frozen=True)
 class CalibrateOptions:
     """The parsed, validated arguments of one calibration."""
@@ -235,7 +239,9 @@ def run_calibration(fleet: Any, opts: CalibrateOptions, box: cal.Box,
     out.frame_size = (int(frame.shape[1]), int(frame.shape[0]))
     out.rest_marker = cal.find_marker(frame, opts.marker_id)
     out.last_frame = frame
-    points = cal.grid_points(box, opts.grid)
+    # 10 mm inside the box: its corners are the edge of the arm's reach with the 184.2 mm
+    # pusher (the twin: a joint 0.1-1 deg past its limit near the inner edge)
+    points = cal.grid_points(box, opts.grid, inset_mm=GRID_INSET_MM)
     for k, (x, y) in enumerate(points, 1):
         s = Sighting(k, (x, y, opts.z_mm))
         out.sightings.append(s)

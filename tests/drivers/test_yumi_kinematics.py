@@ -165,7 +165,8 @@ def test_arms_whose_sweeps_meet_are_a_fault() -> None:
 
 def test_the_driver_refuses_an_unreachable_target_before_anything_moves(tmp_path: Path) -> None:
     video = write_video(tmp_path / "cam.avi", [np.zeros((48, 64, 3), np.uint8)])
-    cal = shipped("left", homography=np.eye(3).tolist(), table_box_mm=[0, 0, 1000, 1000])
+    cal = shipped("left", homography=np.eye(3).tolist(), table_box_mm=[0, 0, 1000, 1000],
+                  gate_xy_mm=[310.0, 250.0])  # the shipped gate (the box's is out of reach)
     (tmp_path / "left.json").write_text(json.dumps(cal))
     setup = ArmSetup("left", (0, 0, 32, 32), False,
                      ArmCalibration.load(tmp_path / "left.json", "left"))

@@ -200,10 +200,13 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     assert list(cmds[1].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     assert tcps(cell, lock)["left"] == pytest.approx(REST_TIP["left"], abs=1.0)
     backend.move_tcp("left", low)
-    backend.move_tcp("left", (300.0, 100.0, 20.0))  # from low to another point: up first
-    cmds = motion.last_run["T_ROB_L"].program.commands
-    assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveL", "MoveL"]  # no joint move
+    backend.move_tcp("left", (300.0, 100.0, 20.0))  # from low to another point: up first,
+    cmds = motion.last_run["T_ROB_L"].program.commands  # then by rest (it unwinds axes 4, 6)
+    assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveL", "MoveAbsJ", "MoveJ",
+                                                "MoveL", "MoveL"]
     assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 100.0], abs=1e-3)
+    assert list(cmds[1].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
+    assert list(cmds[3].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     assert tcps(cell, lock)["left"] == pytest.approx((300.0, 100.0, 20.0), abs=1.0)
     backend.rest()
     backend.move_tcp("left", (300.0, 100.0, 90.0))  # from rest: by joints to the gate

@@ -25,7 +25,7 @@ import pytest
 
 from drivers.yumi.backend import ArmCalibration
 from testbed.cli import main
-from testbed.lab.camera_model import arm_facts
+from testbed.lab.camera_model import arm_facts, push_box
 from testbed.perception import homography as cal
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,8 +64,8 @@ class Twin:
         x0, y0, x1, y1 = self.model["workspaces_mm"][arm]
         xy = np.array([(x, y) for x in np.linspace(x0, x1, 9) for y in np.linspace(y0, y1, 9)])
         h, _ = cv2.findHomography(self.project(np.c_[xy, np.full(len(xy), 40.0)]), xy)
-        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
-                **rest_pose(arm)}
+        return {"homography": h.tolist(), "table_box_mm": push_box([x0, y0, x1, y1]),
+                **SPEEDS, **rest_pose(arm)}
 
 
 @pytest.fixture(scope="module")
@@ -218,8 +218,11 @@ def test_too_few_markers_fails_and_writes_nothing(
         twin: Twin, lab: Path, capsys: pytest.CaptureFixture[str]) -> None:
     before = (lab / "left.json").read_bytes()
     _wait_camera_free(twin)
+    # a box clear of the table box's inner far corner, where the twin's controller stops
+    # some straight legs with 50027 (axis 4) that the driver's model passes: an open
+    # finding of issue 35 (docs/notes/yumi-real.md), not what this test is about
     rc = main(["calibrate", "--config", str(lab / "fleet.toml"), "--host", "yumi", "--arm",
-               "left", "--grid", "3x3", "--marker-id", "7"])
+               "left", "--grid", "3x3", "--marker-id", "7", "--box", "160,120,420,360"])
     out = capsys.readouterr().out
     assert rc == 1, out
     assert "only 0 of 9 points showed marker 7" in out and "nothing written" in out
