@@ -538,7 +538,7 @@ class YumiBackend(HostBackend):
     def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
         """Calibration: from rest by joints to the gate, straight to above the point at
         travel height, straight down (or up) to it (``drivers/yumi/paths.py``); from the
-        previous point straight up to clear height first (:meth:`_move`).
+        previous point back the way it came to rest first (:meth:`_from_here`).
 
         A point outside the arm's table box is refused (ValueError), never clipped: the
         calibration fit needs the TCP where it was asked to be.
@@ -582,30 +582,35 @@ class YumiBackend(HostBackend):
     def _from_here(self, arm: str, tcp: Sequence[float], wps: Sequence[Waypoint]
                    ) -> list[Waypoint]:
         """A program written from rest (``move_j`` to the gate first) or the way to rest
-        (``[rest]``), for an arm that is NOT at rest: straight up to clear height where it
-        is, then straight on (``drivers/yumi/paths.py``). A joint move from an unknown
-        pose sweeps the tip along a curve nobody checked; a straight line at clear height
-        stays above the zones."""
+        (``[rest]``), for an arm that is NOT at rest: straight up to travel height where
+        it is, straight to the gate at clear height, by joints to rest, then the program
+        (``drivers/yumi/paths.py``). A joint move from an unknown pose sweeps the tip along
+        a curve nobody checked; straight lines over the table box stay above the zones.
+
+        Why up to travel height, not clear height, and why by rest: the way back retraces
+        the way out (gate -> above the point at travel height -> down), so the arm comes
+        back to the gate with the joints it left it with. With the pusher down the wrist
+        passes near its singularity over parts of the box (axis 5 near 0), where axis 4
+        turns fast; a way back that is not the way out can wind axis 4 round the other
+        way, half a turn or more, past its limit (the twin stopped a calibration's grid
+        with 50027 on a lift to clear height and across to the gate), and ConfL Off lets
+        the controller take that winding. Rest's MoveAbsJ then unwinds whatever is left
+        before the next program's legs, which run as a push's do."""
         cal = self._arms[arm].calibration
         x, y, z = (float(v) for v in tcp)
         vmax = cal.max_speed_mm_s
-        up = lift_height(arm, cal, x, y)
-        lift = [Waypoint("move_l", (x, y, up), min(vmax, 2 * cal.push_speed_mm_s))
-                ] if z < up - LIFT_TOLERANCE_MM else []
+        lift = [Waypoint("move_l", (x, y, cal.z_travel_mm), min(vmax, 2 * cal.push_speed_mm_s))
+                ] if z < cal.z_travel_mm - LIFT_TOLERANCE_MM else []
         home = lift + to_rest(cal.gate_xy, cal.z_clear_mm, vmax)
         if wps and wps[0].kind == "rest":
             return home
-        # by rest, not straight on: ConfL Off and SingArea Wrist let axes 4 and 6 wind up
-        # over a string of straight moves (a calibration's grid: the twin stopped one with
-        # 50027, axis 4 past its limit mid-box); rest's MoveAbsJ unwinds them, and from rest
-        # the program runs the legs a push runs
         return home + list(wps)
 
     def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
         """Run ``programs`` (all arms at once). Each is written from rest (the joint move
         to the gate first) or is the way to rest (``[rest]``): an arm at rest runs it as
         written (the way to rest: nothing, the controller gives it a "stay"); an arm
-        elsewhere goes straight up to clear height first (:meth:`_from_here`). Every
+        elsewhere goes back to rest the way it came first (:meth:`_from_here`). Every
         target is checked reachable before anything moves (:func:`refuse_unreachable`)."""
         tcp = self._controller.tcp_xyz()
         out: dict[str, list[Waypoint]] = {}
@@ -668,20 +673,6 @@ def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
                    arm_angle_deg=cal.pose.arm_angle_deg,
                    tool_quat_wxyz=list(cal.pose.tool_quat_wxyz))
     return out
-
-
-def lift_height(arm: str, cal: ArmCalibration, x: float, y: float) -> float:
-    """How high a pusher low at (x, y) goes straight up before it goes on: clear height
-    where the arm's model reaches it with the pusher down, else travel height (with the
-    184.2 mm pusher clear height is out of reach near the box's inner near edge: the
-    model, (151, 76, 100) past axis 3's limit by 1.1 deg). Both stay inside the zone box,
-    and from either the next leg is a straight line inside it."""
-    from drivers.yumi.layout_check import layout_of
-
-    lay = layout_of(arm, layout_keys(cal), task=cal.pose.task if cal.pose else None)
-    if lay is None or lay.tool.solve((x, y, cal.z_clear_mm)).pose is not None:
-        return cal.z_clear_mm
-    return cal.z_travel_mm
 
 
 def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint]) -> None:

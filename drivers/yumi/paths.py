@@ -41,8 +41,10 @@ not.)
     rest --MoveJ--> gate (z_clear) --MoveL--> above the target (z_travel) --MoveL--> down
     ... up --MoveL--> z_travel --MoveL--> gate (z_clear) --MoveAbsJ--> rest
 
-An arm found away from rest and from its program's start (a stopped program) first goes
-straight up to clear height where it is (``drivers/yumi/backend.py``, ``_from_here``).
+An arm found away from rest (a calibration point, a stopped program) first goes straight
+up to travel height where it is, straight to the gate, and by joints to rest: the way
+back retraces the way out, so axis 4 comes back unwound (``drivers/yumi/backend.py``,
+``_from_here``, says why).
 
 Why not higher: with the pusher pointing down, the IRB 14000 cannot hold a 184 mm tool
 much above the table near its body (the model: over the left box's inner near corner

@@ -190,13 +190,13 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     low = (400.0, 200.0, 15.0)
     assert backend.move_tcp("left", low) == pytest.approx(low, abs=1.0)
     # The pusher is 15 mm over the table, its flange 199 mm: only a read with the pusher's
-    # tool sees that it is low. The rest move goes straight up to clear height first,
-    # straight to the gate, then MoveAbsJ (drivers/yumi/paths.py).
+    # tool sees that it is low. The rest move goes straight up to travel height first
+    # (retracing the way down), straight to the gate, then MoveAbsJ (drivers/yumi/paths.py).
     gate = backend._arms["left"].calibration.gate_xy
     backend.rest()
     cmds = motion.last_run["T_ROB_L"].program.commands
     assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveL", "MoveAbsJ"]
-    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 100.0], abs=1e-3)
+    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
     assert list(cmds[1].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     assert tcps(cell, lock)["left"] == pytest.approx(REST_TIP["left"], abs=1.0)
     backend.move_tcp("left", low)
@@ -204,7 +204,7 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     cmds = motion.last_run["T_ROB_L"].program.commands  # then by rest (it unwinds axes 4, 6)
     assert [type(c).__name__ for c in cmds] == ["MoveL", "MoveL", "MoveAbsJ", "MoveJ",
                                                 "MoveL", "MoveL"]
-    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 100.0], abs=1e-3)
+    assert list(cmds[0].to_point.trans) == pytest.approx([400.0, 200.0, 80.0], abs=1e-3)
     assert list(cmds[1].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     assert list(cmds[3].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
     assert tcps(cell, lock)["left"] == pytest.approx((300.0, 100.0, 20.0), abs=1.0)
@@ -213,6 +213,31 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     cmds = motion.last_run["T_ROB_L"].program.commands
     assert [type(c).__name__ for c in cmds] == ["MoveJ", "MoveL", "MoveL"]
     assert list(cmds[0].to_point.trans) == pytest.approx([*gate, 100.0], abs=1e-3)
+    backend.close()
+
+
+def test_a_calibration_grid_over_the_shipped_box_reaches_every_point(yumi: Any,
+                                                                     tmp_path: Path) -> None:
+    """Issue 35: ``testbed calibrate``'s 5x4 grid over the right arm's shipped box, as the
+    rehearsal runs it. With the pusher down the wrist passes near its singularity over
+    part of the box (axis 5 near 0, axis 4 turning fast); a way back from a point that was
+    not the way out (up to clear height, then across to the gate) wound axis 4 round and
+    the twin stopped the grid's 17th point with 50027 ("axis 4 0.1 deg past its limit")
+    on the way back from the 16th. Back the way it came, every point is reached."""
+    from sim_twin.yumi_geometry import workspace_mm
+    from testbed.lab.calibrate import GRID_INSET_MM
+    from testbed.lab.camera_model import push_box
+    from testbed.perception.homography import grid_points
+
+    client, _, _, motion, _ = yumi()
+    box = tuple(push_box(workspace_mm(motion.cell.sides["right"])))
+    backend = backend_on(client, motion, tmp_path, table_box=box)  # type: ignore[arg-type]
+    points = grid_points(box, (5, 4), inset_mm=GRID_INSET_MM)  # type: ignore[arg-type]
+    for x, y in points:
+        got = backend.move_tcp("right", (x, y, 10.0))
+        assert got == pytest.approx((x, y, 10.0), abs=1.0)
+    cmds = motion.last_run["T_ROB_R"].program.commands  # the way back: up to travel height
+    assert list(cmds[0].to_point.trans) == pytest.approx([*points[-2], 80.0], abs=1e-3)
     backend.close()
 
 
