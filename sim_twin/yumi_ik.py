@@ -343,3 +343,49 @@ def manipulability(model: ArmModel, pose: ArmPose, free_yaw: bool = False,
         e1 /= np.linalg.norm(e1)
         j = np.vstack([j[:3], np.cross(z, e1) @ j[3:], e1 @ j[3:]])
     return float(np.linalg.svd(j, compute_uv=False)[-1])
+
+
+def tip_descend(model: ArmModel, tip: npt.ArrayLike, tool_mm: float, seed: Sequence[float],
+                joints: Sequence[int] = (0, 1, 3), iters: int = 60) -> tuple[ArmPose, float]:
+    """The joints ``joints`` (chain indices; default axes 1, 2 and 3) that put the
+    pusher's tip (``tool_mm`` along the flange's z) on ``tip`` (base frame, mm), the
+    others held at ``seed``'s; and the tip's distance from it (mm). SingArea Wrist's
+    line (``sim_twin.rws.arm_supervision``): the wrist's axes are interpolated, the arm's
+    three keep the tip on the path."""
+    free = list(joints)
+    q = np.array(seed, dtype=np.float64)
+    want = np.asarray(tip, dtype=np.float64)
+    pose = model.pose(q)
+
+    def at(p: ArmPose) -> Mat:
+        return p.flange[:3, 3] + p.flange[:3, 2] * tool_mm
+
+    e = want - at(pose)
+    err = float(np.linalg.norm(e))
+    lam = 1.0
+    for _ in range(iters):
+        if err < POS_TOL_MM:
+            break
+        j = model.jacobian(pose, at(pose))[:3, free]
+        step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(3), e)
+        trial = q.copy()
+        trial[free] += np.degrees(np.clip(step, -0.3, 0.3))
+        tpose = model.pose(trial)
+        te = want - at(tpose)
+        terr = float(np.linalg.norm(te))
+        if terr < err:
+            q, pose, e, err = trial, tpose, te, terr
+            lam = max(lam * 0.5, 1e-3)
+        else:
+            lam = min(lam * 4.0, 1e6)
+    return pose, err
+
+
+def arm_sigma(model: ArmModel, pose: ArmPose, tool_mm: float,
+              joints: Sequence[int] = (0, 1, 3)) -> float:
+    """The smallest singular value of the tip's position Jacobian over ``joints``
+    (positions over the arm's reach of 560 mm, per radian): 0 where the arm (not the
+    wrist) is singular, the elbow straight or the wrist over axis 1."""
+    tip = pose.flange[:3, 3] + pose.flange[:3, 2] * tool_mm
+    j = model.jacobian(pose, tip)[:3, list(joints)] / 560.0
+    return float(np.linalg.svd(j, compute_uv=False)[-1])

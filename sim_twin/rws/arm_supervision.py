@@ -29,10 +29,12 @@ joints move linearly from the start's to the target's (the pusher in the cell st
 moves in a straight line: its path and the arm's differ a little between the ends, which
 only the collision watch sees). With ConfJ off a MoveJ's end is taken in a configuration
 the MoveLs after it can keep (the twin looks ahead); with SingArea Wrist (our RAPID) a
-line is judged by the tool's axis alone; the robtarget's arm angle is taken as axis 7's
-value, which may ease by up to ``ARM_ANGLE_EASE_DEG`` through a pocket where holding it
-leaves the other joints singular (ABB's arm angle is the elbow plane's). Not modelled:
-an arm against itself or the body, blending in zones.
+line's wrist axes turn evenly from its start's joints to its end's while axes 1-3 keep
+the tip on the line (``ArmSupervisor._wrist_line``), and targets are solved for the
+tool's axis alone (the round pusher's turn about it is free); the robtarget's arm angle
+is taken as axis 7's value, which may ease by up to ``ARM_ANGLE_EASE_DEG`` through a
+pocket where holding it leaves the other joints singular (ABB's arm angle is the elbow
+plane's). Not modelled: an arm against itself or the body, blending in zones.
 """
 
 from __future__ import annotations
@@ -53,11 +55,13 @@ from sim_twin.yumi_ik import (
     REACH_TOL_MM,
     SINGULAR_SIGMA,
     _descend,
+    arm_sigma,
     configuration,
     manipulability,
     ranked,
     rotation_error,
     solve,
+    tip_descend,
 )
 
 Mat = npt.NDArray[np.float64]
@@ -68,6 +72,9 @@ CONTACT_MM: Final = 2.0
 ARM_ANGLE_EASE_DEG: Final = 20.0
 """How far the twin lets axis 7 leave the robtarget's arm angle to pass a pocket (see
 ``ArmSupervisor._arm_angle_eased``)."""
+WRIST_SAMPLE_MM: Final = 3.0
+"""A SingArea Wrist line is sampled at least every this many mm of TCP travel
+(``ArmSupervisor._wrist_line``: a sample costs one small solve)."""
 JUMP_DEG: Final = 25.0
 """A MoveL sample whose joints jump more than this from the previous one passed a
 singularity (the closest solution flipped). With SingArea Wrist the wrist may turn fast
@@ -397,7 +404,12 @@ class ArmSupervisor:
         """A MoveL: the TCP on a straight line, the tool's orientation turned evenly from
         the arm's present one to the target's (``rot``, default down) along it (a MoveL
         from the rest pose turns the tool down as it goes; one to a target with the rest's
-        orientation keeps it), the joints the closest solution."""
+        orientation keeps it), the joints the closest solution. With SingArea Wrist (our
+        RAPID's), the wrist's axes are interpolated instead (:meth:`_wrist_line`)."""
+        if self.free_yaw:
+            stop = self._wrist_line(arm, seg, angle, q, t0, track, rot)
+            if stop is not False:
+                return stop
         m = self.models[arm]
         start_angle = q[2]  # the arm angle turns with the line, as the TCP moves
         r0 = m.pose(q).flange[:3, :3]
@@ -426,6 +438,62 @@ class ArmSupervisor:
             q = list(pose.chain_deg)
             track.t.append(t)
             track.q.append(q)
+        return None
+
+    def _wrist_line(self, arm: str, seg: Segment, angle: float, q: list[float], t0: float,
+                    track: _Track, rot: Mat | None = None) -> ArmStop | bool | None:
+        """A MoveL with SingArea Wrist: the TCP on the straight line, axes 4, 5 and 6 (and
+        7, the arm angle) turned evenly from the start's joints to the end's (the
+        solution at the target closest to the start, ConfL Off), axes 1, 2 and 3 keeping
+        the tip on the line; the tool's orientation is exact at both ends and "allowed
+        to differ somewhat" between them (ABB's words for Wrist). Why: with the pusher
+        down the wrist passes near its singularity over parts of the table (axis 5 near
+        0), where holding the orientation turns axis 4 fast; a string of such lines wound
+        axis 4 past its limit (50027 on the rehearsal's pushes), which Wrist exists to
+        prevent. None: the line runs; an ArmStop; False: no end solution within the
+        limits, the line is judged sample by sample (:meth:`_linear_move`), which names
+        where and why the arm cannot follow it."""
+        if seg.length < 1.0:  # a turn on the spot (or nearly): judged sample by sample
+            return False
+        m = self.models[arm]
+        r1 = FLANGE_DOWN if rot is None else rot
+        end_flange = flange_at(seg.b, self.tool_mm, r1)
+        flips = [[*q[:4], q[4] + d, -q[5], q[6] + d] for d in (180.0, -180.0)]
+        s = solve(m, end_flange, angle, None, current=q, free_yaw=True, seeds=[q, *flips])
+        if s.pose is None:
+            return False
+        end = list(s.pose.chain_deg)
+        wrist = (2, 4, 5, 6)  # chain indices of axes 7, 4, 5, 6
+        swing = max(abs(end[k] - q[k]) for k in wrist)
+        # denser than a plain line's: between samples the joints are interpolated, and a
+        # zone's entry is found on that path, which must stay near the line
+        n = max(1, math.ceil(seg.speed * seg.duration / WRIST_SAMPLE_MM),
+                math.ceil(swing / 2.0))
+        arm_joints = (0, 1, 3)
+        a = np.asarray(seg.a)
+        prev = list(q)
+        for i in range(1, n + 1):
+            t = t0 + seg.duration * i / n
+            xyz = np.asarray(seg.at(seg.duration * i / n))
+            f = float(np.linalg.norm(xyz - a) / seg.length) if seg.length > 0 else i / n
+            seed = list(prev)
+            for k in wrist:
+                seed[k] = q[k] + f * (end[k] - q[k])
+            pose, err = tip_descend(m, xyz, self.tool_mm, seed, arm_joints)
+            if err > REACH_TOL_MM:
+                return ArmStop(t, arm, "reach", f"at {_xyz(xyz)}: the arm cannot follow the "
+                                                f"line ({err:.1f} mm off it)")
+            over = m.limit_violation(pose.chain_deg)
+            if over is not None:
+                return ArmStop(t, arm, "limit", f"at {_xyz(xyz)}: axis {over[0]} "
+                                                f"{over[1]:.1f} deg past its limit")
+            jump = max(abs(pose.chain_deg[k] - prev[k]) for k in arm_joints)
+            if jump > JUMP_DEG or arm_sigma(m, pose, self.tool_mm) < SINGULAR_SIGMA:
+                return ArmStop(t, arm, "singular", f"at {_xyz(xyz)}: the linear path passes "
+                                                   "an arm singularity")
+            prev = list(pose.chain_deg)
+            track.t.append(t)
+            track.q.append(prev)
         return None
 
     def _arm_angle_eased(self, m: ArmModel, flange: Mat, seed: list[float]

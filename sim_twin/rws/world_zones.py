@@ -37,8 +37,11 @@ FAR = 5000.0
 DEFAULT_MARGIN_MM = 25.0
 """The twin's default zone: the arm's workspace grown by this on every side; less than
 half the 60 mm gap between the workspaces, so the two arms' zones never overlap."""
-EPS_MM = 1e-6
-"""A point this close to a face counts as on it (not inside)."""
+EPS_MM = 0.05
+"""A point this close to a face counts as on it (not inside): the supervision's
+resolution. A line that starts where a zone stopped the arm, on the zone's face, runs
+along the face within the path's numerical error (the twin's SingArea Wrist lines
+interpolate joints between samples a few mm apart)."""
 Vec3 = tuple[float, float, float]
 
 

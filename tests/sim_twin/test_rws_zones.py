@@ -29,7 +29,7 @@ from sim_twin.rws.testbed_rapid import (
     WORLD_ZONE_TITLE,
     TestbedRapid,
 )
-from sim_twin.rws.world_zones import ArmZone, default_zone, first_entry
+from sim_twin.rws.world_zones import EPS_MM, ArmZone, default_zone, first_entry
 from sim_twin.yumi_arms import DEFAULT_TOOL_MM, rest_tip
 from sim_twin.yumi_cell import Segment, YumiTwinCell
 
@@ -71,7 +71,9 @@ def test_the_zone_geometry() -> None:
     assert z.inside((400, 400, 10)) is None  # on a face: not inside
     seg = Segment((400.0, 300.0, 10.0), (400.0, 500.0, 10.0), 100.0)
     t, box = first_entry([seg], z)
-    assert box.name == "tb_wz_yhi" and seg.at(t)[1] == pytest.approx(400.0, abs=1e-6)
+    # entered at the face, to the supervision's resolution (a point within EPS_MM of a
+    # face counts as on it)
+    assert box.name == "tb_wz_yhi" and seg.at(t)[1] == pytest.approx(400.0 + EPS_MM, abs=1e-6)
     assert z.inside(seg.at(t)) is None  # the stop point counts as on the face, not inside
     assert first_entry([Segment((100.0, 450.0, 150.0), (400.0, 200.0, 80.0), 500.0)], z) is None
     for bad in ((600, 0, 200, 400), (200, 0, 600, 400, 0, 0)):
