@@ -32,6 +32,7 @@ from testbed.records.store import MODES, RunData
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.ssh,
+    pytest.mark.timeout(1200),  # two rehearsal sessions, four arms calibrated in the first
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
 
