@@ -15,7 +15,9 @@ So the only joint moves are between the rest pose and the arm's *gate*: a point 
 height ``z_clear_mm`` over the table box (or the calibration's ``gate_xy_mm``), whose
 joint path from rest the layout check proves clear of the zones. Where by default: half
 way into the box from its near edge, five eighths out from its inner edge (the shipped
-left box: (310, 250)). Why, with the model, from the rest pose
+left box, y 75 to 370: about (310, 259); the figures below were measured on the whole
+workspace, y 50 to 370, whose gate is (310, 250); on the shipped box ``testbed check``
+reports 38 mm clear on the joint moves). Why, with the model, from the rest pose
 (``sim_twin/yumi_geometry.py``'s ``REST_JOINTS_DEG``: ABB's folded arm and wrist, axis 1
 swung back 40 deg, axis 2 at -90) and the 184.2 mm pusher:
 
