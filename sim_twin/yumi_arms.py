@@ -177,7 +177,11 @@ class ArmModel:
         p = np.asarray(point, dtype=np.float64)
         z = pose.frames[:7, :3, 2]
         o = pose.frames[:7, :3, 3]
-        return np.vstack([np.cross(z, p - o).T, z.T])
+        d = p - o  # z x d row by row (np.cross costs more than the rest on 7 rows)
+        zxd = np.stack([z[:, 1] * d[:, 2] - z[:, 2] * d[:, 1],
+                        z[:, 2] * d[:, 0] - z[:, 0] * d[:, 2],
+                        z[:, 0] * d[:, 1] - z[:, 1] * d[:, 0]], axis=1)
+        return np.vstack([zxd.T, z.T])
 
     def reach_shortfall(self, point: npt.ArrayLike) -> float:
         """How far (mm) ``point`` lies beyond anything the flange can reach (<= 0: maybe
