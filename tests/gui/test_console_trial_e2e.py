@@ -23,7 +23,9 @@ from testbed.records.steps import read_steps
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = {
-    "trial": {"steps": 12, "seed": 3},
+    # 18 steps: room after a late reset for the arm to go back to work (with 12, a reset
+    # answered late under load once left none completed: docs/notes/tests.md)
+    "trial": {"steps": 18, "seed": 3},
     # Every arm eligible for teleop: what a console test needs is a teleop, whatever the
     # uncertainty of a policy pretrained on the humans' (timing-dependent) answers.
     "algorithm": {"u_hat": 0.0},
