@@ -103,7 +103,8 @@ class StaticPoses:
         self._flange: dict[str, tuple[Vec3, Quat]] = {
             u.name: ((100.0, 450.0 * side[u.name], 150.0), TOOL_DOWN) for u in units}
         self._joints: dict[str, tuple[float, ...]] = {
-            u.name: (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, -135.0 * side[u.name]) for u in units}
+            # ABB's home with ABB's arm-angle signs (public YuMi RAPID: left +135, right -135)
+            u.name: (0.0, -130.0, 30.0, 0.0, 40.0, 0.0, 135.0 * side[u.name]) for u in units}
         self._conf = {u.name: (0.0, 0.0, 0.0, 4.0) for u in units}
 
     def set_flange(self, unit: str, xyz: Sequence[float], quat: Sequence[float] = TOOL_DOWN

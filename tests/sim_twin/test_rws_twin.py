@@ -263,7 +263,7 @@ def test_robtarget_is_the_named_tool_in_the_named_frame(twin: Any) -> None:
         c.get_robtarget("ROB_1")  # not a YuMi unit
     j = c.get_jointtarget("ROB_L")
     assert j.robax.tolist() == [0.0, -130.0, 30.0, 0.0, 40.0, 0.0]
-    assert j.extax[0] == -135.0 and j.extax[1] == 9e9  # axis 7 is eax_a on an IRB 14000
+    assert j.extax[0] == 135.0 and j.extax[1] == 9e9  # axis 7 is eax_a on an IRB 14000
 
 
 def test_robtarget_follows_the_cell() -> None:
