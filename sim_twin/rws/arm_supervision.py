@@ -72,7 +72,7 @@ CONTACT_MM: Final = 2.0
 ARM_ANGLE_EASE_DEG: Final = 20.0
 """How far the twin lets axis 7 leave the robtarget's arm angle to pass a pocket (see
 ``ArmSupervisor._arm_angle_eased``)."""
-WRIST_SAMPLE_MM: Final = 3.0
+WRIST_SAMPLE_MM: Final = 5.0
 """A SingArea Wrist line is sampled at least every this many mm of TCP travel
 (``ArmSupervisor._wrist_line``: a sample costs one small solve)."""
 JUMP_DEG: Final = 25.0
@@ -458,11 +458,17 @@ class ArmSupervisor:
         m = self.models[arm]
         r1 = FLANGE_DOWN if rot is None else rot
         end_flange = flange_at(seg.b, self.tool_mm, r1)
-        flips = [[*q[:4], q[4] + d, -q[5], q[6] + d] for d in (180.0, -180.0)]
-        s = solve(m, end_flange, angle, None, current=q, free_yaw=True, seeds=[q, *flips])
-        if s.pose is None:
-            return False
-        end = list(s.pose.chain_deg)
+        # the end: the descent from the start's joints (the solution they continue to, the
+        # closest but for a rare one), else the search's closest within the limits
+        reach, res = _descend(m, end_flange, [*q[:2], angle, *q[3:]], free_yaw=True)
+        if res <= REACH_TOL_MM and m.limit_violation(reach.chain_deg) is None:
+            end = list(reach.chain_deg)
+        else:
+            flips = [[*q[:4], q[4] + d, -q[5], q[6] + d] for d in (180.0, -180.0)]
+            s = solve(m, end_flange, angle, None, current=q, free_yaw=True, seeds=[q, *flips])
+            if s.pose is None:
+                return False
+            end = list(s.pose.chain_deg)
         wrist = (2, 4, 5, 6)  # chain indices of axes 7, 4, 5, 6
         swing = max(abs(end[k] - q[k]) for k in wrist)
         # denser than a plain line's: between samples the joints are interpolated, and a
@@ -471,7 +477,7 @@ class ArmSupervisor:
                 math.ceil(swing / 2.0))
         arm_joints = (0, 1, 3)
         a = np.asarray(seg.a)
-        prev = list(q)
+        before = prev = list(q)
         for i in range(1, n + 1):
             t = t0 + seg.duration * i / n
             xyz = np.asarray(seg.at(seg.duration * i / n))
@@ -479,6 +485,8 @@ class ArmSupervisor:
             seed = list(prev)
             for k in wrist:
                 seed[k] = q[k] + f * (end[k] - q[k])
+            for k in arm_joints:  # the arm's joints carried on as they went: a near seed
+                seed[k] += prev[k] - before[k]
             pose, err = tip_descend(m, xyz, self.tool_mm, seed, arm_joints)
             if err > REACH_TOL_MM:
                 return ArmStop(t, arm, "reach", f"at {_xyz(xyz)}: the arm cannot follow the "
@@ -491,7 +499,7 @@ class ArmSupervisor:
             if jump > JUMP_DEG or arm_sigma(m, pose, self.tool_mm) < SINGULAR_SIGMA:
                 return ArmStop(t, arm, "singular", f"at {_xyz(xyz)}: the linear path passes "
                                                    "an arm singularity")
-            prev = list(pose.chain_deg)
+            before, prev = prev, list(pose.chain_deg)
             track.t.append(t)
             track.q.append(prev)
         return None
