@@ -432,12 +432,13 @@ class YumiTwinCell:
     def _pacer(self) -> Callable[[float], None]:
         import time
 
-        if self.realtime <= 0:
+        realtime = self.realtime  # once: the pace of this move (a change applies to the next)
+        if realtime <= 0:
             return lambda sim_s: None
         t0 = time.monotonic()
 
         def pace(sim_s: float) -> None:
-            ahead = t0 + sim_s / self.realtime - time.monotonic()
+            ahead = t0 + sim_s / realtime - time.monotonic()
             if ahead > 0.002:
                 time.sleep(ahead)
         return pace

@@ -237,7 +237,7 @@ def test_a_calibration_grid_over_the_shipped_box_reaches_every_point(yumi: Any,
         got = backend.move_tcp("right", (x, y, 10.0))
         assert got == pytest.approx((x, y, 10.0), abs=1.0)
     cmds = motion.last_run["T_ROB_R"].program.commands  # the way back: up to travel height
-    assert list(cmds[0].to_point.trans) == pytest.approx([*points[-2], 80.0], abs=1e-3)
+    assert list(cmds[0].to_point.trans) == pytest.approx([*points[-2], 80.0], abs=0.05)
     backend.close()
 
 
