@@ -11,15 +11,13 @@ the arm is moving, and a second client, as a person at another PC, reads the out
 from __future__ import annotations
 
 import pytest
-from twin_rws import client, newest, program, since, start, stay, wait_stopped
+from twin_rws import client, newest, our_twin, program, since, start, stay, wait_stopped
 
 from sim_twin.rws.testbed_rapid import DONE
 from sim_twin.yumi_arms import rest_tip
 
 
 def test_a_started_program_runs_to_its_end_when_its_client_vanishes() -> None:
-    from twin_rws import our_twin
-
     with our_twin() as tw:
         prev = newest(tw.c)
         target = (330.0, -250.0, 80.0)

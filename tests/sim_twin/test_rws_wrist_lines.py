@@ -20,16 +20,15 @@ from twin_rws import our_twin, program, run, stay
 
 from drivers.yumi.paths import gate_xy
 from sim_twin.yumi_arms import ArmModel
-
-BOXES = {"left": (150.0, 75.0, 470.0, 370.0), "right": (150.0, -370.0, 470.0, -75.0)}
-"""The shipped table boxes (testbed/lab/camera_model.py ``push_box``)."""
+from sim_twin.yumi_geometry import workspace_mm
+from testbed.lab.camera_model import push_box
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_a_walk_of_random_lines_over_the_box_never_winds_a_joint_past_its_limit(
         side: str) -> None:
     rng = np.random.default_rng(3)
-    box = BOXES[side]
+    box = push_box(workspace_mm(side))  # the shipped table box
     me, other = ("T_ROB_L", "T_ROB_R") if side == "left" else ("T_ROB_R", "T_ROB_L")
     model = ArmModel(side)
     with our_twin() as tw:
