@@ -18,6 +18,7 @@ from testbed.core.config import ConfigError, Name, StrictModel, parse_model, rea
 from testbed.core.host_config import AnyHost, default_hosts
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.learning.learning_config import LearningConfig
+from testbed.monitor.monitor_config import MonitorConfig
 from testbed.people.people_config import HumansConfig
 
 __all__ = ["PROTOCOL_KEYS", "TWIN_U_HAT", "FleetConfig", "TrialConfig", "default_twin_config",
@@ -36,6 +37,7 @@ class FleetConfig(StrictModel):
     humans: HumansConfig = HumansConfig()
     algorithm: AlgorithmConfig = AlgorithmConfig()
     learning: LearningConfig = LearningConfig()
+    monitor: MonitorConfig = MonitorConfig()
     hosts: list[AnyHost] = Field(default_factory=default_hosts)
 
     @model_validator(mode="after")

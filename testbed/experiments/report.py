@@ -487,4 +487,9 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
             tables += gain_tables(learning, evaluations, reference or PAPER_FIRST, trial_label)
     tables.append(classes_table([(r.path.name, r.group, r.classes)
                                  for r in [*learning, *evaluations]]))
+    from testbed.experiments.report_prediction import monitor_config, prediction_tables
+
+    every = [*learning, *evaluations]
+    tables += prediction_tables({g: [r.path for r in rs] for g, rs in _groups(every).items()},
+                                monitor_config(every[0].config) if every else None)
     return tables

@@ -188,6 +188,12 @@ class FleetLoop:
         """What the rows say of each human (``status.operators``; the matched gains)."""
         self._feed = rundata.label_feed(learner, len(self.robots))
         """The robot's own pushes, to a learner that learns from them, as episodes end."""
+        self._monitored = ("novelty",
+                           *(("goal_risk",) if "goal" in algorithm.spec.critics else ()))
+        """The signals each arm's row keeps under ``monitor`` besides uncertainty and risk
+        (the rows are all ``testbed report`` scores failure prediction from): novelty
+        always (the ensemble gives it for free), goal risk when its critic runs (the
+        algorithm reads it: the trial sets the learner's critics from the same spec)."""
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:
@@ -410,6 +416,8 @@ class FleetLoop:
         """The step as the records keep it. The mode each arm's row records: a host's
         fault wins, then a push it refused, then what was decided."""
         uncertainty, risk = np.asarray(d.out.uncertainty), np.asarray(d.out.risk)
+        monitored = {name: np.asarray(getattr(d.out, name)) for name in self._monitored
+                     if getattr(d.out, name, None) is not None}
         arms = []
         for i, r in enumerate(self.robots):
             res = results.get(r)
@@ -434,6 +442,7 @@ class FleetLoop:
                 refused=refused,
                 served=d.served.get(r),
                 first=((d.served[r], d.first[r]) if r in d.first else None),
+                monitor=None if faulted else {k: float(v[i]) for k, v in monitored.items()},
             ))
         faults = {r: res.reason for r, res in results.items() if isinstance(res, Fault)}
         return StepRecord(t, self.session, arms, seen.images, seen.observed, seen.goals,

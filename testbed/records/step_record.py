@@ -46,6 +46,10 @@ class ArmStep:
     """On the step of the intervention's first action (a teleop's first push, a reset's
     confirmation): (steps from the assignment, i.e. ``served``; the seconds the human
     reported, or None)."""
+    monitor: dict[str, float] | None = None
+    """The failure monitor's scores of the arm beyond ``uncertainty`` and ``risk``
+    (``novelty``, ``goal_risk`` when its critic ran, ...; testbed/monitor/), so a run's
+    rows alone can score every signal as a failure predictor. None when faulted."""
 
     def to_entry(self) -> dict[str, Any]:
         entry: dict[str, Any] = {
@@ -65,6 +69,8 @@ class ArmStep:
             entry["served"] = self.served
         if self.first is not None:
             entry["first"] = {"steps": self.first[0], "s": self.first[1]}
+        if self.monitor:
+            entry["monitor"] = dict(self.monitor)
         return entry
 
 
@@ -133,7 +139,7 @@ class StepRecord:
         arms = [ArmStep(r["robot"], Mode(r["mode"]), r["human"], r["action"],
                         bool(r["success"]), bool(r["violation"]), r["uncertainty"],
                         r["risk"], tuple(r.get("key", ())), r.get("refused"),
-                        r.get("served"), _first(r.get("first")))
+                        r.get("served"), _first(r.get("first")), r.get("monitor"))
                 for r in row["robots"]]
         return cls(int(row["t"]), session, arms, images, observed, goals,
                    dict(row.get("faults", {})), list(row.get("away", [])),

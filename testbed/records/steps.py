@@ -102,7 +102,8 @@ def validate_step(obj: object) -> None:
     ``wall_time`` and ``duration_s`` (timing for the lab) are optional, so records
     written before them still read, but must be finite numbers >= 0 when present; so
     are ``away`` (a list of human indices) and ``released`` (a list of ``{"robot": one
-    of the row's robots, "human": int >= 0, "why": str}``).
+    of the row's robots, "human": int >= 0, "why": str}``), and an arm's ``monitor``
+    (the failure monitor's scores beyond uncertainty and risk: name -> finite number).
     """
     if not isinstance(obj, dict):
         raise RecordError(f"step must be a JSON object, got {type(obj).__name__}")
@@ -160,6 +161,11 @@ def validate_step(obj: object) -> None:
         key = row.get("key")
         if not isinstance(key, list) or not all(_is_number(k) for k in key):
             raise RecordError(f"{where}.key must be a list of finite numbers, got {key!r}")
+        monitor = row.get("monitor", {})
+        if not (isinstance(monitor, dict) and all(
+                isinstance(k, str) and _is_number(v) for k, v in monitor.items())):
+            raise RecordError(f"{where}.monitor must map signal names to finite numbers, "
+                              f"got {monitor!r}")
     _validate_presence(obj, seen)
 
 

@@ -28,6 +28,7 @@ ROW_ONLY = {
     "refused": "the host's reason, text",
     "served": "an intervention's count, derived again from the modes by the tools",
     "first": "the human's response time, per intervention",
+    "monitor": "the failure monitor's scores beyond uncertainty and risk: a run's own set",
 }
 """``ArmStep`` fields kept only in steps.jsonl, and why. A new field goes either into
 ``FRAME_DTYPE`` or here, on purpose."""
@@ -39,7 +40,8 @@ STEP_FIELDS = {"t", "arm", "session", "observed", "goal", "wall_time", "image"}
 def full_arm() -> ArmStep:
     """An arm step with every field set to a value that is not its default."""
     return ArmStep("left", Mode.REFUSED, 1, 2, True, False, 0.25, 0.5, (3.0, -1.0),
-                   refused="the controller is in guard stop", served=4, first=(4, 1.5))
+                   refused="the controller is in guard stop", served=4, first=(4, 1.5),
+                   monitor={"novelty": 0.125, "goal_risk": 0.75})
 
 
 def test_every_arm_field_is_in_the_row_it_validates_and_it_reads_back() -> None:

@@ -1,0 +1,203 @@
+"""A run's signals scored as failure predictors (issue 36, item 1): the run's policy
+pushes, each signal's figures on them, and what could not be scored and why.
+
+Why from the records alone: a run's rows keep, per arm and step, the signals the learner
+gave (``uncertainty`` and ``risk``; ``monitor`` for novelty, goal risk and the monitor's
+own scores), and its data store settles each push's episode (``run_classes``), so any
+finished run, old or new, is scored the same way, by ``testbed report`` and by scripts.
+A signal a run did not compute (a critic its algorithm does not read gives zeros; rows
+written before ``monitor`` existed keep uncertainty and risk only) is left out with the
+reason, never scored as a constant.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from testbed.core.types import EpisodeOutcome
+from testbed.fleet.algorithms import ALGORITHMS
+from testbed.monitor.conformal import Replay, replay_online, replay_split
+from testbed.monitor.labels import PolicyPushes, policy_pushes
+from testbed.monitor.monitor_config import MonitorConfig
+from testbed.monitor.predictor_metrics import LeadTime, auroc, average_precision, lead_time
+from testbed.records.run_classes import run_classes
+from testbed.records.steps import RecordError, read_steps
+from testbed.records.store import RunDataError
+
+__all__ = ["SIGNALS", "RunPrediction", "SignalFigures", "replays", "run_prediction",
+           "score_signal"]
+
+SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
+"""Today's signals (issue 36's baseline), in the tables' order."""
+_READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
+_FROM_FRAMES: Final = ("uncertainty", "risk")
+
+
+@dataclass(frozen=True)
+class SignalFigures:
+    """One signal on one run's policy pushes: per k (1..horizon) AUROC, average
+    precision and the base rate of "a violation within k steps"; the same for "this
+    episode fails"; the lead time and false alarms at the config's recall."""
+
+    auroc_k: tuple[float, ...]
+    ap_k: tuple[float, ...]
+    base_k: tuple[float, ...]
+    auroc_fail: float
+    ap_fail: float
+    base_fail: float
+    lead: LeadTime
+    pushes: int
+
+
+@dataclass
+class RunPrediction:
+    """A run's policy pushes (None: unreadable), the figures of each signal it
+    computed, the signals it did not (name -> why) and notes."""
+
+    path: Path
+    group: str
+    pushes: PolicyPushes | None
+    figures: dict[str, SignalFigures] = field(default_factory=dict)
+    absent: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def success_peaks(self, signal: str) -> np.ndarray:
+        """The signal's peak per successful episode, in the order they ran."""
+        if self.pushes is None or signal not in self.figures:
+            return np.zeros(0)
+        return self.pushes.episode_max(signal, EpisodeOutcome.SUCCESS)[1]
+
+
+def _config(path: Path) -> dict[str, Any]:
+    try:
+        return tomllib.loads((path / "config.toml").read_text())
+    except (OSError, tomllib.TOMLDecodeError):
+        return {}
+
+
+def _algorithm(path: Path) -> str | None:
+    """The algorithm that ran (run.json's options: a trial's ``--algorithm`` is not in
+    its config.toml), None when run.json cannot say."""
+    try:
+        meta = json.loads((path / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    name = meta.get("options", {}).get("algorithm") if isinstance(meta, dict) else None
+    return str(name) if name else None
+
+
+def _monitor_scores(rows: Sequence[dict[str, Any]], robots: Sequence[str], steps: int,
+                    t0: int) -> dict[str, np.ndarray]:
+    """The rows' ``monitor`` values as per-frame arrays (step-major; NaN: absent)."""
+    index = {r: i for i, r in enumerate(robots)}
+    n = len(robots)
+    out: dict[str, np.ndarray] = {}
+    for row in rows:
+        s = int(row["t"]) - t0
+        if not 0 <= s < steps:
+            continue
+        for entry in row["robots"]:
+            for name, value in (entry.get("monitor") or {}).items():
+                arr = out.setdefault(name, np.full(steps * n, np.nan))
+                arr[s * n + index[entry["robot"]]] = float(value)
+    return out
+
+
+def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
+                   ) -> RunPrediction:
+    """Score every signal ``path``'s records hold, with ``config`` (default: the run's own
+    ``[monitor]``, else the defaults)."""
+    raw = _config(path)
+    cfg = config or MonitorConfig.model_validate(raw.get("monitor", {}))
+    result = RunPrediction(path, group, None)
+    try:
+        rc = run_classes(path)
+        rows = read_steps(path / "steps.jsonl", validate=False)
+    except (RunDataError, RecordError, OSError, ValueError, KeyError) as exc:
+        result.notes.append(f"its records could not be read: {exc}")
+        return result
+    result.notes += list(rc.notes)
+    n = max(len(rc.robots), 1)
+    steps = len(rc.frames) // n
+    t0 = int(rc.frames["t"][0]) if len(rc.frames) else 0
+    scores: dict[str, np.ndarray] = {k: rc.frames[k].astype(np.float64) for k in _FROM_FRAMES}
+    scores |= _monitor_scores(rows, rc.robots, steps, t0)
+    algorithm = _algorithm(path) or str(raw.get("algorithm", {}).get("name", ""))
+    spec = ALGORITHMS.get(algorithm)
+    reads = spec.reads if spec is not None else frozenset(SIGNALS)
+    for name in list(scores):
+        if name in _READ_AS and name not in reads:
+            del scores[name]
+            result.absent[name] = (f"its critic did not run ({algorithm or 'this run'} reads "
+                                   f"no {name.replace('_', ' ')}; the learner gave zeros)")
+    for name in SIGNALS:
+        if name not in scores and name not in result.absent:
+            result.absent[name] = "not in the records (rows written before issue 36 keep " \
+                                  "uncertainty and risk only)"
+    pushes = policy_pushes(rc.frames, rc.classes.classes, rc.classes.outcomes,
+                           rc.classes.episodes, scores)
+    result.pushes = pushes
+    for name in scores:
+        if np.isnan(pushes.scores[name]).all():
+            result.absent[name] = "no policy push has it"
+            continue
+        result.figures[name] = score_signal(pushes, name, cfg)
+    return result
+
+
+def _safe(f: Any, s: np.ndarray, y: np.ndarray) -> float:
+    return float(f(s, y)) if s.size else math.nan
+
+
+def score_signal(p: PolicyPushes, name: str, cfg: MonitorConfig) -> SignalFigures:
+    """The figures of signal ``name`` on ``p`` (pushes without a value left out)."""
+    has = ~np.isnan(p.scores[name])
+    s = p.scores[name]
+    au, ap, base = [], [], []
+    for k in range(1, cfg.horizon + 1):
+        label, known = p.within(k)
+        use = has & known
+        au.append(_safe(auroc, s[use], label[use]))
+        ap.append(_safe(average_precision, s[use], label[use]))
+        base.append(float(label[use].mean()) if use.any() else math.nan)
+    settled = has & (p.fails | p.succeeded)
+    fail = p.fails[settled]
+    lead = lead_time(s[has], p.episode[has], p.to_violation[has], p.fails[has],
+                     p.succeeded[has], cfg.recall)
+    return SignalFigures(tuple(au), tuple(ap), tuple(base),
+                         _safe(auroc, s[settled], fail), _safe(average_precision, s[settled], fail),
+                         float(fail.mean()) if fail.size else math.nan, lead, int(has.sum()))
+
+
+def replays(runs: Sequence[RunPrediction], signal: str, cfg: MonitorConfig
+            ) -> tuple[Replay, Replay]:
+    """The alarm's false-alarm rate on ``signal`` over ``runs`` (one algorithm's trials):
+
+    * split: the successful episodes' peaks of all ``runs`` pooled, calibrated on a random
+      half and counted on the other, 1000 times (exchangeable by construction, so it
+      checks the arithmetic and the bound's slack);
+    * online: as deployed, each run's successful episodes in the order they ran, each
+      judged by the threshold of the ``window`` before it, pooled over runs (a learning
+      policy: what breaks exchangeability shows here). Episodes before a run's alarm is
+      ready are not counted (``Replay.episodes`` says how many were).
+    """
+    peaks = [r.success_peaks(signal) for r in runs]
+    split = replay_split(np.concatenate(peaks) if peaks else np.zeros(0), cfg.alpha,
+                         splits=1000)
+    hits, judged = 0.0, 0
+    for pk in peaks:
+        on = replay_online(pk, cfg.alpha, cfg.window)
+        if on.episodes:
+            hits += on.rate * on.episodes
+            judged += on.episodes
+    rate = hits / judged if judged else math.nan
+    err = math.sqrt(max(rate * (1 - rate), 1e-12) / judged) if judged else math.nan
+    return split, Replay(cfg.alpha, rate, err, judged, 1)

@@ -1,0 +1,224 @@
+"""The report's failure-prediction tables (issue 36, item 1): each signal scored as a
+predictor of an arm's failure, per algorithm, with intervals over runs.
+
+What each table says (docs/notes/monitor.md has the definitions and the twin's figures):
+
+* AUROC and average precision of each signal for "a violation within k steps" (k = 1..
+  ``monitor.horizon``) and "this episode fails", on the policy's own pushes: the mean
+  over the group's runs with its 95 % interval (``intervals.interval``);
+* the lead time and false alarms at the threshold that catches ``monitor.recall`` of the
+  failed episodes (each run its own threshold);
+* the reliability of the scores that claim to be probabilities (risk, goal risk):
+  pooled over a group's runs, against "this episode fails";
+* the conformal alarm's false-alarm rate per successful episode by replay, against
+  ``monitor.alpha``.
+
+The numbers come from ``testbed.experiments.prediction_runs`` (records only).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from testbed.experiments.intervals import Interval, interval
+from testbed.experiments.prediction_runs import (
+    SIGNALS,
+    RunPrediction,
+    replays,
+    run_prediction,
+)
+from testbed.experiments.report_tables import Table, method_note
+from testbed.monitor.monitor_config import MonitorConfig
+from testbed.monitor.predictor_metrics import reliability
+
+__all__ = ["monitor_config", "prediction_tables"]
+
+PROBABILITIES = ("risk", "goal_risk")
+"""Signals that claim to be a probability of a violation (a reliability table each)."""
+CAVEAT = ("Labels: a policy push's episode and the steps to its violation "
+          "(testbed/monitor/labels.py). A person who took an arm because a signal was high "
+          "may have prevented the violation it foresaw, which the label then counts as a "
+          "false alarm: runs where people intervene often understate every signal; "
+          "evaluation runs (people for hard resets only) do not.")
+
+
+def _cell(iv: Interval) -> str:
+    if iv.method == "none":
+        return "-"
+    if iv.method == "one":
+        return f"{iv.mean:.3f}"
+    return f"{iv.mean:.3f} [{iv.low:.3f}, {iv.high:.3f}]"
+
+
+def _iv(values: Sequence[float]) -> Interval:
+    return interval([v for v in values if not math.isnan(v)])
+
+
+def _num(x: float) -> float | str:
+    return "" if math.isnan(x) else round(float(x), 6)
+
+
+def monitor_config(config: Mapping[str, Any]) -> MonitorConfig:
+    """A run's ``[monitor]`` (its config.toml as a dict; the defaults for runs before it)."""
+    return MonitorConfig.model_validate(dict(config.get("monitor", {})))
+
+
+def prediction_tables(groups: Mapping[str, Sequence[Path]],
+                      config: MonitorConfig | None = None) -> list[Table]:
+    """The tables for runs grouped by algorithm (name -> run folders)."""
+    scored = {g: [run_prediction(p, g, config) for p in paths] for g, paths in groups.items()}
+    cfg = config or MonitorConfig()
+    return [_ranking(scored, cfg, "auroc"), _ranking(scored, cfg, "ap"), _lead(scored, cfg),
+            _reliability(scored), _alarm(scored, cfg)]
+
+
+def _signals(runs: Sequence[RunPrediction]) -> list[str]:
+    return [s for s in SIGNALS if any(s in r.figures for r in runs)] + sorted(
+        {s for r in runs for s in r.figures} - set(SIGNALS))
+
+
+def _absent_notes(scored: Mapping[str, Sequence[RunPrediction]]) -> list[str]:
+    notes = []
+    for g, runs in scored.items():
+        why = {f"{s}: {w}" for r in runs for s, w in r.absent.items()}
+        why |= {f"{r.path.name}: {n}" for r in runs for n in r.notes}
+        if why:
+            notes.append(f"{g}: not scored: " + "; ".join(sorted(why)))
+    return notes
+
+
+def _ranking(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig,
+             which: str) -> Table:
+    ks = range(1, cfg.horizon + 1)
+    header = ["algorithm", "signal", "runs", "pushes", *(f"k={k}" for k in ks),
+              "episode fails"]
+    csv_rows: list[list[Any]] = [["algorithm", "signal", "runs", "pushes"] + [
+        f"{c}_{s}" for c in [*(f"k{k}" for k in ks), "fails"] for s in ("mean", "low", "high")]]
+    rows: list[list[str]] = []
+    counts: list[int] = []
+    for g, runs in scored.items():
+        for sig in _signals(runs):
+            figs = [r.figures[sig] for r in runs if sig in r.figures]
+            per_k = [f.auroc_k if which == "auroc" else f.ap_k for f in figs]
+            fails = [f.auroc_fail if which == "auroc" else f.ap_fail for f in figs]
+            ivs = [_iv([v[k - 1] for v in per_k]) for k in ks] + [_iv(fails)]
+            counts.append(len(figs))
+            pushes = sum(f.pushes for f in figs)
+            rows.append([g, sig, str(len(figs)), str(pushes), *map(_cell, ivs)])
+            csv_rows.append([g, sig, len(figs), pushes,
+                             *(_num(x) for iv in ivs for x in (iv.mean, iv.low, iv.high))])
+        if which == "ap" and runs and any(r.figures for r in runs):
+            figs = [next(iter(r.figures.values())) for r in runs if r.figures]
+            base = [_iv([f.base_k[k - 1] for f in figs]) for k in ks]
+            base.append(_iv([f.base_fail for f in figs]))
+            rows.append([g, "(base rate)", str(len(figs)), "", *map(_cell, base)])
+    name = "AUROC" if which == "auroc" else "Average precision"
+    notes = [("0.5: no better than chance. " if which == "auroc" else
+              "The base rate (the share of positives) is what a signal without skill gets. ")
+             + CAVEAT, method_note(counts or [0]), *_absent_notes(scored)]
+    return Table(f"prediction-{which}",
+                 f"Failure prediction, {name}: each signal on the policy's own pushes, for "
+                 "'a violation within k steps' and 'this episode fails' (mean over runs "
+                 "[95% interval])", header, rows, notes, csv_rows)
+
+
+def _lead(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig) -> Table:
+    header = ["algorithm", "signal", "failed episodes", "caught", "lead (steps, median)",
+              "false alarms per successful episode", "successful episodes alarmed"]
+    rows, csv_rows = [], [["algorithm", "signal", "failed", "caught", "lead_median",
+                           "false_alarms_per_success", "successes_alarmed"]]
+    for g, runs in scored.items():
+        for sig in _signals(runs):
+            leads = [r.figures[sig].lead for r in runs if sig in r.figures]
+            failed = sum(ld.failed for ld in leads)
+            caught = _iv([ld.caught for ld in leads])
+            steps = [s for ld in leads for s in ld.steps]
+            median = float(np.median(steps)) if steps else math.nan
+            fa = _iv([ld.false_alarms_per_success for ld in leads])
+            share = _iv([ld.successes_alarmed for ld in leads])
+            rows.append([g, sig, str(failed), _cell(caught),
+                         "-" if math.isnan(median) else f"{median:g}", _cell(fa), _cell(share)])
+            csv_rows.append([g, sig, failed, _num(caught.mean), _num(median), _num(fa.mean),
+                             _num(share.mean)])
+    return Table("prediction-lead",
+                 f"Lead time and false alarms at recall {cfg.recall:g}: each run's threshold "
+                 f"is the largest that alarms on at least {cfg.recall:.0%} of its failed "
+                 "episodes before their violation", header, rows,
+                 ["lead: steps from the first alarm to the violation, over every caught "
+                  "episode of the group (0: the alarm came on the push that took the cube "
+                  "out, before it ran); false alarms: alarmed policy pushes in episodes that "
+                  "succeeded, per such episode; caught, false alarms and the share: mean "
+                  "over runs [95% interval]."], csv_rows)
+
+
+def _reliability(scored: Mapping[str, Sequence[RunPrediction]]) -> Table:
+    header = ["algorithm", "signal", "bin", "pushes", "mean score", "episodes failed",
+              "95% interval"]
+    rows, csv_rows = [], [["algorithm", "signal", "low", "high", "pushes", "mean_score",
+                           "frequency", "freq_low", "freq_high"]]
+    notes = []
+    for g, runs in scored.items():
+        for sig in PROBABILITIES:
+            s, y = [], []
+            for r in runs:
+                if sig in r.figures and r.pushes is not None:
+                    p = r.pushes
+                    use = ~np.isnan(p.scores[sig]) & (p.fails | p.succeeded)
+                    s.append(p.scores[sig][use])
+                    y.append(p.fails[use])
+            if not s or not np.concatenate(s).size:
+                continue
+            table, ece = reliability(np.clip(np.concatenate(s), 0.0, 1.0), np.concatenate(y))
+            notes.append(f"{g}, {sig}: expected calibration error {ece:.3f}")
+            for b in table:
+                rows.append([g, sig, f"[{b.low:.1f}, {b.high:.1f})", str(b.count),
+                             f"{b.mean_score:.3f}", f"{b.frequency:.3f}",
+                             f"[{b.freq_low:.3f}, {b.freq_high:.3f}]"])
+                csv_rows.append([g, sig, b.low, b.high, b.count, _num(b.mean_score),
+                                 _num(b.frequency), _num(b.freq_low), _num(b.freq_high)])
+    notes.append("Is a 0.3 a 30 % chance? Each bin's pushes (of episodes that succeeded or "
+                 "failed, every run of the group pooled) against the share whose episode "
+                 "ended in a violation (Wilson interval). The safety critic estimates a "
+                 "discounted probability (gamma_safe), so it sits below the frequency when "
+                 "violations come late.")
+    return Table("prediction-reliability",
+                 "Reliability of the scores that claim a probability of a violation",
+                 header, rows, notes, csv_rows)
+
+
+def _alarm(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig) -> Table:
+    header = ["algorithm", "signal", "alpha", "split replay (episodes)",
+              "online replay (episodes judged)", "within alpha"]
+    rows, csv_rows = [], [["algorithm", "signal", "alpha", "split_rate", "split_mc_error",
+                           "split_episodes", "online_rate", "online_error", "online_episodes"]]
+    for g, runs in scored.items():
+        for sig in _signals(runs):
+            split, online = replays(runs, sig, cfg)
+
+            def cell(rep: Any) -> str:
+                if math.isnan(rep.rate):
+                    return f"- ({rep.episodes}: too few)"
+                return f"{rep.rate:.3f} ± {2 * rep.mc_error:.3f} ({rep.episodes})"
+            holds = [rep.holds for rep in (split, online) if not math.isnan(rep.rate)]
+            rows.append([g, sig, f"{cfg.alpha:g}", cell(split), cell(online),
+                         "-" if not holds else ("yes" if all(holds) else "no")])
+            csv_rows.append([g, sig, cfg.alpha, _num(split.rate), _num(split.mc_error),
+                             split.episodes, _num(online.rate), _num(online.mc_error),
+                             online.episodes])
+    return Table("prediction-alarm",
+                 f"The conformal alarm: false alarms per successful episode against alpha "
+                 f"{cfg.alpha:g} (window {cfg.window})", header, rows,
+                 ["An episode is alarmed when any policy push in it scores above the "
+                  "threshold: the ceil((n+1)(1-alpha))-th smallest peak of n successful "
+                  "episodes (testbed/monitor/conformal.py). Split: every run of the group "
+                  "pooled, calibrated on a random half, counted on the other, 1000 times "
+                  "(± twice the Monte-Carlo error). Online: each run's episodes in order, "
+                  "each judged by the window before it (± twice the binomial error). "
+                  "Within alpha: the rate is at most alpha plus twice its error. "
+                  f"The alarm needs {math.ceil(1 / cfg.alpha - 1 - 1e-12)} successful "
+                  "episodes before it can fire (until then it stays silent)."], csv_rows)

@@ -1,0 +1,44 @@
+"""The failure monitor's config: ``[monitor]``, how prediction is scored and the alarm
+calibrated.
+
+Why here: the monitor's room owns its schema (as ``[algorithm]`` lives with the fleet);
+``testbed/core/config.py`` loads it and says every error in one line (exit 2).
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, field_validator
+
+from testbed.core.config import StrictModel
+from testbed.monitor.conformal import DEFAULT_WINDOW, episodes_needed
+
+__all__ = ["MonitorConfig"]
+
+
+class MonitorConfig(StrictModel):
+    """How failure prediction is scored and the conformal alarm set (docs/notes/monitor.md)."""
+
+    alpha: float = Field(0.05, description="the bound on the false-alarm rate per "
+                         "successful episode, in (0, 1)")
+    horizon: int = Field(5, ge=1, description="the largest k of 'a violation within the next "
+                         "k steps' scored (k = 1..horizon)")
+    recall: float = Field(0.8, gt=0.0, le=1.0, description="the share of failed episodes the "
+                          "lead time and false alarms are read at")
+    window: int = Field(DEFAULT_WINDOW, ge=1, description="the latest successful episodes the "
+                        "online alarm calibrates on")
+
+    @field_validator("alpha")
+    @classmethod
+    def _alpha(cls, v: float) -> float:
+        if not 0.0 < v < 1.0:
+            raise ValueError("must be in (0, 1)")
+        return float(v)
+
+    @field_validator("window")
+    @classmethod
+    def _window(cls, v: int, info: object) -> int:
+        alpha = getattr(info, "data", {}).get("alpha")
+        if alpha is not None and v < episodes_needed(alpha):
+            raise ValueError(f"must hold at least {episodes_needed(alpha)} episodes for "
+                             f"alpha {alpha} (1/alpha - 1)")
+        return int(v)
