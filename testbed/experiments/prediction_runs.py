@@ -133,15 +133,16 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
     algorithm = _algorithm(path) or str(raw.get("algorithm", {}).get("name", ""))
     spec = ALGORITHMS.get(algorithm)
     reads = spec.reads if spec is not None else frozenset(SIGNALS)
-    for name in list(scores):
-        if name in _READ_AS and name not in reads:
-            del scores[name]
-            result.absent[name] = (f"its critic did not run ({algorithm or 'this run'} reads "
-                                   f"no {name.replace('_', ' ')}; the learner gave zeros)")
     for name in SIGNALS:
-        if name not in scores and name not in result.absent:
-            result.absent[name] = "not in the records (rows written before issue 36 keep " \
-                                  "uncertainty and risk only)"
+        if name in _READ_AS and name not in reads:
+            scores.pop(name, None)
+            result.absent[name] = (f"its critic did not run ({algorithm or 'this run'} reads "
+                                   f"no {name.replace('_', ' ')})")
+        elif name not in scores:
+            result.absent[name] = (
+                "not in its rows" if any("monitor" in e for row in rows for e in row["robots"])
+                else "not in the records (rows written before issue 36 keep uncertainty and "
+                     "risk only)")
     pushes = policy_pushes(rc.frames, rc.classes.classes, rc.classes.outcomes,
                            rc.classes.episodes, scores)
     result.pushes = pushes

@@ -325,6 +325,18 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert csv_lines[0].startswith("algorithm,trials,successes_mean,successes_std")
     png = (out / "curves.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    # failure prediction (issue 36): every signal the runs computed, the others named
+    cur_rows = read_steps(out / "cur-t0" / "steps.jsonl")
+    assert all(set(r["monitor"]) == {"novelty"} for s in cur_rows for r in s["robots"]
+               if r["mode"] != "fault")
+    auc = md.partition("Failure prediction, AUROC")[2].split("\n\n")[1]
+    assert {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| cur |")} == {
+        "uncertainty", "risk", "novelty"}
+    assert {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| bc |")} == {
+        "uncertainty", "novelty"}
+    assert "bc: not scored: goal_risk: its critic did not run" in md
+    assert "risk: its critic did not run (bc reads no risk" in md
+    assert "The conformal alarm: false alarms per successful episode" in md
     # BC gives humans hard resets only: it never teleoperates
     for s in read_steps(out / "bc-t0" / "steps.jsonl"):
         assert all(r["mode"] != "teleop" for r in s["robots"])

@@ -1,0 +1,118 @@
+"""A run's signals scored from its records (issue 36, item 1): a planted oracle signal
+ranks perfectly at its own horizon, a constant one at chance, a signal the run did not
+compute is named with the reason, and the report carries the tables."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from testbed.experiments.prediction_runs import run_prediction
+from testbed.experiments.report_prediction import prediction_tables
+from testbed.monitor.monitor_config import MonitorConfig
+from testbed.records.step_record import StepRecord
+from testbed.records.steps import RunWriter
+from testbed.records.store import RunDataWriter
+from tests.testbed.test_frame_classes_records import auto, frames_of, step
+
+ROBOTS = ["c/left", "c/right"]
+G = [(0.2, 0.3), (0.7, 0.6), (0.4, 0.8), (0.5, 0.5)]
+
+
+def plan(rng: np.random.Generator, steps: int) -> list[dict[str, Any]]:
+    """One arm: policy episodes that succeed or end in a violation, then a reset."""
+    out: list[dict[str, Any]] = []
+    g = 0
+    while len(out) < steps:
+        goal = G[g % len(G)]
+        n = int(rng.integers(2, 7))
+        fail = rng.random() < 0.4
+        out += [auto(goal=goal) for _ in range(n - 1)]
+        if fail:
+            out += [auto(goal=goal, violation=True), step("idle", goal=goal),
+                    step("reset", 0, goal=goal)]
+        else:
+            out.append(auto(goal=goal, success=True))
+        g += 1
+    return out[:steps]
+
+
+def _violation_ahead(p: list[dict[str, Any]], t: int) -> int | None:
+    """Steps from ``t`` to a violation of the same episode at most 2 steps ahead."""
+    for d in range(3):
+        if t + d >= len(p) or p[t + d]["success"]:
+            return None
+        if p[t + d]["violation"]:
+            return d
+    return None
+
+
+def write_run(run: Path, algorithm: str, seed: int, steps: int = 240) -> None:
+    """Rows with an ``oracle`` monitor score (1 when the episode's violation is at most
+    2 steps ahead) and a constant one, and the data store."""
+    rng = np.random.default_rng(seed)
+    plans = (plan(rng, steps), plan(rng, steps))
+    frames = frames_of(*plans)
+    run.mkdir(parents=True)
+    data = RunDataWriter(run, ROBOTS)
+    with RunWriter(run) as w:
+        for t in range(steps):
+            row: dict[str, Any] = {"t": t, "robots": [], "wall_time": 1.7e9 + t,
+                                   "duration_s": 1.0}
+            for a, p in enumerate(plans):
+                ahead = _violation_ahead(p, t)
+                row["robots"].append({
+                    "robot": ROBOTS[a], "mode": p[t]["mode"], "human": p[t]["human"],
+                    "action": p[t]["action"], "success": p[t]["success"],
+                    "violation": p[t]["violation"], "uncertainty": float(rng.random()),
+                    "risk": 0.0, "key": [0.0],
+                    "monitor": {"oracle": 1.0 if ahead is not None else 0.0, "flat": 0.5}})
+            f = frames[t * 2:(t + 1) * 2]
+            data.append(StepRecord.from_row(row, 0, np.zeros((2, 64, 64, 3), np.uint8),
+                                            f["observed"], f["goal"]).to_frames())
+            w.write_step(row)
+    data.close()
+    (run / "run.json").write_text(json.dumps({"options": {"algorithm": algorithm}}))
+
+
+def test_an_oracle_ranks_perfectly_at_its_horizon_and_a_constant_at_chance(
+        tmp_path: Path) -> None:
+    write_run(tmp_path / "a", "fleet-ed", 0)
+    r = run_prediction(tmp_path / "a", "fleet-ed")
+    oracle, flat = r.figures["oracle"], r.figures["flat"]
+    assert oracle.auroc_k[2] == 1.0 and oracle.ap_k[2] == 1.0  # k = 3: its own horizon
+    assert oracle.auroc_k[0] < 1.0 and oracle.auroc_k[4] < 1.0
+    assert flat.auroc_k == (0.5,) * 5 and flat.auroc_fail == 0.5
+    assert flat.ap_k[2] == pytest.approx(flat.base_k[2])
+    assert 0.0 < oracle.base_k[0] < oracle.base_k[2] < oracle.base_k[4] < 1.0
+    # every failed episode has its violation within 3 of its last pushes: caught, lead 0-2
+    assert oracle.lead.caught == 1.0 and set(oracle.lead.steps) <= {0, 1, 2}
+    assert oracle.lead.false_alarms_per_success == 0.0
+    assert "uncertainty" in r.figures
+    assert r.absent == {"risk": "its critic did not run (fleet-ed reads no risk)",
+                        "goal_risk": "its critic did not run (fleet-ed reads no goal risk)",
+                        "novelty": "not in its rows"}
+
+
+def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path: Path) -> None:
+    for s in range(3):
+        write_run(tmp_path / f"cur-t{s}", "cur", s)
+    tables = {t.key: t for t in prediction_tables(
+        {"cur": [tmp_path / f"cur-t{s}" for s in range(3)]}, MonitorConfig(horizon=3))}
+    auc = tables["prediction-auroc"]
+    assert auc.header[4:] == ["k=1", "k=2", "k=3", "episode fails"]
+    oracle = next(r for r in auc.rows if r[1] == "oracle")
+    assert oracle[2] == "3" and oracle[6] == "1.000 [1.000, 1.000]"
+    signals = [r[1] for r in auc.rows]
+    assert signals == ["uncertainty", "risk", "flat", "oracle"]  # risk: cur reads it
+    assert "(base rate)" in [r[1] for r in tables["prediction-ap"].rows]
+    rel = tables["prediction-reliability"]
+    assert {r[1] for r in rel.rows} == {"risk"}  # all zeros: one bin, the failure share
+    alarm = {r[1]: r for r in tables["prediction-alarm"].rows}
+    assert alarm["oracle"][5] in ("yes", "no", "-")
+    md = "\n".join(t.markdown() for t in tables.values())
+    assert "novelty: not in its rows" in md
