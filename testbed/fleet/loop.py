@@ -188,12 +188,14 @@ class FleetLoop:
         """What the rows say of each human (``status.operators``; the matched gains)."""
         self._feed = rundata.label_feed(learner, len(self.robots))
         """The robot's own pushes, to a learner that learns from them, as episodes end."""
-        self._monitored = ("novelty",
+        self._monitored = ("novelty", "ood",
                            *(("goal_risk",) if "goal" in algorithm.spec.critics else ()))
         """The signals each arm's row keeps under ``monitor`` besides uncertainty and risk
         (the rows are all ``testbed report`` scores failure prediction from): novelty
-        always (the ensemble gives it for free), goal risk when its critic runs (the
-        algorithm reads it: the trial sets the learner's critics from the same spec)."""
+        always (the ensemble gives it for free), ood when the learner gives it (the
+        distance to its training data in the policy's feature space), goal risk when its
+        critic runs (the algorithm reads it: the trial sets the learner's critics from the
+        same spec)."""
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:

@@ -40,6 +40,7 @@ from torch import Tensor, nn
 from testbed.core.types import NUM_ACTIONS
 from testbed.learning.api import PolicyOutput, check_images
 from testbed.learning.critics import Combine, q_values
+from testbed.learning.features import FeatureDensity
 from testbed.learning.policy import ensemble_signals
 
 CriticNets = Mapping[str, tuple[nn.Module, Combine]]
@@ -47,20 +48,24 @@ CriticNets = Mapping[str, tuple[nn.Module, Combine]]
 
 
 def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
-          device: torch.device, images: npt.ArrayLike) -> PolicyOutput:
+          device: torch.device, images: npt.ArrayLike,
+          features: FeatureDensity | None = None) -> PolicyOutput:
     """Actions and signals for uint8 images (N, 64, 64, 3); critics not in ``read`` give
-    zeros (their forward pass is skipped). The caller holds whatever lock guards the
-    networks."""
+    zeros (their forward pass is skipped); ``features`` gives ``ood`` (None without).
+    The caller holds whatever lock guards the networks."""
     arr = check_images(images)
     n = arr.shape[0]
     if n == 0:
         empty = np.zeros(0, dtype=np.float32)
         return PolicyOutput(np.zeros(0, dtype=np.int64),
                             np.zeros((0, NUM_ACTIONS), dtype=np.float32),
-                            empty, empty.copy(), empty.copy(), empty.copy())
+                            empty, empty.copy(), empty.copy(), empty.copy(),
+                            None if features is None else empty.copy())
     with torch.no_grad():
         x = torch.from_numpy(arr).to(device)
-        signals = ensemble_signals(policy(x))
+        logits, feats = policy(x, features=True)
+        signals = ensemble_signals(logits)
+        ood = None if features is None else features.score(feats)
         actions = signals["actions"]
         zeros = torch.zeros(n, device=device)
         risk = q_values(*critics["safety"], x, actions) if "safety" in read else zeros
@@ -77,6 +82,7 @@ def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
         risk=out(risk),
         goal_risk=out(goal_risk.clamp(0.0, 1.0)),
         novelty=out(signals["novelty"]),
+        ood=None if ood is None else out(ood),
     )
 
 
@@ -94,7 +100,8 @@ class Actor:
 
     def __init__(self, lock: AbstractContextManager[Any], policy: nn.Module,
                  critics: CriticNets, read: Callable[[], frozenset[str]],
-                 device: torch.device, *, compile: bool = False) -> None:
+                 device: torch.device, *, compile: bool = False,
+                 features: FeatureDensity | None = None) -> None:
         self._source_lock = lock
         self._source_policy = policy
         self._source_critics = dict(critics)
@@ -108,6 +115,8 @@ class Actor:
             }
             self.read: frozenset[str] = read()
             self.device = device
+            self._source_features = features
+            self._features = None if features is None else copy.deepcopy(features)
         self.compiled = compile
         self._run_policy: nn.Module = self._policy
         self._run_critics: dict[str, tuple[nn.Module, Combine]] = self._critics
@@ -121,8 +130,12 @@ class Actor:
     def _pairs(self) -> list[tuple[nn.Module, nn.Module]]:
         """(copy, source) for every network the actor holds."""
         sources = self._source_critics
-        return [(self._policy, self._source_policy),
-                *((net, sources[name][0]) for name, (net, _) in self._critics.items())]
+        pairs: list[tuple[nn.Module, nn.Module]] = [
+            (self._policy, self._source_policy),
+            *((net, sources[name][0]) for name, (net, _) in self._critics.items())]
+        if self._features is not None and self._source_features is not None:
+            pairs.append((self._features, self._source_features))
+        return pairs
 
     def sync(self) -> None:
         """Copy the learner's current weights and parts into this actor."""
@@ -140,10 +153,10 @@ class Actor:
         with self._lock:
             if self._proven:
                 return infer(self._run_policy, self._run_critics, self.read, self.device,
-                             images)
+                             images, self._features)
             try:  # the first compiled call compiles; without a C compiler it fails here
                 out = infer(self._run_policy, self._run_critics, self.read, self.device,
-                            images)
+                            images, self._features)
             except Exception as exc:  # any compiler failure: act in eager mode
                 first = str(exc).splitlines()[0] if str(exc) else ""
                 warnings.warn(f"learning.compile_act: torch.compile failed "
@@ -151,6 +164,7 @@ class Actor:
                               RuntimeWarning, stacklevel=2)
                 self._run_policy, self._run_critics = self._policy, self._critics
                 self.compiled = False
-                out = infer(self._policy, self._critics, self.read, self.device, images)
+                out = infer(self._policy, self._critics, self.read, self.device, images,
+                            self._features)
             self._proven = True
             return out

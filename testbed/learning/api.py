@@ -75,6 +75,10 @@ class PolicyOutput:
       twin heads): Fleet-ThriftyDAgger's risk.
     * ``novelty``: float32 in [0, 1], the members' total variance of the action
       probabilities over its maximum (1 - 1/4): Fleet-ThriftyDAgger's novelty.
+    * ``ood``: float32 >= 0, the image's Mahalanobis distance to the policy's training
+      features in its own trunk's space / sqrt(64) (``features.py``; about 1 for a
+      training image, 0 before the policy trained once), the failure monitor's
+      out-of-distribution score; None from a learner that does not compute it.
     """
 
     actions: np.ndarray
@@ -83,6 +87,7 @@ class PolicyOutput:
     risk: np.ndarray
     goal_risk: np.ndarray
     novelty: np.ndarray
+    ood: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.actions.shape[0])

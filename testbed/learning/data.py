@@ -174,6 +174,10 @@ class PolicyData:
         """Who gave each label, in the order added (int16 (N,); -1: no human)."""
         return self._store["labellers"].numpy().copy()
 
+    def original_images(self, index: Tensor) -> Tensor:
+        """The labelled images at ``index`` as they were added (uint8 (K, 64, 64, 3))."""
+        return self._store["images"][index, 0]
+
     def originals(self) -> np.ndarray:
         """The labelled images as they were added (uint8 (N, 64, 64, 3), a copy)."""
         return self._store["images"][:, 0].numpy().copy()

@@ -63,7 +63,9 @@ from testbed.learning.api import (
 )
 from testbed.learning.critics import Combine, Critic, CriticBatch, CriticSpec
 from testbed.learning.data import PolicyData, TransitionBuffer
+from testbed.learning.features import FeatureDensity
 from testbed.learning.learning_config import ClassWeights, LearningConfig
+from testbed.learning.networks import TRUNK_FEATURES
 from testbed.learning.policy import PolicyEnsemble, ensemble_signals
 from testbed.learning.runtime import (
     STREAM_INIT,
@@ -147,6 +149,13 @@ def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]
             progress(phase, i + 1, total)
 
 
+FEATURE_SAMPLE: Final = 64
+"""Labelled images a policy update folds into the feature density (``_update_features``):
+a trunk pass of 64 images per member, a few % of a batch-256 step."""
+FEATURE_STRIDE: Final = 7919
+"""A prime: the sweep's images are spread over the data, not 32 neighbours (one chunk)."""
+
+
 class Learner:
     """Policy ensemble + safety critic + goal critic + their data, for one trial.
 
@@ -178,6 +187,8 @@ class Learner:
             self.safety = Critic(CriticSpec("safety", cfg.gamma_safe, "max"), cfg.lr, self.device)
             self.goal = Critic(CriticSpec("goal", cfg.gamma_goal, "min"), cfg.lr, self.device)
         self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.lr)
+        self.features = FeatureDensity(cfg.ensemble_size, TRUNK_FEATURES).to(self.device)
+        """What the policy has trained on, in its own feature space (``act``'s ``ood``)."""
         self._sampler = generator(self.seed, STREAM_SAMPLE)
         self.policy_data = PolicyData(cfg.ensemble_size, cfg.augmentation_factor, self.seed)
         self.transitions = TransitionBuffer()
@@ -248,14 +259,14 @@ class Learner:
         (the algorithm does not read it: the critic's forward pass is skipped)."""
         with self._lock:
             return infer(self.policy, self._critic_nets(), self.read_critics, self.device,
-                         images)
+                         images, self.features)
 
     def acting_copy(self) -> Actor:
         """An ``Actor``: ``act`` on copies of these networks, brought up to date by its
         ``sync()``, so that act can run while ``train_step`` does (the fleet loop);
         compiled when ``cfg.compile_act``."""
         return Actor(self._lock, self.policy, self._critic_nets(), lambda: self.read_critics,
-                     self.device, compile=self.cfg.compile_act)
+                     self.device, compile=self.cfg.compile_act, features=self.features)
 
     def signals_on_data(self, limit: int = 2000) -> dict[str, np.ndarray]:
         """``uncertainty`` and ``risk`` (the safety critic at pi(s)) on the states of this
@@ -390,8 +401,25 @@ class Learner:
         self.policy_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.policy_optimizer.step()
+        self._update_features()
         self.policy_updates += 1
         return float(per_member.mean())
+
+    def _update_features(self) -> None:
+        """Fold ``FEATURE_SAMPLE`` of the labelled images, as they were added (not the
+        augmented copies the step trained on: the colour jitter would teach the density
+        that any colour is familiar), into ``features``, through the policy just updated.
+        The images are a strided sweep through the data by update count: no random draw,
+        so training's random streams are untouched and a resume picks up exactly."""
+        n = len(self.policy_data)
+        if n == 0:
+            return
+        k = min(FEATURE_SAMPLE, n)
+        index = (self.policy_updates * k + torch.arange(k) * FEATURE_STRIDE) % n
+        with torch.no_grad():
+            images = self.policy_data.original_images(index).to(self.device)
+            _, feats = self.policy(images, features=True)
+        self.features.update(feats)
 
     def _critic_update(self, critics: tuple[str, ...] = CRITICS) -> dict[str, float]:
         """One minibatch for ``critics`` (non-empty, in ``CRITICS`` order): one sample,
@@ -497,6 +525,7 @@ class Learner:
                 "policy_optimizer": self.policy_optimizer.state_dict(),
                 "safety": self.safety.state_dict(),
                 "goal": self.goal.state_dict(),
+                "features": self.features.state_dict(),
                 "sampler": self._sampler.get_state(),
                 "counters": [self.policy_updates, self.critic_updates,
                              self.safety_updates, self.goal_updates],
@@ -549,6 +578,8 @@ class Learner:
         self.policy_optimizer.load_state_dict(state["policy_optimizer"])
         self.safety.load_state_dict(state["safety"])
         self.goal.load_state_dict(state["goal"])
+        if "features" in state:  # saved before issue 36: none yet, the next update starts it
+            self.features.load_state_dict(state["features"])
         for group in self.policy_optimizer.param_groups:
             group["lr"] = self.cfg.lr
         self.safety.set_lr(self.cfg.lr)

@@ -53,19 +53,29 @@ class PolicyEnsemble(nn.Module):
     def size(self) -> int:
         return len(self.members)
 
-    def forward(self, images: Tensor) -> Tensor:
+    def forward(self, images: Tensor, features: bool = False) -> Tensor | tuple[Tensor, Tensor]:
         """``images``: uint8 (B, H, W, 3) seen by every member, or (E, B, H, W, 3) one
-        batch per member. Returns logits (E, B, K)."""
+        batch per member. Returns logits (E, B, K); with ``features`` also each member's
+        trunk features (E, B, 64), the policy's own embedding (``features.py``)."""
         per_member = images.dim() == 5
         if per_member and images.shape[0] != self.size:
             raise ValueError(f"expected {self.size} member batches, got {images.shape[0]}")
         if self.impl == "vmap":
-            return self._forward_vmap(images, per_member)
-        return torch.stack(
-            [m(images[i] if per_member else images) for i, m in enumerate(self.members)]
-        )
+            return self._forward_vmap(images, per_member, features)
+        logits, feats = [], []
+        for i, m in enumerate(self.members):
+            x = images[i] if per_member else images
+            if features:  # the member is Sequential(trunk, head): the same sums
+                f = m[0](x)
+                feats.append(f)
+                logits.append(m[1](f))
+            else:
+                logits.append(m(x))
+        out = torch.stack(logits)
+        return (out, torch.stack(feats)) if features else out
 
-    def _forward_vmap(self, images: Tensor, per_member: bool) -> Tensor:
+    def _forward_vmap(self, images: Tensor, per_member: bool, features: bool
+                      ) -> Tensor | tuple[Tensor, Tensor]:
         params = [dict(m.named_parameters()) for m in self.members]
         stacked = {name: torch.stack([p[name] for p in params]) for name in self._names}
         base = self.members[0]
@@ -73,7 +83,17 @@ class PolicyEnsemble(nn.Module):
         def one(member_params: dict[str, Tensor], x: Tensor) -> Tensor:
             return functional_call(base, member_params, (x,))
 
-        return vmap(one, in_dims=(0, 0 if per_member else None))(stacked, images)
+        def both(member_params: dict[str, Tensor], x: Tensor) -> tuple[Tensor, Tensor]:
+            trunk = {k[2:]: v for k, v in member_params.items() if k.startswith("0.")}
+            head = {k[2:]: v for k, v in member_params.items() if k.startswith("1.")}
+            f = functional_call(base[0], trunk, (x,))
+            return functional_call(base[1], head, (f,)), f
+
+        dims = (0, 0 if per_member else None)
+        if features:
+            logits, feats = vmap(both, in_dims=dims)(stacked, images)
+            return logits, feats
+        return vmap(one, in_dims=dims)(stacked, images)
 
     def loss(self, images: Tensor, actions: Tensor) -> tuple[Tensor, Tensor]:
         """Cross-entropy of each member on its own batch.

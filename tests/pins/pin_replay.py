@@ -126,7 +126,8 @@ class RecordingLearner(_CallLog):
         self._log("act", _sha(np.asarray(images)))
         self.trace["act"].append({"actions": _ints(out.actions),
                                   "probs": _floats(out.probs),
-                                  **{k: _floats(getattr(out, k)) for k in SIGNALS}})
+                                  **{k: _floats(getattr(out, k)) for k in SIGNALS},
+                                  **({} if out.ood is None else {"ood": _floats(out.ood)})})
         return out
 
     def signals_on_data(self) -> dict[str, np.ndarray]:
@@ -194,10 +195,11 @@ class ReplayLearner(_CallLog):
         if len(r["actions"]) != len(images):
             raise AssertionError(f"{self.run}: act on {len(images)} images, the trace's "
                                  f"call {self._acts} was on {len(r['actions'])}")
-        f32 = {k: np.asarray(r[k], dtype=np.float32) for k in ("probs", *SIGNALS)}
+        f32 = {k: np.asarray(r[k], dtype=np.float32) for k in ("probs", *SIGNALS, "ood")
+               if k in r}
         return PolicyOutput(np.asarray(r["actions"], dtype=np.int64), f32["probs"],
                             f32["uncertainty"], f32["risk"], f32["goal_risk"],
-                            f32["novelty"])
+                            f32["novelty"], f32.get("ood"))
 
     def signals_on_data(self) -> dict[str, np.ndarray]:
         self._log("signals_on_data")

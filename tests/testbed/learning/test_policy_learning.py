@@ -82,3 +82,27 @@ def test_uncertainty_is_zero_when_members_agree() -> None:
     out = learner.act(np.zeros((3, 64, 64, 3), np.uint8))
     assert np.allclose(out.uncertainty, 0.0, atol=1e-6)
     assert np.allclose(out.novelty, 0.0, atol=1e-6)
+
+
+def test_ood_in_the_policys_feature_space_flags_unfamiliar_scenes(trained: Trained) -> None:
+    """Issue 36, item 3: the held-out scenes of the same task score near the training
+    ones (about 1), the other table and noise above them."""
+    rng = np.random.default_rng(1)
+    cube, goal, _ = scenes(200, rng)
+    near = trained.learner.act(trained.held_images).ood
+    assert near is not None and 0.5 < float(np.median(near)) < 2.0
+    # the colour of the table is within what the training's colour augmentation showed
+    # the trunk, so it is only somewhat unfamiliar (as it is to the uncertainty); noise is
+    # nothing like it
+    for name, images, least in (
+            ("other table", render(cube, goal, table=(40, 40, 160)), 0.75),
+            ("noise", rng.integers(0, 256, (200, 64, 64, 3), dtype=np.uint8), 0.95)):
+        far = trained.learner.act(images).ood
+        assert far is not None
+        labels = np.r_[np.zeros(len(near), bool), np.ones(len(far), bool)]
+        assert roc_auc(np.r_[near, far], labels) >= least, name
+    # the statistics are the learner's state: saved, loaded, followed by an actor's sync
+    again = Learner(CFG, seed=0)
+    again._load_training(trained.learner.state_dict())
+    actor = again.acting_copy()
+    np.testing.assert_allclose(actor.act(trained.held_images).ood, near, rtol=1e-5)
