@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
+from scipy.stats import rankdata
 
 from testbed.core.types import EpisodeOutcome
 from testbed.fleet.algorithms import ALGORITHMS
@@ -32,11 +33,14 @@ from testbed.records.run_classes import run_classes
 from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import RunDataError
 
-__all__ = ["SIGNALS", "RunPrediction", "SignalFigures", "replays", "run_prediction",
-           "score_signal"]
+__all__ = ["NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures", "both_high", "replays",
+           "run_prediction", "score_signal"]
 
 SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
 """Today's signals (issue 36's baseline), in the tables' order."""
+NEW_SIGNALS: Final = ("ood", "ood_u")
+"""The monitor's (item 3): the distance to the training data in the policy's feature
+space, and it together with the uncertainty (``both_high``)."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
 _FROM_FRAMES: Final = ("uncertainty", "risk")
 
@@ -145,6 +149,9 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
                      "risk only)")
     pushes = policy_pushes(rc.frames, rc.classes.classes, rc.classes.outcomes,
                            rc.classes.episodes, scores)
+    if "ood" in pushes.scores and "uncertainty" in pushes.scores:
+        pushes.scores["ood_u"] = both_high(pushes.scores["ood"], pushes.scores["uncertainty"])
+        scores["ood_u"] = pushes.scores["ood_u"]
     result.pushes = pushes
     for name in scores:
         if np.isnan(pushes.scores[name]).all():
@@ -152,6 +159,16 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
             continue
         result.figures[name] = score_signal(pushes, name, cfg)
     return result
+
+
+def both_high(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """FIPER's conjunction as one score: the smaller of the two signals' percentile ranks
+    among the run's policy pushes (high only where both are high; NaN where either is)."""
+    out = np.full(a.shape, np.nan)
+    ok = ~np.isnan(a) & ~np.isnan(b)
+    if ok.any():
+        out[ok] = np.minimum(rankdata(a[ok]), rankdata(b[ok])) / ok.sum()
+    return out
 
 
 def _safe(f: Any, s: np.ndarray, y: np.ndarray) -> float:

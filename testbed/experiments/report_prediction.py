@@ -27,6 +27,7 @@ import numpy as np
 
 from testbed.experiments.intervals import Interval, interval
 from testbed.experiments.prediction_runs import (
+    NEW_SIGNALS,
     SIGNALS,
     RunPrediction,
     replays,
@@ -78,8 +79,9 @@ def prediction_tables(groups: Mapping[str, Sequence[Path]],
 
 
 def _signals(runs: Sequence[RunPrediction]) -> list[str]:
-    return [s for s in SIGNALS if any(s in r.figures for r in runs)] + sorted(
-        {s for r in runs for s in r.figures} - set(SIGNALS))
+    known = (*SIGNALS, *NEW_SIGNALS)
+    return [s for s in known if any(s in r.figures for r in runs)] + sorted(
+        {s for r in runs for s in r.figures} - set(known))
 
 
 def _absent_notes(scored: Mapping[str, Sequence[RunPrediction]]) -> list[str]:
