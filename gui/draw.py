@@ -59,8 +59,10 @@ MODE_COLOURS: Final[dict[Mode, Colour]] = {
     Mode.FAULT: (160, 160, 160),
 }
 DIRECTION_NAMES: Final = ("up", "left", "down", "right")
-REASON_WORDS: Final = {"c": "constraint violation", "u": "uncertainty", "r": "risk"}
-SIGNAL_ABBREVIATIONS: Final = {"uncertainty": "unc", "risk": "risk", "goal_risk": "grisk"}
+REASON_WORDS: Final = {"c": "constraint violation", "u": "uncertainty", "r": "risk",
+                       "a": "failure alarm", "s": "score"}
+SIGNAL_ABBREVIATIONS: Final = {"uncertainty": "unc", "risk": "risk", "goal_risk": "grisk",
+                               "alarm_score": "alarm", "alarm_threshold": "thr"}
 FONT: Final = cv2.FONT_HERSHEY_SIMPLEX
 
 

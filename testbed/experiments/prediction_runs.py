@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from scipy.stats import rankdata
 
 from testbed.core.types import EpisodeOutcome
 from testbed.fleet.algorithms import ALGORITHMS
+from testbed.fleet.monitor_priority import SCALE_FLOOR
 from testbed.monitor.conformal import Replay, replay_online, replay_split
 from testbed.monitor.labels import PolicyPushes, policy_pushes
 from testbed.monitor.monitor_config import MonitorConfig
@@ -162,12 +162,15 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
 
 
 def both_high(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """FIPER's conjunction as one score: the smaller of the two signals' percentile ranks
-    among the run's policy pushes (high only where both are high; NaN where either is)."""
+    """FIPER's conjunction as one score: the smaller of the two signals, each over its
+    median among the run's policy pushes (high only where both are; NaN where either is
+    NaN). As ``testbed/fleet/monitor_priority.py`` computes it live, over the latest
+    pushes there."""
     out = np.full(a.shape, np.nan)
     ok = ~np.isnan(a) & ~np.isnan(b)
     if ok.any():
-        out[ok] = np.minimum(rankdata(a[ok]), rankdata(b[ok])) / ok.sum()
+        out[ok] = np.minimum(a[ok] / max(float(np.median(a[ok])), SCALE_FLOOR),
+                             b[ok] / max(float(np.median(b[ok])), SCALE_FLOOR))
     return out
 
 

@@ -283,7 +283,7 @@ def _algorithm(run: _Run) -> Algorithm:
     params = run.cfg.algorithm
     placeholders = params.model_copy(update=dict.fromkeys(params.quantile_thresholds, 0.0))
     return get_algorithm(run.opts.algorithm, placeholders, len(run.cfg.robot_names),
-                         run.cfg.humans.count, run.opts.seed)
+                         run.cfg.humans.count, run.opts.seed, run.cfg.monitor)
 
 
 def _prepare(run: _Run, hosts: Hosts, humans: Humans, hooks: TrialHooks

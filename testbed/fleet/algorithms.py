@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.allocator import Allocator
+from testbed.fleet.monitor_priority import MONITOR_READS, MonitorPriority
 from testbed.fleet.priorities import (
     CRITIC_OF_SIGNAL,
     LEARNED_SIGNALS,
@@ -27,12 +28,14 @@ from testbed.fleet.priorities import (
     RandomPriority,
     ThriftyPriority,
 )
+from testbed.monitor.monitor_config import MonitorConfig
 
 __all__ = ["ABLATIONS", "ALGORITHMS", "ALGORITHM_NAMES", "Algorithm", "AlgorithmSpec",
            "get_algorithm"]
 
 
-PriorityFactory = Callable[[AlgorithmConfig, int, int, np.random.SeedSequence, Allocator],
+PriorityFactory = Callable[[AlgorithmConfig, int, int, np.random.SeedSequence, Allocator,
+                            MonitorConfig],
                            PriorityFunction]
 
 
@@ -125,6 +128,19 @@ class Algorithm:
         self.last_keys = keys
         return assignment
 
+    def row_fields(self, robot: int) -> dict[str, float]:
+        """What the row's ``monitor`` keeps of the priority's own state for an arm (the
+        monitor algorithm's alarm: its score and threshold); {} for the others."""
+        fields = getattr(self.priority, "row_fields", None)
+        return fields(robot) if callable(fields) else {}
+
+    def observe(self, frames: np.ndarray) -> None:
+        """The step's frames, to a priority function that learns from how episodes end
+        (the monitor's alarm); nothing for the others."""
+        see = getattr(self.priority, "observe", None)
+        if callable(see):
+            see(frames)
+
     def reason(self, robot: int) -> dict[str, float]:
         """The named key entries of arm ``robot`` at the last step (``HumanRequest.reason``)."""
         if self.last_keys is None:
@@ -156,8 +172,8 @@ def _reading(reads: frozenset[str]) -> Callable[[PriorityFactory], PriorityFacto
 def _ordered(order: str, *, initial_period: bool) -> PriorityFactory:
     @_reading(OrderedPriority.reads_of(order))
     def build(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
-              allocator: Allocator) -> PriorityFunction:
-        del m, seed, allocator
+              allocator: Allocator, monitor: MonitorConfig) -> PriorityFunction:
+        del m, seed, allocator, monitor
         if isinstance(p.u_hat, str) or isinstance(p.r_hat, str):
             raise ValueError("u_hat / r_hat given as quantiles are resolved on theta_0 by "
                              "the trial (testbed/fleet/thresholds.py) before the algorithm is "
@@ -169,18 +185,31 @@ def _ordered(order: str, *, initial_period: bool) -> PriorityFactory:
 
 @_reading(ThriftyPriority.reads)
 def _thrifty(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
-             allocator: Allocator) -> PriorityFunction:
-    del m, seed, allocator
+             allocator: Allocator, monitor: MonitorConfig) -> PriorityFunction:
+    del m, seed, allocator, monitor
     return ThriftyPriority(n, alpha=p.thrifty_alpha, threshold=p.thrifty_threshold)
 
 
 @_reading(RandomPriority.reads)
 def _random(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
-            allocator: Allocator) -> PriorityFunction:
+            allocator: Allocator, monitor: MonitorConfig) -> PriorityFunction:
+    del monitor
     if isinstance(p.random_budget, str):  # a protocol resolves it before the run starts
         raise ValueError(f"random_budget = {p.random_budget!r} is resolved by a protocol "
                          "from the matched algorithm's run; give a number for a trial alone")
     return RandomPriority(n, m, budget=p.random_budget, seed=seed, allocator=allocator)
+
+
+@_reading(MONITOR_READS)
+def _monitor(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
+             allocator: Allocator, monitor: MonitorConfig) -> PriorityFunction:
+    del m, seed, allocator
+    if isinstance(p.u_hat, str) or isinstance(p.r_hat, str):
+        raise ValueError("u_hat / r_hat given as quantiles are resolved on theta_0 by "
+                         "the trial (testbed/fleet/thresholds.py) before the algorithm is "
+                         "built")
+    return MonitorPriority(n, score=monitor.score, alpha=monitor.alpha, window=monitor.window,
+                           u_hat=p.u_hat, r_hat=p.r_hat)
 
 
 ABLATIONS: Final = ("c", "u", "r", "cu", "cr", "ur", "uc", "ru", "cru")
@@ -196,6 +225,9 @@ ALGORITHMS: Final[dict[str, AlgorithmSpec]] = {
                               description="Fleet-ThriftyDAgger: (thrifty score, c)"),
     "cur": AlgorithmSpec("cur", _ordered("cur", initial_period=True),
                          description="C.U.R.: (c, u, r) with the initial period t_I"),
+    "monitor": AlgorithmSpec("monitor", _monitor,
+                             description="the failure monitor: a person where the calibrated "
+                             "alarm fires, most likely failure first ([monitor])"),
     "cur-i": AlgorithmSpec("cur-i", _ordered("cur", initial_period=False),
                            description="C.U.R.(-i): no initial period"),
     **{a: AlgorithmSpec(a, _ordered(a, initial_period=False),
@@ -206,7 +238,7 @@ ALGORITHM_NAMES: Final[tuple[str, ...]] = tuple(ALGORITHMS)
 
 
 def get_algorithm(name: str, params: AlgorithmConfig, num_robots: int, num_humans: int,
-                  seed: int | None) -> Algorithm:
+                  seed: int | None, monitor: MonitorConfig | None = None) -> Algorithm:
     """Build the algorithm ``name`` (its priority function and allocator) for a fleet.
 
     ``seed`` seeds both the allocator's tie-breaks and the priority's own randomness
@@ -219,5 +251,6 @@ def get_algorithm(name: str, params: AlgorithmConfig, num_robots: int, num_human
     alloc_seed, prio_seed = np.random.SeedSequence(seed).spawn(2)
     allocator = Allocator(num_robots, num_humans, params.t_T, params.t_R,
                           seed=int(alloc_seed.generate_state(1, np.uint64)[0]))
-    priority = spec.priority(params, num_robots, num_humans, prio_seed, allocator)
+    priority = spec.priority(params, num_robots, num_humans, prio_seed, allocator,
+                             monitor or MonitorConfig())
     return Algorithm(spec=spec, priority=priority, allocator=allocator, params=params)

@@ -236,7 +236,8 @@ class FleetLoop:
             violating=violating & ~faulted,
             faulted=faulted,
             available=available,
-            **{name: np.asarray(getattr(out, name), dtype=float)
+            **{name: None if getattr(out, name, None) is None
+               else np.asarray(getattr(out, name), dtype=float)
                for name in sorted(LEARNED_SIGNALS)},
         )
         gains = (self.operators.gains(signals.violating) if self.algorithm.matched
@@ -287,7 +288,7 @@ class FleetLoop:
                     served=int(served[i]),
                     min_steps=self.t_T if kind is InterventionKind.TELEOP else self.t_R,
                     key=tuple(float(k) for k in keys[i]),
-                    reason=self.algorithm.reason(i)
+                    reason=self.algorithm.reason(i) | self.algorithm.row_fields(i)
                     | {"uncertainty": float(out.uncertainty[i]), "risk": float(out.risk[i])},
                 )
             )
@@ -398,6 +399,7 @@ class FleetLoop:
             self.writer.write_step(row)
         self._count(row)
         self._last = frames
+        self.algorithm.observe(frames)  # the monitor's alarm learns from the step's ends
         if self.algorithm.learns:
             rundata.add_labels(self.learner, frames)
             if self._feed is not None:
@@ -444,7 +446,8 @@ class FleetLoop:
                 refused=refused,
                 served=d.served.get(r),
                 first=((d.served[r], d.first[r]) if r in d.first else None),
-                monitor=None if faulted else {k: float(v[i]) for k, v in monitored.items()},
+                monitor=None if faulted else ({k: float(v[i]) for k, v in monitored.items()}
+                                              | self.algorithm.row_fields(i)),
             ))
         faults = {r: res.reason for r, res in results.items() if isinstance(res, Fault)}
         return StepRecord(t, self.session, arms, seen.images, seen.observed, seen.goals,

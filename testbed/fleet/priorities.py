@@ -29,6 +29,8 @@ ablations      ``c u r cu cr ur uc ru cru``: those entries in that order, no t_I
 ``fleet-td``   (s, c)  -- Fleet-ThriftyDAgger; s = thrifty score margin
 ``random``     (c, x)  -- random arms, sized to a human-effort budget
 ``bc``         (c,)    -- hard resets only; no teleop, no learning
+``monitor``    (c, a, s, u, r) -- the failure monitor (``monitor_priority.py``): a = its
+               calibrated alarm fired, s = the score; C.U.R.'s u, r until it is ready
 =============  ===========================================================
 
 u = uncertainty if uncertainty >= u_hat else 0; r = risk if risk >= r_hat else 0.
@@ -87,7 +89,7 @@ __all__ = [
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-LEARNED_SIGNALS: Final = frozenset({"uncertainty", "risk", "goal_risk", "novelty"})
+LEARNED_SIGNALS: Final = frozenset({"uncertainty", "risk", "goal_risk", "novelty", "ood"})
 """The signals that come from the learner (``violating`` comes from the arms)."""
 
 CRITIC_OF_SIGNAL: Final[dict[str, str]] = {"risk": "safety", "goal_risk": "goal"}
@@ -113,6 +115,9 @@ class PrioritySignals:
     """1 - goal-critic value (Fleet-TD's risk)."""
     novelty: npt.ArrayLike | None = None
     """Fleet-TD's novelty."""
+    ood: npt.ArrayLike | None = None
+    """The distance to the policy's training data in its own feature space (the failure
+    monitor's; ``testbed/learning/features.py``)."""
     faulted: npt.ArrayLike | None = None
     """Bool (N,): the arm's host is unreachable this step (``None``: none are)."""
     available: npt.ArrayLike | None = None

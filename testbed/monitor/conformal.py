@@ -94,10 +94,13 @@ class ConformalAlarm:
         return np.asarray(scores, dtype=np.float64) > self.threshold
 
     def state_dict(self) -> dict[str, Any]:
-        return {"alpha": self.alpha, "window": self.window, "peaks": list(self._peaks)}
+        """JSON-safe (a checkpoint's state.json): a peak of -inf (no policy push) is null."""
+        return {"alpha": self.alpha, "window": self.window,
+                "peaks": [p if math.isfinite(p) else None for p in self._peaks]}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self._peaks = deque((float(p) for p in state["peaks"]), maxlen=self.window)
+        self._peaks = deque((-math.inf if p is None else float(p) for p in state["peaks"]),
+                            maxlen=self.window)
         self.threshold = (conformal_threshold(np.fromiter(self._peaks, float), self.alpha)
                           if self._peaks else float("inf"))
 

@@ -7,12 +7,21 @@ Why here: the monitor's room owns its schema (as ``[algorithm]`` lives with the 
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 from pydantic import Field, field_validator
 
 from testbed.core.config import StrictModel
 from testbed.monitor.conformal import DEFAULT_WINDOW, episodes_needed
 
-__all__ = ["MonitorConfig"]
+__all__ = ["SCORES", "MonitorConfig", "Score"]
+
+Score = Literal["ood_u", "ood", "uncertainty", "risk", "novelty"]
+SCORES: tuple[str, ...] = get_args(Score)
+"""What the alarm of the ``monitor`` algorithm may watch: a learned signal it computes
+(the policy's, or the safety critic's risk), or ``ood_u`` (``ood`` and the uncertainty
+together; testbed/fleet/monitor_priority.py). Not the goal critic's risk: the monitor
+algorithm does not train that critic."""
 
 
 class MonitorConfig(StrictModel):
@@ -26,6 +35,8 @@ class MonitorConfig(StrictModel):
                           "lead time and false alarms are read at")
     window: int = Field(DEFAULT_WINDOW, ge=1, description="the latest successful episodes the "
                         "online alarm calibrates on")
+    score: Score = Field("ood_u", description="what the monitor algorithm's alarm "
+                                   "watches (" + ", ".join(SCORES) + ")")
 
     @field_validator("alpha")
     @classmethod

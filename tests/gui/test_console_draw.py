@@ -211,3 +211,13 @@ def test_the_header_and_the_window_title_name_the_human(
     assert [t for t in drawn if "human" in t] == ["bo (human 1)"]
     assert window_name(0, name="ana") == "testbed console - ana (human 0)"
     assert window_name(1) == "testbed console - human 1"
+
+
+def test_why_this_arm_asked_names_the_failure_alarm_and_its_threshold() -> None:
+    """Issue 36, item 4: an arm the monitor algorithm called shows the alarm as the
+    reason, with the score and the threshold it passed (both consoles draw these lines)."""
+    reason = {"c": 0.0, "a": 1.0, "s": 0.7, "u": 0.0, "r": 0.0, "alarm_score": 0.7,
+              "alarm_threshold": 0.5, "uncertainty": 0.1, "risk": 0.2}
+    why, values = draw._reason_lines(reason, (0.0, 1.0, 0.7, 0.0, 0.0), 400)
+    assert why == "why: A (failure alarm)"
+    assert "alarm=0.70" in values and "thr=0.50" in values

@@ -253,7 +253,8 @@ def test_every_algorithm_runs_resumes_identically_and_zeroes_faulted_arms(name: 
     rng = np.random.default_rng(5)
     sigs = [PrioritySignals(t=t, violating=rng.random(n) < 0.2, uncertainty=rng.random(n),
                             risk=rng.random(n), goal_risk=rng.random(n),
-                            novelty=rng.random(n), faulted=rng.random(n) < 0.1)
+                            novelty=rng.random(n), ood=rng.random(n),
+                            faulted=rng.random(n) < 0.1)
             for t in range(40)]
     alg = get_algorithm(name, PARAMS, n, m, seed=11)
     assert isinstance(alg.priority, PriorityFunction)
@@ -276,7 +277,7 @@ def test_every_algorithm_takes_an_availability_mask(name: str) -> None:
     rng = np.random.default_rng(7)
     sigs = [PrioritySignals(t=t, violating=rng.random(n) < 0.2, uncertainty=rng.random(n),
                             risk=rng.random(n), goal_risk=rng.random(n),
-                            novelty=rng.random(n)) for t in range(40)]
+                            novelty=rng.random(n), ood=rng.random(n)) for t in range(40)]
     masks = rng.random((40, m)) < 0.6
     plain, full, masked = (get_algorithm(name, PARAMS, n, m, seed=3) for _ in range(3))
     for s, mask in zip(sigs, masks, strict=True):
@@ -296,12 +297,13 @@ def test_every_algorithm_takes_an_availability_mask(name: str) -> None:
         masked.step(PrioritySignals(t=40, violating=np.zeros(n, bool),
                                     uncertainty=np.zeros(n), risk=np.zeros(n),
                                     goal_risk=np.zeros(n), novelty=np.zeros(n),
-                                    available=np.ones(2, bool)))
+                                    ood=np.zeros(n), available=np.ones(2, bool)))
 
 
 def test_registry_names_and_unknown_names() -> None:
     assert set(ALGORITHM_NAMES) == {"bc", "random", "fleet-ed", "fleet-td", "cur", "cur-i",
-                                    "c", "u", "r", "cu", "cr", "ur", "uc", "ru", "cru"}
+                                    "monitor", "c", "u", "r", "cu", "cr", "ur", "uc", "ru",
+                                    "cru"}
     assert get_algorithm(" CUR ", PARAMS, 2, 1, 0).name == "cur"
     with pytest.raises(ValueError, match=r"unknown algorithm 'dagger'; valid names: bc, "):
         get_algorithm("dagger", PARAMS, 2, 1, 0)

@@ -1,0 +1,167 @@
+"""Allocation by the failure monitor (issue 36, item 4): a person where the calibrated
+alarm fires, the arm most likely to fail first; arms the monitor trusts are left alone.
+
+Key (c, a, s, u, r), larger first (the allocator's rules, docs/notes/core.md):
+
+* c = 1 for a violating arm (its hard reset comes first, as in every algorithm);
+* a = 1 where the alarm fires: the arm's score (``monitor.score``) is above the
+  conformal threshold of the last ``monitor.window`` successful episodes' peaks
+  (``testbed.monitor.conformal``), so a successful episode calls a person with
+  probability at most ``monitor.alpha`` while its peaks stay exchangeable;
+* s = that score on an alarmed arm (the ranking by predicted failure), else 0;
+* u, r: C.U.R.'s thresholded uncertainty and risk, used only **until the alarm is ready**
+  (fewer than 1/alpha - 1 successful episodes with a policy push): the fleet then runs as
+  C.U.R. without its initial period. Once ready, u and r are 0: an arm whose score is
+  under the threshold gets no person, whatever its uncertainty.
+
+The alarm learns from the fleet's own episodes, arm by arm, as the loop reports each
+step (``observe``): an episode's peak is its largest score over the policy's pushes
+(autonomous with a push), kept across a person's teleop of the same episode; a success
+adds the peak to the calibration, a violation or a new goal drops it. The same rules as
+``testbed.monitor.labels`` (one episode ends at a success, a violation or a goal change).
+
+Scores: any learned signal by name, or ``ood_u``: the smaller of ``ood`` and the
+uncertainty, each over its median among the last ``REFERENCE`` values the policy's pushes
+had (FIPER's conjunction: high only where the image is unfamiliar *and* the action
+uncertain). Each over its median, not its percentile rank: a rank stops at 1, so every
+long episode's peak would be 1 and the conformal threshold too, an alarm that can never
+fire (the first twin trial of the monitor showed it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any, Final
+
+import numpy as np
+
+from testbed.core.types import Mode
+from testbed.fleet.priorities import FloatArray, PrioritySignals
+from testbed.monitor.conformal import ConformalAlarm
+from testbed.records.store import MODES
+
+__all__ = ["COMBINED", "MONITOR_READS", "REFERENCE", "SCALE_FLOOR", "MonitorPriority"]
+
+COMBINED: Final = {"ood_u": ("ood", "uncertainty")}
+"""Scores made of two signals (both must be high)."""
+MONITOR_READS: Final = frozenset({"uncertainty", "risk", "novelty", "ood"})
+"""What the monitor algorithm may read (``AlgorithmSpec.reads``: the learner trains the
+policy and the safety critic for it; the goal critic's risk would need its training too)."""
+SCALE_FLOOR: Final = 1e-6
+"""A median below this (a signal that is almost always 0) scales by this instead."""
+REFERENCE: Final = 2000
+"""Policy-push values each combined score ranks against (the latest)."""
+_AUTONOMOUS: Final = MODES.index(Mode.AUTONOMOUS.value)
+
+
+class MonitorPriority:
+    """The monitor's keys; ``observe`` after every step (the loop does)."""
+
+    names: tuple[str, ...] = ("c", "a", "s", "u", "r")
+
+    @classmethod
+    def reads_of(cls, score: str) -> frozenset[str]:
+        """The learned signals it reads: the score's, and C.U.R.'s for before the alarm."""
+        return frozenset({*COMBINED.get(score, (score,)), "uncertainty", "risk"})
+
+    def __init__(self, num_robots: int, *, score: str, alpha: float, window: int,
+                 u_hat: float, r_hat: float) -> None:
+        self.num_robots: Final[int] = num_robots
+        self.score_name: Final[str] = score
+        self.reads: frozenset[str] = self.reads_of(score)
+        self.u_hat: Final[float] = float(u_hat)
+        self.r_hat: Final[float] = float(r_hat)
+        self.alarm = ConformalAlarm(alpha, window)
+        self._peak = np.full(num_robots, -math.inf)
+        self._goal = np.full((num_robots, 2), np.nan)
+        self._last = np.zeros(num_robots)
+        self._raw: dict[str, FloatArray] = {}
+        self._reference: dict[str, deque[float]] = {
+            name: deque(maxlen=REFERENCE) for name in COMBINED.get(score, ())}
+
+    # ---- the score -----------------------------------------------------------------
+    def scores(self, s: PrioritySignals) -> FloatArray:
+        """Each arm's score at this step (no state changes)."""
+        n = self.num_robots
+        parts = COMBINED.get(self.score_name)
+        if parts is None:
+            return s.signal(self.score_name, n)
+        scaled = []
+        for name in parts:
+            values = s.signal(name, n)
+            ref = np.fromiter(self._reference[name], float)
+            scaled.append(values / max(float(np.median(ref)), SCALE_FLOOR) if ref.size
+                          else np.zeros(n))
+        return np.minimum(*scaled)
+
+    def keys(self, s: PrioritySignals) -> FloatArray:
+        n = self.num_robots
+        if isinstance(s.t, bool) or not isinstance(s.t, int | np.integer):
+            raise ValueError(f"signals.t must be an int, got {s.t!r}")
+        viol = s.violating_array(n)
+        score = self.scores(s)
+        self._last = score
+        self._raw = {name: s.signal(name, n) for name in self._reference}
+        keys = np.zeros((n, 5))
+        keys[:, 0] = viol
+        if self.alarm.ready:
+            fired = self.alarm.fires(score) & ~viol
+            keys[fired, 1] = 1.0
+            keys[fired, 2] = score[fired]
+        else:
+            u, r = s.signal("uncertainty", n), s.signal("risk", n)
+            keys[:, 3] = np.where(u >= self.u_hat, u, 0.0)
+            keys[:, 4] = np.where(r >= self.r_hat, r, 0.0)
+        keys[s.faulted_array(n)] = 0.0
+        return keys
+
+    def row_fields(self, robot: int) -> dict[str, float]:
+        """What the step's row keeps of the alarm for an arm (its ``monitor``): the score
+        and, once the alarm is ready, its threshold."""
+        out = {"alarm_score": float(self._last[robot])}
+        if self.alarm.ready:
+            out["alarm_threshold"] = self.alarm.threshold
+        return out
+
+    # ---- learning from the fleet's episodes ----------------------------------------------
+    def observe(self, frames: np.ndarray) -> None:
+        """The step's frames (the data store's, one per arm): peaks, episode ends,
+        the combined score's reference."""
+        for a in range(self.num_robots):
+            f = frames[a]
+            if not bool(f["observed"]):
+                continue
+            goal = np.asarray(f["goal"], dtype=float)
+            if not np.isnan(self._goal[a]).any() and not np.allclose(goal, self._goal[a]):
+                self._peak[a] = -math.inf  # a new goal without a success: dropped
+            self._goal[a] = goal
+            if int(f["mode"]) == _AUTONOMOUS and int(f["action"]) >= 0:
+                self._peak[a] = max(self._peak[a], float(self._last[a]))
+                for name, ref in self._reference.items():
+                    ref.append(float(self._raw[name][a]))
+            if bool(f["success"]):
+                if math.isfinite(self._peak[a]):
+                    self.alarm.add(float(self._peak[a]))
+                self._peak[a] = -math.inf
+            elif bool(f["violation"]):
+                self._peak[a] = -math.inf
+
+    def state_dict(self) -> dict[str, Any]:
+        """JSON-safe: no peak (-inf) and no goal seen yet (NaN) are null."""
+        return {"alarm": self.alarm.state_dict(),
+                "peak": [p if math.isfinite(p) else None for p in self._peak.tolist()],
+                "goal": [None if np.isnan(g).any() else g.tolist() for g in self._goal],
+                "last": self._last.tolist(),
+                "raw": {k: v.tolist() for k, v in self._raw.items()},
+                "reference": {k: list(v) for k, v in self._reference.items()}}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.alarm.load_state_dict(state["alarm"])
+        self._peak = np.array([-math.inf if p is None else p for p in state["peak"]])
+        self._goal = np.array([[np.nan, np.nan] if g is None else g for g in state["goal"]],
+                              dtype=float)
+        self._last = np.asarray(state["last"], dtype=float)
+        self._raw = {k: np.asarray(v, dtype=float) for k, v in state["raw"].items()}
+        for k, v in state["reference"].items():
+            self._reference[k] = deque((float(x) for x in v), maxlen=REFERENCE)

@@ -1,0 +1,111 @@
+"""Allocation by the failure monitor (issue 36, item 4): C.U.R. until the alarm has its
+successful episodes, then a person only where the alarm fires, the highest score first;
+episode peaks follow the rules of the labels; its state survives a checkpoint."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from testbed.fleet.algorithm_config import AlgorithmConfig
+from testbed.fleet.algorithms import get_algorithm
+from testbed.fleet.monitor_priority import MONITOR_READS, MonitorPriority
+from testbed.fleet.priorities import PrioritySignals
+from testbed.monitor.monitor_config import SCORES, MonitorConfig
+from testbed.records.store import FRAME_DTYPE, MODES
+
+N = 3
+
+
+def signals(t: int, u: list[float], *, violating: list[bool] | None = None,
+            risk: list[float] | None = None, ood: list[float] | None = None
+            ) -> PrioritySignals:
+    return PrioritySignals(t=t, violating=np.array(violating or [False] * N),
+                           uncertainty=np.array(u), risk=np.array(risk or [0.0] * N),
+                           ood=None if ood is None else np.array(ood))
+
+
+def frames(modes: list[str], *, success: list[bool] | None = None,
+           violation: list[bool] | None = None, goal: float = 0.5) -> np.ndarray:
+    f = np.zeros(N, FRAME_DTYPE)
+    f["mode"] = [MODES.index(m) for m in modes]
+    f["action"] = [1 if m in ("autonomous", "teleop") else -1 for m in modes]
+    f["observed"] = True
+    f["success"] = success or [False] * N
+    f["violation"] = violation or [False] * N
+    f["goal"] = goal
+    return f
+
+
+def test_it_runs_as_cur_until_its_alarm_is_ready_then_only_where_the_alarm_fires() -> None:
+    p = MonitorPriority(N, score="uncertainty", alpha=0.1, window=50, u_hat=0.2, r_hat=0.5)
+    keys = p.keys(signals(0, [0.1, 0.3, 0.9], risk=[0.6, 0.0, 0.0]))
+    assert keys.tolist() == [[0, 0, 0, 0, 0.6], [0, 0, 0, 0.3, 0], [0, 0, 0, 0.9, 0]]
+    # nine successful episodes of arm 0 with peaks 0.1 .. 0.5 (alpha 0.1 needs 9)
+    for k in range(9):
+        peak = 0.1 + 0.05 * k
+        p.keys(signals(2 * k + 1, [peak / 2, 0.0, 0.0]))
+        p.observe(frames(["autonomous", "idle", "idle"]))
+        p.keys(signals(2 * k + 2, [peak, 0.0, 0.0]))
+        assert not p.alarm.ready
+        p.observe(frames(["autonomous", "idle", "idle"], success=[True, False, False]))
+    assert p.alarm.ready and p.alarm.threshold == 0.5  # k = ceil(10 * 0.9) = 9: the largest
+    keys = p.keys(signals(30, [0.45, 0.7, 0.9], violating=[True, False, False]))
+    # arm 0 violating: its reset first; arms 1 and 2 alarmed, ranked by their score;
+    # u and r no longer count
+    assert keys.tolist() == [[1, 0, 0, 0, 0], [0, 1, 0.7, 0, 0], [0, 1, 0.9, 0, 0]]
+    assert p.keys(signals(31, [0.45, 0.5, 0.1])).tolist() == [[0] * 5] * 3  # trusted
+    assert p.row_fields(0) == {"alarm_score": 0.45, "alarm_threshold": 0.5}
+
+
+def test_a_peak_counts_only_when_its_episode_succeeds() -> None:
+    p = MonitorPriority(N, score="uncertainty", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    auto = ["autonomous"] * N
+    p.keys(signals(0, [0.9, 0.8, 0.7]))
+    p.observe(frames(auto, violation=[True, False, False]))  # arm 0's episode failed
+    p.keys(signals(1, [0.1, 0.2, 0.3]))
+    p.observe(frames(auto, goal=0.7))  # a new goal: arms 1 and 2 start again
+    p.keys(signals(2, [0.4, 0.25, 0.35]))
+    p.observe(frames(["autonomous", "teleop", "autonomous"], goal=0.7,
+                     success=[True, True, True]))
+    # arm 0: 0.4 (the failed episode's 0.9 was dropped); arm 1: its policy push at t 1
+    # (0.2; the teleop's step does not count); arm 2: max(0.3, 0.35)
+    assert sorted(p.alarm.state_dict()["peaks"]) == [0.2, 0.35, 0.4]
+
+
+def test_ood_u_is_high_only_where_both_are() -> None:
+    p = MonitorPriority(N, score="ood_u", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    for t in range(10):  # a reference of policy pushes: ood and u both 0..1
+        v = t / 10
+        p.keys(signals(t, [v] * N, ood=[v] * N))
+        p.observe(frames(["autonomous"] * N))
+    score = p.scores(signals(10, [0.9, 0.9, 0.09], ood=[0.9, 0.09, 0.9]))
+    # each over its reference's median (0.45): both high -> 2; either low -> 0.2
+    np.testing.assert_allclose(score, [2.0, 0.2, 0.2])
+
+
+def test_its_state_is_json_and_comes_back() -> None:
+    p = MonitorPriority(N, score="ood_u", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    for t in range(6):
+        p.keys(signals(t, [0.1 * t] * N, ood=[1.0 - 0.1 * t] * N))
+        p.observe(frames(["autonomous", "idle", "autonomous"],
+                         success=[t % 2 == 1, False, t == 5]))
+    state = json.loads(json.dumps(p.state_dict(), allow_nan=False))
+    q = MonitorPriority(N, score="ood_u", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    q.load_state_dict(state)
+    s = signals(6, [0.3, 0.6, 0.9], ood=[0.9, 0.6, 0.3])
+    assert np.array_equal(q.keys(s), p.keys(s))
+    assert q.alarm.threshold == p.alarm.threshold
+
+
+def test_the_registry_builds_it_from_the_monitor_config_and_it_reads_what_it_declares() -> None:
+    params = AlgorithmConfig(u_hat=0.2, r_hat=0.5)
+    algo = get_algorithm("monitor", params, N, 1, 0, MonitorConfig(score="ood", alpha=0.2))
+    assert algo.spec.reads == MONITOR_READS and algo.spec.critics == {"safety"}
+    assert algo.priority.alarm.alpha == 0.2  # type: ignore[attr-defined]
+    for score in SCORES:
+        assert MonitorPriority.reads_of(score) <= MONITOR_READS
+    with pytest.raises(ValueError):
+        MonitorConfig(score="goal_risk")  # type: ignore[arg-type]
