@@ -317,3 +317,24 @@ def test_a_reference_with_no_runs_is_named(tmp_path: Path,
     line = one_line(["report", str(tmp_path), "--reference", "fleet-td"], capsys)
     assert "--reference" in line and "'fleet-td'" in line and "cur" in line
     assert not (tmp_path / "report.html").exists()  # nothing half-written
+
+
+# ---- the failure monitor (issue 36, item 7) ---------------------------------------------
+@pytest.mark.parametrize(("section", "field", "words"), [
+    ("alpha = 1.5", "monitor.alpha", "must be in (0, 1)"),
+    ("alpha = 0.0", "monitor.alpha", "must be in (0, 1)"),
+    ("horizon = 0", "monitor.horizon", "greater than or equal to 1"),
+    ("alpha = 0.05\nwindow = 5", "monitor.window", "at least 19 episodes"),
+    ('score = "goal_risk"', "monitor.score", "'ood_u'"),
+])
+def test_a_bad_monitor_config_names_its_field(section: str, field: str, words: str,
+                                              tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Each would otherwise have run a trial whose alarm promised nothing (alpha 1.5),
+    scored no horizon, calibrated on too few episodes for its bound, or watched a critic
+    the monitor algorithm never trains."""
+    cfg = write(tmp_path / "m.toml", f"[monitor]\n{section}\n")
+    line = one_line(["trial", "--config", str(cfg), "--algorithm", "monitor", "--out",
+                     str(tmp_path / "runs")], capsys)
+    assert field in line and words in line, line
+    assert not (tmp_path / "runs").exists()
