@@ -1,0 +1,135 @@
+"""What the failure monitor adds to a fleet step at the paper's size (issue 36, item 6:
+at most 5 % at N = 100 arms).
+
+The monitor adds three things to a step, each measured here in this one run against the
+same work without it (interleaved repeats, medians; the real learner at batch 256, 5
+members, the safety critic, 2000 labelled images and 3000 transitions):
+
+1. the training step: ``Learner._update_features`` (64 labelled images through each
+   member's trunk, the running mean and covariance) after the policy's update;
+2. ``act`` on 100 images: the trunk features kept and each image's Mahalanobis distance
+   (``FeatureDensity.score``); in the loop act runs beside the training step, so this
+   part costs the step nothing while act is shorter than training, and is printed apart;
+3. the allocation: ``MonitorPriority.keys`` + ``observe`` (its alarm ready, 200
+   successful episodes) against C.U.R.'s ``OrderedPriority.keys``.
+
+The step's ratio: (training with the feature update + the monitor's keys and observe) /
+(training without it + C.U.R.'s keys), the loop's critical path at N = 100 (act overlaps
+training there: docs/notes/fleet.md). Target <= 1.05.
+
+    .venv/bin/python benchmarks/bench_monitor.py [--repeats 15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import torch
+
+from testbed.core.types import IMAGE_SIZE, NUM_ACTIONS
+from testbed.fleet.monitor_priority import MonitorPriority
+from testbed.fleet.priorities import OrderedPriority, PrioritySignals
+from testbed.learning import Learner
+from testbed.learning.learning_config import LearningConfig
+from testbed.records.store import FRAME_DTYPE, MODES
+
+ARMS = 100
+TARGET = 1.05
+
+
+def timed(fn: Callable[[], object]) -> float:
+    s = time.perf_counter()
+    fn()
+    return time.perf_counter() - s
+
+
+def interleaved(variants: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
+    """Median seconds of each variant, run in alternating order after one warm-up each."""
+    for fn in variants.values():
+        fn()
+    times: dict[str, list[float]] = {k: [] for k in variants}
+    for r in range(repeats):
+        for k in (list(variants) if r % 2 == 0 else list(reversed(variants))):
+            times[k].append(timed(variants[k]))
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=15)
+    args = ap.parse_args(argv)
+    rng = np.random.default_rng(0)
+    learner = Learner(LearningConfig(), seed=0, train=("policy", "safety"), read=("safety",))
+    images = rng.integers(0, 256, (2000, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
+    learner.add_human(images, rng.integers(0, NUM_ACTIONS, 2000))
+    learner.add_transitions(images[:1500], rng.integers(0, NUM_ACTIONS, 1500), images[500:],
+                            rng.random(1500) < 0.1, rng.random(1500) < 0.1)
+    fleet = images[:ARMS]
+    update = learner._update_features
+
+    def train_plain() -> None:
+        learner._update_features = lambda: None  # type: ignore[method-assign]
+        try:
+            learner.train_step()
+        finally:
+            learner._update_features = update  # type: ignore[method-assign]
+
+    train = interleaved({"with": learner.train_step, "without": train_plain}, args.repeats)
+    actor = learner.acting_copy()
+    plain_actor = learner.acting_copy()
+    plain_actor._features = None
+    act = interleaved({"with": lambda: actor.act(fleet),
+                       "without": lambda: plain_actor.act(fleet)}, args.repeats)
+
+    sig = PrioritySignals(t=100, violating=rng.random(ARMS) < 0.05,
+                          uncertainty=rng.random(ARMS), risk=rng.random(ARMS),
+                          ood=rng.random(ARMS) + 0.5)
+    monitor = MonitorPriority(ARMS, score="ood_u", alpha=0.05, window=200, u_hat=0.2,
+                              r_hat=0.5)
+    frames = np.zeros(ARMS, FRAME_DTYPE)
+    frames["mode"] = MODES.index("autonomous")
+    frames["action"] = 1
+    frames["observed"] = True
+    for _ in range(200):  # 200 successful episodes: the alarm is ready, its window full
+        monitor.keys(sig)
+        frames["success"] = True
+        monitor.observe(frames)
+    frames["success"] = rng.random(ARMS) < 0.1
+    cur = OrderedPriority("cur", ARMS, initial_period=10, u_hat=0.2, r_hat=0.5)
+
+    def monitor_step() -> None:
+        monitor.keys(sig)
+        monitor.observe(frames)
+
+    keys = interleaved({"with": monitor_step, "without": lambda: cur.keys(sig)},
+                       args.repeats * 20)
+    with_step = train["with"] + keys["with"]
+    without_step = train["without"] + keys["without"]
+    print(f"{os.cpu_count()} cores, {torch.get_num_threads()} torch threads, "
+          f"load {os.getloadavg()[0]:.2f}; N = {ARMS} arms, batch 256, 5 members")
+    added = 1000 * (train["with"] - train["without"])
+    print(f"training step: {1000 * train['with']:.0f} ms with the feature update, "
+          f"{1000 * train['without']:.0f} ms without (+{added:.1f} ms)")
+    print(f"act on {ARMS} images (beside training in the loop): {1000 * act['with']:.1f} ms "
+          f"with ood, {1000 * act['without']:.1f} ms without "
+          f"(+{1000 * (act['with'] - act['without']):.1f} ms)")
+    print(f"allocation: monitor keys + observe {1000 * keys['with']:.2f} ms, C.U.R. keys "
+          f"{1000 * keys['without']:.2f} ms")
+    ratio = with_step / without_step
+    print(f"step ratio (training + allocation, with / without the monitor): {ratio:.3f} "
+          f"(target <= {TARGET}: {'met' if ratio <= TARGET else 'NOT met'})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
