@@ -26,6 +26,7 @@ from testbed.core.types import EpisodeOutcome
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.fleet.monitor_priority import SCALE_FLOOR
 from testbed.monitor.conformal import Replay, replay_online, replay_split
+from testbed.monitor.failure_head import INPUTS, FailureHead, design
 from testbed.monitor.labels import PolicyPushes, policy_pushes
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import LeadTime, auroc, average_precision, lead_time
@@ -33,14 +34,17 @@ from testbed.records.run_classes import run_classes
 from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import RunDataError
 
-__all__ = ["NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures", "both_high", "replays",
-           "run_prediction", "score_signal"]
+__all__ = ["HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
+           "add_failure_head", "both_high", "replays", "run_prediction", "score_signal"]
 
 SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
 """Today's signals (issue 36's baseline), in the tables' order."""
-NEW_SIGNALS: Final = ("ood", "ood_u")
+NEW_SIGNALS: Final = ("ood", "ood_u", "fail_head")
 """The monitor's (item 3): the distance to the training data in the policy's feature
-space, and it together with the uncertainty (``both_high``)."""
+space, it together with the uncertainty (``both_high``), and the failure head
+(``add_failure_head``: a violation within ``HEAD_K`` steps, learned on the other runs)."""
+HEAD_K: Final = 3
+"""The horizon the failure head learns (the issue's goal: a violation within 3 steps)."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
 _FROM_FRAMES: Final = ("uncertainty", "risk")
 
@@ -196,6 +200,38 @@ def score_signal(p: PolicyPushes, name: str, cfg: MonitorConfig) -> SignalFigure
     return SignalFigures(tuple(au), tuple(ap), tuple(base),
                          _safe(auroc, s[settled], fail), _safe(average_precision, s[settled], fail),
                          float(fail.mean()) if fail.size else math.nan, lead, int(has.sum()))
+
+
+def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig) -> str | None:
+    """Score each run with a failure head fitted on the group's other runs (leave one
+    run out), as the signal ``fail_head``; None, or why it could not be."""
+    inputs = [s for s in INPUTS if runs and all(s in r.figures for r in runs)]
+    usable = [r for r in runs if r.pushes is not None]
+    if len(usable) < 2 or not inputs:
+        return "the failure head needs two runs with the same signals"
+    rows = []
+    for r in usable:
+        p = r.pushes
+        assert p is not None
+        x = design(p.scores, inputs)
+        label, known = p.within(HEAD_K)
+        ok = known & ~np.isnan(x).any(axis=1)
+        rows.append((x, label, ok))
+    for i, r in enumerate(usable):
+        train_x = np.concatenate([x[ok] for j, (x, _, ok) in enumerate(rows) if j != i])
+        train_y = np.concatenate([y[ok] for j, (_, y, ok) in enumerate(rows) if j != i])
+        try:
+            head = FailureHead.fit(train_x, train_y, inputs)
+        except ValueError as exc:
+            return f"the failure head could not be fitted: {exc}"
+        x, _, _ = rows[i]
+        score = np.full(len(x), np.nan)
+        has = ~np.isnan(x).any(axis=1)
+        score[has] = head.predict(x[has])
+        assert r.pushes is not None
+        r.pushes.scores["fail_head"] = score
+        r.figures["fail_head"] = score_signal(r.pushes, "fail_head", cfg)
+    return None
 
 
 def replays(runs: Sequence[RunPrediction], signal: str, cfg: MonitorConfig

@@ -30,6 +30,7 @@ from testbed.experiments.prediction_runs import (
     NEW_SIGNALS,
     SIGNALS,
     RunPrediction,
+    add_failure_head,
     replays,
     run_prediction,
 )
@@ -74,6 +75,11 @@ def prediction_tables(groups: Mapping[str, Sequence[Path]],
     """The tables for runs grouped by algorithm (name -> run folders)."""
     scored = {g: [run_prediction(p, g, config) for p in paths] for g, paths in groups.items()}
     cfg = config or MonitorConfig()
+    for runs in scored.values():
+        why = add_failure_head(runs, cfg)
+        if why is not None and len(runs) > 1:
+            for r in runs:
+                r.absent.setdefault("fail_head", why)
     return [_ranking(scored, cfg, "auroc"), _ranking(scored, cfg, "ap"), _lead(scored, cfg),
             _reliability(scored), _alarm(scored, cfg)]
 

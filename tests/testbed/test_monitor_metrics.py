@@ -144,3 +144,21 @@ def test_the_online_alarm_follows_a_policy_whose_scores_fall_and_resumes_its_sta
     again = ConformalAlarm(0.1, window=20)
     again.load_state_dict(alarm.state_dict())
     assert again.threshold == alarm.threshold and again.calibrated_on == 20
+
+
+def test_the_failure_head_learns_which_signals_foretell_a_failure() -> None:
+    from testbed.monitor.failure_head import FailureHead, design
+
+    rng = np.random.default_rng(4)
+    n = 3000
+    scores = {"uncertainty": rng.random(n), "ood": rng.gamma(2.0, size=n) / 2}
+    logit = -4.0 + 3.0 * scores["uncertainty"] + 1.5 * scores["ood"]
+    y = rng.random(n) < 1.0 / (1.0 + np.exp(-logit))
+    x = design(scores, ["uncertainty", "ood"])
+    head = FailureHead.fit(x[:2000], y[:2000], ["uncertainty", "ood"])
+    p = head.predict(x[2000:])
+    best = 1.0 / (1.0 + np.exp(-logit[2000:]))  # the true probability
+    assert auroc(p, y[2000:]) > auroc(best, y[2000:]) - 0.02
+    assert abs(p.mean() - y[2000:].mean()) < 0.03  # calibrated in the large
+    with pytest.raises(ValueError, match="both outcomes"):
+        FailureHead.fit(x[:10], np.zeros(10, bool), ["uncertainty", "ood"])

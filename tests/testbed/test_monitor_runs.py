@@ -108,7 +108,11 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     oracle = next(r for r in auc.rows if r[1] == "oracle")
     assert oracle[2] == "3" and oracle[6] == "1.000 [1.000, 1.000]"
     signals = [r[1] for r in auc.rows]
-    assert signals == ["uncertainty", "risk", "flat", "oracle"]  # risk: cur reads it
+    # risk: cur reads it; the failure head, fitted on the other two runs' uncertainty and
+    # risk (those every run has), which are noise here: near chance
+    assert signals == ["uncertainty", "risk", "fail_head", "flat", "oracle"]
+    head = next(r for r in auc.rows if r[1] == "fail_head")
+    assert 0.3 < float(head[6].split()[0]) < 0.7
     assert "(base rate)" in [r[1] for r in tables["prediction-ap"].rows]
     rel = tables["prediction-reliability"]
     assert {r[1] for r in rel.rows} == {"risk"}  # all zeros: one bin, the failure share
