@@ -109,3 +109,12 @@ def test_the_registry_builds_it_from_the_monitor_config_and_it_reads_what_it_dec
         assert MonitorPriority.reads_of(score) <= MONITOR_READS
     with pytest.raises(ValueError):
         MonitorConfig(score="goal_risk")  # type: ignore[arg-type]
+
+
+def test_testbed_plan_reads_a_monitor_run_as_resets_first() -> None:
+    """The plan's batch allocator replays Algorithm 1 on requests fitted from a run's own
+    keys (docs/notes/plan.md): a monitor run's alarms are its requests, and its resets sort
+    before them, as C.U.R.'s do."""
+    from testbed.experiments.plan_fit import key_order
+
+    assert key_order("monitor") == key_order("cur") == "resets_first"
