@@ -158,8 +158,13 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
         scores["ood_u"] = pushes.scores["ood_u"]
     result.pushes = pushes
     for name in scores:
-        if np.isnan(pushes.scores[name]).all():
+        values = pushes.scores[name]
+        if np.isnan(values).all():
             result.absent[name] = "no policy push has it"
+            continue
+        if np.all(values[~np.isnan(values)] == 0.0):
+            result.absent[name] = "0 on every policy push (not computed: for ood, a policy " \
+                                  "whose features were never kept)"
             continue
         result.figures[name] = score_signal(pushes, name, cfg)
     return result

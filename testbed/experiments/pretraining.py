@@ -223,7 +223,9 @@ def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = No
         "hosts": hosts,
         "t_R": cfg.algorithm.t_R,
         "seed": seed,
-        "v": 2,
+        # 3: theta_0 keeps the policy's feature density (issue 36's ood); one cached
+        # before it would give ood 0 until its first training step, and BC never trains
+        "v": 3,
     }
     if which != CRITICS:
         fields["critics"] = list(which)

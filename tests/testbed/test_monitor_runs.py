@@ -53,7 +53,8 @@ def _violation_ahead(p: list[dict[str, Any]], t: int) -> int | None:
 
 def write_run(run: Path, algorithm: str, seed: int, steps: int = 240) -> None:
     """Rows with an ``oracle`` monitor score (1 when the episode's violation is at most
-    2 steps ahead) and a constant one, and the data store."""
+    2 steps ahead), a constant one, one that is always 0 (never computed), and the data
+    store."""
     rng = np.random.default_rng(seed)
     plans = (plan(rng, steps), plan(rng, steps))
     frames = frames_of(*plans)
@@ -69,8 +70,9 @@ def write_run(run: Path, algorithm: str, seed: int, steps: int = 240) -> None:
                     "robot": ROBOTS[a], "mode": p[t]["mode"], "human": p[t]["human"],
                     "action": p[t]["action"], "success": p[t]["success"],
                     "violation": p[t]["violation"], "uncertainty": float(rng.random()),
-                    "risk": 0.0, "key": [0.0],
-                    "monitor": {"oracle": 1.0 if ahead is not None else 0.0, "flat": 0.5}})
+                    "risk": float(rng.random()) / 2, "key": [0.0],
+                    "monitor": {"oracle": 1.0 if ahead is not None else 0.0, "flat": 0.5,
+                                "dead": 0.0}})
             f = frames[t * 2:(t + 1) * 2]
             data.append(StepRecord.from_row(row, 0, np.zeros((2, 64, 64, 3), np.uint8),
                                             f["observed"], f["goal"]).to_frames())
@@ -95,7 +97,9 @@ def test_an_oracle_ranks_perfectly_at_its_horizon_and_a_constant_at_chance(
     assert "uncertainty" in r.figures
     assert r.absent == {"risk": "its critic did not run (fleet-ed reads no risk)",
                         "goal_risk": "its critic did not run (fleet-ed reads no goal risk)",
-                        "novelty": "not in its rows"}
+                        "novelty": "not in its rows",
+                        "dead": "0 on every policy push (not computed: for ood, a policy "
+                                "whose features were never kept)"}
 
 
 def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path: Path) -> None:
@@ -115,7 +119,8 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     assert 0.3 < float(head[6].split()[0]) < 0.7
     assert "(base rate)" in [r[1] for r in tables["prediction-ap"].rows]
     rel = tables["prediction-reliability"]
-    assert {r[1] for r in rel.rows} == {"risk"}  # all zeros: one bin, the failure share
+    assert {r[1] for r in rel.rows} == {"risk"}  # random in [0, 0.5): five bins
+    assert [r[2] for r in rel.rows] == [f"[{b / 10:.1f}, {(b + 1) / 10:.1f})" for b in range(5)]
     alarm = {r[1]: r for r in tables["prediction-alarm"].rows}
     assert alarm["oracle"][5] in ("yes", "no", "-")
     md = "\n".join(t.markdown() for t in tables.values())
