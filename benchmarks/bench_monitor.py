@@ -6,7 +6,9 @@ same work without it (interleaved repeats, medians; the real learner at batch 25
 members, the safety critic, 2000 labelled images and 3000 transitions):
 
 1. the training step: ``Learner._update_features`` (64 labelled images through each
-   member's trunk, the running mean and covariance) after the policy's update;
+   member's trunk, the running mean and covariance) after every ``FEATURE_EVERY``-th
+   policy update: timed apart, interleaved with the training step, its share per step
+   added;
 2. ``act`` on 100 images: the trunk features kept and each image's Mahalanobis distance
    (``FeatureDensity.score``); in the loop act runs beside the training step, so this
    part costs the step nothing while act is shorter than training, and is printed apart;
@@ -40,6 +42,7 @@ from testbed.core.types import IMAGE_SIZE, NUM_ACTIONS
 from testbed.fleet.monitor_priority import MonitorPriority
 from testbed.fleet.priorities import OrderedPriority, PrioritySignals
 from testbed.learning import Learner
+from testbed.learning.learner import FEATURE_EVERY
 from testbed.learning.learning_config import LearningConfig
 from testbed.records.store import FRAME_DTYPE, MODES
 
@@ -84,7 +87,13 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             learner._update_features = update  # type: ignore[method-assign]
 
-    train = interleaved({"with": learner.train_step, "without": train_plain}, args.repeats)
+    def feature_update() -> None:
+        learner.policy_updates -= learner.policy_updates % FEATURE_EVERY  # one that runs
+        update()
+
+    parts = interleaved({"train": train_plain, "features": feature_update}, args.repeats)
+    train = {"without": parts["train"],
+             "with": parts["train"] + parts["features"] / FEATURE_EVERY}
     actor = learner.acting_copy()
     plain_actor = learner.acting_copy()
     plain_actor._features = None
@@ -117,9 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     without_step = train["without"] + keys["without"]
     print(f"{os.cpu_count()} cores, {torch.get_num_threads()} torch threads, "
           f"load {os.getloadavg()[0]:.2f}; N = {ARMS} arms, batch 256, 5 members")
-    added = 1000 * (train["with"] - train["without"])
-    print(f"training step: {1000 * train['with']:.0f} ms with the feature update, "
-          f"{1000 * train['without']:.0f} ms without (+{added:.1f} ms)")
+    print(f"training step: {1000 * train['without']:.0f} ms; the feature update "
+          f"{1000 * parts['features']:.1f} ms every {FEATURE_EVERY} updates: "
+          f"+{1000 * parts['features'] / FEATURE_EVERY:.1f} ms a step")
     print(f"act on {ARMS} images (beside training in the loop): {1000 * act['with']:.1f} ms "
           f"with ood, {1000 * act['without']:.1f} ms without "
           f"(+{1000 * (act['with'] - act['without']):.1f} ms)")

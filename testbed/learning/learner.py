@@ -150,8 +150,13 @@ def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]
 
 
 FEATURE_SAMPLE: Final = 64
-"""Labelled images a policy update folds into the feature density (``_update_features``):
-a trunk pass of 64 images per member, a few % of a batch-256 step."""
+"""Labelled images folded into the feature density (``_update_features``) every
+``FEATURE_EVERY`` policy updates: the trunks alone, no head."""
+FEATURE_EVERY: Final = 2
+"""Every 2nd policy update (the first included): the trunks alone on 64 images, ~2 % of a
+batch-256 step amortised (``benchmarks/bench_monitor.py``); every update with the heads
+cost 120 ms. Every 4th lagged the trunk too far on a policy trained from scratch (noise
+images ranked 0.68 against held-out scenes, docs/notes/monitor.md)."""
 FEATURE_STRIDE: Final = 7919
 """A prime: the sweep's images are spread over the data, not 32 neighbours (one chunk)."""
 
@@ -406,20 +411,20 @@ class Learner:
         return float(per_member.mean())
 
     def _update_features(self) -> None:
-        """Fold ``FEATURE_SAMPLE`` of the labelled images, as they were added (not the
-        augmented copies the step trained on: the colour jitter would teach the density
-        that any colour is familiar), into ``features``, through the policy just updated.
-        The images are a strided sweep through the data by update count: no random draw,
-        so training's random streams are untouched and a resume picks up exactly."""
+        """Every ``FEATURE_EVERY`` updates, fold ``FEATURE_SAMPLE`` of the labelled images,
+        as they were added (not the augmented copies the step trained on: the colour
+        jitter would teach the density that any colour is familiar), into ``features``,
+        through the trunks just updated. The images are a strided sweep through the data
+        by update count: no random draw, so training's random streams are untouched and a
+        resume picks up exactly."""
         n = len(self.policy_data)
-        if n == 0:
+        if n == 0 or self.policy_updates % FEATURE_EVERY:
             return
         k = min(FEATURE_SAMPLE, n)
         index = (self.policy_updates * k + torch.arange(k) * FEATURE_STRIDE) % n
         with torch.no_grad():
             images = self.policy_data.original_images(index).to(self.device)
-            _, feats = self.policy(images, features=True)
-        self.features.update(feats)
+            self.features.update(self.policy.trunk_features(images))
 
     def _critic_update(self, critics: tuple[str, ...] = CRITICS) -> dict[str, float]:
         """One minibatch for ``critics`` (non-empty, in ``CRITICS`` order): one sample,

@@ -74,6 +74,21 @@ class PolicyEnsemble(nn.Module):
         out = torch.stack(logits)
         return (out, torch.stack(feats)) if features else out
 
+    def trunk_features(self, images: Tensor) -> Tensor:
+        """Each member's trunk features (E, B, 64) of uint8 images (B, H, W, 3): the
+        policy's own embedding without its heads (``features.py``)."""
+        if self.impl == "vmap":
+            params = [dict(m.named_parameters()) for m in self.members]
+            trunk = {name[2:]: torch.stack([p[name] for p in params])
+                     for name in self._names if name.startswith("0.")}
+            base = self.members[0][0]
+
+            def one(member_params: dict[str, Tensor], x: Tensor) -> Tensor:
+                return functional_call(base, member_params, (x,))
+
+            return vmap(one, in_dims=(0, None))(trunk, images)
+        return torch.stack([m[0](images) for m in self.members])
+
     def _forward_vmap(self, images: Tensor, per_member: bool, features: bool
                       ) -> Tensor | tuple[Tensor, Tensor]:
         params = [dict(m.named_parameters()) for m in self.members]
