@@ -492,4 +492,10 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
     every = [*learning, *evaluations]
     tables += prediction_tables({g: [r.path for r in rs] for g, rs in _groups(every).items()},
                                 monitor_config(every[0].config) if every else None)
+    from testbed.experiments.report_alarm import alarm_table
+
+    alarms = alarm_table([r.path for r in learning if r.algorithm == "monitor"
+                          or r.meta.get("options", {}).get("algorithm") == "monitor"])
+    if alarms is not None:
+        tables.append(alarms)
     return tables

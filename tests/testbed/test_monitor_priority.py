@@ -5,6 +5,10 @@ episode peaks follow the rules of the labels; its state survives a checkpoint.""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,9 +18,11 @@ from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.monitor_priority import MONITOR_READS, MonitorPriority
 from testbed.fleet.priorities import PrioritySignals
 from testbed.monitor.monitor_config import SCORES, MonitorConfig
+from testbed.records.steps import read_steps
 from testbed.records.store import FRAME_DTYPE, MODES
 
 N = 3
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def signals(t: int, u: list[float], *, violating: list[bool] | None = None,
@@ -118,3 +124,37 @@ def test_testbed_plan_reads_a_monitor_run_as_resets_first() -> None:
     from testbed.experiments.plan_fit import key_order
 
     assert key_order("monitor") == key_order("cur") == "resets_first"
+
+
+@pytest.mark.slow
+def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
+        tmp_path: Path) -> None:
+    """The monitor end to end on the twin: C.U.R.'s rule until its alarm is ready (alpha
+    0.2: 4 successful episodes), then its score and threshold in every arm's row, and the
+    report's table of it at work."""
+    (tmp_path / "small.toml").write_text(
+        '[trial]\nsteps = 40\nseed = 3\n[learning]\nensemble_size = 2\nbatch_size = 32\n'
+        'demos = 60\ncritic_transitions = 40\npretrain_steps = 10\n[monitor]\nalpha = 0.2\n')
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    run = subprocess.run([sys.executable, "-m", "testbed.cli", "trial", "--config",
+                          "small.toml", "--algorithm", "monitor", "--out", "runs", "--name",
+                          "m"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env=env)
+    assert run.returncode == 0, run.stderr[-3000:]
+    rows = read_steps(tmp_path / "runs" / "m" / "steps.jsonl")
+    entries = [r for row in rows for r in row["robots"] if r["mode"] != "fault"]
+    assert all("alarm_score" in r["monitor"] and "ood" in r["monitor"] for r in entries)
+    ready = [row["t"] for row in rows
+             if any("alarm_threshold" in r.get("monitor", {}) for r in row["robots"])]
+    assert ready and ready == list(range(ready[0], 40))  # ready once, then for good
+    before = [r for row in rows[:ready[0]] for r in row["robots"]]
+    assert all(r["key"][1] == r["key"][2] == 0 for r in before)  # no alarm before
+    after = [r for row in rows[ready[0]:] for r in row["robots"]]
+    assert all(r["key"][3] == r["key"][4] == 0 for r in after)  # no C.U.R. after
+    rep = subprocess.run([sys.executable, "-m", "testbed.cli", "report", "runs", "--out",
+                          "rep"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env=env)
+    assert rep.returncode == 0, rep.stderr[-3000:]
+    md = (tmp_path / "rep" / "report.md").read_text()
+    table = md.partition("The monitor algorithm at work")[2].split("\n\n")[1]
+    assert f"| m | {ready[0]} |" in table
