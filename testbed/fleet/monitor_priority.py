@@ -51,7 +51,7 @@ policy and the safety critic for it; the goal critic's risk would need its train
 SCALE_FLOOR: Final = 1e-6
 """A median below this (a signal that is almost always 0) scales by this instead."""
 REFERENCE: Final = 2000
-"""Policy-push values each combined score ranks against (the latest)."""
+"""Policy-push values whose median scales each part of a combined score (the latest)."""
 _AUTONOMOUS: Final = MODES.index(Mode.AUTONOMOUS.value)
 
 

@@ -36,3 +36,22 @@ def test_the_first_updates_average_exactly_then_follow_the_features() -> None:
     again = FeatureDensity(1, 2)
     again.load_state_dict(density.state_dict())
     assert torch.equal(again.mean, density.mean) and int(again.count) == int(density.count)
+
+
+def test_both_ways_of_running_the_members_give_the_same_features() -> None:
+    from testbed.learning.policy import PolicyEnsemble
+
+    torch.manual_seed(0)
+    loop = PolicyEnsemble(3, "loop")
+    vm = PolicyEnsemble(3, "vmap")
+    vm.load_state_dict(loop.state_dict())
+    images = torch.randint(0, 256, (5, 64, 64, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        logits, feats = loop(images, features=True)
+        v_logits, v_feats = vm(images, features=True)
+        assert feats.shape == (3, 5, 64)
+        assert torch.allclose(logits, loop(images))  # the same sums as without features
+        assert torch.allclose(v_logits, logits, atol=1e-5)
+        assert torch.allclose(v_feats, feats, atol=1e-5)
+        assert torch.allclose(vm.trunk_features(images), feats, atol=1e-5)
+        assert torch.allclose(loop.trunk_features(images), feats)
