@@ -43,6 +43,8 @@ NEW_SIGNALS: Final = ("ood", "ood_u", "fail_head")
 """The monitor's (item 3): the distance to the training data in the policy's feature
 space, it together with the uncertainty (``both_high``), and the failure head
 (``add_failure_head``: a violation within ``HEAD_K`` steps, learned on the other runs)."""
+NOT_SCORES: Final = frozenset({"alarm_threshold"})
+"""``monitor`` entries that are not a score of the arm (the alarm's threshold)."""
 HEAD_K: Final = 3
 """The horizon the failure head learns (the issue's goal: a violation within 3 steps)."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
@@ -114,6 +116,8 @@ def _monitor_scores(rows: Sequence[dict[str, Any]], robots: Sequence[str], steps
             continue
         for entry in row["robots"]:
             for name, value in (entry.get("monitor") or {}).items():
+                if name in NOT_SCORES:
+                    continue
                 arr = out.setdefault(name, np.full(steps * n, np.nan))
                 arr[s * n + index[entry["robot"]]] = float(value)
     return out

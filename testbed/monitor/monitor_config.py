@@ -16,7 +16,7 @@ from testbed.monitor.conformal import DEFAULT_WINDOW, episodes_needed
 
 __all__ = ["SCORES", "MonitorConfig", "Score"]
 
-Score = Literal["ood_u", "ood", "uncertainty", "risk", "novelty"]
+Score = Literal["risk", "ood_u", "ood", "uncertainty", "novelty"]
 SCORES: tuple[str, ...] = get_args(Score)
 """What the alarm of the ``monitor`` algorithm may watch: a learned signal it computes
 (the policy's, or the safety critic's risk), or ``ood_u`` (``ood`` and the uncertainty
@@ -35,8 +35,9 @@ class MonitorConfig(StrictModel):
                           "lead time and false alarms are read at")
     window: int = Field(DEFAULT_WINDOW, ge=1, description="the latest successful episodes the "
                         "online alarm calibrates on")
-    score: Score = Field("ood_u", description="what the monitor algorithm's alarm "
-                                   "watches (" + ", ".join(SCORES) + ")")
+    score: Score = Field("risk", description="what the monitor algorithm's alarm watches ("
+                         + ", ".join(SCORES) + "); the safety critic's risk by default: the "
+                         "best predictor the twin measured (docs/notes/monitor.md)")
 
     @field_validator("alpha")
     @classmethod
