@@ -69,7 +69,9 @@ class MonitorPriority:
                  u_hat: float, r_hat: float) -> None:
         self.num_robots: Final[int] = num_robots
         self.score_name: Final[str] = score
-        self.reads: frozenset[str] = self.reads_of(score)
+        self.reads: frozenset[str] = MONITOR_READS
+        """Every signal it may watch, read each step whatever the score (so ``reads`` is
+        the registry's, exactly: ``tests/testbed/test_train_parts.py``)."""
         self.u_hat: Final[float] = float(u_hat)
         self.r_hat: Final[float] = float(r_hat)
         self.alarm = ConformalAlarm(alpha, window)
@@ -100,6 +102,8 @@ class MonitorPriority:
         if isinstance(s.t, bool) or not isinstance(s.t, int | np.integer):
             raise ValueError(f"signals.t must be an int, got {s.t!r}")
         viol = s.violating_array(n)
+        for name in sorted(self.reads):  # all present and finite, whatever the score
+            s.signal(name, n)
         score = self.scores(s)
         self._last = score
         self._raw = {name: s.signal(name, n) for name in self._reference}

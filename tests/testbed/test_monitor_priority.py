@@ -30,7 +30,7 @@ def signals(t: int, u: list[float], *, violating: list[bool] | None = None,
             ) -> PrioritySignals:
     return PrioritySignals(t=t, violating=np.array(violating or [False] * N),
                            uncertainty=np.array(u), risk=np.array(risk or [0.0] * N),
-                           ood=None if ood is None else np.array(ood))
+                           novelty=np.zeros(N), ood=np.array(ood or [1.0] * N))
 
 
 def frames(modes: list[str], *, success: list[bool] | None = None,

@@ -21,7 +21,8 @@ PARAMS = AlgorithmConfig(t_T=2, t_R=3, t_I=5, u_hat=0.1, r_hat=0.5, random_budge
 SIGNALS = {"uncertainty": np.array([0.3, 0.1, 0.0, 0.2]),
            "risk": np.array([0.9, 0.2, 0.5, 0.4]),
            "goal_risk": np.array([0.1, 0.7, 0.3, 0.2]),
-           "novelty": np.array([0.2, 0.1, 0.6, 0.0])}
+           "novelty": np.array([0.2, 0.1, 0.6, 0.0]),
+           "ood": np.array([1.1, 0.9, 2.5, 1.0])}
 VIOL = np.array([True, False, False, False])
 
 

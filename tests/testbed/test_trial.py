@@ -327,13 +327,15 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     # failure prediction (issue 36): every signal the runs computed, the others named
     cur_rows = read_steps(out / "cur-t0" / "steps.jsonl")
-    assert all(set(r["monitor"]) == {"novelty"} for s in cur_rows for r in s["robots"]
+    assert all(set(r["monitor"]) == {"novelty", "ood"} for s in cur_rows for r in s["robots"]
                if r["mode"] != "fault")
     auc = md.partition("Failure prediction, AUROC")[2].split("\n\n")[1]
-    assert {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| cur |")} == {
-        "uncertainty", "risk", "novelty"}
-    assert {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| bc |")} == {
-        "uncertainty", "novelty"}
+    cur_signals = {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| cur |")}
+    bc_signals = {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| bc |")}
+    # ood and ood_u too, unless a run's ood was 0 throughout (named, not scored); the
+    # failure head on two runs with the same signals
+    assert {"uncertainty", "risk", "novelty", "fail_head"} <= cur_signals
+    assert {"uncertainty", "novelty", "fail_head"} <= bc_signals and "risk" not in bc_signals
     assert "bc: not scored: goal_risk: its critic did not run" in md
     assert "risk: its critic did not run (bc reads no risk" in md
     assert "The conformal alarm: false alarms per successful episode" in md
