@@ -24,7 +24,7 @@ import numpy as np
 
 from testbed.core.types import EpisodeOutcome
 from testbed.fleet.algorithms import ALGORITHMS
-from testbed.fleet.monitor_priority import SCALE_FLOOR
+from testbed.fleet.monitor_priority import both_high
 from testbed.monitor.conformal import Replay, replay_online, replay_split
 from testbed.monitor.failure_head import INPUTS, FailureHead, design
 from testbed.monitor.labels import PolicyPushes, policy_pushes
@@ -35,7 +35,7 @@ from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import RunDataError
 
 __all__ = ["HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
-           "add_failure_head", "both_high", "replays", "run_prediction", "score_signal"]
+           "add_failure_head", "replays", "run_prediction", "score_signal"]
 
 SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
 """Today's signals (issue 36's baseline), in the tables' order."""
@@ -158,7 +158,7 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
     pushes = policy_pushes(rc.frames, rc.classes.classes, rc.classes.outcomes,
                            rc.classes.episodes, scores)
     if "ood" in pushes.scores and "uncertainty" in pushes.scores:
-        pushes.scores["ood_u"] = both_high(pushes.scores["ood"], pushes.scores["uncertainty"])
+        pushes.scores["ood_u"] = _ood_u(pushes.scores["ood"], pushes.scores["uncertainty"])
         scores["ood_u"] = pushes.scores["ood_u"]
     result.pushes = pushes
     for name in scores:
@@ -174,16 +174,13 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
     return result
 
 
-def both_high(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """FIPER's conjunction as one score: the smaller of the two signals, each over its
-    median among the run's policy pushes (high only where both are; NaN where either is
-    NaN). As ``testbed/fleet/monitor_priority.py`` computes it live, over the latest
-    pushes there."""
-    out = np.full(a.shape, np.nan)
-    ok = ~np.isnan(a) & ~np.isnan(b)
+def _ood_u(ood: np.ndarray, uncertainty: np.ndarray) -> np.ndarray:
+    """``ood_u`` of each push, each part over its median among the run's policy pushes
+    (NaN where either part is)."""
+    out = np.full(ood.shape, np.nan)
+    ok = ~np.isnan(ood) & ~np.isnan(uncertainty)
     if ok.any():
-        out[ok] = np.minimum(a[ok] / max(float(np.median(a[ok])), SCALE_FLOOR),
-                             b[ok] / max(float(np.median(b[ok])), SCALE_FLOOR))
+        out[ok] = both_high([ood[ok], uncertainty[ok]], [ood[ok], uncertainty[ok]])
     return out
 
 

@@ -487,15 +487,10 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
             tables += gain_tables(learning, evaluations, reference or PAPER_FIRST, trial_label)
     tables.append(classes_table([(r.path.name, r.group, r.classes)
                                  for r in [*learning, *evaluations]]))
-    from testbed.experiments.report_prediction import monitor_config, prediction_tables
+    from testbed.experiments.report_prediction import monitor_tables
 
-    every = [*learning, *evaluations]
-    tables += prediction_tables({g: [r.path for r in rs] for g, rs in _groups(every).items()},
-                                monitor_config(every[0].config) if every else None)
-    from testbed.experiments.report_alarm import alarm_table
-
-    alarms = alarm_table([r.path for r in learning if r.algorithm == "monitor"
-                          or r.meta.get("options", {}).get("algorithm") == "monitor"])
-    if alarms is not None:
-        tables.append(alarms)
+    tables += monitor_tables([(g, [r.path for r in rs], rs[0].config)
+                              for g, rs in _groups([*learning, *evaluations]).items()],
+                             [r.path for r in learning if "monitor" in (
+                                 r.algorithm, r.meta.get("options", {}).get("algorithm"))])
     return tables

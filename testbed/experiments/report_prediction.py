@@ -38,7 +38,7 @@ from testbed.experiments.report_tables import Table, method_note
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import reliability
 
-__all__ = ["monitor_config", "prediction_tables"]
+__all__ = ["monitor_config", "monitor_tables", "prediction_tables"]
 
 PROBABILITIES = ("risk", "goal_risk")
 """Signals that claim to be a probability of a violation (a reliability table each)."""
@@ -68,6 +68,19 @@ def _num(x: float) -> float | str:
 def monitor_config(config: Mapping[str, Any]) -> MonitorConfig:
     """A run's ``[monitor]`` (its config.toml as a dict; the defaults for runs before it)."""
     return MonitorConfig.model_validate(dict(config.get("monitor", {})))
+
+
+def monitor_tables(groups: Sequence[tuple[str, Sequence[Path], Mapping[str, Any]]],
+                   monitor_runs: Sequence[Path]) -> list[Table]:
+    """The report's failure-prediction tables for its groups (name, run folders, the first
+    run's config.toml: its ``[monitor]``), and the monitor algorithm's own table for its
+    runs, if any."""
+    from testbed.experiments.report_alarm import alarm_table
+
+    tables = prediction_tables({g: paths for g, paths, _ in groups},
+                               monitor_config(groups[0][2]) if groups else None)
+    alarms = alarm_table(monitor_runs)
+    return tables + ([alarms] if alarms is not None else [])
 
 
 def prediction_tables(groups: Mapping[str, Sequence[Path]],

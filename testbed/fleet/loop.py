@@ -190,12 +190,9 @@ class FleetLoop:
         """The robot's own pushes, to a learner that learns from them, as episodes end."""
         self._monitored = ("novelty", "ood",
                            *(("goal_risk",) if "goal" in algorithm.spec.critics else ()))
-        """The signals each arm's row keeps under ``monitor`` besides uncertainty and risk
-        (the rows are all ``testbed report`` scores failure prediction from): novelty
-        always (the ensemble gives it for free), ood when the learner gives it (the
-        distance to its training data in the policy's feature space), goal risk when its
-        critic runs (the algorithm reads it: the trial sets the learner's critics from the
-        same spec)."""
+        """What each arm's row keeps under ``monitor`` beyond uncertainty and risk, for
+        scoring failure prediction from the rows: novelty, ood when the learner gives it,
+        goal risk when its critic runs (the trial sets the critics from the same spec)."""
 
     # ---- counters -------------------------------------------------------------------
     def restore_counters(self, rows: Sequence[Mapping[str, Any]]) -> None:

@@ -32,16 +32,18 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from typing import Any, Final
 
 import numpy as np
 
 from testbed.core.types import Mode
-from testbed.fleet.priorities import FloatArray, PrioritySignals
+from testbed.fleet.priorities import FloatArray, OrderedPriority, PrioritySignals, check_t
 from testbed.monitor.conformal import ConformalAlarm
 from testbed.records.store import MODES
 
-__all__ = ["COMBINED", "MONITOR_READS", "REFERENCE", "SCALE_FLOOR", "MonitorPriority"]
+__all__ = ["COMBINED", "MONITOR_READS", "REFERENCE", "SCALE_FLOOR", "MonitorPriority",
+           "both_high"]
 
 COMBINED: Final = {"ood_u": ("ood", "uncertainty")}
 """Scores made of two signals (both must be high)."""
@@ -53,6 +55,14 @@ SCALE_FLOOR: Final = 1e-6
 REFERENCE: Final = 2000
 """Policy-push values whose median scales each part of a combined score (the latest)."""
 _AUTONOMOUS: Final = MODES.index(Mode.AUTONOMOUS.value)
+
+
+def both_high(parts: Sequence[FloatArray], references: Sequence[FloatArray]) -> FloatArray:
+    """FIPER's conjunction as one score: the smaller of the parts, each over the median of
+    its reference (high only where every part is). Live, the references are the latest
+    policy pushes; ``testbed/experiments/prediction_runs.py`` scores a run with its own."""
+    return np.minimum.reduce([v / max(float(np.median(ref)), SCALE_FLOOR)
+                              for v, ref in zip(parts, references, strict=True)])
 
 
 class MonitorPriority:
@@ -72,8 +82,8 @@ class MonitorPriority:
         self.reads: frozenset[str] = MONITOR_READS
         """Every signal it may watch, read each step whatever the score (so ``reads`` is
         the registry's, exactly: ``tests/testbed/test_train_parts.py``)."""
-        self.u_hat: Final[float] = float(u_hat)
-        self.r_hat: Final[float] = float(r_hat)
+        self._cur = OrderedPriority("ur", num_robots, u_hat=u_hat, r_hat=r_hat)
+        """C.U.R.'s thresholded (u, r), the keys until the alarm is ready."""
         self.alarm = ConformalAlarm(alpha, window)
         self._peak = np.full(num_robots, -math.inf)
         self._goal = np.full((num_robots, 2), np.nan)
@@ -89,18 +99,14 @@ class MonitorPriority:
         parts = COMBINED.get(self.score_name)
         if parts is None:
             return s.signal(self.score_name, n)
-        scaled = []
-        for name in parts:
-            values = s.signal(name, n)
-            ref = np.fromiter(self._reference[name], float)
-            scaled.append(values / max(float(np.median(ref)), SCALE_FLOOR) if ref.size
-                          else np.zeros(n))
-        return np.minimum(*scaled)
+        if not all(self._reference[name] for name in parts):
+            return np.zeros(n)
+        return both_high([s.signal(name, n) for name in parts],
+                         [np.fromiter(self._reference[name], float) for name in parts])
 
     def keys(self, s: PrioritySignals) -> FloatArray:
         n = self.num_robots
-        if isinstance(s.t, bool) or not isinstance(s.t, int | np.integer):
-            raise ValueError(f"signals.t must be an int, got {s.t!r}")
+        check_t(s.t)
         viol = s.violating_array(n)
         for name in sorted(self.reads):  # all present and finite, whatever the score
             s.signal(name, n)
@@ -114,9 +120,7 @@ class MonitorPriority:
             keys[fired, 1] = 1.0
             keys[fired, 2] = score[fired]
         else:
-            u, r = s.signal("uncertainty", n), s.signal("risk", n)
-            keys[:, 3] = np.where(u >= self.u_hat, u, 0.0)
-            keys[:, 4] = np.where(r >= self.r_hat, r, 0.0)
+            keys[:, 3:] = self._cur.keys(s)
         keys[s.faulted_array(n)] = 0.0
         return keys
 

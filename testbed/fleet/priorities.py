@@ -175,7 +175,7 @@ class PriorityFunction(Protocol):
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
 
 
-def _check_t(t: int) -> int:
+def check_t(t: int) -> int:
     if isinstance(t, bool) or not isinstance(t, int | np.integer):
         raise ValueError(f"signals.t must be an int, got {t!r}")
     return int(t)
@@ -211,7 +211,7 @@ class OrderedPriority:
 
     def keys(self, s: PrioritySignals) -> FloatArray:
         n = self.num_robots
-        t = _check_t(s.t)
+        t = check_t(s.t)
         viol = s.violating_array(n)
         cols: list[FloatArray] = []
         for letter in self.order:
@@ -306,7 +306,7 @@ class ThriftyPriority:
 
     def keys(self, s: PrioritySignals) -> FloatArray:
         n = self.num_robots
-        _check_t(s.t)
+        check_t(s.t)
         viol = s.violating_array(n)
         score = self.scores(s)
         margin = np.where(score > self.threshold, score - self.threshold, 0.0)
@@ -362,7 +362,7 @@ class RandomPriority:
 
     def keys(self, s: PrioritySignals) -> FloatArray:
         n, m = self.num_robots, self.num_humans
-        _check_t(s.t)
+        check_t(s.t)
         viol = s.violating_array(n)
         faulted = s.faulted_array(n)
         present = s.available_array(m)
