@@ -23,18 +23,19 @@ from typing import Any, Final
 import numpy as np
 
 from testbed.core.types import EpisodeOutcome
+from testbed.experiments.prediction_features import push_features, theta0_digest
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.fleet.monitor_priority import both_high
 from testbed.monitor.conformal import Replay, replay_online, replay_split
-from testbed.monitor.failure_head import INPUTS, FailureHead, design
-from testbed.monitor.labels import PolicyPushes, policy_pushes
+from testbed.monitor.failure_head import FailureHead, design
+from testbed.monitor.labels import POLICY_CLASSES, PolicyPushes, policy_pushes
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import LeadTime, auroc, average_precision, lead_time
-from testbed.records.run_classes import run_classes
+from testbed.records.run_classes import STORE, run_classes
 from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import RunDataError
 
-__all__ = ["HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
+__all__ = ["HEAD_INPUTS", "HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
            "add_failure_head", "replays", "run_prediction", "score_signal"]
 
 SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
@@ -42,11 +43,17 @@ SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
 NEW_SIGNALS: Final = ("ood", "ood_u", "fail_head")
 """The monitor's (item 3): the distance to the training data in the policy's feature
 space, it together with the uncertainty (``both_high``), and the failure head
-(``add_failure_head``: a violation within ``HEAD_K`` steps, learned on the other runs)."""
+(``add_failure_head``: a violation within ``HEAD_K`` steps from theta_0's trunk features
+and risk, learned on the runs from other theta_0)."""
 NOT_SCORES: Final = frozenset({"alarm_threshold"})
 """``monitor`` entries that are not a score of the arm (the alarm's threshold)."""
 HEAD_K: Final = 3
 """The horizon the failure head learns (the issue's goal: a violation within 3 steps)."""
+HEAD_INPUTS: Final = ("risk",)
+"""The signals the failure head reads with the features, where a run has them: the
+safety critic's risk. On the twin's baseline (6 runs, leave one theta_0 out) features
+with risk scored 0.93, features with every signal 0.92, features alone 0.90
+(docs/notes/monitor.md)."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
 _FROM_FRAMES: Final = ("uncertainty", "risk")
 
@@ -78,6 +85,8 @@ class RunPrediction:
     figures: dict[str, SignalFigures] = field(default_factory=dict)
     absent: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    frames: np.ndarray | None = None
+    """The data-store index of each policy push (None: the classes came from the rows)."""
 
     def success_peaks(self, signal: str) -> np.ndarray:
         """The signal's peak per successful episode, in the order they ran."""
@@ -128,7 +137,7 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
     """Score every signal ``path``'s records hold, with ``config`` (default: the run's own
     ``[monitor]``, else the defaults)."""
     raw = _config(path)
-    cfg = config or MonitorConfig.model_validate(raw.get("monitor", {}))
+    cfg = config or MonitorConfig.for_scoring(raw.get("monitor", {}))
     result = RunPrediction(path, group, None)
     try:
         rc = run_classes(path)
@@ -157,6 +166,8 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
                      "risk only)")
     pushes = policy_pushes(rc.frames, rc.classes.classes, rc.classes.outcomes,
                            rc.classes.episodes, scores)
+    if rc.source == STORE:
+        result.frames = np.flatnonzero(np.isin(rc.classes.classes, POLICY_CLASSES))
     if "ood" in pushes.scores and "uncertainty" in pushes.scores:
         pushes.scores["ood_u"] = _ood_u(pushes.scores["ood"], pushes.scores["uncertainty"])
         scores["ood_u"] = pushes.scores["ood_u"]
@@ -208,36 +219,88 @@ def score_signal(p: PolicyPushes, name: str, cfg: MonitorConfig) -> SignalFigure
                          float(fail.mean()) if fail.size else math.nan, lead, int(has.sum()))
 
 
-def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig) -> str | None:
-    """Score each run with a failure head fitted on the group's other runs (leave one
-    run out), as the signal ``fail_head``; None, or why it could not be."""
-    inputs = [s for s in INPUTS if runs and all(s in r.figures for r in runs)]
-    usable = [r for r in runs if r.pushes is not None]
-    if len(usable) < 2 or not inputs:
-        return "the failure head needs two runs with the same signals"
-    rows = []
-    for r in usable:
-        p = r.pushes
-        assert p is not None
-        x = design(p.scores, inputs)
-        label, known = p.within(HEAD_K)
-        ok = known & ~np.isnan(x).any(axis=1)
-        rows.append((x, label, ok))
-    for i, r in enumerate(usable):
-        train_x = np.concatenate([x[ok] for j, (x, _, ok) in enumerate(rows) if j != i])
-        train_y = np.concatenate([y[ok] for j, (_, y, ok) in enumerate(rows) if j != i])
+def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
+                     ) -> tuple[str | None, FailureHead | None]:
+    """Score each run with a failure head on its pushes' trunk features under theta_0
+    and its signals (``HEAD_INPUTS`` it has), fitted on the runs that started from
+    another theta_0 (leave one theta_0 out: no run is scored by a head that saw its
+    policy), as the signal ``fail_head``. Runs of every algorithm are pooled: the labels
+    are the policy's own pushes, whoever allocated the people. Returns (why no run could
+    be scored, or None; the head fitted on every usable run with the signals all of them
+    have, for ``[monitor] head``; None if none could be)."""
+    usable: list[tuple[RunPrediction, str, np.ndarray]] = []
+    for r in runs:
+        if r.pushes is None:
+            continue
+        why = _features(r)
+        if isinstance(why, str):
+            r.absent.setdefault("fail_head", why)
+        else:
+            usable.append((r, *why))
+    if len({digest for _, digest, _ in usable}) < 2:
+        return "the failure head needs runs from two theta_0 with features", None
+    for r, digest, feats in usable:
+        inputs = [s for s in HEAD_INPUTS if s in r.figures]
+        pool = [(o, f) for o, d, f in usable if d != digest
+                and all(s in o.figures for s in inputs)]
         try:
-            head = FailureHead.fit(train_x, train_y, inputs)
+            head = _fit([(o, f) for o, f in pool], inputs)
         except ValueError as exc:
-            return f"the failure head could not be fitted: {exc}"
-        x, _, _ = rows[i]
-        score = np.full(len(x), np.nan)
-        has = ~np.isnan(x).any(axis=1)
-        score[has] = head.predict(x[has])
+            r.absent.setdefault("fail_head", f"its head could not be fitted: {exc}")
+            continue
         assert r.pushes is not None
-        r.pushes.scores["fail_head"] = score
+        r.pushes.scores["fail_head"] = _predict(head, r.pushes, feats)
         r.figures["fail_head"] = score_signal(r.pushes, "fail_head", cfg)
-    return None
+    pool = [(r, d, f) for r, d, f in usable if all(s in r.figures for s in HEAD_INPUTS)]
+    inputs: list[str] = list(HEAD_INPUTS) if pool else []  # else features alone
+    pool = pool or usable
+    try:
+        final = _fit([(r, f) for r, _, f in pool], inputs)
+    except ValueError:
+        return None, None
+    final.fitted_on |= {"runs": [str(r.path.name) for r, _, _ in pool],
+                        "theta_0": len({d for _, d, _ in pool})}
+    return None, final
+
+
+def _features(r: RunPrediction) -> tuple[str, np.ndarray] | str:
+    if r.frames is None:
+        return "its classes came from its rows: no images to read"
+    digest = theta0_digest(r.path)
+    if digest is None:
+        return "it kept no theta_0 (learner-start.pt)"
+    feats = push_features(r.path, r.frames, digest)
+    return feats if isinstance(feats, str) else (digest, feats)
+
+
+def _rows(p: PolicyPushes, feats: np.ndarray, inputs: Sequence[str]
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    x = design(p.scores, inputs, feats)
+    label, known = p.within(HEAD_K)
+    return x, label, known & ~np.isnan(x).any(axis=1)
+
+
+def _fit(pool: Sequence[tuple[RunPrediction, np.ndarray]], inputs: Sequence[str]
+         ) -> FailureHead:
+    if not pool:
+        raise ValueError("no run from another theta_0 has its signals")
+    parts = []
+    for r, feats in pool:
+        assert r.pushes is not None
+        parts.append(_rows(r.pushes, feats, inputs))
+    x = np.concatenate([x[ok] for x, _, ok in parts])
+    y = np.concatenate([y[ok] for _, y, ok in parts])
+    head = FailureHead.fit(x, y, inputs, features=pool[0][1].shape[1], k=HEAD_K)
+    head.fitted_on["runs"] = len(pool)
+    return head
+
+
+def _predict(head: FailureHead, p: PolicyPushes, feats: np.ndarray) -> np.ndarray:
+    x = design(p.scores, head.inputs, feats)
+    out = np.full(len(p), np.nan)
+    has = ~np.isnan(x).any(axis=1)
+    out[has] = head.predict(x[has])
+    return out
 
 
 def replays(runs: Sequence[RunPrediction], signal: str, cfg: MonitorConfig

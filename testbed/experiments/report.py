@@ -449,6 +449,8 @@ def write_report(dirs: list[Path], out: Path, reference: str | None = None) -> R
         if t.csv_rows:
             atomic_write_bytes(out / CSV_NAMES.get(t.key, f"report-{t.key}.csv"),
                                t.csv_text().encode())
+        for name, content in t.files.items():
+            atomic_write_bytes(out / name, content)
     atomic_write_bytes(out / "report.md", md.encode())
     learning = [r for r in runs if not r.algorithm.startswith(EVAL_PREFIX)]
     png = _plot(learning or runs)

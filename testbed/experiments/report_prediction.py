@@ -11,13 +11,16 @@ What each table says (docs/notes/monitor.md has the definitions and the twin's f
 * the reliability of the scores that claim to be probabilities (risk, goal risk):
   pooled over a group's runs, against "this episode fails";
 * the conformal alarm's false-alarm rate per successful episode by replay, against
-  ``monitor.alpha``.
+  ``monitor.alpha``;
+* beside them, ``failure-head.json``: the failure head fitted on every run with theta_0's
+  features (``prediction_runs.add_failure_head``), what ``[monitor] head`` reads.
 
 The numbers come from ``testbed.experiments.prediction_runs`` (records only).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -38,7 +41,10 @@ from testbed.experiments.report_tables import Table, method_note
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import reliability
 
-__all__ = ["monitor_config", "monitor_tables", "prediction_tables"]
+__all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables"]
+
+HEAD_FILE = "failure-head.json"
+"""The failure head fitted on the report's runs, beside its CSVs (``[monitor] head``)."""
 
 PROBABILITIES = ("risk", "goal_risk")
 """Signals that claim to be a probability of a violation (a reliability table each)."""
@@ -67,7 +73,7 @@ def _num(x: float) -> float | str:
 
 def monitor_config(config: Mapping[str, Any]) -> MonitorConfig:
     """A run's ``[monitor]`` (its config.toml as a dict; the defaults for runs before it)."""
-    return MonitorConfig.model_validate(dict(config.get("monitor", {})))
+    return MonitorConfig.for_scoring(dict(config.get("monitor", {})))
 
 
 def monitor_tables(groups: Sequence[tuple[str, Sequence[Path], Mapping[str, Any]]],
@@ -88,12 +94,20 @@ def prediction_tables(groups: Mapping[str, Sequence[Path]],
     """The tables for runs grouped by algorithm (name -> run folders)."""
     scored = {g: [run_prediction(p, g, config) for p in paths] for g, paths in groups.items()}
     cfg = config or MonitorConfig()
-    for runs in scored.values():
-        why = add_failure_head(runs, cfg)
-        if why is not None and len(runs) > 1:
-            for r in runs:
-                r.absent.setdefault("fail_head", why)
-    return [_ranking(scored, cfg, "auroc"), _ranking(scored, cfg, "ap"), _lead(scored, cfg),
+    every = [r for runs in scored.values() for r in runs]
+    why, head = add_failure_head(every, cfg)
+    if why is not None and len(every) > 1:
+        for r in every:
+            r.absent.setdefault("fail_head", why)
+    ranking = _ranking(scored, cfg, "auroc")
+    if head is not None:
+        ranking.files[HEAD_FILE] = (json.dumps(head.to_json(), indent=1) + "\n").encode()
+        ranking.notes.append(
+            f"fail_head: scored leave one theta_0 out; the head fitted on all "
+            f"{head.fitted_on.get('runs')} usable runs ({', '.join(head.inputs) or 'no signal'}"
+            f" and {head.features} trunk features) is in {HEAD_FILE}, for [monitor] head "
+            f"with score = \"fail_head\".")
+    return [ranking, _ranking(scored, cfg, "ap"), _lead(scored, cfg),
             _reliability(scored), _alarm(scored, cfg)]
 
 

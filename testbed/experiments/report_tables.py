@@ -38,6 +38,9 @@ class Table:
     notes: list[str] = field(default_factory=list)
     csv_rows: list[list[Any]] = field(default_factory=list)
     """The numbers behind the cells, header first (empty: no CSV)."""
+    files: dict[str, bytes] = field(default_factory=dict)
+    """Other files that come with the table (name -> content), written beside the CSVs:
+    the failure head fitted on the runs (``failure-head.json``)."""
 
     def markdown(self) -> str:
         lines = [f"{self.title}\n"] if self.title else []

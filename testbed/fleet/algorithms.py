@@ -28,6 +28,7 @@ from testbed.fleet.priorities import (
     RandomPriority,
     ThriftyPriority,
 )
+from testbed.monitor.failure_head import FailureHead
 from testbed.monitor.monitor_config import MonitorConfig
 
 __all__ = ["ABLATIONS", "ALGORITHMS", "ALGORITHM_NAMES", "Algorithm", "AlgorithmSpec",
@@ -208,8 +209,9 @@ def _monitor(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
         raise ValueError("u_hat / r_hat given as quantiles are resolved on theta_0 by "
                          "the trial (testbed/fleet/thresholds.py) before the algorithm is "
                          "built")
+    head = FailureHead.load(monitor.head) if monitor.head is not None else None
     return MonitorPriority(n, score=monitor.score, alpha=monitor.alpha, window=monitor.window,
-                           u_hat=p.u_hat, r_hat=p.r_hat)
+                           u_hat=p.u_hat, r_hat=p.r_hat, head=head)
 
 
 ABLATIONS: Final = ("c", "u", "r", "cu", "cr", "ur", "uc", "ru", "cru")

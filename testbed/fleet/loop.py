@@ -233,6 +233,7 @@ class FleetLoop:
             violating=violating & ~faulted,
             faulted=faulted,
             available=available,
+            features=getattr(out, "features", None),
             **{name: None if getattr(out, name, None) is None
                else np.asarray(getattr(out, name), dtype=float)
                for name in sorted(LEARNED_SIGNALS)},

@@ -20,7 +20,10 @@ step (``observe``): an episode's peak is its largest score over the policy's pus
 adds the peak to the calibration, a violation or a new goal drops it. The same rules as
 ``testbed.monitor.labels`` (one episode ends at a success, a violation or a goal change).
 
-Scores: any learned signal by name, or ``ood_u``: the smaller of ``ood`` and the
+Scores: any learned signal by name; ``fail_head``: the failure head of ``monitor.head``
+(``testbed/monitor/failure_head.py``: P(a violation within k steps) from the policy's
+trunk features and its signals, fitted by ``testbed report`` on earlier runs); or
+``ood_u``: the smaller of ``ood`` and the
 uncertainty, each over its median among the last ``REFERENCE`` values the policy's pushes
 had (FIPER's conjunction: high only where the image is unfamiliar *and* the action
 uncertain). Each over its median, not its percentile rank: a rank stops at 1, so every
@@ -40,6 +43,7 @@ import numpy as np
 from testbed.core.types import Mode
 from testbed.fleet.priorities import FloatArray, OrderedPriority, PrioritySignals, check_t
 from testbed.monitor.conformal import ConformalAlarm
+from testbed.monitor.failure_head import FailureHead
 from testbed.records.store import MODES
 
 __all__ = ["COMBINED", "MONITOR_READS", "REFERENCE", "SCALE_FLOOR", "MonitorPriority",
@@ -72,13 +76,19 @@ class MonitorPriority:
 
     @classmethod
     def reads_of(cls, score: str) -> frozenset[str]:
-        """The learned signals it reads: the score's, and C.U.R.'s for before the alarm."""
+        """The learned signals it reads: the score's (a head's: any it may), and C.U.R.'s
+        for before the alarm."""
+        if score == "fail_head":
+            return MONITOR_READS
         return frozenset({*COMBINED.get(score, (score,)), "uncertainty", "risk"})
 
     def __init__(self, num_robots: int, *, score: str, alpha: float, window: int,
-                 u_hat: float, r_hat: float) -> None:
+                 u_hat: float, r_hat: float, head: FailureHead | None = None) -> None:
+        if (score == "fail_head") != (head is not None):
+            raise ValueError('a failure head is given with score = "fail_head", and only then')
         self.num_robots: Final[int] = num_robots
         self.score_name: Final[str] = score
+        self.head = head
         self.reads: frozenset[str] = MONITOR_READS
         """Every signal it may watch, read each step whatever the score (so ``reads`` is
         the registry's, exactly: ``tests/testbed/test_train_parts.py``)."""
@@ -96,6 +106,9 @@ class MonitorPriority:
     def scores(self, s: PrioritySignals) -> FloatArray:
         """Each arm's score at this step (no state changes)."""
         n = self.num_robots
+        if self.head is not None:
+            return self.head.score({name: s.signal(name, n) for name in self.head.inputs},
+                                   s.features_array(n) if self.head.features else None)
         parts = COMBINED.get(self.score_name)
         if parts is None:
             return s.signal(self.score_name, n)

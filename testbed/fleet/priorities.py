@@ -118,6 +118,9 @@ class PrioritySignals:
     ood: npt.ArrayLike | None = None
     """The distance to the policy's training data in its own feature space (the failure
     monitor's; ``testbed/learning/features.py``)."""
+    features: npt.ArrayLike | None = None
+    """Float (N, D): the policy's trunk features of each arm's image (``PolicyOutput.
+    features``), what the failure monitor's head reads; not a signal of its own."""
     faulted: npt.ArrayLike | None = None
     """Bool (N,): the arm's host is unreachable this step (``None``: none are)."""
     available: npt.ArrayLike | None = None
@@ -143,6 +146,17 @@ class PrioritySignals:
         if arr.dtype != np.bool_ or arr.shape != (size,):
             raise ValueError(f"signals.{name} must be bool with shape ({size},), "
                              f"got {arr.dtype} {arr.shape}")
+        return arr
+
+    def features_array(self, n: int) -> FloatArray:
+        """``features`` as (n, D), checked: present, n rows, no NaN."""
+        if self.features is None:
+            raise ValueError("signals.features is required by this priority function")
+        arr = np.asarray(self.features, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[0] != n:
+            raise ValueError(f"signals.features must have shape ({n}, D), got {arr.shape}")
+        if np.isnan(arr).any():
+            raise ValueError("signals.features has NaN")
         return arr
 
     def signal(self, name: str, n: int) -> FloatArray:

@@ -41,6 +41,7 @@ from testbed.core.types import NUM_ACTIONS
 from testbed.learning.api import PolicyOutput, check_images
 from testbed.learning.critics import Combine, q_values
 from testbed.learning.features import FeatureDensity
+from testbed.learning.networks import TRUNK_FEATURES
 from testbed.learning.policy import ensemble_signals
 
 CriticNets = Mapping[str, tuple[nn.Module, Combine]]
@@ -51,7 +52,8 @@ def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
           device: torch.device, images: npt.ArrayLike,
           features: FeatureDensity | None = None) -> PolicyOutput:
     """Actions and signals for uint8 images (N, 64, 64, 3); critics not in ``read`` give
-    zeros (their forward pass is skipped); ``features`` gives ``ood`` (None without).
+    zeros (their forward pass is skipped); ``features`` gives ``ood`` (None without);
+    the trunk features (mean over members) are always given.
     The caller holds whatever lock guards the networks."""
     arr = check_images(images)
     n = arr.shape[0]
@@ -60,7 +62,8 @@ def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
         return PolicyOutput(np.zeros(0, dtype=np.int64),
                             np.zeros((0, NUM_ACTIONS), dtype=np.float32),
                             empty, empty.copy(), empty.copy(), empty.copy(),
-                            None if features is None else empty.copy())
+                            None if features is None else empty.copy(),
+                            np.zeros((0, TRUNK_FEATURES), dtype=np.float32))
     with torch.no_grad():
         x = torch.from_numpy(arr).to(device)
         logits, feats = policy(x, features=True)
@@ -83,6 +86,7 @@ def infer(policy: nn.Module, critics: CriticNets, read: frozenset[str],
         goal_risk=out(goal_risk.clamp(0.0, 1.0)),
         novelty=out(signals["novelty"]),
         ood=None if ood is None else out(ood),
+        features=out(feats.mean(dim=0)),
     )
 
 

@@ -79,6 +79,9 @@ class PolicyOutput:
       features in its own trunk's space / sqrt(64) (``features.py``; about 1 for a
       training image, 0 before the policy trained once), the failure monitor's
       out-of-distribution score; None from a learner that does not compute it.
+    * ``features``: float32 (N, 64), the policy's trunk features of each image, the mean
+      over its members: what the failure monitor's head reads with the signals
+      (``testbed/monitor/failure_head.py``); None from a learner that does not give them.
     """
 
     actions: np.ndarray
@@ -88,6 +91,7 @@ class PolicyOutput:
     goal_risk: np.ndarray
     novelty: np.ndarray
     ood: np.ndarray | None = None
+    features: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.actions.shape[0])

@@ -28,12 +28,17 @@ once the score is 0 (no reference yet), which a run's records say (``monitor.ood
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Final
 
+import numpy as np
+import numpy.typing as npt
 import torch
 from torch import Tensor, nn
 
-__all__ = ["RATE", "FeatureDensity"]
+from testbed.learning.networks import TRUNK_FEATURES
+
+__all__ = ["RATE", "FeatureDensity", "policy_features"]
 
 RATE: Final = 0.4
 SHRINK: Final = 1e-3
@@ -79,3 +84,28 @@ class FeatureDensity(nn.Module):
         solved = torch.linalg.solve(cov, diff.transpose(1, 2))  # (E, D, N)
         d2 = (diff.transpose(1, 2) * solved).sum(dim=1).clamp_min(0.0)  # (E, N)
         return d2.sqrt().mean(dim=0) / math.sqrt(d)
+
+
+def policy_features(checkpoint_path: str | Path, images: npt.ArrayLike,
+                    batch: int = 256) -> np.ndarray:
+    """The trunk features (N, 64), mean over the ensemble's members, of uint8 images
+    (N, 64, 64, 3) under the policy saved in ``checkpoint_path`` (a learner checkpoint:
+    a run's ``learner-start.pt`` is its theta_0). What the failure head reads
+    (``testbed/monitor/failure_head.py``); live, ``act`` gives the same of the current
+    policy (``PolicyOutput.features``). Only the policy's weights are loaded."""
+    from testbed.learning import checkpoint
+    from testbed.learning.learning_config import LearningConfig
+    from testbed.learning.policy import PolicyEnsemble
+
+    state = checkpoint.load_any(checkpoint_path)
+    size = LearningConfig.model_validate(state["cfg"]).ensemble_size
+    policy = PolicyEnsemble(size)
+    policy.load_state_dict(state["policy"])
+    policy.eval()
+    arr = np.asarray(images, dtype=np.uint8)
+    out = np.zeros((arr.shape[0], TRUNK_FEATURES), dtype=np.float32)
+    with torch.no_grad():
+        for i in range(0, arr.shape[0], batch):
+            x = torch.from_numpy(np.ascontiguousarray(arr[i:i + batch]))
+            out[i:i + batch] = policy.trunk_features(x).mean(dim=0).numpy()
+    return out

@@ -29,15 +29,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from testbed.core.types import EpisodeOutcome, FrameClass
 
-__all__ = ["PolicyPushes", "policy_pushes"]
+__all__ = ["POLICY_CLASSES", "PolicyPushes", "policy_pushes"]
 
-_POLICY = (int(FrameClass.ROBOT), int(FrameClass.PRE_INTERVENTION))
+POLICY_CLASSES: Final = (int(FrameClass.ROBOT), int(FrameClass.PRE_INTERVENTION))
+"""The frame classes of the policy's own pushes."""
 _SETTLED = (int(EpisodeOutcome.SUCCESS), int(EpisodeOutcome.VIOLATION),
             int(EpisodeOutcome.GOAL_CHANGE))
 
@@ -116,7 +118,7 @@ def policy_pushes(frames: np.ndarray, classes: np.ndarray, outcomes: np.ndarray,
     violating = np.asarray(frames["violation"], dtype=bool)
     ended_at = dict(zip(episode[violating].tolist(), t[violating].tolist(), strict=True))
     last_t = {a: int(t[arm == a].max()) for a in np.unique(arm).tolist()}
-    pick = np.isin(classes, _POLICY)
+    pick = np.isin(classes, POLICY_CLASSES)
     pt, parm, pep = t[pick], arm[pick], episode[pick]
     pout = np.asarray(outcomes)[pick].astype(np.int8)
     to_v = np.array([ended_at.get(e, np.inf) for e in pep.tolist()], dtype=np.float64)

@@ -7,21 +7,25 @@ Why here: the monitor's room owns its schema (as ``[algorithm]`` lives with the 
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal, get_args
 
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator
 
 from testbed.core.config import StrictModel
 from testbed.monitor.conformal import DEFAULT_WINDOW, episodes_needed
+from testbed.monitor.failure_head import FailureHead, HeadError
 
 __all__ = ["SCORES", "MonitorConfig", "Score"]
 
-Score = Literal["risk", "ood_u", "ood", "uncertainty", "novelty"]
+Score = Literal["risk", "ood_u", "ood", "uncertainty", "novelty", "fail_head"]
 SCORES: tuple[str, ...] = get_args(Score)
 """What the alarm of the ``monitor`` algorithm may watch: a learned signal it computes
-(the policy's, or the safety critic's risk), or ``ood_u`` (``ood`` and the uncertainty
-together; testbed/fleet/monitor_priority.py). Not the goal critic's risk: the monitor
-algorithm does not train that critic."""
+(the policy's, or the safety critic's risk), ``ood_u`` (``ood`` and the uncertainty
+together; testbed/fleet/monitor_priority.py), or ``fail_head``, the failure head in the
+file ``head`` names (testbed/monitor/failure_head.py). Not the goal critic's risk: the
+monitor algorithm does not train that critic."""
 
 
 class MonitorConfig(StrictModel):
@@ -37,7 +41,18 @@ class MonitorConfig(StrictModel):
                         "online alarm calibrates on")
     score: Score = Field("risk", description="what the monitor algorithm's alarm watches ("
                          + ", ".join(SCORES) + "); the safety critic's risk by default: the "
-                         "best predictor the twin measured (docs/notes/monitor.md)")
+                         "best single signal the twin measured (docs/notes/monitor.md)")
+    head: Path | None = Field(None, validate_default=True, description="the failure head "
+                              "(a failure-head.json that testbed report wrote) the alarm "
+                              "watches with score = \"fail_head\"; relative to where testbed "
+                              "runs")
+
+    @classmethod
+    def for_scoring(cls, raw: Mapping[str, Any]) -> MonitorConfig:
+        """A run's ``[monitor]`` as its report reads it: how prediction is scored and the
+        alarm calibrated, without the alarm's ``score`` and ``head`` (which the report
+        does not use), so a head file moved since the run does not stop its report."""
+        return cls.model_validate({k: v for k, v in raw.items() if k not in ("score", "head")})
 
     @field_validator("alpha")
     @classmethod
@@ -45,6 +60,20 @@ class MonitorConfig(StrictModel):
         if not 0.0 < v < 1.0:
             raise ValueError("must be in (0, 1)")
         return float(v)
+
+    @field_validator("head")
+    @classmethod
+    def _head(cls, v: Path | None, info: ValidationInfo) -> Path | None:
+        if v is None:
+            if info.data.get("score") == "fail_head":
+                raise ValueError('required with score = "fail_head": the failure-head.json '
+                                 "testbed report wrote for earlier runs")
+            return None
+        try:
+            FailureHead.load(v)
+        except HeadError as exc:
+            raise ValueError(str(exc)) from None
+        return v
 
     @field_validator("window")
     @classmethod

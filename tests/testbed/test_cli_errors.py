@@ -326,13 +326,17 @@ def test_a_reference_with_no_runs_is_named(tmp_path: Path,
     ("horizon = 0", "monitor.horizon", "greater than or equal to 1"),
     ("alpha = 0.05\nwindow = 5", "monitor.window", "at least 19 episodes"),
     ('score = "goal_risk"', "monitor.score", "'ood_u'"),
+    ('score = "fail_head"', "monitor.head", 'required with score = "fail_head"'),
+    ('score = "fail_head"\nhead = "gone.json"', "monitor.head", "cannot read gone.json"),
+    ('score = "fail_head"\nhead = "m.toml"', "monitor.head", "is not JSON"),
 ])
 def test_a_bad_monitor_config_names_its_field(section: str, field: str, words: str,
-                                              tmp_path: Path,
+                                              tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     """Each would otherwise have run a trial whose alarm promised nothing (alpha 1.5),
-    scored no horizon, calibrated on too few episodes for its bound, or watched a critic
-    the monitor algorithm never trains."""
+    scored no horizon, calibrated on too few episodes for its bound, watched a critic
+    the monitor algorithm never trains, or a failure head it does not have."""
+    monkeypatch.chdir(tmp_path)
     cfg = write(tmp_path / "m.toml", f"[monitor]\n{section}\n")
     line = one_line(["trial", "--config", str(cfg), "--algorithm", "monitor", "--out",
                      str(tmp_path / "runs")], capsys)

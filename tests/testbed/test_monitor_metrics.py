@@ -4,7 +4,9 @@ conformal alarm's false-alarm rate against alpha by replay."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,3 +164,35 @@ def test_the_failure_head_learns_which_signals_foretell_a_failure() -> None:
     assert abs(p.mean() - y[2000:].mean()) < 0.03  # calibrated in the large
     with pytest.raises(ValueError, match="both outcomes"):
         FailureHead.fit(x[:10], np.zeros(10, bool), ["uncertainty", "ood"])
+
+
+def test_the_failure_head_reads_features_and_comes_back_from_its_file(tmp_path: Path) -> None:
+    """A head on a signal and trunk features: it finds the feature that foretells the
+    failure, its file gives the same scores, and a file it cannot use says why."""
+    from testbed.monitor.failure_head import FailureHead, HeadError, design
+
+    rng = np.random.default_rng(5)
+    n, d = 4000, 8
+    feats = rng.normal(size=(n, d))
+    risk = rng.random(n) / 2
+    logit = -3.0 + 2.5 * feats[:, 3] + 2.0 * risk
+    y = rng.random(n) < 1.0 / (1.0 + np.exp(-logit))
+    x = design({"risk": risk}, ["risk"], feats)
+    assert x.shape == (n, 2 + d)
+    head = FailureHead.fit(x[:3000], y[:3000], ["risk"], features=d, k=3)
+    p = head.predict(x[3000:])
+    assert auroc(p, y[3000:]) > auroc(risk[3000:], y[3000:]) + 0.15
+    assert int(np.argmax(np.abs(head.weights[2:]))) == 3  # the feature that matters
+    again = FailureHead.load(head.save(tmp_path / "head.json"))
+    np.testing.assert_allclose(again.score({"risk": risk[3000:]}, feats[3000:]), p)
+    assert (again.inputs, again.features, again.k) == (("risk",), d, 3)
+    with pytest.raises(ValueError, match="8 trunk features"):
+        again.score({"risk": risk[:2]}, feats[:2, :5])
+    (tmp_path / "bad.json").write_text('{"format": "something-else"}')
+    (tmp_path / "torn.json").write_text('{"format": "failure-head/1", "k"')
+    short = {**head.to_json(), "weights": [0.0]}
+    (tmp_path / "short.json").write_text(json.dumps(short))
+    for name, words in [("missing.json", "cannot read"), ("bad.json", "not a failure-head/1"),
+                        ("torn.json", "not JSON"), ("short.json", "do not match")]:
+        with pytest.raises(HeadError, match=words):
+            FailureHead.load(tmp_path / name)

@@ -117,6 +117,36 @@ def test_the_registry_builds_it_from_the_monitor_config_and_it_reads_what_it_dec
         MonitorConfig(score="goal_risk")  # type: ignore[arg-type]
 
 
+def test_with_a_failure_head_its_score_is_the_heads_on_the_arms_features() -> None:
+    """score = "fail_head": each arm's score is the head's P(violation within k) from its
+    risk and its trunk features, the alarm fires on it, and without features it refuses."""
+    from testbed.monitor.failure_head import FailureHead
+
+    head = FailureHead(("risk",), np.zeros(4), np.ones(4), np.array([0.0, 0.0, 3.0, -1.0]),
+                       -1.0, features=2)
+    p = MonitorPriority(N, score="fail_head", alpha=0.5, window=10, u_hat=1, r_hat=1,
+                        head=head)
+    feats = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0]])
+
+    def s(t: int, features: np.ndarray | None = feats) -> PrioritySignals:
+        return PrioritySignals(t=t, violating=np.zeros(N, bool), uncertainty=np.zeros(N),
+                               risk=np.full(N, 0.2), novelty=np.zeros(N), ood=np.ones(N),
+                               features=features)
+
+    want = 1 / (1 + np.exp(-(3.0 * feats[:, 0] - feats[:, 1] - 1.0)))
+    np.testing.assert_allclose(p.scores(s(0)), want)
+    for t in range(4):  # successes whose peaks are the first arm's score: the threshold
+        p.keys(s(t))
+        p.observe(frames(["autonomous", "idle", "idle"], success=[t % 2 == 1, False, False]))
+    assert p.alarm.ready
+    keys = p.keys(s(4))
+    assert keys[:, 1].tolist() == [0.0, 1.0, 1.0] and keys[2, 2] > keys[1, 2]
+    with pytest.raises(ValueError, match="features is required"):
+        p.keys(s(5, None))
+    with pytest.raises(ValueError, match="only then"):
+        MonitorPriority(N, score="risk", alpha=0.5, window=10, u_hat=1, r_hat=1, head=head)
+
+
 def test_testbed_plan_reads_a_monitor_run_as_resets_first() -> None:
     """The plan's batch allocator replays Algorithm 1 on requests fitted from a run's own
     keys (docs/notes/plan.md): a monitor run's alarms are its requests, and its resets sort
@@ -158,3 +188,65 @@ def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
     md = (tmp_path / "rep" / "report.md").read_text()
     table = md.partition("The monitor algorithm at work")[2].split("\n\n")[1]
     assert f"| m | {ready[0]} |" in table
+
+
+@pytest.mark.slow
+def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
+        tmp_path: Path) -> None:
+    """score = "fail_head" live, on the twin: the head reads each arm's trunk features
+    from act. Killed with SIGKILL mid-trial: the alarm's state at the last checkpoint is
+    the one an unbroken trial of the same seed has at that step, and the resumed trial
+    goes on from it (ready at once where it was, every arm's score in every row)."""
+    import signal
+    import time
+
+    from testbed.monitor.failure_head import FailureHead
+
+    rng = np.random.default_rng(0)
+    FailureHead(("risk",), np.zeros(66), np.ones(66), rng.normal(0, 0.3, 66), -2.0,
+                features=64).save(tmp_path / "head.json")
+    (tmp_path / "small.toml").write_text(
+        '[trial]\nsteps = 40\nseed = 3\n[learning]\nensemble_size = 2\nbatch_size = 32\n'
+        'demos = 60\ncritic_transitions = 40\npretrain_steps = 10\n[monitor]\nalpha = 0.2\n'
+        'score = "fail_head"\nhead = "head.json"\n')
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+    def trial(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "testbed.cli", "trial", *args],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                              env=env)
+
+    run = tmp_path / "runs" / "k"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml", "--algorithm",
+         "monitor", "--out", "runs", "--name", "k"], cwd=tmp_path, env=env,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:
+        p = run / "steps.jsonl"
+        if p.exists() and p.read_text().count("\n") >= 25:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    state = json.loads((run / "state.json").read_text())
+    t = int(state["t"])
+    assert 20 <= t < 39
+    ref = trial("--config", "small.toml", "--algorithm", "monitor", "--out", "runs", "--name",
+                "ref", "--steps", str(t + 1))
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    ref_state = json.loads((tmp_path / "runs" / "ref" / "state.json").read_text())
+    killed_alarm = state["algorithm"]["priority"]
+    assert killed_alarm == ref_state["algorithm"]["priority"]
+    assert len(killed_alarm["alarm"]["peaks"]) >= 4  # ready (alpha 0.2) before the kill
+
+    done = trial("--resume", str(run))
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = read_steps(run / "steps.jsonl")
+    assert [r["t"] for r in rows] == list(range(40))
+    scores = [e["monitor"]["alarm_score"] for row in rows for e in row["robots"]
+              if e["mode"] != "fault"]
+    assert all(0.0 < s < 1.0 for s in scores) and len(set(scores)) > 10  # the head's P
+    ready = [row["t"] for row in rows
+             if any("alarm_threshold" in e["monitor"] for e in row["robots"])]
+    assert ready == list(range(ready[0], 40)) and ready[0] <= t  # ready before, and after

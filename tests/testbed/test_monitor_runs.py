@@ -13,7 +13,9 @@ import pytest
 
 from testbed.experiments.prediction_runs import run_prediction
 from testbed.experiments.report_prediction import prediction_tables
+from testbed.monitor.failure_head import FailureHead
 from testbed.monitor.monitor_config import MonitorConfig
+from testbed.records.run_dir import START_LEARNER
 from testbed.records.step_record import StepRecord
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter
@@ -51,10 +53,24 @@ def _violation_ahead(p: list[dict[str, Any]], t: int) -> int | None:
     return None
 
 
-def write_run(run: Path, algorithm: str, seed: int, steps: int = 240) -> None:
+def theta0(run: Path, kept_as: int) -> None:
+    """A theta_0 for ``run``: one small policy, the same weights every time, saved with
+    ``kept_as`` for its seed (runs with another ``kept_as`` have another theta_0 file,
+    as a protocol's trials do, but features that mean the same)."""
+    from testbed.learning import checkpoint
+    from testbed.learning.learner import Learner
+    from testbed.learning.learning_config import LearningConfig
+
+    state = Learner(LearningConfig(ensemble_size=1), seed=0).state_dict()
+    checkpoint.save_atomic({**state, "seed": kept_as}, run / START_LEARNER)
+
+
+def write_run(run: Path, algorithm: str, seed: int, steps: int = 240,
+              theta: int | None = None) -> None:
     """Rows with an ``oracle`` monitor score (1 when the episode's violation is at most
     2 steps ahead), a constant one, one that is always 0 (never computed), and the data
-    store."""
+    store; with ``theta``, the images show what the oracle knows (bright when a violation
+    is at most 2 steps ahead) and the run keeps a theta_0 (``theta0``)."""
     rng = np.random.default_rng(seed)
     plans = (plan(rng, steps), plan(rng, steps))
     frames = frames_of(*plans)
@@ -74,11 +90,18 @@ def write_run(run: Path, algorithm: str, seed: int, steps: int = 240) -> None:
                     "monitor": {"oracle": 1.0 if ahead is not None else 0.0, "flat": 0.5,
                                 "dead": 0.0}})
             f = frames[t * 2:(t + 1) * 2]
-            data.append(StepRecord.from_row(row, 0, np.zeros((2, 64, 64, 3), np.uint8),
-                                            f["observed"], f["goal"]).to_frames())
+            images = np.zeros((2, 64, 64, 3), np.uint8)
+            if theta is not None:
+                for a, entry in enumerate(row["robots"]):
+                    level = 200 if entry["monitor"]["oracle"] else 40
+                    images[a] = rng.integers(level - 30, level + 30, (64, 64, 3))
+            data.append(StepRecord.from_row(row, 0, images, f["observed"],
+                                            f["goal"]).to_frames())
             w.write_step(row)
     data.close()
     (run / "run.json").write_text(json.dumps({"options": {"algorithm": algorithm}}))
+    if theta is not None:
+        theta0(run, theta)
 
 
 def test_an_oracle_ranks_perfectly_at_its_horizon_and_a_constant_at_chance(
@@ -103,8 +126,8 @@ def test_an_oracle_ranks_perfectly_at_its_horizon_and_a_constant_at_chance(
 
 
 def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path: Path) -> None:
-    for s in range(3):
-        write_run(tmp_path / f"cur-t{s}", "cur", s)
+    for s in range(3):  # runs 0 and 1 from one theta_0, run 2 from another
+        write_run(tmp_path / f"cur-t{s}", "cur", s, theta=s // 2)
     tables = {t.key: t for t in prediction_tables(
         {"cur": [tmp_path / f"cur-t{s}" for s in range(3)]}, MonitorConfig(horizon=3))}
     auc = tables["prediction-auroc"]
@@ -112,11 +135,18 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     oracle = next(r for r in auc.rows if r[1] == "oracle")
     assert oracle[2] == "3" and oracle[6] == "1.000 [1.000, 1.000]"
     signals = [r[1] for r in auc.rows]
-    # risk: cur reads it; the failure head, fitted on the other two runs' uncertainty and
-    # risk (those every run has), which are noise here: near chance
+    # risk: cur reads it (noise here); the failure head, fitted on the runs from the other
+    # theta_0, reads in the images what the oracle knows: as good as the oracle at k = 3
     assert signals == ["uncertainty", "risk", "fail_head", "flat", "oracle"]
     head = next(r for r in auc.rows if r[1] == "fail_head")
-    assert 0.3 < float(head[6].split()[0]) < 0.7
+    risk = next(r for r in auc.rows if r[1] == "risk")
+    assert float(head[6].split()[0]) > 0.97 and float(risk[6].split()[0]) < 0.7
+    kept = auc.files["failure-head.json"]  # the head on all three, for [monitor] head
+    (tmp_path / "head.json").write_bytes(kept)
+    fitted = FailureHead.load(tmp_path / "head.json")
+    assert (fitted.inputs, fitted.features, fitted.k) == (("risk",), 64, 3)
+    assert fitted.fitted_on["theta_0"] == 2 and len(fitted.fitted_on["runs"]) == 3
+    assert (tmp_path / "cur-t0" / "monitor-features.npz").is_file()  # computed once
     assert "(base rate)" in [r[1] for r in tables["prediction-ap"].rows]
     rel = tables["prediction-reliability"]
     assert {r[1] for r in rel.rows} == {"risk"}  # random in [0, 0.5): five bins
@@ -125,3 +155,18 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     assert alarm["oracle"][5] in ("yes", "no", "-")
     md = "\n".join(t.markdown() for t in tables.values())
     assert "novelty: not in its rows" in md
+
+
+def test_the_failure_head_says_why_it_could_not_score_a_run(tmp_path: Path) -> None:
+    """One theta_0 for every run: no run could be scored by a head that never saw its
+    policy, and the table says so; a run without a theta_0 is named with its reason."""
+    write_run(tmp_path / "a", "cur", 0, theta=0)
+    write_run(tmp_path / "b", "cur", 1, theta=0)
+    write_run(tmp_path / "c", "cur", 2)
+    tables = {t.key: t for t in prediction_tables(
+        {"cur": [tmp_path / n for n in "abc"]}, MonitorConfig(horizon=3))}
+    auc = tables["prediction-auroc"]
+    assert "fail_head" not in [r[1] for r in auc.rows] and not auc.files
+    md = auc.markdown()
+    assert "fail_head: the failure head needs runs from two theta_0 with features" in md
+    assert "fail_head: it kept no theta_0 (learner-start.pt)" in md

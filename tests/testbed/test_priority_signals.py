@@ -30,6 +30,8 @@ from testbed.records.steps import RunWriter
 ARMS = ["h/a", "h/b", "h/c"]
 ARMS_SIGNALS = {"t", "violating", "faulted", "available"}
 """``PrioritySignals`` fields that come from the arms and the humans, not the learner."""
+MATRICES = {"features"}
+"""Learned, (N, D) per arm: carried beside the signals, not a signal."""
 
 
 class _Learner(QuietLearner):
@@ -39,7 +41,8 @@ class _Learner(QuietLearner):
         n = len(images)
         values = {name: (k + 1) + np.arange(n) / 10
                   for k, name in enumerate(sorted(LEARNED_SIGNALS))}
-        return SimpleNamespace(actions=np.full(n, 2), **values)
+        return SimpleNamespace(actions=np.full(n, 2), **values,
+                               features=np.arange(n * 3, dtype=float).reshape(n, 3))
 
 
 class _Recording:
@@ -59,8 +62,8 @@ class _Recording:
 
 def test_every_learned_signal_is_declared_where_it_is_computed_and_carried() -> None:
     output = {f.name for f in dataclasses.fields(PolicyOutput)}
-    carried = {f.name for f in dataclasses.fields(PrioritySignals)} - ARMS_SIGNALS
-    assert output >= LEARNED_SIGNALS, LEARNED_SIGNALS - output
+    carried = {f.name for f in dataclasses.fields(PrioritySignals)} - ARMS_SIGNALS - MATRICES
+    assert output >= LEARNED_SIGNALS | MATRICES, (LEARNED_SIGNALS | MATRICES) - output
     assert carried == LEARNED_SIGNALS, carried ^ LEARNED_SIGNALS
     assert set(CRITIC_OF_SIGNAL) <= LEARNED_SIGNALS
     for name, spec in ALGORITHMS.items():  # what each algorithm reads is a known signal
@@ -87,3 +90,4 @@ def test_the_loop_hands_every_learned_signal_to_the_priority_function(tmp_path: 
         for name in LEARNED_SIGNALS:
             np.testing.assert_array_equal(signals.signal(name, len(ARMS)), getattr(want, name),
                                           err_msg=name)
+        np.testing.assert_array_equal(signals.features_array(len(ARMS)), want.features)
