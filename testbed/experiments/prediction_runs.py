@@ -258,8 +258,7 @@ def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
         final = _fit([(r, f) for r, _, f in pool], inputs)
     except ValueError:
         return None, None
-    final.fitted_on |= {"runs": [str(r.path.name) for r, _, _ in pool],
-                        "theta_0": len({d for _, d, _ in pool})}
+    final.fitted_on["theta_0"] = len({d for _, d, _ in pool})
     return None, final
 
 
@@ -291,7 +290,7 @@ def _fit(pool: Sequence[tuple[RunPrediction, np.ndarray]], inputs: Sequence[str]
     x = np.concatenate([x[ok] for x, _, ok in parts])
     y = np.concatenate([y[ok] for _, y, ok in parts])
     head = FailureHead.fit(x, y, inputs, features=pool[0][1].shape[1], k=HEAD_K)
-    head.fitted_on["runs"] = len(pool)
+    head.fitted_on["runs"] = [str(r.path.name) for r, _ in pool]
     return head
 
 

@@ -102,11 +102,11 @@ def prediction_tables(groups: Mapping[str, Sequence[Path]],
     ranking = _ranking(scored, cfg, "auroc")
     if head is not None:
         ranking.files[HEAD_FILE] = (json.dumps(head.to_json(), indent=1) + "\n").encode()
+        reads = ", ".join(head.inputs) or "no signal"
         ranking.notes.append(
-            f"fail_head: scored leave one theta_0 out; the head fitted on all "
-            f"{head.fitted_on.get('runs')} usable runs ({', '.join(head.inputs) or 'no signal'}"
-            f" and {head.features} trunk features) is in {HEAD_FILE}, for [monitor] head "
-            f"with score = \"fail_head\".")
+            f"fail_head: scored leave one theta_0 out; the head fitted on "
+            f"{len(head.fitted_on.get('runs', ()))} runs ({reads} and {head.features} trunk "
+            f"features) is in {HEAD_FILE}, for [monitor] head with score = \"fail_head\".")
     return [ranking, _ranking(scored, cfg, "ap"), _lead(scored, cfg),
             _reliability(scored), _alarm(scored, cfg)]
 
