@@ -5,8 +5,7 @@ Why theta_0's trunk: it is fixed before the run's first step and kept with it
 (``learner-start.pt``), so the features of a push never depend on what the run went on
 to learn from it, and runs from different theta_0 let the report score a head on
 policies it never saw (leave one theta_0 out). Live, the monitor reads the current
-policy's features instead; a head fitted on theta_0's features scored 0.92 on the final
-policy's features of runs from another theta_0 (docs/notes/monitor.md).
+policy's features instead (what that costs is measured in docs/notes/monitor.md).
 
 The features are computed once per run and kept beside its records in
 ``monitor-features.npz`` (the frames they belong to, theta_0's digest), since a report

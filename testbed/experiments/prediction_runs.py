@@ -51,9 +51,9 @@ HEAD_K: Final = 3
 """The horizon the failure head learns (the issue's goal: a violation within 3 steps)."""
 HEAD_INPUTS: Final = ("risk",)
 """The signals the failure head reads with the features, where a run has them: the
-safety critic's risk. On the twin's baseline (6 runs, leave one theta_0 out) features
-with risk scored 0.93, features with every signal 0.92, features alone 0.90
-(docs/notes/monitor.md)."""
+safety critic's risk. On the twin's baseline (15 runs pooled, leave one theta_0 out;
+AUROC at k = 3 of C.U.R.'s and the monitor's runs) features with risk scored 0.94 /
+0.93, with every signal 0.94 / 0.92, alone 0.93 / 0.89 (docs/notes/monitor.md)."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
 _FROM_FRAMES: Final = ("uncertainty", "risk")
 
@@ -226,8 +226,8 @@ def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
     another theta_0 (leave one theta_0 out: no run is scored by a head that saw its
     policy), as the signal ``fail_head``. Runs of every algorithm are pooled: the labels
     are the policy's own pushes, whoever allocated the people. Returns (why no run could
-    be scored, or None; the head fitted on every usable run with the signals all of them
-    have, for ``[monitor] head``; None if none could be)."""
+    be scored, or None; the head fitted on every usable run that has ``HEAD_INPUTS``, on
+    the features alone when none has, for ``[monitor] head``; None if none could be)."""
     usable: list[tuple[RunPrediction, str, np.ndarray]] = []
     for r in runs:
         if r.pushes is None:
@@ -244,7 +244,7 @@ def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
         pool = [(o, f) for o, d, f in usable if d != digest
                 and all(s in o.figures for s in inputs)]
         try:
-            head = _fit([(o, f) for o, f in pool], inputs)
+            head = _fit(pool, inputs)
         except ValueError as exc:
             r.absent.setdefault("fail_head", f"its head could not be fitted: {exc}")
             continue
