@@ -279,3 +279,25 @@ def test_a_hosts_code_needs_only_the_host_install() -> None:
     outside = {i.split(".")[0] for p in _host_modules().values() for i in _all_imports(p)
                if i and i.split(".")[0] not in PACKAGES}
     assert outside - set(sys.stdlib_module_names) - {"__future__"} <= set(HOST_PACKAGES)
+
+
+def test_every_list_of_the_algorithms_is_the_registrys() -> None:
+    """The algorithms have one home, ``testbed.fleet.algorithms.ALGORITHMS``; the
+    ``--algorithm`` help, the README's list and ARCHITECTURE's comment name exactly its
+    names (an algorithm added to the registry and forgotten in one of them fails here)."""
+    import re
+
+    from testbed.cli.arguments import ALGORITHM_HELP
+    from testbed.fleet.algorithms import ALGORITHMS
+
+    names = set(ALGORITHMS)
+    help_names = set(re.findall(r"[a-z][a-z-]*", ALGORITHM_HELP.split("(")[0])) - {
+        "and", "the", "ablations"}
+    assert help_names == names, help_names ^ names
+    readme = (ROOT / "README.md").read_text()
+    listed = readme.partition("Algorithms (`--algorithm`):")[2].partition("\n\n")[0]
+    assert set(re.findall(r"`([a-z][a-z-]*)`", listed)) == names
+    arch = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    comment = arch.partition("ALGORITHMS: dict[str, ...]   #")[2].partition("\n")[0]
+    shown = [n.strip() for n in comment.split(",") if n.strip() != "..."]
+    assert shown and set(shown) <= names, set(shown) - names

@@ -15,6 +15,11 @@ import argparse
 from collections.abc import Callable
 from dataclasses import dataclass
 
+ALGORITHM_HELP = ("bc, random, fleet-ed, fleet-td, cur, monitor, cur-i and the ablations c, u, "
+                  "r, cu, cr, ur, uc, ru, cru (default: config)")
+"""``--algorithm``'s help: every name of ``testbed.fleet.algorithms.ALGORITHMS`` (the one
+home of the list; written out here so ``--help`` imports nothing, and held to the
+registry by ``tests/test_architecture.py::test_every_list_of_the_algorithms_is_the_registrys``)."""
 HUMANS = ["scripted", "gui", "web"]
 """The choices of every ``--humans``: the twin's scripted expert, the OpenCV console,
 the browser console."""
@@ -52,8 +57,7 @@ def add_config(p: argparse.ArgumentParser) -> None:
 def add_trial_arguments(p: argparse.ArgumentParser) -> None:
     """What one trial is run with: ``--config`` and the config's trial fields overridden."""
     add_config(p)
-    p.add_argument("--algorithm", metavar="NAME", help="bc, random, fleet-ed, fleet-td, cur, "
-                   "cur-i and the ablations c, u, r, cu, cr, ur, uc, ru, cru (default: config)")
+    p.add_argument("--algorithm", metavar="NAME", help=ALGORITHM_HELP)
     p.add_argument("--steps", type=positive, metavar="T", help="timesteps (default: config)")
     p.add_argument("--seed", type=int, metavar="S", help="trial seed (default: config)")
     p.add_argument("--out", metavar="DIR", help="folder of runs (default: config, runs/)")
