@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
 
     sig = PrioritySignals(t=100, violating=rng.random(ARMS) < 0.05,
                           uncertainty=rng.random(ARMS), risk=rng.random(ARMS),
-                          ood=rng.random(ARMS) + 0.5, features=rng.random((ARMS, 64)))
+                          novelty=rng.random(ARMS), ood=rng.random(ARMS) + 0.5,
+                          features=rng.random((ARMS, 64)))
     monitor = MonitorPriority(ARMS, score="ood_u", alpha=0.05, window=200, u_hat=0.2,
                               r_hat=0.5)
     with_head = MonitorPriority(ARMS, score="fail_head", alpha=0.05, window=200, u_hat=0.2,
