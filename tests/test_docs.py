@@ -27,8 +27,9 @@ NAMED = re.compile(r"`([A-Za-z0-9_./-]+\.(?:py|md|toml|sh|jsonl|json|txt|html|cs
                    r"log|pem|mod|sys|cfg))(?:::([A-Za-z0-9_.]+))?`(?!\s*\(removed\))")
 COMMAND = re.compile(r"`(testbed [^`]+)`")
 GENERATED = re.compile(r"^(report-[a-z-]+\.csv|learner-[0-9]+\.pt|frames-[0-9]+\.bin|"
-                       r"[a-z0-9-]+\.rws\.json)$")
-"""Files the program writes under names made at run time (f-strings)."""
+                       r"[a-z0-9-]+\.rws\.jsonl|dryrun\.toml)$")
+"""Files the program writes under names made at run time (f-strings), and the one a
+guide has the reader write (robot/README.md's ``dryrun.toml``)."""
 
 
 @cache
