@@ -167,6 +167,33 @@ def test_the_rooms_have_no_import_circle() -> None:
             visit(node, [])
 
 
+def test_no_module_imports_in_a_circle() -> None:
+    """Between files too (issue 37): every import of a product module (lazy and
+    TYPE_CHECKING ones included) as an arrow to the module it names; the graph is
+    acyclic. A circle is named with its arrows."""
+    modules = {_module(p): p for p in _product_files()}
+    arrows: dict[str, set[str]] = defaultdict(set)
+    for name, path in modules.items():
+        for target in _all_imports(path):
+            if target in modules and target != name and modules[target].name != "__init__.py":
+                arrows[name].add(target)
+    state: dict[str, int] = {}
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(arrows[node]):
+            if state.get(nxt) == 1:
+                circle = [*path, node]
+                raise AssertionError(" -> ".join([*circle[circle.index(nxt):], nxt]))
+            if nxt not in state:
+                visit(nxt, [*path, node])
+        state[node] = 2
+
+    for node in sorted(arrows):
+        if node not in state:
+            visit(node, [])
+
+
 def test_no_two_product_modules_share_a_name() -> None:
     allowed = {"__init__", "__main__", "errors"}
     names: dict[str, list[str]] = defaultdict(list)

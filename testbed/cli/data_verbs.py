@@ -340,7 +340,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
     for d in against:
         if not d.is_dir():
             raise ConfigError(f"--against: no such folder {str(d)!r}")
-    plan = write_plan(dirs, options, Path(args.out) if args.out else dirs[0], against)
+    plan = write_plan(dirs, options, Path(args.out) if args.out else dirs[0])
+    if against:
+        from testbed.experiments.plan_check import write_checks
+
+        plan = write_checks(plan, against, options)
     print(plan.markdown)
     print("plan: " + ", ".join(str(f) for f in plan.files))
     return 0

@@ -36,13 +36,12 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
-from typing import TYPE_CHECKING, Any, ClassVar, Final
+from typing import Any, ClassVar, Final, Protocol
 
-if TYPE_CHECKING:
-    from testbed.core.host_config import HostBase
+from pydantic import BaseModel
 
 __all__ = ["BUILTIN", "DEFAULT_BACKEND", "ENTRY_POINT_GROUP", "Backend", "BackendError",
-           "Capabilities", "backend", "backend_lines", "backend_of", "backends",
+           "Capabilities", "HostLike", "backend", "backend_lines", "backend_of", "backends",
            "host_models"]
 
 ENTRY_POINT_GROUP: Final = "testbed.backends"
@@ -57,6 +56,15 @@ BUILTIN: Final = {"twin": "drivers.backends.twin.twin_plugin:BACKEND",
 when this checkout runs without being installed (``PYTHONPATH`` on a host)."""
 
 _NAME = re.compile(r"[a-z][a-z0-9_-]*")
+
+
+class HostLike(Protocol):
+    """What the registry reads of a host's config: its name and its backend. The model
+    every host's config extends is ``testbed.core.host_config.HostBase``; it is not
+    imported here, since that module imports this registry for its union of backends."""
+
+    name: str
+    backend: str
 
 
 class BackendError(ValueError):
@@ -110,7 +118,8 @@ class Backend:
     """
 
     name: ClassVar[str]
-    host_model: ClassVar[type[HostBase]]
+    host_model: ClassVar[type[BaseModel]]
+    """Its hosts' config model, a ``testbed.core.host_config.HostBase`` subclass."""
     capabilities: ClassVar[Capabilities] = Capabilities()
     extra: ClassVar[str | None] = None
     """The ``pip`` extra a robot host installs for this backend (``"yumi"``), or None."""
@@ -122,19 +131,19 @@ class Backend:
     origin: str = field(default="", compare=False)
     """Where it was found, set by the registry (entry point, package and version)."""
 
-    def scripted_teleop(self, host: HostBase) -> bool:
+    def scripted_teleop(self, host: HostLike) -> bool:
         """Whether scripted humans can teleoperate ``host``'s arms: its observations carry
         the expert's action. Default: a simulation can."""
         return self.capabilities.simulated
 
-    def controller_report(self, host: HostBase, info: Mapping[str, Any]
+    def controller_report(self, host: HostLike, info: Mapping[str, Any]
                           ) -> tuple[list[str], list[str]]:
         """What ``testbed check`` prints of a controller's ``describe()`` ``info``: (report
         lines, FAULT lines: what to fix before a trial). Backends with the ``controller``
         capability override it."""
         return [], []
 
-    def layout_report(self, host: HostBase, calibrations: Mapping[str, Mapping[str, Any]],
+    def layout_report(self, host: HostLike, calibrations: Mapping[str, Mapping[str, Any]],
                       info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
         """What ``testbed calibrate`` prints of the arms' layout after a fit: (report lines,
         FAULT lines) of ``calibrations`` (arm -> its calibration file's keys) with the
@@ -194,7 +203,7 @@ def backend(name: str) -> Backend:
     return found[name]
 
 
-def backend_of(host: HostBase) -> Backend:
+def backend_of(host: HostLike) -> Backend:
     """The backend that drives ``host``."""
     return backend(host.backend)
 
@@ -207,6 +216,6 @@ def backend_lines() -> list[str]:
             for name, b in backends().items()]
 
 
-def host_models() -> dict[str, type[HostBase]]:
+def host_models() -> dict[str, type[BaseModel]]:
     """The host config model of every backend, by name (the config's union)."""
     return {name: b.host_model for name, b in backends().items()}

@@ -100,26 +100,15 @@ class Plan:
     notes: list[str]
 
 
-def write_plan(dirs: list[Path], options: PlanOptions, out: Path,
-               against: list[Path] | None = None) -> Plan:
-    """Fit, simulate, and write plan.md, plan.csv and one PNG per algorithm in ``out``;
-    with ``against`` (measured runs), their points beside the predictions at the end of
-    plan.md and in plan-check.csv (:mod:`testbed.experiments.plan_check`)."""
+def write_plan(dirs: list[Path], options: PlanOptions, out: Path) -> Plan:
+    """Fit, simulate, and write plan.md, plan.csv and one PNG per algorithm in ``out``
+    (measured runs beside the predictions: ``plan_check.write_checks``)."""
     found = find_runs(dirs)
     if not found:
         raise ConfigError("RUN_OR_PROTOCOL_DIR: no run found (no steps.jsonl in or below "
                           "the folders given)")
     fits, notes = fit_runs(found, options.bin_steps)
-    plan = write_fits(fits, notes, options, out)
-    if against:
-        from testbed.experiments.plan_check import check_csv, check_markdown, check_plans
-
-        checks, check_notes = check_plans(plan.plans, against, options)
-        plan.markdown += "\n" + check_markdown(checks, check_notes)
-        atomic_write_bytes(plan.files[0], plan.markdown.encode())
-        plan.files.insert(2, out / "plan-check.csv")
-        atomic_write_bytes(plan.files[2], check_csv(checks).encode())
-    return plan
+    return write_fits(fits, notes, options, out)
 
 
 def write_fits(fits: list[PlanFit], notes: list[str], options: PlanOptions,

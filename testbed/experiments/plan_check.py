@@ -25,10 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
+from testbed.core.atomic import atomic_write_bytes
 from testbed.core.config import ConfigError
 from testbed.experiments.plan import (
     TITLES,
     AlgorithmPlan,
+    Plan,
     PlanOptions,
     find_runs,
     fmt_metric,
@@ -36,7 +38,7 @@ from testbed.experiments.plan import (
 )
 from testbed.experiments.plan_fit import METRICS, fit_runs
 
-__all__ = ["PointCheck", "check_csv", "check_markdown", "check_plans"]
+__all__ = ["PointCheck", "check_csv", "check_markdown", "check_plans", "write_checks"]
 
 
 @dataclass(frozen=True)
@@ -147,3 +149,14 @@ def check_csv(checks: list[PointCheck]) -> str:
         w.writerow([c.label, c.n, c.m, c.runs, c.metric, f"{c.measured:.6g}",
                     f"{c.mean:.6g}", f"{c.low:.6g}", f"{c.high:.6g}", int(c.inside)])
     return buf.getvalue()
+
+
+def write_checks(plan: Plan, against: list[Path], options: PlanOptions) -> Plan:
+    """``against`` (measured runs) beside ``plan``'s predictions: appended to its plan.md
+    and written to plan-check.csv in its folder."""
+    checks, check_notes = check_plans(plan.plans, against, options)
+    plan.markdown += "\n" + check_markdown(checks, check_notes)
+    atomic_write_bytes(plan.files[0], plan.markdown.encode())
+    plan.files.insert(2, plan.folder / "plan-check.csv")
+    atomic_write_bytes(plan.files[2], check_csv(checks).encode())
+    return plan

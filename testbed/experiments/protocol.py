@@ -52,6 +52,7 @@ from testbed.experiments.report import (
     run_summary,
     write_report,
 )
+from testbed.experiments.sweep_point import SweepPoint
 from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 
@@ -205,8 +206,6 @@ class Protocol(BaseModel):
         way = self.ways.get(name)
         if way is None or not way.set:
             return self.fleet
-        from testbed.experiments.sweep import SweepPoint
-
         return SweepPoint(dict(way.set)).apply(self.fleet)
 
     def seed(self, k: int) -> int:

@@ -41,12 +41,9 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
-from testbed.core.types import HumanEstimate
-from testbed.experiments.report_classes import ClassCounts, class_counts, classes_table
+from testbed.experiments.report_classes import class_counts, classes_table
 from testbed.experiments.report_gain import gain_tables
 from testbed.experiments.report_humans import (
-    HumanCounts,
-    Profile,
     RunHumans,
     count_humans,
     estimate_humans,
@@ -61,6 +58,7 @@ from testbed.experiments.report_tables import (
     paired_table,
     steps_digest,
 )
+from testbed.experiments.run_record import RunRecord
 from testbed.records.metrics import cumulative, summarize
 from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
 from testbed.records.steps import read_steps
@@ -74,57 +72,6 @@ TITLES = {
     "human_actions": "Cumulative human actions",
     "rohe": "ROHE",
 }
-
-
-@dataclass
-class RunRecord:
-    path: Path
-    algorithm: str
-    num_humans: int
-    summary: dict[str, Any]
-    curves: dict[str, np.ndarray]
-    parts: dict[str, int] = field(default_factory=dict)
-    """Who made the successes and the violations (``rohe_parts``)."""
-    group: str = ""
-    """The table's row and the figure's line: the algorithm, or a sweep's point
-    (run.json ``sweep.point``: ``humans.count-2``)."""
-    meta: dict[str, Any] = field(default_factory=dict)
-    """The run's run.json."""
-    config: dict[str, Any] = field(default_factory=dict)
-    """The run's config.toml (thresholds as resolved)."""
-    humans: list[str] = field(default_factory=list)
-    """The humans' names, by index."""
-    human_counts: list[HumanCounts] = field(default_factory=list)
-    human_estimates: list[HumanEstimate] = field(default_factory=list)
-    """What the fleet's model said of each human at the run's end (``report_humans``)."""
-    human_profiles: list[Profile | None] = field(default_factory=list)
-    """Each scripted human's profile (None: a person at a console)."""
-    digest: str = ""
-    """``steps_digest``: equal for runs with identical records."""
-    classes: ClassCounts | None = None
-    """Frames per class, episodes per outcome (``report_classes``); None: unreadable."""
-
-    def __post_init__(self) -> None:
-        self.group = self.group or self.algorithm
-
-    @property
-    def trial(self) -> tuple[str, int]:
-        """What pairs runs: a protocol's trial index, else the seed (a sweep's or a
-        trial's), as (kind, number)."""
-        proto = self.meta.get("protocol", {})
-        if "trial" in proto:
-            return ("trial", int(proto["trial"]))
-        seed = self.meta.get("sweep", {}).get("seed", self.meta.get("options", {}).get("seed"))
-        return ("seed", int(seed if seed is not None else 0))
-
-    @property
-    def grid_index(self) -> tuple[int, tuple[Any, ...]]:
-        """Where a sweep's point sits in its grid (run.json ``sweep.index``; older sweeps:
-        their values, numbers as numbers)."""
-        sweep = self.meta.get("sweep", {})
-        values = tuple((0, v, "") if isinstance(v, int | float) else (1, 0, str(v))
-                       for v in sweep.get("values", {}).values())
-        return int(sweep.get("index", 1 << 30)), values
 
 
 def trial_label(key: Any) -> str:

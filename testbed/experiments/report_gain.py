@@ -19,7 +19,7 @@ from testbed.experiments.report_tables import Table, interval_table, paired_tabl
 from testbed.records.run_dir import EVAL_PREFIX
 
 if TYPE_CHECKING:
-    from testbed.experiments.report import RunRecord
+    from testbed.experiments.run_record import RunRecord
 
 START_GROUP: Final = f"{EVAL_PREFIX}theta0"
 """The evaluation row of the policy a trial's runs start from (``protocol.START``)."""

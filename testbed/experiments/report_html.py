@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from testbed.experiments.report_tables import Table
 
 if TYPE_CHECKING:
-    from testbed.experiments.report import RunRecord
+    from testbed.experiments.run_record import RunRecord
 
 __all__ = ["report_page", "run_metadata"]
 

@@ -31,7 +31,6 @@ pretraining a theta_0 per fleet: a sweep of fleet sizes that holds the policy.
 from __future__ import annotations
 
 import itertools
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -39,16 +38,13 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from testbed.core.config import ConfigError, _one_line, read_toml, validation_context
-from testbed.experiments.fleet_config import FleetConfig, parse_config
+from testbed.experiments.fleet_config import FleetConfig
+from testbed.experiments.sweep_point import ALGORITHM_KEY, SweepPoint
 from testbed.fleet.algorithms import ALGORITHM_NAMES
 
 if TYPE_CHECKING:
     from testbed.experiments.hooks import TrialHooks
     from testbed.experiments.report import Report
-
-ALGORITHM_KEY = "algorithm"
-"""The grid key that varies the algorithm (an ablation study) instead of a field."""
-
 
 class Sweep(BaseModel):
     # defer_build: its fleet's hosts are a union of the installed backends (core/host_config.py)
@@ -93,49 +89,6 @@ class Sweep(BaseModel):
         """Every (point, seed): its run name, algorithm and fleet config."""
         return [SweepRun(f"{p.label}-s{seed}", p, seed, p.algorithm(self.algorithm),
                          p.apply(self.fleet)) for p in self.points() for seed in self.seeds]
-
-
-@dataclass(frozen=True)
-class SweepPoint:
-    values: dict[str, Any]
-
-    @property
-    def label(self) -> str:
-        """``humans.count-2`` (keys joined by ``_``): the report's line and the run's name."""
-        text = "_".join(f"{k}-{v}" for k, v in self.values.items())
-        return re.sub(r"[^A-Za-z0-9_.+-]", "", text)
-
-    def algorithm(self, default: str) -> str:
-        return str(self.values.get(ALGORITHM_KEY, default))
-
-    def apply(self, fleet: FleetConfig) -> FleetConfig:
-        """``fleet`` with this point's fields set, validated as a config file would be."""
-        data = fleet.model_dump(mode="json", exclude_none=True)
-        for key, value in self.values.items():
-            if key == ALGORITHM_KEY:
-                continue
-            *path, last = key.split(".")
-            node = data
-            for part in path:
-                if not isinstance(node.get(part), dict):
-                    raise ConfigError(f"grid.{key}: no such config field (fleet.{key})")
-                node = node[part]
-            if last not in node and last not in _fields_at(path):
-                raise ConfigError(f"grid.{key}: no such config field (fleet.{key})")
-            node[last] = value
-        return parse_config(data, f"grid point {self.label}", check_files=False,
-                            prefix=("fleet",))
-
-
-def _fields_at(path: list[str]) -> set[str]:
-    """The field names of the config section at ``path`` (optional ones unset too)."""
-    model: Any = FleetConfig
-    for part in path:
-        info = model.model_fields.get(part)
-        if info is None or not isinstance(info.annotation, type):
-            return set()
-        model = info.annotation
-    return set(getattr(model, "model_fields", {}))
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from testbed.lab.fault_report import FAULTS_FILE, read_faults
+
 if TYPE_CHECKING:
     from testbed.lab.hardware_twin import HardwareTwinLab
 
@@ -67,7 +69,6 @@ FROZEN_SETTLE_S = 1.3
 """After freezing the camera, wait this long before the next step: the seam calls a
 camera frozen after 1 s of identical frames (``drivers.yumi.frozen_frames``), and a
 picture taken in that first second is believed, as on a real robot."""
-FAULTS_FILE = "faults.jsonl"
 
 Say = Callable[[str], None]
 
@@ -152,7 +153,6 @@ class FaultDrills:
         operator's side does not close a guard or bring a link back) and does the last
         step's drills."""
         from testbed.core.atomic import atomic_write_bytes
-        from testbed.lab.fault_report import read_faults
 
         self._replay = {(int(r["step"]), str(r["kind"])): r for r in read_faults(self.path.parent)}
         try:

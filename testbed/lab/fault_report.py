@@ -16,9 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from testbed.core.atomic import atomic_write_bytes
-from testbed.lab.fault_drills import FAULTS_FILE
 
-__all__ = ["faults_table", "finish_faults", "read_faults"]
+__all__ = ["FAULTS_FILE", "faults_table", "finish_faults", "read_faults"]
+
+FAULTS_FILE = "faults.jsonl"
+"""A rehearsal run's faults, one JSON line each: the drills write it as they inject
+(``testbed.lab.fault_drills``), ``finish_faults`` completes it from the steps."""
 
 REASON_CHARS = 160
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from plan_fakes import Trouble, World, run_world
 
 from testbed.experiments.plan import PlanOptions, write_plan
+from testbed.experiments.plan_check import write_checks
 from testbed.people.people_config import HumanProfile
 
 WORLD = World(policy=(0.2, 0.005), trouble=Trouble())
@@ -33,8 +34,8 @@ def test_fitted_at_one_point_the_plan_holds_at_others(tmp_path: Path) -> None:
         for s in range(4):
             run_world(sweep / f"n{n}m{m}s{s}", WORLD, arms=n, steps=200, seed=50 + s,
                       people=[PEOPLE[h % 2] for h in range(m)])
-    plan = write_plan([fit], PlanOptions((6, 10), (1, 2, 3), runs=4, replicates=300),
-                      tmp_path / "plan", against=[sweep])
+    options = PlanOptions((6, 10), (1, 2, 3), runs=4, replicates=300)
+    plan = write_checks(write_plan([fit], options, tmp_path / "plan"), [sweep], options)
     with (tmp_path / "plan" / "plan-check.csv").open() as f:
         rows = [r for r in csv.DictReader(f)
                 if r["metric"] in ("idle_time", "human_actions", "hard_resets")]
