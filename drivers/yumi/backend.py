@@ -33,12 +33,9 @@ and reset need the homography, so they are errors naming the arm).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import math
-import os
-import tempfile
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,9 +46,16 @@ import numpy.typing as npt
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
 from drivers.errors import BackendError
+from drivers.yumi.arm_calibration import (
+    ArmCalibration,
+    layout_keys,
+    provisional_calibration,
+    tool_of,
+    write_atomic,
+)
 from drivers.yumi.camera import Camera, expand_path, is_url
-from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy, leave_rest, to_rest
-from drivers.yumi.yumi_controller import ArmPose, Waypoint, YumiControllerClient
+from drivers.yumi.paths import leave_rest, to_rest
+from drivers.yumi.yumi_controller import Waypoint, YumiControllerClient
 from testbed.core.types import (
     FACE_DIRECTIONS,
     IMAGE_SIZE,
@@ -66,150 +70,10 @@ GOAL_MARGIN = 0.12
 CUBE_HALF = 4.0 / 64.0
 LIFT_TOLERANCE_MM = 1.0
 """A pusher this far below travel height counts as up (the controller's own jitter)."""
-CALIBRATION_BOX_MM = (-1000.0, -1000.0, 1000.0, 1000.0)
-"""Table box of an arm being calibrated whose file has none: wide on purpose; the
-calibration command supplies the safe box it drives in (``move_tcp`` refuses outside)."""
-
 REST_TOLERANCE_MM = 10.0
 """A pusher this close to its rest point is at rest: its next program starts with the
 joint move from rest to the gate (``drivers/yumi/paths.py``)."""
-KNOWN_KEYS = frozenset({
-    "homography", "table_box_mm", "z_push_mm", "z_travel_mm", "z_clear_mm", "gate_xy_mm",
-    "max_speed_mm_s", "push_speed_mm_s", "start_offset", "stroke", "task", "mechunit",
-    "rest_joints_deg", "tool_quat_wxyz", "robconf", "arm_angle_deg", "tool_z_mm"})
-TOOL_HOW = ("measure the pusher on the robot with the FlexPendant's 4-point TCP method and "
-            "write its z (mm, flange to tip; the shipped pusher: 184.2) as tool_z_mm, the "
-            "same value as tool_pusher's tframe in TestbedTask_L/_R (robot/README.md, "
-            "'The tool frame')")
-"""How a lab gets ``tool_z_mm``: said wherever it is missing."""
-
 log = logging.getLogger(__name__)
-
-
-def _tool_z(d: Mapping[str, Any], bad: Any) -> float:
-    """The file's ``tool_z_mm``: required (never a silent flange: world zones guard the
-    TCP of the tool in use, so a wrong tool moves every zone by the difference)."""
-    if "tool_z_mm" not in d:
-        raise bad(f"has no 'tool_z_mm' (the pusher's length): {TOOL_HOW}")
-    try:
-        z = float(d["tool_z_mm"])
-    except (TypeError, ValueError):
-        raise bad(f"'tool_z_mm' must be a number, got {d['tool_z_mm']!r}") from None
-    if not (math.isfinite(z) and 0 < z <= 500):
-        raise bad(f"'tool_z_mm' must be the pusher's length, 0 < tool_z_mm <= 500 mm, got "
-                  f"{z:g}: {TOOL_HOW}")
-    return z
-
-
-def _gate(d: Mapping[str, Any], box: Sequence[float], bad: Any) -> tuple[float, float] | None:
-    """The file's ``gate_xy_mm``, which must lie in the table box (None: not given)."""
-    if "gate_xy_mm" not in d:
-        return None
-    try:
-        gx, gy = (float(v) for v in d["gate_xy_mm"])
-    except (TypeError, ValueError):
-        raise bad("'gate_xy_mm' must be 2 numbers (x, y) mm") from None
-    if not (box[0] <= gx <= box[2] and box[1] <= gy <= box[3]):
-        raise bad(f"'gate_xy_mm' ({gx:g}, {gy:g}) must lie in the table box {tuple(box)}")
-    return (gx, gy)
-
-
-@dataclass(frozen=True, slots=True)
-class ArmCalibration:
-    """One arm's calibration file (JSON), validated on load."""
-
-    homography: npt.NDArray[np.float64]
-    """3x3: camera pixel (u, v, 1) -> table point in the robot base frame (x, y, w), mm."""
-    table_box_mm: tuple[float, float, float, float]
-    """(x_min, y_min, x_max, y_max): every waypoint's (x, y) is clipped into it."""
-    z_push_mm: float = 10.0
-    z_travel_mm: float = 80.0
-    max_speed_mm_s: float = 150.0
-    push_speed_mm_s: float = 50.0
-    start_offset: float = 8.0 / 64.0
-    """Push start, canonical units outside the chosen face (as the twin)."""
-    stroke: float = 0.15
-    """Push stroke length, canonical units past the start (cube moves ~ stroke - offset)."""
-    pose: ArmPose | None = None
-    tool_z_mm: float = 0.0
-    """The pusher's length, flange to tip (mm): the frame every program file carries,
-    which our RAPID compares with the controller's ``tool_pusher`` (robot/README.md, "The
-    tool frame"). Required in a file: :meth:`from_dict` refuses one without it."""
-    z_clear_mm: float = DEFAULT_Z_CLEAR_MM
-    """Clear height (mm): every joint move to or from rest ends or starts at the arm's
-    gate at this height; every other move is straight, over the table box
-    (``drivers/yumi/paths.py``)."""
-    gate_xy_mm: tuple[float, float] | None = None
-    """The gate's (x, y) when the file gives one (else its default, ``drivers/yumi/paths.py``)."""
-
-    @classmethod
-    def load(cls, path: str | Path, arm: str) -> ArmCalibration:
-        p = Path(path)
-        try:
-            d = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise BackendError(f"arm {arm}: cannot read calibration {p}: {exc}") from None
-        return cls.from_dict(d, arm, str(p))
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], arm: str, source: str = "calibration"
-                  ) -> ArmCalibration:
-        def bad(msg: str) -> BackendError:
-            return BackendError(f"arm {arm}: {source}: {msg}")
-
-        try:
-            h = np.asarray(d["homography"], dtype=np.float64)
-            box = tuple(float(v) for v in d["table_box_mm"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise bad(f"needs 'homography' (3x3) and 'table_box_mm' (4 numbers): {exc}") from None
-        if h.shape != (3, 3) or not np.all(np.isfinite(h)) or abs(np.linalg.det(h)) < 1e-12:
-            raise bad("'homography' must be an invertible 3x3 matrix")
-        if len(box) != 4 or box[0] >= box[2] or box[1] >= box[3]:
-            raise bad("'table_box_mm' must be (x_min, y_min, x_max, y_max)")
-        if extra := set(d) - KNOWN_KEYS:
-            raise bad(f"unknown key(s) {sorted(extra)}")
-        tool_z = _tool_z(d, bad)
-        nums = {k: float(d[k]) for k in ("z_push_mm", "z_travel_mm", "max_speed_mm_s",
-                                         "push_speed_mm_s", "start_offset", "stroke",
-                                         "z_clear_mm") if k in d}
-        gate = _gate(d, box, bad)
-        cal = cls(h, box, **nums, tool_z_mm=tool_z, gate_xy_mm=gate)  # type: ignore[arg-type]
-        if not 0 < cal.push_speed_mm_s <= cal.max_speed_mm_s <= 1000:
-            raise bad("need 0 < push_speed_mm_s <= max_speed_mm_s <= 1000")
-        if cal.z_push_mm >= cal.z_travel_mm:
-            raise bad("z_push_mm must be below z_travel_mm")
-        if not cal.z_clear_mm >= cal.z_travel_mm:
-            raise bad(f"z_clear_mm ({cal.z_clear_mm:g}) must be at or above z_travel_mm "
-                      f"({cal.z_travel_mm:g}): the clear height is where the joint moves "
-                      f"to and from rest end (drivers/yumi/paths.py)")
-        pose = None
-        if "rest_joints_deg" in d:
-            joints = tuple(float(v) for v in d["rest_joints_deg"])
-            if len(joints) != 7:
-                raise bad("'rest_joints_deg' needs 7 angles (axis 7 last)")
-            side = "L" if arm.startswith("l") else "R"
-            pose = ArmPose(task=str(d.get("task", f"T_ROB_{side}")),
-                           mechunit=str(d.get("mechunit", f"ROB_{side}")),
-                           rest_joints_deg=joints,
-                           tool_quat_wxyz=tuple(d.get("tool_quat_wxyz", (0, 0, 1, 0))),
-                           robconf=tuple(d.get("robconf", (0, 0, 0, 4))),
-                           arm_angle_deg=float(d.get("arm_angle_deg", 0.0)),
-                           tool_z_mm=tool_z)
-        return cls(h, box, **nums, pose=pose, tool_z_mm=tool_z,  # type: ignore[arg-type]
-                   gate_xy_mm=gate)
-
-    @property
-    def gate_xy(self) -> tuple[float, float]:
-        """The arm's gate (``drivers/yumi/paths.py``)."""
-        return gate_xy(self.table_box_mm, self.gate_xy_mm)
-
-    def pixel_to_table(self, u: float, v: float) -> tuple[float, float]:
-        x, y, w = self.homography @ np.array([u, v, 1.0])
-        return (float(x / w), float(y / w))
-
-    def table_to_pixel(self, x: float, y: float) -> tuple[float, float]:
-        u, v, w = np.linalg.solve(self.homography, np.array([x, y, 1.0]))
-        return (float(u / w), float(v / w))
 
 
 @dataclass(frozen=True, slots=True)
@@ -661,20 +525,6 @@ class YumiBackend(HostBackend):
                 self._controller.close()
 
 
-def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
-    """What the layout's checks read of a calibration (``drivers/yumi/layout_check.py``):
-    the table box, the heights, the tool, the arm angle, the rest joints, the homography."""
-    out: dict[str, Any] = {"table_box_mm": list(cal.table_box_mm), "z_push_mm": cal.z_push_mm,
-                           "z_travel_mm": cal.z_travel_mm, "z_clear_mm": cal.z_clear_mm,
-                           "gate_xy_mm": list(cal.gate_xy), "tool_z_mm": cal.tool_z_mm,
-                           "homography": cal.homography.tolist()}
-    if cal.pose is not None:
-        out.update(rest_joints_deg=list(cal.pose.rest_joints_deg),
-                   arm_angle_deg=cal.pose.arm_angle_deg,
-                   tool_quat_wxyz=list(cal.pose.tool_quat_wxyz))
-    return out
-
-
 def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint]) -> None:
     """BackendError, before anything moves, when a waypoint is one the arm cannot reach
     with the pusher down at its arm angle (out of reach, past a joint limit:
@@ -703,75 +553,6 @@ def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoi
                 f"the pusher down (tool_z_mm {lay.tool.tool_z_mm:g}, arm angle "
                 f"{lay.tool.arm_angle_deg:g} deg): {sol.reason}; nothing was moved")
         seed = sol.pose.chain_deg
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Temp file in the same folder, fsync, ``os.replace``, fsync the folder."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fchmod(f.fileno(), mode)
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    with contextlib.suppress(OSError):  # the rename itself durable (not on every FS)
-        dfd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
-
-
-def provisional_calibration(path: str, arm: str, tool_z_mm: float | None = None
-                            ) -> ArmCalibration:
-    """An arm being calibrated: the file's speeds, heights, table box, tool and rest pose
-    when it has them, an identity homography (unused: pictures are off in calibration
-    mode) and, without a table box in the file, the wide :data:`CALIBRATION_BOX_MM`.
-    Without ``tool_z_mm`` in the file, ``tool_z_mm`` (the controller's ``tool_pusher``,
-    :func:`~drivers.yumi.rws_controller.controller_tools`) is the tool; without either,
-    a BackendError (never the flange)."""
-    p = Path(path)
-    d: dict[str, Any] = {}
-    if p.exists():
-        try:
-            d = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise BackendError(f"arm {arm}: cannot read calibration {p}: {exc}") from None
-        if not isinstance(d, dict):
-            raise BackendError(f"arm {arm}: calibration {p} is not a JSON object")
-    d = {**d, "homography": np.eye(3).tolist()}
-    d.setdefault("table_box_mm", list(CALIBRATION_BOX_MM))
-    if tool_z_mm is not None:
-        d.setdefault("tool_z_mm", float(tool_z_mm))
-    return ArmCalibration.from_dict(d, arm, str(p))
-
-
-def _tool_of(path: str, arm: str, url: str, credentials_file: str | None) -> float | None:
-    """For an arm being calibrated whose file has no ``tool_z_mm``: the z of the
-    controller's ``tool_pusher`` in the arm's task (None when the file has it)."""
-    from drivers.yumi.rws_controller import controller_tools
-
-    try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        d = {}
-    if not isinstance(d, dict) or "tool_z_mm" in d:
-        return None
-    task = str(d.get("task", f"T_ROB_{'L' if arm.startswith('l') else 'R'}"))
-    frame = controller_tools(url, [task], credentials_file).get(task)
-    if frame is None:
-        raise BackendError(f"arm {arm}: calibration {path} has no 'tool_z_mm' and the "
-                           f"controller's tool_pusher of {task} cannot be read: {TOOL_HOW}")
-    log.info("arm %s: tool_z_mm %g from the controller's tool_pusher (%s)", arm,
-             frame["trans"][2], task)
-    return float(frame["trans"][2])
 
 
 def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
@@ -809,7 +590,7 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
         if name not in calibrations:
             raise BackendError(f"arm {name}: --calibration {name}=FILE is required for yumi")
         paths[name] = expand_path(calibrations[name], f"arm {name}: calibration")
-        cal = (provisional_calibration(paths[name], name, _tool_of(
+        cal = (provisional_calibration(paths[name], name, tool_of(
             paths[name], name, controller_url, credentials_file)) if name in calibrating
                else ArmCalibration.load(paths[name], name))
         setups.append(ArmSetup(name, crops[name], m, cal))

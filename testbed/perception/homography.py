@@ -1,7 +1,7 @@
 """Image-to-table calibration of one arm from an ArUco marker on its pusher.
 
 Why it looks like this: the YuMi backend turns a camera pixel into a table point with a
-3x3 homography (``drivers.yumi.backend.ArmCalibration``), which is exact for ONE plane
+3x3 homography (``drivers.yumi.arm_calibration.ArmCalibration``), which is exact for ONE plane
 under a pinhole camera. The plane that matters is the cube's top face (40 mm above the
 table), where perception sees the cube's centre; a marker on the pusher's cap, 30 mm
 above the TCP, sits in that plane when the TCP is at z = 10 mm. So ``testbed

@@ -394,7 +394,8 @@ def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,
     import json
 
     from drivers.testing.fake_yumi import FakeYumiController
-    from drivers.yumi.backend import ArmCalibration, ArmSetup, YumiBackend
+    from drivers.yumi.arm_calibration import ArmCalibration
+    from drivers.yumi.backend import ArmSetup, YumiBackend
     from drivers.yumi.camera import VideoCaptureCamera
 
     video = write_video(tmp_path / f"{name}.avi", list(pictures))

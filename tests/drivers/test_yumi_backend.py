@@ -28,7 +28,8 @@ from driver_fakes import (
 from drivers.backends.base import ArmOutcome
 from drivers.errors import BackendError
 from drivers.host_fleet import HostFleet
-from drivers.yumi.backend import ArmCalibration, ArmSetup, plan_push
+from drivers.yumi.arm_calibration import ArmCalibration
+from drivers.yumi.backend import ArmSetup, plan_push
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from testbed.core.host_config import ArmConfig
@@ -297,7 +298,8 @@ def test_a_push_point_off_the_homography_is_an_error_not_a_clipped_waypoint() ->
 
 
 def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> None:
-    from drivers.yumi.backend import CALIBRATION_BOX_MM, YumiBackend, build_yumi_backend
+    from drivers.yumi.arm_calibration import CALIBRATION_BOX_MM
+    from drivers.yumi.backend import YumiBackend, build_yumi_backend
 
     video = str(write_video(tmp_path / "cam.avi", [twin_picture(0)]))
     right = tmp_path / "right.json"

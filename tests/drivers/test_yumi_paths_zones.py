@@ -21,7 +21,8 @@ from typing import Any
 import pytest
 
 from drivers.errors import BackendError
-from drivers.yumi.backend import ArmCalibration, ArmSetup, plan_push, refuse_unreachable
+from drivers.yumi.arm_calibration import ArmCalibration
+from drivers.yumi.backend import ArmSetup, plan_push, refuse_unreachable
 from drivers.yumi.controller_state import (
     RAPID_VERSION,
     ControllerState,

@@ -24,7 +24,7 @@ from driver_fakes import twin_picture, write_video
 from mjpeg_fixture import MjpegCamera, frame_number
 
 from drivers.errors import BackendError
-from drivers.yumi.backend import ArmCalibration
+from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.camera import VideoCaptureCamera
 from drivers.yumi.controllers import make_controller
 from drivers.yumi.rws_controller import RwsYumiController
@@ -379,7 +379,7 @@ def test_refused_and_per_arm_errors_leave_the_sibling_pushing(twin: Twin,
 def test_calibration_mode_moves_the_tcp_shows_the_marker_and_saves(
         twin: Twin, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from drivers.backends import make_backend
-    from drivers.yumi.backend import ArmCalibration
+    from drivers.yumi.arm_calibration import ArmCalibration
 
     twin.fresh()
     box = twin.model["workspaces_mm"]["left"]

@@ -3,7 +3,7 @@ the twin controller over RWS: the lab measures the pusher and sets ``tool_pusher
 PERS in TestbedTask_L/_R); the driver reads it.
 
 - Calibration mode: an arm's file without ``tool_z_mm`` takes the controller's
-  ``tool_pusher`` z (``drivers/yumi/backend.py``: ``_tool_of``, ``provisional_calibration``),
+  ``tool_pusher`` z (``drivers/yumi/arm_calibration.py``: ``tool_of``, ``provisional_calibration``),
   and ``testbed calibrate`` writes that value into the saved file
   (``testbed/lab/calibrate.py``: ``with_tool``).
 - ``testbed check`` FAULTs a calibration whose ``tool_z_mm`` differs from the
@@ -24,7 +24,7 @@ import pytest
 from abb_robot_client.rws import RWS
 
 from drivers.errors import BackendError
-from drivers.yumi.backend import _tool_of, provisional_calibration
+from drivers.yumi.arm_calibration import provisional_calibration, tool_of
 from drivers.yumi.check_report import controller_report
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose
@@ -72,7 +72,7 @@ def test_calibration_mode_takes_the_controllers_tool_and_calibrate_saves_it(
     path = tmp_path / "left.json"
     path.write_text(json.dumps({"task": "T_ROB_L",
                                 "rest_joints_deg": [40, -90, 30, 0, 40, 0, 135]}))
-    z = _tool_of(str(path), "left", url, None)
+    z = tool_of(str(path), "left", url, None)
     assert z == pytest.approx(MEASURED)
     assert provisional_calibration(str(path), "left", z).tool_z_mm == pytest.approx(MEASURED)
     with pytest.raises(BackendError, match="has no 'tool_z_mm'"):  # never the flange
@@ -95,10 +95,10 @@ def test_calibration_mode_takes_the_controllers_tool_and_calibrate_saves_it(
     assert kept["tool_z_mm"] == 184.2
     assert len(said) == 1 and said[0].startswith("FAULT yumi-a: the calibration's tool_z_mm "
                                                  "184.2 is not the controller's tool_pusher")
-    assert _tool_of(str(tmp_path / "none.json"), "right", url, None) == pytest.approx(
+    assert tool_of(str(tmp_path / "none.json"), "right", url, None) == pytest.approx(
         184.2)  # no file yet: the arm's task's (the right one untouched: the shipped value)
     path.write_text(json.dumps({"task": "T_ROB_L", "tool_z_mm": 184.2}))
-    assert _tool_of(str(path), "left", url, None) is None
+    assert tool_of(str(path), "left", url, None) is None
     client.close()
 
 

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.yumi.backend import ArmCalibration
+from drivers.yumi.arm_calibration import ArmCalibration
 from testbed.cli import main
 from testbed.lab.camera_model import arm_facts, push_box
 from testbed.perception import homography as cal

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.yumi.backend import ArmCalibration
+from drivers.yumi.arm_calibration import ArmCalibration
 from testbed.perception import homography as cal
 from testbed.perception.cube import WORKSPACE_POLYGON
 
