@@ -36,6 +36,10 @@ moved (its reason names the arm when the agent does).
 Besides the loop's calls, single-host calls for calibration and checks (``frame``,
 ``move_tcp``, ``save_calibration``) and ``reseed`` raise :class:`HostCallError` (one
 line) on failure instead of returning a Fault.
+
+Over 450 lines, on purpose: one class, ``HostFleet``, whose calls (observe, execute,
+close) share the host sessions, their threads and their faults: the loop's one door to
+the hosts, read as one.
 """
 
 from __future__ import annotations

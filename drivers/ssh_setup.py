@@ -24,6 +24,10 @@ Two halves, so the first can be checked without a network:
   it holds one (``paramiko.Agent``), else the file, decrypted by :data:`KEYRING` (its
   passphrase asked once per process through a prompt that tests can answer, kept in
   memory only as the decrypted key); with no key named, every key of the agent.
+
+Over 450 lines, on purpose: it resolves a host as ``ssh ALIAS`` would (the config,
+ProxyJump chains, keys, the agent, passphrases); the parts are read together when a
+lab's host does not connect, and each is small.
 """
 
 from __future__ import annotations

@@ -69,6 +69,10 @@ so a run records which controller drove its arms without a request of its own
 as ``build``: an older controller ignores it, and its absence only means "not known"
 (a twin, a controller that could not be asked, an agent from before it, which is
 refused for its build anyway).
+
+Over 450 lines, on purpose: both ends of the protocol must agree byte for byte, so every
+message's make and parse sit side by side here: a field added to one is seen next to the
+other.
 """
 
 from __future__ import annotations

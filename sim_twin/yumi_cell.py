@@ -26,6 +26,10 @@ with the arm's ArUco marker) is warped onto its four projected corners; the lens
 distortion is then applied with one cv2.remap, so cubes, caps and markers are distorted
 by exactly the model published at /lab/camera. A frame is rendered only when the world
 changed; sensor noise is added per frame on top.
+
+Over 450 lines, on purpose: one PyBullet world (two arms, the cube, the camera, the
+markers) whose methods all act on it; the paths' maths is in ``yumi_arms.py`` and
+``rws/``.
 """
 
 from __future__ import annotations

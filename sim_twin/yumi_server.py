@@ -73,6 +73,9 @@ options listed, and loads/unloads our modules (``sim_twin.rws.rws_service``).
 
 The geometry, camera model and physics are documented in ``sim_twin.yumi_geometry`` and
 ``sim_twin.yumi_cell``.
+
+Over 450 lines, on purpose: the twin as a process: its HTTP routes (the camera stream,
+RWS, the lab's side channel) over one cell, and the command line that starts it.
 """
 
 from __future__ import annotations

@@ -194,6 +194,25 @@ def test_no_module_imports_in_a_circle() -> None:
             visit(node, [])
 
 
+LONG = 450
+"""A module longer than this says why at its top (issue 37)."""
+
+
+def test_a_long_module_says_why_at_its_top() -> None:
+    """Every product module over ``LONG`` lines has, in its docstring, a paragraph that
+    starts "Over 450 lines, on purpose:" and gives the reason (what it keeps together,
+    and where what could leave it went)."""
+    silent = []
+    for p in _product_files():
+        if len(p.read_text(encoding="utf-8").splitlines()) <= LONG:
+            continue
+        doc = ast.get_docstring(ast.parse(p.read_text(encoding="utf-8"))) or ""
+        why = doc.partition(f"Over {LONG} lines, on purpose:")[2].strip()
+        if len(why) < 40:
+            silent.append(str(p.relative_to(ROOT)))
+    assert silent == []
+
+
 def test_no_two_product_modules_share_a_name() -> None:
     allowed = {"__init__", "__main__", "errors"}
     names: dict[str, list[str]] = defaultdict(list)

@@ -29,6 +29,11 @@ Calibration mode (``build_yumi_backend(..., calibrating=[arm])``): that arm may 
 calibration file yet, or one without a homography; it gets a provisional calibration,
 and only ``frame``, ``move_tcp``, ``rest`` and ``save_calibration`` work (observe, push
 and reset need the homography, so they are errors naming the arm).
+
+Over 450 lines, on purpose: ``YumiBackend`` is one host's observe, push, reset and rest
+over a camera and a controller both arms share; what could leave it has (the calibration
+file: ``arm_calibration.py``, the paths: ``paths.py``, the controller's state:
+``controller_state.py``).
 """
 
 from __future__ import annotations

@@ -39,6 +39,10 @@ when the queue was not full). No thread: a background grab loop would need the s
 stamps to tell a fresh frame from a just-queued one (the stream reader's "waited" rule
 is the timing guess that failed under load), and would make the capture, which is not
 thread-safe, shared.
+
+Over 450 lines, on purpose: one camera's every source kind (device, file, URL, stream)
+and the rule that no frame older than the last push is believed, read together when a
+camera misbehaves.
 """
 
 from __future__ import annotations

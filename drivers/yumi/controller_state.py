@@ -10,6 +10,9 @@ on :func:`problems`. A real controller's answers are listed in docs/rws-checklis
 
 Every function takes the ABB client's ``RWS`` object (``abb_robot_client.rws``) or what
 it returned; nothing here imports it, so the module loads without the YuMi extra.
+
+Over 450 lines, on purpose: the driver's refusal and ``testbed check``'s report ask the
+same questions of the controller; one module keeps their answers alike (see above).
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ is taken as axis 7's value, which may ease by up to ``ARM_ANGLE_EASE_DEG`` throu
 pocket where holding it leaves the other joints singular (ABB's arm angle is the elbow
 plane's). Not modelled: an arm against itself or the body, blending in zones.
 
-One module, over 450 lines, on purpose: its one job is to judge each arm's path as the
+Over 450 lines, on purpose: its one job is to judge each arm's path as the
 controller would (joint moves, lines with and without SingArea Wrist, limits,
 singularities, zones along the joint path, contact), and the parts share one arm state
 (``ArmSupervisor.joints``) and one sampling of the path (``_Track``); the solvers they

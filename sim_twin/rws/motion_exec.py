@@ -44,6 +44,10 @@ What a run does (a task is an arm: ``T_ROB_L`` -> ``left``, ``T_ROB_R`` -> ``rig
 
 While a motion runs the cell's lock is held; RWS reads positions from the snapshot the
 hook keeps (refreshed every sample), so ``get_robtarget`` answers during the motion.
+
+Over 450 lines, on purpose: it is the twin's reading of ABB's RAPID motion module, every
+command with its checks beside its motion; split, a command's refusal would sit away
+from the move it guards.
 """
 
 from __future__ import annotations

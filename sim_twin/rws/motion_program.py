@@ -31,6 +31,9 @@ offset pose), 50003 EGMMoveL, 50004 EGMMoveC (as MoveL, MoveC). A robtarget is 1
 (pose, confdata cf1 cf4 cf6 cfx, 6 external axes), a jointtarget 12 (6 robot axes, 6
 external), speeddata 4 (v_tcp mm/s, v_ori deg/s, v_leax, v_reax), zonedata 7 (finep as
 0/1, then pzone_tcp, pzone_ori, pzone_eax, zone_ori, zone_leax, zone_reax).
+
+Over 450 lines, on purpose: the file format: every command decoded in the order the
+RAPID module reads it, one table of the format.
 """
 
 from __future__ import annotations

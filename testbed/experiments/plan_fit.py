@@ -39,6 +39,10 @@ Those counts describe the runs (the plan's tables, the tests); what the simulati
 replays of the arms is the trouble model fitted on the same rows
 (:mod:`testbed.experiments.plan_trouble`: each arm calm or in trouble, its requests and
 its policy's pushes by that hidden state), and of the humans the rows above.
+
+Over 450 lines, on purpose: the fit of one run's rows: the processes (rates, outcomes,
+the humans, the draws) share the same bins and counts, and ``PlanFit`` is read whole by
+the simulation.
 """
 
 from __future__ import annotations

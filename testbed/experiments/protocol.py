@@ -22,6 +22,10 @@ whether to run one more, up to ``max_trials``; each trial's e-values go to
 ``<out>/sequential.json`` and the report's sequential table. The decision is recomputed
 from the finished runs, so running the file again resumes where it stopped, and a
 larger ``max_trials`` continues it. Without ``until``, exactly the ``trials`` trials.
+
+Over 450 lines, on purpose: a protocol's file model (ways, order, until) and its run
+(trials, evaluations, resume, the report) are one lifecycle; a sweep's point is in
+``sweep_point.py``, the sequential test in ``sequential.py``.
 """
 
 from __future__ import annotations

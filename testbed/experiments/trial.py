@@ -17,6 +17,10 @@ steps inside ``try/finally`` so that, whatever happens, the arms go to their res
 and the humans are closed, and ``--resume`` continues where a crash or a kill left off.
 run.json is written when the run opens (with the code it runs), once its hosts have
 answered (which hosts), once it is prepared, and at the end.
+
+Over 450 lines, on purpose: one trial in the order it happens (build, resume, pretrain,
+run, finish), read top to bottom; theta_0 and resume are in ``learners.py``, hosts and
+humans in ``build.py``.
 """
 
 from __future__ import annotations

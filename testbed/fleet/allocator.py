@@ -53,6 +53,10 @@ Tie-breaking draws ``rng.random(N)`` once per step (always, so the stream does n
 depend on the keys); among equal keys the larger draw goes first. The state, RNG
 included, round-trips through JSON (``state_dict``) so a crashed trial resumes with
 the same future allocations.
+
+Over 450 lines, on purpose: Algorithm 1's allocation is one state machine (who serves
+whom, for how long, released when); ``testbed/experiments/plan_sim.py::BatchAllocator``
+must follow it, and reads it whole.
 """
 
 from __future__ import annotations

@@ -28,6 +28,10 @@ intervention, and the row lists them (``"away": [human, ...]``). Both keys appea
 when non-empty, so humans without ``presence()`` (scripted, the OpenCV console) write
 the rows they always wrote. How long the fleet waits on an away human's answer is the
 console's business (its timeout inside ``act``), not the loop's.
+
+Over 450 lines, on purpose: one timestep (observe, act, allocate, ask, execute, record),
+read top to bottom; the allocation's state is in ``allocator.py``, the records' in
+``testbed/records/``.
 """
 
 from __future__ import annotations

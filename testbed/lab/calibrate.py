@@ -18,6 +18,10 @@ goes to rest at the end, whatever happens.
 ``calibrate(cfg, opts, say)`` is the calibration itself; ``testbed calibrate``
 (``cmd_calibrate``) parses and checks its arguments into ``CalibrateOptions`` and calls
 it, and a rehearsal calls it for every arm with ``default_options(host, arm)``.
+
+Over 450 lines, on purpose: ``testbed calibrate`` is one procedure for one arm (drive to
+the grid, see the marker, fit, judge, write), with its options and outcome; the
+homography's maths is in ``testbed/perception/homography.py``.
 """
 
 from __future__ import annotations
