@@ -75,9 +75,9 @@ class Timed:
 
 
 def local_backend(host: YumiHost, clock: Clock) -> tuple[Any, Any]:
+    from drivers.cameras.camera import VideoCaptureCamera
     from drivers.yumi.arm_calibration import ArmCalibration
     from drivers.yumi.backend import ArmSetup, YumiBackend
-    from drivers.yumi.camera import VideoCaptureCamera
     from drivers.yumi.controllers import make_controller
     from testbed.perception import cube as perception
 

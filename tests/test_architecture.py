@@ -307,7 +307,7 @@ def test_a_hosts_code_is_python_3_10_code() -> None:
     """A robot host runs Python 3.10-3.12 and only 3.11 exists here: every module it
     imports is checked statically (vermin: nothing newer than 3.10; nothing 3.12 removed)."""
     modules = _host_modules()
-    assert {"drivers.agent", "drivers.wire", "drivers.yumi.backend", "drivers.yumi.camera",
+    assert {"drivers.agent", "drivers.wire", "drivers.yumi.backend", "drivers.cameras.camera",
             "testbed.core.config", "testbed.perception.cube"} <= set(modules)
     assert not {m for m in modules if m.startswith(("testbed.learning", "testbed.lab"))}
     proc = subprocess.run([str(BIN / "vermin"), "-t=3.10-", "--violations", "--no-tips",

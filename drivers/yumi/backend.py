@@ -50,6 +50,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.backends.base import ArmOutcome, ArmView, HostBackend
+from drivers.cameras.camera import Camera, expand_path, is_url
 from drivers.errors import BackendError
 from drivers.yumi.arm_calibration import (
     ArmCalibration,
@@ -58,7 +59,6 @@ from drivers.yumi.arm_calibration import (
     tool_of,
     write_atomic,
 )
-from drivers.yumi.camera import Camera, expand_path, is_url
 from drivers.yumi.paths import leave_rest, to_rest
 from drivers.yumi.yumi_controller import Waypoint, YumiControllerClient
 from testbed.core.types import (
@@ -377,7 +377,7 @@ class YumiBackend(HostBackend):
         settings as read back and each arm's crop's sharpness and exposure."""
         task = {name: a.calibration.pose.task if a.calibration.pose else name
                 for name, a in self._arms.items()}
-        from drivers.yumi.picture_quality import camera_report
+        from drivers.cameras.picture_quality import camera_report
 
         frame = None if self._calibrating else self._picture()  # every arm out of view
         return {"controller": self._controller.describe(),
@@ -574,9 +574,9 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
     are expanded here, on the host. ``calibrating``: arms in calibration mode (see the
     module docstring). ``camera_settings``: the host's ``camera_settings`` (a mapping, or
     the agent's ``--camera-settings`` JSON), set on a V4L2 camera and read back
-    (``drivers/yumi/capture_settings.py``).
+    (``drivers/cameras/capture_settings.py``).
     """
-    from drivers.yumi.camera import VideoCaptureCamera
+    from drivers.cameras.camera import VideoCaptureCamera
     from drivers.yumi.controllers import make_controller
 
     if camera is None:

@@ -51,7 +51,7 @@ class CameraSettings(StrictModel):
     pixels of one resolution. A field left out is left as the device has it (V4L2 keeps
     a control between programs: ``"auto"`` turns the automatic mode back on). The agent
     sets them when it opens the camera, reads each back and warns once per setting the
-    device did not take, asked vs got (``drivers/yumi/capture_settings.py``).
+    device did not take, asked vs got (``drivers/cameras/capture_settings.py``).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True)

@@ -37,7 +37,7 @@ class YumiPlugin(BackendPlugin):
         robot_lock=True, stop=True, hardware_twin=True)
     extra: ClassVar[str | None] = "yumi"
     verify_imports: ClassVar[tuple[str, ...]] = (
-        "drivers.yumi.backend", "drivers.yumi.camera", "drivers.yumi.rws_controller",
+        "drivers.yumi.backend", "drivers.cameras.camera", "drivers.yumi.rws_controller",
         "abb_robot_client.rws", "abb_motion_program_exec", "cv2")
 
     # -- the controller's side --------------------------------------------------------

@@ -67,7 +67,7 @@ MIN_STEPS = LEAD_STEPS + TAIL_STEPS + SLOT_STEPS * len(FAULT_KINDS)
 """A run this long has every kind of fault (29 steps); a shorter one the first few."""
 FROZEN_SETTLE_S = 1.3
 """After freezing the camera, wait this long before the next step: the seam calls a
-camera frozen after 1 s of identical frames (``drivers.yumi.frozen_frames``), and a
+camera frozen after 1 s of identical frames (``drivers.cameras.frozen_frames``), and a
 picture taken in that first second is believed, as on a real robot."""
 
 Say = Callable[[str], None]

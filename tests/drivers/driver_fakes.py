@@ -393,10 +393,10 @@ def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,
     """A YumiBackend on a FakeYumiController and a video file of ``pictures``."""
     import json
 
+    from drivers.cameras.camera import VideoCaptureCamera
     from drivers.testing.fake_yumi import FakeYumiController
     from drivers.yumi.arm_calibration import ArmCalibration
     from drivers.yumi.backend import ArmSetup, YumiBackend
-    from drivers.yumi.camera import VideoCaptureCamera
 
     video = write_video(tmp_path / f"{name}.avi", list(pictures))
     setups = []

@@ -31,11 +31,11 @@ from driver_fakes import twin_picture, write_video, yumi_calibration
 from mjpeg_fixture import frame_number
 from v4l2_fakes import FakeDevice, FakeNode, fake_tree, link, uvc_controls
 
+from drivers.cameras.camera import VideoCaptureCamera
+from drivers.cameras.capture_settings import CaptureSettings
+from drivers.cameras.picture_quality import camera_report, sharpness_and_exposure
+from drivers.cameras.v4l2_devices import NodeFacts, V4l2Devices, kind_of, query_node
 from drivers.errors import BackendError
-from drivers.yumi.camera import VideoCaptureCamera
-from drivers.yumi.capture_settings import CaptureSettings
-from drivers.yumi.picture_quality import camera_report, sharpness_and_exposure
-from drivers.yumi.v4l2_devices import NodeFacts, V4l2Devices, kind_of, query_node
 
 C920 = "HD Pro Webcam C920"
 REALSENSE = "Intel(R) RealSense(TM) Depth Ca"
@@ -110,7 +110,7 @@ def test_a_read_after_a_push_is_a_frame_taken_after_the_call(tmp_path: Path) -> 
 def test_without_usable_timestamps_a_read_drains_buffers_plus_one(
         tmp_path: Path, stamps: str, caplog: pytest.LogCaptureFixture) -> None:
     device = FakeDevice(stamps=stamps)  # type: ignore[arg-type]
-    with caplog.at_level(logging.INFO, logger="drivers.yumi.camera"):
+    with caplog.at_level(logging.INFO, logger="drivers.cameras.camera"):
         cam = open_camera(webcam_tree(tmp_path), device)
         cam.read()  # the first read finds the stamps out ("relative": 7 grabs)
         for pause in (0.0, 1.0, 0.2, 1.0):
@@ -143,7 +143,7 @@ def test_settings_are_read_back_and_each_one_not_taken_is_one_warning(
     device = FakeDevice(controls=uvc_controls(focus=False), rates=(30, 15))  # no focus
     asked = {"width": 1280, "height": 720, "fourcc": "MJPG", "fps": 60, "exposure": 156,
              "white_balance": 7000, "focus": 0}
-    with caplog.at_level(logging.INFO, logger="drivers.yumi.capture_settings"):
+    with caplog.at_level(logging.INFO, logger="drivers.cameras.capture_settings"):
         cam = open_camera(webcam_tree(tmp_path), device, settings=asked)
     got = {"width": 1280, "height": 720, "fourcc": "MJPG", "fps": 30.0, "exposure": 156,
            "white_balance": 6500, "focus": None, "buffers": 4}
@@ -395,7 +395,7 @@ def test_camera_settings_go_from_the_config_through_the_agent_to_the_camera(
     video = write_video(tmp_path / "cam.avi", [twin_picture(0)])
     cal = tmp_path / "left.json"
     cal.write_text(json.dumps(yumi_calibration("left")))
-    with caplog.at_level(logging.WARNING, logger="drivers.yumi.camera"):
+    with caplog.at_level(logging.WARNING, logger="drivers.cameras.camera"):
         backend = build_yumi_backend(["left"], [False], {"left": (0, 0, 256, 256)},
                                      {"left": str(cal)}, str(video), "http://127.0.0.1:1",
                                      camera_settings=text)

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 from driver_fakes import write_video
 
+from drivers.cameras.camera import VideoCaptureCamera
 from drivers.errors import BackendError
 from drivers.testing.fake_yumi import FakeYumiController
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.arm_shapes import arm_capsules, min_distance
 from drivers.yumi.backend import ArmSetup, YumiBackend
-from drivers.yumi.camera import VideoCaptureCamera
 from drivers.yumi.check_report import controller_report
 from drivers.yumi.controller_state import RAPID_VERSION
 from drivers.yumi.irb14000 import JOINT_ORIGINS, abb_to_chain, arm, chain_to_abb

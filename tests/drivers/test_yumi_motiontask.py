@@ -24,9 +24,9 @@ import pytest
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from driver_fakes import twin_picture, write_video
 
+from drivers.cameras.camera import VideoCaptureCamera
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.backend import ArmSetup, YumiBackend
-from drivers.yumi.camera import VideoCaptureCamera
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer

@@ -166,9 +166,9 @@ def backend_on(client: RwsYumiController, motion: CellMotion, tmp_path: Path, *,
     taken here). Its calibration: the pusher's length as ``tool_z_mm``, the twin's rest."""
     from driver_fakes import twin_picture, write_video
 
+    from drivers.cameras.camera import VideoCaptureCamera
     from drivers.yumi.arm_calibration import ArmCalibration
     from drivers.yumi.backend import ArmSetup, YumiBackend
-    from drivers.yumi.camera import VideoCaptureCamera
     from sim_twin.yumi_geometry import workspace_mm
 
     setups = []

@@ -23,9 +23,9 @@ import pytest
 from driver_fakes import twin_picture, write_video
 from mjpeg_fixture import MjpegCamera, frame_number
 
+from drivers.cameras.camera import VideoCaptureCamera
 from drivers.errors import BackendError
 from drivers.yumi.arm_calibration import ArmCalibration
-from drivers.yumi.camera import VideoCaptureCamera
 from drivers.yumi.controllers import make_controller
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
@@ -437,9 +437,9 @@ def test_calibration_mode_moves_the_tcp_shows_the_marker_and_saves(
 
 def test_a_frozen_camera_is_an_error_naming_it_and_a_restarted_one_reads_again() -> None:
     """An encoder that hung sends its last picture again and again, at the frame rate:
-    every frame decodes, so only their sameness tells (drivers/yumi/frozen_frames.py).
+    every frame decodes, so only their sameness tells (drivers/cameras/frozen_frames.py).
     The stamped frames are noiseless, yet a live stream's frames all differ."""
-    from drivers.yumi.frozen_frames import FROZEN_S
+    from drivers.cameras.frozen_frames import FROZEN_S
 
     with MjpegCamera(fps=15) as server:
         cam = VideoCaptureCamera(server.url, fps=15, open_timeout_s=3, read_timeout_s=3)

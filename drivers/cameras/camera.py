@@ -16,8 +16,8 @@ What ``camera`` may be, in the order it is tried:
 - a V4L2 device: an index (``"0"``), a path under ``/dev`` (``/dev/video4``, or a
   ``/dev/v4l/by-id/...`` / ``by-path/...`` link, resolved) or a card name (``"HD Pro
   Webcam C920"``); which node, and which are refused (a RealSense's depth stream), is
-  :mod:`drivers.yumi.v4l2_devices`' rule. Opened with OpenCV's V4L2 backend; the host's
-  ``camera_settings`` are set and read back first (:mod:`drivers.yumi.capture_settings`).
+  :mod:`drivers.cameras.v4l2_devices`' rule. Opened with OpenCV's V4L2 backend; the host's
+  ``camera_settings`` are set and read back first (:mod:`drivers.cameras.capture_settings`).
 - an existing file: a video (tests, replays) that loops at its end.
 - anything else with a ``/`` or a video suffix is a missing file; the rest is looked up
   as a card name, and an error lists this host's nodes.
@@ -64,10 +64,10 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from drivers.cameras.capture_settings import CaptureSettings, configure
+from drivers.cameras.frozen_frames import FROZEN_S, FrozenWatch
+from drivers.cameras.v4l2_devices import V4l2Devices, V4l2Node
 from drivers.errors import BackendError
-from drivers.yumi.capture_settings import CaptureSettings, configure
-from drivers.yumi.frozen_frames import FROZEN_S, FrozenWatch
-from drivers.yumi.v4l2_devices import V4l2Devices, V4l2Node
 
 URL_SCHEMES = ("http://", "https://", "rtsp://")
 """Sources opened as a network camera (FFmpeg), not as a device or a file."""
@@ -427,7 +427,7 @@ class StreamReader:
 
     Only this thread touches the ``cv2.VideoCapture`` (it is not thread-safe): it grabs
     and retrieves (colour conversion) every frame, so that a camera whose frames stopped
-    changing (:mod:`drivers.yumi.frozen_frames`) fails the request instead of answering
+    changing (:mod:`drivers.cameras.frozen_frames`) fails the request instead of answering
     with a picture of the past. A broken stream is reopened once (a restarted camera);
     then every request fails.
     """

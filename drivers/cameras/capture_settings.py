@@ -31,8 +31,8 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from drivers.cameras.v4l2_devices import fourcc_text
 from drivers.errors import BackendError
-from drivers.yumi.v4l2_devices import fourcc_text
 
 AUTO = "auto"
 EXPOSURE_MANUAL = 1

@@ -33,7 +33,7 @@ PERCENTILES = (1, 5, 50, 95, 99)
 
 
 class _Camera(Protocol):
-    """What :func:`camera_report` needs of a camera (``drivers.yumi.camera.Camera``)."""
+    """What :func:`camera_report` needs of a camera (``drivers.cameras.camera.Camera``)."""
 
     @property
     def size(self) -> tuple[int, int]: ...
