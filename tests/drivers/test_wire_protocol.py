@@ -303,3 +303,21 @@ def test_bad_new_requests_are_refused(header: dict, match: str) -> None:
     f = reader_of(raw_frame(json.dumps({"id": 1, **header}).encode())).read_frame(1e18)
     with pytest.raises(ProtocolError, match=match):
         p.parse_request(f, ("left", "right"))
+
+
+def test_every_arm_outcome_field_crosses_the_wire_and_reaches_the_step() -> None:
+    """The start of the step-field checklist (docs/ARCHITECTURE.md, "A new field in every
+    step"): a field added to ``ArmOutcome`` and forgotten in the wire's make or parse, or
+    in ``PushResult``, fails here (``error`` makes the arm a fault, not a result)."""
+    import dataclasses
+
+    from testbed.core.types import PushResult
+
+    assert [f.name for f in dataclasses.fields(ArmOutcome)] == [
+        "success", "violation", "refused", "error"], "a new field: give it a value below"
+    sent = {"left": ArmOutcome(True, False),
+            "right": ArmOutcome(False, True, refused="no cube", error="stopped")}
+    f = reader_of(p.make_push_reply(7, sent)).read_frame(1e18)
+    assert p.parse_push_reply(f, ["left", "right"], "a") == sent
+    carried = {f.name for f in dataclasses.fields(ArmOutcome)} - {"error"}
+    assert carried <= {f.name for f in dataclasses.fields(PushResult)}
