@@ -31,16 +31,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from testbed.experiments.plan import PlanOptions, find_runs, write_fits
-from testbed.experiments.plan_fit import (
+from testbed.planning.plan import PlanOptions, find_runs, write_fits
+from testbed.planning.plan_fit import (
     HumanFit,
     Outcomes,
     PlanFit,
     Rates,
     fit_runs,
 )
-from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
-from testbed.experiments.plan_trouble import TroubleCounts
+from testbed.planning.plan_sim import FleetShape, sim_params, simulate
+from testbed.planning.plan_trouble import TroubleCounts
 from testbed.records.steps import read_steps
 
 BUDGET_S = 10.0

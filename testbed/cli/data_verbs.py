@@ -222,7 +222,7 @@ def _report_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from testbed.experiments.report import write_report
+    from testbed.results.report import write_report
 
     dirs = [Path(d) for d in args.dirs]
     for d in dirs:
@@ -248,7 +248,7 @@ REPORT = Verb(
 
 # ---- plan -------------------------------------------------------------------------------
 TRIALS_METRICS = ["successes", "hard_resets", "idle_time", "human_actions", "rohe"]
-"""The report's metrics (``testbed.experiments.report.METRICS``), named here so that
+"""The report's metrics (``testbed.results.report.METRICS``), named here so that
 ``testbed --help`` imports no report."""
 TRIALS_DEFAULTS = {"metric": "rohe", "alpha": 0.05, "power": 0.8, "max_trials": 30}
 """``--trials``'s flags: None when not given, so one given without ``--trials`` is named."""
@@ -332,7 +332,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
                               "integers, e.g. --robots 4,8,16 --humans 1,2,4), or give --trials")
     if args.out is not None:
         check_out_dir("--out", args.out)
-    from testbed.experiments.plan import PlanOptions, write_plan
+    from testbed.planning.plan import PlanOptions, write_plan
 
     options = PlanOptions(args.robots, args.humans, args.steps, args.replicates, args.runs,
                           args.bin_steps, args.min_gain, args.seed)
@@ -342,7 +342,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise ConfigError(f"--against: no such folder {str(d)!r}")
     plan = write_plan(dirs, options, Path(args.out) if args.out else dirs[0])
     if against:
-        from testbed.experiments.plan_check import write_checks
+        from testbed.planning.plan_check import write_checks
 
         plan = write_checks(plan, against, options)
     print(plan.markdown)
@@ -353,12 +353,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def _plan_trials(args: argparse.Namespace, dirs: list[Path]) -> int:
     """``--trials``: the trials planner (issue 31's second part), when this build has it."""
     try:
-        from testbed.experiments.plan_trials import plan_trials
+        from testbed.planning.plan_trials import plan_trials
     except ModuleNotFoundError as exc:
-        if exc.name != "testbed.experiments.plan_trials":
+        if exc.name != "testbed.planning.plan_trials":
             raise
         raise ConfigError("--trials: this build has no trials planner yet "
-                          "(testbed.experiments.plan_trials)") from None
+                          "(testbed.planning.plan_trials)") from None
     given = {k: getattr(args, k) for k in TRIALS_DEFAULTS}
     opts = {k: TRIALS_DEFAULTS[k] if v is None else v for k, v in given.items()}
     print(plan_trials(dirs, reference=args.reference, metric=str(opts["metric"]),

@@ -122,7 +122,7 @@ def cmd_protocol(args: argparse.Namespace) -> int:
     check_humans(proto.humans, proto.fleet)
     if args.workers is not None or args.ray is not None:
         from testbed.experiments.fanout import run_protocol_on_ray
-        from testbed.experiments.report import write_report
+        from testbed.results.report import write_report
 
         folder = Path(args.out or proto.out)
         run_protocol_on_ray(proto, folder, address=args.ray, workers=args.workers,

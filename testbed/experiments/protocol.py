@@ -17,7 +17,7 @@ protocol stops there and goes on from it when run again.
 
 With ``until = { reference = "cur", metric = "rohe", alpha = 0.05, max_trials = 12 }``
 (:class:`Until`) ``trials`` is the minimum: after each complete trial an anytime-valid
-test per algorithm against the reference (:mod:`testbed.experiments.sequential`) decides
+test per algorithm against the reference (:mod:`testbed.results.sequential`) decides
 whether to run one more, up to ``max_trials``; each trial's e-values go to
 ``<out>/sequential.json`` and the report's sequential table. The decision is recomputed
 from the finished runs, so running the file again resumes where it stopped, and a
@@ -49,23 +49,23 @@ from testbed.core.config import ConfigError, _one_line, validation_context
 from testbed.core.hosts import Hosts
 from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
-from testbed.experiments.report import (
+from testbed.experiments.sweep_point import SweepPoint
+from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
+from testbed.records.run_dir import RunDir, evaluated, evaluation_label
+from testbed.results.report import (
     METRICS,
     PAPER_FIRST,
     Report,
     run_summary,
     write_report,
 )
-from testbed.experiments.sweep_point import SweepPoint
-from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
-from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 
 if TYPE_CHECKING:
     from testbed.core.host_config import HostConfig
     from testbed.core.humans import Humans
-    from testbed.experiments.sequential import Decision
     from testbed.experiments.trial import TrialOptions
     from testbed.fleet.loop import StepOutcome
+    from testbed.results.sequential import Decision
 
 
 class Way(BaseModel):
@@ -84,7 +84,7 @@ class Way(BaseModel):
 class Until(BaseModel):
     """``until = {...}``: run trials until every algorithm's comparison with
     ``reference`` on ``metric`` is settled at ``alpha`` (an anytime-valid test,
-    :mod:`testbed.experiments.sequential`), or cannot be within ``max_trials``; the
+    :mod:`testbed.results.sequential`), or cannot be within ``max_trials``; the
     protocol's ``trials`` is then the minimum."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -378,10 +378,10 @@ def sequential_decision(proto: Protocol, folder: Path, done: int,
     """After ``done`` complete trials of ``proto`` (with ``until``) in ``folder``: every
     algorithm's difference from the reference on the metric in each, recomputed from
     its steps.jsonl as the report does, the stopping decision
-    (:func:`testbed.experiments.sequential.decide`), and each trial's e-values written
+    (:func:`testbed.results.sequential.decide`), and each trial's e-values written
     to ``folder/sequential.json``. ``cache``: summaries already read, by run folder."""
     from testbed.core.atomic import atomic_write_json
-    from testbed.experiments.sequential import RECORD, decide, record
+    from testbed.results.sequential import RECORD, decide, record
 
     until = proto.until
     if until is None:

@@ -44,7 +44,7 @@ from testbed.fleet.algorithms import ALGORITHM_NAMES
 
 if TYPE_CHECKING:
     from testbed.experiments.hooks import TrialHooks
-    from testbed.experiments.report import Report
+    from testbed.results.report import Report
 
 class Sweep(BaseModel):
     # defer_build: its fleet's hosts are a union of the installed backends (core/host_config.py)
@@ -151,7 +151,7 @@ def run_sweep_run(sweep: Sweep, folder: Path, index: int, *,
 def run_sweep(sweep: Sweep, out: str | None = None, *,
               hooks: TrialHooks | None = None) -> Report:
     """Run every (point, seed) not finished yet, then the report (figure: curves.png)."""
-    from testbed.experiments.report import write_report
+    from testbed.results.report import write_report
 
     folder = Path(out) if out is not None else sweep.folder
     folder.mkdir(parents=True, exist_ok=True)

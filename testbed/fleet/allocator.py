@@ -55,7 +55,7 @@ included, round-trips through JSON (``state_dict``) so a crashed trial resumes w
 the same future allocations.
 
 Over 450 lines, on purpose: Algorithm 1's allocation is one state machine (who serves
-whom, for how long, released when); ``testbed/experiments/plan_sim.py::BatchAllocator``
+whom, for how long, released when); ``testbed/planning/plan_sim.py::BatchAllocator``
 must follow it, and reads it whole.
 """
 

@@ -64,7 +64,7 @@ _AUTONOMOUS: Final = MODES.index(Mode.AUTONOMOUS.value)
 def both_high(parts: Sequence[FloatArray], references: Sequence[FloatArray]) -> FloatArray:
     """FIPER's conjunction as one score: the smaller of the parts, each over the median of
     its reference (high only where every part is). Live, the references are the latest
-    policy pushes; ``testbed/experiments/prediction_runs.py`` scores a run with its own."""
+    policy pushes; ``testbed/results/prediction_runs.py`` scores a run with its own."""
     return np.minimum.reduce([v / max(float(np.median(ref)), SCALE_FLOOR)
                               for v, ref in zip(parts, references, strict=True)])
 

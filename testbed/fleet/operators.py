@@ -11,7 +11,7 @@ free humans by. It holds integer counts only, so feeding the same rows again (a 
 trial: ``FleetLoop.restore_counters``) rebuilds it exactly, bit for bit, and its
 estimates are pure functions of those counts.
 
-What is counted, from each row's arms (as ``testbed.experiments.report_humans`` counts
+What is counted, from each row's arms (as ``testbed.results.report_humans`` counts
 the per-human table):
 
 * a **teleop push**: mode ``teleop`` with an action, of the arm's ``human``; its

@@ -10,7 +10,7 @@ for a teleop (C.U.R.'s u >= u_hat) with probability ``1 - u_hat(t)``. A run of a
 hundred steps takes about a second.
 
 With ``trouble`` set, each arm also has the planner's hidden state (as the twin has,
-``testbed.experiments.plan_trouble``): calm, it asks and pushes as above; in trouble, it
+``testbed.planning.plan_trouble``): calm, it asks and pushes as above; in trouble, it
 asks with ``trouble.ask`` and its policy pushes with ``trouble.push``; after a step on its
 own it falls into trouble or recovers, after a human's push (the expert's face) it is
 calm with ``trouble.fixed``, after a violating step troubled with ``trouble.start``.

@@ -116,7 +116,7 @@ def test_until_on_ray_workers_stops_after_the_serial_runs_trial(tmp_path: Path) 
     decision after the same trial as the serial loop, no trial run past it, and every
     finished trial evaluated."""
     pytest.importorskip("ray")
-    from testbed.experiments.sequential import RECORD
+    from testbed.results.sequential import RECORD
 
     (tmp_path / "seq.toml").write_text(tomli_w.dumps(SEQUENTIAL))
     serial = _cli("protocol", "seq.toml", "--yes", "--out", "serial", cwd=tmp_path, threads=1)

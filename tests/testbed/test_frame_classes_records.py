@@ -380,7 +380,7 @@ def test_an_older_store_layout_falls_back_to_the_rows(tmp_path: Path) -> None:
 
 def test_the_report_counts_each_runs_classes_and_says_where_they_came_from(
         tmp_path: Path) -> None:
-    from testbed.experiments.report import write_report
+    from testbed.results.report import write_report
 
     write_run(tmp_path / "runs" / "cur-t0", (A0, A1),
               config="[learning]\npre_intervention_steps = 1\n")

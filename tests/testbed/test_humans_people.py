@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
-from testbed.experiments.report_humans import count_humans, merge
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.interventions import FirstActions
 from testbed.people.people_config import HumanProfile
 from testbed.records.steps import RecordError, validate_step
+from testbed.results.report_humans import count_humans, merge
 
 IMG = np.zeros((64, 64, 3), np.uint8)
 

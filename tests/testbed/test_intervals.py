@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from testbed.experiments.intervals import (
+from testbed.results.intervals import (
     BOOTSTRAP_MIN_TRIALS,
     interval,
     paired,

@@ -151,7 +151,7 @@ def test_testbed_plan_reads_a_monitor_run_as_resets_first() -> None:
     """The plan's batch allocator replays Algorithm 1 on requests fitted from a run's own
     keys (docs/notes/plan.md): a monitor run's alarms are its requests, and its resets sort
     before them, as C.U.R.'s do."""
-    from testbed.experiments.plan_fit import key_order
+    from testbed.planning.plan_fit import key_order
 
     assert key_order("monitor") == key_order("cur") == "resets_first"
 

@@ -11,14 +11,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from testbed.experiments.prediction_runs import run_prediction
-from testbed.experiments.report_prediction import prediction_tables
 from testbed.monitor.failure_head import FailureHead
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.records.run_dir import START_LEARNER
 from testbed.records.step_record import StepRecord
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter
+from testbed.results.prediction_runs import run_prediction
+from testbed.results.report_prediction import prediction_tables
 from tests.testbed.test_frame_classes_records import auto, frames_of, step
 
 ROBOTS = ["c/left", "c/right"]

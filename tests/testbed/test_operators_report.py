@@ -10,10 +10,10 @@ from typing import Any
 
 import pytest
 
-from testbed.experiments.report import write_report
-from testbed.experiments.report_humans import Profile, estimate_humans, scripted_profiles
 from testbed.fleet.operators import OperatorModel
 from testbed.records.steps import RunWriter
+from testbed.results.report import write_report
+from testbed.results.report_humans import Profile, estimate_humans, scripted_profiles
 
 PEOPLE = ('[[humans.people]]\nname = "ana"\n\n'
           '[[humans.people]]\nname = "bo"\nskill = 0.5\nlatency = 2\n')

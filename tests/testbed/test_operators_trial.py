@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from testbed.experiments.report import write_report
 from testbed.fleet.operators import OperatorModel
 from testbed.records.steps import read_steps, validate_step
+from testbed.results.report import write_report
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -17,8 +17,8 @@ import pytest
 from plan_fakes import World, run_world
 
 from testbed.cli import main
-from testbed.experiments.plan_fit import METRICS
 from testbed.people.people_config import HumanProfile
+from testbed.planning.plan_fit import METRICS
 
 ROBOTS, HUMANS = (4, 6), (1, 2, 3)
 
@@ -139,14 +139,14 @@ def test_trials_hands_the_flags_to_the_trials_planner(
         protocol: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
     calls: list[tuple[list[Path], dict[str, Any]]] = []
-    fake = ModuleType("testbed.experiments.plan_trials")
+    fake = ModuleType("testbed.planning.plan_trials")
 
     def plan_trials(dirs: list[Path], **kwargs: Any) -> str:
         calls.append((dirs, kwargs))
         return "TRIALS TABLE"
 
     fake.plan_trials = plan_trials  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "testbed.experiments.plan_trials", fake)
+    monkeypatch.setitem(sys.modules, "testbed.planning.plan_trials", fake)
     assert main(["plan", str(protocol), "--trials"]) == 0
     assert capsys.readouterr().out.strip() == "TRIALS TABLE"
     assert calls[-1] == ([protocol], {"reference": None, "metric": "rohe", "alpha": 0.05,
@@ -160,7 +160,7 @@ def test_trials_hands_the_flags_to_the_trials_planner(
 def test_trials_without_the_trials_planner_is_one_line(
         protocol: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setitem(sys.modules, "testbed.experiments.plan_trials", None)
+    monkeypatch.setitem(sys.modules, "testbed.planning.plan_trials", None)
     line = one_line(["plan", str(protocol), "--trials"], capsys)
     assert line.startswith("testbed plan: --trials: this build has no trials planner")
 

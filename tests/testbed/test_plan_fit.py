@@ -19,8 +19,8 @@ import pytest
 from plan_fakes import Trouble, World, run_world
 
 from testbed.core.config import ConfigError
-from testbed.experiments.plan_fit import PlanFit, fit_runs, key_order
 from testbed.people.people_config import HumanProfile
+from testbed.planning.plan_fit import PlanFit, fit_runs, key_order
 from testbed.records.metrics import summarize
 from testbed.records.steps import read_steps
 

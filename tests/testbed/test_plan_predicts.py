@@ -16,9 +16,9 @@ from pathlib import Path
 
 from plan_fakes import Trouble, World, run_world
 
-from testbed.experiments.plan import PlanOptions, write_plan
-from testbed.experiments.plan_check import write_checks
 from testbed.people.people_config import HumanProfile
+from testbed.planning.plan import PlanOptions, write_plan
+from testbed.planning.plan_check import write_checks
 
 WORLD = World(policy=(0.2, 0.005), trouble=Trouble())
 PEOPLE = [HumanProfile(name="ana"), HumanProfile(name="bo", latency=1)]

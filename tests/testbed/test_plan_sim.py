@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 from plan_fakes import Trouble, World, run_world
 
-from testbed.experiments.plan_fit import METRICS, Draws, KeyOrder, fit_runs
-from testbed.experiments.plan_sim import BatchAllocator, FleetShape, sim_params, simulate
-from testbed.experiments.plan_trouble import TroubleDraws
 from testbed.fleet.allocator import Allocator
 from testbed.people.people_config import HumanProfile
+from testbed.planning.plan_fit import METRICS, Draws, KeyOrder, fit_runs
+from testbed.planning.plan_sim import BatchAllocator, FleetShape, sim_params, simulate
+from testbed.planning.plan_trouble import TroubleDraws
 
 
 @pytest.mark.parametrize(("n", "m", "k"), [(7, 3, 2), (3, 5, 3), (9, 1, 1), (6, 6, 2)])

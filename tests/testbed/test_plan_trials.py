@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from testbed.core.config import ConfigError
-from testbed.experiments.intervals import sign_flip_p
-from testbed.experiments.plan_trials import (
+from testbed.planning.plan_trials import (
     extreme_patterns,
     floor_trials,
     normal_trials,
@@ -25,6 +24,7 @@ from testbed.experiments.plan_trials import (
     t_trials,
 )
 from testbed.records.steps import RunWriter
+from testbed.results.intervals import sign_flip_p
 
 
 def _brute(diffs: list[Fraction]) -> int:

@@ -27,12 +27,12 @@ from testbed.core.humans import HumansStopRequested
 from testbed.core.types import IMAGE_SIZE, ArmObservation, FleetStatus, PushResult
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.protocol import Protocol, run_protocol, williams_square
-from testbed.experiments.report import write_report
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.loop import FleetLoop
 from testbed.records.steps import RunWriter, read_steps, validate_step
+from testbed.results.report import write_report
 
 ROOT = Path(__file__).resolve().parents[2]
 ALGOS = ["bc", "random", "fleet-ed", "cur"]

@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from testbed.experiments.report import write_report
 from testbed.records.steps import RunWriter
+from testbed.results.report import write_report
 
 A, T, R = "autonomous", "teleop", "reset"
 PASSWORD = "hunter2-never-in-a-report"
@@ -156,8 +156,8 @@ def test_report_html_in_chromium_has_every_table_and_makes_no_request(
 
 
 def test_records_the_same_in_some_trials_only_are_named_with_those_trials() -> None:
-    from testbed.experiments.report import trial_label
-    from testbed.experiments.report_tables import identical_groups
+    from testbed.results.report import trial_label
+    from testbed.results.report_tables import identical_groups
 
     lines = identical_groups({"cur": {("seed", 0): "a", ("seed", 1): "b"},
                               "cur-i": {("seed", 0): "c", ("seed", 1): "b"},

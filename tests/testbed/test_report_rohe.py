@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from testbed.experiments.report import write_report
 from testbed.records.steps import RunWriter
+from testbed.results.report import write_report
 
 
 def _run(folder: Path, algorithm: str, steps: list[list[tuple[str, bool, bool]]]) -> None:

@@ -21,10 +21,10 @@ from testbed.core.humans import HumansStopRequested
 from testbed.core.types import FleetStatus
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.protocol import Protocol, run_protocol, sequential_decision
-from testbed.experiments.report import write_report
 from testbed.experiments.scripted_humans import ScriptedHumans
-from testbed.experiments.sequential import CAP, RECORD, bets, decide, e_values, reachable
 from testbed.records.steps import RunWriter
+from testbed.results.report import write_report
+from testbed.results.sequential import CAP, RECORD, bets, decide, e_values, reachable
 
 ALPHAS = (0.05, 0.1)
 

@@ -13,9 +13,9 @@ import pytest
 import tomli_w
 
 from testbed.core.config import ConfigError
-from testbed.experiments.report import write_report
 from testbed.experiments.sweep import load_sweep
 from testbed.records.steps import RunWriter, read_steps
+from testbed.results.report import write_report
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -22,7 +22,7 @@ the trials needed for a given power at a given two-sided alpha, two ways, both s
 
 What it assumes: that the lab's trials differ as the pilot's did (a twin pilot says
 nothing of the robots' spread), and that the pilot's sd is the truth, which 3 trials
-cannot promise; a protocol with ``until`` (:mod:`testbed.experiments.sequential`)
+cannot promise; a protocol with ``until`` (:mod:`testbed.results.sequential`)
 needs no such guess.
 """
 
@@ -37,8 +37,9 @@ import numpy as np
 import numpy.typing as npt
 
 from testbed.core.config import ConfigError
-from testbed.experiments.intervals import EXACT_MAX_PAIRS, paired, smallest_p
-from testbed.experiments.report import (
+from testbed.records.run_dir import EVAL_PREFIX
+from testbed.results.intervals import EXACT_MAX_PAIRS, paired, smallest_p
+from testbed.results.report import (
     METRICS,
     _groups,
     _reference,
@@ -47,8 +48,7 @@ from testbed.experiments.report import (
     trial_label,
     unfinished,
 )
-from testbed.experiments.report_tables import Table
-from testbed.records.run_dir import EVAL_PREFIX
+from testbed.results.report_tables import Table
 
 __all__ = ["REPLAYS", "extreme_patterns", "floor_trials", "normal_trials", "plan_trials",
            "sign_flip_power", "sign_flip_ps", "t_power", "t_trials"]

@@ -6,7 +6,7 @@ their own arm) make queues that no closed form of the fan-out literature follows
 "how many people for how many arms" is exactly a question about those queues. So the
 plan replays, per replicate, one run of T steps of a fleet of N arms and M humans in
 which each arm asks for a teleop, violates, succeeds, and each human takes time, by the
-processes :mod:`testbed.experiments.plan_fit` fitted (no images, no learning), and
+processes :mod:`testbed.planning.plan_fit` fitted (no images, no learning), and
 allocates every step by Algorithm 1.
 
 The allocation is the real allocator's, vectorised over replicates: :class:`BatchAllocator`
@@ -24,7 +24,7 @@ What one arm does at step t of a replicate (docs/notes/plan.md says what is assu
 * violating: its key is the algorithm's ``c`` (eligible from t_I for C.U.R.), else it
   waits (``idle``); a human on it resets it (``reset``), done after the steps drawn for
   that human when the reset started, and never before t_R (the allocator holds it);
-* not violating: it is calm or in trouble (:mod:`testbed.experiments.plan_trouble`) and
+* not violating: it is calm or in trouble (:mod:`testbed.planning.plan_trouble`) and
   its key asks for a teleop with that state's rate (a calm arm's by phase); a human on
   it teleoperates, with no push before the latency drawn for that human when the teleop
   started;
@@ -47,8 +47,8 @@ from typing import Final, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from testbed.experiments.plan_fit import Draws, KeyOrder
 from testbed.fleet.allocator import KIND_NONE, KIND_RESET, KIND_TELEOP, Allocator
+from testbed.planning.plan_fit import Draws, KeyOrder
 from testbed.records.metrics import rohe
 
 __all__ = ["BatchAllocator", "FleetShape", "RealAllocators", "SimParams", "sim_params",

@@ -15,7 +15,7 @@ What each table says (docs/notes/monitor.md has the definitions and the twin's f
 * beside them, ``failure-head.json``: the failure head fitted on every run with theta_0's
   features (``prediction_runs.add_failure_head``), what ``[monitor] head`` reads.
 
-The numbers come from ``testbed.experiments.prediction_runs`` (records only).
+The numbers come from ``testbed.results.prediction_runs`` (records only).
 """
 
 from __future__ import annotations
@@ -28,8 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from testbed.experiments.intervals import Interval, interval
-from testbed.experiments.prediction_runs import (
+from testbed.monitor.monitor_config import MonitorConfig
+from testbed.monitor.predictor_metrics import reliability
+from testbed.results.intervals import Interval, interval
+from testbed.results.prediction_runs import (
     NEW_SIGNALS,
     SIGNALS,
     RunPrediction,
@@ -37,9 +39,7 @@ from testbed.experiments.prediction_runs import (
     replays,
     run_prediction,
 )
-from testbed.experiments.report_tables import Table, method_note
-from testbed.monitor.monitor_config import MonitorConfig
-from testbed.monitor.predictor_metrics import reliability
+from testbed.results.report_tables import Table, method_note
 
 __all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables"]
 
@@ -81,7 +81,7 @@ def monitor_tables(groups: Sequence[tuple[str, Sequence[Path], Mapping[str, Any]
     """The report's failure-prediction tables for its groups (name, run folders, the first
     run's config.toml: its ``[monitor]``), and the monitor algorithm's own table for its
     runs, if any."""
-    from testbed.experiments.report_alarm import alarm_table
+    from testbed.results.report_alarm import alarm_table
 
     tables = prediction_tables({g: paths for g, paths, _ in groups},
                                monitor_config(groups[0][2]) if groups else None)

@@ -21,10 +21,10 @@ import re
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from testbed.experiments.report_tables import Table
+from testbed.results.report_tables import Table
 
 if TYPE_CHECKING:
-    from testbed.experiments.run_record import RunRecord
+    from testbed.results.run_record import RunRecord
 
 __all__ = ["report_page", "run_metadata"]
 

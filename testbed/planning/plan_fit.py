@@ -7,7 +7,7 @@ arm asked for a human, whatever it got), its mode (so whether it was violating: 
 or ``reset``), who pushed and what came of it, and on an intervention's first action
 ``first.steps`` (a teleop's latency, a reset's length). This module counts those, per
 algorithm (the run's label: run.json ``options.label``, else its algorithm), into the
-processes :mod:`testbed.experiments.plan_sim` replays at other fleet sizes:
+processes :mod:`testbed.planning.plan_sim` replays at other fleet sizes:
 
 =====================  ==========================================================
 process                counted from the rows (by phase: bins of ``bin_steps`` steps)
@@ -37,7 +37,7 @@ with ``PRIOR_BIN`` pseudo arm-steps, so a sparse bin is not a coin of its own.
 
 Those counts describe the runs (the plan's tables, the tests); what the simulation
 replays of the arms is the trouble model fitted on the same rows
-(:mod:`testbed.experiments.plan_trouble`: each arm calm or in trouble, its requests and
+(:mod:`testbed.planning.plan_trouble`: each arm calm or in trouble, its requests and
 its policy's pushes by that hidden state), and of the humans the rows above.
 
 Over 450 lines, on purpose: the fit of one run's rows: the processes (rates, outcomes,
@@ -60,7 +60,10 @@ import numpy as np
 import numpy.typing as npt
 
 from testbed.core.config import ConfigError
-from testbed.experiments.plan_trouble import (
+from testbed.fleet.algorithm_config import AlgorithmConfig
+from testbed.fleet.algorithms import ALGORITHMS, get_algorithm
+from testbed.fleet.operators import POOL_PUSHES, PRIOR_PUSHES, PRIOR_TIMES
+from testbed.planning.plan_trouble import (
     ArmSequences,
     TroubleCounts,
     TroubleDraws,
@@ -68,9 +71,6 @@ from testbed.experiments.plan_trouble import (
     draw_trouble,
     fit_trouble,
 )
-from testbed.fleet.algorithm_config import AlgorithmConfig
-from testbed.fleet.algorithms import ALGORITHMS, get_algorithm
-from testbed.fleet.operators import POOL_PUSHES, PRIOR_PUSHES, PRIOR_TIMES
 from testbed.records.metrics import summarize
 from testbed.records.run_dir import EVAL_PREFIX
 from testbed.records.steps import read_steps
@@ -227,7 +227,7 @@ class HumanFit:
 @dataclass
 class Draws:
     """One posterior draw per replicate (R): the fitted processes' parameters, per
-    fitted human (H) where they are a person's; :mod:`testbed.experiments.plan_sim`
+    fitted human (H) where they are a person's; :mod:`testbed.planning.plan_sim`
     maps the planned humans onto them."""
 
     trouble: TroubleDraws

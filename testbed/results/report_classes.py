@@ -16,10 +16,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from testbed.experiments.report_tables import Table
 from testbed.records.run_classes import run_classes
 from testbed.records.steps import RecordError
 from testbed.records.store import RunDataError
+from testbed.results.report_tables import Table
 
 __all__ = ["ClassCounts", "class_counts", "classes_table"]
 

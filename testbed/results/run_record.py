@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from testbed.core.types import HumanEstimate
-from testbed.experiments.report_classes import ClassCounts
-from testbed.experiments.report_humans import HumanCounts, Profile
+from testbed.results.report_classes import ClassCounts
+from testbed.results.report_humans import HumanCounts, Profile
 
 __all__ = ["RunRecord"]
 

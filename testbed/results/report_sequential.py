@@ -15,8 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from testbed.experiments.report_tables import Table
-from testbed.experiments.sequential import FORMAT, RECORD
+from testbed.results.report_tables import Table
+from testbed.results.sequential import FORMAT, RECORD
 
 __all__ = ["place_sequential", "sequential_table", "sequential_tables"]
 
@@ -50,7 +50,7 @@ def _status(pair: dict[str, Any], max_trials: int) -> str:
 
 def sequential_table(rec: dict[str, Any], key: str = "sequential",
                      where: str = "") -> Table:
-    """The table of one ``sequential.json`` (:func:`testbed.experiments.sequential.record`)."""
+    """The table of one ``sequential.json`` (:func:`testbed.results.sequential.record`)."""
     ref, metric = str(rec["reference"]), str(rec["metric"])
     alpha, max_trials = float(rec["alpha"]), int(rec["max_trials"])
     done, minimum = int(rec["trials_done"]), int(rec["min_trials"])

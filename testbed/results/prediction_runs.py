@@ -23,7 +23,6 @@ from typing import Any, Final
 import numpy as np
 
 from testbed.core.types import EpisodeOutcome
-from testbed.experiments.prediction_features import push_features, theta0_digest
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.fleet.monitor_priority import both_high
 from testbed.monitor.conformal import Replay, replay_online, replay_split
@@ -34,6 +33,7 @@ from testbed.monitor.predictor_metrics import LeadTime, auroc, average_precision
 from testbed.records.run_classes import STORE, run_classes
 from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import RunDataError
+from testbed.results.prediction_features import push_features, theta0_digest
 
 __all__ = ["HEAD_INPUTS", "HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
            "add_failure_head", "replays", "run_prediction", "score_signal"]

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from testbed.experiments.report_tables import Table
 from testbed.records.steps import RecordError, read_steps
+from testbed.results.report_tables import Table
 
 __all__ = ["alarm_table"]
 

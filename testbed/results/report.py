@@ -17,7 +17,7 @@ its learning curves: they get a second table (successes, hard resets, idle time;
 human effort to weigh, humans only reset) in report.md and ``report-eval.csv``, and stay
 out of the learning table, its CSV and the curves.
 
-What a reviewer needs beyond mean +- std (:mod:`testbed.experiments.report_tables`): a
+What a reviewer needs beyond mean +- std (:mod:`testbed.results.report_tables`): a
 95% interval per metric and algorithm, each algorithm against a reference (C.U.R., or
 ``--reference``) paired by trial with an exact sign-flip p-value, the same for the
 evaluations and, per point, for a sweep (its reference: the grid's first point); the
@@ -41,16 +41,19 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
-from testbed.experiments.report_classes import class_counts, classes_table
-from testbed.experiments.report_gain import gain_tables
-from testbed.experiments.report_humans import (
+from testbed.records.metrics import cumulative, summarize
+from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
+from testbed.records.steps import read_steps
+from testbed.results.report_classes import class_counts, classes_table
+from testbed.results.report_gain import gain_tables
+from testbed.results.report_humans import (
     RunHumans,
     count_humans,
     estimate_humans,
     scripted_profiles,
 )
-from testbed.experiments.report_sequential import place_sequential
-from testbed.experiments.report_tables import (
+from testbed.results.report_sequential import place_sequential
+from testbed.results.report_tables import (
     Table,
     humans_table,
     identical_groups,
@@ -58,10 +61,7 @@ from testbed.experiments.report_tables import (
     paired_table,
     steps_digest,
 )
-from testbed.experiments.run_record import RunRecord
-from testbed.records.metrics import cumulative, summarize
-from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
-from testbed.records.steps import read_steps
+from testbed.results.run_record import RunRecord
 
 METRICS = ("successes", "hard_resets", "idle_time", "human_actions", "rohe")
 EVAL_METRICS = ("successes", "hard_resets", "idle_time")
@@ -402,7 +402,7 @@ def write_report(dirs: list[Path], out: Path, reference: str | None = None) -> R
     learning = [r for r in runs if not r.algorithm.startswith(EVAL_PREFIX)]
     png = _plot(learning or runs)
     atomic_write_bytes(out / "curves.png", png)
-    from testbed.experiments.report_html import report_page
+    from testbed.results.report_html import report_page
 
     atomic_write_bytes(out / "report.html", report_page(sections, notes, png, runs).encode())
     return Report(out, md, runs, notes, sections)
@@ -436,7 +436,7 @@ def _sections(runs: list[RunRecord], reference: str | None) -> list[Table]:
             tables += gain_tables(learning, evaluations, reference or PAPER_FIRST, trial_label)
     tables.append(classes_table([(r.path.name, r.group, r.classes)
                                  for r in [*learning, *evaluations]]))
-    from testbed.experiments.report_prediction import monitor_tables
+    from testbed.results.report_prediction import monitor_tables
 
     tables += monitor_tables([(g, [r.path for r in rs], rs[0].config)
                               for g, rs in _groups([*learning, *evaluations]).items()],

@@ -5,7 +5,7 @@ Why: a plan is a model, and a lab that runs some of the points it planned (a sho
 on the twin, or the first days on the robots) should see, in the plan's own terms,
 whether the model held: per point and metric, the mean of the measured runs against the
 predicted interval, and per metric how many points fell inside. The measured runs are
-read exactly as the fit reads its own (:func:`testbed.experiments.plan_fit.fit_runs`:
+read exactly as the fit reads its own (:func:`testbed.planning.plan_fit.fit_runs`:
 each run's N from its rows, M from its config, its metrics by ``run_metrics``), matched
 to the plan by label (algorithm or protocol way), and grouped by (N, M).
 
@@ -27,7 +27,7 @@ import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
 from testbed.core.config import ConfigError
-from testbed.experiments.plan import (
+from testbed.planning.plan import (
     TITLES,
     AlgorithmPlan,
     Plan,
@@ -36,7 +36,7 @@ from testbed.experiments.plan import (
     fmt_metric,
     interval,
 )
-from testbed.experiments.plan_fit import METRICS, fit_runs
+from testbed.planning.plan_fit import METRICS, fit_runs
 
 __all__ = ["PointCheck", "check_csv", "check_markdown", "check_plans", "write_checks"]
 

@@ -15,11 +15,11 @@ import math
 from collections.abc import Hashable, Sequence
 from typing import TYPE_CHECKING, Any, Final
 
-from testbed.experiments.report_tables import Table, interval_table, paired_table
 from testbed.records.run_dir import EVAL_PREFIX
+from testbed.results.report_tables import Table, interval_table, paired_table
 
 if TYPE_CHECKING:
-    from testbed.experiments.run_record import RunRecord
+    from testbed.results.run_record import RunRecord
 
 START_GROUP: Final = f"{EVAL_PREFIX}theta0"
 """The evaluation row of the policy a trial's runs start from (``protocol.START``)."""

@@ -2,8 +2,8 @@
 
 Why: a physical sweep of fleet sizes costs a lab days of robots and people; the runs it
 already has say how often its arms ask for help and how long its people take. This
-module fits those per algorithm (:mod:`testbed.experiments.plan_fit`), replays Algorithm
-1 on them for every N x M point (:mod:`testbed.experiments.plan_sim`) and writes:
+module fits those per algorithm (:mod:`testbed.planning.plan_fit`), replays Algorithm
+1 on them for every N x M point (:mod:`testbed.planning.plan_sim`) and writes:
 
 * ``plan.md`` (also printed): per algorithm, the fitted processes, a table of every
   point's predictions with intervals, the check at the runs' own point (predicted
@@ -44,9 +44,9 @@ import numpy.typing as npt
 
 from testbed.core.atomic import atomic_write_bytes
 from testbed.core.config import ConfigError
-from testbed.experiments.plan_fit import BIN_STEPS, METRICS, Draws, PlanFit, fit_runs
-from testbed.experiments.plan_sim import FleetShape, sim_params, simulate
-from testbed.experiments.report import find_runs  # the report's rule, re-exported
+from testbed.planning.plan_fit import BIN_STEPS, METRICS, Draws, PlanFit, fit_runs
+from testbed.planning.plan_sim import FleetShape, sim_params, simulate
+from testbed.results.report import find_runs  # the report's rule, re-exported
 
 __all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "find_runs", "fmt_metric",
            "interval", "plan_algorithm", "write_fits", "write_plan"]

@@ -4,8 +4,8 @@ from the same cells, and the numbers behind it to a CSV for scripts.
 
 Why one shape: report.md, report.html and the CSVs must say the same thing; building
 every table once, as rows of cells, and rendering it twice keeps them from drifting.
-The statistics are :mod:`testbed.experiments.intervals`; the per-human counts
-:mod:`testbed.experiments.report_humans`.
+The statistics are :mod:`testbed.results.intervals`; the per-human counts
+:mod:`testbed.results.report_humans`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from testbed.experiments.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, paired
-from testbed.experiments.report_humans import RunHumans, merge
+from testbed.results.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, paired
+from testbed.results.report_humans import RunHumans, merge
 
 __all__ = ["Table", "humans_table", "identical_groups", "interval_table", "paired_table",
            "steps_digest"]
