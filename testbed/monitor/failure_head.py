@@ -31,7 +31,6 @@ from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import minimize
 
 __all__ = ["FORMAT", "INPUTS", "FailureHead", "HeadError", "design"]
 
@@ -83,6 +82,9 @@ class FailureHead:
         if x.shape[1] != 2 * len(inputs) + features:
             raise ValueError(f"{x.shape[1]} columns for {len(inputs)} signals and "
                              f"{features} features")
+        from scipy.optimize import minimize  # here: a robot host's install (which loads
+        # [monitor] with the config) has no scipy; only fitting needs it
+
         mean, std = x.mean(axis=0), x.std(axis=0) + 1e-9
         z = (x - mean) / std
 

@@ -15,6 +15,7 @@ reads a protocol's runs after every trial of an ``until``.
 from __future__ import annotations
 
 import hashlib
+import pickle
 from pathlib import Path
 from typing import Final
 
@@ -68,7 +69,10 @@ def push_features(run: Path, frames: np.ndarray, digest: str) -> np.ndarray | st
         return "its data store has fewer frames than its records"
     from testbed.learning.features import policy_features
 
-    feats = policy_features(run / START_LEARNER, images)
+    try:
+        feats = policy_features(run / START_LEARNER, images)
+    except (OSError, ValueError, RuntimeError, KeyError, pickle.UnpicklingError) as exc:
+        return f"its theta_0 ({START_LEARNER}) could not be read as a policy: {exc}"
     tmp = run / (CACHE + ".tmp.npz")
     try:
         np.savez(tmp, features=feats, frames=frames, digest=np.array(digest))
