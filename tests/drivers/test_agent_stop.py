@@ -118,6 +118,7 @@ def slow_agent(tmp_path: Path) -> Iterator[Callable[..., SlowAgent]]:
                 f.close()
 
 
+@pytest.mark.slow
 def test_heartbeats_are_answered_at_once_during_a_push(
         slow_agent: Callable[..., SlowAgent]) -> None:
     """At the fleet's cadence (0.5 s) with its watchdog (heartbeat + 1 s): every reply

@@ -241,6 +241,7 @@ def test_a_confirmed_console_stop_stops_the_motion_in_flight(slow: Any) -> None:
     print(f"console Stop confirmed -> backend.stop(): {stopped * 1e3:.1f} ms")
 
 
+@pytest.mark.slow
 @pytest.mark.ssh
 def test_over_ssh_heartbeats_go_on_during_a_push_and_stop_motion_stops_it(
         sshd_factory: Callable[[str], SshServer], monkeypatch: pytest.MonkeyPatch) -> None:

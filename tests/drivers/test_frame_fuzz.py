@@ -330,6 +330,7 @@ def test_fuzz_replies_agent_to_controller(monkeypatch: pytest.MonkeyPatch) -> No
     assert seen.get("semantic", 0) > 300 and seen.get("truncate", 0) > 50
 
 
+@pytest.mark.slow
 def test_fuzz_requests_controller_to_agent(monkeypatch: pytest.MonkeyPatch) -> None:
     seen = run_fuzz(monkeypatch, "request", seed=20260523)
     assert seen.get("semantic", 0) > 300 and seen.get("flip", 0) > 50

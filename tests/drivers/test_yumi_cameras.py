@@ -72,6 +72,7 @@ def _age_after_pause(read: Any, device: FakeDevice, pause: float) -> tuple[float
     return t0 - device.taken[frame_number(frame)], time.monotonic() - t0
 
 
+@pytest.mark.slow
 def test_a_read_after_a_push_is_a_frame_taken_after_the_call(tmp_path: Path) -> None:
     device = FakeDevice()
     raw = device.capture(0, cv2.CAP_V4L2)  # what OpenCV alone gives: the queue is real

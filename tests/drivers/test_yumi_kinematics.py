@@ -121,6 +121,7 @@ def check(cals: dict[str, dict[str, Any]], zone_z: float = 80.0) -> tuple[list[s
     return controller_report("yumi-a", info)
 
 
+@pytest.mark.slow
 def test_every_corner_of_the_shipped_workspaces_is_reachable_with_margin() -> None:
     lines, faults = check({s: shipped(s) for s in ("left", "right")})
     assert faults == []
@@ -133,6 +134,7 @@ def test_every_corner_of_the_shipped_workspaces_is_reachable_with_margin() -> No
     assert LAB_REST_JOINTS == REST_JOINTS_DEG  # the lab's copy of the twin's rest
 
 
+@pytest.mark.slow
 def test_the_old_rest_pose_with_a_100mm_pusher_is_a_fault() -> None:
     cals = {s: shipped(s, rest_joints_deg=OLD_REST[s]) for s in ("left", "right")}
     _, faults = check(cals)
@@ -150,6 +152,7 @@ def test_a_rest_pose_below_the_zone_ceiling_or_in_view_is_a_fault() -> None:
     assert any("is in the camera's view" in f for f in faults), faults
 
 
+@pytest.mark.slow
 def test_arms_whose_sweeps_meet_are_a_fault() -> None:
     """Two table boxes side by side with no gap: the grippers over the inner edges meet."""
     cals = {"left": shipped("left", table_box_mm=[150, 0, 470, 320]),
@@ -185,6 +188,7 @@ def test_the_driver_refuses_an_unreachable_target_before_anything_moves(tmp_path
         backend.close()
 
 
+@pytest.mark.slow
 def test_boxes_to_the_workspaces_inner_edge_let_the_forearms_meet() -> None:
     """Why the shipped table boxes stop 75 mm from the centre line
     (testbed/lab/camera_model.py, INNER_EDGE_MM): boxes to the workspaces' inner edge

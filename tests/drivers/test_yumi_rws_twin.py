@@ -217,6 +217,7 @@ def test_move_tcp_and_rest_lift_the_pusher_first_when_it_is_low(yumi: Any,
     backend.close()
 
 
+@pytest.mark.slow
 def test_a_calibration_grid_over_the_shipped_box_reaches_every_point(yumi: Any,
                                                                      tmp_path: Path) -> None:
     """Issue 35: ``testbed calibrate``'s 5x4 grid over the right arm's shipped box, as the

@@ -64,6 +64,7 @@ def _hog(stop_at: float) -> None:
         pass
 
 
+@pytest.mark.slow
 def test_stream_frames_stay_fresh_with_every_core_busy() -> None:
     """The rehearsal caught it: a camera drained only when asked returned a frame queued
     before a push when the machine was loaded (a slow decode looked like a wait)."""

@@ -24,6 +24,7 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
+import pytest
 import twin_rws
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from twin_rws import our_twin, program, run, stay
@@ -188,6 +189,7 @@ def _outcome(got: list[Any], stopped: bool) -> list[str]:
     return ["stopped"]
 
 
+@pytest.mark.slow
 def test_random_programs_end_in_a_motion_or_a_controller_code() -> None:
     """Seeded random programs (see the module), in-process; a fresh controller now and
     then (at rest), the tools drawn from 0 to 250 mm, a stop requested mid-run now and

@@ -313,12 +313,14 @@ PROPERTY_SETTINGS = settings(max_examples=6000, deadline=None,
                              suppress_health_check=[HealthCheck.too_slow])
 
 
+@pytest.mark.slow
 @PROPERTY_SETTINGS
 @given(scenarios(sticky=False))
 def test_rules_and_reference_on_arbitrary_sequences(sc: Scenario) -> None:
     run_scenario(sc, sticky=False)
 
 
+@pytest.mark.slow
 @settings(max_examples=4500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenarios(sticky=True))
 def test_rules_and_reference_with_violations_that_last_until_reset(sc: Scenario) -> None:

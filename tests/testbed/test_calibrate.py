@@ -145,6 +145,7 @@ def _wait_camera_free(twin: Twin) -> None:
             time.sleep(0.1)
 
 
+@pytest.mark.slow
 def test_calibrate_fits_the_true_camera_and_writes_the_file(
         twin: Twin, lab: Path, capsys: pytest.CaptureFixture[str]) -> None:
     _wait_camera_free(twin)
@@ -185,6 +186,7 @@ def test_calibrate_fits_the_true_camera_and_writes_the_file(
     assert _at_rest(twin)
 
 
+@pytest.mark.slow
 def test_check_draws_the_full_frame_with_crops_and_calibration(
         twin: Twin, lab: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (lab / "left.json").write_text(json.dumps(twin.true_calibration("left")))
@@ -214,6 +216,7 @@ def test_check_draws_the_full_frame_with_crops_and_calibration(
     assert _at_rest(twin)
 
 
+@pytest.mark.slow
 def test_too_few_markers_fails_and_writes_nothing(
         twin: Twin, lab: Path, capsys: pytest.CaptureFixture[str]) -> None:
     before = (lab / "left.json").read_bytes()

@@ -195,6 +195,7 @@ def _random_steps(rng: np.random.Generator, steps: int, n: int, m: int, k: int,
     return out
 
 
+@pytest.mark.slow
 def test_equal_gains_for_every_human_are_exactly_the_blind_allocation() -> None:
     """3,000 random sequences, 25 steps each: the same assignments, kinds, served
     counts and RNG stream, step by step, whether the equal gains are 0 or not."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+import pytest
 from plan_fakes import Trouble, World, run_world
 
 from testbed.people.people_config import HumanProfile
@@ -24,6 +25,7 @@ WORLD = World(policy=(0.2, 0.005), trouble=Trouble())
 PEOPLE = [HumanProfile(name="ana"), HumanProfile(name="bo", latency=1)]
 
 
+@pytest.mark.slow
 def test_fitted_at_one_point_the_plan_holds_at_others(tmp_path: Path) -> None:
     fit = tmp_path / "fit"
     for s in range(4):

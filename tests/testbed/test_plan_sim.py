@@ -99,6 +99,7 @@ def test_the_simulation_allocates_as_the_real_allocator(order: KeyOrder,
 @pytest.mark.parametrize("world", [
     World(policy=(0.2, 0.02)), World(policy=(0.2, 0.005), trouble=Trouble())],
     ids=["calm", "trouble"])
+@pytest.mark.slow
 def test_the_simulation_with_the_true_rates_measures_what_the_loop_measures(
         world: World, tmp_path: Path) -> None:
     # The loop's runs at two fleet sizes against the simulation's 400 replicates of the

@@ -27,6 +27,7 @@ def _close(a: object, b: object) -> None:
                                    err_msg=name)
 
 
+@pytest.mark.slow
 def test_compiled_actor_acts_as_the_learner_and_follows_sync() -> None:
     torch._dynamo.reset()
     learner = Learner(LearningConfig(ensemble_size=2, compile_act=True), seed=2)

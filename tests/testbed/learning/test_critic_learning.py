@@ -21,6 +21,8 @@ from synthetic_pushing import Batch, roc_auc, transitions
 from testbed.learning import Learner, Transitions
 from testbed.learning.learning_config import LearningConfig
 
+pytestmark = pytest.mark.slow  # it trains networks: out of the fast tier
+
 CFG = LearningConfig(ensemble_size=2, batch_size=64, lr=1e-3)
 STEPS = 100
 GOAL = (0.5, 0.5)

@@ -82,7 +82,7 @@ def collect(cell: Any, n: int, rng: np.random.Generator
 
 # The module's fixture trains for ~150 s on a quiet 2-core machine; under load (another
 # trial beside the suite) it passed 300 s, the suite's default limit.
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")

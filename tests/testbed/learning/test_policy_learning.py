@@ -16,6 +16,8 @@ from synthetic_pushing import HI, LO, expert, render, roc_auc
 from testbed.learning import Learner
 from testbed.learning.learning_config import LearningConfig
 
+pytestmark = pytest.mark.slow  # it trains networks: out of the fast tier
+
 CENTRE = np.array([0.5, 0.5])
 CFG = LearningConfig(ensemble_size=3, batch_size=32, lr=1e-3, gradient_steps=1)
 STEPS = 60
