@@ -38,7 +38,7 @@ from torch import Tensor, nn
 
 from testbed.learning.networks import TRUNK_FEATURES
 
-__all__ = ["RATE", "FeatureDensity", "policy_features"]
+__all__ = ["RATE", "FeatureDensity", "PolicyFeatures"]
 
 RATE: Final = 0.4
 SHRINK: Final = 1e-3
@@ -86,26 +86,31 @@ class FeatureDensity(nn.Module):
         return d2.sqrt().mean(dim=0) / math.sqrt(d)
 
 
-def policy_features(checkpoint_path: str | Path, images: npt.ArrayLike,
-                    batch: int = 256) -> np.ndarray:
+class PolicyFeatures:
     """The trunk features (N, 64), mean over the ensemble's members, of uint8 images
-    (N, 64, 64, 3) under the policy saved in ``checkpoint_path`` (a learner checkpoint:
-    a run's ``learner-start.pt`` is its theta_0). What the failure head reads
+    (N, 64, 64, 3) under the policy saved in a learner checkpoint (a run's
+    ``learner-start.pt`` is its theta_0): what the failure head reads
     (``testbed/monitor/failure_head.py``); live, ``act`` gives the same of the current
-    policy (``PolicyOutput.features``). Only the policy's weights are loaded."""
-    from testbed.learning import checkpoint
-    from testbed.learning.learning_config import LearningConfig
-    from testbed.learning.policy import PolicyEnsemble
+    policy (``PolicyOutput.features``). Only the policy's weights are loaded, once; call
+    it on as many batches as the caller reads (a 100-arm run's images need not all be
+    in memory at once)."""
 
-    state = checkpoint.load_any(checkpoint_path)
-    size = LearningConfig.model_validate(state["cfg"]).ensemble_size
-    policy = PolicyEnsemble(size)
-    policy.load_state_dict(state["policy"])
-    policy.eval()
-    arr = np.asarray(images, dtype=np.uint8)
-    out = np.zeros((arr.shape[0], TRUNK_FEATURES), dtype=np.float32)
-    with torch.no_grad():
-        for i in range(0, arr.shape[0], batch):
-            x = torch.from_numpy(np.ascontiguousarray(arr[i:i + batch]))
-            out[i:i + batch] = policy.trunk_features(x).mean(dim=0).numpy()
-    return out
+    def __init__(self, checkpoint_path: str | Path, batch: int = 256) -> None:
+        from testbed.learning import checkpoint
+        from testbed.learning.learning_config import LearningConfig
+        from testbed.learning.policy import PolicyEnsemble
+
+        state = checkpoint.load_any(checkpoint_path)
+        self.policy = PolicyEnsemble(LearningConfig.model_validate(state["cfg"]).ensemble_size)
+        self.policy.load_state_dict(state["policy"])
+        self.policy.eval()
+        self.batch = batch
+
+    def __call__(self, images: npt.ArrayLike) -> np.ndarray:
+        arr = np.asarray(images, dtype=np.uint8)
+        out = np.zeros((arr.shape[0], TRUNK_FEATURES), dtype=np.float32)
+        with torch.no_grad():
+            for i in range(0, arr.shape[0], self.batch):
+                x = torch.from_numpy(np.ascontiguousarray(arr[i:i + self.batch]))
+                out[i:i + self.batch] = self.policy.trunk_features(x).mean(dim=0).numpy()
+        return out
