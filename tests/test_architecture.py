@@ -151,20 +151,7 @@ def test_the_rooms_have_no_import_circle() -> None:
                 there = room(m)
                 if here and there and there != here and there != "testbed":
                     arrows[here].add(there)
-    state: dict[str, int] = {}
-
-    def visit(node: str, path: list[str]) -> None:
-        state[node] = 1
-        for nxt in sorted(arrows[node]):
-            if state.get(nxt) == 1:
-                raise AssertionError(" -> ".join([*path, node, nxt]))
-            if nxt not in state:
-                visit(nxt, [*path, node])
-        state[node] = 2
-
-    for node in sorted(arrows):
-        if node not in state:
-            visit(node, [])
+    _assert_no_circle(arrows)
 
 
 def test_no_module_imports_in_a_circle() -> None:
@@ -177,6 +164,11 @@ def test_no_module_imports_in_a_circle() -> None:
         for target in _all_imports(path):
             if target in modules and target != name and modules[target].name != "__init__.py":
                 arrows[name].add(target)
+    _assert_no_circle(arrows)
+
+
+def _assert_no_circle(arrows: dict[str, set[str]]) -> None:
+    """A depth-first walk of ``arrows``; an AssertionError naming the circle it meets."""
     state: dict[str, int] = {}
 
     def visit(node: str, path: list[str]) -> None:
