@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Final
 
 import numpy as np
@@ -60,8 +61,24 @@ class ArmTool:
 
     def solve(self, tcp_mm: Sequence[float], current: Sequence[float] | None = None
               ) -> Solution:
-        return solve_down(self.model, tcp_mm, self.tool_z_mm, self.arm_angle_deg,
-                          self.rotation, current)
+        """The arm's joints for ``tcp_mm``, from ``current`` (a numerical descent,
+        milliseconds each). A solution is a pure function of the tool, the target and
+        the seed, and a layout's checks ask the same ones again (``testbed calibrate``
+        checks the whole robot after each arm, ``testbed check`` every robot of a
+        lab), so the last few thousand are kept (their poses read-only)."""
+        return _solve(self, tuple(float(v) for v in tcp_mm),
+                      None if current is None else tuple(float(v) for v in current))
+
+
+@lru_cache(maxsize=8192)
+def _solve(tool: ArmTool, tcp_mm: tuple[float, ...], current: tuple[float, ...] | None
+           ) -> Solution:
+    sol = solve_down(tool.model, tcp_mm, tool.tool_z_mm, tool.arm_angle_deg, tool.rotation,
+                     current)
+    for pose in (sol.pose, sol.near):
+        if pose is not None:
+            pose.frames.setflags(write=False)
+    return sol
 
 
 def reach_margin(tool: ArmTool, tcp_mm: Sequence[float], pose: Pose,
