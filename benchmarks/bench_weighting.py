@@ -41,7 +41,7 @@ def _learner(weighting: str, batch: int, robot: int, seed: int) -> Learner:
     actions = rng.integers(0, 4, 1375)
     learner.add_human(images[:375], actions[:375])
     for k in range(375, 775, 4):  # labels arrive a step's few at a time
-        learner.add_human(images[k : k + 4], actions[k : k + 4], humans=np.zeros(4, np.int64))
+        learner.add_human(images[k : k + 4], actions[k : k + 4], labellers=np.zeros(4, np.int64))
     for k in range(775, 775 + robot, 6):  # an ended episode's pushes at a time
         n = min(6, 775 + robot - k)
         learner.add_robot(images[k : k + n], actions[k : k + n],

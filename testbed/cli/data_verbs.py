@@ -194,7 +194,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         # both critics, as testbed pretrain: this learner.pt may serve any algorithm
         learner.pretrain(data.images, data.actions,
                          transitions=transitions if len(transitions) else None,
-                         demo_humans=data.humans,
+                         demo_labellers=data.labellers,
+                         labeller_names=data.labeller_names,
                          progress=lambda phase, done, total: bar.on_phase(
                              f"train {phase}", done, total))
     learner.save(Path(args.out))

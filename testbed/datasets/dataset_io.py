@@ -17,7 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from testbed.core.config import ConfigError
-from testbed.datasets.episodes import Episode, Frames, gather, iter_episodes, testbed_meta
+from testbed.datasets.episodes import (
+    Episode,
+    Frames,
+    gather,
+    iter_episodes,
+    of_sources,
+    testbed_meta,
+)
 from testbed.datasets.npz import NPZ_NAME, npz_path, read_npz, write_npz
 from testbed.datasets.sources import find_sources
 
@@ -43,7 +50,7 @@ def load_frames(path: Path, flag: str = "--data") -> Frames:
         src = find_sources([path], flag)
         for note in src.notes:
             sys.stderr.write(f"testbed: {note}\n")
-        return gather(iter_episodes(src))
+        return of_sources(src)
     raise ConfigError(f"{flag}: {str(path)!r} is neither an npz, a LeRobot dataset nor a "
                       "run folder of the testbed")
 

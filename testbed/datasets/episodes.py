@@ -21,7 +21,11 @@ hard reset --, 0 otherwise), ``source_index`` (which run or demos file), and its
 its class episode's outcome and index (``frame_class``, ``episode_outcome``,
 ``class_episode``: ``testbed.datasets.class_columns``, the rules of
 ``testbed.records.frame_classes`` with the run's own k); with those
-``testbed.datasets.training`` recovers the learner's data exactly.
+``testbed.datasets.training`` recovers the learner's data exactly. The columns are
+derived from the store's ``FRAME_DTYPE`` (``COLUMNS``), so a new store field needs no
+edit here; an export of an older layout reads back completed (``read_back``). A frame's
+``human`` is an index into its run's people, so the export's meta names them per run
+(``testbed_meta``) and ``Frames.person`` says who each index of each source was.
 
 Nothing here imports torch, pyarrow or PyAV: numpy alone.
 """
@@ -41,6 +45,7 @@ from testbed.datasets import class_columns
 from testbed.datasets.sources import Sources, load_demos
 from testbed.records.frame_classes import DEFAULT_PRE_STEPS
 from testbed.records.run_classes import pre_steps_of, run_classes
+from testbed.records.run_dir import human_names
 from testbed.records.store import FRAME_DTYPE, MODES, RunData
 
 FORMAT: Final = "testbed.export/1"
@@ -52,30 +57,55 @@ DEMO, POLICY, HUMAN = -1, 0, 1
 DEMO_TASK: Final = "push the cube to its goal (offline demonstration)"
 UNKNOWN_GOAL_TASK: Final = "push the cube to its goal (goal not observed)"
 
-COLUMNS: Final[tuple[tuple[str, str, tuple[int, ...]], ...]] = (
-    ("action", "int64", ()),
+Column = tuple[str, str, tuple[int, ...]]
+"""An exported column: (name, numpy dtype, shape of one frame's value)."""
+
+RENAMED: Final = {"t": "step"}
+"""Store fields exported under another name (LeRobot's ``step`` is the store's ``t``)."""
+STORE_COLUMNS: Final = tuple(n for n in FRAME_DTYPE.names or ()
+                             if n != "image" and n not in RENAMED)
+"""The data store's fields exported under their own names (``t`` is ``step``; the image
+is ``observation.images.top``, an npz's ``image``)."""
+
+
+def _export_dtype(base: np.dtype) -> str:
+    """A store field's dtype in the exports: integers widen to int64 (the store packs
+    them in 1-4 bytes; LeRobot and the learner index with int64), bools and floats keep
+    theirs (float32 stays float32: nothing is gained by widening a measurement)."""
+    return "int64" if base.kind in "iu" else base.name
+
+
+def _store_column(name: str) -> Column:
+    base, shape = FRAME_DTYPE[name].base, FRAME_DTYPE[name].shape
+    return (RENAMED.get(name, name), _export_dtype(base), shape)
+
+
+EXPORT_ONLY: Final[tuple[Column, ...]] = (
     ("intervention", "int64", ()),
-    ("frame_class", "int64", ()),
-    ("episode_outcome", "int64", ()),
-    ("class_episode", "int64", ()),
-    ("mode", "int64", ()),
-    ("human", "int64", ()),
-    ("success", "bool", ()),
-    ("violation", "bool", ()),
-    ("observed", "bool", ()),
-    ("uncertainty", "float32", ()),
-    ("risk", "float32", ()),
-    ("goal", "float32", (2,)),
-    ("wall_time", "float64", ()),
-    ("step", "int64", ()),
-    ("arm", "int64", ()),
-    ("session", "int64", ()),
+    *((name, "int64", ()) for name in class_columns.CLASS_COLUMNS),
     ("source_index", "int64", ()),
 )
-"""Per-frame labels beside the image: (name, numpy dtype, shape of one frame's value)."""
+"""The columns an export adds to the store's: who acted, Sirius-style; the frame's
+class, its class episode's outcome and index; which run or demos file it came from."""
 
-STORE_COLUMNS: Final = tuple(n for n in FRAME_DTYPE.names or () if n not in ("t", "image"))
-"""The data store's fields exported under their own names (``t`` is ``step``)."""
+COLUMNS: Final[tuple[Column, ...]] = (
+    *(_store_column(n) for n in FRAME_DTYPE.names or () if n != "image"), *EXPORT_ONLY)
+"""Per-frame labels beside the image, every format's: the store's ``FRAME_DTYPE``
+(derived here, so a new store field is exported with no edit) and ``EXPORT_ONLY``."""
+
+ESSENTIAL: Final = frozenset({"action", "intervention", "mode", "human", "success",
+                              "violation", "observed", "goal", "step", "arm", "session",
+                              "source_index"})
+"""The columns the readers need to recover the learner's data and the classes
+(``testbed.datasets.training``, ``class_columns.derive``): an export without one is not
+the testbed's. Any other column missing from an older export is filled (``fill_value``)."""
+
+
+def fill_value(dtype: str) -> Any:
+    """What a column holds where its value is not known: -1 for a code or index (as the
+    store's "none"), NaN for a measurement, False for a flag."""
+    kind = np.dtype(dtype).kind
+    return -1 if kind in "iu" else (False if kind == "b" else np.nan)
 
 INDEX_COLUMNS: Final[tuple[tuple[str, str], ...]] = (
     ("timestamp", "float32"), ("frame_index", "int64"), ("episode_index", "int64"),
@@ -113,9 +143,28 @@ class Frames:
     tasks: list[str]
     notes: list[str] = field(default_factory=list)
     """What reading it back derived or could not (one line each; the verbs print them)."""
+    sources: list[str] = field(default_factory=list)
+    """``source_index`` -> what it was (a run's folder, ``demos:<file>``)."""
+    people: dict[int, list[str]] = field(default_factory=dict)
+    """``source_index`` -> its people by human index (run.json's names), for the
+    sources whose names are known; a frame's ``human`` is an index into its source's."""
+    origin: str = ""
+    """Where these frames were read from (what an unnamed human is labelled by)."""
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
+
+    def person(self, source: int, human: int) -> str:
+        """Who human index ``human`` of source ``source`` was: their name where the
+        source names its people, else a label of that source and index alone, which
+        says it is no name (``"human 1 of runs/x (unnamed)"``), so two sources' index 1
+        are never taken for one person."""
+        names = self.people.get(source)
+        if names is not None and 0 <= human < len(names):
+            return names[human]
+        where = (self.sources[source] if 0 <= source < len(self.sources)
+                 else f"source {source} of {self.origin or 'this dataset'}")
+        return f"human {human} of {where} (unnamed)"
 
 
 # ----------------------------------------------------------------- cutting episodes
@@ -167,12 +216,13 @@ def run_episodes(run: Path, steps: int, source_index: int) -> Iterator[Episode]:
         starts = np.flatnonzero(episode_starts(f))
         for lo, hi in zip(starts, [*starts[1:], len(f)], strict=True):
             e = f[lo:hi]
-            # every field of the store under its own name (a new one too), t as step
-            cols = {name: e[name] for name in STORE_COLUMNS}
-            cols.update(step=e["t"], intervention=_intervention(e["mode"]),
+            # every field of the store (a new one too), under its export name
+            cols = {RENAMED.get(name, name): e[name] for name in FRAME_DTYPE.names or ()
+                    if name != "image"}
+            cols.update(intervention=_intervention(e["mode"]),
                         source_index=np.full(len(e), source_index),
                         **{k: v[lo:hi] for k, v in cls.items()})
-            yield Episode(_typed(cols), np.ascontiguousarray(e["image"]),
+            yield Episode(_typed(cols, len(e)), np.ascontiguousarray(e["image"]),
                           goal_task(e["goal"], e["observed"]), source_index, robot)
 
 
@@ -210,17 +260,16 @@ def demo_episodes(path: Path, source_index: int) -> Iterator[Episode]:
         idx = np.asarray(chain)
         images = np.concatenate([d["images"][idx], d["next_images"][idx[-1:]]])
         outcome = class_columns.demo_outcome(d["success"][idx], d["violation"][idx])
+        # what a demonstration knows; every other column (a store field added later
+        # too) is ``fill_value``'s "not known": no human of a fleet, no arm, no goal...
         cols = {**class_columns.of_demo(n, outcome, k),
-            "action": _then(d["actions"][idx], -1),
-            "intervention": np.full(n, DEMO), "mode": np.full(n, MODE_CODE[Mode.TELEOP]),
-            "human": np.full(n, -1), "success": _then(d["success"][idx], False),
-            "violation": _then(d["violation"][idx], False),
-            "observed": np.ones(n, bool), "uncertainty": np.full(n, np.nan),
-            "risk": np.full(n, np.nan), "goal": np.full((n, 2), np.nan),
-            "wall_time": np.full(n, np.nan), "step": np.arange(n), "arm": np.full(n, -1),
-            "session": np.zeros(n), "source_index": np.full(n, source_index),
-        }
-        yield Episode(_typed(cols), images.astype(np.uint8), DEMO_TASK, source_index, "")
+                "action": _then(d["actions"][idx], -1),
+                "intervention": np.full(n, DEMO), "mode": np.full(n, MODE_CODE[Mode.TELEOP]),
+                "success": _then(d["success"][idx], False),
+                "violation": _then(d["violation"][idx], False),
+                "observed": np.ones(n, bool), "step": np.arange(n), "session": np.zeros(n),
+                "source_index": np.full(n, source_index)}
+        yield Episode(_typed(cols, n), images.astype(np.uint8), DEMO_TASK, source_index, "")
 
 
 def _then(values: np.ndarray, last: Any) -> np.ndarray:
@@ -228,8 +277,10 @@ def _then(values: np.ndarray, last: Any) -> np.ndarray:
     return np.concatenate([values, np.asarray([last], dtype=values.dtype)])
 
 
-def _typed(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    return {name: np.asarray(cols[name]).astype(dtype, copy=False).reshape(-1, *shape)
+def _typed(cols: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
+    """``cols`` as ``COLUMNS`` say (dtype, shape), a column not given ``fill_value``."""
+    return {name: (np.asarray(cols[name]).astype(dtype, copy=False).reshape(-1, *shape)
+                   if name in cols else np.full((n, *shape), fill_value(dtype), dtype))
             for name, dtype, shape in COLUMNS}
 
 
@@ -281,6 +332,33 @@ def gather(episodes: Iterable[Episode], fps: int = FPS) -> Frames:
                   list(numbering.tasks))
 
 
+def read_back(frames: Frames, meta: dict[str, Any], where: str) -> Frames:
+    """``frames`` as read from an export (``meta``: its meta/testbed.json, an npz's
+    ``meta``), completed for an older layout: a column it lacks (a store field added
+    since) filled with ``fill_value``, the class columns derived (``with_classes``),
+    its sources and people taken from ``meta`` (none before names: each labeller is
+    then its source and index); one note for each thing filled or unknown."""
+    c, n = frames.columns, len(frames)
+    filled = [(name, dtype, shape) for name, dtype, shape in COLUMNS
+              if name not in c and name not in class_columns.CLASS_COLUMNS]
+    for name, dtype, shape in filled:
+        c[name] = np.full((n, *shape), fill_value(dtype), dtype)
+    if filled:
+        frames.notes.append(f"{where}: exported before the columns "
+                            f"{', '.join(name for name, _, _ in filled)}; read as not known "
+                            "(-1, NaN or false)")
+    frames.origin = where
+    frames.sources = [str(s) for s in meta.get("sources") or []]
+    runs = meta.get("runs") or []
+    frames.people = {k: [str(p) for p in r["people"]] for k, r in enumerate(runs)
+                     if isinstance(r, dict) and isinstance(r.get("people"), list)}
+    if any(isinstance(r, dict) and "people" not in r for r in runs):
+        frames.notes.append(f"{where}: exported before people's names; its labellers are "
+                            "told apart by run and human index only (\"human 0 of <run> "
+                            "(unnamed)\")")
+    return with_classes(frames, where)
+
+
 def with_classes(frames: Frames, where: str) -> Frames:
     """``frames`` read from an export written before the class columns: with them
     derived from its own columns (``class_columns.derive``), and a note saying so."""
@@ -295,9 +373,25 @@ def with_classes(frames: Frames, where: str) -> Frames:
     return frames
 
 
+def people_of(src: Sources) -> dict[int, list[str]]:
+    """``source_index`` -> its people by human index, for the runs whose run.json names
+    them (``Frames.people``; an export's ``meta.runs[k].people``)."""
+    named = {k: human_names(run) for k, (run, _) in enumerate(src.runs)}
+    return {k: names for k, names in named.items() if names is not None}
+
+
+def of_sources(src: Sources) -> Frames:
+    """Run folders and demonstrations read directly (``testbed train --data <run>``):
+    their episodes gathered, with the sources and people an export would have named."""
+    frames = gather(iter_episodes(src))
+    frames.sources, frames.people = src.names, people_of(src)
+    return frames
+
+
 def testbed_meta(src: Sources, fps: int = FPS) -> dict[str, Any]:
     """What the columns' codes mean, and where the frames came from (meta/testbed.json
-    of a LeRobot export, ``meta`` of an npz)."""
+    of a LeRobot export, ``meta`` of an npz): per run its ``people``, each human index's
+    name (null: its run.json names none), since a frame's ``human`` is that run's index."""
     runs = []
     for run, steps in src.runs:
         try:
@@ -306,7 +400,8 @@ def testbed_meta(src: Sources, fps: int = FPS) -> dict[str, Any]:
             options = {}
         runs.append({"path": str(run), "steps": steps, "robots": RunData.of_run(run).robots,
                      "algorithm": options.get("label") or options.get("algorithm"),
-                     "seed": options.get("seed"), "pre_intervention_steps": pre_steps_of(run)})
+                     "seed": options.get("seed"), "pre_intervention_steps": pre_steps_of(run),
+                     "people": human_names(run)})
     return {"format": FORMAT, "fps": fps, "modes": list(MODES),
             "intervention": {str(DEMO): "offline demonstration", str(POLICY):
                              "no human acted (policy, idle, fault, refused)",

@@ -46,16 +46,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from testbed.core.config import ConfigError
-from testbed.datasets.class_columns import CLASS_COLUMNS, CLASS_NAMES, OUTCOME_NAMES
+from testbed.datasets.class_columns import CLASS_NAMES, OUTCOME_NAMES
 from testbed.datasets.episodes import (
     COLUMNS,
+    ESSENTIAL,
     FPS,
     IMAGE_SHAPE,
     INDEX_COLUMNS,
     Episode,
     Frames,
     Numbering,
-    with_classes,
+    read_back,
 )
 from testbed.datasets.stats import Stats
 from testbed.datasets.video import (
@@ -319,7 +320,7 @@ def read_dataset(root: Path, flag: str = "--data") -> Frames:
     if info.get("codebase_version") != CODEBASE_VERSION:
         raise ConfigError(f"{flag}: {root} is LeRobot {info.get('codebase_version')}, "
                           f"not {CODEBASE_VERSION}")
-    missing = [n for n, _, _ in COLUMNS if n not in feats and n not in CLASS_COLUMNS]
+    missing = sorted(n for n in ESSENTIAL if n not in feats)
     if missing or IMAGE_KEY not in feats:
         raise ConfigError(f"{flag}: {root} is a LeRobot dataset without the testbed's "
                           f"columns ({', '.join(missing[:3]) or IMAGE_KEY}); give one "
@@ -328,7 +329,7 @@ def read_dataset(root: Path, flag: str = "--data") -> Frames:
     table = pa.concat_tables([pq.read_table(f) for f in files]).sort_by("index")
     cols: dict[str, np.ndarray] = {}
     for name, dtype, shape in COLUMNS:
-        if name not in table.column_names:  # a class column of an older export
+        if name not in table.column_names:  # an older export's: read_back fills it
             continue
         col = table.column(name).combine_chunks()
         if shape:
@@ -343,7 +344,10 @@ def read_dataset(root: Path, flag: str = "--data") -> Frames:
     else:
         images = _video_frames(root, info, cols["episode_index"], cols["frame_index"])
     tasks = pq.read_table(root / TASKS_PATH).sort_by("task_index").column("task").to_pylist()
-    return with_classes(Frames(cols, images, [str(t) for t in tasks]), str(root))
+    meta_path = root / "meta" / "testbed.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    return read_back(Frames(cols, images, [str(t) for t in tasks]),
+                     meta if isinstance(meta, dict) else {}, str(root))
 
 
 def _video_frames(root: Path, info: dict[str, Any], episode: np.ndarray,

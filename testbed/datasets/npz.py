@@ -16,8 +16,7 @@ from typing import Any, Final
 import numpy as np
 
 from testbed.core.config import ConfigError
-from testbed.datasets.class_columns import CLASS_COLUMNS
-from testbed.datasets.episodes import COLUMNS, INDEX_COLUMNS, Frames, with_classes
+from testbed.datasets.episodes import COLUMNS, ESSENTIAL, INDEX_COLUMNS, Frames, read_back
 
 NPZ_NAME: Final = "frames.npz"
 
@@ -45,15 +44,16 @@ def write_npz(frames: Frames, meta: dict[str, Any], path: Path) -> None:
 
 
 def read_npz(path: Path) -> Frames:
-    """An npz of ``write_npz`` back in memory; ConfigError if it is not one. One written
-    before the class columns gets them derived (``with_classes``, a note)."""
+    """An npz of ``write_npz`` back in memory; ConfigError if it is not one. One of an
+    older layout is completed (``read_back``: columns filled or derived, a note each)."""
     with np.load(path) as z:
         names = [n for n, _, _ in COLUMNS] + [n for n, _ in INDEX_COLUMNS]
-        missing = [n for n in ("image", "tasks", *names)
-                   if n not in z.files and n not in CLASS_COLUMNS]
+        missing = [n for n in ("image", "tasks", *ESSENTIAL, *(n for n, _ in INDEX_COLUMNS))
+                   if n not in z.files]
         if missing:
             raise ConfigError(f"--data: {path} is not an npz of testbed export (missing "
-                              f"{', '.join(missing[:3])})")
+                              f"{', '.join(sorted(missing)[:3])})")
+        meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
         frames = Frames({n: z[n] for n in names if n in z.files}, z["image"],
                         [str(t) for t in z["tasks"]])
-    return with_classes(frames, str(path))
+    return read_back(frames, meta if isinstance(meta, dict) else {}, str(path))

@@ -57,7 +57,7 @@ class ExpertPolicy:
         return PolicyOutput(actions, probs, zeros, zeros.copy(), zeros.copy(), zeros.copy())
 
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
+                  labellers: np.ndarray | None = None) -> None:
         """Never called (the expert row's allocation does not learn)."""
 
     def add_transitions(self, *args: Any) -> None:

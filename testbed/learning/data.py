@@ -30,6 +30,7 @@ transition yet gives its share to the uniform part.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from typing import Any, Final
 
 import numpy as np
@@ -82,16 +83,28 @@ NO_LABELLER: Final = -1
 """The labeller of a label no human of the fleet gave (theta_0's offline demonstrations)."""
 
 
+def unnamed_labeller(human: int) -> str:
+    """The labeller of a label given by the fleet's human index ``human`` with no name
+    (the fleet loop's labels: the run's run.json names its humans by that index)."""
+    return f"human {human}"
+
+
 class PolicyData:
     """Human-labelled (image, action) pairs, each with ``factor`` stored copies, and who
-    gave each label (``labellers``: the fleet's human index, ``NO_LABELLER`` for an
-    offline demonstration), kept for learning that weighs labels by their labeller; the
-    sampling does not read it."""
+    gave each label (``labellers``: a code into ``labeller_names``, one per person;
+    ``NO_LABELLER`` for an offline demonstration), kept for learning that weighs labels
+    by their labeller; the sampling does not read it.
+
+    Why codes into a table of names: a label's giver arrives as an index into the
+    people of the run it came from (the loop's) or of a merged export (``testbed
+    train``); the table is what makes one person one labeller across them."""
 
     def __init__(self, ensemble_size: int, factor: int, seed: int) -> None:
         self.ensemble_size = ensemble_size
         self.factor = factor
         self.seed = seed
+        self.labeller_names: list[str] = []
+        """Labeller code -> the person (a name, or ``unnamed_labeller``'s label)."""
         self._store = self._new_store()
         self._chunks: list[tuple[int, int, str]] = []  # (size, seed, digest) per add()
 
@@ -115,9 +128,11 @@ class PolicyData:
 
     def add(self, images: np.ndarray, actions: np.ndarray, chunk_seed: int | None = None,
             labellers: np.ndarray | None = None, classes: np.ndarray | None = None,
-            outcomes: np.ndarray | None = None) -> None:
+            outcomes: np.ndarray | None = None,
+            names: Sequence[str] | None = None) -> None:
         """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,), each
-        labelled by ``labellers`` (N,) (default: ``NO_LABELLER``), of ``classes`` (N,)
+        labelled by ``labellers`` (N,) (default: ``NO_LABELLER``; an index into
+        ``names``, else the fleet's human index: ``unnamed_labeller``), of ``classes`` (N,)
         (``FrameClass``; default: TELEOP where a human labelled, else DEMO) in episodes
         of ``outcomes`` (N,) (``EpisodeOutcome``; default OPEN). The copies and
         bootstrap weights come from ``chunk_seed`` (default: derived from the data's
@@ -131,7 +146,7 @@ class PolicyData:
         copies = augment_copies(torch.from_numpy(images), self.factor, gen)
         weights = torch.poisson(torch.ones(n, self.ensemble_size), generator=gen)
         who = (np.full(n, NO_LABELLER) if labellers is None
-               else np.asarray(labellers).reshape(n))
+               else self._codes(np.asarray(labellers, np.int64).reshape(n), names))
         if classes is None:
             classes = np.where(who >= 0, FrameClass.TELEOP, FrameClass.DEMO)
         if outcomes is None:
@@ -141,6 +156,21 @@ class PolicyData:
                            classes=torch.from_numpy(np.asarray(classes, np.int8).reshape(n)),
                            outcomes=torch.from_numpy(np.asarray(outcomes, np.int8).reshape(n)))
         self._chunks.append((n, chunk_seed, _digest(copies)))
+
+    def _codes(self, given: np.ndarray, names: Sequence[str] | None) -> np.ndarray:
+        """``given`` labellers as codes of ``labeller_names`` (a person new to it is
+        appended, in the order of their first label, so a reload rebuilds the same)."""
+        out = np.full(given.shape, NO_LABELLER, np.int64)
+        humans = given >= 0
+        values, first = np.unique(given[humans], return_index=True)
+        if names is not None and len(values) and values[-1] >= len(names):
+            raise ValueError(f"labeller {values[-1]} has no name ({len(names)} names given)")
+        for g in values[np.argsort(first)]:
+            person = names[g] if names is not None else unnamed_labeller(int(g))
+            if person not in self.labeller_names:
+                self.labeller_names.append(person)
+            out[given == g] = self.labeller_names.index(person)
+        return out
 
     def sample(self, batch: int, gen: torch.Generator, class_weights: Tensor | None = None
                ) -> tuple[Tensor, Tensor]:
@@ -171,7 +201,8 @@ class PolicyData:
         return (self._store["classes"].numpy().copy(), self._store["outcomes"].numpy().copy())
 
     def labellers(self) -> np.ndarray:
-        """Who gave each label, in the order added (int16 (N,); -1: no human)."""
+        """Who gave each label, in the order added (int16 (N,): codes of
+        ``labeller_names``; -1: no human)."""
         return self._store["labellers"].numpy().copy()
 
     def original_images(self, index: Tensor) -> Tensor:
@@ -190,6 +221,7 @@ class PolicyData:
             "actions": self._store["actions"].clone(),
             "weights": self._store["weights"].clone(),
             "labellers": self._store["labellers"].clone(),
+            "labeller_names": list(self.labeller_names),
             "classes": self._store["classes"].clone(),
             "outcomes": self._store["outcomes"].clone(),
             "chunks": [list(c) for c in self._chunks],
@@ -202,12 +234,15 @@ class PolicyData:
         who = state.get("labellers")  # checkpoints before labellers were kept: unknown
         labellers = (np.full(originals.shape[0], NO_LABELLER) if who is None
                      else who.numpy())
+        # checkpoints before names: codes were the fleet's human indices (unnamed)
+        names = state.get("labeller_names")
         kinds, ends = state.get("classes"), state.get("outcomes")  # before issue 30: derived
         classes = None if kinds is None else kinds.numpy()
         outcomes = None if ends is None else ends.numpy()
         start = 0
         self._store = self._new_store(capacity=max(256, originals.shape[0]))
         self._chunks = []
+        self.labeller_names = []
         same = True
         for i, chunk in enumerate(state["chunks"]):
             # older checkpoints stored the size alone (seed derived from the data's seed),
@@ -218,7 +253,7 @@ class PolicyData:
             part = slice(start, start + size)
             self.add(originals[part], actions[part], seed, labellers[part],
                      None if classes is None else classes[part],
-                     None if outcomes is None else outcomes[part])
+                     None if outcomes is None else outcomes[part], names)
             if len(entry) > 2:
                 same = same and self._chunks[-1][2] == entry[2]
             start += size

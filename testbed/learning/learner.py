@@ -46,7 +46,7 @@ from __future__ import annotations
 import copy
 import threading
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Final
 
@@ -312,17 +312,20 @@ class Learner:
 
     # ------------------------------------------------------------------ data
     def add_human(self, images: npt.ArrayLike, actions: npt.ArrayLike,
-                  humans: npt.ArrayLike | None = None) -> None:
+                  labellers: npt.ArrayLike | None = None,
+                  names: Sequence[str] | None = None) -> None:
         """Human-labelled (image, action) pairs for the policy, stored x factor augmented;
-        ``humans``: who gave each label (the fleet's human index; None: no human of the
-        fleet, e.g. an offline demonstration), kept beside it (``label_humans``)."""
+        ``labellers``: who gave each label (None: no human of the fleet, e.g. an offline
+        demonstration; -1 likewise), an index into ``names`` (a merged export's people)
+        or, without ``names``, the fleet's human index (the loop's); kept beside it as
+        one code per person (``labellers``, ``labeller_names``)."""
         arr = check_images(images)
         acts = check_actions(actions, arr.shape[0])
-        who = None if humans is None else np.asarray(humans, dtype=np.int64).reshape(-1)
+        who = None if labellers is None else np.asarray(labellers, dtype=np.int64).reshape(-1)
         if who is not None and who.shape[0] != arr.shape[0]:
-            raise ValueError(f"humans: {who.shape[0]} labellers for {arr.shape[0]} labels")
+            raise ValueError(f"{who.shape[0]} labellers for {arr.shape[0]} labels")
         with self._lock:
-            self.policy_data.add(arr, acts, labellers=who)
+            self.policy_data.add(arr, acts, labellers=who, names=names)
 
     @property
     def robot_frames(self) -> bool:
@@ -362,10 +365,19 @@ class Learner:
             return self.policy_data.classes()
 
     @property
-    def label_humans(self) -> np.ndarray:
-        """Who gave each of the policy's labels, in the order added (-1: no human)."""
+    def labellers(self) -> np.ndarray:
+        """Who gave each of the policy's labels, in the order added: a code of
+        ``labeller_names`` (-1: no human)."""
         with self._lock:
             return self.policy_data.labellers()
+
+    @property
+    def labeller_names(self) -> list[str]:
+        """Labeller code -> the person: a name (labels trained on from exports that name
+        their people), else ``"human <i>"``, the fleet's human index of the run that gave
+        it (its run.json names it)."""
+        with self._lock:
+            return list(self.policy_data.labeller_names)
 
     def add_transitions(
         self,
@@ -463,7 +475,8 @@ class Learner:
         steps: int | None = None,
         progress: ProgressFn | None = None,
         critics: Iterable[str] | None = None,
-        demo_humans: npt.ArrayLike | None = None,
+        demo_labellers: npt.ArrayLike | None = None,
+        labeller_names: Sequence[str] | None = None,
     ) -> dict[str, float]:
         """Offline training (``testbed pretrain``), in the order the data arrives:
 
@@ -478,8 +491,9 @@ class Learner:
         ``cfg.pretrain_steps``. Returns the mean losses over the last 20 steps of each
         phase run (no key for a phase that ran no step). With ``steps`` None the critics
         take ``cfg.critic_steps`` (``critic_pretrain_steps``, else ``pretrain_steps``).
-        ``demo_humans``: who gave each demo label (``add_human``'s ``humans``; exported
-        runs' teleop labels keep their labeller, offline demonstrations are -1).
+        ``demo_labellers``, ``labeller_names``: who gave each demo label
+        (``add_human``'s ``labellers`` and ``names``; exported runs' teleop labels keep
+        their labeller by name, offline demonstrations are -1).
         """
         total = self.cfg.pretrain_steps if steps is None else int(steps)
         critic_total = self.cfg.critic_steps if steps is None else int(steps)
@@ -490,7 +504,7 @@ class Learner:
         with self._lock:
             if demo_images is not None:
                 self.add_human(demo_images, demo_actions,  # type: ignore[arg-type]
-                               humans=demo_humans)
+                               labellers=demo_labellers, names=labeller_names)
                 tail = [self._policy_update(weighted=False)
                         for _ in _ticks("policy", total, progress)]
                 if tail:

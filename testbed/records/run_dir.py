@@ -129,3 +129,21 @@ def evaluated(policy: Path) -> dict[str, str | None]:
         except (OSError, ValueError, AttributeError):
             pass
     return {"policy": str(policy), "run": run, "algorithm": algorithm}
+
+
+def human_names(run: Path) -> list[str] | None:
+    """Each human index's person in a run (run.json ``humans.people[i].name``), or None
+    when its run.json does not name them (a run from before names, or no run.json).
+
+    Why here: a row's or frame's ``human`` is an index into this run's people only, so
+    whatever leaves the run (an export, a merged training set) carries this list beside
+    the index to say who the person was; the report's and the plan's own readers of the
+    config's ``[humans]`` predate it."""
+    try:
+        people = json.loads((run / META).read_text()).get("humans", {}).get("people")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(people, list) or not all(
+            isinstance(p, dict) and isinstance(p.get("name"), str) for p in people):
+        return None
+    return [p["name"] for p in people]

@@ -264,7 +264,7 @@ class RunDataWriter:
 # ----------------------------------------------------------------- the learner's data
 class DataSink(Protocol):
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None: ...
+                  labellers: np.ndarray | None = None) -> None: ...
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray,
                         next_images: np.ndarray, violation: np.ndarray,
@@ -288,12 +288,13 @@ def add_transitions(sink: DataSink, prev: np.ndarray, observed: np.ndarray,
 
 
 def add_labels(sink: DataSink, frames: np.ndarray) -> None:
-    """The policy's human labels of one step: every teleop push, with who gave it (the
-    frame's ``human``), so a learner can weigh a label by its labeller."""
+    """The policy's human labels of one step: every teleop push, with its labeller (the
+    frame's ``human``: the run's human index, which run.json names), so a learner can
+    weigh a label by who gave it."""
     teleop = (frames["mode"] == _TELEOP) & (frames["action"] >= 0)
     if teleop.any():
         sink.add_human(frames["image"][teleop], frames["action"][teleop].astype(np.int64),
-                       humans=frames["human"][teleop].astype(np.int64))
+                       labellers=frames["human"][teleop].astype(np.int64))
 
 
 def label_feed(sink: object, num_arms: int) -> LabelFeed | None:

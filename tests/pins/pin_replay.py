@@ -137,9 +137,9 @@ class RecordingLearner(_CallLog):
         return got
 
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
+                  labellers: np.ndarray | None = None) -> None:
         self._log_add_human(images, actions)
-        self.learner.add_human(images, actions, humans)
+        self.learner.add_human(images, actions, labellers)
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray,
                         next_images: np.ndarray, violation: np.ndarray,
@@ -209,7 +209,7 @@ class ReplayLearner(_CallLog):
         return {k: np.asarray(v, dtype=np.float32) for k, v in signals.items()}
 
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
+                  labellers: np.ndarray | None = None) -> None:
         self._log_add_human(images, actions)
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray,

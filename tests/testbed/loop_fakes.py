@@ -19,7 +19,7 @@ class QuietLearner:
     """Takes labels and transitions and trains nothing; a subclass gives ``act``."""
 
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
+                  labellers: np.ndarray | None = None) -> None:
         return None
 
     def add_transitions(self, *args: Any) -> None:

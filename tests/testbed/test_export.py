@@ -334,7 +334,8 @@ def test_npz_has_the_same_frames_and_fields(run: Path, tmp_path: Path) -> None:
     meta = json.loads(str(arrays["meta"]))
     assert meta["sources"][1].startswith("demos:") and meta["modes"] == list(MODES)
     assert meta["runs"] == [{"path": str(run), "steps": STEPS, "robots": ROBOTS,
-                             "algorithm": "cur", "seed": 0, "pre_intervention_steps": 3}]
+                             "algorithm": "cur", "seed": 0, "pre_intervention_steps": 3,
+                             "people": None}]
 
 
 def test_training_data_is_what_the_learner_had(run: Path) -> None:
@@ -343,14 +344,14 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
     class Sink:
         def __init__(self) -> None:
             self.labels: list[np.ndarray] = []
-            self.humans: list[np.ndarray] = []
+            self.labellers: list[np.ndarray] = []
             self.trans: list[tuple[np.ndarray, ...]] = []
 
         def add_human(self, images: np.ndarray, actions: np.ndarray,
-                      humans: np.ndarray | None = None) -> None:
-            assert humans is not None
+                      labellers: np.ndarray | None = None) -> None:
+            assert labellers is not None
             self.labels.append(actions)
-            self.humans.append(humans)
+            self.labellers.append(labellers)
 
         def add_transitions(self, *cols: np.ndarray) -> None:
             self.trans.append(cols)
@@ -359,9 +360,12 @@ def test_training_data_is_what_the_learner_had(run: Path) -> None:
     replay(sink, RunData.of_run(run), STEPS)
     data = training_data(dataset_io.load_frames(run))
     assert len(data.actions) == TELEOP_LABELS + DEMOS == sum(map(len, sink.labels)) + DEMOS
-    # who gave each label, as the learner had it; the demonstrations: no human (-1)
-    assert sorted(data.humans[data.humans >= 0]) == sorted(np.concatenate(sink.humans))
-    assert (data.humans == -1).sum() == DEMOS and len(set(data.humans[data.humans >= 0])) > 0
+    # who gave each label, as the learner had it (this run's run.json names no one: its
+    # index, said to be no name); the demonstrations: no human (-1)
+    who = [data.labeller_names[c] for c in data.labellers if c >= 0]
+    assert sorted(who) == sorted(f"human {h} of {run} (unnamed)"
+                                 for h in np.concatenate(sink.labellers))
+    assert (data.labellers == -1).sum() == DEMOS and who
 
     def keyed(images: np.ndarray, actions: np.ndarray, nxt: np.ndarray, v: np.ndarray,
               s: np.ndarray) -> list[tuple[Any, ...]]:

@@ -167,7 +167,7 @@ class _Learner:
                                novelty=z)
 
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
+                  labellers: np.ndarray | None = None) -> None:
         raise AssertionError("no human label expected")
 
     def add_transitions(self, images: np.ndarray, actions: np.ndarray, *rest: Any) -> None:

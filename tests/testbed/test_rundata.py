@@ -174,9 +174,10 @@ class _Recorder:
         return PolicyOutput(images.reshape(n, -1)[:, 1].astype(np.int64) % 4, probs, u, z, z, z)
 
     def add_human(self, images: np.ndarray, actions: np.ndarray,
-                  humans: np.ndarray | None = None) -> None:
-        assert humans is not None  # the labeller travels with every label
-        self.calls.append(("human", [np.array(images), np.array(actions), np.array(humans)]))
+                  labellers: np.ndarray | None = None) -> None:
+        assert labellers is not None  # the labeller travels with every label
+        self.calls.append(("human", [np.array(images), np.array(actions),
+                                     np.array(labellers)]))
 
     def add_transitions(self, *columns: np.ndarray) -> None:
         self.calls.append(("transitions", [np.array(c) for c in columns]))

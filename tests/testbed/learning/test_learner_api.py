@@ -342,25 +342,51 @@ def test_training_state_into_an_old_one_reuses_its_tensors_and_equals_a_fresh_on
 
 def test_who_gave_each_label_is_kept_saved_and_loaded(tmp_path: Path) -> None:
     """The labeller reaches the learner with every label (``records.store.add_labels``
-    passes the frame's human), is kept beside it through a checkpoint, and changes no
-    number: a learner given the same labels without their labellers trains the same."""
+    passes the frame's human), is kept beside it through a checkpoint as one code per
+    person, and changes no number: a learner given the same labels without their
+    labellers trains the same."""
     rng = np.random.default_rng(3)
     b = transitions(12, rng)
     with_who, without = Learner(SMALL, 5), Learner(SMALL, 5)
     with_who.add_human(b.images[:4], b.actions[:4])  # an offline demonstration: no human
-    with_who.add_human(b.images[4:], b.actions[4:], humans=[0, 1, 1, 0, 1, 1, 0, 1])
+    with_who.add_human(b.images[4:], b.actions[4:], labellers=[1, 0, 0, 1, 0, 0, 1, 0])
     without.add_human(b.images[:4], b.actions[:4])
     without.add_human(b.images[4:], b.actions[4:])
-    assert with_who.label_humans.tolist() == [-1] * 4 + [0, 1, 1, 0, 1, 1, 0, 1]
-    assert without.label_humans.tolist() == [-1] * 12
+    # the fleet's human index, unnamed: one code per person, in the order first seen
+    assert with_who.labellers.tolist() == [-1] * 4 + [0, 1, 1, 0, 1, 1, 0, 1]
+    assert with_who.labeller_names == ["human 1", "human 0"]
+    assert without.labellers.tolist() == [-1] * 12 and without.labeller_names == []
     with_who.train_step()
     without.train_step()
     assert same(params(with_who), params(without))
     loaded = Learner.load(with_who.save(tmp_path / "who.pt"))
-    assert loaded.label_humans.tolist() == with_who.label_humans.tolist()
+    assert loaded.labellers.tolist() == with_who.labellers.tolist()
+    assert loaded.labeller_names == with_who.labeller_names
     with pytest.raises(ValueError, match="3 labellers for 2 labels"):
-        with_who.add_human(b.images[:2], b.actions[:2], humans=[0, 1, 1])
+        with_who.add_human(b.images[:2], b.actions[:2], labellers=[0, 1, 1])
     state = with_who.policy_data.state_dict()
+    del state["labeller_names"]  # a checkpoint before names: codes were human indices
+    state["labellers"] = torch.tensor([-1] * 4 + [1, 0, 0, 1, 0, 0, 1, 0], dtype=torch.int16)
+    assert with_who.policy_data.load_state_dict(state)
+    assert [with_who.labeller_names[c] if c >= 0 else None for c in with_who.labellers] \
+        == [None] * 4 + [f"human {h}" for h in (1, 0, 0, 1, 0, 0, 1, 0)]
     del state["labellers"]  # a checkpoint written before labellers were kept
     assert with_who.policy_data.load_state_dict(state)
-    assert with_who.label_humans.tolist() == [-1] * 12
+    assert with_who.labellers.tolist() == [-1] * 12
+
+
+def test_labellers_with_names_are_one_code_per_person(tmp_path: Path) -> None:
+    """Labels given with their people's names (a merged export's): one code per name,
+    whatever index each batch gave it; the names survive a checkpoint."""
+    rng = np.random.default_rng(4)
+    b = transitions(6, rng)
+    learner = Learner(SMALL, 5)
+    learner.add_human(b.images[:3], b.actions[:3], labellers=[0, 1, -1], names=["ana", "bo"])
+    learner.add_human(b.images[3:], b.actions[3:], labellers=[1, 0, 0], names=["cy", "ana"])
+    assert learner.labeller_names == ["ana", "bo", "cy"]
+    assert learner.labellers.tolist() == [0, 1, -1, 0, 2, 2]
+    loaded = Learner.load(learner.save(tmp_path / "named.pt"))
+    assert loaded.labeller_names == ["ana", "bo", "cy"]
+    assert loaded.labellers.tolist() == learner.labellers.tolist()
+    with pytest.raises(ValueError, match="labeller 2 has no name"):
+        learner.add_human(b.images[:1], b.actions[:1], labellers=[2], names=["ana", "bo"])

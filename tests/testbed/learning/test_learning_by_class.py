@@ -178,7 +178,7 @@ def test_unit_weights_on_human_labels_only_draw_todays_samples() -> None:
                         robot_failed=0.0), seed=3, train={"policy"}, read=())
     for learner in (today, same):
         learner.add_human(_images(10, 1), np.arange(10) % 4)
-        learner.add_human(_images(5, 2), np.arange(5) % 4, humans=np.array([0, 1, 0, 1, 0]))
+        learner.add_human(_images(5, 2), np.arange(5) % 4, labellers=np.array([0, 1, 0, 1, 0]))
         learner.add_robot(_images(4, 3), np.zeros(4, np.int64), np.full(4, FrameClass.ROBOT),
                           np.full(4, EpisodeOutcome.SUCCESS))
         for _ in range(4):
