@@ -242,6 +242,9 @@ OVERVIEW_MIN_WIDTH: Final = 620
 OVERVIEW_COLUMNS: Final = 4
 OVERVIEW_HUMAN_H: Final = 20
 """Height of one human's line under the tiles (their estimates, ``FleetStatus.operators``)."""
+WAIT_BADGE: Final[Colour] = (20, 20, 20)
+"""The box behind a waiting arm's "waited N" in its tile: dark, so the count reads on any
+table image."""
 
 
 def overview_tile_rect(index: int, num_robots: int) -> tuple[int, int, int, int]:
@@ -287,6 +290,21 @@ def _human_lines(img: Frame, labels: Sequence[str], status: FleetStatus | None,
         _text(img, text, (8, top + 6 + (h + 1) * OVERVIEW_HUMAN_H - 5), DIM_TEXT, 0.42)
 
 
+def wait_label(waited: int | None) -> str | None:
+    """A waiting arm's badge: the steps it has waited for a human (``RobotStatus.waited``,
+    its row's ``"waited"``; the web page's queue shows the same number); None when it
+    does not wait."""
+    return None if waited is None else f"waited {int(waited)}"
+
+
+def wait_badge_rect(index: int, num_robots: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of arm ``index``'s wait badge: the top right of its image, inside
+    the mode border, where it hides no part of the label under the tile."""
+    _, y0, x1, _ = overview_tile_rect(index, num_robots)
+    b = OVERVIEW_BORDER
+    return x1 - b - 84, y0 + b, x1 - b, y0 + b + 18
+
+
 def _tile(img: Frame, index: int, n: int, robot: RobotStatus) -> None:
     x0, y0, x1, y1 = overview_tile_rect(index, n)
     colour = MODE_COLOURS.get(robot.mode, (200, 200, 200))
@@ -301,6 +319,11 @@ def _tile(img: Frame, index: int, n: int, robot: RobotStatus) -> None:
     who = f" h{robot.human}" if robot.human is not None else ""
     label = _fit(f"{robot.robot} {robot.mode.value}{who}", x1 - x0)
     _text(img, label, (x0 + 3, y1 + 15), colour, 0.42)
+    badge = wait_label(robot.waited)
+    if badge is not None:
+        bx0, by0, bx1, by1 = wait_badge_rect(index, n)
+        img[by0:by1, bx0:bx1] = WAIT_BADGE
+        _text(img, badge, (bx0 + 4, by1 - 5), TEXT, 0.42)
 
 
 def render_overview(

@@ -78,13 +78,20 @@ def fleet_doc(status: FleetStatus, names: Sequence[str] = ()) -> dict[str, Any]:
     its words), and one text serves every page without rendering a frame per human.
     With ``names`` (by human index), an arm held by a named human also has its ``name``,
     so the page says who holds it; unnamed, the text is what it always was.
+    Each arm has ``waited`` (the steps it has waited for a human, its row's ``"waited"``;
+    null when not waiting), and ``queue`` lists the waiting arms, longest wait first
+    (ties in the fleet's order): who needs a person most, read without a frame.
     """
     counters = ("t", "steps", "successes", "hard_resets", "idle_time", "human_actions")
+    robots = [_robot_doc(r.robot, r.mode.value, r.human, names, r.waited)
+              for r in status.robots]
     return {  # int(): a loop may count in numpy integers, which JSON does not take
         "type": "fleet", **{k: int(getattr(status, k)) for k in counters},
         "rohe": round(float(status.rohe), 5), "paused": bool(status.paused),
-        "robots": [_robot_doc(r.robot, r.mode.value, r.human, names)
-                   for r in status.robots],
+        "robots": robots,
+        "queue": [{"robot": r["robot"], "mode": r["mode"], "waited": r["waited"]}
+                  for r in sorted((r for r in robots if r["waited"] is not None),
+                                  key=lambda r: -r["waited"])],
     }
 
 
@@ -101,11 +108,12 @@ def operators_doc(status: FleetStatus | None,
              "resets": int(e.resets)} for e in status.operators]
 
 
-def _robot_doc(robot: str, mode: str, human: int | None,
-               names: Sequence[str]) -> dict[str, Any]:
+def _robot_doc(robot: str, mode: str, human: int | None, names: Sequence[str],
+               waited: int | None = None) -> dict[str, Any]:
     """One arm of the ``"fleet"`` text; ``name`` only when its human has one."""
     doc: dict[str, Any] = {"robot": robot, "mode": mode,
-                           "human": None if human is None else int(human)}
+                           "human": None if human is None else int(human),
+                           "waited": None if waited is None else int(waited)}
     if human is not None and 0 <= human < len(names):
         doc["name"] = names[human]
     return doc

@@ -183,6 +183,9 @@ class RobotStatus:
     mode: Mode
     image: ImageArray | None
     human: int | None = None
+    waited: int | None = None
+    """Steps this robot has waited for a human, this one included (its row's
+    ``"waited"``); None when it is not waiting. Both consoles show it."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -40,6 +40,16 @@ intervention; it starts at 0 on the first timestep. A kind change restarts it: t
 contract's teleop-to-reset conversion, and (our decision) a finished reset whose arm
 is chosen again for teleoperation, so that the new teleop is held its full t_T.
 
+``waited`` is ``served``'s other side, per arm: how many consecutive timesteps the arm
+has waited for a human, the last one included (1 on a wait's first step, 0 when it
+does not wait). An arm waits at a step when it ends the allocation with no human and
+either violates (idle until a reset) or has a key > 0 (the priority asked for a human
+and none was free: queued). A faulted arm has an all-zero key and is not violating
+to the allocator, so it does not wait; a fault ends a wait. The count is kept here,
+where the allocation is decided, so that the priority functions (the next step's
+``PrioritySignals.waited``), the rows (``"waited"``), a resume (``state_dict``) and the
+consoles all read the one number; it never changes an allocation by itself.
+
 ``gains`` (optional, float (M, N): human h's expected gain on arm i this step, from
 ``testbed.fleet.operators.OperatorModel``) turns on the matched pairing
 (``algorithm.operators = "matched"``): the candidates in key order each go to the free
@@ -116,8 +126,10 @@ class Allocator:
 
     After :meth:`step`, per arm: :attr:`assignment` (human or -1), :attr:`kinds`
     (``InterventionKind`` or ``None``), :attr:`served` (earlier consecutive timesteps
-    of the current intervention, 0 on its first); :meth:`held_kinds` gives both as
-    tuples for the fleet loop and the console.
+    of the current intervention, 0 on its first), :attr:`waited` (consecutive
+    timesteps the arm has waited for a human, this one included; 0: not waiting);
+    :meth:`held_kinds` gives kinds and served as tuples for the fleet loop and the
+    console.
     """
 
     def __init__(
@@ -147,6 +159,8 @@ class Allocator:
         self._human_arm = np.full(self.num_humans, -1, dtype=np.int64)
         self._human_kind = np.zeros(self.num_humans, dtype=np.int8)
         self._human_served = np.zeros(self.num_humans, dtype=np.int64)
+        # Per arm: consecutive steps it has waited for a human, the last one included.
+        self._arm_waited = np.zeros(self.num_robots, dtype=np.int64)
         self._steps = 0
 
     # ------------------------------------------------------------------ queries
@@ -183,6 +197,14 @@ class Allocator:
         busy = self._human_arm >= 0
         out[self._human_arm[busy]] = self._human_served[busy]
         return out
+
+    @property
+    def waited(self) -> npt.NDArray[np.int64]:
+        """(N,) per arm, consecutive steps it has waited for a human up to the last step,
+        that step included (0: it did not wait at the last step; a copy). Before a step
+        it is what the arms have waited so far (``PrioritySignals.waited``); after it,
+        what each arm's row records (``"waited"``)."""
+        return self._arm_waited.copy()
 
     def held_kinds(self) -> list[tuple[InterventionKind | None, int]]:
         """Per arm ``(kind, served)`` after the last step; ``(None, 0)`` for no human."""
@@ -273,7 +295,15 @@ class Allocator:
         self._human_arm = new_arm.astype(np.int64)
         self._human_kind = new_kind
         self._human_served = new_served.astype(np.int64)
+        self._count_waits(key_arr, viol)
         return self.assignment
+
+    def _count_waits(self, keys: npt.NDArray[np.float64], viol: npt.NDArray[np.bool_]
+                     ) -> None:
+        """After the allocation: an arm with no human that violates or whose key asked
+        for one waits a step more; every other arm's wait is over (0)."""
+        waiting = (viol | lex_positive(keys)) & (self.assignment < 0)
+        self._arm_waited = np.where(waiting, self._arm_waited + 1, 0).astype(np.int64)
 
     def _pair_blind(self, chosen: npt.NDArray[np.int64], free: npt.NDArray[np.bool_],
                     kind: npt.NDArray[np.int8], served: npt.NDArray[np.int64],
@@ -396,11 +426,16 @@ class Allocator:
             "human_arm": [int(a) for a in self._human_arm],
             "human_kind": [_KIND_TO_STR[int(k)] for k in self._human_kind],
             "human_served": [int(s) for s in self._human_served],
+            "arm_waited": [int(w) for w in self._arm_waited],
             "rng": rng_state_json(self._rng),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore :meth:`state_dict`'s output; the fleet shape and t_T, t_R must match."""
+        """Restore :meth:`state_dict`'s output; the fleet shape and t_T, t_R must match.
+
+        ``arm_waited`` may be missing (the same version 1: a checkpoint written before
+        the waits were kept, whose rows have no ``"waited"`` either): every arm then
+        starts its wait afresh, which changes no allocation."""
         try:
             if state["version"] != _STATE_VERSION:
                 raise ValueError(f"allocator state version {state['version']!r} is not "
@@ -414,20 +449,23 @@ class Allocator:
             kind = np.asarray([_STR_TO_KIND[k] for k in state["human_kind"]],
                               dtype=np.int8).reshape(m)
             served = np.asarray(state["human_served"], dtype=np.int64).reshape(m)
+            waited = np.asarray(state.get("arm_waited", [0] * self.num_robots),
+                                dtype=np.int64).reshape(self.num_robots)
             steps = int(state["steps"])
             rng_state = state["rng"]
         except (KeyError, TypeError) as exc:
             raise ValueError(f"allocator state is malformed ({exc!r})") from None
         busy = arm >= 0
         if (np.any(arm >= self.num_robots) or np.any(arm < -1) or np.any(served < 0)
-                or np.any((kind == KIND_NONE) == busy)
+                or np.any((kind == KIND_NONE) == busy) or np.any(waited < 0)
                 or np.unique(arm[busy]).size != int(busy.sum())):
-            raise ValueError("allocator state is inconsistent (arms, kinds, served)")
+            raise ValueError("allocator state is inconsistent (arms, kinds, served, waited)")
         try:
             self._rng = rng_from_state(rng_state)
         except ValueError as exc:
             raise ValueError(f"allocator state: {exc}") from None
         self._human_arm, self._human_kind, self._human_served = arm, kind, served
+        self._arm_waited = waited
         self._steps = steps
 
     # ---------------------------------------------------------------- internals

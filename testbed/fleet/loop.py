@@ -118,6 +118,9 @@ class _Decided:
     first: dict[str, float | None] = field(default_factory=dict)
     """Robots whose human acted for the first time in the intervention this step ->
     the seconds the human reported (``HumanResponse.waited_s``)."""
+    waited: dict[str, int] = field(default_factory=dict)
+    """Robots waiting for a human after this step's allocation -> the steps they have
+    waited, this one included (``Allocator.waited``; the row's ``"waited"``)."""
 
 
 @dataclass
@@ -238,6 +241,7 @@ class FleetLoop:
             faulted=faulted,
             available=available,
             features=getattr(out, "features", None),
+            waited=self.allocator.waited,  # so far: up to the last step's allocation
             **{name: None if getattr(out, name, None) is None
                else np.asarray(getattr(out, name), dtype=float)
                for name in sorted(LEARNED_SIGNALS)},
@@ -249,6 +253,8 @@ class FleetLoop:
         requests = self._requests(observations, assignment, faulted, keys, out)
         responses = self.humans.act(requests, t) if requests else {}
         d = _Decided(out, keys, faulted, {}, [], {}, {}, away, released)
+        d.waited = {r: int(w) for r, w in zip(self.robots, self.allocator.waited, strict=True)
+                    if w > 0}
         self._assign_modes(d, assignment, violating, responses)
         self._hold_cells(d)
         return d
@@ -409,7 +415,7 @@ class FleetLoop:
         self.status.t = t + 1
         self.status.robots = [
             RobotStatus(r, a.mode, seen.images[i] if not d.faulted[i] else None,
-                        d.humans_of[r])
+                        d.humans_of[r], a.waited)
             for i, (r, a) in enumerate(zip(self.robots, record.arms, strict=True))
         ]
         if self._after_step is not None:  # checkpoint first: a stop in show keeps step t
@@ -448,6 +454,7 @@ class FleetLoop:
                 refused=refused,
                 served=d.served.get(r),
                 first=((d.served[r], d.first[r]) if r in d.first else None),
+                waited=d.waited.get(r),
                 monitor=None if faulted else ({k: float(v[i]) for k, v in monitored.items()}
                                               | self.algorithm.row_fields(i)),
             ))

@@ -9,7 +9,7 @@ registry that names them (``get_algorithm(name, ...)``) is :mod:`testbed.fleet.a
 ::
 
     learner.act ─► PrioritySignals(t, violating, uncertainty, risk, goal_risk, novelty,
-                   faulted, available)
+                   faulted, available, waited)
                                    │
                    Algorithm.priority.keys(signals) ─► keys (N, K), names[K]
                                    │
@@ -55,6 +55,10 @@ Decisions beyond the paper's text (also in docs/notes/core.md):
 * Humans not ``available`` (away from the web console) are never newly assigned (the
   allocator's rule); Random sizes its new arms to the free humans who are present, so
   its effort count never includes arms no one could take.
+* ``waited`` (how long each arm has waited for a human, ``Allocator.waited``) is not
+  learned: the loop hands it to every priority function, and none of the paper's reads
+  it. A priority that ranks by it is a class here and a registry entry
+  (``tests/testbed/test_wait_signal.py`` adds one, "d", in a test).
 
 What an algorithm reads decides what the learner trains (issue 13): each priority class
 declares the learned signals its keys read (``reads``: a subset of uncertainty, risk,
@@ -126,6 +130,10 @@ class PrioritySignals:
     available: npt.ArrayLike | None = None
     """Bool (M,), per human: present this step (``None``: all are). Away humans (web
     console) get no new intervention (``Allocator.step``'s ``available``)."""
+    waited: npt.ArrayLike | None = None
+    """Int (N,): the steps each arm has waited for a human so far, up to the last step
+    (``Allocator.waited`` before this step's allocation; 0: not waiting), so a priority
+    may put the longest wait first. Not learned: it comes from the allocator."""
 
     def violating_array(self, n: int) -> BoolArray:
         return self._mask("violating", n, None)
@@ -147,6 +155,17 @@ class PrioritySignals:
             raise ValueError(f"signals.{name} must be bool with shape ({size},), "
                              f"got {arr.dtype} {arr.shape}")
         return arr
+
+    def waited_array(self, n: int) -> npt.NDArray[np.int64]:
+        """``waited`` as (n,) ints >= 0, checked; all 0 when it is None (no wait known)."""
+        if self.waited is None:
+            return np.zeros(n, dtype=np.int64)
+        arr = np.asarray(self.waited)
+        if (arr.shape != (n,) or not np.issubdtype(arr.dtype, np.integer)
+                or (arr < 0).any()):
+            raise ValueError(f"signals.waited must be ints >= 0 with shape ({n},), "
+                             f"got {arr.dtype} {arr.shape}")
+        return arr.astype(np.int64)
 
     def features_array(self, n: int) -> FloatArray:
         """``features`` as (n, D), checked: present, n rows, no NaN."""

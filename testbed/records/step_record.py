@@ -50,6 +50,11 @@ class ArmStep:
     """The failure monitor's scores of the arm beyond ``uncertainty`` and ``risk``
     (``novelty``, ``goal_risk`` when its critic ran, ...; testbed/monitor/), so a run's
     rows alone can score every signal as a failure predictor. None when faulted."""
+    waited: int | None = None
+    """With no human after the allocation and waiting for one (idle after a violation,
+    or queued: its key asked for a human and none was free): the steps it has waited,
+    this one included (``Allocator.waited``, 1 on a wait's first step); None when not
+    waiting. ``served``'s other side: a wait is the run of steps from a 1."""
 
     def to_entry(self) -> dict[str, Any]:
         entry: dict[str, Any] = {
@@ -71,6 +76,8 @@ class ArmStep:
             entry["first"] = {"steps": self.first[0], "s": self.first[1]}
         if self.monitor:
             entry["monitor"] = dict(self.monitor)
+        if self.waited is not None:
+            entry["waited"] = self.waited
         return entry
 
 
@@ -139,7 +146,8 @@ class StepRecord:
         arms = [ArmStep(r["robot"], Mode(r["mode"]), r["human"], r["action"],
                         bool(r["success"]), bool(r["violation"]), r["uncertainty"],
                         r["risk"], tuple(r.get("key", ())), r.get("refused"),
-                        r.get("served"), _first(r.get("first")), r.get("monitor"))
+                        r.get("served"), _first(r.get("first")), r.get("monitor"),
+                        r.get("waited"))
                 for r in row["robots"]]
         return cls(int(row["t"]), session, arms, images, observed, goals,
                    dict(row.get("faults", {})), list(row.get("away", [])),

@@ -40,7 +40,9 @@ from testbed.core.atomic import atomic_write_json, fsync_dir, json_default
 from testbed.core.types import NUM_ACTIONS, Mode
 
 __all__ = [
+    "ARM_FIELDS",
     "STEPS_FILE",
+    "STEP_FIELDS",
     "SUMMARY_FILE",
     "RecordError",
     "RunWriter",
@@ -58,6 +60,19 @@ _NOHUMAN_MODES: Final = frozenset({Mode.AUTONOMOUS.value, Mode.IDLE.value})
 # A refused push (the host could not push, e.g. the cube was not found) counts as neither
 # autonomous nor human (docs/notes/core.md); the human of a refused teleop step is kept.
 
+STEP_FIELDS: Final[dict[str, bool]] = {
+    "t": True, "robots": True, "faults": False, "away": False, "released": False,
+    "wall_time": False, "duration_s": False}
+"""Every key of a step row that :func:`validate_step` checks, and whether it is required.
+docs/ARCHITECTURE.md's "Run records" lists the same keys (optional ones with ``?``):
+``tests/testbed/test_records.py`` holds the two and the validator's behaviour equal, so
+a new key is added here, in the validator and in the doc together."""
+ARM_FIELDS: Final[dict[str, bool]] = {
+    "robot": True, "mode": True, "human": True, "action": True, "success": True,
+    "violation": True, "uncertainty": True, "risk": True, "key": True, "refused": False,
+    "served": False, "first": False, "monitor": False, "waited": False}
+"""The same for each entry of a row's ``robots``."""
+
 
 class RecordError(ValueError):
     """A run record that does not follow the run-record schema; the message says where."""
@@ -74,9 +89,13 @@ def _is_number(v: object) -> bool:
 
 
 def _check_intervention(row: dict[str, Any], where: str, human: object) -> None:
-    """``served`` (an int >= 0, only with a human) and ``first`` (``{"steps": served,
-    "s": seconds >= 0 or null}``, only with ``served``): optional, as rows written before
-    them have neither."""
+    """``served`` (an int >= 0, only with a human), ``first`` (``{"steps": served,
+    "s": seconds >= 0 or null}``, only with ``served``) and ``waited`` (an int >= 1,
+    only without a human): optional, as rows written before them have none."""
+    waited = row.get("waited")
+    if "waited" in row and not (_is_int(waited) and waited >= 1 and human is None):
+        raise RecordError(f"{where}.waited must be an int >= 1 on an arm with no human, "
+                          f"got {waited!r} (human {human!r})")
     served = row.get("served")
     if "served" in row and not (_is_int(served) and served >= 0 and human is not None):
         raise RecordError(f"{where}.served must be an int >= 0 on an arm with a human, "
@@ -101,9 +120,11 @@ def validate_step(obj: object) -> None:
     may have one (a teleop push the host refused) and says why in ``refused``.
     ``wall_time`` and ``duration_s`` (timing for the lab) are optional, so records
     written before them still read, but must be finite numbers >= 0 when present; so
-    are ``away`` (a list of human indices) and ``released`` (a list of ``{"robot": one
-    of the row's robots, "human": int >= 0, "why": str}``), and an arm's ``monitor``
-    (the failure monitor's scores beyond uncertainty and risk: name -> finite number).
+    are ``faults`` (robot -> reason), ``away`` (a list of human indices) and
+    ``released`` (a list of ``{"robot": one of the row's robots, "human": int >= 0,
+    "why": str}``), and an arm's ``monitor`` (the failure monitor's scores beyond
+    uncertainty and risk: name -> finite number) and ``waited`` (steps waited for a
+    human, on an arm with none). Every key checked: ``STEP_FIELDS``, ``ARM_FIELDS``.
     """
     if not isinstance(obj, dict):
         raise RecordError(f"step must be a JSON object, got {type(obj).__name__}")
@@ -170,7 +191,12 @@ def validate_step(obj: object) -> None:
 
 
 def _validate_presence(obj: dict[str, Any], robots: set[str]) -> None:
-    """The optional ``away`` and ``released`` of a step row (away humans, web console)."""
+    """The optional ``faults`` (robot -> the host's reason), ``away`` and ``released``
+    of a step row (away humans, web console)."""
+    faults = obj.get("faults", {})
+    if not (isinstance(faults, dict) and all(
+            isinstance(k, str) and isinstance(v, str) for k, v in faults.items())):
+        raise RecordError(f"faults must map robots to reasons (strings), got {faults!r}")
     if "away" in obj:
         away = obj["away"]
         if not isinstance(away, list) or not all(_is_int(h) and h >= 0 for h in away):

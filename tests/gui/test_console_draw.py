@@ -179,6 +179,23 @@ def test_the_overview_has_a_line_per_human_with_their_estimates(
     assert before.shape[:2][::-1] == draw.overview_size(3)
 
 
+def test_a_waiting_arms_tile_says_how_long_it_has_waited() -> None:
+    """A badge in the tile's top right ("waited N", ``RobotStatus.waited``); none on an
+    arm that does not wait, so the tiles of a calm fleet are what they were."""
+    robots = [RobotStatus("cell0/left", Mode.IDLE, arm_image(), None, 7),
+              RobotStatus("cell0/right", Mode.AUTONOMOUS, arm_image())]
+    frame = draw.render_overview(FleetStatus(3, 10, robots=robots))
+    calm = draw.render_overview(FleetStatus(3, 10, robots=[
+        RobotStatus("cell0/left", Mode.IDLE, arm_image()), robots[1]]))
+    assert draw.wait_label(7) == "waited 7" and draw.wait_label(None) is None
+    x0, y0, x1, y1 = draw.wait_badge_rect(0, 2)
+    assert tuple(frame[y0 + 1, x0 + 1]) == draw.WAIT_BADGE
+    assert (frame[y0:y1, x0:x1].min(axis=-1) > 120).sum() > 20  # the text, bright on dark
+    x1_tile = draw.overview_tile_rect(0, 2)[2]
+    assert (frame[:, :x1_tile] != calm[:, :x1_tile]).any()
+    assert (frame[:, x1_tile:] == calm[:, x1_tile:]).all(), "no badge on the calm arm"
+
+
 def test_overview_before_the_first_step() -> None:
     frame = draw.render_overview(None)
     assert frame.ndim == 3 and frame.shape[1] >= draw.OVERVIEW_MIN_WIDTH

@@ -185,6 +185,8 @@ for (const k of ["step", "successes", "hard_resets", "idle_time", "human_actions
 }
 return {idle: !q("idle").hidden, waiting: q("waiting").textContent, counters,
         none: !q("fleet-none").hidden,
+        queue: q("fleet-queue").hidden ? null
+          : Array.from(q("fleet-queue").children, (li) => li.textContent),
         rows: Array.from(q("fleet-robots").tBodies[0].rows,
                          (tr) => Array.from(tr.cells, (td) => td.textContent))};
 """
@@ -222,16 +224,19 @@ def test_a_human_without_an_arm_sees_the_wait_and_the_fleet(
     image = arm_image()
     web.show(7, FleetStatus(7, 24, successes=3, hard_resets=1, idle_time=4,
                             human_actions=9, rohe=0.25, robots=[
-        RobotStatus("cell0/left", Mode.AUTONOMOUS, image),
+        RobotStatus("cell0/left", Mode.AUTONOMOUS, image, None, 2),  # queued
         RobotStatus("cell0/right", Mode.TELEOP, image, 1),
-        RobotStatus("cell1/left", Mode.IDLE, image),
+        RobotStatus("cell1/left", Mode.IDLE, image, None, 5),
         RobotStatus("cell1/right", Mode.FAULT, None)]))
     panel = _panel_when(page, lambda p: p["counters"]["step"] == "7 of 24", "step 7")
     assert panel["counters"] == {"step": "7 of 24", "successes": "3", "hard_resets": "1",
                                  "idle_time": "4", "human_actions": "9", "rohe": "0.250"}
-    assert panel["rows"] == [["cell0/left", "autonomous", "-"],
-                             ["cell0/right", "teleop", "bo"],
-                             ["cell1/left", "idle", "-"], ["cell1/right", "fault", "-"]]
+    assert panel["rows"] == [["cell0/left", "autonomous", "-", "2 steps"],
+                             ["cell0/right", "teleop", "bo", "-"],
+                             ["cell1/left", "idle", "-", "5 steps"],
+                             ["cell1/right", "fault", "-", "-"]]
+    assert panel["queue"] == ["cell1/left (idle): waited 5 steps",  # the longest first
+                              "cell0/left (autonomous): waited 2 steps"]
     assert not panel["none"]
     text = page.find_element(By.ID, "idle").text  # what is on screen, not only in the DOM
     assert "Waiting for an arm" in text and "cell0/right" in text and "bo" in text
@@ -244,7 +249,8 @@ def test_a_human_without_an_arm_sees_the_wait_and_the_fleet(
         RobotStatus("cell1/right", Mode.AUTONOMOUS, image)]))
     panel = _panel_when(page, lambda p: p["counters"]["step"] == "8 of 24", "live: step 8")
     assert (panel["counters"]["successes"], panel["counters"]["rohe"]) == ("4", "0.300")
-    assert panel["rows"][2] == ["cell1/left", "reset", "bo"]
+    assert panel["rows"][2] == ["cell1/left", "reset", "bo", "-"]
+    assert panel["queue"] is None, "nobody waits: no queue"
 
     # an arm for human 0: the image and its buttons come back; done, the panel again
     call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 8))

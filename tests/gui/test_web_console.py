@@ -386,8 +386,9 @@ def test_named_humans_on_their_links_pages_frames_and_the_fleets_text() -> None:
                                     WAIT_S)
                 fleet = next(x for x in page.texts if x["type"] == "fleet")
             assert fleet["robots"] == [
-                {"robot": "cell0/left", "mode": "teleop", "human": 1, "name": "<b>bo</b>"},
-                {"robot": "cell0/right", "mode": "autonomous", "human": None}]
+                {"robot": "cell0/left", "mode": "teleop", "human": 1, "waited": None,
+                 "name": "<b>bo</b>"},
+                {"robot": "cell0/right", "mode": "autonomous", "human": None, "waited": None}]
             # the overview's rows of the humans' estimates, by name
             assert overview.latest["operators"] == []
             web.show(4, FleetStatus(4, 10, operators=[
@@ -790,7 +791,7 @@ def test_human_pages_get_the_fleets_state_each_step_and_the_latest_on_opening(
 
     assert fleet_texts(page) == [], "no state before the first step"
     robots = [RobotStatus("cell0/left", Mode.TELEOP, arm_image(), 1),
-              RobotStatus("cell0/right", Mode.IDLE, None)]
+              RobotStatus("cell0/right", Mode.IDLE, None, None, 4)]
     for t in (5, 6):
         web.show(t, FleetStatus(t, 50, successes=t, hard_resets=1, idle_time=2,
                                 human_actions=3, rohe=0.125, robots=robots))
@@ -798,8 +799,9 @@ def test_human_pages_get_the_fleets_state_each_step_and_the_latest_on_opening(
     assert fleet_texts(page)[-1] == {
         "type": "fleet", "t": 6, "steps": 50, "successes": 6, "hard_resets": 1,
         "idle_time": 2, "human_actions": 3, "rohe": 0.125, "paused": False,
-        "robots": [{"robot": "cell0/left", "mode": "teleop", "human": 1},
-                   {"robot": "cell0/right", "mode": "idle", "human": None}]}
+        "robots": [{"robot": "cell0/left", "mode": "teleop", "human": 1, "waited": None},
+                   {"robot": "cell0/right", "mode": "idle", "human": None, "waited": 4}],
+        "queue": [{"robot": "cell0/right", "mode": "idle", "waited": 4}]}
     late = open_page(1)
     wait_until(lambda: [x["t"] for x in fleet_texts(late)] == [6], "the latest, at once")
     overview.wait_frame(lambda h: h.get("point", {}).get("t") == 6)

@@ -28,8 +28,9 @@ from testbed.learning.api import PolicyOutput
 from testbed.records.steps import RunWriter
 
 ARMS = ["h/a", "h/b", "h/c"]
-ARMS_SIGNALS = {"t", "violating", "faulted", "available"}
-"""``PrioritySignals`` fields that come from the arms and the humans, not the learner."""
+ARMS_SIGNALS = {"t", "violating", "faulted", "available", "waited"}
+"""``PrioritySignals`` fields that come from the arms, the humans and the allocator (how
+long each arm has waited), not the learner."""
 MATRICES = {"features"}
 """Learned, (N, D) per arm: carried beside the signals, not a signal."""
 

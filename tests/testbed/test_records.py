@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -11,8 +12,12 @@ import numpy as np
 import pytest
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
+from testbed.core.types import IMAGE_SIZE, Mode
 from testbed.records.metrics import cumulative, rohe, summarize
+from testbed.records.step_record import ArmStep, StepRecord
 from testbed.records.steps import (
+    ARM_FIELDS,
+    STEP_FIELDS,
     STEPS_FILE,
     RecordError,
     RunWriter,
@@ -327,7 +332,11 @@ def test_valid_rows_pass() -> None:
      ({"robot": ""}, r"robot must be a non-empty string"),
      ({"mode": "refused"}, r"mode 'refused' needs the reason in refused, got None"),
      ({"mode": "refused", "refused": ""}, r"needs the reason in refused"),
-     ({"refused": "cube not found"}, r"refused is only for mode 'refused'")],
+     ({"refused": "cube not found"}, r"refused is only for mode 'refused'"),
+     ({"waited": 0}, r"waited must be an int >= 1 on an arm with no human"),
+     ({"waited": 2.0}, r"waited must be an int"),
+     ({"mode": "refused", "refused": "x", "human": 0, "waited": 2},
+      r"waited must be an int >= 1 on an arm with no human, got 2 \(human 0\)")],
 )
 def test_bad_rows_name_the_field(patch: dict[str, Any], match: str) -> None:
     row = {"t": 0, "robots": [robot("h/a", "autonomous", action=1) | patch]}
@@ -352,3 +361,87 @@ def test_bad_rows_name_the_field(patch: dict[str, Any], match: str) -> None:
 def test_bad_steps_name_the_field(row: dict[str, Any], match: str) -> None:
     with pytest.raises(RecordError, match=match):
         validate_step(row)
+
+
+# ------------------------------------------------------- the schema as documented
+DOC = Path(__file__).resolve().parents[2] / "docs" / "ARCHITECTURE.md"
+
+
+def documented_keys() -> tuple[dict[str, bool], dict[str, bool]]:
+    """docs/ARCHITECTURE.md's steps.jsonl line ("Run records"): the keys of a row and of
+    each arm, each with whether it is required (no ``?`` after it); keys nested deeper
+    (``first``'s ``steps``, ``s``) are the field's own shape, not keys of the row."""
+    section = DOC.read_text(encoding="utf-8").split("## Run records", 1)[1]
+    start = section.index('`{"t": int')
+    block = section[start + 1: section.index("}`", start) + 1]
+    step: dict[str, bool] = {}
+    arm: dict[str, bool] = {}
+    depth = 0
+    for m in re.finditer(r'"(\w+)"(\?)?:|[\[\]{}]', block):
+        if m.group(0) in "{[":
+            depth += 1
+        elif m.group(0) in "}]":
+            depth -= 1
+        elif depth in (1, 3):  # the row's object; an arm's, inside "robots": [{
+            (step if depth == 1 else arm)[m.group(1)] = m.group(2) is None
+    assert depth == 0, "the documented row's brackets do not close"
+    return step, arm
+
+
+WITHOUT: dict[str, dict[str, Any]] = {"served": {"first": ...}, "refused": {"mode": "teleop"}}
+"""What else an arm without an optional key changes to stay valid (``...``: dropped too):
+``first`` is on a ``served``, mode ``refused`` says why in ``refused``."""
+
+
+def full_row() -> dict[str, Any]:
+    """A row with every key the writer can write: an arm with a human (refused, served,
+    first, monitor) and an arm waiting for one, faults, away, released, timing."""
+    arms = [ArmStep("h/a", Mode.REFUSED, 1, 2, True, False, 0.25, 0.5, (3.0,),
+                    refused="guard stop", served=4, first=(4, 1.5), monitor={"novelty": 0.5}),
+            ArmStep("h/b", Mode.IDLE, None, None, False, False, 0.1, 0.2, (1.0,), waited=3)]
+    images = np.zeros((2, IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
+    return StepRecord(5, 0, arms, images, np.ones(2, bool), np.zeros((2, 2), np.float32),
+                      faults={"h/c": "timeout"}, away=[0],
+                      released=[{"robot": "h/a", "human": 0, "why": "away"}],
+                      wall_time=1.5, duration_s=0.25).to_row()
+
+
+def test_the_documented_step_schema_is_the_one_validate_step_checks() -> None:
+    """The doc's keys are the validator's (``STEP_FIELDS``, ``ARM_FIELDS``), required as
+    it requires them, and every key the writer writes is one of them: a key added to
+    the writer, the validator or the doc alone fails here."""
+    step, arm = documented_keys()
+    assert step == STEP_FIELDS, "docs/ARCHITECTURE.md's row keys (\"?\": optional)"
+    assert arm == ARM_FIELDS, "docs/ARCHITECTURE.md's arm keys (\"?\": optional)"
+    row = full_row()
+    validate_step(row)
+    assert set(row) == set(STEP_FIELDS)
+    assert {k for r in row["robots"] for k in r} == set(ARM_FIELDS)
+    for key, required in STEP_FIELDS.items():  # the validator knows each key ...
+        broken = row | {key: float("nan")}
+        with pytest.raises(RecordError):
+            validate_step(broken)
+        missing = {k: v for k, v in row.items() if k != key}  # ... and requires it or not
+        if required:
+            with pytest.raises(RecordError):
+                validate_step(missing)
+        else:
+            validate_step(missing)
+    for key, required in ARM_FIELDS.items():
+        i = next(i for i, r in enumerate(row["robots"]) if key in r)
+        for value in (float("nan"), ...):
+            arms = [dict(r) for r in row["robots"]]
+            if value is ...:
+                del arms[i][key]
+                for other, then in WITHOUT.get(key, {}).items():
+                    if then is ...:
+                        del arms[i][other]
+                    else:
+                        arms[i][other] = then
+            else:
+                arms[i][key] = value
+            if value is ... and not required:
+                validate_step(row | {"robots": arms})
+            else:
+                with pytest.raises(RecordError):
+                    validate_step(row | {"robots": arms})

@@ -29,6 +29,7 @@ ROW_ONLY = {
     "served": "an intervention's count, derived again from the modes by the tools",
     "first": "the human's response time, per intervention",
     "monitor": "the failure monitor's scores beyond uncertainty and risk: a run's own set",
+    "waited": "the allocator's wait count, its bookkeeping: derived again from the rows",
 }
 """``ArmStep`` fields kept only in steps.jsonl, and why. A new field goes either into
 ``FRAME_DTYPE`` or here, on purpose."""
@@ -44,20 +45,26 @@ def full_arm() -> ArmStep:
                    monitor={"novelty": 0.125, "goal_risk": 0.75})
 
 
+def waiting_arm() -> ArmStep:
+    """An arm with no human, waiting for one: the fields only such an arm has set."""
+    return ArmStep("right", Mode.IDLE, None, None, False, False, 0.125, 0.25, (1.0,),
+                   waited=3)
+
+
 def test_every_arm_field_is_in_the_row_it_validates_and_it_reads_back() -> None:
-    arm = full_arm()
+    arms = [full_arm(), waiting_arm()]  # an arm with a human, and one waiting for one
     fields = {f.name for f in dataclasses.fields(ArmStep)}
-    assert all(getattr(arm, f) != f_default for f, f_default in
+    assert all(any(getattr(arm, f) != f_default for arm in arms) for f, f_default in
                ((f.name, f.default) for f in dataclasses.fields(ArmStep))
-               if f_default is not dataclasses.MISSING), "full_arm sets every field"
-    assert set(arm.to_entry()) == fields
-    images = np.zeros((1, IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
-    record = StepRecord(7, 0, [arm], images, np.ones(1, bool), np.zeros((1, 2), np.float32),
+               if f_default is not dataclasses.MISSING), "the two arms set every field"
+    assert set(arms[0].to_entry()) | set(arms[1].to_entry()) == fields
+    images = np.zeros((2, IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
+    record = StepRecord(7, 0, arms, images, np.ones(2, bool), np.zeros((2, 2), np.float32),
                         wall_time=12.5, duration_s=0.75)
     row = record.to_row()
     validate_step(row)
-    back = StepRecord.from_row(row, 0, images, np.ones(1, bool), np.zeros((1, 2), np.float32))
-    assert back.arms == [arm]
+    back = StepRecord.from_row(row, 0, images, np.ones(2, bool), np.zeros((2, 2), np.float32))
+    assert back.arms == arms
     assert (back.t, back.wall_time, back.duration_s) == (7, 12.5, 0.75)
 
 

@@ -142,7 +142,8 @@ const TestbedConsole = (() => {
       tr.dataset.robot = r.robot;
       const held = r.human === null ? "-"
         : (r.name || `human ${r.human}`) + (r.human === me ? " (you)" : "");
-      [r.robot, r.mode, held].forEach((text, i) => {
+      const waited = r.waited === null || r.waited === undefined ? "-" : `${r.waited} steps`;
+      [r.robot, r.mode, held, waited].forEach((text, i) => {
         const td = document.createElement("td");  // textContent: names are not markup
         td.textContent = text;
         if (i === 1) td.className = "mode mode-" + r.mode;
@@ -151,6 +152,22 @@ const TestbedConsole = (() => {
       return tr;
     });
     table.tBodies[0].replaceChildren(...rows);
+    showQueue(doc === null ? [] : (doc.queue || []));
+  }
+
+  // The arms waiting for a person (the server's "queue": longest wait first), each
+  // with its wait in steps: the same number the row's "waited" and the overview's
+  // badge say.
+  function showQueue(queue) {
+    const list = document.getElementById("fleet-queue");
+    document.getElementById("queue-title").hidden = queue.length === 0;
+    list.hidden = queue.length === 0;
+    list.replaceChildren(...queue.map((q) => {
+      const li = document.createElement("li");  // textContent: arm names are not markup
+      li.dataset.robot = q.robot;
+      li.textContent = `${q.robot} (${q.mode}): waited ${q.waited} steps`;
+      return li;
+    }));
   }
 
   // The panel takes the frame's place and size; the buttons stay where they are
