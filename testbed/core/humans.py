@@ -22,6 +22,17 @@ import numpy.typing as npt
 from testbed.core.types import FleetStatus, HumanRequest, HumanResponse
 
 
+def unnamed_human(index: int) -> str:
+    """What human ``index`` of a fleet is called when the config names no one
+    (``[humans]`` without ``[[humans.people]]``: ``human0``, ``human1``...).
+
+    Why one home, here: such a name says nothing beyond the index, so whatever takes a
+    person's name out of a run (``testbed.records.run_dir.human_names``, the learner's
+    labellers) must tell it from a name someone gave, and ``core`` is what the people's
+    schema, the records and the learner all import."""
+    return f"human{index}"
+
+
 class HumansStopRequested(Exception):
     """A human asked for a graceful stop of the trial (Esc, confirmed, on the console)."""
 

@@ -145,9 +145,10 @@ class Frames:
     """What reading it back derived or could not (one line each; the verbs print them)."""
     sources: list[str] = field(default_factory=list)
     """``source_index`` -> what it was (a run's folder, ``demos:<file>``)."""
-    people: dict[int, list[str]] = field(default_factory=dict)
-    """``source_index`` -> its people by human index (run.json's names), for the
-    sources whose names are known; a frame's ``human`` is an index into its source's."""
+    people: dict[int, list[str | None]] = field(default_factory=dict)
+    """``source_index`` -> its people by human index (run.json's names; None: one the
+    config did not name), for the sources that list them; a frame's ``human`` is an
+    index into its source's."""
     origin: str = ""
     """Where these frames were read from (what an unnamed human is labelled by)."""
 
@@ -159,9 +160,10 @@ class Frames:
         source names its people, else a label of that source and index alone, which
         says it is no name (``"human 1 of runs/x (unnamed)"``), so two sources' index 1
         are never taken for one person."""
-        names = self.people.get(source)
-        if names is not None and 0 <= human < len(names):
-            return names[human]
+        names = self.people.get(source) or []
+        name = names[human] if 0 <= human < len(names) else None
+        if name is not None:
+            return name
         where = (self.sources[source] if 0 <= source < len(self.sources)
                  else f"source {source} of {self.origin or 'this dataset'}")
         return f"human {human} of {where} (unnamed)"
@@ -350,7 +352,8 @@ def read_back(frames: Frames, meta: dict[str, Any], where: str) -> Frames:
     frames.origin = where
     frames.sources = [str(s) for s in meta.get("sources") or []]
     runs = meta.get("runs") or []
-    frames.people = {k: [str(p) for p in r["people"]] for k, r in enumerate(runs)
+    frames.people = {k: [None if p is None else str(p) for p in r["people"]]
+                     for k, r in enumerate(runs)
                      if isinstance(r, dict) and isinstance(r.get("people"), list)}
     if any(isinstance(r, dict) and "people" not in r for r in runs):
         frames.notes.append(f"{where}: exported before people's names; its labellers are "
@@ -373,7 +376,7 @@ def with_classes(frames: Frames, where: str) -> Frames:
     return frames
 
 
-def people_of(src: Sources) -> dict[int, list[str]]:
+def people_of(src: Sources) -> dict[int, list[str | None]]:
     """``source_index`` -> its people by human index, for the runs whose run.json names
     them (``Frames.people``; an export's ``meta.runs[k].people``)."""
     named = {k: human_names(run) for k, (run, _) in enumerate(src.runs)}

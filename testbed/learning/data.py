@@ -37,6 +37,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from testbed.core.humans import unnamed_human
 from testbed.core.types import IMAGE_SIZE, EpisodeOutcome, FrameClass
 from testbed.learning.api import Transitions
 from testbed.learning.augment import augment_copies
@@ -83,12 +84,6 @@ NO_LABELLER: Final = -1
 """The labeller of a label no human of the fleet gave (theta_0's offline demonstrations)."""
 
 
-def unnamed_labeller(human: int) -> str:
-    """The labeller of a label given by the fleet's human index ``human`` with no name
-    (the fleet loop's labels: the run's run.json names its humans by that index)."""
-    return f"human {human}"
-
-
 class PolicyData:
     """Human-labelled (image, action) pairs, each with ``factor`` stored copies, and who
     gave each label (``labellers``: a code into ``labeller_names``, one per person;
@@ -104,7 +99,9 @@ class PolicyData:
         self.factor = factor
         self.seed = seed
         self.labeller_names: list[str] = []
-        """Labeller code -> the person (a name, or ``unnamed_labeller``'s label)."""
+        """Labeller code -> the person: a name, an unnamed human of a source
+        (``testbed.datasets``), or ``unnamed_human`` of the fleet's index (the loop's
+        labels: the run's run.json names that index)."""
         self._store = self._new_store()
         self._chunks: list[tuple[int, int, str]] = []  # (size, seed, digest) per add()
 
@@ -132,7 +129,7 @@ class PolicyData:
             names: Sequence[str] | None = None) -> None:
         """Append validated uint8 images (N, 64, 64, 3) and int64 actions (N,), each
         labelled by ``labellers`` (N,) (default: ``NO_LABELLER``; an index into
-        ``names``, else the fleet's human index: ``unnamed_labeller``), of ``classes`` (N,)
+        ``names``, else the fleet's human index, named ``unnamed_human``), of ``classes`` (N,)
         (``FrameClass``; default: TELEOP where a human labelled, else DEMO) in episodes
         of ``outcomes`` (N,) (``EpisodeOutcome``; default OPEN). The copies and
         bootstrap weights come from ``chunk_seed`` (default: derived from the data's
@@ -166,7 +163,7 @@ class PolicyData:
         if names is not None and len(values) and values[-1] >= len(names):
             raise ValueError(f"labeller {values[-1]} has no name ({len(names)} names given)")
         for g in values[np.argsort(first)]:
-            person = names[g] if names is not None else unnamed_labeller(int(g))
+            person = names[g] if names is not None else unnamed_human(int(g))
             if person not in self.labeller_names:
                 self.labeller_names.append(person)
             out[given == g] = self.labeller_names.index(person)

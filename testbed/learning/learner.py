@@ -374,8 +374,8 @@ class Learner:
     @property
     def labeller_names(self) -> list[str]:
         """Labeller code -> the person: a name (labels trained on from exports that name
-        their people), else ``"human <i>"``, the fleet's human index of the run that gave
-        it (its run.json names it)."""
+        their people), else ``"human<i>"`` (``unnamed_human``), the fleet's human index of
+        the run that gave it (its run.json names it)."""
         with self._lock:
             return list(self.policy_data.labeller_names)
 

@@ -14,6 +14,7 @@ from typing import Any, Literal, Self
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from testbed.core.config import FieldProblem, Name, StrictModel, checking_files, expand_path
+from testbed.core.humans import unnamed_human
 
 __all__ = ["TOKEN_PATTERN", "HumanProfile", "HumansConfig", "WebConsoleConfig"]
 
@@ -167,7 +168,7 @@ class HumansConfig(StrictModel):
     @property
     def names(self) -> list[str]:
         """Each human's name, by index."""
-        return [p.name for p in self.people] or [f"human{i}" for i in range(self.count)]
+        return [p.name for p in self.people] or [unnamed_human(i) for i in range(self.count)]
 
     @property
     def profiles(self) -> list[HumanProfile]:

@@ -24,6 +24,7 @@ import tomli_w
 
 from testbed.core.atomic import atomic_write_bytes, atomic_write_json
 from testbed.core.config import ConfigError, ModelT, StrictModel, parse_model
+from testbed.core.humans import unnamed_human
 
 CONFIG = "config.toml"
 STEPS = "steps.jsonl"
@@ -131,14 +132,15 @@ def evaluated(policy: Path) -> dict[str, str | None]:
     return {"policy": str(policy), "run": run, "algorithm": algorithm}
 
 
-def human_names(run: Path) -> list[str] | None:
-    """Each human index's person in a run (run.json ``humans.people[i].name``), or None
-    when its run.json does not name them (a run from before names, or no run.json).
+def human_names(run: Path) -> list[str | None] | None:
+    """Each human index's person in a run (run.json ``humans.people[i].name``; None for
+    one the config did not name, whose name is the index's ``unnamed_human``), or None
+    when its run.json does not list them (a run from before, or no run.json).
 
     Why here: a row's or frame's ``human`` is an index into this run's people only, so
     whatever leaves the run (an export, a merged training set) carries this list beside
-    the index to say who the person was; the report's and the plan's own readers of the
-    config's ``[humans]`` predate it."""
+    the index to say who the person was; a default name is no person (two runs' human0
+    may be anyone), so it is never taken for one."""
     try:
         people = json.loads((run / META).read_text()).get("humans", {}).get("people")
     except (OSError, ValueError, AttributeError):
@@ -146,4 +148,5 @@ def human_names(run: Path) -> list[str] | None:
     if not isinstance(people, list) or not all(
             isinstance(p, dict) and isinstance(p.get("name"), str) for p in people):
         return None
-    return [p["name"] for p in people]
+    return [None if p["name"] == unnamed_human(i) else p["name"]
+            for i, p in enumerate(people)]

@@ -22,6 +22,7 @@ from testbed.cli import main
 from testbed.datasets import dataset_io, episodes
 from testbed.datasets.npz import read_npz
 from testbed.datasets.training import TrainingData, training_data
+from testbed.people.people_config import HumansConfig
 from testbed.records.run_dir import human_names
 
 PEOPLE = (["ana", "bo"], ["cy", "ana"])
@@ -137,3 +138,16 @@ def test_a_new_store_field_is_an_export_column_with_no_edit() -> None:
             base = episodes.FRAME_DTYPE[field]
             assert shape == base.shape
             assert dtype == ("int64" if base.base.kind in "iu" else base.base.name)
+
+
+def test_a_name_the_config_did_not_give_names_no_one(tmp_path: Path) -> None:
+    """Without ``[[humans.people]]`` the humans are called ``human0``, ``human1``...:
+    that is an index, not a person, so two such runs' human0 are two labellers."""
+    defaults = HumansConfig(count=2).names  # what run.json then lists
+    one = named_run(tmp_path / "one", defaults)
+    two = named_run(tmp_path / "two", [defaults[0], "bo"])
+    assert human_names(one) == [None, None] and human_names(two) == [None, "bo"]
+    dataset_io.export([one.parent], "npz", tmp_path / "both.npz")
+    assert who(training_data(read_npz(tmp_path / "both.npz"))) == {
+        f"human 0 of {one} (unnamed)": 2, f"human 1 of {one} (unnamed)": 1,
+        f"human 0 of {two} (unnamed)": 2, "bo": 1}

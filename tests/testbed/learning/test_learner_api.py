@@ -354,7 +354,7 @@ def test_who_gave_each_label_is_kept_saved_and_loaded(tmp_path: Path) -> None:
     without.add_human(b.images[4:], b.actions[4:])
     # the fleet's human index, unnamed: one code per person, in the order first seen
     assert with_who.labellers.tolist() == [-1] * 4 + [0, 1, 1, 0, 1, 1, 0, 1]
-    assert with_who.labeller_names == ["human 1", "human 0"]
+    assert with_who.labeller_names == ["human1", "human0"]
     assert without.labellers.tolist() == [-1] * 12 and without.labeller_names == []
     with_who.train_step()
     without.train_step()
@@ -369,7 +369,7 @@ def test_who_gave_each_label_is_kept_saved_and_loaded(tmp_path: Path) -> None:
     state["labellers"] = torch.tensor([-1] * 4 + [1, 0, 0, 1, 0, 0, 1, 0], dtype=torch.int16)
     assert with_who.policy_data.load_state_dict(state)
     assert [with_who.labeller_names[c] if c >= 0 else None for c in with_who.labellers] \
-        == [None] * 4 + [f"human {h}" for h in (1, 0, 0, 1, 0, 0, 1, 0)]
+        == [None] * 4 + [f"human{h}" for h in (1, 0, 0, 1, 0, 0, 1, 0)]
     del state["labellers"]  # a checkpoint written before labellers were kept
     assert with_who.policy_data.load_state_dict(state)
     assert with_who.labellers.tolist() == [-1] * 12
