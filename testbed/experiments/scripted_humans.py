@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.core.humans import Presence
+from testbed.core.humans import Presence, unnamed_human
 from testbed.core.types import (
     NUM_ACTIONS,
     FleetStatus,
@@ -58,7 +58,7 @@ class ScriptedHumans:
     def _profile(self, human: int) -> HumanProfile:
         if human < len(self.profiles):
             return self.profiles[human]
-        return HumanProfile(name=f"human{human}")
+        return HumanProfile(name=unnamed_human(human))
 
     def _rng(self, t: int, human: int, robot: str, what: int) -> np.random.Generator:
         arm = self._robot_index.get(robot, sum(robot.encode()))

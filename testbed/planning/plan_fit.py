@@ -60,6 +60,7 @@ import numpy as np
 import numpy.typing as npt
 
 from testbed.core.config import ConfigError
+from testbed.core.humans import unnamed_human
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import ALGORITHMS, get_algorithm
 from testbed.fleet.operators import POOL_PUSHES, PRIOR_PUSHES, PRIOR_TIMES
@@ -406,7 +407,7 @@ def _load(path: Path) -> _Run | str:
     count = int(humans.get("count", 2))
     people = humans.get("people") or []
     names = ([str(p["name"]) for p in people] if len(people) == count
-             else [f"human{i}" for i in range(count)])
+             else [unnamed_human(i) for i in range(count)])
     rows = read_steps(path / "steps.jsonl")
     if not rows:
         return "no steps"

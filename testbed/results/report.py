@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
+from testbed.core.humans import unnamed_human
 from testbed.records.metrics import cumulative, summarize
 from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
 from testbed.records.steps import read_steps
@@ -155,7 +156,7 @@ def run_summary(path: Path) -> dict[str, Any]:
 def _human_names(humans: dict[str, Any], count: int) -> list[str]:
     people = humans.get("people") or []
     return ([str(p["name"]) for p in people] if len(people) == count
-            else [f"human{i}" for i in range(count)])
+            else [unnamed_human(i) for i in range(count)])
 
 
 def rohe_parts(steps: list[dict[str, Any]]) -> dict[str, int]:
