@@ -53,6 +53,15 @@ def load_learner(cfg: FleetConfig, path: Path) -> Any:
     return Learner.load(path, cfg.learning)
 
 
+def name_fleet(learner: Any, cfg: FleetConfig) -> None:
+    """Tell a learner who the run's humans are (``Learner.name_fleet``: the loop gives
+    labels by human index, and the learner keeps them by name); a learner without the
+    call (the expert's, a test's) is left as it is."""
+    tell = getattr(learner, "name_fleet", None)
+    if callable(tell):
+        tell(cfg.humans.names)
+
+
 def resume_learner(cfg: FleetConfig, run: RunDir, state: Mapping[str, Any], *,
                    learns: bool = True) -> Any:
     """The learner as it was after step ``state["t"]`` of ``run``: the run's starting
@@ -68,6 +77,7 @@ def resume_learner(cfg: FleetConfig, run: RunDir, state: Mapping[str, Any], *,
     if saved["format"] == ckpt_format.FORMAT:
         return load_learner(cfg, path)
     learner = load_learner(cfg, run.start_learner)
+    name_fleet(learner, cfg)  # before the replay: its labels by name, as the loop's were
     if learns:
         replay(learner, RunData.of_run(run.path), int(state["t"]) + 1)
     learner.load_training_state(saved, where=str(path))

@@ -49,6 +49,7 @@ from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import (
     keep_demos,
     load_learner,
+    name_fleet,
     pretrained_learner,
     resume_learner,
 )
@@ -303,6 +304,7 @@ def _prepare(run: _Run, hosts: Hosts, humans: Humans, hooks: TrialHooks
     pending = {k: q for k, q in run.cfg.algorithm.quantile_thresholds.items()
                if SIGNAL[k] in algorithm.spec.reads}
     hosts, learner = _starting_learner(run, algorithm, hosts, humans, hooks)
+    name_fleet(learner, run.cfg)  # the loop's labels come by human index: whose
     if pending:  # a new run (a resumed one reads the resolved config back)
         run.cfg, resolved = resolve_thresholds(run.cfg, learner, only=pending)
         run.dir.write_config(run.written.model_copy(update={"algorithm": run.cfg.algorithm}))

@@ -200,6 +200,8 @@ class Learner:
         """What the policy has trained on, in its own feature space (``act``'s ``ood``)."""
         self._sampler = generator(self.seed, STREAM_SAMPLE)
         self.policy_data = PolicyData(cfg.ensemble_size, cfg.augmentation_factor, self.seed)
+        self._fleet_names: list[str] | None = None
+        """The run's people by human index (``name_fleet``; not saved)."""
         self.transitions = TransitionBuffer()
         self.policy_updates = 0
         self.critic_updates = 0
@@ -325,7 +327,17 @@ class Learner:
         if who is not None and who.shape[0] != arr.shape[0]:
             raise ValueError(f"{who.shape[0]} labellers for {arr.shape[0]} labels")
         with self._lock:
-            self.policy_data.add(arr, acts, labellers=who, names=names)
+            self.policy_data.add(arr, acts, labellers=who,
+                                 names=self._fleet_names if names is None else names)
+
+    def name_fleet(self, names: Sequence[str]) -> None:
+        """Who the fleet's human indices are in the run this learner now learns in (its
+        config's ``[humans]`` names, as its run.json lists them): a label given by index
+        alone (the loop's, a resume's replay) is kept under that person's name. Not
+        saved with the learner: one loaded into another run is told that run's people
+        (its index 0 may be someone else)."""
+        with self._lock:
+            self._fleet_names = list(names)
 
     @property
     def robot_frames(self) -> bool:
@@ -373,9 +385,9 @@ class Learner:
 
     @property
     def labeller_names(self) -> list[str]:
-        """Labeller code -> the person: a name (labels trained on from exports that name
-        their people), else ``"human<i>"`` (``unnamed_human``), the fleet's human index of
-        the run that gave it (its run.json names it)."""
+        """Labeller code -> the person: a name (the run's people, ``name_fleet``; or an
+        export's), else ``"human<i>"`` (``unnamed_human``: the config named no one, or
+        the learner was not told the run's people), else an export's unnamed human."""
         with self._lock:
             return list(self.policy_data.labeller_names)
 

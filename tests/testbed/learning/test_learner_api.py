@@ -390,3 +390,21 @@ def test_labellers_with_names_are_one_code_per_person(tmp_path: Path) -> None:
     assert loaded.labellers.tolist() == learner.labellers.tolist()
     with pytest.raises(ValueError, match="labeller 2 has no name"):
         learner.add_human(b.images[:1], b.actions[:1], labellers=[2], names=["ana", "bo"])
+
+
+def test_a_learner_told_the_runs_people_keeps_the_loops_labels_by_name(
+        tmp_path: Path) -> None:
+    """The loop gives labels by human index; a learner told the run's people
+    (``name_fleet``, as the trial and a resume do) keeps them by name. It is not saved:
+    loaded into another run, index 0 is whoever that run says."""
+    rng = np.random.default_rng(5)
+    b = transitions(6, rng)
+    learner = Learner(SMALL, 5)
+    learner.name_fleet(["ana", "human1"])  # human1: a name the config did not give
+    learner.add_human(b.images[:3], b.actions[:3], labellers=[1, 0, 1])
+    assert learner.labeller_names == ["human1", "ana"]
+    again = Learner.load(learner.save(tmp_path / "run1.pt"))
+    again.name_fleet(["cy", "ana"])  # the next run: ana is index 1 there
+    again.add_human(b.images[3:], b.actions[3:], labellers=[1, 0, 1])
+    assert again.labeller_names == ["human1", "ana", "cy"]
+    assert again.labellers.tolist() == [0, 1, 0, 1, 2, 1]
