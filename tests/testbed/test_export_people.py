@@ -120,6 +120,16 @@ def test_an_export_before_names_and_a_column_reads_with_labellers_by_run_and_ind
     # names unknown: index 0 of one run is not index 0 of the other, and says so
     assert who(merged) == {f"human 0 of {one} (unnamed)": 2, f"human 1 of {one} (unnamed)": 1,
                            f"human 0 of {two} (unnamed)": 2, f"human 1 of {two} (unnamed)": 1}
+    # a LeRobot export before names: the same (meta/testbed.json without people)
+    dataset_io.export([two], "lerobot", tmp_path / "lr", "png")
+    meta_path = tmp_path / "lr" / "meta" / "testbed.json"
+    meta = json.loads(meta_path.read_text())
+    del meta["runs"][0]["people"]
+    meta_path.write_text(json.dumps(meta))
+    frames = dataset_io.load_frames(tmp_path / "lr")
+    assert any("before people's names" in n for n in frames.notes)
+    assert who(training_data(frames)) == {f"human 0 of {two} (unnamed)": 2,
+                                          f"human 1 of {two} (unnamed)": 1}
     # an export missing a column the learner's data needs is not read as one
     bare = _before_names(tmp_path / "one.npz", tmp_path / "bare.npz", "human")
     with pytest.raises(Exception, match="missing human"):
