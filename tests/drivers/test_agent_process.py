@@ -141,6 +141,7 @@ def test_a_broken_frame_gets_a_fatal_error_frame_and_exit_3(run_agent: type[Agen
     assert rc == agent.EXIT_PROTOCOL and out == b""
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_agent_exits_after_idle_timeout_without_moving(run_agent: type[Agent]) -> None:
     a = run_agent("--backend", "twin", "--no-physics", "--idle-timeout", "0.5")
     assert a.call("hello", version=p.PROTOCOL_VERSION, host="h").type == "hello_ok"

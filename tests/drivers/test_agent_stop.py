@@ -29,6 +29,8 @@ from drivers.backends.base import ArmOutcome
 from drivers.errors import BackendError
 from drivers.transport import agent_argv
 
+pytestmark = pytest.mark.alone  # wall-clock bounds (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[2]
 SLOW_ARM = Path(__file__).with_name("slow_arm.py")
 FACES = {"left": 1, "right": 2}

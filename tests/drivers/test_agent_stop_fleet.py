@@ -37,6 +37,8 @@ from gui.keys import Command, KeyCommand
 from testbed.core.types import Fault, PushResult
 from testbed.core.wrappers import HostsWrapper, HumansWrapper
 
+pytestmark = pytest.mark.alone  # wall-clock bounds (tests/conftest.py)
+
 SLOW_ARM = Path(__file__).with_name("slow_arm.py")
 PUSH = {"slow/left": 1, "slow/right": 2}
 

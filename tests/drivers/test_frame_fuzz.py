@@ -325,11 +325,13 @@ def run_fuzz(monkeypatch: pytest.MonkeyPatch, direction: str, seed: int) -> dict
     return seen
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_fuzz_replies_agent_to_controller(monkeypatch: pytest.MonkeyPatch) -> None:
     seen = run_fuzz(monkeypatch, "reply", seed=20260522)
     assert seen.get("semantic", 0) > 300 and seen.get("truncate", 0) > 50
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 @pytest.mark.slow
 def test_fuzz_requests_controller_to_agent(monkeypatch: pytest.MonkeyPatch) -> None:
     seen = run_fuzz(monkeypatch, "request", seed=20260523)

@@ -211,6 +211,7 @@ Host says-little
 
 
 # -- the bastion ---------------------------------------------------------------------------
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 @pytest.mark.ssh
 def test_hop_through_a_bastion_then_the_bastion_goes_down(servers: Servers,
                                                          tmp_path: Path) -> None:

@@ -72,6 +72,7 @@ def _age_after_pause(read: Any, device: FakeDevice, pause: float) -> tuple[float
     return t0 - device.taken[frame_number(frame)], time.monotonic() - t0
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 @pytest.mark.slow
 def test_a_read_after_a_push_is_a_frame_taken_after_the_call(tmp_path: Path) -> None:
     device = FakeDevice()
@@ -107,6 +108,7 @@ def test_a_read_after_a_push_is_a_frame_taken_after_the_call(tmp_path: Path) -> 
           f"{max(latencies) * 1000:.0f} ms")
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 @pytest.mark.parametrize("stamps", ["none", "realtime", "relative"])
 def test_without_usable_timestamps_a_read_drains_buffers_plus_one(
         tmp_path: Path, stamps: str, caplog: pytest.LogCaptureFixture) -> None:
@@ -124,6 +126,7 @@ def test_without_usable_timestamps_a_read_drains_buffers_plus_one(
     cam.close()
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_a_camera_that_stops_sending_is_an_error_within_the_read_timeout(
         tmp_path: Path) -> None:
     device = FakeDevice()

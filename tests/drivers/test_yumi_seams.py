@@ -31,6 +31,8 @@ from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from testbed.lab.camera_model import arm_facts
 
+pytestmark = pytest.mark.alone  # wall-clock bounds (tests/conftest.py)
+
 # --- the camera seam: a network camera ------------------------------------------------
 
 

@@ -97,6 +97,7 @@ def test_click_on_each_face(
         assert call.join()["cell1/left"].action == k
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_enter_completes_a_hard_reset(
     console: ConsoleHumans, windows: list[str], xvfb: Xvfb, make_request: RequestFactory
 ) -> None:
@@ -119,6 +120,7 @@ DELAY_S = 0.4
 """How long the test's human looks at a window before answering it."""
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_waited_s_from_the_window_to_the_first_key_and_enter(
     console: ConsoleHumans, windows: list[str], xvfb: Xvfb, make_request: RequestFactory
 ) -> None:
@@ -174,6 +176,7 @@ def test_pause_blocks_act_until_resumed(
     assert call.join()["cell0/left"].action == 1
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_teleop_timeout_answers_none(
     console: ConsoleHumans, make_request: RequestFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -500,6 +500,7 @@ def test_a_stale_or_replayed_action_is_refused(
 
 
 # ---- 5, 6: buttons --------------------------------------------------------------------------
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_reset_done_by_the_button(
     web: WebHumans, open_page: OpenPage, make_request: RequestFactory
 ) -> None:
@@ -586,6 +587,7 @@ SLACK_S = 2.0
 """More than a loaded machine adds between the page's reports and the test's sleeps."""
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_waited_s_from_the_frame_on_the_page_to_the_first_key(
     web: WebHumans, open_page: OpenPage, make_request: RequestFactory
 ) -> None:

@@ -83,6 +83,7 @@ def test_push_moves_the_cube_by_contact(cell: YumiTwinCell) -> None:
     assert math.dist(cell.tcp_xyz()["left"], (100.0, 450.0, 150.0)) < 1.0
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_both_arms_move_at_once(cell: YumiTwinCell) -> None:
     t0 = cell.truth()
     one = YumiTwinCell(11)

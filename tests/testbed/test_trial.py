@@ -247,6 +247,7 @@ def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
     assert hosts["hosts"].keys() == meta["hosts"].keys()
 
 
+@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 @pytest.mark.slow
 def test_ctrl_c_rests_arms_and_closes_records_within_5s(workdir: Path) -> None:
     run = workdir / "runs" / "c"

@@ -32,6 +32,7 @@ from testbed.experiments.protocol import load_protocol
 from testbed.lab.hardware_twin import HardwareTwinLab
 
 pytestmark = [
+    pytest.mark.alone,  # wall-clock bounds (tests/conftest.py)
     pytest.mark.slow,
     pytest.mark.ssh,
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),

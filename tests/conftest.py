@@ -1,0 +1,65 @@
+"""The whole suite's one rule across test processes: a test marked ``alone`` runs with no
+other test beside it.
+
+Why: the suite runs on pytest-xdist workers (``scripts/test.sh``, docs/notes/tests.md),
+two tests at a time on a 2-core machine. Most tests only share the CPUs and take longer
+when they do; a few measure the wall clock as the product promises it (a motion stopped
+within 1.5 s of a lost link, a camera frame taken after the push returned, heartbeats
+answered during a push, perception agreeing with the truth at the frame rate), and a
+neighbour's training makes them miss a bound the product keeps on a machine of its own.
+Those are marked ``alone``: before one starts, the other workers finish the test they
+are in and wait; every other test runs beside any other.
+
+How: a readers-writer lock over two files every worker of a run shares (named by
+xdist's ``PYTEST_XDIST_TESTRUNUID``): a test takes the main lock shared, an ``alone``
+test exclusive; both pass a turnstile first, which an ``alone`` test holds until it is
+done, so a waiting ``alone`` test is not starved by its neighbour's next tests. Without
+xdist (one process) nothing is locked.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+
+def _lock_files() -> tuple[Path, Path] | None:
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if not run or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return None
+    base = Path(tempfile.gettempdir()) / f"testbed-tests-{run}"
+    return base.with_suffix(".turnstile"), base.with_suffix(".lock")
+
+
+@contextmanager
+def _turn(alone: bool) -> Iterator[None]:
+    files = _lock_files()
+    if files is None:
+        yield
+        return
+    with open(files[0], "a") as turnstile, open(files[1], "a") as main:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(main, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        finally:
+            if not alone:
+                fcntl.flock(turnstile, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(main, fcntl.LOCK_UN)
+            if alone:
+                fcntl.flock(turnstile, fcntl.LOCK_UN)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None
+                            ) -> Iterator[None]:
+    with _turn(item.get_closest_marker("alone") is not None):
+        yield
