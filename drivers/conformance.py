@@ -24,7 +24,7 @@ import numpy as np
 from drivers.backends.base import IMAGE_SHAPE, ArmOutcome, ArmView, HostBackend
 from drivers.errors import ConformanceError
 from drivers.png import decode_png
-from drivers.wire import encode_image
+from drivers.wire import encode_image, reading_problem
 from testbed.core.config import NAME_PATTERN
 from testbed.core.types import NUM_ACTIONS
 
@@ -79,6 +79,8 @@ def _check_outcomes(what: str, outcomes: Any, expected: list[str]) -> dict[str, 
             raise _fail(f"{what}[{arm!r}] must be an ArmOutcome of two bools, got {o!r}")
         if o.success and o.violation:
             raise _fail(f"{what}[{arm!r}]: a push cannot both succeed and violate")
+        if (why := reading_problem(o.readings)) is not None:
+            raise _fail(f"{what}[{arm!r}]: readings {why} (the agent would fault the arm)")
     return dict(outcomes)
 
 

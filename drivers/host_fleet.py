@@ -441,7 +441,8 @@ class HostFleet:
             if o.error is not None:
                 return self._arm_fault(self._sessions[i], r, arm, o.error)
             # refused: the face asked for, not pushed, and the backend's reason
-            return PushResult(r, faces_of[i][arm], o.success, o.violation, o.refused)
+            return PushResult(r, faces_of[i][arm], o.success, o.violation, o.refused,
+                              tuple(sorted(o.readings.items())))
 
         return self._per_robot(self._run(programs, parse), result)
 

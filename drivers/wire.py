@@ -27,7 +27,8 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
                                                         expert_action, blob} | {arm, error}]}
                                                         + PNGs
     push {faces: {arm: face}}               push_ok {results: {arm: {success, violation
-                                                        [, refused] [, error]}}}
+                                                        [, refused] [, error]
+                                                        [, readings: {name: number}]}}}
     reset {arms: [arm]}                     reset_ok {results: {arm: {done}}}
     rest {}                                 rest_ok {}
     heartbeat {}                            heartbeat_ok {uptime_s, busy}    (at once)
@@ -62,6 +63,14 @@ moves. It came without a version change on purpose: an older controller ignores 
 field, and an older agent, which lacks it, is refused by a newer controller with the
 line that says to deploy (an agent's version refusal would say less).
 
+``readings`` of a ``push_ok`` arm (``ArmOutcome.readings``): what the host measured of
+that arm's push, by name (``"push_s"``), written only when the backend measured
+something, so an ordinary reply is byte for byte as before. One generic object, checked
+here once (``reading_problem``: at most ``MAX_READINGS`` names, each an identifier of at
+most ``MAX_READING_NAME`` characters, each value a finite number), so a new measurement
+needs no edit of this module. It came without a version change: a controller talks only
+to an agent of its own build (``build`` below), and the twin sends none.
+
 ``controller`` of ``hello_ok`` (a YuMi agent): its robot controller as it named itself
 when the agent started, ``{serial, robotware, system}`` (only those it said; strings),
 so a run records which controller drove its arms without a request of its own
@@ -79,6 +88,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
 import zlib
 from collections.abc import Callable, Mapping, Sequence
@@ -118,6 +128,12 @@ ERROR_KINDS: Final = ("protocol", "version", "request", "backend", "startup")
 CONTROLLER_KEYS: Final = ("serial", "robotware", "system")
 """What ``hello_ok.controller`` may say of the robot's controller (never a credential)."""
 MAX_CONTROLLER_CHARS: Final = 200
+
+MAX_READINGS: Final = 16
+"""At most this many readings per arm's push (a host's measurements, not a log)."""
+MAX_READING_NAME: Final = 40
+"""A reading's name is an identifier of at most this many characters (``push_s``)."""
+_READING_NAME: Final = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 _JSON: Final = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
@@ -355,6 +371,36 @@ def _xyz(v: Any, mtype: str, peer: str, what: str) -> tuple[float, float, float]
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
+def reading_problem(readings: object) -> str | None:
+    """What is wrong with an arm's push ``readings``, or None when nothing is.
+
+    Why one checker for both ends: the agent checks what its backend measured before it
+    sends it and the controller checks what came, by the same rule (an object of at most
+    ``MAX_READINGS`` names, each an identifier of at most ``MAX_READING_NAME``
+    characters, each value a finite number; never a bool)."""
+    if not isinstance(readings, Mapping):
+        return f"must be an object of names to numbers, got {readings!r:.60}"
+    if len(readings) > MAX_READINGS:
+        return f"has {len(readings)} names, at most {MAX_READINGS} are allowed"
+    for name, v in readings.items():
+        if (not isinstance(name, str) or len(name) > MAX_READING_NAME
+                or not _READING_NAME.fullmatch(name)):
+            return (f"name {name!r:.60} is not an identifier of at most "
+                    f"{MAX_READING_NAME} characters")
+        if (isinstance(v, bool | np.bool_) or not isinstance(v, int | float | np.number)
+                or not _finite(v)):
+            return f"{name!r} must be a finite number, got {v!r:.40}"
+    return None
+
+
+def _finite(v: int | float | np.number) -> bool:
+    """A number that is a finite float (an int of 400 digits is not: it overflows)."""
+    try:
+        return math.isfinite(float(v))
+    except (OverflowError, TypeError, ValueError):
+        return False
+
+
 def _reason(v: Any, mtype: str, peer: str, what: str) -> str | None:
     """An optional per-arm text (null or a non-empty string)."""
     if v is None:
@@ -389,15 +435,24 @@ def make_observe_reply(mid: int, views: Mapping[str, ArmView],
 
 
 def make_push_reply(mid: int, outcomes: Mapping[str, ArmOutcome]) -> bytes:
+    """Each arm's outcome. A backend's readings that the controller would refuse
+    (``reading_problem``) make that arm's ``error`` instead: the arm alone faults, with
+    the reason, and its siblings' outcomes still reach the controller."""
     results: dict[str, dict[str, Any]] = {
         a: {"success": bool(o.success), "violation": bool(o.violation)}
         for a, o in outcomes.items()}
     for a, o in outcomes.items():
         # Only when set: the frame of an ordinary push stays as in version 1.
+        error = o.error
+        if o.readings:
+            if (why := reading_problem(o.readings)) is None:
+                results[a]["readings"] = {str(k): float(v) for k, v in o.readings.items()}
+            elif error is None:
+                error = f"the backend's readings of the push: {why}"
         if o.refused is not None:
             results[a]["refused"] = str(o.refused)[:MAX_REASON_CHARS] or "refused"
-        if o.error is not None:
-            results[a]["error"] = str(o.error)[:MAX_REASON_CHARS] or "failed"
+        if error is not None:
+            results[a]["error"] = str(error)[:MAX_REASON_CHARS] or "failed"
     return encode_frame({"type": "push_ok", "id": mid, "results": results})
 
 
@@ -554,11 +609,15 @@ def parse_push_reply(frame: Frame, pushed: Sequence[str], peer: str) -> dict[str
         if len(r) == 2:  # the ordinary case, checked above
             out[arm] = ArmOutcome(success, violation)
             continue
-        if extra := set(r) - {"success", "violation", "refused", "error"}:
+        if extra := set(r) - {"success", "violation", "refused", "error", "readings"}:
             raise _bad("push_ok", peer, f"arm {arm!r} result has unknown keys {sorted(extra)}")
+        readings = r.get("readings", {})
+        if (why := reading_problem(readings)) is not None:
+            raise _bad("push_ok", peer, f"arm {arm!r} readings {why}")
         out[arm] = ArmOutcome(success, violation,
                               _reason(r.get("refused"), "push_ok", peer, f"arm {arm!r} refused"),
-                              _reason(r.get("error"), "push_ok", peer, f"arm {arm!r} error"))
+                              _reason(r.get("error"), "push_ok", peer, f"arm {arm!r} error"),
+                              {k: float(v) for k, v in readings.items()})
     return out
 
 
@@ -607,11 +666,11 @@ def parse_save_calibration_reply(frame: Frame, peer: str) -> str:
 
 __all__ = [
     "AT_ONCE", "AT_ONCE_REPLIES", "MAGIC", "MAX_FRAME_BYTES", "MAX_HEADER_BYTES",
-    "PROTOCOL_VERSION", "AgentError",
+    "MAX_READINGS", "MAX_READING_NAME", "PROTOCOL_VERSION", "AgentError",
     "ArmFailed", "DeadlineExceeded", "Frame", "FrameReader", "HelloInfo", "LinkClosed",
     "ProtocolError", "Request", "check_reply", "decode_image", "encode_frame", "encode_image",
     "make_error", "make_frame_reply", "make_observe_reply", "make_push_reply", "make_request",
     "make_reset_reply", "parse_describe_reply", "parse_frame_reply", "parse_hello_reply",
     "parse_move_tcp_reply", "parse_observe_reply", "parse_push_reply", "parse_request",
-    "parse_reset_reply", "parse_save_calibration_reply",
+    "parse_reset_reply", "parse_save_calibration_reply", "reading_problem",
 ]

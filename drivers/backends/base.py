@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
@@ -54,12 +54,23 @@ class ArmOutcome:
     found); the step is neither autonomous nor human for that arm. ``error``: this arm
     alone failed (its sibling's push still happened and is reported); the controller
     faults this arm only.
+
+    ``readings``: what the host measured of this arm's push, by name (``"push_s"``: the
+    push's duration on the host's clock), each a finite number. Why one generic mapping
+    and not a field per value: a value only the host can measure then reaches the
+    controller's ``PushResult`` and the arm's steps.jsonl row (``"readings"``) with no
+    edit of the wire, the agent, the controller or the records: the backend that
+    measures it is the one file to change (docs/ARCHITECTURE.md, "A new field in every
+    step"). A name is a short identifier (``drivers.wire.MAX_READING_NAME`` characters
+    at most), at most ``drivers.wire.MAX_READINGS`` of them; empty (the default) for a
+    backend that measures nothing, as the twin, whose rows stay the same for one seed.
     """
 
     success: bool
     violation: bool
     refused: str | None = None
     error: str | None = None
+    readings: Mapping[str, float] = field(default_factory=dict)
 
 
 class HostBackend(ABC):

@@ -132,6 +132,12 @@ class PushResult:
     """True on the step whose push took the cube out (an event, once per violation)."""
     refused: str | None = None
     """Why the host did not push this arm (None: it pushed, or it was not asked to)."""
+    readings: tuple[tuple[str, float], ...] = ()
+    """What the robot host measured of this push, ``(name, value)`` sorted by name
+    (``("push_s", 1.8)``: the push's duration on the host): the backend's
+    ``ArmOutcome.readings``, carried to the arm's row (``"readings"``) unchanged. Pairs,
+    not a dict, so the result stays immutable and hashable; ``dict(result.readings)``
+    reads it. Empty when the host measured nothing (the twin) or did not push."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -455,6 +455,7 @@ class FleetLoop:
                 served=d.served.get(r),
                 first=((d.served[r], d.first[r]) if r in d.first else None),
                 waited=d.waited.get(r),
+                readings=(dict(res.readings) or None) if isinstance(res, PushResult) else None,
                 monitor=None if faulted else ({k: float(v[i]) for k, v in monitored.items()}
                                               | self.algorithm.row_fields(i)),
             ))

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from testbed.core.types import Mode
-from testbed.records.store import FRAME_DTYPE, MODES
+from testbed.records.store import FRAME_DTYPE, FRAME_READINGS, MODES
 
 __all__ = ["ArmStep", "StepRecord"]
 
@@ -55,6 +55,11 @@ class ArmStep:
     or queued: its key asked for a human and none was free): the steps it has waited,
     this one included (``Allocator.waited``, 1 on a wait's first step); None when not
     waiting. ``served``'s other side: a wait is the run of steps from a 1."""
+    readings: dict[str, float] | None = None
+    """What the robot host measured of this arm's push, by name (``push_s``: its
+    duration on the host), from the ``PushResult``: the one generic path of host
+    measurements, so a new one reaches the row with no edit here. None when the host
+    measured nothing (the twin: its rows stay the same for one seed)."""
 
     def to_entry(self) -> dict[str, Any]:
         entry: dict[str, Any] = {
@@ -78,6 +83,8 @@ class ArmStep:
             entry["monitor"] = dict(self.monitor)
         if self.waited is not None:
             entry["waited"] = self.waited
+        if self.readings:
+            entry["readings"] = dict(self.readings)
         return entry
 
 
@@ -136,6 +143,8 @@ class StepRecord:
             f["violation"][i] = a.violation
             f["uncertainty"][i] = np.nan if a.uncertainty is None else a.uncertainty
             f["risk"][i] = np.nan if a.risk is None else a.risk
+            for name in FRAME_READINGS:  # the host's readings that are columns too
+                f[name][i] = (a.readings or {}).get(name, np.nan)
         return f
 
     @classmethod
@@ -147,7 +156,7 @@ class StepRecord:
                         bool(r["success"]), bool(r["violation"]), r["uncertainty"],
                         r["risk"], tuple(r.get("key", ())), r.get("refused"),
                         r.get("served"), _first(r.get("first")), r.get("monitor"),
-                        r.get("waited"))
+                        r.get("waited"), _readings(r.get("readings")))
                 for r in row["robots"]]
         return cls(int(row["t"]), session, arms, images, observed, goals,
                    dict(row.get("faults", {})), list(row.get("away", [])),
@@ -160,3 +169,9 @@ def _first(entry: dict[str, Any] | None) -> tuple[int, float | None] | None:
     if entry is None:
         return None
     return int(entry["steps"]), None if entry.get("s") is None else float(entry["s"])
+
+
+def _readings(entry: dict[str, Any] | None) -> dict[str, float] | None:
+    """A row's ``readings`` back as ``ArmStep.readings`` (None when absent or empty, as
+    ``to_entry`` writes nothing then)."""
+    return {str(k): float(v) for k, v in entry.items()} if entry else None

@@ -70,7 +70,7 @@ a new key is added here, in the validator and in the doc together."""
 ARM_FIELDS: Final[dict[str, bool]] = {
     "robot": True, "mode": True, "human": True, "action": True, "success": True,
     "violation": True, "uncertainty": True, "risk": True, "key": True, "refused": False,
-    "served": False, "first": False, "monitor": False, "waited": False}
+    "served": False, "first": False, "monitor": False, "waited": False, "readings": False}
 """The same for each entry of a row's ``robots``."""
 
 
@@ -123,8 +123,9 @@ def validate_step(obj: object) -> None:
     are ``faults`` (robot -> reason), ``away`` (a list of human indices) and
     ``released`` (a list of ``{"robot": one of the row's robots, "human": int >= 0,
     "why": str}``), and an arm's ``monitor`` (the failure monitor's scores beyond
-    uncertainty and risk: name -> finite number) and ``waited`` (steps waited for a
-    human, on an arm with none). Every key checked: ``STEP_FIELDS``, ``ARM_FIELDS``.
+    uncertainty and risk: name -> finite number), ``readings`` (what the robot host
+    measured of the arm's push: name -> finite number) and ``waited`` (steps waited for
+    a human, on an arm with none). Every key checked: ``STEP_FIELDS``, ``ARM_FIELDS``.
     """
     if not isinstance(obj, dict):
         raise RecordError(f"step must be a JSON object, got {type(obj).__name__}")
@@ -182,11 +183,12 @@ def validate_step(obj: object) -> None:
         key = row.get("key")
         if not isinstance(key, list) or not all(_is_number(k) for k in key):
             raise RecordError(f"{where}.key must be a list of finite numbers, got {key!r}")
-        monitor = row.get("monitor", {})
-        if not (isinstance(monitor, dict) and all(
-                isinstance(k, str) and _is_number(v) for k, v in monitor.items())):
-            raise RecordError(f"{where}.monitor must map signal names to finite numbers, "
-                              f"got {monitor!r}")
+        for named, what in (("monitor", "signal names"), ("readings", "reading names")):
+            values = row.get(named, {})
+            if not (isinstance(values, dict) and all(
+                    isinstance(k, str) and _is_number(v) for k, v in values.items())):
+                raise RecordError(f"{where}.{named} must map {what} to finite numbers, "
+                                  f"got {values!r}")
     _validate_presence(obj, seen)
 
 

@@ -71,6 +71,12 @@ FRAME_DTYPE: Final = np.dtype([
     ("wall_time", "<f8"),
     ("image", "u1", (IMAGE_SIZE, IMAGE_SIZE, 3)),
 ])
+FRAME_READINGS: Final[tuple[str, ...]] = ()
+"""The robot host's readings (``ArmStep.readings``, by name) that are also frame columns:
+each a ``<f4`` field of ``FRAME_DTYPE`` under the same name, NaN where the host did not
+measure it. Why a list here: ``StepRecord.to_frames`` fills every name of it, so a
+reading made a column is this line, its field and a new ``FORMAT_VERSION``, in this
+file alone (the exports take the field as they take every other)."""
 CHUNK_BYTES: Final = 128 * 2**20
 
 _AUTONOMOUS: Final = MODES.index(Mode.AUTONOMOUS.value)

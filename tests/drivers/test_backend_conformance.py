@@ -81,6 +81,9 @@ class Broken(HostBackend):
             out["right"] = ArmOutcome(False, False)
         if self.flaw == "both":
             out = {a: ArmOutcome(True, True) for a in out}
+        if self.flaw == "readings":
+            out = {a: ArmOutcome(o.success, o.violation, readings={"push s": 1.0})
+                   for a, o in out.items()}
         return out
 
     def reset(self, arms: Sequence[str]) -> dict[str, bool]:
@@ -102,6 +105,7 @@ class Broken(HostBackend):
     ("mirror", "mirror must be one bool per arm"),
     ("extra", "outcome for exactly"),
     ("both", "cannot both succeed and violate"),
+    ("readings", r"readings name 'push s' is not an identifier"),
     ("reset", "reset said done=False"),
 ])
 def test_broken_backends_are_named(flaw: str, match: str) -> None:

@@ -312,12 +312,75 @@ def test_every_arm_outcome_field_crosses_the_wire_and_reaches_the_step() -> None
     import dataclasses
 
     from testbed.core.types import PushResult
+    from testbed.records.step_record import ArmStep
 
     assert [f.name for f in dataclasses.fields(ArmOutcome)] == [
-        "success", "violation", "refused", "error"], "a new field: give it a value below"
-    sent = {"left": ArmOutcome(True, False),
+        "success", "violation", "refused", "error", "readings"
+    ], "a new field: give it a value below (a host's measurement is a reading, no field)"
+    sent = {"left": ArmOutcome(True, False, readings={"push_s": 1.5, "force_n": 2}),
             "right": ArmOutcome(False, True, refused="no cube", error="stopped")}
     f = reader_of(p.make_push_reply(7, sent)).read_frame(1e18)
     assert p.parse_push_reply(f, ["left", "right"], "a") == sent
     carried = {f.name for f in dataclasses.fields(ArmOutcome)} - {"error"}
     assert carried <= {f.name for f in dataclasses.fields(PushResult)}
+    assert carried <= {f.name for f in dataclasses.fields(ArmStep)}
+
+
+# ------------------------------------------------------------- readings (host measurements)
+PLAIN_PUSH_OK = (b'{"type":"push_ok","id":9,"results":{"left":{"success":true,'
+                 b'"violation":false}},"blobs":[]}')
+"""An ordinary push reply's header, as written before readings existed."""
+
+
+def test_a_push_reply_without_readings_is_byte_for_byte_as_before() -> None:
+    plain = p.make_push_reply(9, {"left": ArmOutcome(True, False)})
+    assert plain == p.PREFIX.pack(p.MAGIC, len(PLAIN_PUSH_OK), 0, zlib.crc32(PLAIN_PUSH_OK)
+                                  ) + PLAIN_PUSH_OK
+    assert p.make_push_reply(9, {"left": ArmOutcome(True, False, readings={})}) == plain
+    measured = p.make_push_reply(9, {"left": ArmOutcome(True, False, readings={"push_s": 2})})
+    assert b'"readings":{"push_s":2.0}' in measured
+    out = p.parse_push_reply(reader_of(measured).read_frame(1e18), ["left"], "a")
+    assert out["left"].readings == {"push_s": 2.0}
+    assert type(out["left"].readings["push_s"]) is float
+
+
+@pytest.mark.parametrize(("readings", "match"), [
+    ({"push_s": float("nan")}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({"push_s": float("inf")}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({"push_s": "1.5"}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({"push_s": True}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({"push_s": None}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({"push_s": [1.0]}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({"push_s": 10**400}, r"arm 'left' readings 'push_s' must be a finite number"),
+    ({f"r{i}": 1.0 for i in range(p.MAX_READINGS + 1)},
+     rf"arm 'left' readings has {p.MAX_READINGS + 1} names, at most {p.MAX_READINGS}"),
+    ({"push s": 1.0}, r"arm 'left' readings name 'push s' is not an identifier"),
+    ({"": 1.0}, r"arm 'left' readings name '' is not an identifier"),
+    ({"9lives": 1.0}, r"arm 'left' readings name '9lives' is not an identifier"),
+    ({"x" * (p.MAX_READING_NAME + 1): 1.0}, r"arm 'left' readings name 'x+' is not an"),
+    ([1.0], r"arm 'left' readings must be an object of names to numbers"),
+    (1.5, r"arm 'left' readings must be an object of names to numbers"),
+])
+def test_bad_readings_from_a_peer_are_a_protocol_error_naming_the_arm(
+        readings: object, match: str) -> None:
+    result = {"success": True, "violation": False, "readings": readings}
+    # json.dumps writes NaN and Infinity (a peer could send them; our encoder refuses to)
+    data = raw_frame(json.dumps({"type": "push_ok", "id": 1, "results": {
+        "right": {"success": False, "violation": False}, "left": result}}).encode())
+    with pytest.raises(ProtocolError, match=r"malformed 'push_ok' message from a: " + match):
+        p.parse_push_reply(reader_of(data).read_frame(1e18), ["left", "right"], "a")
+
+
+def test_an_agent_sends_a_backends_bad_readings_as_that_arms_error() -> None:
+    """A backend's bug (a NaN duration) faults that arm alone, with the reason: the
+    controller would refuse the reading, and the sibling's push still counts."""
+    data = p.make_push_reply(3, {
+        "left": ArmOutcome(True, False, readings={"push_s": float("nan")}),
+        "right": ArmOutcome(True, False, readings={"push_s": np.float64(0.5)}),
+        "third": ArmOutcome(False, False, error="IK failed", readings={"bad name": 1})})
+    out = p.parse_push_reply(reader_of(data).read_frame(1e18), ["left", "right", "third"], "a")
+    assert out["left"].error == ("the backend's readings of the push: 'push_s' must be a "
+                                 "finite number, got nan")
+    assert out["left"].readings == {}
+    assert out["right"] == ArmOutcome(True, False, readings={"push_s": 0.5})
+    assert out["third"] == ArmOutcome(False, False, error="IK failed")  # its own error first

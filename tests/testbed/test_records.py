@@ -395,9 +395,10 @@ WITHOUT: dict[str, dict[str, Any]] = {"served": {"first": ...}, "refused": {"mod
 
 def full_row() -> dict[str, Any]:
     """A row with every key the writer can write: an arm with a human (refused, served,
-    first, monitor) and an arm waiting for one, faults, away, released, timing."""
+    first, monitor, readings) and an arm waiting for one, faults, away, released, timing."""
     arms = [ArmStep("h/a", Mode.REFUSED, 1, 2, True, False, 0.25, 0.5, (3.0,),
-                    refused="guard stop", served=4, first=(4, 1.5), monitor={"novelty": 0.5}),
+                    refused="guard stop", served=4, first=(4, 1.5), monitor={"novelty": 0.5},
+                    readings={"push_s": 1.25}),
             ArmStep("h/b", Mode.IDLE, None, None, False, False, 0.1, 0.2, (1.0,), waited=3)]
     images = np.zeros((2, IMAGE_SIZE, IMAGE_SIZE, 3), np.uint8)
     return StepRecord(5, 0, arms, images, np.ones(2, bool), np.zeros((2, 2), np.float32),

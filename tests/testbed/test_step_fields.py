@@ -20,7 +20,7 @@ import numpy as np
 from testbed.core.types import IMAGE_SIZE, Mode
 from testbed.records.step_record import ArmStep, StepRecord
 from testbed.records.steps import validate_step
-from testbed.records.store import FRAME_DTYPE, MODES
+from testbed.records.store import FRAME_DTYPE, FRAME_READINGS, MODES
 
 ROW_ONLY = {
     "robot": "the frame's arm index says which arm",
@@ -30,6 +30,8 @@ ROW_ONLY = {
     "first": "the human's response time, per intervention",
     "monitor": "the failure monitor's scores beyond uncertainty and risk: a run's own set",
     "waited": "the allocator's wait count, its bookkeeping: derived again from the rows",
+    "readings": "what the robot host measured of the push, by name: a backend's own set "
+                "(one that is a column too is a FRAME_DTYPE field named in FRAME_READINGS)",
 }
 """``ArmStep`` fields kept only in steps.jsonl, and why. A new field goes either into
 ``FRAME_DTYPE`` or here, on purpose."""
@@ -42,7 +44,8 @@ def full_arm() -> ArmStep:
     """An arm step with every field set to a value that is not its default."""
     return ArmStep("left", Mode.REFUSED, 1, 2, True, False, 0.25, 0.5, (3.0, -1.0),
                    refused="the controller is in guard stop", served=4, first=(4, 1.5),
-                   monitor={"novelty": 0.125, "goal_risk": 0.75})
+                   monitor={"novelty": 0.125, "goal_risk": 0.75},
+                   readings={"push_s": 1.75} | dict.fromkeys(FRAME_READINGS, 2.5))
 
 
 def waiting_arm() -> ArmStep:
@@ -73,7 +76,8 @@ def test_every_arm_field_is_a_frame_field_or_row_only_and_every_frame_field_is_f
     frame_fields = set(FRAME_DTYPE.names or ())
     undecided = arm_fields - frame_fields - set(ROW_ONLY)
     assert not undecided, f"ArmStep fields in neither FRAME_DTYPE nor ROW_ONLY: {undecided}"
-    sourceless = frame_fields - arm_fields - STEP_FIELDS
+    assert set(FRAME_READINGS) <= frame_fields, "a reading made a column needs its field"
+    sourceless = frame_fields - arm_fields - STEP_FIELDS - set(FRAME_READINGS)
     assert not sourceless, f"FRAME_DTYPE fields nothing fills: {sourceless}"
     # and to_frames fills them: every frame field differs from the zeros it starts from
     arm = dataclasses.replace(full_arm(), mode=Mode.TELEOP, refused=None, success=True,
