@@ -4,29 +4,81 @@ An ABB YuMi (IRB 14000) on an IRC5 controller, reached over Robot Web Services, 
 one overhead camera: both arms work over one table (a shared cell), each arm is
 calibrated (image-to-table homography), the controller names itself (serial,
 RobotWare), the agent locks the robot on that serial, motions can be stopped in flight,
-and ``testbed rehearse`` can stand a hardware twin in its place. The flags the agent
-takes for it are written (``agent_argv``) and read (``add_agent_arguments``,
-``backend_kwargs``) here, in one place.
+and ``testbed rehearse`` can stand a hardware twin in its place (:class:`YumiTwin`:
+``python -m sim_twin.yumi_server``, a PyBullet cell behind the controller's Robot Web
+Services and an MJPEG camera). The flags the agent takes for it are written
+(``agent_argv``) and read (``add_agent_arguments``, ``backend_kwargs``) here, in one
+place.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import secrets
+import sys
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 from urllib.parse import urlsplit
 
 from drivers.backends.plugin import BackendPlugin, arm_pairs
 from drivers.yumi.yumi_host import YumiHost
-from testbed.core.backend_registry import Capabilities
+from testbed.core.backend_registry import Capabilities, HardwareTwin, HostLike, TwinPlace
 
 if TYPE_CHECKING:
     from drivers.backends.base import HostBackend
     from testbed.core.host_config import HostBase
 
-__all__ = ["BACKEND", "YumiPlugin"]
+__all__ = ["BACKEND", "YumiPlugin", "YumiTwin"]
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+class YumiTwin(HardwareTwin):
+    """A YuMi host's hardware twin: ``python -m sim_twin.yumi_server`` with the host's
+    arms, its camera and lab side channel on one port (``port``), the controller's RWS
+    1.0 on another (``rws.port``), logging in with the host's login file and logging
+    every request it serves. The agent runs ``--backend yumi`` unchanged against it; its
+    arms are calibrated against it as a lab's are, and its side channel injects the
+    stops a lab meets (``sim_twin.lab_faults``)."""
+
+    ports: ClassVar[tuple[str, ...]] = ("port", "rws.port")
+    lab_port: ClassVar[str | None] = "port"
+    calibrate: ClassVar[bool] = True
+    faults: ClassVar[bool] = True
+    request_log: ClassVar[str | None] = "rws.jsonl"
+
+    def identity(self, place: TwinPlace) -> str:
+        """The twin controller's serial (an IRB 14000's form): robot locks are keyed on
+        it, so each twin of a lab (and of another lab on this machine) has its own,
+        stable for its folder."""
+        return f"14000-{place.key:06d}"
+
+    def prepare(self, place: TwinPlace) -> None:
+        """A fresh controller login (``testbed`` and a random password), mode 0600 from
+        its first byte: what a lab puts on its robot host for the real controller."""
+        path = place.file("rws.login")
+        path.unlink(missing_ok=True)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(f"testbed:{secrets.token_urlsafe(18)}\n")
+
+    def command(self, place: TwinPlace) -> list[str]:
+        return [sys.executable, "-m", "sim_twin.yumi_server", "--arms", ",".join(place.arms),
+                "--seed", str(place.seed), "--port", "0",
+                "--port-file", str(place.port_file("port")),
+                "--rws-port-file", str(place.port_file("rws.port")),
+                "--rws-credentials", str(place.file("rws.login")),
+                "--rws-log", str(place.file("rws.jsonl")),
+                "--realtime", f"{place.realtime:g}", "--fps", f"{place.camera_fps:g}",
+                "--serial", self.identity(place)]
+
+    def host_fields(self, host: HostLike, place: TwinPlace, ports: Mapping[str, int]
+                    ) -> dict[str, Any]:
+        """The twin's camera and controller, and the login file (never its text)."""
+        return {"camera": f"http://127.0.0.1:{ports['port']}/camera.mjpg",
+                "controller_url": f"http://127.0.0.1:{ports['rws.port']}",
+                "credentials_file": str(place.file("rws.login"))}
 
 
 class YumiPlugin(BackendPlugin):
@@ -34,13 +86,16 @@ class YumiPlugin(BackendPlugin):
     host_model: ClassVar[type[HostBase]] = YumiHost
     capabilities: ClassVar[Capabilities] = Capabilities(
         calibration=True, camera_frame=True, shared_cell=True, controller=True,
-        robot_lock=True, stop=True, hardware_twin=True)
+        robot_lock=True, stop=True)
     extra: ClassVar[str | None] = "yumi"
     verify_imports: ClassVar[tuple[str, ...]] = (
         "drivers.yumi.backend", "drivers.cameras.camera", "drivers.yumi.rws_controller",
         "abb_robot_client.rws", "abb_motion_program_exec", "cv2")
 
     # -- the controller's side --------------------------------------------------------
+    def hardware_twin(self) -> HardwareTwin:
+        return YumiTwin()
+
     def scripted_teleop(self, host: HostBase) -> bool:
         """Only a hardware twin (its controller on loopback, a rehearsal) carries the
         expert's action; a lab's YuMi is teleoperated by people."""

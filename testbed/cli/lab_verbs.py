@@ -136,11 +136,19 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from testbed.experiments.protocol import load_protocol
-    from testbed.lab.rehearsal import RehearsalError, RehearsalOptions, rehearse, require_yumi
+    from testbed.lab.rehearsal import (
+        RehearsalError,
+        RehearsalOptions,
+        hardware_twins,
+        rehearse,
+        require_faults,
+    )
 
     path = Path(args.protocol)
     proto = load_protocol(path, check_files=False)  # the lab's key files need not exist here
-    require_yumi(proto.fleet)
+    hardware_twins(proto.fleet)  # each host's backend declares one, or one line
+    if args.faults:
+        require_faults(proto.fleet)
     algorithms = [a for a in (args.algorithms or "").split(",") if a] or None
     for a in algorithms or []:
         if a not in proto.algorithms:
@@ -176,8 +184,8 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
 
 REHEARSE = Verb(
     "rehearse", help="a physical protocol on hardware twins over real SSH",
-    description="Start a hardware twin (PyBullet YuMi cell, MJPEG camera, controller API) "
-    "behind a real OpenSSH sshd on loopback for each host of a physical protocol, "
-    "calibrate every arm with testbed calibrate, and run the protocol against them with "
-    "the YuMi backend.",
+    description="Start the hardware twin each host's backend declares (a YuMi's: a "
+    "PyBullet cell, an MJPEG camera, the controller's API) behind a real OpenSSH sshd on "
+    "loopback, calibrate every arm whose twin is calibrated with testbed calibrate, and "
+    "run the protocol against them with the hosts' own backends.",
     add_arguments=_rehearse_arguments, run=cmd_rehearse)

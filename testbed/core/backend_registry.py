@@ -11,6 +11,9 @@ product needs to know about it:
     capabilities    what it can do: calibrate, a full camera frame, a shared cell, ...
     extra           the ``pip`` extra a robot host installs for it
     verify_imports  the modules that prove a host install can run its agent
+    hardware_twin   how ``testbed rehearse`` stands a stand-in in a host's place
+                    (:class:`HardwareTwin`: its process, the ports it writes, the
+                    host's fields that reach it, calibration, its lab side channel)
     agent side      its flags, how to build its ``HostBackend``, its robot's lock
 
 The core, the agent, deploy, the lock, preflight and calibration ask the registry for a
@@ -33,16 +36,18 @@ from __future__ import annotations
 
 import functools
 import re
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
 from typing import Any, ClassVar, Final, Protocol
 
 from pydantic import BaseModel
 
 __all__ = ["BUILTIN", "DEFAULT_BACKEND", "ENTRY_POINT_GROUP", "Backend", "BackendError",
-           "Capabilities", "HostLike", "backend", "backend_lines", "backend_of", "backends",
-           "host_models"]
+           "Capabilities", "HardwareTwin", "HostLike", "TwinPlace", "backend", "backend_lines",
+           "backend_of", "backends", "host_models"]
 
 ENTRY_POINT_GROUP: Final = "testbed.backends"
 """The entry point group a package registers its backends in."""
@@ -99,13 +104,102 @@ class Capabilities:
     identity, so two users of one host never drive one robot."""
     stop: bool = False
     """``stop()`` stops a motion in flight (a twin's strokes last milliseconds: no)."""
-    hardware_twin: bool = False
-    """``testbed rehearse`` can stand a hardware twin (``sim_twin/yumi_server.py``) in its
-    place behind a real sshd."""
 
     def names(self) -> list[str]:
         """The capabilities that are on, for ``testbed check`` and ``testbed deploy``."""
         return [k for k, v in vars(self).items() if v]
+
+
+@dataclass(frozen=True)
+class TwinPlace:
+    """Where ``testbed rehearse`` stands one host's hardware twin: what the lab gives it.
+
+    Why: a backend's :class:`HardwareTwin` says how to start its stand-in and how to
+    reach it; the lab owns the folder, the seed and the pace. Every file of one host's
+    twin is named from here, so a rehearsal run again finds (and a reaper kills) the
+    same ones."""
+
+    host: str
+    arms: tuple[str, ...]
+    folder: Path
+    """The lab's folder (absolute: an sshd's config and a stand-in's cwd differ)."""
+    seed: int
+    """The twin's world seed: the protocol's first seed and the host's index."""
+    realtime: float = 0.0
+    """Pace motion at this many times real time (0: as fast as it computes)."""
+    camera_fps: float = 15.0
+
+    def file(self, what: str) -> Path:
+        """``FOLDER/HOST-WHAT``: one file of this host's twin (a login, a log)."""
+        return self.folder / f"{self.host}-{what}"
+
+    def port_file(self, port: str) -> Path:
+        """``FOLDER/HOST.PORT``: where the stand-in writes the port called ``port`` once
+        it serves it (the lab waits for the file, then reads one integer)."""
+        return self.folder / f"{self.host}.{port}"
+
+    @property
+    def key(self) -> int:
+        """A number (0..999999) stable for this folder and host and unlikely to be another
+        lab's: a stand-in controller's serial, on which robot locks are keyed."""
+        return zlib.crc32(f"{self.folder}/{self.host}".encode()) % 1_000_000
+
+
+class HardwareTwin:
+    """How ``testbed rehearse`` stands a hardware twin in one host's place (a backend's
+    optional declaration, :meth:`Backend.hardware_twin`; subclass it in the plugin).
+
+    Why: a rehearsal runs a lab's physical protocol unchanged but for where its hosts
+    are, so it must know, per backend, what plays the robot (a process serving the
+    robot's own API on loopback, or nothing when the backend's agent is its own
+    stand-in), which fields of the host's config point the agent at it, whether the arms
+    are calibrated against it, and what the lab can see and do there that the
+    controller cannot (the ``/lab/*`` side channel). The lab adds the rest: one real
+    ``sshd`` per host in front of the agent, the host's transport, interpreter and
+    folder rewritten to reach it (``testbed.lab.hardware_twin.HardwareTwinLab``).
+    """
+
+    ports: ClassVar[tuple[str, ...]] = ()
+    """The ports the stand-in process serves, each written to ``place.port_file(name)``
+    when it is ready; the lab waits for every one before the host's sshd starts."""
+    lab_port: ClassVar[str | None] = None
+    """The port (one of ``ports``) of the lab's side channel ``/lab/*`` (truth, the lab
+    hand, the true camera: ``testbed.lab.lab_client.LabClient``). With it, scripted
+    humans read the table's truth, the lab hand resets a cube, and each run's truth is
+    recorded and scored; None: the host's own observations carry the expert's action
+    and its backend does its own resets (the ``simulated`` capability)."""
+    calibrate: ClassVar[bool] = False
+    """The rehearsal calibrates the host's arms against the stand-in (``testbed
+    calibrate``, scored against the side channel's true camera: needs ``lab_port``)."""
+    faults: ClassVar[bool] = False
+    """The side channel injects and clears the lab's faults (``/lab/fault``,
+    ``/lab/clear``): ``testbed rehearse --faults`` needs it on every host."""
+    request_log: ClassVar[str | None] = None
+    """The stand-in logs each controller request it serves, one JSON line, to
+    ``place.file(request_log)``; each run keeps its share (``hosts/<host>.rws.jsonl``)."""
+
+    def prepare(self, place: TwinPlace) -> None:
+        """Write what the stand-in and the agent share before it starts (a controller's
+        login file, mode 0600). Default: nothing."""
+        return None
+
+    def identity(self, place: TwinPlace) -> str | None:
+        """The stand-in robot's own name for itself (a controller's serial, on which the
+        agent's robot lock is keyed), derived from ``place.key`` so that each host of a
+        lab, and of another lab on this machine, has its own. None: it has none."""
+        return None
+
+    def command(self, place: TwinPlace) -> list[str] | None:
+        """The stand-in's argv, run from the product's folder with its output in
+        ``place.file("twin.log")``, in a session of its own (the lab kills its group);
+        None: no process, the agent's own backend plays the robot."""
+        return None
+
+    def host_fields(self, host: HostLike, place: TwinPlace, ports: Mapping[str, int]
+                    ) -> dict[str, Any]:
+        """The host's own fields that point its agent at the stand-in (``ports``: each of
+        ``ports``' number), e.g. a camera URL and a controller URL. Default: none."""
+        return {}
 
 
 @dataclass
@@ -142,6 +236,11 @@ class Backend:
         lines, FAULT lines: what to fix before a trial). Backends with the ``controller``
         capability override it."""
         return [], []
+
+    def hardware_twin(self) -> HardwareTwin | None:
+        """How ``testbed rehearse`` stands a hardware twin in this backend's hosts' place;
+        None (the default): a rehearsal refuses its hosts, naming the field."""
+        return None
 
     def layout_report(self, host: HostLike, calibrations: Mapping[str, Mapping[str, Any]],
                       info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
@@ -212,8 +311,13 @@ def backend_lines() -> list[str]:
     """One line per backend found: its name, where it came from, what it can do (what
     ``testbed check`` and ``testbed deploy`` print first)."""
     return [f"backend {name}: {b.origin}; capabilities: "
-            f"{', '.join(b.capabilities.names()) or 'none beyond the contract'}"
+            f"{', '.join(_can(b)) or 'none beyond the contract'}"
             for name, b in backends().items()]
+
+
+def _can(b: Backend) -> list[str]:
+    """Its capabilities' names, and ``hardware_twin`` when it declares one."""
+    return b.capabilities.names() + (["hardware_twin"] if b.hardware_twin() else [])
 
 
 def host_models() -> dict[str, type[BaseModel]]:

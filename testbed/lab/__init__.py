@@ -5,8 +5,9 @@ calibrate``), check every host, camera and arm before a trial (``preflight``: ``
 check``), put this checkout's build on the hosts (``deploy``: ``testbed deploy``), and,
 before touching a robot at all, rehearse the whole physical protocol on
 hardware twins behind real sshds (``rehearsal``: ``testbed rehearse``, with the twins
-and their sshds in ``hardware_twin``, the lab's humans in ``lab_humans``, the truth and
-its scoring in ``twin_truth`` and the true camera's figures in ``camera_model``). These
+each host's backend declares and their sshds in ``hardware_twin``, the twins' side
+channel in ``lab_client``, the lab's humans in ``lab_humans``, the truth and its scoring
+in ``twin_truth`` and the true camera's figures in ``camera_model``). These
 are the only commands that drive the physical path itself rather than a trial.
 
 It is the only room of ``testbed`` besides ``testbed/experiments/build.py`` that

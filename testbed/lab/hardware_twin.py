@@ -1,15 +1,20 @@
-"""The hardware-twin lab: one PyBullet YuMi cell and one real ``sshd`` per YuMi host.
+"""The hardware-twin lab: one stand-in per host and one real ``sshd`` in front of each.
 
 Why it exists: a rehearsal must reach its hosts the way a lab reaches its robots' PCs
-(OpenSSH, the host agent, ``--backend yumi``), so each YuMi host of the fleet becomes a
-``python -m sim_twin.yumi_server`` process (the controller's Robot Web Services 1.0, as an
-IRC5 answers them, and an MJPEG camera) with an OpenSSH ``sshd`` on loopback in front of
-it; the agent's controller client is the one a lab's host runs. ``HardwareTwinLab``
-starts and stops both, rewrites the fleet's host section to reach them, and is the lab's
-hands in fault drills (kill an agent, stop an sshd; ``testbed.lab.fault_drills``).
-``LabClient`` is the lab's side channel to one twin (``/lab/*``: the truth, the lab
-hand, the true camera model, the faults a person clears): what a person in the lab has
-and the controller does not. The controller's decisions never read it.
+(OpenSSH, the host agent, the host's backend), so each host of the fleet gets the
+hardware twin its backend's plugin declares (``Backend.hardware_twin``, a
+``testbed.core.backend_registry.HardwareTwin``): for a YuMi, a ``python -m
+sim_twin.yumi_server`` process (the controller's Robot Web Services 1.0, as an IRC5
+answers them, and an MJPEG camera); for a lab's own robot, whatever its plugin starts
+(or nothing, when its agent plays the robot itself). An OpenSSH ``sshd`` on loopback
+stands in front of each host, and the agent under it runs the host's backend as on the
+robot's PC. ``HardwareTwinLab`` starts and stops both, rewrites the fleet's host
+section to reach them (the lab's part: transport, interpreter, folder, calibration
+files; the plugin's part: the fields that point its agent at its stand-in), and is the
+lab's hands in fault drills (kill an agent, stop an sshd; ``testbed.lab.fault_drills``).
+``LabClient`` is the lab's side channel to one twin that has one (``/lab/*``: the
+truth, the lab hand, the true camera model, the faults a person clears): what a person
+in the lab has and the controller does not. The controller's decisions never read it.
 
 The lab's processes die with the operator's (``testbed rehearse``), however it ends: a
 reaper child (:func:`reap_when_orphaned`) waits for its stdin to close (the operator
@@ -18,8 +23,9 @@ sshds and the agents under them), so a killed rehearsal leaves no twin holding a
 a robot lock; the next ``testbed rehearse`` on the folder also reaps what a killed
 reaper left (:func:`reap`), then resumes (``testbed.lab.rehearsal``).
 
-``sim_twin`` runs in its own process and ``drivers.testing.sshd`` is imported inside
-the functions that start it, so importing this module starts and imports nothing.
+The stand-ins run in processes of their own and ``drivers.testing.sshd`` is imported
+inside the functions that start it, so importing this module starts and imports nothing
+(the plugins are asked through the registry, ``testbed.core``).
 """
 
 from __future__ import annotations
@@ -31,32 +37,29 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.error
-import urllib.request
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from testbed.core.backend_registry import backend_of, backends
+from testbed.core.backend_registry import HardwareTwin, TwinPlace, backend_of, backends
 from testbed.core.config import ConfigError
 from testbed.experiments.fleet_config import FleetConfig
+from testbed.lab.lab_client import LabClient, LabError
 
 if TYPE_CHECKING:
     from drivers.testing.sshd import SshServer
 
 __all__ = ["HardwareTwinLab", "LabClient", "LabError", "RehearsalError", "TwinHost",
-           "require_yumi"]
+           "hardware_twins", "require_faults"]
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 """This checkout: the twins' working folder and the rewritten hosts' ``workdir``."""
 SERVER_START_S = 60.0
 PIDS_FILE = "pids.json"
 """The lab's processes (twins, sshds) with their start times: what a reaper kills."""
-
-
-class LabError(RuntimeError):
-    """The hardware twin's lab side channel failed (the twin process is gone?)."""
+TWIN_LOG = "twin.log"
+"""Each stand-in's output (``TwinPlace.file``): what a twin that died said."""
 
 
 class RehearsalError(RuntimeError):
@@ -64,111 +67,92 @@ class RehearsalError(RuntimeError):
     could not be calibrated); ``str()`` is the one line to print."""
 
 
-class LabClient:
-    """The lab's side channel to one hardware twin: truth, the lab hand, the camera model.
-
-    This is what a person in the lab has that the controller does not: eyes on the real
-    table and hands to put a cube back. The controller's decisions never read it.
-    """
-
-    def __init__(self, base_url: str, timeout_s: float = 15.0) -> None:
-        self.base_url = base_url.rstrip("/")
-        self.timeout_s = timeout_s
-
-    def _call(self, path: str, body: Mapping[str, Any] | None = None) -> dict[str, Any]:
-        data = None if body is None else json.dumps(body).encode()
-        req = urllib.request.Request(f"{self.base_url}{path}", data=data,
-                                     headers={"Content-Type": "application/json"},
-                                     method="GET" if body is None else "POST")
-        try:
-            with urllib.request.urlopen(req, timeout=self.timeout_s) as resp:
-                out: dict[str, Any] = json.loads(resp.read())
-                return out
-        except urllib.error.HTTPError as exc:
-            detail = exc.read().decode("utf-8", "replace")[:300]
-            raise LabError(f"hardware twin {self.base_url}{path}: HTTP {exc.code}: "
-                           f"{detail}") from None
-        except (OSError, ValueError) as exc:
-            raise LabError(f"hardware twin {self.base_url}{path}: {exc}") from None
-
-    def truth(self) -> dict[str, dict[str, Any]]:
-        arms: dict[str, dict[str, Any]] = self._call("/lab/truth")["arms"]
-        return arms
-
-    def reset(self, arm: str) -> None:
-        self._call("/lab/reset", {"arm": arm})
-
-    def place(self, arm: str, xy_mm: Sequence[float], yaw: float = 0.0) -> None:
-        """A person puts the cube somewhere (fault drills, tests)."""
-        self._call("/lab/place", {"arm": arm, "xy_mm": [float(v) for v in xy_mm], "yaw": yaw})
-
-    def camera(self) -> dict[str, Any]:
-        return self._call("/lab/camera")
-
-    def tcp(self) -> dict[str, list[float]]:
-        """Where each pusher is now, also mid-motion (the twin's latest motion sample)."""
-        out: dict[str, list[float]] = self._call("/lab/tcp")["tcp_mm"]
-        return out
-
-    def fault(self, kind: str, arm: str | None = None) -> dict[str, Any]:
-        """Something goes wrong in the cell (``sim_twin.lab_faults``): a guard stop, the
-        motors off, a RAPID error or a zone stop in ``arm``'s task, a frozen camera."""
-        return self._call("/lab/fault", {"kind": kind, **({"arm": arm} if arm else {})})
-
-    def clear(self, kind: str) -> dict[str, Any]:
-        """A person clears ``kind`` as in the lab; ``actions``: what they did."""
-        return self._call("/lab/clear", {"kind": kind})
-
-    def healthy(self) -> bool:
-        try:
-            return bool(self._call("/lab/health").get("ok"))
-        except LabError:
-            return False
-
-
 @dataclass
 class TwinHost:
-    """One rehearsal host: its hardware twin process and the sshd in front of it."""
+    """One rehearsal host: its stand-in (a process, or none), the sshd in front of it, and
+    what its backend's plugin declared of it."""
 
     name: str
     arms: tuple[str, ...]
-    port: int
-    """The twin's camera and lab side channel."""
-    rws_port: int
-    """The twin's controller: Robot Web Services 1.0, as a lab's IRC5 answers it."""
-    proc: subprocess.Popen[bytes]
+    twin: HardwareTwin
+    place: TwinPlace
+    ports: dict[str, int]
+    """Each of ``twin.ports``, as the stand-in wrote it."""
+    proc: subprocess.Popen[bytes] | None
+    """The stand-in process; None: the agent's own backend plays the robot."""
     sshd: SshServer
-    lab: LabClient
-    login_file: Path
-    """The controller login (``USER:PASSWORD``, mode 0600), the host's ``credentials_file``."""
-    rws_log: Path
-    """Every RWS request the twin served (JSON lines: method, path, status, ms)."""
+    side: LabClient | None
+    """The lab's side channel (``twin.lab_port``), if the twin has one."""
 
     @property
-    def camera_url(self) -> str:
-        return f"http://127.0.0.1:{self.port}/camera.mjpg"
+    def lab(self) -> LabClient:
+        """The side channel; LabError for a twin that declares none (its plugin's
+        ``HardwareTwin.lab_port``)."""
+        if self.side is None:
+            raise LabError(f"host {self.name}'s hardware twin has no lab side channel (its "
+                           "plugin's HardwareTwin.lab_port)")
+        return self.side
+
+    @property
+    def port(self) -> int | None:
+        """The side channel's port, else the stand-in's first; None: no stand-in."""
+        lab = self.twin.lab_port
+        return self.ports[lab] if lab else next(iter(self.ports.values()), None)
+
+    @property
+    def login_file(self) -> Path:
+        """The controller login the stand-in was prepared with (``USER:PASSWORD``, mode
+        0600), the host's ``credentials_file`` (a twin with a controller)."""
+        return self.place.file("rws.login")
+
+    @property
+    def rws_log(self) -> Path | None:
+        """Every controller request the twin served (JSON lines: method, path, status,
+        ms), if it logs them (``twin.request_log``)."""
+        log = self.twin.request_log
+        return self.place.file(log) if log else None
+
+    def url(self, port: str) -> str:
+        """``http://127.0.0.1:N`` of the stand-in's port called ``port``."""
+        return f"http://127.0.0.1:{self.ports[port]}"
 
     @property
     def controller_url(self) -> str:
-        return f"http://127.0.0.1:{self.rws_port}"
+        """A YuMi twin's controller (RWS 1.0, its ``rws.port``), as the agent reaches it."""
+        return self.url("rws.port")
 
     @property
     def controller_lab_url(self) -> str:
-        """The twin controller's own side channel (``/lab/controller``: operating mode,
+        """A YuMi twin controller's own side channel (``/lab/controller``: operating mode,
         motors, guard stop, RAPID errors), what a person at the robot's cabinet changes."""
-        return f"http://127.0.0.1:{self.rws_port}"
+        return self.url("rws.port")
 
 
-def require_yumi(fleet: FleetConfig) -> None:
-    """A rehearsal stands hardware twins where YuMi hosts are; twin hosts have none."""
-    lacking = [h for h in fleet.hosts if not backend_of(h).capabilities.hardware_twin]
-    if lacking:
-        have = [n for n, b in backends().items() if b.capabilities.hardware_twin]
-        raise ConfigError(f"fleet.hosts[{lacking[0].name}].backend: testbed rehearse needs "
-                          "a physical protocol whose hosts have a hardware twin (backend = "
-                          f"{' or '.join(repr(n) for n in have)}; host {lacking[0].name}'s "
-                          f"{lacking[0].backend!r} has none); run a twin protocol with "
-                          "testbed protocol")
+def hardware_twins(fleet: FleetConfig) -> dict[str, HardwareTwin]:
+    """Each host's hardware twin, as its backend's plugin declares it; ConfigError (one
+    line naming the field) for the first host whose backend declares none."""
+    found: dict[str, HardwareTwin] = {}
+    for h in fleet.hosts:
+        twin = backend_of(h).hardware_twin()
+        if twin is None:
+            have = [n for n, b in backends().items() if b.hardware_twin() is not None]
+            raise ConfigError(
+                f"fleet.hosts[{h.name}].backend: testbed rehearse needs a physical protocol "
+                "whose hosts have a hardware twin (backend = "
+                f"{' or '.join(repr(n) for n in have)}; host {h.name}'s {h.backend!r} "
+                "declares none: its plugin's hardware_twin()); run a twin protocol with "
+                "testbed protocol")
+        found[h.name] = twin
+    return found
+
+
+def require_faults(fleet: FleetConfig) -> None:
+    """``--faults`` needs every host's twin to inject and clear the lab's faults."""
+    for name, twin in hardware_twins(fleet).items():
+        if not (twin.faults and twin.lab_port):
+            raise ConfigError(f"--faults: host {name}'s hardware twin cannot inject the "
+                              "lab's faults (its plugin's HardwareTwin.faults); rehearse "
+                              "without --faults")
 
 
 class HardwareTwinLab:
@@ -177,7 +161,8 @@ class HardwareTwinLab:
     def __init__(self, fleet: FleetConfig, root: Path, *, seed: int = 0,
                  realtime: float = 0.0, host_python: str | None = None,
                  camera_fps: float = 15.0) -> None:
-        require_yumi(fleet)
+        self.twins = hardware_twins(fleet)
+        """Each host's hardware twin, from its backend's plugin."""
         self.fleet = fleet
         self.root = root.resolve()  # sshd's config needs absolute paths
         self.seed = seed
@@ -198,62 +183,62 @@ class HardwareTwinLab:
         self.root.mkdir(parents=True, exist_ok=True)
         reap(self.root)  # a killed session's twins and sshds, if its reaper died too
         self._reaper = _start_reaper(self.root)
-        starting: list[tuple[str, tuple[str, ...], subprocess.Popen[bytes]]] = []
+        starting: list[tuple[TwinPlace, subprocess.Popen[bytes] | None]] = []
+        procs: list[subprocess.Popen[bytes]] = []
         try:
             for i, h in enumerate(self.fleet.hosts):
-                arms = tuple(a.name for a in h.arms)
-                for suffix in ("port", "rws.port"):
-                    (self.root / f"{h.name}.{suffix}").unlink(missing_ok=True)
-                write_login(self._login_file(h.name))
-                proc = self._start_twin(h.name, arms, self.seed * 1000 + i)
-                starting.append((h.name, arms, proc))
-            self.record_pids(extra=[p for _, _, p in starting])
-            for name, arms, proc in starting:
-                log = self.root / f"{name}-twin.log"
-                port = _wait_port(proc, self.root / f"{name}.port", log)
-                rws_port = _wait_port(proc, self.root / f"{name}.rws.port", log)
-                sshd = self._start_sshd(name)
-                self.hosts[name] = TwinHost(name, arms, port, rws_port, proc, sshd,
-                                            LabClient(f"http://127.0.0.1:{port}"),
-                                            self._login_file(name), self._rws_log(name))
-                self.record_pids(extra=[p for _, _, p in starting])
+                place = self.place(h.name, self.seed * 1000 + i)
+                proc = self._start_twin(place)
+                starting.append((place, proc))
+                procs += [proc] if proc is not None else []
+            self.record_pids(extra=procs)
+            for place, proc in starting:
+                twin = self.twins[place.host]
+                ports = {p: _wait_port(proc, place.port_file(p), place.file(TWIN_LOG))
+                         for p in twin.ports} if proc is not None else {}
+                sshd = self._start_sshd(place.host)
+                side = (LabClient(f"http://127.0.0.1:{ports[twin.lab_port]}")
+                        if twin.lab_port else None)
+                self.hosts[place.host] = TwinHost(place.host, place.arms, twin, place, ports,
+                                                  proc, sshd, side)
+                self.record_pids(extra=procs)
         except BaseException:
-            for _, _, proc in starting:
+            for proc in procs:
                 _terminate(proc)
             self.stop()
             raise
 
-    def _serial(self, host: str) -> str:
-        """The twin controller's serial: robot locks are keyed on it, so each twin of a
-        lab (and of another lab on this machine) has its own, stable for its folder."""
-        import zlib
+    def place(self, host: str, seed: int = 0) -> TwinPlace:
+        """Where ``host``'s twin stands: its arms, this lab's folder, seed and pace."""
+        h = next(x for x in self.fleet.hosts if x.name == host)
+        return TwinPlace(host, tuple(a.name for a in h.arms), self.root, seed,
+                         self.realtime, self.camera_fps)
 
-        return f"14000-{zlib.crc32(f'{self.root}/{host}'.encode()) % 1_000_000:06d}"
+    def _serial(self, host: str) -> str | None:
+        """The stand-in controller's identity (a YuMi twin's serial: robot locks are keyed
+        on it), as its plugin derives it from where it stands."""
+        return self.twins[host].identity(self.place(host))
 
-    def _login_file(self, host: str) -> Path:
-        return self.root / f"{host}-rws.login"
-
-    def _rws_log(self, host: str) -> Path:
-        return self.root / f"{host}-rws.jsonl"
-
-    def _start_twin(self, host: str, arms: tuple[str, ...], seed: int
-                    ) -> subprocess.Popen[bytes]:
-        """``python -m sim_twin.yumi_server`` for ``host``, its output to its log: the
-        camera and the lab side channel on one port, the controller's RWS on another,
-        logging in with the host's login file and logging every request it serves."""
-        log = open(self.root / f"{host}-twin.log", "ab")  # noqa: SIM115 (child owns it)
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "sim_twin.yumi_server", "--arms", ",".join(arms),
-             "--seed", str(seed), "--port", "0",
-             "--port-file", str(self.root / f"{host}.port"),
-             "--rws-port-file", str(self.root / f"{host}.rws.port"),
-             "--rws-credentials", str(self._login_file(host)),
-             "--rws-log", str(self._rws_log(host)), "--realtime", f"{self.realtime:g}",
-             "--fps", f"{self.camera_fps:g}",
-             "--serial", self._serial(host)],
-            cwd=PROJECT_ROOT, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-            start_new_session=True)
-        log.close()
+    def _start_twin(self, place: TwinPlace) -> subprocess.Popen[bytes] | None:
+        """The stand-in of ``place.host`` as its plugin says (``HardwareTwin.command``),
+        from this checkout's folder, its output to its log, in a session of its own;
+        its port files removed first (a ready twin writes them). None: no process."""
+        twin = self.twins[place.host]
+        for p in twin.ports:
+            place.port_file(p).unlink(missing_ok=True)
+        twin.prepare(place)
+        argv = twin.command(place)
+        if argv is None:
+            return None
+        log = open(place.file(TWIN_LOG), "ab")  # noqa: SIM115 (child owns it)
+        try:
+            proc = subprocess.Popen(argv, cwd=PROJECT_ROOT, stdin=subprocess.DEVNULL,
+                                    stdout=log, stderr=log, start_new_session=True)
+        except OSError as exc:
+            raise RehearsalError(f"host {place.host}: its hardware twin did not start "
+                                 f"({' '.join(argv[:3])} ...): {exc}") from None
+        finally:
+            log.close()
         return proc
 
     def _start_sshd(self, host: str) -> SshServer:
@@ -272,7 +257,7 @@ class HardwareTwinLab:
         started again), what the reaper kills should this process die."""
         from testbed.core.atomic import atomic_write_json
 
-        procs = [*extra, *(h.proc for h in self.hosts.values()),
+        procs = [*extra, *(h.proc for h in self.hosts.values() if h.proc is not None),
                  *(h.sshd.proc for h in self.hosts.values() if h.sshd.proc is not None)]
         entries = {p.pid: _proc_start(p.pid) for p in procs}
         atomic_write_json(self.root / PIDS_FILE,
@@ -282,7 +267,8 @@ class HardwareTwinLab:
         for h in self.hosts.values():
             with contextlib.suppress(Exception):
                 h.sshd.stop()
-            _terminate(h.proc)
+            if h.proc is not None:
+                _terminate(h.proc)
         self.hosts = {}
         if self._reaper is not None:  # stdin closed: it reaps what is left, and exits
             with contextlib.suppress(OSError):
@@ -301,7 +287,13 @@ class HardwareTwinLab:
 
     @property
     def labs(self) -> dict[str, LabClient]:
-        return {n: h.lab for n, h in self.hosts.items()}
+        """The side channel of every host whose twin has one (the others' agents play
+        their robot themselves: no truth to read, no cube for the lab hand)."""
+        return {n: h.side for n, h in self.hosts.items() if h.side is not None}
+
+    def calibrated(self, host: str) -> bool:
+        """Whether the rehearsal calibrates ``host``'s arms (``HardwareTwin.calibrate``)."""
+        return self.twins[host].calibrate
 
     def calibration_path(self, host: str, arm: str) -> Path:
         return self.root / "calib" / f"{host}-{arm}.json"
@@ -309,15 +301,17 @@ class HardwareTwinLab:
     def rewrite(self, fleet: FleetConfig | None = None) -> FleetConfig:
         """The fleet with each host pointed at its twin: address, port, user and keys of
         its sshd; this checkout's interpreter and folder (or, with ``host_python``, a host
-        install's interpreter and no folder); the twin's camera and controller and its
-        login file; the rehearsal's calibration files. Nothing else changes."""
+        install's interpreter and no folder); the rehearsal's calibration files (a twin
+        that is calibrated); and the fields its plugin says reach its stand-in
+        (``HardwareTwin.host_fields``: a YuMi's camera, controller and login file).
+        Nothing else changes."""
         fleet = fleet or self.fleet
         hosts = []
         for h in fleet.hosts:
             t = self.hosts[h.name]
             arms = [a.model_copy(update={"calibration": str(self.calibration_path(h.name,
                                                                                    a.name))})
-                    for a in h.arms]
+                    for a in h.arms] if t.twin.calibrate else list(h.arms)
             hosts.append(h.model_copy(update={
                 "transport": "ssh", "address": "127.0.0.1", "port": t.sshd.port,
                 "ssh_alias": None, "ssh_config": None,
@@ -325,16 +319,17 @@ class HardwareTwinLab:
                 "known_hosts": str(t.sshd.known_hosts),
                 "python": self.host_python or sys.executable,
                 "workdir": None if self.host_python else str(PROJECT_ROOT),
-                "camera": t.camera_url,
-                "controller_url": t.controller_url, "credentials_file": str(t.login_file),
+                **t.twin.host_fields(h, t.place, t.ports),
                 "arms": arms}))
         return fleet.model_copy(update={"hosts": hosts})
 
     def reset_all(self, *_: Any) -> None:
-        """What the protocol's prompt asks of a person: every cube back near its centre."""
+        """What the protocol's prompt asks of a person: every cube back near its centre
+        (on the twins with a side channel; the others reset themselves)."""
         for h in self.hosts.values():
-            for arm in h.arms:
-                h.lab.reset(arm)
+            if h.side is not None:
+                for arm in h.arms:
+                    h.side.reset(arm)
 
     def kill_agent(self, host: str) -> int:
         """Fault drill: SIGKILL the agent on ``host`` (the process under its sshd)."""
@@ -404,17 +399,6 @@ def _start_reaper(root: Path) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", code, str(root)], cwd=PROJECT_ROOT,
                             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
-
-
-def write_login(path: Path) -> None:
-    """A fresh controller login for one twin (``testbed`` and a random password), mode
-    0600 from its first byte: what a lab puts on its robot host for the real controller."""
-    import secrets
-
-    path.unlink(missing_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(f"testbed:{secrets.token_urlsafe(18)}\n")
 
 
 def _wait_port(proc: subprocess.Popen[bytes], port_file: Path, log: Path) -> int:

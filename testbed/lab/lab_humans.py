@@ -2,7 +2,7 @@
 
 Why it exists: on the real YuMi a scripted human has nothing to look at, and a hard
 reset is done by a person's hands. On the hardware twin both come from the lab's side
-channel (``testbed.lab.hardware_twin.LabClient``): a scripted human reads the table's
+channel (``testbed.lab.lab_client.LabClient``): a scripted human reads the table's
 truth and pushes the expert's face, and the lab hand puts the cube back when a human
 confirms a reset. ``ArmView`` maps the twin's pixels into each arm's canonical frame
 exactly as the controller's config (crop, mirror) does, so the expert sees the table
@@ -11,7 +11,7 @@ the way the controller would.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -22,7 +22,7 @@ from testbed.core.wrappers import HumansWrapper
 from testbed.experiments.fleet_config import FleetConfig
 
 if TYPE_CHECKING:
-    from testbed.lab.hardware_twin import LabClient
+    from testbed.lab.lab_client import LabClient
 
 __all__ = ["ArmView", "TwinLabHumans", "arm_views"]
 
@@ -49,14 +49,19 @@ class ArmView:
         return -yaw_px if self.mirror else yaw_px
 
 
-def arm_views(cfg: FleetConfig) -> dict[str, ArmView]:
-    """Every robot's crop and mirror, from the (rewritten) fleet config."""
+def arm_views(cfg: FleetConfig, hosts: Collection[str] | None = None
+              ) -> dict[str, ArmView]:
+    """Every robot's crop and mirror, from the (rewritten) fleet config; with ``hosts``,
+    those hosts' only (the twins with a side channel: a lab's robot whose agent plays
+    it has no truth to map)."""
     out: dict[str, ArmView] = {}
     for h in cfg.hosts:
+        if hosts is not None and h.name not in hosts:
+            continue
         for a in h.arms:
             if a.crop is None:
-                raise ConfigError(f"hosts[{h.name}].arms[{a.name}].crop: a YuMi arm needs "
-                                  "its crop box")
+                raise ConfigError(f"hosts[{h.name}].arms[{a.name}].crop: an arm whose twin "
+                                  "the lab sees needs its crop box")
             out[f"{h.name}/{a.name}"] = ArmView(h.name, a.name, a.crop, a.mirror)
     return out
 
@@ -67,11 +72,12 @@ class TwinLabHumans(HumansWrapper):
 
     * Teleop: a scripted human looks at the table (the twin's truth, through the lab side
       channel) and pushes the expert's face, as a person looks at the real cube; a person
-      at the console chooses for themselves.
+      at the console chooses for themselves. A robot without a view (its twin has no
+      side channel) keeps its observation's expert action.
     * Hard reset: when the human confirms it (scripted: at the end of the t_R-th step;
       console: the confirm button), the lab hand puts the cube back near the centre of
       its workspace before the controller looks at the picture. The YuMi backend then
-      believes the picture, as in the lab.
+      believes the picture, as in the lab. A robot without a view resets itself.
 
     Every other call of the humans (``show``, ``presence``, ``close``) goes to the inner
     humans unchanged (``testbed.core.wrappers.HumansWrapper``).
@@ -100,13 +106,14 @@ class TwinLabHumans(HumansWrapper):
         truths: Truths = {}
         asked: list[HumanRequest] = []
         for req in requests:
-            if self.expert and req.kind is InterventionKind.TELEOP:
+            if (self.expert and req.kind is InterventionKind.TELEOP
+                    and req.robot in self.views):
                 face = self._expert_face(req, truths)
                 req = replace(req, observation=replace(req.observation, expert_action=face))
             asked.append(req)
         answers = self.humans.act(asked, t)
         for robot, answer in answers.items():
-            if answer.reset_done:
+            if answer.reset_done and robot in self.views:
                 view = self.views[robot]
                 self.labs[view.host].reset(view.arm)
                 self.lab_resets += 1

@@ -1,13 +1,14 @@
-"""``testbed rehearse``: a lab's whole day on the hardware twin, before touching a robot.
+"""``testbed rehearse``: a lab's whole day on hardware twins, before touching a robot.
 
-Why: the physical path (SSH, the host agent, the YuMi backend, its camera and its
+Why: the physical path (SSH, the host agent, the robot's backend, its camera and its
 controller, calibration, the physical protocol's prompts and records) is what a lab runs
 on day one, and none of it runs in twin mode. A rehearsal runs the physical protocol
-UNCHANGED but for where its hosts are: each YuMi host becomes a hardware twin
-(``python -m sim_twin.yumi_server``: a PyBullet bimanual cell behind the controller's Robot
-Web Services, with our RAPID's semantics, and an MJPEG camera) reached through a real
-OpenSSH ``sshd`` on loopback, and the agent on it runs ``--backend yumi`` as on the
-robot's PC::
+UNCHANGED but for where its hosts are: each host becomes the hardware twin its
+backend's plugin declares (``Backend.hardware_twin``, ``testbed.lab.hardware_twin``)
+reached through a real OpenSSH ``sshd`` on loopback, and the agent on it runs the host's
+backend as on the robot's PC. A YuMi host's twin is ``python -m sim_twin.yumi_server``
+(a PyBullet bimanual cell behind the controller's Robot Web Services, with our RAPID's
+semantics, and an MJPEG camera)::
 
     testbed rehearse  --SSH-->  sshd  -->  python -m drivers.agent --backend yumi
                                              camera:     http://127.0.0.1:P/camera.mjpg
@@ -18,13 +19,19 @@ robot's PC::
       TruthRecorder: runs/<run>/twin_truth.jsonl (scoring only)
       RwsLogSlices: runs/<run>/hosts/<host>.rws.jsonl (every RWS request the twin served)
 
+A lab's own robot rehearses the same way with whatever stand-in its plugin starts; a
+twin without a lab side channel (``HardwareTwin.lab_port``) has no truth to record and
+no cube for the lab hand (its observations carry the expert's action, its backend
+resets), and one that is not calibrated (``HardwareTwin.calibrate``) keeps its arms'
+files as written.
+
 The protocol's host section is rewritten in addresses, ports, users and key paths (the
-twin's sshd), in the host install (python, workdir: this checkout), in the devices
-(camera and controller URLs of the twin) and in the calibration files (calibrated by
-``testbed.lab.calibrate.calibrate``, what ``testbed calibrate`` runs, against the twin
-at the start of the rehearsal). Crops, mirrors, the algorithm, learning, humans and the
-protocol's order and prompts stay as the lab wrote them. ``--quick`` swaps the learning
-sizes for the default twin trial's.
+twin's sshd), in the host install (python, workdir: this checkout), in the fields that
+reach the stand-in (a YuMi's camera and controller URLs and login file) and in the
+calibration files (calibrated by ``testbed.lab.calibrate.calibrate``, what ``testbed
+calibrate`` runs, against the twin at the start of the rehearsal). Crops, mirrors, the
+algorithm, learning, humans and the protocol's order and prompts stay as the lab wrote
+them. ``--quick`` swaps the learning sizes for the default twin trial's.
 
 This module is the orchestration only: the twins and their sshds are
 ``testbed.lab.hardware_twin``, the lab's humans ``testbed.lab.lab_humans``, the truth
@@ -45,6 +52,7 @@ from typing import TYPE_CHECKING, Any
 
 from testbed.core.atomic import atomic_write_json
 from testbed.core.config import ConfigError
+from testbed.core.host_config import HostConfig
 from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans
 from testbed.experiments.fleet_config import FleetConfig
@@ -52,7 +60,12 @@ from testbed.experiments.hooks import TrialHooks
 from testbed.lab.camera_model import starting_calibration, true_model_error
 from testbed.lab.fault_drills import FAULTS_FILE, RunFaults, fault_room
 from testbed.lab.fault_report import faults_table, finish_faults
-from testbed.lab.hardware_twin import HardwareTwinLab, RehearsalError, require_yumi
+from testbed.lab.hardware_twin import (
+    HardwareTwinLab,
+    RehearsalError,
+    hardware_twins,
+    require_faults,
+)
 from testbed.lab.lab_humans import ArmView, TwinLabHumans, arm_views
 from testbed.lab.rws_requests import RwsLogSlices, read_requests, requests_table
 from testbed.lab.twin_truth import TruthRecorder, agreement_table, truth_agreement
@@ -62,8 +75,8 @@ if TYPE_CHECKING:
     from testbed.experiments.protocol import Protocol
     from testbed.fleet.loop import StepOutcome
 
-__all__ = ["RehearsalError", "RehearsalOptions", "RehearsalResult", "quick_learning",
-           "rehearse", "require_yumi"]
+__all__ = ["RehearsalError", "RehearsalOptions", "RehearsalResult", "hardware_twins",
+           "quick_learning", "rehearse", "require_faults"]
 
 Say = Callable[[str], None]
 CALIBRATED = "calibration.json"
@@ -115,7 +128,9 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
     from testbed.experiments.protocol import load_protocol, run_protocol
 
     proto = load_protocol(opts.protocol, check_files=False)  # its keys are the lab's
-    require_yumi(proto.fleet)
+    hardware_twins(proto.fleet)  # each host's, or one line naming the one without
+    if opts.faults:
+        require_faults(proto.fleet)
     folder = opts.out or Path("runs") / f"rehearsal-{proto.name}"
     update = _protocol_update(proto, opts, folder)
     fleet = _rehearsal_fleet(proto.fleet, opts)
@@ -128,7 +143,8 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
         fleet_dir.path.mkdir(parents=True, exist_ok=True)
         fleet_dir.write_config(fleet)
         fleet_file = fleet_dir.path / "config.toml"
-        where = ", ".join(f"{n} (sshd :{h.sshd.port}, twin :{h.port})"
+        where = ", ".join(f"{n} (sshd :{h.sshd.port}, " + (f"twin :{h.port})" if h.port
+                                                             else "its agent's own twin)")
                           for n, h in lab.hosts.items())
         say(f"hardware twins: {where}")
         calibration = _kept_calibration(lab, fleet, say)
@@ -137,7 +153,7 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
             atomic_write_json(lab.root / CALIBRATED, calibration)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
         _same_theta_0(run_proto, folder)
-        hooks = _RehearsalHooks(lab, arm_views(fleet), opts.humans)
+        hooks = _RehearsalHooks(lab, arm_views(fleet, hosts=lab.labs), opts.humans)
         if opts.faults:
             hooks.drills = RunFaults(lab, say)
             say(fault_room(run_proto.steps))
@@ -154,7 +170,8 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
     if opts.quick:
         markdown = ("**Quick rehearsal:** the learning sizes are the default twin trial's, not "
                     "the protocol's.\n\n" + markdown)
-    markdown += "\n" + agreement_table(agreement)
+    if agreement:  # the twins with a side channel's truth
+        markdown += "\n" + agreement_table(agreement)
     faults = {run.name: finish_faults(run) for run in sorted(folder.iterdir())
               if (run / FAULTS_FILE).exists()} if opts.faults else {}
     if faults:
@@ -230,7 +247,7 @@ def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say
     if not (lab.root / CALIBRATED).exists():
         return None
     figures: dict[str, dict[str, float]] = {}
-    for h in fleet.hosts:
+    for h in _calibrated(lab, fleet):
         cam = lab.hosts[h.name].lab.camera()
         for a in h.arms:
             try:
@@ -244,15 +261,21 @@ def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say
                 say(f"calibration of {h.name}/{a.name} no longer holds ("
                     + (f"{', '.join(stale)} changed" if stale else
                        f"max {err['max_px']:.2f} px") + "): calibrating every arm again")
-                for g in fleet.hosts:  # from the lab's starting files, as on day one
+                for g in _calibrated(lab, fleet):  # from the starting files, as on day one
                     for x in g.arms:
                         lab.calibration_path(g.name, x.name).unlink(missing_ok=True)
                 return None
             figures[f"{h.name}/{a.name}"] = err
-    worst = max(f["max_px"] for f in figures.values())
-    say(f"calibration: every arm's from the last session, checked against the twin's "
-        f"camera (max {worst:.2f} px)")
+    if figures:
+        worst = max(f["max_px"] for f in figures.values())
+        say(f"calibration: every arm's from the last session, checked against the twin's "
+            f"camera (max {worst:.2f} px)")
     return figures
+
+
+def _calibrated(lab: HardwareTwinLab, fleet: FleetConfig) -> list[HostConfig]:
+    """The hosts whose arms the rehearsal calibrates (``HardwareTwin.calibrate``)."""
+    return [h for h in fleet.hosts if lab.calibrated(h.name)]
 
 
 def _calibrate_all(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path,
@@ -260,10 +283,11 @@ def _calibrate_all(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path,
     """``testbed calibrate`` for every arm, against the twin, over SSH: the lab's first
     morning. Each arm starts from a hand-written starting file (safe box, rest pose)."""
     figures: dict[str, dict[str, float]] = {}
-    for h in fleet.hosts:  # every arm's starting file first: the controller client needs
+    hosts = _calibrated(lab, fleet)
+    for h in hosts:  # every arm's starting file first: the controller client needs
         for a in h.arms:   # each arm's rest pose, also while its sibling is calibrated
             starting_calibration(lab, h.name, a.name)
-    for h in fleet.hosts:
+    for h in hosts:
         for a in h.arms:
             say(f"calibrate {h.name}/{a.name} (testbed calibrate --config {fleet_file} "
                 f"--host {h.name} --arm {a.name})")
@@ -301,7 +325,8 @@ class _RehearsalHooks(TrialHooks):
         self.recorders: list[TruthRecorder] = []
         self.drills: RunFaults | None = None
         """``--faults``: each run's faults, injected and cleared between its steps."""
-        self.rws = RwsLogSlices({n: h.rws_log for n, h in lab.hosts.items()})
+        self.rws = RwsLogSlices({n: h.rws_log for n, h in lab.hosts.items()
+                                 if h.rws_log is not None})
         """Each run's share of the twins' RWS request logs, into its ``hosts/``."""
 
     def before_run(self, name: str) -> bool:
@@ -331,6 +356,8 @@ class _RehearsalHooks(TrialHooks):
             start = int(json.loads(run.state.read_text(encoding="utf-8"))["t"]) + 1
             rows = [r for r in read_steps(run.steps) if int(r["t"]) < start]
         first = self.drills.begin(run.path, rows) if self.drills is not None else None
+        if not self.lab.labs:  # no twin with a side channel: no truth (and no drills)
+            return hosts
         rec = TruthRecorder(hosts, self.lab.labs, self.views, run.path / "twin_truth.jsonl",
                             start=start, before_first_step=first)
         self.recorders.append(rec)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 from testbed.core.hosts import Hosts
 from testbed.core.types import SUCCESS_RADIUS, ArmObservation, Fault, PushResult
 from testbed.core.wrappers import HostsWrapper
-from testbed.lab.hardware_twin import LabClient, LabError
+from testbed.lab.lab_client import LabClient, LabError
 
 if TYPE_CHECKING:
     from testbed.lab.lab_humans import ArmView
