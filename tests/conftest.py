@@ -15,6 +15,12 @@ xdist's ``PYTEST_XDIST_TESTRUNUID``): a test takes the main lock shared, an ``al
 test exclusive; both pass a turnstile first, which an ``alone`` test holds until it is
 done, so a waiting ``alone`` test is not starved by its neighbour's next tests. Without
 xdist (one process) nothing is locked.
+
+And the CPUs are shared out: a worker's torch (and every trial it starts in a
+subprocess) takes ``cores / workers`` threads (``TESTBED_THREADS``, as a Ray worker's
+trial does: ``testbed/learning/runtime.py::configure_torch``) instead of every core, so
+two workers' training does not oversubscribe the cores (measured: the critics'
+acceptance training took 272 s beside another worker's at two threads each, 85 s alone).
 """
 
 from __future__ import annotations
@@ -56,6 +62,13 @@ def _turn(alone: bool) -> Iterator[None]:
             fcntl.flock(main, fcntl.LOCK_UN)
             if alone:
                 fcntl.flock(turnstile, fcntl.LOCK_UN)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
+    if os.environ.get("PYTEST_XDIST_WORKER") and workers.isdigit():
+        cores = len(os.sched_getaffinity(0))
+        os.environ.setdefault("TESTBED_THREADS", str(max(1, cores // int(workers))))
 
 
 @pytest.hookimpl(hookwrapper=True)

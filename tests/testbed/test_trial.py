@@ -147,7 +147,8 @@ def test_same_seed_same_records_cold_then_warm_one_agent_per_host(workdir: Path)
                 [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml",
                  "--out", "cold", "--name", name, "--steps", "12"],
                 cwd=workdir, stdout=subprocess.DEVNULL, stderr=err_file,
-                env={**os.environ, "PYTHONPATH": str(ROOT)},
+                env={**{k: v for k, v in os.environ.items() if k != "TESTBED_THREADS"},
+                     "PYTHONPATH": str(ROOT)},  # the default threads (not a worker's share)
             )
             agents.append(_agents_of(proc))
         assert proc.wait(timeout=10) == 0, err.read_text()[-3000:]
