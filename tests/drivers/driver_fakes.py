@@ -262,6 +262,8 @@ class ThreadAgentTransport(Transport):
         self.rc: int | None = None
         self.crashed: BaseException | None = None
         self._thread: threading.Thread | None = None
+        self._req_closed = True  # no streams until open() (a refused open is closed too)
+        self._a2c_r = -1
 
     def open(self, argv: list[str], timeout_s: float) -> None:
         self._c2a_r, self._c2a_w = os.pipe()
