@@ -35,6 +35,9 @@ arm's reach of 560 mm) below which a pose is "close to singularity": about a ten
 degree of axis 5 from a wrist singularity without SingArea\\Wrist. The controller slows
 a line near one and stops it (50026) only this close, or when the line passes through
 (the joints flip: ``arm_supervision.JUMP_DEG``)."""
+TIE: Final = 1e-6
+"""Two solutions whose scores (dexterity, or the largest joint difference in degrees)
+differ by less are equally good to :func:`_pick`: rounding, not the arm."""
 _FREE: Final = (0, 1, 3, 4, 5, 6)  # chain indices solved for (2: axis 7, the arm angle)
 
 
@@ -228,7 +231,8 @@ def _flipped(found: Sequence[ArmPose]) -> list[list[float]]:
 
 def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[float] | None,
           current: Sequence[float] | None = None, free_yaw: bool = False,
-          seeds: Sequence[Sequence[float]] = ()) -> Solution:
+          seeds: Sequence[Sequence[float]] = (),
+          prefer: Sequence[float] | None = None) -> Solution:
     """The joints that put the flange at ``flange`` (4x4, base frame mm) with axis 7 at
     ``arm_angle_deg``, in the configuration ``conf`` (cf1, cf4, cf6[, cfx]; None: any,
     the closest to ``current``, else the most dexterous). ``free_yaw``: the tool's turn
@@ -240,7 +244,9 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
 
     ``seeds``: more starting joints (chain order), tried first without ranking by them:
     the arm's present joints, so that a pose its own forward kinematics produced (the
-    rest pose, a stop mid-way) is always found, however far from the generic seeds."""
+    rest pose, a stop mid-way) is always found, however far from the generic seeds.
+    ``prefer``: among solutions equally good (see :func:`_pick`), the one closest to these
+    joints (the arm's present ones: no wrist turned a whole turn for nothing)."""
     short = model.reach_shortfall(flange[:3, 3])
     if short > REACH_TOL_MM:  # past the arm's length: no search needed
         return Solution(None, "reach", f"{short:.1f} mm short")
@@ -248,17 +254,17 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
     near = [list(x) for x in seeds] + _seeds(current, conf if conf is not None else (0, 0, 0),
                                              arm_angle_deg)
     found, best = solutions(model, flange, arm_angle_deg, near, free_yaw)
-    hit = _pick(model, found, want, current, free_yaw)
+    hit = _pick(model, found, want, current, free_yaw, prefer)
     if hit is None and found and want is not None:  # the wrist's other solutions
         more, _ = solutions(model, flange, arm_angle_deg, _flipped(found), free_yaw)
         found = found + more
-        hit = _pick(model, found, want, current, free_yaw)
+        hit = _pick(model, found, want, current, free_yaw, prefer)
     if hit is None:
         more, best2 = solutions(model, flange, arm_angle_deg,
                                 [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],
                                 free_yaw)
         found, best = found + more, min(best, best2)
-        hit = _pick(model, found, want, current, free_yaw)
+        hit = _pick(model, found, want, current, free_yaw, prefer)
     if hit is not None:
         return Solution(hit)
     if not found:
@@ -274,16 +280,17 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
 
 
 def ranked(model: ArmModel, flange: Mat, arm_angle_deg: float, free_yaw: bool = False,
-           most: int = 8) -> list[ArmPose]:
+           most: int = 8, prefer: Sequence[float] | None = None) -> list[ArmPose]:
     """The distinct solutions within the limits, best first (as :func:`_pick` ranks them
-    without a current pose): the candidates of a ConfJ-off joint move."""
+    without a current pose, ties to the closest to ``prefer``): the candidates of a
+    ConfJ-off joint move."""
     found, _ = solutions(model, flange, arm_angle_deg,
                          [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],
                          free_yaw)
     out: list[ArmPose] = []
     pool = [p for p in found if model.limit_violation(p.chain_deg) is None]
     while pool and len(out) < most:
-        best = _pick(model, pool, None, None, free_yaw)
+        best = _pick(model, pool, None, None, free_yaw, prefer)
         assert best is not None
         out.append(best)
         pool = [p for p in pool if np.abs(np.subtract(p.chain_deg, best.chain_deg)).max() > 1.0]
@@ -291,11 +298,17 @@ def ranked(model: ArmModel, flange: Mat, arm_angle_deg: float, free_yaw: bool = 
 
 
 def _pick(model: ArmModel, found: Sequence[ArmPose], want: tuple[int, ...] | None,
-          current: Sequence[float] | None, free_yaw: bool = False) -> ArmPose | None:
+          current: Sequence[float] | None, free_yaw: bool = False,
+          prefer: Sequence[float] | None = None) -> ArmPose | None:
     """The solution within the limits (in the configuration ``want``) the controller
     would take: clear of singularities first, then the closest to ``current`` (without
     one, the most dexterous, counting a joint within 30 deg of its limit against it: a
-    line that starts there soon runs out of travel)."""
+    line that starts there soon runs out of travel).
+
+    Solutions that score the same (within :data:`TIE`: one pose with a wrist a whole
+    turn apart has the same dexterity) go to the closest to ``prefer`` (else to
+    ``current``, else to the joints' zero): never to whichever rounding favoured, which
+    differs between CPUs (a MoveJ that turned axis 4 by 360 deg on one machine only)."""
     ok = [p for p in found if model.limit_violation(p.chain_deg) is None
           and (want is None or configuration(p.chain_deg) == want)]
     if not ok:
@@ -309,7 +322,13 @@ def _pick(model: ArmModel, found: Sequence[ArmPose], want: tuple[int, ...] | Non
             np.abs(np.subtract(p.chain_deg, current)).max())
         return dex < 3 * SINGULAR_SIGMA, near
 
-    return min(ok, key=cost)
+    costs = [cost(p) for p in ok]
+    best = min(costs)
+    tied = [p for p, c in zip(ok, costs, strict=True)
+            if c[0] == best[0] and c[1] <= best[1] + TIE]
+    ref = np.zeros(7) if prefer is None and current is None else \
+        np.asarray(prefer if prefer is not None else current, dtype=np.float64)
+    return min(tied, key=lambda p: float(np.abs(np.subtract(p.chain_deg, ref)).max()))
 
 
 def _wrapped(model: ArmModel, pose: ArmPose) -> ArmPose:

@@ -385,10 +385,11 @@ class ArmSupervisor:
         present joints seed the search too (a target its own joints produced is found)."""
         flange = flange_at(xyz, self.tool_mm, rot)
         s = solve(self.models[arm], flange, angle, conf if conf_on else None,  # type: ignore[arg-type]
-                  current=None, free_yaw=self.free_yaw, seeds=[current])
+                  current=None, free_yaw=self.free_yaw, seeds=[current], prefer=current)
         if s.pose is not None and not conf_on and lines and \
                 not self._lines_run(arm, lines, list(s.pose.chain_deg)):
-            for cand in ranked(self.models[arm], flange, angle, self.free_yaw, LOOKAHEAD):
+            for cand in ranked(self.models[arm], flange, angle, self.free_yaw, LOOKAHEAD,
+                               prefer=current):
                 if self._lines_run(arm, lines, list(cand.chain_deg)):
                     return list(cand.chain_deg)
         if s.pose is None:

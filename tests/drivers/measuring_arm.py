@@ -21,7 +21,8 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from drivers import agent
+from slow_arm import run_agent
+
 from drivers.backends.base import ArmOutcome, HostBackend
 from drivers.backends.twin import CannedTwinBackend
 
@@ -58,10 +59,7 @@ def _factory(args: argparse.Namespace, kwargs: dict[str, Any]) -> HostBackend:
 
 
 def main(argv: Sequence[str]) -> int:
-    args = list(argv)
-    if args[:2] == ["-m", "drivers.agent"]:
-        args = args[2:]
-    return agent.main(args, backend_factory=_factory)
+    return run_agent(argv, _factory)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -116,11 +116,18 @@ def _factory(args: argparse.Namespace, kwargs: dict[str, Any]) -> HostBackend:
                           events=os.environ.get(EVENTS_ENV))
 
 
-def main(argv: Sequence[str]) -> int:
+def run_agent(argv: Sequence[str], factory: Callable[[argparse.Namespace, dict[str, Any]],
+                                                   HostBackend]) -> int:
+    """The REAL agent with a test backend: ``agent_argv``'s argv, a leading
+    ``-m drivers.agent`` dropped (the seam every agent-as-a-script here stands on)."""
     args = list(argv)
     if args[:2] == ["-m", "drivers.agent"]:
         args = args[2:]
-    return agent.main(args, backend_factory=_factory)
+    return agent.main(args, backend_factory=factory)
+
+
+def main(argv: Sequence[str]) -> int:
+    return run_agent(argv, _factory)
 
 
 if __name__ == "__main__":

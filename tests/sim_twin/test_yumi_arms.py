@@ -31,7 +31,7 @@ from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
 from sim_twin.yumi_arms import _LINKS, DEFAULT_TOOL_MM, ArmModel, abb_to_chain, clearance
 from sim_twin.yumi_cell import YumiTwinCell
-from sim_twin.yumi_ik import configuration, solve
+from sim_twin.yumi_ik import _pick, configuration, ranked, solve
 
 Made = tuple[Any, Irc5Controller, YumiTwinCell, Any]
 
@@ -73,6 +73,26 @@ def test_inverse_kinematics_finds_the_joints_forward_kinematics_went_from() -> N
             assert s.pose is not None, s.detail
             assert np.abs(s.pose.flange - flange).max() < 0.05
             assert configuration(s.pose.chain_deg) == configuration(q)
+
+
+def test_of_two_equally_good_solutions_the_one_nearest_the_arm_is_taken_in_any_order() -> None:
+    """One pose, axis 4 a whole turn apart: the same dexterity, so which one a ConfJ-off
+    MoveJ takes was the rounding's choice (a 360 deg wrist turn, and a 14 mm rise of the
+    pusher, on one CPU only). It is the one nearest the arm's present joints, whatever
+    order the search found them in."""
+    m = ArmModel("right")
+    near = m.pose([66.4, 27.3, -130.0, 34.1, -107.4, -22.9, 0.0])
+    turned = m.pose([66.4, 27.3, -130.0, 34.1, 252.6, -22.9, 0.0])
+    assert m.limit_violation(turned.chain_deg) is None
+    for arm_at, want in (([75.8, 11.4, -130.0, 31.6, -118.0, -6.9, 0.0], near),
+                         ([75.8, 11.4, -130.0, 31.6, 240.0, -6.9, 0.0], turned)):
+        for found in ([near, turned], [turned, near]):
+            got = _pick(m, found, None, None, free_yaw=True, prefer=arm_at)
+            assert got is not None and got.chain_deg[4] == want.chain_deg[4]
+        s = solve(m, near.flange, -130.0, None, free_yaw=True, seeds=[arm_at], prefer=arm_at)
+        assert s.pose is not None and abs(s.pose.chain_deg[4] - want.chain_deg[4]) < 1.0
+        first = ranked(m, near.flange, -130.0, True, prefer=arm_at)[0]
+        assert abs(first.chain_deg[4] - want.chain_deg[4]) < 1.0
 
 
 def test_the_links_are_the_published_lengths() -> None:

@@ -1,4 +1,5 @@
-"""Fakes for fleet-loop tests: a learner that does not learn, hosts whose arms stay put.
+"""Fakes for fleet-loop tests: a learner that does not learn, hosts whose arms stay put, a
+priority function that remembers what it was shown.
 
 Why: the loop tests (presence, cell holds, priority signals) drive ``FleetLoop`` with a
 fake learner that only acts (the three calls it must also answer, and answer with
@@ -13,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from testbed.core.types import IMAGE_SIZE, ArmObservation, PushResult
+from testbed.fleet.priorities import PrioritySignals
 
 
 class QuietLearner:
@@ -41,3 +43,18 @@ class CalmHosts:
 
     def execute(self, pushes: Mapping[str, int], resets: Sequence[str]) -> dict[str, Any]:
         return {r: PushResult(r, pushes.get(r), False, False) for r in self.robot_names}
+
+
+class RecordingPriority:
+    """A priority function that keeps the signals it was given, then answers as ``inner``."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.seen: list[PrioritySignals] = []
+
+    def keys(self, signals: PrioritySignals) -> Any:
+        self.seen.append(signals)
+        return self.inner.keys(signals)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)

@@ -16,7 +16,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-from loop_fakes import CalmHosts, QuietLearner
+from loop_fakes import CalmHosts, QuietLearner, RecordingPriority
 
 from testbed.core.types import IMAGE_SIZE
 from testbed.experiments.scripted_humans import ScriptedHumans
@@ -46,21 +46,6 @@ class _Learner(QuietLearner):
                                features=np.arange(n * 3, dtype=float).reshape(n, 3))
 
 
-class _Recording:
-    """A priority function that keeps the signals it was given, then answers as ``inner``."""
-
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
-        self.seen: list[PrioritySignals] = []
-
-    def keys(self, signals: PrioritySignals) -> Any:
-        self.seen.append(signals)
-        return self.inner.keys(signals)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
 def test_every_learned_signal_is_declared_where_it_is_computed_and_carried() -> None:
     output = {f.name for f in dataclasses.fields(PolicyOutput)}
     carried = {f.name for f in dataclasses.fields(PrioritySignals)} - ARMS_SIGNALS - MATRICES
@@ -74,7 +59,7 @@ def test_every_learned_signal_is_declared_where_it_is_computed_and_carried() -> 
 def test_the_loop_hands_every_learned_signal_to_the_priority_function(tmp_path: Path) -> None:
     algorithm = get_algorithm("cur", AlgorithmConfig(t_I=0, u_hat=0.0, t_T=1, t_R=1),
                               len(ARMS), 1, seed=0)
-    recording = _Recording(algorithm.priority)
+    recording = RecordingPriority(algorithm.priority)
     algorithm.priority = recording
     with RunWriter(tmp_path) as writer:
         loop = FleetLoop(hosts=CalmHosts(ARMS), humans=ScriptedHumans(), learner=_Learner(),

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pytest
-from loop_fakes import QuietLearner
+from loop_fakes import QuietLearner, RecordingPriority
 
 from gui import draw
 from gui.web.web_humans import fleet_doc
@@ -80,21 +80,6 @@ class _Learner(QuietLearner):
         return SimpleNamespace(actions=np.full(n, 1), uncertainty=u, risk=u / 2)
 
 
-class _Recording:
-    """A priority function that keeps the signals it was given, then answers as ``inner``."""
-
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
-        self.seen: list[PrioritySignals] = []
-
-    def keys(self, signals: PrioritySignals) -> Any:
-        self.seen.append(signals)
-        return self.inner.keys(signals)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
 PARAMS = AlgorithmConfig(t_I=0, u_hat=0.5, r_hat=1.0, t_T=2, t_R=3)
 SCHEDULE = {t: [(t * 5) % len(ARMS)] for t in range(0, STEPS, 2)}
 
@@ -104,7 +89,7 @@ def _loop(name: str, world: _World, writer: RunWriter, state: dict[str, Any] | N
     algorithm = get_algorithm(name, PARAMS, len(ARMS), 1, seed=4)
     if state is not None:
         algorithm.load_state_dict(state)
-    algorithm.priority = _Recording(algorithm.priority)  # type: ignore[assignment]
+    algorithm.priority = RecordingPriority(algorithm.priority)  # type: ignore[assignment]
     return FleetLoop(hosts=world, humans=ScriptedHumans(), learner=_Learner(),
                      algorithm=algorithm, writer=writer, steps=STEPS, num_humans=1,
                      t_T=PARAMS.t_T, t_R=PARAMS.t_R)
