@@ -60,6 +60,7 @@ from sim_twin.yumi_cell import Segment, Trajectory
 from sim_twin.yumi_ik import (
     REACH_TOL_MM,
     SINGULAR_SIGMA,
+    Solution,
     _descend,
     arm_sigma,
     configuration,
@@ -96,6 +97,8 @@ travel (at most about 25 mm of the tool's tip at full stretch), besides SAMPLE_M
 CONTINUE_ITERS: Final = 120
 """A line's sample that did not converge in the quick descent gets this many more
 iterations from the same seed before the twin looks for the closest solution."""
+SOLVED_KEPT: Final = 256
+"""How many joint-move ends an arm's supervisor keeps (ArmSupervisor._solved)."""
 LOOKAHEAD: Final = 4
 """How many of a ConfJ-off MoveJ's best solutions the twin tries for the MoveLs after it
 (the controller's choice is among the few most dexterous)."""
@@ -195,6 +198,11 @@ class ArmSupervisor:
         self.free_yaw = False
         """SingArea\\Wrist (our RAPID): the tool may turn about its own axis to keep the
         wrist away from its singularity, so a line is judged by the tool's axis alone."""
+        self._solved: dict[tuple[object, ...], Solution] = {}
+        """A joint move's end solved from the same joints to the same target before (the
+        same arm, tool, orientation and configuration rule): the IK search is a pure
+        function of those, and a lab's moves repeat (rest to the gate, every push and
+        every calibration point). Oldest first, at most :data:`SOLVED_KEPT`."""
 
     def tip(self, arm: str, chain_deg: Sequence[float] | None = None
             ) -> tuple[float, float, float]:
@@ -384,8 +392,16 @@ class ArmSupervisor:
         its arm angle and rest pose well gets; the twin looks ahead for it. The arm's
         present joints seed the search too (a target its own joints produced is found)."""
         flange = flange_at(xyz, self.tool_mm, rot)
-        s = solve(self.models[arm], flange, angle, conf if conf_on else None,  # type: ignore[arg-type]
-                  current=None, free_yaw=self.free_yaw, seeds=[current], prefer=current)
+        want = conf if conf_on else None
+        key = (arm, tuple(float(v) for v in xyz), float(angle), repr(want), tuple(current),
+               self.tool_mm, self.free_yaw, None if rot is None else rot.tobytes())
+        s = self._solved.get(key)
+        if s is None:
+            s = solve(self.models[arm], flange, angle, want,  # type: ignore[arg-type]
+                      current=None, free_yaw=self.free_yaw, seeds=[current], prefer=current)
+            if len(self._solved) >= SOLVED_KEPT:
+                del self._solved[next(iter(self._solved))]
+            self._solved[key] = s
         if s.pose is not None and not conf_on and lines and \
                 not self._lines_run(arm, lines, list(s.pose.chain_deg)):
             for cand in ranked(self.models[arm], flange, angle, self.free_yaw, LOOKAHEAD,

@@ -73,7 +73,7 @@ from testbed.planning.plan_trouble import (
     fit_trouble,
 )
 from testbed.records.metrics import summarize
-from testbed.records.run_dir import EVAL_PREFIX
+from testbed.records.run_dir import EVAL_PREFIX, display_names
 from testbed.records.steps import read_steps
 
 __all__ = ["BIN_STEPS", "METRICS", "Draws", "HumanFit", "KeyOrder", "PlanFit", "Processes",
@@ -307,7 +307,7 @@ class PlanFit:
              if len(self.per_run) >= 2 else None)
         pol_total = self.policy.total()
         pol_mean = (pol_total + 1.0) / (pol_total.sum() + 3.0)
-        humans = self.humans or [HumanFit(0, "human0")]
+        humans = self.humans or [HumanFit(0, unnamed_human(0))]
         pool = sum((h.pushes.total() for h in humans), np.zeros(3))
         pool_mean = (pool + POOL_PUSHES * pol_mean) / (pool.sum() + POOL_PUSHES)
         human = np.stack([h.pushes.total() + PRIOR_PUSHES * pool_mean for h in humans])
@@ -405,9 +405,7 @@ def _load(path: Path) -> _Run | str:
     algorithm = str(opts.get("algorithm") or params.get("name") or label)
     humans = config.get("humans", {})
     count = int(humans.get("count", 2))
-    people = humans.get("people") or []
-    names = ([str(p["name"]) for p in people] if len(people) == count
-             else [unnamed_human(i) for i in range(count)])
+    names = display_names(path, humans, count)
     rows = read_steps(path / "steps.jsonl")
     if not rows:
         return "no steps"

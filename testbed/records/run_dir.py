@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -150,3 +151,15 @@ def human_names(run: Path) -> list[str | None] | None:
         return None
     return [None if p["name"] == unnamed_human(i) else p["name"]
             for i, p in enumerate(people)]
+
+
+def display_names(run: Path, humans: Mapping[str, Any], count: int) -> list[str]:
+    """Each of a run's ``count`` human indices by name, for a table: as its run.json
+    recorded them (:func:`human_names`; one left unnamed is its ``unnamed_human``); a run
+    from before, by its config.toml's ``[humans]`` (``humans``) people."""
+    recorded = human_names(run)
+    if recorded is not None and len(recorded) == count:
+        return [name or unnamed_human(i) for i, name in enumerate(recorded)]
+    people = humans.get("people") or []
+    return ([str(p["name"]) for p in people] if len(people) == count
+            else [unnamed_human(i) for i in range(count)])

@@ -41,9 +41,8 @@ from typing import Any
 import numpy as np
 
 from testbed.core.atomic import atomic_write_bytes
-from testbed.core.humans import unnamed_human
 from testbed.records.metrics import cumulative, summarize
-from testbed.records.run_dir import EVAL_PREFIX, evaluation_label
+from testbed.records.run_dir import EVAL_PREFIX, display_names, evaluation_label
 from testbed.records.steps import read_steps
 from testbed.results.report_classes import class_counts, classes_table
 from testbed.results.report_gain import gain_tables
@@ -125,7 +124,7 @@ def load_run(path: Path) -> RunRecord:
                  or opts.get("algorithm") or path.name.split("-t")[0])
     config = _config(path)
     num_humans = humans_of(config)
-    names = _human_names(config.get("humans", {}), num_humans)
+    names = display_names(path, config.get("humans", {}), num_humans)
     steps = read_steps(path / "steps.jsonl")
     summary = summarize(steps, algorithm=algorithm, num_humans=num_humans)
     curves = cumulative(steps, num_humans=num_humans)
@@ -151,12 +150,6 @@ def run_summary(path: Path) -> dict[str, Any]:
     the rest of its record: what the sequential test reads after each trial."""
     return summarize(read_steps(path / "steps.jsonl"), algorithm="",
                      num_humans=humans_of(_config(path)))
-
-
-def _human_names(humans: dict[str, Any], count: int) -> list[str]:
-    people = humans.get("people") or []
-    return ([str(p["name"]) for p in people] if len(people) == count
-            else [unnamed_human(i) for i in range(count)])
 
 
 def rohe_parts(steps: list[dict[str, Any]]) -> dict[str, int]:

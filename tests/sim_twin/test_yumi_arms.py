@@ -95,6 +95,31 @@ def test_of_two_equally_good_solutions_the_one_nearest_the_arm_is_taken_in_any_o
         assert abs(first.chain_deg[4] - want.chain_deg[4]) < 1.0
 
 
+def test_a_joint_moves_end_solved_again_is_the_same_and_a_new_tool_is_solved_anew() -> None:
+    """The supervisor keeps the ends it solved (the IK search is a pure function of the
+    joints, target, tool and rules); what it answers from them is what a supervisor that
+    never solved that move answers, and a change of tool is never answered from them."""
+    from sim_twin.rws.arm_supervision import ArmSupervisor
+    from sim_twin.yumi_geometry import REST_JOINTS_DEG
+
+    def fresh(tool_mm: float) -> ArmSupervisor:
+        sup = ArmSupervisor({"right": "right"}, tool_mm, {"right": REST_JOINTS_DEG["right"]})
+        sup.free_yaw = True
+        return sup
+
+    here = list(fresh(DEFAULT_TOOL_MM).rest["right"])
+    sup = fresh(DEFAULT_TOOL_MM)
+    gate = (310.0, -259.0, 100.0)
+    first = sup._target("right", gate, -130.0, None, here, False)
+    assert isinstance(first, list) and sup._solved
+    assert first == sup._target("right", gate, -130.0, None, here, False)
+    sup.tool_mm = DEFAULT_TOOL_MM + 40.0
+    longer = sup._target("right", gate, -130.0, None, here, False)
+    assert longer == fresh(DEFAULT_TOOL_MM + 40.0)._target("right", gate, -130.0, None, here,
+                                                           False)
+    assert isinstance(longer, list) and longer != first
+
+
 def test_the_links_are_the_published_lengths() -> None:
     """ABB's modified DH of the arm: the upper arm 251.5 mm, the forearm 265 mm, the
     flange 36 mm beyond axis 6; offsets 30 and 27 mm. The joint origins must add up."""

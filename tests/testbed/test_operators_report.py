@@ -115,3 +115,20 @@ def test_profiles_and_estimates_from_a_runs_config() -> None:
     assert scripted_profiles({"kind": "gui"}, 2, {}) == [None, None]
     est = estimate_humans(_rows(0), 2, {"t_T": 3, "t_R": 5})
     assert [e.human for e in est] == [0, 1] and est[0].pushes == 60
+
+
+def test_the_report_names_each_human_as_the_run_recorded_them(tmp_path: Path) -> None:
+    """A run's people have one home, its run.json: the report reads their names there,
+    not from the config.toml beside it (here naming no one); a person left unnamed is
+    the index's default name."""
+    _runs(tmp_path)
+    for k in range(2):
+        folder = tmp_path / f"cur-t{k}"
+        meta = json.loads((folder / "run.json").read_text())
+        meta["humans"] = {"people": [{"name": "carla"}, {"name": "human1"}]}
+        (folder / "run.json").write_text(json.dumps(meta))
+        cfg = (folder / "config.toml").read_text().replace(PEOPLE, "")
+        (folder / "config.toml").write_text(cfg)
+    rep = write_report([tmp_path], tmp_path / "rep")
+    table = next(t for t in rep.tables if t.key == "humans")
+    assert [r[1] for r in table.rows] == ["carla", "human1"]
