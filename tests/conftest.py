@@ -16,6 +16,14 @@ test exclusive; both pass a turnstile first, which an ``alone`` test holds until
 done, so a waiting ``alone`` test is not starved by its neighbour's next tests. Without
 xdist (one process) nothing is locked.
 
+The heaviest files go first (``tests/durations.json``: each file's seconds, measured on
+this machine; ``TESTBED_RECORD_DURATIONS=1`` writes it again at the end of a run): xdist
+hands files out in the collection's order, and by default it puts the files with the
+most tests first, which left the few-test, minutes-long files (the rehearsals, the
+critics' training, the Ray fan-outs) for the end, one worker on each while the other had
+nothing left (measured: the last 7 min of a 19-min run). A file not listed weighs nothing
+and keeps its place; the order only changes when tests run, never what they check.
+
 And the CPUs are shared out: a worker's torch (and every trial it starts in a
 subprocess) takes ``cores / workers`` threads (``TESTBED_THREADS``, as a Ray worker's
 trial does: ``testbed/learning/runtime.py::configure_torch``) instead of every core, so
@@ -26,8 +34,10 @@ acceptance training took 272 s beside another worker's at two threads each, 85 s
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import tempfile
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -64,7 +74,40 @@ def _turn(alone: bool) -> Iterator[None]:
                 fcntl.flock(turnstile, fcntl.LOCK_UN)
 
 
+DURATIONS = Path(__file__).with_name("durations.json")
+"""Each test file's seconds (setup, call and teardown of its tests) in a whole run."""
+_seconds: Counter[str] = Counter()
+
+
+def _file_of(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The heaviest files first (see the module's docstring); a stable sort, the same on
+    every worker (xdist checks that they collected the same list)."""
+    weight = json.loads(DURATIONS.read_text()) if DURATIONS.exists() else {}
+    items.sort(key=lambda item: -float(weight.get(_file_of(item.nodeid), 0.0)))
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if os.environ.get("TESTBED_RECORD_DURATIONS") and not os.environ.get("PYTEST_XDIST_WORKER"):
+        _seconds[_file_of(report.nodeid)] += report.duration
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """The files this run measured replace their old figures (a run of a few files
+    keeps every other file's)."""
+    if _seconds and not os.environ.get("PYTEST_XDIST_WORKER"):
+        weight = json.loads(DURATIONS.read_text()) if DURATIONS.exists() else {}
+        weight.update({f: round(s, 1) for f, s in _seconds.items()})
+        DURATIONS.write_text(json.dumps({f: s for f, s in sorted(weight.items()) if s >= 1.0},
+                                        indent=1) + "\n")
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    if hasattr(config.option, "loadscopereorder"):  # xdist: keep the order made above
+        config.option.loadscopereorder = False
     workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT", "")
     if os.environ.get("PYTEST_XDIST_WORKER") and workers.isdigit():
         cores = len(os.sched_getaffinity(0))

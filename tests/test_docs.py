@@ -139,3 +139,14 @@ def test_every_testbed_command_the_docs_show_exists() -> None:
                 if flag.startswith("--") and flag not in flags and flag != "--help":
                     wrong.append(f"{doc.relative_to(ROOT)}: {m.group(1)} (no {flag})")
     assert wrong == []
+
+
+def test_the_suites_durations_name_only_test_files_that_exist() -> None:
+    """``tests/durations.json`` orders the suite (tests/conftest.py): a file renamed or
+    removed must leave it, or its weight moves to nothing and the order silently decays."""
+    import json
+
+    weights = json.loads((ROOT / "tests" / "durations.json").read_text())
+    assert weights and all(isinstance(s, int | float) and s >= 0 for s in weights.values())
+    missing = [f for f in weights if not (ROOT / f).is_file()]
+    assert not missing, f"tests/durations.json names files that do not exist: {missing}"

@@ -179,6 +179,8 @@ class RwsYumiController:
         _patch_timeout(self._rws, http_timeout_s, self._count)
         _patch_timeout(self._stop_rws, min(http_timeout_s, 1.0))
         self._stopping = threading.Event()
+        self._moving = threading.Event()
+        """Set from the start of one of our programs to its end: what :meth:`stop` stops."""
         self._last_entry: int | None = None
         self._ramdisk: str | None = None
         self._idle_tools: dict[str, float] = {}
@@ -268,6 +270,13 @@ class RwsYumiController:
         self._seqno = self._seqno % 60000 + 1  # float32-exact, and new for every step
         seqno = self._seqno
         self._stopping.clear()
+        self._moving.set()
+        try:
+            self._execute(mps, seqno)
+        finally:
+            self._moving.clear()
+
+    def _execute(self, mps: Mapping[str, Any], seqno: int) -> None:
         self.timing = {}
         prev: int | None = None
         try:
@@ -347,7 +356,14 @@ class RwsYumiController:
             self._last_entry = log_now[0].seqnum
 
     def stop(self) -> None:
+        """Stop OUR program now (from another thread than :meth:`execute`'s). With none of
+        ours running, nothing is sent: a program a person started from the FlexPendant is
+        theirs, and an agent told to stop as it exits (its link closed during a refused
+        rest at bye) must not end it behind their back: the next push is refused with
+        "RAPID is running", as the person would expect."""
         self._stopping.set()
+        if not self._moving.is_set():
+            return
         try:
             self._stop_rws.stop()
         except Exception as exc:  # the polling loop still ends on the flag
