@@ -21,8 +21,11 @@ this machine; ``TESTBED_RECORD_DURATIONS=1`` writes it again at the end of a run
 hands files out in the collection's order, and by default it puts the files with the
 most tests first, which left the few-test, minutes-long files (the rehearsals, the
 critics' training, the Ray fan-outs) for the end, one worker on each while the other had
-nothing left (measured: the last 7 min of a 19-min run). A file not listed weighs nothing
-and keeps its place; the order only changes when tests run, never what they check.
+nothing left (measured: the last 7 min of a 19-min run). The files with an ``alone``
+test come last, heaviest first: an ``alone`` test waits for its neighbour's test to end,
+which among the last files is a short one (one early waited 125 s beside a rehearsal).
+A file not listed weighs nothing; the order only changes when tests run, never what they
+check.
 
 And the CPUs are shared out: a worker's torch (and every trial it starts in a
 subprocess) takes ``cores / workers`` threads (``TESTBED_THREADS``, as a Ray worker's
@@ -84,10 +87,13 @@ def _file_of(nodeid: str) -> str:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The heaviest files first (see the module's docstring); a stable sort, the same on
-    every worker (xdist checks that they collected the same list)."""
+    """The heaviest files first, and the files with an ``alone`` test after all others
+    (see the module's docstring); a stable sort, the same on every worker (xdist checks
+    that they collected the same list)."""
     weight = json.loads(DURATIONS.read_text()) if DURATIONS.exists() else {}
-    items.sort(key=lambda item: -float(weight.get(_file_of(item.nodeid), 0.0)))
+    alone = {_file_of(i.nodeid) for i in items if i.get_closest_marker("alone") is not None}
+    items.sort(key=lambda item: (_file_of(item.nodeid) in alone,
+                                 -float(weight.get(_file_of(item.nodeid), 0.0))))
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

@@ -41,6 +41,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import time
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -321,8 +322,11 @@ class YumiBackend(HostBackend):
                     log.warning("arm %s: %s", name, errors[name])
                     del moving[name]
             programs[name] = [Waypoint("rest", None, arm.calibration.max_speed_mm_s)]
+        took: dict[str, float] = {}
         if moving:
+            t0 = time.monotonic()
             self._move(programs)
+            took = {"push_s": time.monotonic() - t0}  # the arms' motion, on this host's clock
             self._look()
         out: dict[str, ArmOutcome] = {}
         for arm in faces:
@@ -334,14 +338,14 @@ class YumiBackend(HostBackend):
                 continue
             if self._out(arm):
                 self._violating[arm] = True
-                out[arm] = ArmOutcome(False, True)
+                out[arm] = ArmOutcome(False, True, readings=took)
                 continue
             goal = self._goal[arm]
             success = goal is not None and bool(self.perception.is_success(self._pose[arm], goal))
             self._pushes[arm] += 1
             if success or self._pushes[arm] >= MAX_PUSHES_PER_GOAL:
                 self._new_goal(arm)  # soft reset: no human needed
-            out[arm] = ArmOutcome(success, False)
+            out[arm] = ArmOutcome(success, False, readings=took)
         return out
 
     def _refusal(self, arm: str) -> str:

@@ -47,7 +47,6 @@ def robot_modes(run: Path) -> dict[str, list[str]]:
     return modes
 
 
-@pytest.mark.alone  # a wall-clock bound (tests/conftest.py)
 def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with_truth(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], host_venv: HostVenv) -> None:
     # The agents run from a robot host's install (scripts/setup.sh --host, this build):
