@@ -390,6 +390,8 @@ class YumiBackend(HostBackend):
                 "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()},
                 "clear_z": {task[n]: a.calibration.z_clear_mm for n, a in self._arms.items()},
                 "tool_z": {task[n]: a.calibration.tool_z_mm for n, a in self._arms.items()},
+                "max_speed": {task[n]: a.calibration.max_speed_mm_s
+                              for n, a in self._arms.items()},
                 "layout": {n: {"task": task[n], **layout_keys(a.calibration)}
                            for n, a in self._arms.items()},
                 "camera": camera_report(self._camera, {n: a.crop for n, a in self._arms.items()},

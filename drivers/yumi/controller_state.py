@@ -23,7 +23,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-RAPID_VERSION = 4
+RAPID_VERSION = 5
 """``TB_RAPID_VERSION`` of the robot/rapid/ modules this driver speaks to (TestbedMotion.mod;
 tests/drivers/test_yumi_controller_state.py keeps the two equal)."""
 REQUIRED_OPTIONS = {"616-1": "PC Interface",
@@ -58,6 +58,10 @@ OUR_ERRWRITES = range(80001, 80004)
 """Our RAPID's own ``ErrWrite`` entries (80001 refused, 80003 done): refusals of one
 program, not a stopped task."""
 TOOL = "tool_pusher"
+V_TCP_MAX = "tb_v_tcp_max"
+"""The TCP speed cap (mm/s) each task module declares: our RAPID refuses a file whose
+speed exceeds it, and runs every move under ``VelSet 100, tb_v_tcp_max`` (robot/README.md,
+"The limits a file cannot pass")."""
 """Our RAPID's pusher: a TASK PERS tooldata in each task module, measured on the robot."""
 ZONE_SYMBOLS = ("tb_zone_lo", "tb_zone_hi", "tb_zone_z", "tb_floor_z")
 """The world-zone constants of each task module (robot/rapid/TestbedTask_L.mod)."""
@@ -211,7 +215,8 @@ def rapid_of_task(rws: Any, task: str) -> dict[str, Any]:
               "of": _number(_symbol(rws, task, ZONES_MODULE, "TB_WZ_COUNT")),
               "at": (_symbol(rws, task, ZONES_MODULE, "tb_zones_at") or "").strip('"')}
     return {"version": None if version is None else int(version), "zones": zones,
-            "zones_active": active, "tool": tool_frame(_symbol(rws, task, module, TOOL))}
+            "zones_active": active, "tool": tool_frame(_symbol(rws, task, module, TOOL)),
+            "v_tcp_max": _number(_symbol(rws, task, module, V_TCP_MAX))}
 
 
 def tool_frame(text: str | None) -> dict[str, Any] | None:
@@ -368,18 +373,37 @@ def option_warnings(rep: Mapping[str, Any]) -> list[str]:
             if not any(str(o).startswith(number) for o in opts)]
 
 
+def speed_problem(task: str, cap: float | None, max_speed_mm_s: float | None
+                  ) -> str | None:
+    """One line when the controller's TCP speed cap (``tb_v_tcp_max``, mm/s) cannot be
+    read (modules older than the cap: nothing on the controller bounds a file's speed)
+    or is below the calibration's ``max_speed_mm_s`` (our RAPID refuses every program
+    whose speed exceeds it); else None."""
+    if cap is None:
+        return (f"task {task}: the controller's {V_TCP_MAX} (the TCP speed cap, mm/s) "
+                f"cannot be read: the task module is older than the cap; load robot/rapid/ "
+                f"from this checkout (robot/README.md, 'Install')")
+    if max_speed_mm_s is not None and float(max_speed_mm_s) > cap:
+        return (f"task {task}: the calibration's max_speed_mm_s {float(max_speed_mm_s):g} "
+                f"is above the controller's {V_TCP_MAX} {cap:g} mm/s: our RAPID refuses "
+                f"every program; lower max_speed_mm_s to {cap:g} or less")
+    return None
+
+
 def problems(rep: Mapping[str, Any], tasks: Sequence[str],
              table_boxes: Mapping[str, Sequence[float]] | None = None,
              travel_z: Mapping[str, float] | None = None,
              clear_z: Mapping[str, float] | None = None,
-             tool_z: Mapping[str, float] | None = None) -> list[str]:
+             tool_z: Mapping[str, float] | None = None,
+             max_speed: Mapping[str, float] | None = None) -> list[str]:
     """What must be fixed before a trial, one line each (``rep``: a
     :class:`ControllerReport` as a dict); ``table_boxes``: task -> the calibration's
     ``table_box_mm``, which must lie inside that task's world zone box; ``travel_z``:
     task -> the calibration's ``z_travel_mm``, at or above the zone's ``tb_zone_z`` (a
     travel below it, outside the box, would stop the arm); ``clear_z``: its
     ``z_clear_mm``, at least ``tb_zone_z`` + :data:`CLEAR_MARGIN_MM`; ``tool_z``: its
-    ``tool_z_mm``, which must be the controller's ``tool_pusher``."""
+    ``tool_z_mm``, which must be the controller's ``tool_pusher``; ``max_speed``: its
+    ``max_speed_mm_s``, at most the task's ``tb_v_tcp_max`` (:func:`speed_problem`)."""
     out: list[str] = []
     opts = rep.get("options") or []
     for number, name in REQUIRED_OPTIONS.items():
@@ -412,6 +436,9 @@ def problems(rep: Mapping[str, Any], tasks: Sequence[str],
                 out.append(why)
             if "tool" in ours and (why := tool_problem(task, ours["tool"],
                                                        (tool_z or {}).get(task))):
+                out.append(why)
+            if "v_tcp_max" in ours and (why := speed_problem(
+                    task, ours["v_tcp_max"], (max_speed or {}).get(task))):
                 out.append(why)
             out += _height_problems(task, zones, (travel_z or {}).get(task),
                                     (clear_z or {}).get(task))

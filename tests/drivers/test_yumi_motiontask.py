@@ -38,7 +38,7 @@ from sim_twin.yumi_cell import YumiTwinCell
 from sim_twin.yumi_geometry import workspace_mm
 
 PUSHER_MM = 184.2
-OLD_PUSH = [Waypoint("move_j", (400.0, -200.0, 130.0), 500.0),
+OLD_PUSH = [Waypoint("move_j", (400.0, -200.0, 130.0), 150.0),
             Waypoint("move_l", (400.0, -200.0, 90.0), 100.0)]
 """The right arm's last program: up to 130 mm, down to 90 (where it ends). Replayed, the
 pusher goes up to 130 and down again."""
@@ -90,7 +90,7 @@ def backend(c: Cell, tmp_path: Path) -> YumiBackend:
     for u in YUMI_UNITS:
         cal = {"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
                "table_box_mm": list(workspace_mm(c.cell.sides[u.arm])),
-               "z_push_mm": 12.0, "z_travel_mm": 80.0, "max_speed_mm_s": 400.0,
+               "z_push_mm": 12.0, "z_travel_mm": 80.0, "max_speed_mm_s": 150.0,
                "push_speed_mm_s": 100.0, "tool_z_mm": PUSHER_MM,
                "rest_joints_deg": list(c.hook.poses.joints(u))}
         setups.append(ArmSetup(u.arm, (0, 0, 64, 64), u.arm == "right",

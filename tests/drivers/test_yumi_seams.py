@@ -161,7 +161,7 @@ def test_make_controller_builds_the_rws_client(tmp_path: Path) -> None:
 
 # --- the backend, unchanged, on the hardware twin ----------------------------------------
 ROOT = Path(__file__).resolve().parents[2]
-SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 80.0, "max_speed_mm_s": 300.0,
+SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 80.0, "max_speed_mm_s": 150.0,
           "push_speed_mm_s": 100.0}
 
 

@@ -61,7 +61,7 @@ def test_a_stop_with_none_of_our_programs_running_leaves_a_persons_program_runni
     time.sleep(0.2)
     assert execution(ctrl) == "running"
     with pytest.raises(BackendError, match="RAPID is running"):  # our push is refused
-        client.execute({"left": [Waypoint("move_j", (350.0, 200.0, 120.0), 200.0)]})
+        client.execute({"left": [Waypoint("move_j", (350.0, 200.0, 120.0), 150.0)]})
     assert execution(ctrl) == "running"
 
 
@@ -72,7 +72,7 @@ def test_a_stop_during_our_program_stops_it(
 
     def move() -> None:
         try:  # a long, slow line: seconds at 20 mm/s
-            client.execute({"left": [Waypoint("move_j", (350.0, 150.0, 120.0), 200.0),
+            client.execute({"left": [Waypoint("move_j", (350.0, 150.0, 120.0), 150.0),
                                      Waypoint("move_l", (350.0, 300.0, 120.0), 20.0)]})
         except BaseException as exc:
             failed.append(exc)

@@ -104,7 +104,7 @@ def _random_program(rng: np.random.Generator, side: str, tool_mm: float) -> Any:
     mp = mpe.MotionProgram(tool=twin_rws.tool(tool_mm))
     for _ in range(int(rng.integers(1, 4))):
         kind = rng.choice(["J", "L", "A", "W"], p=[0.35, 0.35, 0.2, 0.1])
-        speed = mpe.speeddata(float(rng.uniform(50, 1000)), 500, 5000, 1000)
+        speed = mpe.speeddata(float(rng.uniform(50, 150)), 100, 1000, 100)  # the caps
         if kind == "W":
             mp.WaitTime(float(rng.uniform(0, 0.05)))
         elif kind == "A":

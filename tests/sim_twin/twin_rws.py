@@ -20,6 +20,7 @@ from abb_robot_client.rws import RWS
 from sim_twin.rws import Irc5Controller, RwsServer
 from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.rws_service import RwsService
+from sim_twin.rws.testbed_file import V_TCP_MAX
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
 from sim_twin.yumi_arms import DEFAULT_TOOL_MM
@@ -67,7 +68,7 @@ def program(moves: Sequence[Move], tool_z_mm: float = DEFAULT_TOOL_MM, wobj: Any
     mp = mpe.MotionProgram(tool=tool_, wobj=wobj) if wobj is not None else \
         mpe.MotionProgram(tool=tool_)
     for kind, xyz, v in moves:
-        speed = mpe.speeddata(v, 500, 5000, 1000)
+        speed = mpe.speeddata(min(v, V_TCP_MAX), 100, 1000, 100)  # within our RAPID's caps
         if kind == "R":
             j = REST_JOINTS_DEG[xyz]
             mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6]] + [9e9] * 5), speed, mpe.fine)

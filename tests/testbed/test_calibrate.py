@@ -29,7 +29,7 @@ from testbed.lab.camera_model import arm_facts, push_box
 from testbed.perception import homography as cal
 
 ROOT = Path(__file__).resolve().parents[2]
-SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 90.0, "max_speed_mm_s": 400.0,
+SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 90.0, "max_speed_mm_s": 150.0,
           "push_speed_mm_s": 100.0}
 
 
