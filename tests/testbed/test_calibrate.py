@@ -202,7 +202,7 @@ def test_check_draws_the_full_frame_with_crops_and_calibration(
     assert "calibrated table box drawn" in out
     # the controller's report and the camera's, as read back, with each crop's figures
     assert re.search(r"yumi: controller YUMI_TWIN serial \S+, RobotWare 6\.", out)
-    assert "yumi: T_ROB_L: testbed RAPID version 4 (this checkout: 4); world zone box" in out
+    assert "yumi: T_ROB_L: testbed RAPID version 5 (this checkout: 5); world zone box" in out
     assert re.search(r"yumi: camera http://127\.0\.0\.1:\d+/camera\.mjpg \(stream\), "
                      r"640x480: width 640, height 480", out)
     for arm in ("left", "right"):

@@ -84,7 +84,7 @@ def test_check_reports_a_ready_controller(lab: tuple[HardwareTwinLab, Path],
     assert "yumi-a: controller YUMI_TWIN serial 14000-" in text and "RobotWare 6." in text
     assert "mode AUTO, motoron, RAPID stopped, speed ratio 100 %" in text
     assert "608-1 World Zones" in text and "T_ROB_L (active" in text
-    assert "T_ROB_R: testbed RAPID version 4 (this checkout: 4); world zone box" in text
+    assert "T_ROB_R: testbed RAPID version 5 (this checkout: 5); world zone box" in text
     assert "testbed:" not in text and not any(line.startswith("FAULT") for line in lines)
 
 
