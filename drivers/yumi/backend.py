@@ -573,14 +573,17 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
                        calibrating: Collection[str] = (), *,
                        credentials_file: str | None = None,
                        motion_timeout_s: float | None = None,
-                       camera_settings: Mapping[str, Any] | str | None = None) -> YumiBackend:
+                       camera_settings: Mapping[str, Any] | str | None = None,
+                       zones_state_dir: str | None = None) -> YumiBackend:
     """The agent's ``--backend yumi``: its camera, its controller (real or twin).
 
     Paths (calibration files, a video-file camera) are host paths: ``~`` and ``$VARS``
     are expanded here, on the host. ``calibrating``: arms in calibration mode (see the
     module docstring). ``camera_settings``: the host's ``camera_settings`` (a mapping, or
     the agent's ``--camera-settings`` JSON), set on a V4L2 camera and read back
-    (``drivers/cameras/capture_settings.py``).
+    (``drivers/cameras/capture_settings.py``). ``zones_state_dir``: the robot lock's
+    folder, where the zones proof is recorded for the next agent
+    (``drivers/yumi/zones_proof.py``; None: not recorded).
     """
     from drivers.cameras.camera import VideoCaptureCamera
     from drivers.yumi.controllers import make_controller
@@ -610,7 +613,7 @@ def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],
     ctrl = make_controller(controller_url, {s.name: s.calibration.pose for s in setups},
                            credentials_file=credentials_file,
                            motion_timeout_s=15.0 if motion_timeout_s is None
-                           else motion_timeout_s)
+                           else motion_timeout_s, zones_state_dir=zones_state_dir)
     try:
         if not camera.isdigit() and not is_url(camera):
             camera = expand_path(camera, "camera")

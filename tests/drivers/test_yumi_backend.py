@@ -30,8 +30,11 @@ from drivers.errors import BackendError
 from drivers.host_fleet import HostFleet
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.backend import ArmSetup, plan_push
+from drivers.yumi.controller_state import RAPID_VERSION
+from drivers.yumi.credentials import FACTORY_DEFAULT, FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
+from drivers.yumi.zones_proof import ZONES_ACTIVE
 from testbed.core.host_config import ArmConfig
 from testbed.core.types import MIN_GOAL_DISTANCE, ArmObservation, Fault
 
@@ -184,7 +187,8 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
                              tool_z_mm=184.2),
              "right": ArmPose("T_ROB_R", "ROB_R", (-40, -90, 30, 0, 40, 0, -135),
                               tool_z_mm=184.2)}
-    ctrl = RwsYumiController("http://127.0.0.1:1", poses, motion_timeout_s=0.3)
+    ctrl = RwsYumiController("http://127.0.0.1:1", poses, motion_timeout_s=0.3,
+                             login=FACTORY_LOGIN)
     wps = plan_push(setup("left"), (0.5, 0.5), 0.0, 3)
     rapid = ctrl.program("left", wps).get_program_rapid()
     assert rapid.count("MoveL") == 5 and rapid.count("MoveJ") == 1 and "MoveAbsJ" in rapid
@@ -209,9 +213,18 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         def get_speedratio(self) -> float:
             return 100.0
 
-        def read_event_log(self) -> list[SimpleNamespace]:
+        def read_event_log(self) -> list[SimpleNamespace]:  # zones on since the restart
             return [SimpleNamespace(seqnum=5, code=10002, msgtype=1, title="PP reset",
-                                    args=[], desc="")]
+                                    args=[], desc="")] + [
+                SimpleNamespace(seqnum=4 - i, code=80003, msgtype=1, title=ZONES_ACTIVE,
+                                args=[ZONES_ACTIVE, t, "zones 5", "now"], desc="")
+                for i, t in enumerate(("T_ROB_L", "T_ROB_R"))] + [
+                SimpleNamespace(seqnum=2, code=10045, msgtype=1, title="System restarted",
+                                args=[], desc="")]
+
+        def get_rapid_variable(self, var: str, task: str) -> str:
+            assert var == "TestbedMotion/TB_RAPID_VERSION", var
+            return str(RAPID_VERSION)
 
         def resetpp(self) -> None:
             calls.append(("resetpp",))
@@ -263,7 +276,8 @@ def test_yumi_agent_with_an_unreachable_controller_faults_clearly(tmp_path: Path
         arms.append(ArmConfig(name=arm, crop=YUMI_CROPS[arm], mirror=arm == "right",
                               calibration=str(cal)))
     host = local_host("yumi0", backend="yumi", camera=str(video),
-                      controller_url="http://127.0.0.1:9", arms=arms)
+                      controller_url="http://127.0.0.1:9", arms=arms,
+                      credentials_file=FACTORY_DEFAULT)
     with HostFleet([host]) as fleet:
         assert fleet.host_status()["yumi0"].connected  # the agent started; the robot is away
         obs = fleet.observe()
@@ -312,7 +326,8 @@ def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> No
     def build(left: Path, calibrating: list[str]) -> YumiBackend:
         cals = {"left": str(left), "right": str(right)}
         return build_yumi_backend(["left", "right"], [False, True], YUMI_CROPS, cals, video,
-                                  url, calibrating=calibrating)
+                                  url, calibrating=calibrating,
+                                  credentials_file=FACTORY_DEFAULT)
 
     with pytest.raises(BackendError, match=r"--calibrate middle: no such arm"):
         build(rest_only, ["middle"])

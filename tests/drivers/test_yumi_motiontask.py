@@ -27,6 +27,7 @@ from driver_fakes import twin_picture, write_video
 from drivers.cameras.camera import VideoCaptureCamera
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.backend import ArmSetup, YumiBackend
+from drivers.yumi.credentials import FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer
@@ -73,7 +74,8 @@ def omitting() -> Iterator[Cell]:
     server = RwsServer(RwsService(ctrl, program=TestbedInstall(ctrl, hook))).start_thread()
     poses = {u.arm: ArmPose(u.task, u.name, tuple(hook.poses.joints(u)), tool_z_mm=PUSHER_MM)
              for u in YUMI_UNITS}
-    client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0)
+    client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0,
+                               login=FACTORY_LOGIN)
     try:
         assert not any(t.motiontask for t in client._rws.get_tasks().values())
         client.execute({"right": OLD_PUSH})  # the right task's RAM disk: a motion

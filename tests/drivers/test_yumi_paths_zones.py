@@ -30,14 +30,13 @@ from drivers.yumi.controller_state import (
     problems,
     refusal,
     tool_problem,
-    zones_known,
-    zones_refusal,
 )
 from drivers.yumi.irb14000 import arm
 from drivers.yumi.layout_check import JOINT_MARGIN_MM, PATH_MARGIN_MM, check_layout, layout_of
 from drivers.yumi.path_sweep import ZoneSpec, play, worst
 from drivers.yumi.reach import ArmTool
 from drivers.yumi.yumi_controller import Waypoint
+from drivers.yumi.zones_proof import zones_known, zones_refusal
 
 PUSHER = 184.2
 REST = {"left": (40.0, -90.0, 30.0, 0.0, 40.0, 0.0, 135.0),
@@ -187,24 +186,38 @@ def active(seq: int, task: str, n: int = 5) -> Any:
 
 
 def test_zones_must_be_known_active_since_the_last_restart() -> None:
+    """Fails closed (issue 43): a restart entry AND, newer than it, each task's Zones
+    Active entry; a log with neither left (cleared, rolled over) proves nothing."""
     fresh = [active(12, "T_ROB_R"), active(11, "T_ROB_L"), entry(10, 10045, "System restarted")]
     stale = [entry(20, 10045, "System restarted"), *fresh]
     assert zones_known(fresh, "T_ROB_L")["known"] and not zones_known(stale, "T_ROB_L")["known"]
     assert zones_refusal(fresh, ["T_ROB_L", "T_ROB_R"]) is None
     why = zones_refusal(stale, ["T_ROB_L", "T_ROB_R"])
     assert why is not None and why.startswith("task T_ROB_L: the world zones are not known "
-                                              "active since the last restart")
-    assert zones_refusal([], ["T_ROB_L"]) is None  # a long day: neither left in the log
+                                              "active: no 'Testbed Zones Active' entry")
+    assert "since the last restart (event log 10045, seq 20)" in why
+    for gone in ([], fresh[:2]):  # cleared, or rolled past the restart entry: not known
+        why = zones_refusal(gone, ["T_ROB_L"])
+        assert why is not None and "holds no restart entry (cleared over RWS, or rolled " \
+                                   "over)" in why and "restart the controller so tb_zones " \
+                                   "runs" in why, why
+    cold = [active(31, "T_ROB_L"), entry(30, 10046, "System restarted in cold mode")]
+    assert zones_known(cold, "T_ROB_L")["known"]  # 10046 is a restart too
+    assert not zones_known([entry(40, 10046), *cold], "T_ROB_L")["known"]
+    short = [active(12, "T_ROB_L", n=3), entry(10, 10045, "System restarted")]
+    assert "says zones 3, not 5" in str(zones_refusal(short, ["T_ROB_L"]))
     rep = {"options": ["608-1", "616-1", "604-1"],
            "state": {"opmode": "AUTO", "ctrlstate": "motoron", "execstate": "stopped"},
            "tasks": {"T_ROB_L": {}},
            "rapid": {"T_ROB_L": {"version": RAPID_VERSION, "zones": {},
                                  "zones_known": zones_known(stale, "T_ROB_L")}}}
     faults = problems(rep, ["T_ROB_L"])
-    assert any("not known active since the last restart (event log 10045, seq 20)" in f
+    assert any("since the last restart (event log 10045, seq 20)" in f
                and "POWER_ON event routine" in f for f in faults), faults
     rep["rapid"]["T_ROB_L"]["zones_known"] = zones_known(fresh, "T_ROB_L")
     assert problems(rep, ["T_ROB_L"]) == []
+    rep["rapid"]["T_ROB_L"]["zones_known"] = zones_known([], "T_ROB_L")  # a cleared log
+    assert [f for f in problems(rep, ["T_ROB_L"]) if "holds no restart entry" in f]
 
 
 def test_the_operator_is_told_what_a_yumi_has() -> None:

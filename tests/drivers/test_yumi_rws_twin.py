@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 
 from drivers.errors import BackendError
+from drivers.yumi.credentials import FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer, serve
@@ -49,7 +50,7 @@ def yumi() -> Iterator[Callable[..., Made]]:
         poses = {u.arm: ArmPose(u.task, u.name, tuple(motion.poses.joints(u)),
                                 tool_z_mm=PUSHER_MM) for u in YUMI_UNITS}
         client = RwsYumiController(server.url, poses, http_timeout_s=20.0,
-                                   motion_timeout_s=60.0)
+                                   motion_timeout_s=60.0, login=FACTORY_LOGIN)
         made.append((server, cell, client))
         return client, ctrl, cell, motion, lock
 
@@ -147,15 +148,20 @@ def test_a_target_below_the_table_is_refused_before_any_motion(yumi: Any) -> Non
 
 
 def test_a_controller_without_our_rapid_is_named(yumi: Any) -> None:
+    """Issue 43: the library's RAPID (no TestbedMotion) is refused BEFORE anything is
+    uploaded or started (it used to be named only after its run failed); and our RAPID
+    that ends without its Done entry is named after the run."""
     client, ctrl, *_ = yumi(hook=CellMotion)  # the library's RAPID: it reads another file
-    with pytest.raises(BackendError, match=r"event log 80001 'Motion Program Failed': Motion "
-                                           r"program file not found; "
-                                           r"RAMDISK:motion_program.bin"):
+    newest = ctrl.elog.newest
+    with pytest.raises(BackendError, match=r"task T_ROB_L: TestbedMotion/TB_RAPID_VERSION "
+                                           r"cannot be read: .*the motion was not started"):
         client.execute({"left": to(LEFT)})
+    assert ctrl.files.listdir("$TEMP") == [] and ctrl.elog.newest == newest  # nothing sent
+    client, ctrl, *_ = yumi()
     ctrl.on_start = None  # RAPID that ends at once and writes nothing
     with pytest.raises(BackendError, match=r"task\(s\) T_ROB_L, T_ROB_R ended without the "
                                            r"event log entry "
-                                           r"'Testbed Motion Done' for program 2: is the "
+                                           r"'Testbed Motion Done' for program 1: is the "
                                            r"testbed RAPID \(robot/rapid/\) loaded"):
         client.execute({"left": to(LEFT)})
 

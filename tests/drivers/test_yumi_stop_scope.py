@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 
 from drivers.errors import BackendError
+from drivers.yumi.credentials import FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer
@@ -40,7 +41,8 @@ def twin() -> Iterator[tuple[Irc5Controller, RwsYumiController]]:
     server = RwsServer(RwsService(ctrl, program=TestbedInstall(ctrl, hook))).start_thread()
     poses = {u.arm: ArmPose(u.task, u.name, tuple(hook.poses.joints(u)), tool_z_mm=PUSHER_MM)
              for u in YUMI_UNITS}
-    client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0)
+    client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0,
+                               login=FACTORY_LOGIN)
     try:
         yield ctrl, client
     finally:
