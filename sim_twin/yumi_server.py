@@ -40,6 +40,9 @@ The camera port (JSON unless said otherwise; errors are ``{"error": "..."}`` wit
   arm's cube back near its workspace centre.
 - ``POST /lab/place`` ``{"arm", "xy_mm": [x, y], "yaw"}`` -> ``{"ok": true}``: a person puts
   the cube somewhere (fault drills, tests).
+- ``POST /lab/jog`` ``{"arm", "xyz_mm": [x, y, z]}`` -> ``{"ok": true, "tcp_mm"}``: a
+  person jogs the arm's TCP to a point on the FlexPendant (tests: an arm left in the
+  camera's view, which ``testbed check`` must FAULT without moving it).
 - ``GET /lab/truth`` -> ``{"arms": {arm: {"cube_mm", "on_table", "cube_px", "yaw_px",
   "tcp_mm"}}}`` (``tcp_mm``: the pusher's actual TCP, world mm).
 - ``GET /lab/tcp`` -> ``{"tcp_mm": {arm: [x, y, z]}}``: the pushers now, ALSO while a
@@ -289,7 +292,7 @@ class Handler(BaseHTTPRequestHandler):
     def do_POST(self) -> None:
         path = self.path.split("?", 1)[0]
         routes: dict[str, Callable[[Any], dict[str, Any]]] = {
-            "/lab/reset": self._reset, "/lab/place": self._place,
+            "/lab/reset": self._reset, "/lab/place": self._place, "/lab/jog": self._jog,
             "/lab/fault": self._fault, "/lab/clear": self._clear}
         if path not in routes:
             self._json(404, {"error": f"no such endpoint: POST {path}"})
@@ -309,6 +312,24 @@ class Handler(BaseHTTPRequestHandler):
             srv.cell.lab_reset(body["arm"])
             srv.frames.publish()
         return {"ok": True}
+
+    def _jog(self, body: Any) -> dict[str, Any]:
+        """A person jogs an arm's TCP to a point (the cell's stop-at-a-point, as a zone
+        stop's clearing jogs it); the controller then reports it there, the camera shows
+        it there."""
+        xyz = body.get("xyz_mm") if isinstance(body, dict) else None
+        if (not isinstance(body, dict) or not isinstance(body.get("arm"), str)
+                or not isinstance(xyz, list) or len(xyz) != 3
+                or not all(isinstance(v, int | float) and math.isfinite(v) for v in xyz)):
+            raise ValueError('expected {"arm": NAME, "xyz_mm": [x, y, z]} (finite mm)')
+        srv = self.server
+        if body["arm"] not in srv.cell.arms:
+            raise ValueError(f"unknown arm {body['arm']!r} (this cell has {list(srv.cell.arms)})")
+        with srv.cell_lock:
+            srv.cell.halt({body["arm"]: tuple(float(v) for v in xyz)})
+            srv.frames.publish()
+            tcp = srv.cell.tcp_xyz()[body["arm"]]
+        return {"ok": True, "tcp_mm": [float(v) for v in tcp]}
 
     def _place(self, body: Any) -> dict[str, Any]:
         """A person in the lab puts a cube somewhere (fault drills, tests): anywhere on

@@ -148,6 +148,20 @@ def rest_tip(arm: str, cal: ArmCalibration) -> tuple[float, float, float] | None
     return (float(tip[0]), float(tip[1]), float(tip[2]))
 
 
+
+def in_view_faults(info: Mapping[str, Any]) -> list[str]:
+    """The check's FAULT reasons for the arms a ``describe`` answer found in the camera's
+    view (``in_view``), each with the fix: the check moves nothing, a person jogs the
+    arm to rest (an arm there would be sent to rest by the next picture step, in Auto,
+    before anything has judged the controller)."""
+    out = []
+    for arm, xyz in sorted((info.get("in_view") or {}).items()):
+        x, y, z = (float(c) for c in xyz)
+        out.append(f"arm {arm} is in the camera's view at ({x:.0f}, {y:.0f}, {z:.0f}) mm: "
+                   f"jog it to rest on the FlexPendant, then check again")
+    return out
+
+
 class YumiBackend(HostBackend):
     """Two YuMi arms under one camera; the controller client is injected."""
 
@@ -210,15 +224,21 @@ class YumiBackend(HostBackend):
                 raise err
 
     # -- pictures --------------------------------------------------------------------
-    def _arms_in_view(self) -> list[str]:
+    def _in_view(self) -> dict[str, tuple[float, float, float]]:
+        """Each arm whose TCP is in the camera's view (2 % margin), with where it is (mm):
+        read-only, one read of the controller's TCPs."""
         w, h = self._camera.size
         tcp = self._controller.tcp_xyz()
-        out = []
+        out: dict[str, tuple[float, float, float]] = {}
         for name, arm in self._arms.items():
             u, v = arm.calibration.table_to_pixel(*tcp[name][:2])
             if -0.02 * w <= u <= 1.02 * w and -0.02 * h <= v <= 1.02 * h:
-                out.append(name)
+                x, y, z = (float(c) for c in tcp[name])
+                out[name] = (x, y, z)
         return out
+
+    def _arms_in_view(self) -> list[str]:
+        return list(self._in_view())
 
     def _picture(self) -> npt.NDArray[np.uint8]:
         for _ in range(self._retakes + 1):
@@ -378,13 +398,22 @@ class YumiBackend(HostBackend):
     def describe(self) -> dict[str, Any]:
         """The controller as ``testbed check`` shows it, with each arm's task and table
         box (which must lie inside the task's world zone box), and the camera: its
-        settings as read back and each arm's crop's sharpness and exposure."""
+        settings as read back and each arm's crop's sharpness and exposure.
+
+        Read-only (issue 43): ``testbed check`` and the check every trial runs first ask
+        it before anything has judged the controller, so it never moves an arm. An arm
+        in the camera's view is not sent to rest (the picture step would): it is named
+        in ``in_view`` (arm -> its TCP, mm), a FAULT of the check
+        (:func:`in_view_faults`), and the crops' figures are left out (the arm would be
+        in them). In calibration mode the arms have no homography to judge it with."""
         task = {name: a.calibration.pose.task if a.calibration.pose else name
                 for name, a in self._arms.items()}
         from drivers.cameras.picture_quality import camera_report
 
-        frame = None if self._calibrating else self._picture()  # every arm out of view
+        in_view, frame = self._still_look()
+        crops = None if in_view else {n: a.crop for n, a in self._arms.items()}
         return {"controller": self._controller.describe(),
+                "in_view": {n: [round(c, 1) for c in xyz] for n, xyz in in_view.items()},
                 "table_boxes": {task[n]: list(a.calibration.table_box_mm)
                                 for n, a in self._arms.items()},
                 "travel_z": {task[n]: a.calibration.z_travel_mm for n, a in self._arms.items()},
@@ -394,8 +423,22 @@ class YumiBackend(HostBackend):
                               for n, a in self._arms.items()},
                 "layout": {n: {"task": task[n], **layout_keys(a.calibration)}
                            for n, a in self._arms.items()},
-                "camera": camera_report(self._camera, {n: a.crop for n, a in self._arms.items()},
-                                        frame=frame)}
+                "camera": camera_report(self._camera, crops, frame=frame)}
+
+    def _still_look(self) -> tuple[dict[str, tuple[float, float, float]],
+                                   npt.NDArray[np.uint8] | None]:
+        """(the arms in view, a picture with none in view or None): what ``describe``
+        sees without moving anything. A picture is kept only when no arm was in view
+        before and after it was taken; in calibration mode: no judgement, no picture
+        (``camera_report`` reads the camera itself)."""
+        if self._calibrating:
+            return {}, None
+        before = self._in_view()
+        if before:
+            return before, None
+        frame = self._camera.read()
+        after = self._in_view()  # an arm that came into view during the shot
+        return after, (None if after else frame)
 
     def reseed(self, seed: int) -> None:
         """A fresh goal stream from ``seed``, as a newly started agent would have: goals,

@@ -127,10 +127,13 @@ class YumiPlugin(BackendPlugin):
 
     def controller_report(self, host: HostBase, info: Mapping[str, Any]
                           ) -> tuple[list[str], list[str]]:
+        """The report of ``drivers/yumi/check_report.py``; an arm in the camera's view
+        first (``describe`` is read-only: ``drivers/yumi/backend.py`` ``in_view_faults``)."""
+        from drivers.yumi.backend import in_view_faults
         from drivers.yumi.check_report import controller_report
 
         lines, faults = controller_report(host.name, info)
-        return lines, [*faults, *deadline_faults(host, info)]
+        return lines, [*in_view_faults(info), *faults, *deadline_faults(host, info)]
 
     def layout_report(self, host: HostBase, calibrations: Mapping[str, Mapping[str, Any]],
                       info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
