@@ -114,6 +114,7 @@ name = "yumi"
 backend = "yumi"
 camera = "http://127.0.0.1:{port}/camera.mjpg"
 controller_url = "{twin.rws}"
+credentials_file = "factory-default"
 deadline_s = 30
 [[hosts.arms]]
 name = "left"
