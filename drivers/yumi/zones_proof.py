@@ -47,16 +47,16 @@ alone then: the fail-closed side).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import re
 import stat
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
+
+from testbed.core.atomic import atomic_write_bytes
 
 RESTART_CODES = {10045: "System restarted", 10046: "System restarted in cold mode"}
 """The event log entries that mark a restart, each counted as one: after any of them the
@@ -378,18 +378,8 @@ def read_proof_file(path: str | os.PathLike[str]) -> Any:
 
 
 def write_proof_file(path: str | os.PathLike[str], data: Mapping[str, Any]) -> None:
-    """Write ``data`` to a new file (mode 0600) in ``path``'s folder and rename it over
-    ``path`` (atomic on one file system); OSError when it cannot."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=1, sort_keys=True)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` to ``path`` atomically (``testbed.core.atomic``: a temp file in the
+    same folder, created mode 0600 by ``mkstemp``, fsynced and renamed over ``path``);
+    OSError when it cannot."""
+    text = json.dumps(data, indent=1, sort_keys=True) + "\n"
+    atomic_write_bytes(path, text.encode("utf-8"))
