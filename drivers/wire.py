@@ -38,7 +38,8 @@ Messages (``type``; a reply echoes the request's ``id``; images are PNG blobs):
     move_tcp {arm, xyz_mm}                  move_tcp_ok {tcp: [x, y, z]}
     save_calibration {arm, data}            save_calibration_ok {path}
     describe {}                             describe_ok {info: {...}} (the controller's report)
-    bye {}                                  bye_ok {} (after the arms are at rest)
+    bye {}                                  bye_ok {} (after the arms are at rest, if
+                                            the session asked anything that moves one)
                                             error {kind, message, traceback, arm, fatal}
 
 The agent answers requests in order, one at a time (they may be pipelined), except the

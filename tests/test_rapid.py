@@ -20,7 +20,9 @@ from __future__ import annotations
 import math
 import random
 import re
+import struct
 import threading
+from collections import Counter
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -29,7 +31,7 @@ import pytest
 from rapidchecker.cli import check_file
 
 from drivers.yumi import yumi_controller
-from sim_twin.rws import testbed_install, testbed_rapid, world_zones
+from sim_twin.rws import testbed_file, testbed_install, testbed_rapid, world_zones
 
 RAPID = Path(__file__).resolve().parents[1] / "robot" / "rapid"
 MODULES = sorted([*RAPID.glob("*.mod"), *RAPID.glob("*.sys")])
@@ -446,3 +448,163 @@ def test_rapidchecker_would_catch_a_broken_tool_check() -> None:
     text = (RAPID / "TestbedMotion.mod").read_text()
     assert check_file(text.replace("    IF d > 1 d := 1;", "    IF d > 1 d := 1"))
     assert check_file(text.replace("    tb_tool frame;", "   tb_tool frame;"))
+
+
+# --- every field a file can set has a limit the controller holds (issue 43) ------------------
+def _reasons(shared: str) -> set[str]:
+    """Every reason (a refusal's first line) TestbedMotion writes: ``tb_fail``'s and
+    ``tb_over``'s first argument, the error handler's ``tb_reason``, CONSTs resolved."""
+    code = re.sub(r"!.*", "", shared)
+    names = re.findall(r"\btb_fail (\"[^\"]*\"|\w+),", code)
+    names += re.findall(r"\btb_over (\w+),", code)
+    names += re.findall(r"\btb_reason := (\"[^\"]*\");", code)
+    # tb_over hands its parameter on: its callers' reasons are counted above
+    return {n.strip('"') if n.startswith('"') else _const(shared, n) for n in names
+            if n not in ("reason", "\"\"")}
+
+
+def test_every_refusal_of_the_module_is_the_twins() -> None:
+    """The twin refuses with exactly the module's reasons (sim_twin/rws/testbed_file.py
+    REASONS), the issue-43 ones as the module's CONSTs."""
+    shared = (RAPID / "TestbedMotion.mod").read_text()
+    assert _reasons(shared) == set(testbed_file.REASONS)
+    for name, text in testbed_install.LIMIT_REASONS.items():
+        assert _const(shared, name) == text
+    planted = shared.replace('tb_fail TB_WAIT_OVER, tb_clip', 'tb_fail "Wait too long", tb_clip')
+    assert _reasons(planted) != set(testbed_file.REASONS)
+
+
+def test_the_limits_are_the_twins_and_let_the_drivers_files_pass() -> None:
+    """The module's caps and the task modules' (as shipped) are the twin's; the driver's
+    speeds (drivers/yumi/rws_controller.py) and its zones (fine, z10) pass them."""
+    from drivers.yumi import rws_controller
+
+    shared = (RAPID / "TestbedMotion.mod").read_text()
+    assert float(_const(shared, "TB_WAIT_MAX")) == testbed_file.WAIT_MAX == 2
+    assert float(_const(shared, "TB_V_LEAX_MAX")) == testbed_file.V_LEAX_MAX
+    for name, cap in testbed_file.ZONE_MAX.values():
+        assert float(_const(shared, name)) == cap
+    z10 = [10, 15, 15, 1.5, 15, 1.5]  # abb_motion_program_exec's z10 (RAPID's)
+    assert [cap for _, cap in testbed_file.ZONE_MAX.values()] == z10
+    for side in ("L", "R"):
+        text = (RAPID / f"TestbedTask_{side}.mod").read_text()
+        caps = {n: float(_const(text, n)) for n in testbed_rapid.CAPS}
+        assert caps == {"tb_v_tcp_max": testbed_file.V_TCP_MAX,
+                        "tb_v_ori_max": testbed_file.V_ORI_MAX,
+                        "tb_v_reax_max": testbed_file.V_REAX_MAX}
+        assert all(_decl(text, n)[:2] == ("CONST", "num") for n in caps)
+        assert caps["tb_v_tcp_max"] >= 150.0  # the calibration's default max_speed_mm_s
+        assert caps["tb_v_ori_max"] >= rws_controller.V_ORI_DEG_S
+        assert caps["tb_v_reax_max"] >= rws_controller.V_REAX_DEG_S
+    assert rws_controller.V_LEAX_MM_S <= testbed_file.V_LEAX_MAX
+
+
+def _calls(shared: str, routine: str, callee: str) -> list[list[str]]:
+    """The argument lists of every ``callee`` call in FUNC or PROC ``routine``."""
+    m = re.search(rf"^  (?:FUNC \w+|PROC) {routine}\([^)]*\)\n(.*?)^  END(?:FUNC|PROC)", shared,
+                  re.M | re.S)
+    assert m, routine
+    code = re.sub(r"\n\s+", " ", re.sub(r"!.*", "", m.group(1)))
+    return [[a.strip() for a in args.split(",")]
+            for args in re.findall(rf"\b{callee} ([^;]*);", code)]
+
+
+def limit_problems(shared: str) -> list[str]:
+    """Each speed and zone field is checked against its cap, VelSet caps the TCP before
+    the moves, the moves run in wobj0 with the file's speeds (none replaced), every
+    WaitTime is checked against TB_WAIT_MAX and both frames of the work object."""
+    out = []
+    speeds = [(c[1].strip('"'), c[3].strip('"'), c[4]) for c in
+              _calls(shared, "tb_speeddata", "tb_speed_limit")]
+    if speeds != [("v_tcp", "tb_v_tcp_max", "tb_v_tcp_max"), ("v_ori", "tb_v_ori_max",
+                  "tb_v_ori_max"), ("v_leax", "TB_V_LEAX_MAX", "TB_V_LEAX_MAX"),
+                  ("v_reax", "tb_v_reax_max", "tb_v_reax_max")]:
+        out.append(f"tb_speeddata checks {speeds}")
+    zones = [(c[1].strip('"'), c[4]) for c in _calls(shared, "tb_zonedata", "tb_zone_limit")]
+    if zones != [(f, name) for f, (name, _) in testbed_file.ZONE_MAX.items()]:
+        out.append(f"tb_zonedata checks {zones}")
+    _, execute = _routine({"TestbedMotion": shared}, "tb_execute")
+    steps = [ln.strip() for ln in execute.splitlines() if not ln.strip().startswith("!")]
+    if "VelSet 100, tb_v_tcp_max;" not in steps or steps.index(
+            "VelSet 100, tb_v_tcp_max;") > steps.index("FOR i FROM 1 TO tb_n DO"):
+        out.append("no VelSet 100, tb_v_tcp_max before the moves")
+    moves = [s for s in steps if s.startswith(("MoveJ ", "MoveL "))]
+    if not moves or any(not s.endswith("tool_pusher \\WObj:=wobj0;") for s in moves):
+        out.append(f"a move not in wobj0: {moves}")
+    code = re.sub(r"!.*", "", shared)
+    if re.search(r"\bs\.v_\w+ := (?!tb_num\(\))", code):
+        out.append("a speed of the file is replaced")
+    if "tb_wait{tb_n} > TB_WAIT_MAX" not in code:
+        out.append("WaitTime not checked against TB_WAIT_MAX")
+    if [c[0].strip('"') for c in _calls(shared, "tb_header", "tb_identity")] != [
+            "uframe", "oframe"]:
+        out.append("the work object's frames are not both checked")
+    return out
+
+
+def test_every_field_has_its_limit_in_the_module() -> None:
+    shared = (RAPID / "TestbedMotion.mod").read_text()
+    assert limit_problems(shared) == []
+    planted = {
+        "VelSet": shared.replace("    VelSet 100, tb_v_tcp_max;\n", ""),
+        "v_ori": shared.replace('    tb_speed_limit what, "v_ori", s.v_ori, "tb_v_ori_max", '
+                                'tb_v_ori_max;\n', ""),
+        "zone": shared.replace('"TB_ZONE_ORI_MAX", TB_ZONE_ORI_MAX', '"TB_ZONE_ORI_MAX", 90'),
+        "wobj": shared.replace("tool_pusher \\WObj:=wobj0;", "tool_pusher \\WObj:=tb_wobj;"),
+        "replaced": shared.replace("    RETURN s;", "    s.v_ori := 500;\n    RETURN s;"),
+        "frame": shared.replace('    tb_identity "oframe", file_wobj.oframe;\n', ""),
+    }
+    for name, text in planted.items():
+        assert text != shared and limit_problems(text), name
+
+
+def test_tb_num_refuses_every_inf_and_nan_before_unpacking_it() -> None:
+    """The bit test of tb_num (the float32's exponent all ones), evaluated on the bytes
+    of finite numbers (the largest, the smallest, subnormal, zero, random) and of every
+    kind of inf and NaN: refused exactly when the number is not finite; and before the
+    value is unpacked."""
+    shared = (RAPID / "TestbedMotion.mod").read_text()
+    _, body = re.search(r"^  FUNC num (tb_num)\(\)\n(.*?)^  ENDFUNC", shared,
+                        re.M | re.S).groups()  # type: ignore[union-attr]
+    steps = [ln.strip() for ln in body.splitlines() if not ln.strip().startswith("!")]
+    at = {m.group(2): int(m.group(1)) for s in steps
+          for m in [re.fullmatch(r"UnpackRawBytes tb_raw, (\d), (hi|lo) \\IntX:=USINT;", s)] if m}
+    check = next(i for i, s in enumerate(steps) if "tb_fail TB_NOT_FINITE" in s)
+    assert check < steps.index("UnpackRawBytes tb_raw, 1, v \\Float4;")
+    cond = re.fullmatch(r"IF (.*) tb_fail TB_NOT_FINITE, .*;", steps[check]).group(1)  # type: ignore[union-attr]
+    expr = cond.replace(" MOD ", " % ").replace(" AND ", " and ").replace(" = ", " == ")
+    rng = random.Random(43)
+    finite = [3.4028234e38, -3.4028234e38, 1.4e-45, -1.4e-45, 0.0, -0.0, 1.0, 150.0]
+    finite += [rng.uniform(-1e6, 1e6) for _ in range(500)]
+    bits = [struct.pack("<f", v) for v in finite]
+    odd = [struct.pack("<I", s | 0x7F800000 | m) for s in (0, 1 << 31)
+           for m in (0, 1, 0x400000, 0x7FFFFF, rng.randrange(1, 1 << 23))]
+    for raw in bits + odd:
+        v = struct.unpack("<f", raw)[0]
+        refused = eval(expr, {}, {"hi": raw[at["hi"] - 1], "lo": raw[at["lo"] - 1]})
+        assert refused == (not math.isfinite(v)), (raw.hex(), v)
+
+
+ROUTINE = re.compile(r"^  (?:LOCAL )?(?:PROC|TRAP|FUNC \w+) (\w+)\(", re.M)
+
+
+def name_problems(texts: Texts) -> list[str]:
+    """Every module-scope name of a task (data and routines, its modules together) is
+    declared once; RAPID's names are not case-sensitive, so neither is this. rapidchecker
+    passed a PROC ``tb_speed`` beside the array ``tb_speed{}``, which a controller does
+    not load."""
+    seen: Counter[str] = Counter()
+    for text in texts.values():
+        seen.update(m.group(3).lower() for m in DECL.finditer(text))
+        seen.update(m.group(1).lower() for m in ROUTINE.finditer(text))
+    return [f"{name} is declared {n} times" for name, n in sorted(seen.items()) if n > 1]
+
+
+@pytest.mark.parametrize("side", ["L", "R"])
+def test_no_name_is_declared_twice_in_a_task(side: str) -> None:
+    texts = _texts(side)
+    assert name_problems(texts) == []
+    shared = texts["TestbedMotion"]
+    planted = shared.replace("PROC tb_speed_limit(", "PROC tb_speed(")
+    assert planted != shared
+    assert name_problems({**texts, "TestbedMotion": planted}) == ["tb_speed is declared 2 times"]

@@ -26,7 +26,8 @@ Lifecycle::
        in order, in ONE worker thread, while the reader answers heartbeat and stop at
        once, until bye, EOF, a broken frame, or no frame for --idle-timeout seconds
        while no request runs (the controller or the link is dead)
-    -> bye: arms to rest, then bye_ok; anything else: NO motion
+    -> bye: arms to rest (only after a request that may move one: observe, push,
+       reset, rest, move_tcp), then bye_ok; anything else: NO motion
     -> finally: backend closed, lock released
 
 Why a reader beside the worker (protocol 3): a push on a real arm is a motion of
@@ -37,7 +38,8 @@ instead of waiting behind the motion it should stop.
 An orphaned agent never moves an arm: once its controller is gone (EOF, idle timeout,
 broken pipe, broken frame) nobody is watching the cell, so it stops the motion in
 progress (``backend.stop()``), runs none of the requests still queued, and closes the
-backend where the arms are. Arms rest only when asked (``rest``, ``bye``). With
+backend where the arms are. Arms rest only when asked (``rest``, ``bye``; a session
+that only looked, describe and frame, is not asked at bye either). With
 ``--watchdog S`` the same stop comes when a request runs and no frame at all has come
 from the controller for S seconds: a v3 controller heartbeats during every call, so
 silence means the link stopped answering.

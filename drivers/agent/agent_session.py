@@ -49,6 +49,11 @@ at once the worker ending the session (bye, a broken link) and the watchdog's si
 DRAIN_S = 10.0
 """At exit, how long the backend may take to return from a stopped request before it is
 closed anyway."""
+MAY_MOVE = ("observe", "push", "reset", "rest", "move_tcp")
+"""The requests that may move an arm (a YuMi's picture step sends an arm in view to
+rest). Bye rests the arms only after one of them: a session that only looked (hello,
+describe, frame: ``testbed check``, the check a trial runs first) ends as it found the
+arms, so a check that refuses an arm where it is never moves it (issue 43)."""
 
 
 def serve(reader: p.FrameReader, write: Callable[[bytes], None],
@@ -117,6 +122,7 @@ class _Session:
         self._seq = 0  # requests started so far
         self._idle_since = time.monotonic()
         self._exit: int | None = None  # set by the worker: the session is over
+        self._may_have_moved = False  # a MAY_MOVE request was run (the worker's own)
         self.watchdog = Watchdog(watchdog_s)
 
     # -- the reader -------------------------------------------------------------------
@@ -301,18 +307,25 @@ class _Session:
             return None
         if job.type == "bye":
             # Rest BEFORE bye_ok: the controller's close waits for it, so the arms are
-            # out of the way when the agent is gone.
-            log.info("bye: arms to rest, then exiting")
-            try:
-                backend.rest()
-            except Exception:
-                log.exception("rest at bye failed")
+            # out of the way when the agent is gone; only after a request that may have
+            # moved one (MAY_MOVE): a session that only looked leaves them as it found them.
+            if not self._may_have_moved:
+                log.info("bye: this session only looked (no request that moves an arm); "
+                         "exiting without a motion")
+            else:
+                log.info("bye: arms to rest, then exiting")
+                try:
+                    backend.rest()
+                except Exception:
+                    log.exception("rest at bye failed")
             self._reply(p.encode_frame({"type": "bye_ok", "id": job.id}))
             return EXIT_OK
         if job.type == "hello":  # again: the same answer
             reply, status = self._hello(job)
             self._reply(reply)
             return status
+        if job.type in MAY_MOVE:
+            self._may_have_moved = True
         self._reply(dispatch(backend, job))
         prepare = getattr(backend, "prepare", None)
         if job.type in ("push", "reset") and prepare is not None and not self._closing.is_set():

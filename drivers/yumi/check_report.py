@@ -22,11 +22,11 @@ def controller_report(name: str, info: Mapping[str, Any]) -> tuple[list[str], li
     from drivers.yumi.controller_state import RAPID_VERSION, option_warnings, problems
 
     rep, boxes = info["controller"], info.get("table_boxes", {})
-    lines = report_lines(name, rep, RAPID_VERSION, info.get("tool_z"))
+    lines = report_lines(name, rep, RAPID_VERSION, info.get("tool_z"), info.get("max_speed"))
     lines += [f"WARN  {name}: {w}" for w in option_warnings(rep)]
     lines += camera_lines(name, info.get("camera") or {})
     faults = problems(rep, list(rep.get("rapid", {})), boxes, info.get("travel_z"),
-                      info.get("clear_z"), info.get("tool_z"))
+                      info.get("clear_z"), info.get("tool_z"), info.get("max_speed"))
     got, bad = layout_report(rep, info)
     return lines + got, faults + bad
 
@@ -62,9 +62,12 @@ def layout_report(rep: Mapping[str, Any], info: Mapping[str, Any]
 
 
 def report_lines(name: str, rep: dict[str, Any], version: int,
-                 tool_z: Mapping[str, float] | None = None) -> list[str]:
+                 tool_z: Mapping[str, float] | None = None,
+                 max_speed: Mapping[str, float] | None = None) -> list[str]:
     """The controller's report as ``testbed check`` prints it (never a credential), with
-    each task's ``tool_pusher`` beside the calibration's ``tool_z_mm`` (``tool_z``)."""
+    each task's ``tool_pusher`` beside the calibration's ``tool_z_mm`` (``tool_z``) and
+    its TCP speed cap ``tb_v_tcp_max`` beside the calibration's ``max_speed_mm_s``
+    (``max_speed``)."""
     st = rep.get("state", {})
     ratio = st.get("speedratio")
     lines = [f"      {name}: controller {rep.get('system')} serial {rep.get('serial')}, "
@@ -85,6 +88,10 @@ def report_lines(name: str, rep: dict[str, Any], version: int,
                      f"below z {z.get('tb_zone_z')}, floor z {z.get('tb_floor_z')}")
         lines.append(f"      {name}: {task}: {_tool_text(ours.get('tool'))}; the "
                      f"calibration's tool_z_mm {(tool_z or {}).get(task, '?')}")
+        cap = ours.get("v_tcp_max")
+        lines.append(f"      {name}: {task}: TCP speed cap tb_v_tcp_max "
+                     f"{'not readable' if cap is None else f'{cap:g} mm/s'}; the "
+                     f"calibration's max_speed_mm_s {(max_speed or {}).get(task, '?')}")
     return lines
 
 

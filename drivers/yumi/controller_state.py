@@ -3,15 +3,19 @@
 Why a module of its own: two callers ask the same questions of an IRC5 through Robot Web
 Services and must answer them alike. The driver (:class:`~drivers.yumi.yumi_controller.
 RwsYumiController`) asks before every program start -- Auto mode, motors on, RAPID
-stopped, no task left stopped by a RAPID error -- and refuses with one line naming what
-to fix; ``testbed check`` asks for the whole picture (RobotWare, options, serial, tasks,
-our RAPID modules and their version, the world zones) through :func:`describe` and fails
-on :func:`problems`. A real controller's answers are listed in docs/rws-checklist.md.
+stopped, no task left stopped by a RAPID error, every task's ``TB_RAPID_VERSION`` the one
+it expects (:func:`version_refusal`) -- and refuses with one line naming what to fix;
+``testbed check`` asks for the whole picture (RobotWare, options, serial, tasks, our RAPID
+modules and their version, the world zones, the tool frame, the TCP speed cap) through
+:func:`describe` and fails on :func:`problems`. Whether the zones are on since the last
+restart is read from the event log by :mod:`drivers.yumi.zones_proof` (the driver keeps
+that proof across reads). A real controller's answers are listed in
+docs/rws-checklist.md.
 
 Every function takes the ABB client's ``RWS`` object (``abb_robot_client.rws``) or what
 it returned; nothing here imports it, so the module loads without the YuMi extra.
 
-Over 450 lines, on purpose: the driver's refusal and ``testbed check``'s report ask the
+Over 400 lines, on purpose: the driver's refusal and ``testbed check``'s report ask the
 same questions of the controller; one module keeps their answers alike (see above).
 """
 
@@ -23,7 +27,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-RAPID_VERSION = 4
+from drivers.yumi.zones_proof import zones_known, zones_known_problem
+
+RAPID_VERSION = 5
 """``TB_RAPID_VERSION`` of the robot/rapid/ modules this driver speaks to (TestbedMotion.mod;
 tests/drivers/test_yumi_controller_state.py keeps the two equal)."""
 REQUIRED_OPTIONS = {"616-1": "PC Interface",
@@ -67,15 +73,10 @@ ZONES_MODULE = "TestbedZones"
 ``tb_zones_at`` (when), TASK PERS, so they survive PP to Main (issue 29)."""
 
 
-RESTARTED = 10045
-"""The event "System restarted" every restart writes (also "Reset RAPID": its description
-names it; the codes assumed until docs/rws-checklist.md's restart line is filled in)."""
-ZONES_ACTIVE = "Testbed Zones Active"
-"""The title of the info entry (80003) ``tb_zones`` writes once every zone is active:
-the task, ``zones <n>``, the time (robot/rapid/TestbedZones.sys)."""
-ZONES_COUNT = 5
-"""``TB_WZ_COUNT`` of robot/rapid/TestbedZones.sys: the zones a Zones Active entry must
-name when the controller's own count cannot be read."""
+V_TCP_MAX = "tb_v_tcp_max"
+"""The TCP speed cap (mm/s) a lab sets in each task module (robot/rapid/TestbedTask_L.mod,
+CONST num): our RAPID refuses a program whose speed exceeds it, so a calibration's
+``max_speed_mm_s`` above it refuses every program."""
 TOOL_MM, TOOL_DEG = 1.0, 0.5
 """How far a calibration's tool may be from ``tool_pusher`` before our RAPID refuses its
 programs (translation mm, rotation deg; TestbedMotion.mod's ``tb_header``)."""
@@ -211,7 +212,26 @@ def rapid_of_task(rws: Any, task: str) -> dict[str, Any]:
               "of": _number(_symbol(rws, task, ZONES_MODULE, "TB_WZ_COUNT")),
               "at": (_symbol(rws, task, ZONES_MODULE, "tb_zones_at") or "").strip('"')}
     return {"version": None if version is None else int(version), "zones": zones,
-            "zones_active": active, "tool": tool_frame(_symbol(rws, task, module, TOOL))}
+            "zones_active": active, "tool": tool_frame(_symbol(rws, task, module, TOOL)),
+            "v_tcp_max": _number(_symbol(rws, task, module, V_TCP_MAX))}
+
+
+def version_refusal(rws: Any, tasks: Sequence[str]) -> str | None:
+    """One line unless EVERY task in ``tasks`` reads ``TestbedMotion/TB_RAPID_VERSION``
+    equal to :data:`RAPID_VERSION` (read now, over ``rws``: a person may load another
+    module with a ``main`` between two pushes, and a start runs whatever ``main`` the task
+    holds); else None."""
+    for task in tasks:
+        got = _number(_symbol(rws, task, "TestbedMotion", "TB_RAPID_VERSION"))
+        if got is None:
+            return (f"task {task}: TestbedMotion/TB_RAPID_VERSION cannot be read: our RAPID "
+                    f"is not what the task holds (another program loaded?); load "
+                    f"robot/rapid/ from this checkout (robot/README.md, 'Install')")
+        if got != RAPID_VERSION:
+            return (f"task {task}: TestbedMotion/TB_RAPID_VERSION is {got:g}, this driver "
+                    f"needs {RAPID_VERSION}; load robot/rapid/ from this checkout "
+                    f"(robot/README.md, 'Install')")
+    return None
 
 
 def tool_frame(text: str | None) -> dict[str, Any] | None:
@@ -254,58 +274,20 @@ def tool_problem(task: str, tool: Mapping[str, Any] | None, tool_z_mm: float | N
             f"value into tool_pusher and tool_z_mm (robot/README.md, 'The tool frame')")
 
 
-def zones_known(log: Sequence[Any], task: str) -> dict[str, Any]:
-    """Whether ``task``'s world zones are known active since the last restart, from the
-    event log (newest first): ``restart`` and ``active`` are the sequence numbers of the
-    newest 10045 and of the newest Zones Active entry of ``task`` (None: not in the log),
-    ``zones`` the count that entry names, ``known`` whether it is the newer of the two.
-    The order in the log decides, not the numbers (they wrap at 65535)."""
-    out: dict[str, Any] = {"restart": None, "active": None, "zones": None, "known": False}
-    for e in log:
-        if out["restart"] is None and e.code == RESTARTED:
-            out["restart"] = e.seqnum
-        args = [str(a) for a in (getattr(e, "args", None) or [])]
-        if out["active"] is None and e.code == 80003 and ZONES_ACTIVE in (
-                str(e.title), args[0] if args else "") and task in args[1:2]:
-            out["active"] = e.seqnum
-            m = re.search(r"zones (\d+)", " ".join(args))
-            out["zones"] = int(m.group(1)) if m else None
-            out["known"] = out["restart"] is None
-        if out["restart"] is not None and out["active"] is not None:
-            break
-    return out
-
-
-def zones_known_problem(task: str, known: Mapping[str, Any], count: float | None = None
-                        ) -> str | None:
-    """``testbed check``'s line when ``task``'s zones are not known active since the last
-    restart (:func:`zones_known`): no Zones Active entry newer than the newest 10045, or
-    one naming fewer zones than ``count`` (``TB_WZ_COUNT``; :data:`ZONES_COUNT`)."""
-    want = int(count) if count is not None else ZONES_COUNT
-    if known.get("known") and (known.get("zones") or 0) >= want:
-        return None
-    after = ("since the last restart (event log 10045, seq "
-             f"{known['restart']})" if known.get("restart") is not None
-             else "(no restart entry left in the event log either)")
-    got = (f"the newest {ZONES_ACTIVE!r} entry says zones {known.get('zones')}"
-           if known.get("known") else f"no {ZONES_ACTIVE!r} entry with zones {want} after it")
-    return (f"task {task}: the world zones are not known active {after}: {got}; restart "
-            f"the controller / check tb_zones is the POWER_ON event routine "
-            f"(robot/README.md, 'The zones')")
-
-
-def zones_refusal(log: Sequence[Any], tasks: Sequence[str]) -> str | None:
-    """The driver's refusal before a start: a task whose newest restart entry in the log
-    is newer than its newest Zones Active entry (the zones are not on since that
-    restart). A log where neither is left (a long day) is no refusal: the driver saw
-    every entry since its start, ``testbed check`` is the strict gate."""
-    for task in tasks:
-        k = zones_known(log, task)
-        if k["restart"] is not None and not k["known"]:
-            return (f"task {task}: the world zones are not known active since the last "
-                    f"restart (event log 10045, seq {k['restart']}, and no "
-                    f"{ZONES_ACTIVE!r} entry after it): restart the controller / check "
-                    f"tb_zones is the POWER_ON event routine (robot/README.md, 'The zones')")
+def speed_problem(task: str, cap: float | None, max_speed_mm_s: float | None
+                  ) -> str | None:
+    """One line when the controller's TCP speed cap (``tb_v_tcp_max``, mm/s) cannot be
+    read (modules older than the cap: nothing on the controller bounds a file's speed)
+    or is below the calibration's ``max_speed_mm_s`` (our RAPID refuses every program
+    whose speed exceeds it); else None."""
+    if cap is None:
+        return (f"task {task}: the controller's {V_TCP_MAX} (the TCP speed cap, mm/s) "
+                f"cannot be read: the task module is older than the cap; load robot/rapid/ "
+                f"from this checkout (robot/README.md, 'Install')")
+    if max_speed_mm_s is not None and float(max_speed_mm_s) > cap:
+        return (f"task {task}: the calibration's max_speed_mm_s {float(max_speed_mm_s):g} "
+                f"is above the controller's {V_TCP_MAX} {cap:g} mm/s: our RAPID refuses "
+                f"every program; lower max_speed_mm_s to {cap:g} or less")
     return None
 
 
@@ -372,14 +354,16 @@ def problems(rep: Mapping[str, Any], tasks: Sequence[str],
              table_boxes: Mapping[str, Sequence[float]] | None = None,
              travel_z: Mapping[str, float] | None = None,
              clear_z: Mapping[str, float] | None = None,
-             tool_z: Mapping[str, float] | None = None) -> list[str]:
+             tool_z: Mapping[str, float] | None = None,
+             max_speed: Mapping[str, float] | None = None) -> list[str]:
     """What must be fixed before a trial, one line each (``rep``: a
     :class:`ControllerReport` as a dict); ``table_boxes``: task -> the calibration's
     ``table_box_mm``, which must lie inside that task's world zone box; ``travel_z``:
     task -> the calibration's ``z_travel_mm``, at or above the zone's ``tb_zone_z`` (a
     travel below it, outside the box, would stop the arm); ``clear_z``: its
     ``z_clear_mm``, at least ``tb_zone_z`` + :data:`CLEAR_MARGIN_MM`; ``tool_z``: its
-    ``tool_z_mm``, which must be the controller's ``tool_pusher``."""
+    ``tool_z_mm``, which must be the controller's ``tool_pusher``; ``max_speed``: its
+    ``max_speed_mm_s``, at most the task's ``tb_v_tcp_max`` (:func:`speed_problem`)."""
     out: list[str] = []
     opts = rep.get("options") or []
     for number, name in REQUIRED_OPTIONS.items():
@@ -412,6 +396,9 @@ def problems(rep: Mapping[str, Any], tasks: Sequence[str],
                 out.append(why)
             if "tool" in ours and (why := tool_problem(task, ours["tool"],
                                                        (tool_z or {}).get(task))):
+                out.append(why)
+            if "v_tcp_max" in ours and (why := speed_problem(
+                    task, ours["v_tcp_max"], (max_speed or {}).get(task))):
                 out.append(why)
             out += _height_problems(task, zones, (travel_z or {}).get(task),
                                     (clear_z or {}).get(task))

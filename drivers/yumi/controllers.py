@@ -9,6 +9,7 @@ hardware twin alike: both speak Robot Web Services 1.0.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 
 from drivers.errors import BackendError
@@ -21,11 +22,16 @@ __all__ = ["make_controller"]
 
 def make_controller(url: str, poses: Mapping[str, ArmPose | None], *,
                     credentials_file: str | None = None, motion_timeout_s: float = 15.0,
-                    field_name: str = "controller_url") -> YumiControllerClient:
+                    field_name: str = "controller_url",
+                    zones_state_dir: str | os.PathLike[str] | None = None
+                    ) -> YumiControllerClient:
     """The controller client for ``url`` (``http(s)://HOST[:PORT]``, the controller's Robot
     Web Services). ``poses``: every arm (config order) with its pose from the calibration
     file; the controller needs each arm's rest pose, also while calibrating.
-    ``credentials_file``: the host's ``USER:PASSWORD`` file (None: the factory login)."""
+    ``credentials_file``: the host's ``USER:PASSWORD`` file (required: None is refused by
+    the controller client; ``"factory-default"`` names the factory login, twin only).
+    ``zones_state_dir``: where the zones proof is recorded for the next agent (the robot
+    lock's folder; :mod:`drivers.yumi.zones_proof`)."""
     low = url.strip().lower()
     if not low.startswith(("http://", "https://")):
         raise BackendError(f"{field_name}: {url!r} is not a controller URL; expected "
@@ -38,4 +44,5 @@ def make_controller(url: str, poses: Mapping[str, ArmPose | None], *,
     login = read_login(credentials_file) if credentials_file else None
     return RwsYumiController(url.strip().rstrip("/"),
                              {a: p for a, p in poses.items() if p is not None},
-                             login=login, motion_timeout_s=motion_timeout_s)
+                             login=login, motion_timeout_s=motion_timeout_s,
+                             zones_state_dir=zones_state_dir)

@@ -2,9 +2,11 @@
 
 Why a module between the kinematics and the checks: the driver (before a motion),
 ``testbed check`` and ``testbed calibrate`` (``drivers/yumi/layout_check.py``) and the
-layout's tests ask the same two questions of a target: is it reachable at this arm angle
-with this tool, and how far further out could it be (the reach margin, mm, measured
-horizontally away from the arm's shoulder, where a reach runs out first).
+layout's tests ask the same two questions of a target: is it reachable with this tool,
+axis 7 held where the driver plans it, and how far further out could it be (the reach
+margin, mm, measured horizontally away from the arm's shoulder, where a reach runs out
+first). Whether the straight lines between targets run is the line planner's
+(``drivers/yumi/line_plan.py``).
 """
 
 from __future__ import annotations
@@ -42,8 +44,11 @@ def side_of(arm_name: str, task: str | None = None) -> str | None:
 @dataclass(frozen=True)
 class ArmTool:
     """How an arm holds its pusher: the side, the tool's length (flange to tip,
-    ``tool_z_mm``), the arm angle (axis 7) and the tool's orientation (a robtarget's
-    quaternion; default pointing down) its targets are sent with."""
+    ``tool_z_mm``), axis 7's value its targets' joints are picked with (the
+    calibration's ``arm_angle_deg``, a name kept from when it was taken for the arm
+    angle: a robtarget's ``eax_a`` is ABB's arm angle of those joints,
+    ``drivers/yumi/arm_angle.py``) and the tool's orientation (a robtarget's quaternion;
+    default pointing down) its targets are sent with."""
 
     side: str
     tool_z_mm: float

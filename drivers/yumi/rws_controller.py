@@ -10,20 +10,38 @@ answers RWS 1.0 as a controller does.
 
 Before every start the controller's state is read (:mod:`drivers.yumi.controller_state`):
 a push in manual mode, with the motors off, with RAPID running or a task stopped by a
-RAPID error is refused with one line naming what to fix, and nothing moves. Every event
-log entry since the previous program goes to the ``drivers.yumi.elog`` logger (the
-agent's stderr: the run's ``hosts/<host>.log``). :meth:`stop` stops a running program from
-another thread, on a second RWS session, so it never waits behind the polling.
+RAPID error, with a task not holding our RAPID of the version this driver expects, or
+with the world zones not proved active since the last restart
+(:mod:`drivers.yumi.zones_proof`; recorded for the next agent beside the robot lock,
+``zones_state_dir``) is refused with one line naming what to fix; nothing is
+uploaded and nothing moves. Every event log entry since the previous program goes to the
+``drivers.yumi.elog`` logger (the agent's stderr: the run's ``hosts/<host>.log``).
+:meth:`stop` stops a running program of ours from another thread, on a second RWS
+session, so it never waits behind the polling; the motion timeout scales with the
+controller's speed ratio (a 10 % run takes ten times as long). Each robtarget's
+``eax_a`` is ABB's arm angle of the joints the driver planned for it
+(:meth:`RwsYumiController.program`, ``drivers/yumi/line_plan.py``); a jointtarget's is
+axis 7's value.
+
+Over 450 lines, on purpose: one class, the controller client, whose calls (the program
+files, the start, the wait, the stop from another thread, the reads of the joints and
+the tool) share one RWS session, its request counter and its stop flag, and must agree
+on the same tasks and files; what could leave went: the reading of the controller's
+state to ``controller_state.py``, the zones proof to ``zones_proof.py``, the logins to
+``credentials.py``, the arm angles to ``arm_angle.py`` and ``line_plan.py``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
+import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
+from urllib.parse import urlsplit
 
 from drivers.errors import BackendError
 from drivers.yumi.controller_state import (
@@ -35,10 +53,11 @@ from drivers.yumi.controller_state import (
     read_state,
     refusal,
     tool_frame,
-    zones_refusal,
+    version_refusal,
 )
-from drivers.yumi.credentials import FACTORY_PASSWORD, FACTORY_USER, RwsLogin
+from drivers.yumi.credentials import FACTORY_DEFAULT, RwsLogin
 from drivers.yumi.yumi_controller import ArmPose, Waypoint, _since, check_result, program_file
+from drivers.yumi.zones_proof import ZonesProof, proof_path
 
 elog_log = logging.getLogger("drivers.yumi.elog")
 elog_log.setLevel(logging.INFO)  # the controller's own words belong in the host log
@@ -49,7 +68,8 @@ TOOL = "tool_pusher"
 every TCP read uses it, so the point read back is the point commanded."""
 V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S = 100.0, 1000.0, 100.0
 """Orientation, linear and rotational external-axis speeds written into each program,
-the same as our RAPID's ``TB_V_*`` (which it uses whatever the file says)."""
+within our RAPID's caps (``tb_v_ori_max``, ``tb_v_reax_max``, ``TB_V_LEAX_MAX``: a file
+above them is refused before any motion, robot/README.md)."""
 POLL_S = 0.05
 TOOL_LOAD = (0.272, (7.5, 11.5, 53.8), (0.0003, 0.00032, 0.00009))
 """The load the program file carries (kg, centre of gravity mm, inertia kgm2 about the
@@ -78,11 +98,31 @@ def _patch_timeout(rws: Any, timeout_s: float, counter: list[int] | None = None)
     session.request = request
 
 
+def is_loopback(url: str) -> bool:
+    """Whether ``url`` names this machine (the hardware twin's controller)."""
+    host = urlsplit(url.strip()).hostname or ""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def _login_or_factory(login: RwsLogin | None, url: str) -> RwsLogin:
+    """``login``, or a one-line error: none given (no ``Default User`` fallback), or ABB's
+    factory login (:data:`~drivers.yumi.credentials.FACTORY_DEFAULT`) for a controller
+    that is not on this machine."""
     if login is None:
-        log.warning("no credentials_file for %s: logging in as the factory user %r", url,
-                    FACTORY_USER)
-        login = RwsLogin(FACTORY_USER, FACTORY_PASSWORD)
+        raise BackendError(
+            "credentials_file is not set: the YuMi host's credentials_file must name the "
+            "controller's RWS login (a file of one line USER:PASSWORD, mode 600; robot/"
+            "README.md); the agent never falls back to ABB's factory 'Default User'")
+    if login.factory and not is_loopback(url):
+        raise BackendError(
+            f"credentials_file = {FACTORY_DEFAULT!r} (ABB's factory login) is taken only "
+            f"from the hardware twin on this machine, not from {url}: give the "
+            f"controller's own login file")
     return login
 
 
@@ -100,9 +140,9 @@ def controller_info(url: str, credentials_file: str | None = None,
 
     from drivers.yumi.credentials import read_login
 
-    try:
-        login = (read_login(credentials_file) if credentials_file
-                 else RwsLogin(FACTORY_USER, FACTORY_PASSWORD))  # the client warns once
+    try:  # without a login it cannot be asked (the backend's build says why)
+        login = _login_or_factory(read_login(credentials_file) if credentials_file
+                                  else None, url)
         rws = RWS(url.rstrip("/"), login.user, login.password)
         _patch_timeout(rws, timeout_s)
         try:
@@ -144,6 +184,14 @@ def controller_tools(url: str, tasks: Sequence[str], credentials_file: str | Non
             rws.logout()
 
 
+def scaled_timeout(motion_timeout_s: float, speedratio: float | None) -> float:
+    """``motion_timeout_s`` (what a program may take at 100 %) at the controller's speed
+    ratio (percent, clamped to 1..100; unknown: 100): a push of 7.8 s takes 78 s at 10 %
+    (docs/rws-checklist.md's 10 % runs)."""
+    ratio = 100.0 if speedratio is None else min(100.0, max(1.0, float(speedratio)))
+    return float(motion_timeout_s) * 100.0 / ratio
+
+
 def robot_identity(info: Mapping[str, str] | None) -> str | None:
     """The robot as the lock names it, ``"IRC5 <serial>"``; None without a serial."""
     serial = (info or {}).get("serial")
@@ -163,7 +211,8 @@ class RwsYumiController:
 
     def __init__(self, base_url: str, arms: Mapping[str, ArmPose], *,
                  login: RwsLogin | None = None, http_timeout_s: float = 5.0,
-                 motion_timeout_s: float = 15.0) -> None:
+                 motion_timeout_s: float = 15.0,
+                 zones_state_dir: str | os.PathLike[str] | None = None) -> None:
         # Lazy: these clients pull in requests/websockets; only a YuMi host needs them.
         from abb_motion_program_exec import abb_motion_program_exec_client as mpe
         from abb_robot_client.rws import RWS
@@ -172,6 +221,9 @@ class RwsYumiController:
         self._mpe: Any = mpe
         self._arms = dict(arms)
         self._motion_timeout_s = motion_timeout_s
+        self.timeout_s = motion_timeout_s
+        """The last start's motion timeout: ``motion_timeout_s`` scaled by the speed
+        ratio the controller said at that start (:func:`scaled_timeout`)."""
         self._seqno = 0
         self._rws: Any = RWS(base_url, login.user, login.password)
         self._stop_rws: Any = RWS(base_url, login.user, login.password)
@@ -180,7 +232,16 @@ class RwsYumiController:
         _patch_timeout(self._stop_rws, min(http_timeout_s, 1.0))
         self._stopping = threading.Event()
         self._moving = threading.Event()
-        """Set from the start of one of our programs to its end: what :meth:`stop` stops."""
+        """Set once one of our programs IS started (``rws.start`` returned) until RAPID is
+        seen stopped: only then is a running program ours, and :meth:`stop` stops it."""
+        self._zones = ZonesProof(self.tasks())
+        """The proof, kept across reads of the event log, that the zones are on."""
+        self._zones_dir = zones_state_dir
+        """Where the proof is recorded for the next agent (the robot lock's folder;
+        None: not recorded, a proof from the log alone at every driver's start)."""
+        self._zones_file: tuple[str, str] | None = None
+        """(path, serial) of the proof file, once the first start read the serial."""
+        self._zones_resumed = False
         self._last_entry: int | None = None
         self._ramdisk: str | None = None
         self._idle_tools: dict[str, float] = {}
@@ -195,25 +256,57 @@ class RwsYumiController:
         count a push's from it)."""
         return self._count[0]
 
-    def program(self, arm: str, waypoints: Sequence[Waypoint]) -> Any:
-        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read)."""
+    def program(self, arm: str, waypoints: Sequence[Waypoint],
+                start_joints: Sequence[float] | None = None) -> Any:
+        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read). A
+        joint target (``rest``: the arm's rest joints; ``abs_j``: the waypoint's, the
+        gate's) is a MoveAbsJ, axis 7 as the jointtarget's first external axis
+        (``eax_a``, as the controller reports it in ``get_jointtarget``). A robtarget's
+        ``eax_a`` is ABB's arm angle, not axis 7 (docs/notes/rws.md): each carries the
+        arm angle of the joints the driver planned for it
+        (:func:`drivers.yumi.line_plan.planned_targets`: its inverse kinematics, axis 7
+        at the calibration's ``arm_angle_deg``, from the joints before), the plan the
+        layout check sweeps; planned from ``start_joints`` (ABB's order; default: the
+        arm's joints as the controller reports them, read only when a robtarget comes
+        before any joint target). An arm the model cannot plan for (not an IRB 14000
+        arm, a target out of its reach) is refused: nothing is sent."""
+        from drivers.yumi.line_plan import planned_targets
+        from drivers.yumi.reach import ArmTool, side_of
+
         mpe = self._mpe
         pose = self._arms[arm]
         mp = mpe.MotionProgram(tool=self._tool(arm, pose.tool_z_mm))
-        extax = [pose.arm_angle_deg, 9e9, 9e9, 9e9, 9e9, 9e9]
-        for w in waypoints:
+        side = side_of(arm, pose.task)
+        if side is None:
+            raise BackendError(f"arm {arm}: task {pose.task} is not an IRB 14000 arm's; the "
+                               f"driver cannot tell its robtargets' arm angle; nothing is sent")
+        tool = ArmTool(side, float(pose.tool_z_mm or 0.0), pose.arm_angle_deg,
+                       tuple(float(v) for v in pose.tool_quat_wxyz))
+        start = None
+        first = next((w for w in waypoints if w.kind in ("rest", "abs_j", "move_j",
+                                                         "move_l")), None)
+        if first is not None and first.kind in ("move_j", "move_l"):
+            here = start_joints if start_joints is not None else self.joints()[arm]
+            start = tool.model.pose_abb(here).chain_deg
+        plan, why = planned_targets(tool, start, pose.rest_joints_deg, waypoints)
+        if why is not None:
+            raise BackendError(f"arm {arm}: the driver cannot plan its program: {why}; "
+                               f"nothing is sent")
+        for w, target in zip(waypoints, plan, strict=True):
             speed = mpe.speeddata(float(w.speed_mm_s), V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S)
             zone = mpe.fine if w.fine else mpe.z10
-            if w.kind == "rest":
-                j = pose.rest_joints_deg
-                mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6], 9e9, 9e9, 9e9, 9e9, 9e9]),
+            if w.kind in ("rest", "abs_j"):
+                j = pose.rest_joints_deg if w.kind == "rest" else w.joints_deg
+                assert j is not None and len(j) == 7  # planned_targets refused it else
+                mp.MoveAbsJ(mpe.jointtarget([float(v) for v in j[:6]],
+                                            [float(j[6]), 9e9, 9e9, 9e9, 9e9, 9e9]),
                             speed, zone)
                 continue
-            if w.xyz_mm is None:
-                raise BackendError(f"arm {arm}: a {w.kind} waypoint needs a position")
-            target = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
-                                   mpe.confdata(*pose.robconf), extax)
-            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
+            assert w.xyz_mm is not None and target.arm_angle_deg is not None
+            extax = [round(target.arm_angle_deg, 4), 9e9, 9e9, 9e9, 9e9, 9e9]
+            rob = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
+                                mpe.confdata(*pose.robconf), extax)
+            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(rob, speed, zone)
         return mp
 
     def _tool(self, arm: str, tool_z_mm: float | None) -> Any:
@@ -270,7 +363,6 @@ class RwsYumiController:
         self._seqno = self._seqno % 60000 + 1  # float32-exact, and new for every step
         seqno = self._seqno
         self._stopping.clear()
-        self._moving.set()
         try:
             self._execute(mps, seqno)
         finally:
@@ -296,20 +388,26 @@ class RwsYumiController:
         check_result(entries, list(mps), seqno)
 
     def _start(self, mps: Mapping[str, Any], seqno: int) -> int | None:
-        """Refuse unless the controller is ready and every task's zones are known active
-        since the last restart; activate every task (ourselves: the client's start()
-        does not when the controller omits ``motiontask``), THEN reset the program
-        pointers (a task activated after ``resetpp`` would start where it stopped), upload
-        every task's program to ITS file and start them together. Returns the newest
-        event log entry before."""
+        """Refuse unless the controller is ready, every task holds our RAPID of the
+        version this driver expects (read now, for EVERY task started) and every task's
+        zones are proved active since the last restart; activate every task (ourselves:
+        the client's start() does not when the controller omits ``motiontask``), THEN
+        reset the program pointers (a task activated after ``resetpp`` would start where
+        it stopped), upload every task's program to ITS file and start them together,
+        unless a stop came meanwhile. Returns the newest event log entry before."""
         rws = self._rws
         t0 = time.perf_counter()
+        if not self._zones_resumed:
+            self._resume_zones()
         log_before = rws.read_event_log()
         prev = log_before[0].seqnum if log_before else None
         self._log_new(log_before)
-        why = refusal(read_state(rws, log_before)) or zones_refusal(log_before, list(mps))
+        zones = self._zones.read(log_before)  # every read: the proof sees every entry
+        state = read_state(rws, log_before)
+        why = refusal(state) or version_refusal(rws, list(mps)) or zones
         if why is not None:
             raise BackendError(f"YuMi controller: {why}; the motion was not started")
+        self.timeout_s = scaled_timeout(self._motion_timeout_s, state.speedratio)
         t1 = time.perf_counter()
         for task in mps:
             rws.activate_task(task)
@@ -320,22 +418,33 @@ class RwsYumiController:
             rws.upload_file(f"{self._ramdisk}/{program_file(task)}",
                             mp.get_program_bytes(seqno))
         t2 = time.perf_counter()
+        if self._stopping.is_set():  # a stop before the start: prevent it, touch nothing
+            raise BackendError("YuMi controller: the motion was stopped before it started "
+                               "(the operator stopped the trial or the link to the "
+                               "controller was lost); the motion was not started")
         rws.start(cycle="once", tasks=list(mps))
+        self._moving.set()  # ours from here: a stop now ends it
+        if self._stopping.is_set():  # a stop that came while the start was sent
+            self._stop_ours()
         self.timing.update(checks=t1 - t0, upload=t2 - t1, start=time.perf_counter() - t2)
         return prev
 
     def _wait(self) -> None:
-        deadline = time.monotonic() + self._motion_timeout_s
+        """Poll until RAPID stops; our program ends there, and so does :meth:`stop`'s
+        right to stop what runs (a person's program started after ours is theirs)."""
+        deadline = time.monotonic() + self.timeout_s
         while self._rws.get_execution_state().ctrlexecstate == "running":
             if self._stopping.is_set():
                 raise BackendError("YuMi controller: the motion was stopped (the operator "
                                    "stopped the trial or the link to the controller was lost)")
             if time.monotonic() > deadline:
                 self._rws.stop()
-                raise BackendError(f"YuMi controller: the motion did not finish within "
-                                   f"motion_timeout_s = {self._motion_timeout_s:g} s; the "
-                                   f"program was stopped")
+                raise BackendError(
+                    f"YuMi controller: the motion did not finish within motion_timeout_s = "
+                    f"{self._motion_timeout_s:g} s scaled to the speed ratio "
+                    f"({self.timeout_s:g} s); the program was stopped")
             time.sleep(POLL_S)
+        self._moving.clear()
         if self._stopping.is_set():
             raise BackendError("YuMi controller: the motion was stopped (the operator "
                                "stopped the trial or the link to the controller was lost)")
@@ -343,7 +452,44 @@ class RwsYumiController:
     def _entries_since(self, prev: int | None) -> list[Any]:
         log_now = self._rws.read_event_log()
         self._log_new(log_now)
+        self._zones.read(log_now)  # the proof sees this read too: fewer entries to miss
+        self._record_zones()  # once per start: the newest entry for the next agent
         return _since(log_now, prev)
+
+    def _resume_zones(self) -> None:
+        """At the first start: the controller's serial (``ctrl/identity``), and the proof
+        the agent before recorded for it (:meth:`ZonesProof.load`); none taken (no
+        state folder, no serial, no file, one not to trust): the log alone proves."""
+        self._zones_resumed = True
+        if self._zones_dir is None:
+            return
+        try:
+            serial = identity_fields({}, self._rws._do_get("ctrl/identity"))["serial"]
+        except Exception as exc:  # the proof then comes from the log alone
+            log.warning("zones proof not recorded: cannot read the controller's serial: %s",
+                        one_line(exc))
+            return
+        if not serial:
+            log.warning("zones proof not recorded: the controller names no serial")
+            return
+        path = str(proof_path(self._zones_dir, serial))
+        self._zones_file = (path, serial)
+        if (why := self._zones.load(path, serial)) is None:
+            log.info("continuing the zones proof recorded in %s", path)
+        else:
+            log.log(logging.INFO if why.startswith("no ") else logging.WARNING,
+                    "%s; the event log alone must show the zones", why)
+
+    def _record_zones(self) -> None:
+        """Record the proof for the next agent (:meth:`ZonesProof.save`); a failure is
+        logged and leaves the last record (an older one is continued as safely)."""
+        if self._zones_file is None:
+            return
+        path, serial = self._zones_file
+        try:
+            self._zones.save(path, serial)
+        except OSError as exc:
+            log.warning("cannot record the zones proof in %s: %s", path, exc)
 
     def _log_new(self, log_now: Sequence[Any]) -> None:
         """Every entry not logged yet, oldest first, to the host log (one line each)."""
@@ -360,10 +506,18 @@ class RwsYumiController:
         ours running, nothing is sent: a program a person started from the FlexPendant is
         theirs, and an agent told to stop as it exits (its link closed during a refused
         rest at bye) must not end it behind their back: the next push is refused with
-        "RAPID is running", as the person would expect."""
+        "RAPID is running", as the person would expect. No window: a program is ours
+        only once ``rws.start`` returned; a stop before that makes :meth:`_start` start
+        nothing, one while the start is sent is carried out by :meth:`_start` itself (the
+        flag is set, then the stop read; here the stop is set, then the flag read: one of
+        the two always sees the other)."""
         self._stopping.set()
-        if not self._moving.is_set():
+        if not self._moving.is_set():  # not started yet: _start sees the flag, starts nothing
             return
+        self._stop_ours()
+
+    def _stop_ours(self) -> None:
+        """Stop RAPID on the stop session: only called while our program runs."""
         try:
             self._stop_rws.stop()
         except Exception as exc:  # the polling loop still ends on the flag
@@ -379,6 +533,19 @@ class RwsYumiController:
         except Exception as exc:
             raise BackendError(f"cannot read the arms' positions ({TOOL} in wobj0) from the "
                                f"YuMi controller: {one_line(exc)}") from exc
+        return out
+
+    def joints(self) -> dict[str, tuple[float, ...]]:
+        """Every arm's joints as the controller reports them (``get_jointtarget``: axes
+        1-6 in ``robax``, axis 7 in the first external axis), ABB's order, degrees."""
+        out: dict[str, tuple[float, ...]] = {}
+        try:
+            for arm, pose in self._arms.items():
+                jt = self._rws.get_jointtarget(mechunit=pose.mechunit)
+                out[arm] = (*(float(v) for v in list(jt.robax)[:6]), float(jt.extax[0]))
+        except Exception as exc:
+            raise BackendError(f"cannot read the arms' joints (jointtarget) from the YuMi "
+                               f"controller: {one_line(exc)}") from exc
         return out
 
     def describe(self) -> dict[str, Any]:

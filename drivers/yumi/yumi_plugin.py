@@ -34,6 +34,29 @@ __all__ = ["BACKEND", "YumiPlugin", "YumiTwin"]
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
+def deadline_faults(host: HostBase, info: Mapping[str, Any]) -> list[str]:
+    """One FAULT when the controller's speed ratio makes a push outlast ``deadline_s``.
+
+    Why: the driver scales its own motion timeout by the speed ratio it reads before every
+    start (``motion_timeout_s * 100 / ratio``: drivers/yumi/rws_controller.py), so a push
+    at 10 % is given ten times as long; the operator side waits ``deadline_s`` for the
+    push's answer and knows nothing of the ratio. At 10 % with the default 20 s the
+    operator would fault the host mid-push (docs/rws-checklist.md, "Timeouts at 10 %")."""
+    ratio = ((info.get("controller") or {}).get("state") or {}).get("speedratio")
+    limit = getattr(host, "motion_timeout_s", None)
+    deadline = getattr(host, "deadline_s", None)
+    if ratio is None or limit is None or deadline is None or float(ratio) >= 100.0:
+        return []
+    needed = float(limit) * 100.0 / max(1.0, float(ratio))
+    if needed < float(deadline):
+        return []
+    return [f"the controller's speed ratio is {float(ratio):g} %: the driver waits up to "
+            f"{needed:g} s for a motion (motion_timeout_s {float(limit):g} x 100 / "
+            f"{float(ratio):g}), the operator only deadline_s {float(deadline):g} s for the "
+            f"push: set deadline_s above {needed:g} for runs at this speed, or the ratio to "
+            f"100 % (docs/rws-checklist.md, 'Timeouts at 10 %')"]
+
+
 class YumiTwin(HardwareTwin):
     """A YuMi host's hardware twin: ``python -m sim_twin.yumi_server`` with the host's
     arms, its camera and lab side channel on one port (``port``), the controller's RWS
@@ -104,9 +127,13 @@ class YumiPlugin(BackendPlugin):
 
     def controller_report(self, host: HostBase, info: Mapping[str, Any]
                           ) -> tuple[list[str], list[str]]:
+        """The report of ``drivers/yumi/check_report.py``; an arm in the camera's view
+        first (``describe`` is read-only: ``drivers/yumi/backend.py`` ``in_view_faults``)."""
+        from drivers.yumi.backend import in_view_faults
         from drivers.yumi.check_report import controller_report
 
-        return controller_report(host.name, info)
+        lines, faults = controller_report(host.name, info)
+        return lines, [*in_view_faults(info), *faults, *deadline_faults(host, info)]
 
     def layout_report(self, host: HostBase, calibrations: Mapping[str, Mapping[str, Any]],
                       info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
@@ -180,6 +207,9 @@ class YumiPlugin(BackendPlugin):
             kwargs["motion_timeout_s"] = args.motion_timeout
         if args.camera_settings is not None:
             kwargs["camera_settings"] = args.camera_settings
+        from drivers.hostlock import default_lock_dir  # the zones proof: beside the lock
+
+        kwargs["zones_state_dir"] = getattr(args, "lock_dir", None) or default_lock_dir()
         return kwargs
 
     def make_backend(self, *, arms: Sequence[str], mirror: Sequence[bool], seed: int,
@@ -191,7 +221,8 @@ class YumiPlugin(BackendPlugin):
             kwargs.get("camera"), kwargs.get("controller_url"), seed,
             calibrating=tuple(calibrating), credentials_file=kwargs.get("credentials_file"),
             motion_timeout_s=kwargs.get("motion_timeout_s"),
-            camera_settings=kwargs.get("camera_settings"))
+            camera_settings=kwargs.get("camera_settings"),
+            zones_state_dir=kwargs.get("zones_state_dir"))
 
     def controller_info(self, args: argparse.Namespace) -> dict[str, str] | None:
         """Serial, RobotWare and system: one read-only login, before the lock."""

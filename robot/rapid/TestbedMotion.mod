@@ -12,13 +12,29 @@ MODULE TestbedMotion
   !
   ! What it does (docs/notes/rws.md, "Our RAPID side"):
   !   1. reads and checks the WHOLE file before the first motion (version, tool frame
-  !      against tool_pusher's, work object, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3
-  !      and WaitTime 5, at most TB_MAX_CMDS commands, no robtarget below tb_floor_z,
-  !      speeds > 0);
+  !      against tool_pusher's, no EGM, only MoveAbsJ 1, MoveJ 2, MoveL 3 and WaitTime 5,
+  !      at most TB_MAX_CMDS commands, no robtarget below tb_floor_z) and holds EVERY
+  !      field a file can set to a limit of the controller's (issue 43; robot/README.md,
+  !      "The limits a file cannot pass"): no number that is not finite (NaN, inf); each
+  !      speed > 0 and at most the cell's cap (v_tcp tb_v_tcp_max, v_ori tb_v_ori_max,
+  !      v_reax tb_v_reax_max: the task module's, which the lab sets; v_leax
+  !      TB_V_LEAX_MAX); each zonedata field from 0 to z10's (TB_ZONE_MAX and the
+  !      TB_*ZONE*_MAX below); each WaitTime from 0 to TB_WAIT_MAX; the work object
+  !      wobj0's frames (the identity) or refused. One failed check refuses the file:
+  !      an entry that names the command and the field, and nothing moves;
   !   2. runs the commands with tool_pusher (frame AND load from the task module: the
-  !      controller's, never the file's) in the file's work object; ConfJ and ConfL
-  !      Off, SingArea Wrist;
-  !      the TCP speed from the file, orientation and axis speeds from TB_V_* below;
+  !      controller's, never the file's) in wobj0 (the frame of the zones and the floor);
+  !      ConfJ and ConfL Off, SingArea Wrist; the file's speeds and zones (within the
+  !      caps), after VelSet 100, tb_v_tcp_max, so that no move's TCP runs faster than
+  !      the cap even if a check above were missed (Technical reference manual - RAPID
+  !      Instructions, Functions and Data types, VelSet: Max, a TCP speed in mm/s, limits
+  !      the TCP speed of every positioning instruction after it; Override 100 leaves the
+  !      programmed speeds as they are).
+  !      Joint speeds: speeddata has no per-axis speed. A MoveAbsJ or MoveJ moves the
+  !      axes together, and its speed is set by the component that takes longest: the
+  !      TCP at v_tcp, the tool's reorientation at v_ori, axis 7 (the YuMi's arm angle,
+  !      its rotational external axis) at v_reax (same manual, speeddata). So a joint
+  !      move is bounded by the same three caps; the axes' own top speeds are the robot's.
   !   3. waits until the arm is in position (WaitRob InPos) and writes
   !      ErrWrite info (80003) "Testbed Motion Done": task, "seqno <n>", "commands <k>",
   !      the file; or, when it refuses the file, ErrWrite (80001) "Testbed Motion
@@ -43,8 +59,14 @@ MODULE TestbedMotion
   ! with the gripper (issue 29). 4: the tool frame is the controller's (tool_pusher in
   ! TestbedTask_L / _R, no longer set from the file): a file whose tframe differs from
   ! it by more than TB_TOOL_MM or TB_TOOL_DEG is refused before any motion; tb_zones
-  ! writes "Testbed Zones Active" to the event log (issue 35).
-  CONST num TB_RAPID_VERSION := 4;
+  ! writes "Testbed Zones Active" to the event log (issue 35). 5: every field a file can
+  ! set has a limit the controller holds (issue 43): a speed above tb_v_tcp_max,
+  ! tb_v_ori_max, tb_v_reax_max (task modules) or TB_V_LEAX_MAX is refused (the file's
+  ! v_ori, v_leax, v_reax were replaced by TB_V_ORI, TB_V_LEAX, TB_V_REAX: gone), and
+  ! VelSet 100, tb_v_tcp_max runs before the moves; a WaitTime above TB_WAIT_MAX, a
+  ! zonedata above z10's, a work object other than wobj0's frames and a number that is
+  ! not finite are refused; the moves run in wobj0, never the file's work object.
+  CONST num TB_RAPID_VERSION := 5;
   ! The RAM disk device. Technical reference manual - RAPID Instructions, Functions and
   ! Data types (RobotWare 6): Open takes the device as its object and the file name in
   ! \File (its example: Open "HOME:" \File:= "LOGFILE1.DOC", ...); the functions that
@@ -65,15 +87,32 @@ MODULE TestbedMotion
   CONST num TB_TOOL_MM := 1;
   CONST num TB_TOOL_DEG := 0.5;
   CONST string TB_TOOL_DIFFERS := "Tool frame differs from tool_pusher";
-  ! Orientation speed (deg/s): the pusher always points down, so this only paces the
-  ! reorientation out of the rest pose; slow enough that the TCP speed, not a wrist
-  ! swing, sets every push (a push is a straight line at constant orientation).
-  CONST num TB_V_ORI := 100;
-  ! Linear external axes (mm/s): the YuMi has none; a harmless value.
-  CONST num TB_V_LEAX := 1000;
-  ! Rotational external axes (deg/s): on the YuMi this is axis 7, the arm angle, which
-  ! every robtarget keeps at the calibrated value; slow, as it only moves out of rest.
-  CONST num TB_V_REAX := 100;
+  ! The limits a file cannot pass (issue 43; robot/README.md, "The limits a file cannot
+  ! pass"). The caps of the TCP, orientation and axis 7 speeds are the lab's, in the task
+  ! module (tb_v_tcp_max, tb_v_ori_max, tb_v_reax_max); these are the module's.
+  ! Linear external axes (mm/s): the YuMi has none; the driver writes 1000 (a harmless
+  ! value), which the cap lets pass.
+  CONST num TB_V_LEAX_MAX := 1000;
+  ! WaitTime (s): the driver sends only WaitTime 0 (the program of an arm with nothing
+  ! to do); a long wait would hold the task, and with it the other arm's MultiMove start,
+  ! after the PC that sent it has gone.
+  CONST num TB_WAIT_MAX := 2;
+  ! The corner zones: at most z10's (the driver sends z10 for fly-by points and fine
+  ! otherwise; zonedata [finep, pzone_tcp, pzone_ori, pzone_eax, zone_ori, zone_leax,
+  ! zone_reax], z10 = [FALSE,10,15,15,1.5,15,1.5]): a larger zone cuts a corner by more
+  ! than the PC's sweep of the paths allows for. mm, but zone_ori and zone_reax (deg).
+  CONST num TB_ZONE_MAX := 10;
+  CONST num TB_PZONE_ORI_MAX := 15;
+  CONST num TB_PZONE_EAX_MAX := 15;
+  CONST num TB_ZONE_ORI_MAX := 1.5;
+  CONST num TB_ZONE_LEAX_MAX := 15;
+  CONST num TB_ZONE_REAX_MAX := 1.5;
+  ! The reasons (a refusal's first line) of these limits.
+  CONST string TB_SPEED_OVER := "Speed above the cell's limit";
+  CONST string TB_WAIT_OVER := "Wait above the limit";
+  CONST string TB_ZONE_OVER := "Corner zone above the limit";
+  CONST string TB_WOBJ_REFUSED := "Work object not supported";
+  CONST string TB_NOT_FINITE := "Invalid number";
 
   LOCAL VAR errnum tb_err := -1;
   LOCAL VAR iodev tb_dev;
@@ -92,6 +131,9 @@ MODULE TestbedMotion
   ! the refusal's last line: "" = "at byte <offset>"; the tool frame check puts
   ! tool_pusher's frame there (one line of 80 characters holds one frame, not two)
   LOCAL VAR string tb_last;
+  ! what is being read ("tooldata", "MoveL cmd_num 3 speeddata"...): a number that is
+  ! not finite is refused naming it (tb_num knows no field of its own)
+  LOCAL VAR string tb_what;
   LOCAL VAR num tb_op{TB_MAX_CMDS};
   LOCAL VAR num tb_cmd{TB_MAX_CMDS};
   LOCAL VAR robtarget tb_pt{TB_MAX_CMDS};
@@ -99,7 +141,6 @@ MODULE TestbedMotion
   LOCAL VAR speeddata tb_speed{TB_MAX_CMDS};
   LOCAL VAR zonedata tb_zone{TB_MAX_CMDS};
   LOCAL VAR num tb_wait{TB_MAX_CMDS};
-  LOCAL PERS wobjdata tb_wobj := [FALSE,TRUE,"",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
 
   ! --- the entry -------------------------------------------------------------------------
   PROC main()
@@ -113,6 +154,7 @@ MODULE TestbedMotion
     tb_reason := "";
     tb_detail := "";
     tb_last := "";
+    tb_what := "version";
     tb_path := TB_DIR + "/" + tb_name;
     IF tb_err < 0 BookErrNo tb_err;
     ! a run stopped while reading left the file open: close it before opening again
@@ -167,9 +209,19 @@ MODULE TestbedMotion
     RAISE tb_err;
   ENDPROC
 
+  ! The next float32 of the file. One whose exponent bits are all ones is an inf or a
+  ! NaN: no comparison would refuse it (a NaN is neither above a cap nor at or below
+  ! 0), so it is refused here, before it is unpacked. Little-endian (UnpackRawBytes'
+  ! default): byte 4 holds the sign and the exponent's seven high bits, the top bit of
+  ! byte 3 its lowest.
   FUNC num tb_num()
     VAR num v;
+    VAR num hi;
+    VAR num lo;
     ReadRawBytes tb_dev, tb_raw, 4 \Time:=5;
+    UnpackRawBytes tb_raw, 4, hi \IntX:=USINT;
+    UnpackRawBytes tb_raw, 3, lo \IntX:=USINT;
+    IF hi MOD 128 = 127 AND lo >= 128 tb_fail TB_NOT_FINITE, tb_what + ": not a finite number";
     UnpackRawBytes tb_raw, 1, v \Float4;
     tb_pos := tb_pos + 4;
     RETURN v;
@@ -260,22 +312,27 @@ MODULE TestbedMotion
     RETURN j;
   ENDFUNC
 
+  ! The file's speeds, each above 0 and at most its cap, run as they are (no longer
+  ! replaced by the module's: every one is within the cell's limits).
   FUNC speeddata tb_speeddata(string what)
     VAR speeddata s;
+    tb_what := what + " speeddata";
     s.v_tcp := tb_num();
     s.v_ori := tb_num();
     s.v_leax := tb_num();
     s.v_reax := tb_num();
-    IF s.v_tcp <= 0 tb_fail "Invalid speed", what + ": v_tcp = " + NumToStr(s.v_tcp, 1);
-    ! the TCP speed is the step's (the driver's); the others are the cell's (above)
-    s.v_ori := TB_V_ORI;
-    s.v_leax := TB_V_LEAX;
-    s.v_reax := TB_V_REAX;
+    tb_speed_limit what, "v_tcp", s.v_tcp, "tb_v_tcp_max", tb_v_tcp_max;
+    tb_speed_limit what, "v_ori", s.v_ori, "tb_v_ori_max", tb_v_ori_max;
+    tb_speed_limit what, "v_leax", s.v_leax, "TB_V_LEAX_MAX", TB_V_LEAX_MAX;
+    tb_speed_limit what, "v_reax", s.v_reax, "tb_v_reax_max", tb_v_reax_max;
     RETURN s;
   ENDFUNC
 
+  ! The file's zone, each field from 0 (a stop point's) to z10's. finep TRUE (fine) makes
+  ! the controller ignore the others; they are checked all the same.
   FUNC zonedata tb_zonedata(string what)
     VAR zonedata z;
+    tb_what := what + " zonedata";
     z.finep := tb_bool(what + " finep");
     z.pzone_tcp := tb_num();
     z.pzone_ori := tb_num();
@@ -283,37 +340,75 @@ MODULE TestbedMotion
     z.zone_ori := tb_num();
     z.zone_leax := tb_num();
     z.zone_reax := tb_num();
+    tb_zone_limit what, "pzone_tcp", z.pzone_tcp, "TB_ZONE_MAX", TB_ZONE_MAX;
+    tb_zone_limit what, "pzone_ori", z.pzone_ori, "TB_PZONE_ORI_MAX", TB_PZONE_ORI_MAX;
+    tb_zone_limit what, "pzone_eax", z.pzone_eax, "TB_PZONE_EAX_MAX", TB_PZONE_EAX_MAX;
+    tb_zone_limit what, "zone_ori", z.zone_ori, "TB_ZONE_ORI_MAX", TB_ZONE_ORI_MAX;
+    tb_zone_limit what, "zone_leax", z.zone_leax, "TB_ZONE_LEAX_MAX", TB_ZONE_LEAX_MAX;
+    tb_zone_limit what, "zone_reax", z.zone_reax, "TB_ZONE_REAX_MAX", TB_ZONE_REAX_MAX;
     RETURN z;
   ENDFUNC
+
+  ! A speed: above 0 and at most its cap (the cap named in the detail).
+  PROC tb_speed_limit(string what, string field, num v, string name, num cap)
+    IF v <= 0 tb_fail "Invalid speed", what + ": " + field + " = " + NumToStr(v, 2);
+    tb_over TB_SPEED_OVER, what, field, v, name, cap;
+  ENDPROC
+
+  ! A zonedata field: from 0 to its cap.
+  PROC tb_zone_limit(string what, string field, num v, string name, num cap)
+    IF v < 0 tb_fail "Invalid zone", what + ": " + field + " = " + NumToStr(v, 2);
+    tb_over TB_ZONE_OVER, what, field, v, name, cap;
+  ENDPROC
+
+  ! Refuse the file with reason when v is above cap: "<what>: <field> <v> > <name> <cap>",
+  ! e.g. "MoveL cmd_num 3: v_tcp 1000 > tb_v_tcp_max 150".
+  PROC tb_over(string reason, string what, string field, num v, string name, num cap)
+    IF v > cap THEN
+      tb_fail reason, tb_clip(what + ": " + field + " " + NumToStr(v, 2) + " > " + name + " "
+        + NumToStr(cap, 2));
+    ENDIF
+  ENDPROC
 
   PROC tb_header()
     VAR num version;
     VAR pose frame;
     VAR loaddata ignored;
+    VAR wobjdata file_wobj;
     VAR string stamp;
     version := tb_num();
     IF version <> TB_VERSION THEN
       tb_fail "Invalid motion program file version", NumToStr(version, 0) + " (expected "
         + NumToStr(TB_VERSION, 0) + ")";
     ENDIF
+    tb_what := "tooldata";
     IF NOT tb_bool("tool robhold") tb_fail "Stationary tool not supported", "tool robhold";
     ! the pusher's frame and load are the controller's (tool_pusher, the task module):
     ! the file's frame must be the same, its load is not used
     frame := tb_pose();
     tb_tool frame;
     ignored := tb_load();
-    tb_wobj.robhold := tb_bool("wobj robhold");
-    tb_wobj.ufprog := tb_bool("wobj ufprog");
-    tb_wobj.ufmec := tb_str("wobj ufmec");
-    tb_wobj.uframe := tb_pose();
-    tb_wobj.oframe := tb_pose();
-    IF tb_wobj.robhold OR NOT tb_wobj.ufprog OR tb_wobj.ufmec <> "" THEN
+    ! the work object: wobj0's (the world frame of the zones and the floor), or refused;
+    ! the moves run in wobj0 itself
+    tb_what := "wobjdata";
+    file_wobj.robhold := tb_bool("wobj robhold");
+    file_wobj.ufprog := tb_bool("wobj ufprog");
+    file_wobj.ufmec := tb_str("wobj ufmec");
+    file_wobj.uframe := tb_pose();
+    file_wobj.oframe := tb_pose();
+    IF file_wobj.robhold OR NOT file_wobj.ufprog OR file_wobj.ufmec <> "" THEN
       tb_fail "Moving work object not supported", "robhold, ufprog or ufmec";
     ENDIF
+    tb_identity "uframe", file_wobj.uframe;
+    tb_identity "oframe", file_wobj.oframe;
     ! the grip load: the pusher holds nothing
+    tb_what := "grip load";
     ignored := tb_load();
+    tb_what := "timestamp";
     stamp := tb_str("timestamp");
+    tb_what := "seqno";
     tb_seqno := tb_num();
+    tb_what := "EGM";
     IF tb_num() <> 0 tb_fail "EGM not supported", "the file asks for an EGM configuration";
   ENDPROC
 
@@ -327,6 +422,15 @@ MODULE TestbedMotion
     IF dist > TB_TOOL_MM OR angle > TB_TOOL_DEG THEN
       tb_last := tb_clip("tool_pusher " + tb_frame(tool_pusher.tframe));
       tb_fail TB_TOOL_DIFFERS, tb_clip("file " + tb_frame(file));
+    ENDIF
+  ENDPROC
+
+  ! Refuse the file unless the work object's frame (uframe or oframe) is the identity,
+  ! exactly: wobj0's, the world frame the targets, tb_floor_z and the zones are in.
+  PROC tb_identity(string field, pose p)
+    IF p.trans.x <> 0 OR p.trans.y <> 0 OR p.trans.z <> 0 OR p.rot.q1 <> 1 OR p.rot.q2 <> 0
+      OR p.rot.q3 <> 0 OR p.rot.q4 <> 0 THEN
+      tb_fail TB_WOBJ_REFUSED, tb_clip(field + " " + tb_frame(p));
     ENDIF
   ENDPROC
 
@@ -371,11 +475,13 @@ MODULE TestbedMotion
       tb_fail "Too many commands", "more than " + NumToStr(TB_MAX_CMDS, 0);
     ENDIF
     tb_n := tb_n + 1;
+    tb_what := "command " + NumToStr(tb_n, 0);
     tb_cmd{tb_n} := tb_num();
     tb_op{tb_n} := tb_num();
     what := "cmd_num " + NumToStr(tb_cmd{tb_n}, 0);
     TEST tb_op{tb_n}
     CASE 1:
+      tb_what := "MoveAbsJ " + what + " jointtarget";
       tb_jt{tb_n} := tb_jointtarget();
       tb_speed{tb_n} := tb_speeddata("MoveAbsJ " + what);
       tb_zone{tb_n} := tb_zonedata("MoveAbsJ " + what);
@@ -384,8 +490,16 @@ MODULE TestbedMotion
     CASE 3:
       tb_target "MoveL " + what;
     CASE 5:
+      what := "WaitTime " + what;
+      tb_what := what;
       tb_wait{tb_n} := tb_num();
-      IF tb_wait{tb_n} < 0 tb_fail "Invalid WaitTime", "WaitTime " + what;
+      IF tb_wait{tb_n} < 0 THEN
+        tb_fail "Invalid WaitTime", what + ": " + NumToStr(tb_wait{tb_n}, 2) + " s";
+      ENDIF
+      IF tb_wait{tb_n} > TB_WAIT_MAX THEN
+        tb_fail TB_WAIT_OVER, tb_clip(what + ": " + NumToStr(tb_wait{tb_n}, 2)
+          + " s > TB_WAIT_MAX " + NumToStr(TB_WAIT_MAX, 2));
+      ENDIF
     CASE 4:
       tb_fail "Unsupported command", "MoveC " + what;
     CASE 6:
@@ -401,6 +515,7 @@ MODULE TestbedMotion
   ENDPROC
 
   PROC tb_target(string what)
+    tb_what := what + " robtarget";
     tb_pt{tb_n} := tb_robtarget();
     IF tb_pt{tb_n}.trans.z < tb_floor_z THEN
       tb_fail "Target below the table", what + ": z " + NumToStr(tb_pt{tb_n}.trans.z, 1)
@@ -423,17 +538,20 @@ MODULE TestbedMotion
     ! the controller may turn the tool about its own axis to keep the wrist (axes 4 and
     ! 6 in line when axis 5 is near 0, the forearm over a tool pointing down) away from
     ! its singularity instead of stopping a push with 50026 "Close to singularity".
+    ! VelSet: the second layer of the TCP speed cap (the module's comment, "What it does"):
+    ! every move below runs at most tb_v_tcp_max at its TCP, whatever its speeddata.
     ConfJ \Off;
     ConfL \Off;
     SingArea \Wrist;
+    VelSet 100, tb_v_tcp_max;
     FOR i FROM 1 TO tb_n DO
       TEST tb_op{i}
       CASE 1:
-        MoveAbsJ tb_jt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=tb_wobj;
+        MoveAbsJ tb_jt{i}, tb_speed{i}, tb_zone{i}, tool_pusher;
       CASE 2:
-        MoveJ tb_pt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=tb_wobj;
+        MoveJ tb_pt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=wobj0;
       CASE 3:
-        MoveL tb_pt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=tb_wobj;
+        MoveL tb_pt{i}, tb_speed{i}, tb_zone{i}, tool_pusher \WObj:=wobj0;
       CASE 5:
         WaitTime \InPos, tb_wait{i};
       ENDTEST

@@ -43,4 +43,16 @@ MODULE TestbedTask_L(SYSMODULE)
   CONST pos tb_zone_lo := [125,25,0];
   CONST pos tb_zone_hi := [495,395,0];
   CONST num tb_zone_z := 80;
+  ! The cell's speed caps, held by the CONTROLLER (issue 43; robot/README.md, "The limits
+  ! a file cannot pass"): TestbedMotion refuses, before any motion, a program file with a
+  ! speed above one of them, and runs every move after VelSet 100, tb_v_tcp_max. SET
+  ! THESE FOR YOUR CELL (the lab, not the PC): tb_v_tcp_max (mm/s, the TCP) at or above
+  ! the calibration's max_speed_mm_s (shipped 150, its default: the driver's every move
+  ! runs at most that), or the driver's files are refused; tb_v_ori_max (deg/s, the
+  ! tool's reorientation) and tb_v_reax_max (deg/s, axis 7, the arm angle: the YuMi's
+  ! rotational external axis) at or above the driver's 100. A joint move (MoveAbsJ,
+  ! MoveJ) is bounded by all three: speeddata has no per-axis speed.
+  CONST num tb_v_tcp_max := 150;
+  CONST num tb_v_ori_max := 100;
+  CONST num tb_v_reax_max := 100;
 ENDMODULE

@@ -9,7 +9,10 @@ only grow, entries newest first, a code, a type, a time stamp, arguments and the
 The domain of an entry is its code's ten-thousands digit (1xxxx operational,
 4xxxx program/RAPID, 8xxxx user's ErrWrite, ...); domain 0 ("common") lists them all,
 as RWS's ``rw/elog/0`` does. The buffer keeps the newest ``capacity`` entries (1000,
-as the manual's example domain 0 shows).
+as the manual's example domain 0 shows; its domain 1 holds 20): a long day rolls the
+oldest out, and tests play that with a small :attr:`EventLog.capacity`. Clearing is RWS's
+"Clear elog messages" (``POST rw/elog?action=clearall``, every domain; ``POST
+rw/elog/{domain}?action=clear``, one), served by ``sim_twin/rws/resources.py``.
 """
 
 from __future__ import annotations
@@ -88,6 +91,19 @@ class EventLog:
             keep = [e for e in self._entries if domain != 0 and e.domain != domain]
             self._entries.clear()
             self._entries.extend(keep)
+
+    @property
+    def capacity(self) -> int:
+        """How many entries the log keeps (the newest)."""
+        return int(self._entries.maxlen or 0)
+
+    @capacity.setter
+    def capacity(self, n: int) -> None:
+        """Keep at most ``n`` entries from now on (the oldest beyond ``n`` drop out)."""
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"capacity must be a positive int, got {n!r}")
+        with self._lock:
+            self._entries = deque(self._entries, maxlen=n)
 
     @property
     def newest(self) -> int | None:

@@ -26,7 +26,10 @@ What a run does (a task is an arm: ``T_ROB_L`` -> ``left``, ``T_ROB_R`` -> ``rig
    50027, 50080, 50026, 50204). Refused (80001, the task named): a moving work object or
    a stationary tool, a target below the table, a speed <= 0, EGM (no EGM channel).
    Speeds are scaled by the controller's speed ratio (at least 1 %) and capped at the
-   YuMi's 1500 mm/s, as a controller caps ``vmax``.
+   YuMi's 1500 mm/s, as a controller caps ``vmax``, or at VelSet's Max (:meth:`CellMotion.velset`:
+   our RAPID's ``tb_v_tcp_max``). Every move runs at most as fast as its speeddata allows,
+   the TCP of a joint move along its curve, the tool's turn at v_ori and axis 7 at v_reax
+   included (:func:`sim_twin.rws.speed_bounds.within_speeds`, issue 43).
    Zones, CirPathMode and SyncMoveOn/Off are read and not modelled (every point is a stop
    point; the arms move at the same time but are not path-synchronised).
 3. Both arms' blocks of moves run in one ``cell.execute`` (MultiMove); a WaitTime holds
@@ -106,13 +109,13 @@ from sim_twin.rws.motion_program import (
     program_failed,
     program_file_for_task,
 )
+from sim_twin.rws.speed_bounds import within_speeds
 from sim_twin.rws.world_zones import ArmZone
 from sim_twin.yumi_arms import DEFAULT_TOOL_MM, abb_to_chain
 from sim_twin.yumi_cell import MAX_SPEED_MM_S, Trajectory, YumiTwinCell
 from sim_twin.yumi_geometry import REST_JOINTS_DEG
 
 LOG_OPENED, LOG_CLOSED = "Motion Program Log File Opened", "Motion Program Log File Closed"
-JOINT_TOLERANCE_DEG = 0.01
 ORIENT_TOLERANCE_DEG = 1.0
 CHORD_DEG = 10.0
 """A MoveC arc becomes chords of at most this angle (at least 4)."""
@@ -262,6 +265,8 @@ class _ArmContext:
     """ConfJ on: a MoveJ keeps its target's configuration (our RAPID sets it)."""
     tip_of: Callable[[Sequence[float]], Vec3] | None = None
     """The cell TCP the arm's joints (ABB order) put the pusher at (the twin's arms)."""
+    v_max: float = MAX_SPEED_MM_S
+    """VelSet's Max (mm/s): no move's TCP runs faster (at 100 % speed ratio)."""
 
 
 def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
@@ -292,26 +297,22 @@ def _moves(ctx: _ArmContext, cmd: Command) -> list[Waypoint]:
 
 
 def _joint_waypoint(ctx: _ArmContext, cmd: MoveAbsJ, what: str) -> Waypoint:
-    """A MoveAbsJ: any joint target (the arms judge its limits: 50027); the pusher goes
-    where those joints put it. A twin without arms knows one joint target, the rest."""
+    """A MoveAbsJ, as RAPID accepts it: any joint target (axes 1-6 in ``robax``, axis 7 in
+    ``eax_a``), not only the rest (issue 43: the twin refused every other one, the robot
+    runs them). The arms move every joint linearly from where they are to it and judge
+    it as the controller does (``ArmSupervisor``): an axis past its range, an unset 9E9
+    included, is the controller's 50027 "Joint Out of Range" before anything moves; the
+    path on the way is supervised (world zones, 50204 contact). The pusher goes where the
+    joints put it. (A NaN never gets here: the file is refused on reading.)"""
     task = ctx.tp.task
     j = cmd.to_joint_pos
     want = (*j.robax, j.extax[0])
     speed = _speed(cmd.speed, ctx.ratio, task, what)
-    if ctx.tip_of is not None and len(want) == 7 and all(math.isfinite(x) for x in want):
-        ctx.here = ctx.tip_of(want)
-        return {"kind": "move_j", "xyz_mm": list(ctx.here), "fine": cmd.zone.finep,
-                "speed_mm_s": speed, "joints_deg": list(want), "arm_angle_deg": want[6]}
-    if len(ctx.rest_joints) != len(want) or any(
-            abs(x - y) > JOINT_TOLERANCE_DEG for x, y in zip(want, ctx.rest_joints, strict=True)):
-        raise program_failed("Joint target not reachable on the twin",
-                             f"{what}: {[round(x, 3) for x in want]} is not the rest pose "
-                             f"{[round(x, 3) for x in ctx.rest_joints]} (the twin's cell "
-                             "moves a pusher between the table and its rest point only)",
-                             task=task)
-    ctx.here = ctx.rest_xyz
-    return {"kind": "rest", "xyz_mm": None, "fine": cmd.zone.finep, "speed_mm_s": speed,
-            "joints_deg": list(want)}
+    if ctx.tip_of is None:  # every CellMotion gives its arms: a caller that does not
+        raise program_failed("Joint target without the twin's arms", what, task=task)
+    ctx.here = ctx.tip_of(want)
+    return {"kind": "move_j", "xyz_mm": list(ctx.here), "fine": cmd.zone.finep,
+            "speed_mm_s": speed, "joints_deg": list(want), "arm_angle_deg": want[6]}
 
 
 def _arm_of(target: RobTarget, conf_on: bool) -> dict[str, Any]:
@@ -337,7 +338,7 @@ def arm_plan(ctx: _ArmContext) -> list[_Block | _Wait]:
                                      task=ctx.tp.task)
             out.append(_Wait(cmd.t, cmd.cmd_num))
             continue
-        wps = _moves(ctx, cmd)
+        wps = [_bounded(wp, cmd, ctx) for wp in _moves(ctx, cmd)]
         if not out or not isinstance(out[-1], _Block):
             out.append(_Block())
         block = out[-1]
@@ -345,6 +346,18 @@ def arm_plan(ctx: _ArmContext) -> list[_Block | _Wait]:
         block.waypoints += wps
         block.cmd_nums += [cmd.cmd_num] * len(wps)
     return out
+
+
+def _bounded(wp: Waypoint, cmd: Command, ctx: _ArmContext) -> Waypoint:
+    """A move's speed bounds, at the controller's speed ratio: its TCP speed at most
+    VelSet's Max (``ctx.v_max``), and the speeddata's v_ori and v_reax (deg/s), which
+    :func:`sim_twin.rws.speed_bounds.within_speeds` holds every move to."""
+    s = getattr(cmd, "speed", None)
+    if s is None:
+        return wp
+    scale = max(ctx.ratio, 1.0) / 100.0
+    return {**wp, "speed_mm_s": min(float(wp["speed_mm_s"]), ctx.v_max * scale),
+            "v_ori_deg_s": s.v_ori * scale, "v_reax_deg_s": s.v_reax * scale}
 
 
 # --- the log -------------------------------------------------------------------------------------
@@ -575,6 +588,11 @@ class CellMotion:
         return tcps
 
     # --- a run ---------------------------------------------------------------------------
+    def velset(self, task: str) -> float:
+        """VelSet's Max of ``task`` (mm/s): the library's RAPID sets none, so the
+        controller's own (the YuMi's top TCP speed); our RAPID's hook sets its cap."""
+        return MAX_SPEED_MM_S
+
     def program_file(self, task: str) -> str:
         """The file ``task`` reads: the library's naming (a variant overrides it)."""
         return program_file_for_task(task)
@@ -645,7 +663,8 @@ class CellMotion:
             arm = tp.unit.arm
             ctx = _ArmContext(tp, tuple(here[arm]), self.arms.rest_joints(arm),  # type: ignore[arg-type]
                               self.cell.rest[arm], self.pusher_length_mm, ratio,
-                              self.conf_j, partial(self._tip_of, arm))
+                              self.conf_j, partial(self._tip_of, arm),
+                              v_max=self.velset(tp.task))
             plans[arm] = arm_plan(ctx)
             self.tools[arm] = tp.program.tool.tframe.trans
         return plans
@@ -692,7 +711,8 @@ class CellMotion:
             for arm, traj in trajs.items():
                 if traj.segments:
                     self.arms.sync(arm, traj.segments[0].a)
-            stop_arm, tracks = self.arms.check(trajs, programs)
+            programs, trajs, stop_arm, tracks = within_speeds(  # type: ignore[assignment]
+                programs, trajs, lambda p: self._planned(p, blocks), self.arms, self.tools)
             programs = {a: _along(wps, self.arms, a, tracks.get(a)) for a, wps in programs.items()}
             trajs = self._planned(programs, blocks)
             zone = self._path_zone_stop(tracks)

@@ -16,7 +16,9 @@ Per task (``T_ROB_L`` -> module ``TestbedTask_L``, ``T_ROB_R`` -> ``TestbedTask_
   true length, ``hook.pusher_length_mm``, as the lab's 4-point measurement would find
   it; a lab changes it over RWS, ``action=set``, and no program file does),
   ``tb_floor_z``, ``tb_zone_z`` (CONST num), ``tb_zone_lo`` = ``[x0,y0,0]``,
-  ``tb_zone_hi`` = ``[x1,y1,0]`` (CONST pos);
+  ``tb_zone_hi`` = ``[x1,y1,0]`` (CONST pos), the speed caps ``tb_v_tcp_max``,
+  ``tb_v_ori_max``, ``tb_v_reax_max`` (CONST num, ``hook.caps``: as shipped unless the twin
+  was started with a lab's own; the hook reads them at every start);
 - ``TestbedZones`` (a SYSTEM module): ``TB_WZ_FAR``, ``TB_WZ_COUNT`` (CONST num), the five
   TASK PERS ``wzstationary`` ``tb_wz_floor`` ... ``tb_wz_yhi`` (the identity ``WZLimSup``
   gave each zone), ``tb_zones_n`` (how many zones ``tb_zones`` activated at the last
@@ -25,8 +27,10 @@ Per task (``T_ROB_L`` -> module ``TestbedTask_L``, ``T_ROB_R`` -> ``TestbedTask_
   (:attr:`Irc5Controller.event_routines`), which ends with the info entry
   ``Testbed Zones Active`` (80003; the task, ``zones <n>``, the time);
 - ``TestbedMotion`` (the PROGRAM module): ``TB_RAPID_VERSION``, ``TB_VERSION``,
-  ``TB_MAX_CMDS``, ``TB_TOOL_MM``, ``TB_TOOL_DEG`` (CONST num), ``TB_DIR``, ``TB_DONE``,
-  ``TB_FAILED``, ``TB_TOOL_DIFFERS`` (CONST string).
+  ``TB_MAX_CMDS``, ``TB_TOOL_MM``, ``TB_TOOL_DEG``, the limits ``TB_V_LEAX_MAX``,
+  ``TB_WAIT_MAX``, ``TB_ZONE_MAX``, ``TB_PZONE_ORI_MAX``... (CONST num), ``TB_DIR``,
+  ``TB_DONE``, ``TB_FAILED``, ``TB_TOOL_DIFFERS`` and the limits' reasons
+  ``TB_SPEED_OVER``... (CONST string).
 
 The world zones the hook supervises (``hook.zones``) are those ``tb_zones`` activated
 since the last restart: a restart erases them (as the motion system does) and the
@@ -51,10 +55,21 @@ from collections.abc import Iterator
 from typing import Any
 
 from sim_twin.rws.event_log import MSG_INFO
-from sim_twin.rws.irc5 import EventRoutine, Irc5Controller, RapidError
+from sim_twin.rws.irc5 import RESTARTED, EventRoutine, Irc5Controller, RapidError
 from sim_twin.rws.motion_program import ERRWRITE_INFO, FILE_VERSION
 from sim_twin.rws.rapid_data import format_number
+from sim_twin.rws.testbed_file import (
+    NOT_FINITE,
+    SPEED_OVER,
+    V_LEAX_MAX,
+    WAIT_MAX,
+    WAIT_OVER,
+    WOBJ_REFUSED,
+    ZONE_MAX,
+    ZONE_OVER,
+)
 from sim_twin.rws.testbed_rapid import (
+    CAPS,
     DONE,
     FAILED,
     MAX_COMMANDS,
@@ -78,6 +93,10 @@ PUSHER_LOAD = "[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032,0.00009]"
 "The tool load")."""
 Decl = tuple[str, str, str, str, str]
 """(module, name, type, value, storage)"""
+LIMIT_REASONS = {"TB_SPEED_OVER": SPEED_OVER, "TB_WAIT_OVER": WAIT_OVER,
+                 "TB_ZONE_OVER": ZONE_OVER, "TB_WOBJ_REFUSED": WOBJ_REFUSED,
+                 "TB_NOT_FINITE": NOT_FINITE}
+"""TestbedMotion's CONST strings of the issue-43 refusals' reasons."""
 
 
 task_module = task_module_of
@@ -107,7 +126,12 @@ class TestbedInstall:
         controller.on_start = None
         if loaded:
             self.set_loaded(True)
-            controller.run_event_routines("POWER_ON")  # the restart after the install
+            # the restart after the install: its entry first, as every restart writes it
+            # (the driver needs a restart entry, then Zones Active: drivers/yumi/zones_proof.py)
+            controller.elog.write(RESTARTED[0], MSG_INFO, RESTARTED[1], src_name="SYS",
+                                  desc="The system has been restarted (Restart).",
+                                  args=("Restart",))
+            controller.run_event_routines("POWER_ON")
 
     def declarations(self) -> Iterator[tuple[str, Decl]]:
         """(task, declaration) of every symbol our modules put in the tasks."""
@@ -124,12 +148,19 @@ class TestbedInstall:
                 (mod, "tb_zone_z", "num", _num(z.zone_z), "CONST"),
                 (mod, "tb_zone_lo", "pos", f"[{_num(z.x0)},{_num(z.y0)},0]", "CONST"),
                 (mod, "tb_zone_hi", "pos", f"[{_num(z.x1)},{_num(z.y1)},0]", "CONST"),
+                *((mod, cap, "num", _num(self.hook.caps[cap]), "CONST") for cap in CAPS),
                 (SHARED_MODULE, "TB_RAPID_VERSION", "num", str(self.version), "CONST"),
                 (SHARED_MODULE, "TB_VERSION", "num", str(FILE_VERSION), "CONST"),
                 (SHARED_MODULE, "TB_MAX_CMDS", "num", str(MAX_COMMANDS), "CONST"),
                 (SHARED_MODULE, "TB_TOOL_MM", "num", _num(TOOL_MM), "CONST"),
                 (SHARED_MODULE, "TB_TOOL_DEG", "num", _num(TOOL_DEG), "CONST"),
                 (SHARED_MODULE, "TB_TOOL_DIFFERS", "string", f'"{TOOL_DIFFERS}"', "CONST"),
+                (SHARED_MODULE, "TB_V_LEAX_MAX", "num", _num(V_LEAX_MAX), "CONST"),
+                (SHARED_MODULE, "TB_WAIT_MAX", "num", _num(WAIT_MAX), "CONST"),
+                *((SHARED_MODULE, name, "num", _num(cap), "CONST")
+                  for name, cap in ZONE_MAX.values()),
+                *((SHARED_MODULE, name, "string", f'"{text}"', "CONST")
+                  for name, text in LIMIT_REASONS.items()),
                 (SHARED_MODULE, "TB_DIR", "string", '"RAMDISK:"', "CONST"),
                 (SHARED_MODULE, "TB_DONE", "string", f'"{DONE}"', "CONST"),
                 (SHARED_MODULE, "TB_FAILED", "string", f'"{FAILED}"', "CONST"),

@@ -15,11 +15,17 @@ What our RAPID does, and so this hook (docs/notes/rws.md, "Our RAPID side"):
    (an ``ErrWrite`` error entry, 80001, header ``Testbed Motion Failed``, reason lines:
    the reason, the file, the detail, the byte offset) when it cannot be read, has another
    version, asks for EGM, holds a command other than MoveAbsJ, MoveJ, MoveL and WaitTime,
-   holds more than :data:`MAX_COMMANDS`, or a robtarget below the table
-   (``floor_z_mm``, the program's work object frame). A refused task does not move and
+   holds more than :data:`MAX_COMMANDS`, a robtarget below the table (``tb_floor_z``),
+   or any field past the limits the controller holds (issue 43: a speed above the task
+   module's caps, a zone above z10's, a wait above ``TB_WAIT_MAX``, a work object other
+   than wobj0's, a number that is not finite): read field by field as the module reads
+   it, the first failing field named (:mod:`sim_twin.rws.testbed_file`, which the
+   property test tests/sim_twin/test_rws_hostile_files.py holds to the module's
+   order). An accepted file runs in wobj0, after ``VelSet 100, tb_v_tcp_max``
+   (:meth:`TestbedRapid.velset`). A refused task does not move and
    does not stop the other task (independent MultiMove tasks: an ``ErrWrite`` is a log
-   entry, not a stop); the twin's own limits (a joint target other than the rest, an
-   orientation other than tool-down) are refused the same way.
+   entry, not a stop); a motion the arm cannot make (a joint limit, out of reach) is the
+   controller's own code when the move is run.
 2. The tasks that accepted their program move together (MultiMove, not path
    synchronised). A motion the cell refuses mid-run is a RAPID error that stops the run
    (as a motion error stops a controller), with the same header.
@@ -35,8 +41,9 @@ What our RAPID does, and so this hook (docs/notes/rws.md, "Our RAPID side"):
    module (``TestbedTask_L`` / ``_R``; readable and writable over RWS), never the file's.
    ``tb_header`` compares the file's ``tframe`` with ``tool_pusher.tframe`` and refuses
    the file, before any motion, when they are more than :data:`TOOL_MM` apart in
-   translation or :data:`TOOL_DEG` in rotation (:func:`check_tool`: reason
-   :data:`TOOL_DIFFERS`, the detail line the file's frame, the last line
+   translation or :data:`TOOL_DEG` in rotation
+   (:func:`~sim_twin.rws.testbed_file.tool_differs`: reason :data:`TOOL_DIFFERS`, the
+   detail line the file's frame, the last line
    ``tool_pusher``'s). An accepted program moves, and is supervised, with
    ``tool_pusher`` (:meth:`TestbedRapid.held_tool`): the motion executor gets the
    program with the controller's tool in place of the file's, so the TCP it moves and
@@ -45,9 +52,8 @@ What our RAPID does, and so this hook (docs/notes/rws.md, "Our RAPID side"):
 
 from __future__ import annotations
 
-import math
+import contextlib
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
 from typing import Any
 
 from sim_twin.rws.errors import RwsError
@@ -65,33 +71,44 @@ from sim_twin.rws.motion_program import (
     ERRWRITE_ERROR,
     ERRWRITE_INFO,
     LoadData,
-    MotionProgramFile,
-    MoveAbsJ,
-    MoveJ,
-    MoveL,
     Pose,
+    ProgramFileError,
     ToolData,
-    WaitTime,
-    describe,
+    decode_program,
 )
-from sim_twin.rws.rapid_data import format_number, numbers, parse_value
+from sim_twin.rws.rapid_data import numbers, parse_value
+from sim_twin.rws.testbed_file import (  # re-exported: the twin's names of our RAPID's
+    DONE,
+    FAILED,
+    MAX_COMMANDS,
+    TOOL_DEG,
+    TOOL_DIFFERS,
+    TOOL_MM,
+    V_ORI_MAX,
+    V_REAX_MAX,
+    V_TCP_MAX,
+    Limits,
+    angle_deg,
+    frame_text,
+    read_program,
+    refusal,
+)
 from sim_twin.rws.world_zones import ArmZone, default_zone
 
-DONE, FAILED = "Testbed Motion Done", "Testbed Motion Failed"
-"""The headers (``args[0]``) of our RAPID's event log entries; the driver reads them."""
-MAX_COMMANDS = 64
-"""The size of our RAPID's command arrays (``TB_MAX_CMDS`` in TestbedMotion.mod)."""
-SUPPORTED = (MoveAbsJ, MoveJ, MoveL, WaitTime)
-RAPID_VERSION = 4
+__all__ = ["CAPS", "DONE", "FAILED", "MAX_COMMANDS", "RAPID_VERSION", "TOOL_DEG", "TOOL_DIFFERS",
+           "TOOL_MM", "WORLD_ZONE_CODE", "WORLD_ZONE_TITLE", "TestbedRapid", "WorldZoneStop",
+           "angle_deg", "frame_text", "ours", "task_module_of", "testbed_program_file",
+           "tool_of"]
+"""The twin's names of our RAPID (those of :mod:`sim_twin.rws.testbed_file` included)."""
+
+RAPID_VERSION = 5
 """``TB_RAPID_VERSION`` in TestbedMotion.mod: the behaviour of our modules this twin plays
 (2: the world zones; 3: the zones in a system module, issue 29; 4: the tool frame is the
 controller's and a file's must match it, tb_zones writes "Testbed Zones Active", issue
-35). The driver and ``testbed check`` compare the controller's."""
-TOOL_MM, TOOL_DEG = 1.0, 0.5
-"""``TB_TOOL_MM``, ``TB_TOOL_DEG``: how far a file's tool frame may be from
-``tool_pusher``'s (translation, mm; rotation, deg) before our RAPID refuses it."""
-TOOL_DIFFERS = "Tool frame differs from tool_pusher"
-"""``TB_TOOL_DIFFERS``: the reason line (``args[1]``) of that refusal."""
+35; 5: every field a file can set has a limit the controller holds, VelSet, the moves in
+wobj0, issue 43). The driver and ``testbed check`` compare the controller's."""
+CAPS = ("tb_v_tcp_max", "tb_v_ori_max", "tb_v_reax_max")
+"""The speed caps each task module declares (CONST num), read at every start."""
 
 WORLD_ZONE_CODE = 50000
 WORLD_ZONE_TITLE = "World zone reached"
@@ -108,51 +125,6 @@ def testbed_program_file(task: str) -> str:
     return f"RAMDISK:/testbed_{task}.bin"
 
 
-def _refusal(reason: str, detail: str) -> RapidError:
-    return RapidError(ERRWRITE_ERROR, FAILED, desc=f"{reason}: {detail}",
-                      args=(FAILED, reason, "", detail, ""))
-
-
-def angle_deg(a: Sequence[float], b: Sequence[float]) -> float:
-    """``tb_angle``: the angle between two orientations (quaternions, either sign),
-    ``2 acos(|a.b|)`` computed as ``4 asin(|a - s b| / 2)`` (``s`` the sign of ``a.b``) on
-    the normalised quaternions; 180 for a zero one."""
-    na, nb = math.sqrt(sum(x * x for x in a)), math.sqrt(sum(x * x for x in b))
-    if na == 0.0 or nb == 0.0:
-        return 180.0
-    s = -1.0 if sum(x * y for x, y in zip(a, b, strict=True)) < 0.0 else 1.0
-    d = math.sqrt(sum((x / na - s * y / nb) ** 2 for x, y in zip(a, b, strict=True))) / 2.0
-    return math.degrees(4.0 * math.asin(min(d, 1.0)))
-
-
-def frame_text(f: Pose) -> str:
-    """``tb_frame``: ``[[x,y,z],[q1,q2,q3,q4]]``, mm to 0.1 and q to 0.0001 (NumToStr
-    with 1 and 4 decimals, trailing zeros left off: assumed, docs/rws-checklist.md)."""
-    def n(v: float, dec: int) -> str:
-        return format_number(round(float(v), dec) + 0.0)
-    return (f"[[{','.join(n(v, 1) for v in f.trans)}],"
-            f"[{','.join(n(v, 4) for v in f.rot)}]]")
-
-
-def _clip(s: str) -> str:
-    return s[:80]  # tb_clip: an event log line holds at most 80 characters
-
-
-def check_tool(file_tool: ToolData, held: ToolData) -> None:
-    """``tb_header``'s tool checks: a robot-held tool whose frame is ``held``'s (the
-    controller's ``tool_pusher``) within :data:`TOOL_MM` and :data:`TOOL_DEG`."""
-    if not file_tool.robhold:
-        raise RapidError(ERRWRITE_ERROR, FAILED, desc="Stationary tool not supported",
-                         args=(FAILED, "Stationary tool not supported", "", "tool robhold",
-                               "at byte 8"))
-    f, h = file_tool.tframe, held.tframe
-    if math.dist(f.trans, h.trans) > TOOL_MM or angle_deg(f.rot, h.rot) > TOOL_DEG:
-        detail = _clip(f"file {frame_text(f)}")
-        last = _clip(f"tool_pusher {frame_text(h)}")
-        raise RapidError(ERRWRITE_ERROR, FAILED, desc=f"{TOOL_DIFFERS}: {detail}; {last}",
-                         args=(FAILED, TOOL_DIFFERS, "", detail, last))
-
-
 def tool_of(value: str) -> ToolData:
     """A ``tooldata`` symbol's RAPID text as the decoder's record."""
     v = parse_value(value)
@@ -162,22 +134,6 @@ def tool_of(value: str) -> ToolData:
     return ToolData(v[0], Pose(tuple(f[:3]), tuple(f[3:7])),  # type: ignore[arg-type]
                     LoadData(load[0], tuple(load[1:4]), tuple(load[4:8]),  # type: ignore[arg-type]
                              load[8], load[9], load[10]))
-
-
-def check_program(program: MotionProgramFile, floor_z_mm: float) -> None:
-    """What our RAPID checks of a decoded program before its first motion."""
-    if program.egm.kind != "none":
-        raise _refusal("EGM not supported", f"EGM configuration {program.egm.kind}")
-    if len(program.commands) > MAX_COMMANDS:
-        raise _refusal("Too many commands",
-                       f"{len(program.commands)} > {MAX_COMMANDS}")
-    for cmd in program.commands:
-        if not isinstance(cmd, SUPPORTED):
-            raise _refusal("Unsupported command", describe(cmd))
-        if isinstance(cmd, MoveJ | MoveL) and cmd.to_point.trans[2] < floor_z_mm:
-            raise _refusal("Target below the table",
-                           f"{describe(cmd)}: z {cmd.to_point.trans[2]:g} mm < "
-                           f"{floor_z_mm:g} mm")
 
 
 def ours(exc: RapidError, path: str, task: str) -> RapidError:
@@ -199,6 +155,7 @@ class TestbedRapid(CellMotion):
     ``tb_floor_z``) and ``zones`` (arm -> :class:`ArmZone`, the task module's zone
     constants; default: the arm's workspace grown by
     :data:`~sim_twin.rws.world_zones.DEFAULT_MARGIN_MM`, ``tb_zone_z`` 80 mm, the floor).
+    ``caps`` (:data:`CAPS` -> value): the task modules' speed caps, default as shipped.
     ``last_run``: what each task of the latest run read (accepted or not; an accepted
     one with ``tool_pusher`` as its tool, as it ran). The modules'
     symbols (``tool_pusher``, the zone constants, ``TB_RAPID_VERSION``...) are declared by
@@ -214,14 +171,19 @@ class TestbedRapid(CellMotion):
 
     def __init__(self, *args: Any, files: Mapping[str, str] | None = None,
                  floor_z_mm: float = 0.0, zones: Mapping[str, ArmZone] | None = None,
-                 **kwargs: Any) -> None:
+                 caps: Mapping[str, float] | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.files = {t.upper(): f for t, f in (files or {}).items()}
         self.floor_z_mm = float(floor_z_mm)
         self.zones = {u.arm: default_zone(self.cell.sides[u.arm], floor_z=self.floor_z_mm)
                       for u in self.units}
         self.zones.update(zones or {})
+        self.caps = {**dict(zip(CAPS, (V_TCP_MAX, V_ORI_MAX, V_REAX_MAX), strict=True)),
+                     **(caps or {})}
+        """The speed caps the task modules declare (:data:`CAPS` -> value; default as
+        shipped): what the lab set on this controller."""
         self._offsets: dict[str, tuple[float, float, float]] = {}
+        self._velset: dict[str, float] = {}
 
     def program_file(self, task: str) -> str:
         return self.files.get(task.upper(), testbed_program_file(task))
@@ -235,20 +197,43 @@ class TestbedRapid(CellMotion):
             return None
         return tool_of(sym.value)
 
+    def limits(self, run: ProgramRun, task: str) -> Limits | None:
+        """``tb_floor_z`` and the speed caps (:data:`CAPS`) of ``task``'s module as the
+        controller holds them now (None: the module is not loaded)."""
+        module, sym = task_module_of(task), run.controller.symbols
+        try:
+            got = {n: float(sym.find([task, module, n]).value) for n in ("tb_floor_z", *CAPS)}
+        except (RwsError, ValueError):
+            return None
+        return Limits(got["tb_floor_z"], got["tb_v_tcp_max"], got["tb_v_ori_max"],
+                      got["tb_v_reax_max"])
+
+    def velset(self, task: str) -> float:
+        """``VelSet 100, tb_v_tcp_max``: the TCP speed no move of ``task`` exceeds (the
+        cap read at its latest start)."""
+        return self._velset.get(task.upper(), super().velset(task))
+
     def _read(self, run: ProgramRun, unit: MechUnit) -> TaskProgram:
-        """The task's file, checked as ``tb_header`` and ``tb_command`` check it, with
-        the controller's ``tool_pusher`` in place of the file's tool (``last_run`` keeps
-        the program as read until it is accepted, then as it runs)."""
-        tp = self.read_task(run, unit)
+        """The task's file, read and checked as ``tb_run`` reads it
+        (:func:`~sim_twin.rws.testbed_file.read_program`: every limit, the first failing
+        field refused), to run with the controller's ``tool_pusher`` in wobj0
+        (``last_run`` keeps the file as the library's decoder reads it until it is
+        accepted, then the program as it runs)."""
+        path = self.program_file(unit.task)
+        try:
+            data = run.controller.files.read(path)
+        except RwsError:
+            raise refusal("Motion program file not found", "nothing uploaded",
+                          "at byte 0") from None
+        with contextlib.suppress(ProgramFileError):
+            self.last_run[unit.task] = TaskProgram(unit.task, unit, path,
+                                                   decode_program(data, path))
+        held, limits = self.held_tool(run, unit.task), self.limits(run, unit.task)
+        if held is None or limits is None:
+            raise refusal("Reference error", f"{task_module_of(unit.task)} is not loaded")
+        tp = TaskProgram(unit.task, unit, path, read_program(data, held, limits))
         self.last_run[unit.task] = tp
-        held = self.held_tool(run, unit.task)
-        if held is None:
-            raise _refusal("Reference error", f"tool_pusher: {task_module_of(unit.task)} "
-                                              "is not loaded")
-        check_tool(tp.program.tool, held)
-        check_program(tp.program, self.floor_z_mm)
-        tp = replace(tp, program=replace(tp.program, tool=held))
-        self.last_run[unit.task] = tp
+        self._velset[unit.task.upper()] = limits.v_tcp_max
         return tp
 
     def _failed(self, run: ProgramRun, unit: MechUnit, exc: RapidError) -> None:

@@ -12,15 +12,25 @@ from __future__ import annotations
 
 import argparse
 import re
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of
 from testbed.core.config import NAME_PATTERN, ConfigError
+from testbed.experiments.controller_gate import TrialRefused
 from testbed.experiments.fleet_config import FleetConfig, load_fleet
 
 if TYPE_CHECKING:
     from testbed.experiments.trial import TrialOptions
+
+
+def refused(verb: str, exc: TrialRefused) -> int:
+    """A trial the controllers' check refused before step 1 (exit 1: a fault the
+    operator must fix, not a bad argument): the one line, then its FAULT lines, on
+    stderr."""
+    sys.stderr.write(f"testbed {verb}: {exc}\n" + "".join(f"{line}\n" for line in exc.faults))
+    return 1
 
 
 def load_config(args: argparse.Namespace) -> FleetConfig:

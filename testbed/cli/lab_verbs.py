@@ -11,8 +11,15 @@ import argparse
 from pathlib import Path
 
 from testbed.cli.arguments import HUMANS, Verb, add_config, positive
-from testbed.cli.checks import check_device, check_humans, check_out_file, load_config
+from testbed.cli.checks import (
+    check_device,
+    check_humans,
+    check_out_file,
+    load_config,
+    refused,
+)
 from testbed.core.config import ConfigError
+from testbed.experiments.controller_gate import TrialRefused
 
 
 # ---- deploy -----------------------------------------------------------------------------
@@ -61,9 +68,12 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 CHECK = Verb(
-    "check", help="preflight every host and arm, write a mosaic PNG",
-    description="Reach every host, check the agent version, take a frame of every arm, "
-    "write a mosaic PNG.",
+    "check", help="preflight every host and arm, read-only, write a mosaic PNG",
+    description="Reach every host, check the agent version, report each robot "
+    "controller (state, RAPID version, zones active, tool frame, layout and sweep "
+    "margins, an arm in the camera's view), take a frame of every arm, write a mosaic "
+    "PNG. It never moves an arm; trial, evaluate, protocol and rehearse run its "
+    "controller part first and refuse with its FAULT lines.",
     add_arguments=_check_arguments, run=cmd_check)
 
 
@@ -173,6 +183,8 @@ def cmd_rehearse(args: argparse.Namespace) -> int:
     except RehearsalError as exc:
         Console(stderr=True).print(f"testbed rehearse: {exc}", markup=False, highlight=False)
         return 1
+    except TrialRefused as exc:  # a twin's controller not ready: its FAULT lines
+        return refused("rehearse", exc)
     print(result.report_markdown)
     for robot, fig in result.calibration.items():
         print(f"calibration {robot}: against the twin's true camera model median "

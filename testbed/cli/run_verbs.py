@@ -25,9 +25,11 @@ from testbed.cli.checks import (
     check_out_dir,
     check_policy,
     load_config,
+    refused,
     resume_options,
     trial_options,
 )
+from testbed.experiments.controller_gate import TrialRefused
 
 
 def print_summary(run_dir: Path, summary: dict[str, Any]) -> None:
@@ -53,8 +55,11 @@ def cmd_trial(args: argparse.Namespace) -> int:
         resume = None
         cfg = load_config(args)
         opts = trial_options(cfg, args)
-    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
-        run, summary = run_trial(cfg, opts, resume=resume, hooks=bar)
+    try:
+        with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
+            run, summary = run_trial(cfg, opts, resume=resume, hooks=bar)
+    except TrialRefused as exc:
+        return refused("trial", exc)
     print_summary(run.path, summary)
     return 0
 
@@ -91,8 +96,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     opts.name = args.name or f"eval-{Path(args.policy).parent.name or 'policy'}-s{opts.seed}"
     # the report's row: never the allocation's "bc", but what was evaluated
     opts.label = evaluation_label(source["algorithm"])
-    with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
-        run, summary = run_trial(cfg, opts, hooks=bar, meta={"evaluates": source})
+    try:
+        with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
+            run, summary = run_trial(cfg, opts, hooks=bar, meta={"evaluates": source})
+    except TrialRefused as exc:
+        return refused("evaluate", exc)
     print_summary(run.path, summary)
     return 0
 
@@ -130,7 +138,10 @@ def cmd_protocol(args: argparse.Namespace) -> int:
         report = write_report([folder], folder,
                               proto.until.reference if proto.until is not None else None)
     else:
-        report = run_protocol(proto, out=args.out, ask=not args.yes)
+        try:
+            report = run_protocol(proto, out=args.out, ask=not args.yes)
+        except TrialRefused as exc:
+            return refused("protocol", exc)
     print(report.markdown)
     print(f"report: {report.folder}")
     return 0
@@ -166,7 +177,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         run_sweep_on_ray(sweep, Path(args.out) if args.out else sweep.folder,
                          address=args.ray, workers=args.workers,
                          cpus_per_trial=args.cpus_per_trial)
-    report = run_sweep(sweep, out=args.out)  # every run finished: skipped, then the report
+    try:  # every run finished: skipped, then the report
+        report = run_sweep(sweep, out=args.out)
+    except TrialRefused as exc:
+        return refused("sweep", exc)
     print(report.markdown)
     print(f"report: {report.folder} (figure: curves.png)")
     return 0

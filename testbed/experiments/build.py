@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of
+from testbed.core.host_config import HostConfig
 from testbed.core.humans import Humans
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.scripted_humans import ScriptedHumans
@@ -53,14 +54,18 @@ def code_identity() -> dict[str, Any]:
             "python": platform.python_version(), "libraries": libraries}
 
 
-def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None) -> HostFleet:
+def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None, *,
+                hosts: Sequence[HostConfig] | None = None) -> HostFleet:
     """The fleet's ``HostFleet``; with ``log_dir`` each host's agent log and the
-    controller's events about it go to ``log_dir/<host>.log`` (docs/notes/drivers.md)."""
+    controller's events about it go to ``log_dir/<host>.log`` (docs/notes/drivers.md).
+    ``hosts``: only these of the fleet's (``testbed check`` looks at controller hosts
+    apart from the others, whose observation may move nothing real)."""
     from drivers.host_fleet import HostFleet
 
+    chosen = list(cfg.hosts if hosts is None else hosts)
     if log_dir is None:
-        return HostFleet(cfg.hosts, trial_seed=seed)
-    return HostFleet(cfg.hosts, trial_seed=seed, log_dir=log_dir)
+        return HostFleet(chosen, trial_seed=seed)
+    return HostFleet(chosen, trial_seed=seed, log_dir=log_dir)
 
 
 def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,

@@ -12,9 +12,12 @@ robot), in steps of one job each:
    whatever happens;
 4. ``_finish``: run.json's status, the summary.
 
-``run_trial`` builds the hosts and humans (``testbed.experiments.build``), runs those
-steps inside ``try/finally`` so that, whatever happens, the arms go to their rest pose
-and the humans are closed, and ``--resume`` continues where a crash or a kill left off.
+``run_trial`` builds the hosts and humans (``testbed.experiments.build``), checks every
+controller host read-only once the hosts answer, before step 1
+(``testbed.experiments.controller_gate``: a FAULT refuses the trial, nothing moved),
+runs those steps inside ``try/finally`` so that, whatever happens, the arms go to their
+rest pose and the humans are closed, and ``--resume`` continues where a crash or a kill
+left off.
 run.json is written when the run opens (with the code it runs), once its hosts have
 answered (which hosts), once it is prepared, and at the end.
 
@@ -44,6 +47,11 @@ from testbed.core.interrupts import critical
 from testbed.core.wrappers import HumansWrapper
 from testbed.experiments.build import build_hosts, code_identity, make_humans, shared_cells
 from testbed.experiments.checkpointer import CheckpointWriter
+from testbed.experiments.controller_gate import (
+    TrialRefused,
+    controller_faults,
+    controller_hosts,
+)
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import (
@@ -65,7 +73,8 @@ from testbed.records.store import RunData, RunDataWriter
 
 LOG = logging.getLogger(__name__)
 
-__all__ = ["COMPLETE", "RUNNING", "STOPPED", "TrialOptions", "run_trial", "write_summary"]
+__all__ = ["COMPLETE", "REFUSED", "RUNNING", "STOPPED", "TrialOptions", "TrialRefused",
+           "run_trial", "write_summary"]
 
 
 @dataclass
@@ -95,9 +104,11 @@ class TrialOptions:
 COMPLETE = "complete"
 STOPPED = "stopped"
 RUNNING = "running"
+REFUSED = "refused"
 """run.json ``status``: ``running`` until the loop ends (also what a crash or a kill
 leaves), ``stopped`` when the operator stopped it (Esc; resumable, no summary),
-``complete`` when every step ran (summary.json written)."""
+``complete`` when every step ran (summary.json written), ``refused`` when the
+controllers' check before step 1 found a FAULT (run.json ``refused``: its lines)."""
 
 
 @dataclass
@@ -149,7 +160,8 @@ def run_trial(
     The summary has ``status``: ``complete`` (summary.json written) or ``stopped``
     (the operator pressed Esc: run.json says ``stopped`` and the step; resume it with
     ``testbed trial --resume`` or by rerunning the protocol; no summary.json until
-    it is finished).
+    it is finished). :class:`TrialRefused` (run.json ``refused``) when a controller
+    host's check before step 1 found a FAULT: nothing moved.
     """
     hooks = hooks if hooks is not None else TrialHooks()
     run = _open_run(cfg, opts, resume, meta, host_configs)
@@ -161,15 +173,24 @@ def run_trial(
                              robots=cfg.robot_names,
                              names=[p.name for p in cfg.humans.people])
     own_hosts = hosts is None
+    checked: Any = hosts  # what the controllers' check asks: the fleet, never a wrapper
     if hosts is None:
-        built = build_hosts(cfg, opts.seed + (run.start * 7919 if run.start else 0),
-                            log_dir=run.dir.path / "hosts")
-        hosts = hooks.wrap_hosts(built, run.dir)
+        checked = build_hosts(cfg, opts.seed + (run.start * 7919 if run.start else 0),
+                              log_dir=run.dir.path / "hosts")
+        hosts = hooks.wrap_hosts(checked, run.dir)
     _stop_motion_on_console_stop(humans, hosts)
     stopped_at: int | None = None
+    passed = False  # the controllers' check: until it passes, nothing of this trial moved
     try:
         if own_hosts:
             hosts.start()
+        try:
+            _check_controllers(run, checked)
+        except TrialRefused:
+            _record_hosts(run, hosts)  # run.json names the controllers that refused
+            run.save_meta()
+            raise
+        passed = True
         try:
             algorithm, learner, driven = _prepare(run, hosts, humans, hooks)
         except HumansStopRequested as stop:  # Esc while the demos were being collected
@@ -181,11 +202,36 @@ def run_trial(
     finally:
         if own_hosts:
             try:
-                hosts.rest()
+                if passed:  # before, nothing moved: a rest would move an arm the check
+                    hosts.rest()  # refused (or was about to judge) where it stands
             finally:
                 hosts.close()
         humans.close()
     return _finish(run, stopped_at)
+
+
+def _check_controllers(run: _Run, fleet: Any) -> None:
+    """Before step 1 (before any observation or push): the read-only check of every
+    controller host (``testbed.experiments.controller_gate``; none: no cost). run.json
+    ``controllers_checked`` says which hosts passed and how long it took; a FAULT
+    refuses the trial: run.json says ``refused`` with the FAULT lines (no step, no
+    checkpoint: a protocol run again starts the run afresh) and :class:`TrialRefused`
+    carries them to the command, which prints them and exits 1."""
+    checked = controller_hosts(run.cfg.hosts)
+    if not checked:
+        return
+    t0 = time.monotonic()
+    faults = controller_faults(fleet, run.cfg.hosts)
+    took = round(time.monotonic() - t0, 3)
+    if faults:
+        LOG.error("trial refused before step %d (0-based): %s", run.start, "; ".join(faults))
+        run.save_meta(status=REFUSED, refused=faults)
+        raise TrialRefused(faults)
+    LOG.info("controllers checked before step %d (0-based) in %.2f s: %s", run.start, took,
+             ", ".join(h.name for h in checked))
+    _record(run.meta, "controllers_checked", {"hosts": [h.name for h in checked],
+                                              "seconds": took})
+    run.save_meta()
 
 
 def _stop_motion_on_console_stop(humans: Humans, hosts: Hosts) -> None:

@@ -43,7 +43,7 @@ DEFAULT_TOOL_Z_MM = 184.2
 project's one pusher length: ABB's servo-gripper finger TCP at 114.2 mm plus the rod's
 70 mm beyond the fingers; robot/README.md)."""
 
-INNER_EDGE_MM = 75.0
+INNER_EDGE_MM = 125.0
 """Where the shipped table boxes stop on the side of the body's centre line (|y|, mm): the
 workspaces begin at 50, but with the 184.2 mm pusher two arms pushing at their boxes'
 inner far corners at once meet: the project's model puts the forearms 22 mm INTO each
@@ -85,16 +85,20 @@ def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
                      n: int = 9) -> dict[str, Any]:
     """The arm's calibration file as a perfect ``testbed calibrate`` would write it: the
     homography fitted to the twin's TRUE projection of the cube-top plane over the arm's
-    workspace. For tests and benchmarks that need a calibrated twin quickly; a rehearsal
-    calibrates with ``testbed calibrate`` itself."""
+    workspace, and the gate joints (the driver's model's for the gate: drivers/yumi/gate.py;
+    a rehearsal's calibration measures them on the twin). For tests and benchmarks that need a
+    calibrated twin quickly; a rehearsal calibrates with ``testbed calibrate`` itself."""
     import cv2
+
+    from drivers.yumi.gate import calibration_gate_joints
 
     box = [float(v) for v in cam["workspaces_mm"][arm]]
     pts, px = project_plane(cam, box, plane_z_mm, n)
     h, _ = cv2.findHomography(px, pts[:, :2])
     side = "L" if arm.startswith("l") else "R"
-    return {"homography": h.tolist(), "table_box_mm": push_box(box), **arm_facts(arm, cam),
-            "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+    cal = {"homography": h.tolist(), "table_box_mm": push_box(box), **arm_facts(arm, cam),
+           "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+    return {**cal, "gate_joints_deg": calibration_gate_joints(arm, cal)}
 
 
 def push_box(workspace_mm: Sequence[float]) -> list[float]:
@@ -150,5 +154,6 @@ def starting_calibration(lab: HardwareTwinLab, host: str, arm: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     start = true_calibration(cam, arm)
     del start["homography"]  # what a person knows before calibrating: box and rest pose
+    del start["gate_joints_deg"]  # testbed calibrate measures them at the gate
     atomic_write_json(path, start)
     return path

@@ -61,6 +61,13 @@ class LabClient:
         """A person puts the cube somewhere (fault drills, tests)."""
         self._call("/lab/place", {"arm": arm, "xy_mm": [float(v) for v in xy_mm], "yaw": yaw})
 
+    def jog(self, arm: str, xyz_mm: Sequence[float]) -> list[float]:
+        """A person jogs the arm's TCP to a point on the FlexPendant (tests: an arm left
+        in the camera's view); where its TCP is then (mm)."""
+        out: list[float] = self._call("/lab/jog", {"arm": arm, "xyz_mm": [float(v) for v
+                                                                          in xyz_mm]})["tcp_mm"]
+        return out
+
     def camera(self) -> dict[str, Any]:
         return self._call("/lab/camera")
 

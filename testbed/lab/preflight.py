@@ -1,30 +1,38 @@
 """``testbed check``: before a trial, is every host, agent, camera and arm ready?
 
 A lab operator runs it before the 250-step trial: it reaches each host, lets the
-handshake check the agent's protocol version, takes one frame of every arm, reports
-each arm's state in one line, and writes a mosaic PNG of all arms' images so a glance
-shows a camera that is dark, a crop that is off, or a cube out of its workspace: each
-tile is labelled with its robot's name and has the arm's workspace outlined on it (the
+handshake check the agent's protocol version, looks at every arm, reports each arm's
+state in one line, and writes a mosaic PNG of all arms' images so a glance shows a
+camera that is dark, a crop that is off, or a cube out of its workspace: each tile is
+labelled with its robot's name and has the arm's workspace outlined on it (the
 violation check's polygon, in the crop's canonical frame), so the glance also says
 which arm it is and how far the cube is from leaving its workspace.
+
+It never moves an arm (issue 43). A host whose backend has the ``controller``
+capability (a YuMi) is only asked read-only calls: ``describe`` (the controller's
+report, below; it moves nothing, an arm in the camera's view is a FAULT naming the fix:
+``drivers/yumi/backend.py``) and ``frame`` (the full camera frame, whose crops the
+check cuts here as the agent does); it is never observed (a YuMi's picture step sends
+an arm in view to rest) nor rested, and an agent asked nothing that moves an arm does
+not rest one at bye (``drivers/agent/agent_session.py`` ``MAY_MOVE``). Other hosts (a
+simulated cell) are observed once, in a fleet of their own.
 
 A YuMi host's controller reports itself (RobotWare version and options, serial, operating
 mode, controller and RAPID state, speed ratio, tasks, our RAPID modules' version against
 this checkout's and their world zones); anything that would refuse a push or stop an arm
 (manual mode, motors off, a guard stop, a program running, a task stopped by a RAPID
-error, a missing option or module, a table box wider than its world zone) is a FAULT
-line naming what to fix, and the check fails. Issue 35 adds, per task: the controller's
-``tool_pusher`` beside the calibration's ``tool_z_mm`` (more than 1 mm apart: a FAULT, our
-RAPID would refuse every program), the world zones known active since the last restart
-(a "Testbed Zones Active" entry newer than the last 10045), and the layout through the
-arm's model: each table box corner's reach, the rest pose, and the pusher's tip and the
-links along the paths the driver commands (rest by joints to the gate at clear height,
-straight everywhere else: ``drivers/yumi/paths.py``) against the world zones, a FAULT
-with the worst point when a joint move comes within 20 mm of them. The check ends with
-every arm at rest; an arm with nothing to do runs the driver's "stay" program, so no
-task replays the file its RAM disk still holds.
+error, a missing option or module, a table box wider than its world zone, an arm in the
+camera's view) is a FAULT line naming what to fix, and the check fails. Issue 35 adds,
+per task: the controller's ``tool_pusher`` beside the calibration's ``tool_z_mm`` (more
+than 1 mm apart: a FAULT, our RAPID would refuse every program), the world zones known
+active since the last restart (a "Testbed Zones Active" entry newer than the last
+restart), and the layout through the arm's model: each table box corner's reach, the
+rest pose, and the pusher's tip and the links along the paths the driver commands
+(``drivers/yumi/paths.py``) against the world zones, a FAULT with the worst point when a
+joint move comes within 20 mm of them. That report is the part every trial runs first
+(``testbed.experiments.controller_gate``): its FAULT lines refuse the trial.
 
-A host with a real camera (yumi) also sends its FULL frame, written as
+A host with a real camera (yumi) also has its FULL frame written as
 ``check-<host>.png`` beside the mosaic with each arm's crop box, its workspace (the
 task's canonical polygon mapped back through crop and mirror) and, when the arm's
 calibration file has a homography, its table box projected through it: a crop that
@@ -42,56 +50,121 @@ import numpy as np
 
 from testbed.core.backend_registry import backend_lines, backend_of
 from testbed.core.host_config import HostConfig
-from testbed.core.types import ArmObservation, Fault
+from testbed.core.types import IMAGE_SIZE, ArmObservation, Fault
+from testbed.experiments.controller_gate import controller_hosts, controller_report
 from testbed.experiments.fleet_config import FleetConfig
 
+Say = Callable[[str], None]
 
-def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Callable[[str], None]) -> bool:
+
+def preflight(cfg: FleetConfig, mosaic_path: Path, print_line: Say) -> bool:
+    """Check every host and arm of ``cfg`` (see the module doc), write the mosaic to
+    ``mosaic_path`` (and each camera host's full frame beside it); False on any FAULT."""
     import cv2
-
-    from testbed.experiments.build import build_hosts
 
     for line in backend_lines():
         print_line(line)
-    hosts = build_hosts(cfg, cfg.trial.seed)
+    looked_at = controller_hosts(cfg.hosts)
+    named = {h.name for h in looked_at}
+    observed = [h for h in cfg.hosts if h.name not in named]
+    tiles: dict[str, np.ndarray] = {}
     ok = True
-    images: list[np.ndarray] = []
-    names: list[str] = []
+    if observed:
+        ok = _observe(cfg, observed, tiles, print_line) and ok
+    if looked_at:
+        ok = _look(cfg, looked_at, tiles, mosaic_path.parent, print_line) and ok
+    names = [r for r in (f"{h.name}/{a.name}" for h in cfg.hosts for a in h.arms)
+             if r in tiles]
+    if names:
+        picture = mosaic([tiles[r] for r in names], names)
+        cv2.imwrite(str(mosaic_path), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
+        print_line(f"mosaic of {len(names)} arms -> {mosaic_path}")
+    return ok
+
+
+def _observe(cfg: FleetConfig, hosts_cfg: Sequence[HostConfig], tiles: dict[str, np.ndarray],
+             print_line: Say) -> bool:
+    """Hosts without a controller capability (a simulated cell): one observation of
+    every arm, each arm's line and image; False if an arm has none."""
+    from testbed.experiments.build import build_hosts
+
+    hosts = build_hosts(cfg, cfg.trial.seed, hosts=hosts_cfg)
+    ok = True
     try:
         hosts.start()
         obs = hosts.observe()
         for robot in hosts.robot_names:
             o = obs.get(robot)
             if isinstance(o, ArmObservation):
-                state = "VIOLATING (needs a hard reset)" if o.violating else "ready"
-                mean = float(o.image.mean())
-                dark = " DARK IMAGE?" if mean < 10 else ""
-                print_line(f"ok    {robot}: frame {o.image.shape}, {state}{dark}")
-                images.append(o.image)
-                names.append(robot)
+                print_line(_arm_line(robot, o.image, o.violating))
+                tiles[robot] = o.image
             else:
                 ok = False
                 reason = o.reason if isinstance(o, Fault) else "no answer"
                 print_line(f"FAULT {robot}: {reason}")
-        hosts.rest()
-        for host in cfg.hosts:
-            ok = controller_report(hosts, host, print_line) and ok
-            ok = full_frame(hosts, host, mosaic_path.parent, print_line) and ok
     finally:
         hosts.close()
-    if images:
-        picture = mosaic(images, names)
-        cv2.imwrite(str(mosaic_path), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
-        print_line(f"mosaic of {len(images)} arms -> {mosaic_path}")
     return ok
 
 
-def full_frame(hosts: Any, host: HostConfig, folder: Path,
-               print_line: Callable[[str], None]) -> bool:
-    """Write ``folder/check-<host>.png`` (full frame, crops, workspaces); False on a fault.
+def _look(cfg: FleetConfig, hosts_cfg: Sequence[HostConfig], tiles: dict[str, np.ndarray],
+          folder: Path, print_line: Say) -> bool:
+    """Controller hosts, read-only: each one's report and FAULT lines
+    (``controller_report``), then its full frame and its arms' crops cut from it
+    (:func:`full_frame`); False on any FAULT."""
+    from testbed.experiments.build import build_hosts
 
-    Only hosts whose backend has the ``camera_frame`` capability are asked; a host that is down
-    was already reported by the observation, so it is not reported twice.
+    hosts = build_hosts(cfg, cfg.trial.seed, hosts=hosts_cfg)
+    ok = True
+    try:
+        hosts.start()
+        for host in hosts_cfg:
+            faults = controller_report(hosts, host, print_line)
+            for line in faults:
+                print_line(line)
+            ok = not faults and ok
+            ok = full_frame(hosts, host, folder, print_line, tiles) and ok
+    finally:
+        hosts.close()  # bye: asked nothing that moves an arm, the agents rest none
+    return ok
+
+
+def _arm_line(robot: str, image: np.ndarray, violating: bool) -> str:
+    state = "VIOLATING (needs a hard reset)" if violating else "ready"
+    dark = " DARK IMAGE?" if float(image.mean()) < 10 else ""
+    return f"ok    {robot}: frame {image.shape}, {state}{dark}"
+
+
+def arm_crop(frame: np.ndarray, crop: tuple[int, int, int, int], mirror: bool) -> np.ndarray:
+    """An arm's canonical RGB image from its host's full BGR frame, as the agent cuts it
+    (``drivers/yumi/backend.py`` ``_crop``: the crop box, resized to ``IMAGE_SIZE`` with
+    area averaging, mirrored left-right for a mirrored arm)."""
+    import cv2
+
+    x0, y0, x1, y1 = crop
+    img = cv2.resize(frame[y0:y1, x0:x1], (IMAGE_SIZE, IMAGE_SIZE),
+                     interpolation=cv2.INTER_AREA)
+    img = img[:, ::-1, ::-1] if mirror else img[:, :, ::-1]
+    return np.ascontiguousarray(img)
+
+
+def _violating(image: np.ndarray) -> bool:
+    """The agent's own judgement of a first picture: no cube found, or a cube out of
+    its workspace (``testbed.perception.cube``)."""
+    from testbed.perception.cube import find_cube, is_violation
+
+    pose = find_cube(image)
+    return pose is None or bool(is_violation(pose))
+
+
+def full_frame(hosts: Any, host: HostConfig, folder: Path, print_line: Say,
+               tiles: dict[str, np.ndarray] | None = None) -> bool:
+    """Write ``folder/check-<host>.png`` (full frame, crops, workspaces); False on a fault.
+    ``tiles``: each arm's canonical crop cut from the frame (:func:`arm_crop`), with its
+    line, for the mosaic.
+
+    Only hosts whose backend has the ``camera_frame`` capability are asked; a host that is
+    down was already reported by its controller's check, so it is not reported twice.
     """
     import cv2
 
@@ -99,53 +172,40 @@ def full_frame(hosts: Any, host: HostConfig, folder: Path,
     from testbed.perception import homography as cal
 
     if not backend_of(host).capabilities.camera_frame:
+        print_line(f"      {host.name}: no full camera frame (its backend has none): no "
+                   f"images of its arms")
         return True
     if not hosts.host_status()[host.name].connected:
-        return True  # its arms are already FAULT lines
+        return True  # its controller's check said so
     try:
         frame = hosts.frame(host.name)
     except HostCallError as exc:
         print_line(f"FAULT {host.name}: no full camera frame: {exc}")
         return False
     size = (int(frame.shape[1]), int(frame.shape[0]))
+    ok = True
     overlays = []
     for arm in host.arms:
         box_px, note = _table_box_px(host, arm.name, arm.calibration)
         overlays.append(cal.ArmOverlay(arm.name, arm.crop, arm.mirror,
                                        _workspace(), box_px))
         crop = "no crop" if arm.crop is None else f"crop {','.join(map(str, arm.crop))}"
-        if arm.crop is not None and (arm.crop[2] > size[0] or arm.crop[3] > size[1]):
+        outside = arm.crop is not None and (arm.crop[2] > size[0] or arm.crop[3] > size[1])
+        if outside:
             crop += f" OUTSIDE the {size[0]}x{size[1]} frame"
         print_line(f"      {host.name}/{arm.name}: {crop}; {note}")
+        robot = f"{host.name}/{arm.name}"
+        if outside:
+            ok = False
+            print_line(f"FAULT {robot}: {crop}: fix the host's crop box")
+        elif arm.crop is not None and tiles is not None:
+            tiles[robot] = arm_crop(frame, arm.crop, arm.mirror)
+            print_line(_arm_line(robot, tiles[robot], _violating(tiles[robot])))
     path = folder / f"check-{host.name}.png"
     cv2.imwrite(str(path), cal.draw_overlays(frame, overlays))
     print_line(f"full frame {size[0]}x{size[1]} of host {host.name} with crops and "
                f"workspaces -> {path}")
-    return True
-
-
-def controller_report(hosts: Any, host: HostConfig, print_line: Callable[[str], None]
-                      ) -> bool:
-    """Print what a host's controller says of itself and one FAULT line for each thing to
-    fix first; False if there is one. Only backends with the ``controller`` capability
-    are asked (a YuMi: RobotWare, options, serial, mode and state, tasks, our RAPID and
-    its world zones: ``drivers/yumi/check_report.py``); the backend words its report."""
-    from drivers.host_fleet import HostCallError
-
-    plugin = backend_of(host)
-    if not plugin.capabilities.controller or not hosts.host_status()[host.name].connected:
-        return True
-    try:
-        info = hosts.describe(host.name)
-    except HostCallError as exc:
-        print_line(f"FAULT {host.name}: cannot read the controller's state: {exc}")
-        return False
-    lines, faults = plugin.controller_report(host, info)
-    for line in lines:
-        print_line(line)
-    for why in faults:
-        print_line(f"FAULT {host.name}: {why}")
-    return not faults
+    return ok
 
 
 def _workspace() -> Any:

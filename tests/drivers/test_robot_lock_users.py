@@ -118,7 +118,8 @@ def test_a_yumi_lock_is_keyed_on_the_controllers_serial(
     try:
         # No camera: the backend cannot start, but the agent holds the lock until it exits.
         first = agents("--backend", "yumi", "--host", "yumi-a", "--lock-dir", locks,
-                       "--controller-url", f"http://127.0.0.1:{port}")
+                       "--controller-url", f"http://127.0.0.1:{port}",
+                       "--credentials-file", "factory-default")
         path = lock_path(locks, "IRC5 14000-512345")
         t0 = time.monotonic()
         while not (path.exists() and str(first.proc.pid) in path.read_text()):
@@ -127,7 +128,8 @@ def test_a_yumi_lock_is_keyed_on_the_controllers_serial(
         holder = json.loads(path.read_text())
         assert holder["user"] == ME and holder["controller"] == f"http://127.0.0.1:{port}"
         second = agents("--backend", "yumi", "--host", "yumi-b", "--lock-dir", locks,
-                        "--controller-url", f"http://localhost:{port}/", "--camera", "0")
+                        "--controller-url", f"http://localhost:{port}/", "--camera", "0",
+                        "--credentials-file", "factory-default")
         f = second.hello()
         assert f.type == "error" and f.header["kind"] == "startup"
         assert (f"robot IRC5 14000-512345 is held by agent pid {first.proc.pid} of user {ME} "

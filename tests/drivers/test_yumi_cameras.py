@@ -402,6 +402,6 @@ def test_camera_settings_go_from_the_config_through_the_agent_to_the_camera(
     with caplog.at_level(logging.WARNING, logger="drivers.cameras.camera"):
         backend = build_yumi_backend(["left"], [False], {"left": (0, 0, 256, 256)},
                                      {"left": str(cal)}, str(video), "http://127.0.0.1:1",
-                                     camera_settings=text)
+                                     camera_settings=text, credentials_file="factory-default")
     backend.close()
     assert "camera_settings ignored: a video file" in caplog.text  # it reached the camera

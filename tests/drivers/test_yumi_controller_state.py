@@ -21,7 +21,9 @@ from drivers.yumi.controller_state import (
     ControllerState,
     problems,
     rapid_error,
+    rapid_of_task,
     refusal,
+    version_refusal,
 )
 from drivers.yumi.credentials import read_login
 
@@ -152,3 +154,55 @@ def test_motion_timeout_defaults_below_the_deadline() -> None:
     host = YumiHost(name="y", camera="0", controller_url="http://192.0.2.1", arms=arms,
                     deadline_s=8)
     assert host.motion_timeout_s == 6.0
+
+
+class Symbols:
+    """``get_rapid_variable`` of a controller holding ``values`` ("module/name", task);
+    anything else is RWS's no-such-symbol (an exception). Counts what was asked."""
+
+    def __init__(self, values: dict[tuple[str, str], str]) -> None:
+        self.values = values
+        self.asked: list[tuple[str, str]] = []
+
+    def get_rapid_variable(self, var: str, task: str) -> str:
+        self.asked.append((var, task))
+        return self.values[(var, task)]
+
+
+def test_the_tcp_speed_cap_is_read_and_a_faster_calibration_is_a_fault() -> None:
+    """tb_v_tcp_max (each task module's CONST, issue 43): a calibration's max_speed_mm_s
+    above it would have every program refused; unreadable (modules older than the cap):
+    nothing on the controller bounds a file's speed."""
+    rws = Symbols({("TestbedTask_L/tb_v_tcp_max", "T_ROB_L"): "150"})
+    assert rapid_of_task(rws, "T_ROB_L")["v_tcp_max"] == 150.0
+    assert rapid_of_task(rws, "T_ROB_R")["v_tcp_max"] is None
+    tasks = ["T_ROB_L", "T_ROB_R"]
+    rapid = _report()["rapid"]
+    capped = {t: {**rapid[t], "v_tcp_max": 150.0} for t in tasks}  # type: ignore[index]
+    assert problems(_report(rapid=capped), tasks, max_speed={"T_ROB_L": 150.0}) == []
+    assert problems(_report(rapid=capped), tasks, max_speed={"T_ROB_R": 400.0}) == [
+        "task T_ROB_R: the calibration's max_speed_mm_s 400 is above the controller's "
+        "tb_v_tcp_max 150 mm/s: our RAPID refuses every program; lower max_speed_mm_s to "
+        "150 or less"]
+    old = {**capped, "T_ROB_L": {**capped["T_ROB_L"], "v_tcp_max": None}}
+    assert problems(_report(rapid=old), tasks) == [
+        "task T_ROB_L: the controller's tb_v_tcp_max (the TCP speed cap, mm/s) cannot be "
+        "read: the task module is older than the cap; load robot/rapid/ from this checkout "
+        "(robot/README.md, 'Install')"]
+
+
+def test_the_driver_reads_every_tasks_rapid_version() -> None:
+    key = "TestbedMotion/TB_RAPID_VERSION"
+    good = {(key, "T_ROB_L"): str(RAPID_VERSION), (key, "T_ROB_R"): str(RAPID_VERSION)}
+    rws = Symbols(good)
+    assert version_refusal(rws, ["T_ROB_L", "T_ROB_R"]) is None
+    assert rws.asked == [(key, "T_ROB_L"), (key, "T_ROB_R")]  # both, every time
+    why = version_refusal(Symbols({**good, (key, "T_ROB_R"): "3"}), ["T_ROB_L", "T_ROB_R"])
+    assert why == (f"task T_ROB_R: TestbedMotion/TB_RAPID_VERSION is 3, this driver needs "
+                   f"{RAPID_VERSION}; load robot/rapid/ from this checkout (robot/README.md, "
+                   f"'Install')")
+    gone = Symbols({(key, "T_ROB_R"): str(RAPID_VERSION)})
+    why = version_refusal(gone, ["T_ROB_L", "T_ROB_R"])
+    assert why is not None and why.startswith("task T_ROB_L: TestbedMotion/TB_RAPID_VERSION "
+                                              "cannot be read")
+    assert version_refusal(Symbols({**good, (key, "T_ROB_L"): "x"}), ["T_ROB_L"]) is not None

@@ -27,6 +27,8 @@ from drivers.cameras.camera import VideoCaptureCamera
 from drivers.errors import BackendError
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.controllers import make_controller
+from drivers.yumi.credentials import FACTORY_DEFAULT, FACTORY_LOGIN
+from drivers.yumi.gate import calibration_gate_joints
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from testbed.lab.camera_model import arm_facts
@@ -141,7 +143,8 @@ def test_file_paths_expand_home_and_variables(tmp_path: Path,
 # --- the controller seam: one client, built from the URL and the login file -------------
 def test_make_controller_builds_the_rws_client(tmp_path: Path) -> None:
     pose = ArmPose("T_ROB_L", "ROB_L", (40, -90, 30, 0, 40, 0, 135), tool_z_mm=184.2)
-    ctrl = make_controller("http://127.0.0.1:1", {"left": pose})
+    ctrl = make_controller("http://127.0.0.1:1", {"left": pose},
+                           credentials_file=FACTORY_DEFAULT)  # the twin's: loopback
     assert isinstance(ctrl, RwsYumiController)
     with pytest.raises(BackendError, match=r"cannot read the arms' positions \(tool_pusher "
                                            r"in wobj0\) from the YuMi controller: .*refused"):
@@ -161,7 +164,7 @@ def test_make_controller_builds_the_rws_client(tmp_path: Path) -> None:
 
 # --- the backend, unchanged, on the hardware twin ----------------------------------------
 ROOT = Path(__file__).resolve().parents[2]
-SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 80.0, "max_speed_mm_s": 300.0,
+SPEEDS = {"z_push_mm": 10.0, "z_travel_mm": 80.0, "max_speed_mm_s": 150.0,
           "push_speed_mm_s": 100.0}
 
 
@@ -206,8 +209,9 @@ class Twin:
         xy = np.array([(x, y) for x in np.linspace(x0, x1, 9) for y in np.linspace(y0, y1, 9)])
         uv = self.project(np.c_[xy, np.full(len(xy), 40.0)])
         h, _ = cv2.findHomography(uv, xy)
-        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
-                **rest_pose(arm)}
+        cal = {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
+               **rest_pose(arm)}
+        return {**cal, "gate_joints_deg": calibration_gate_joints(arm, cal)}  # issue 43
 
     def canonical(self, arm: str) -> np.ndarray:
         """The cube's true centre in the arm's canonical crop frame."""
@@ -221,7 +225,8 @@ class Twin:
     def client(self) -> RwsYumiController:
         """The agent's controller client on this twin's RWS."""
         poses = {a: ArmCalibration.from_dict(self.calibration(a), a).pose for a in ARMS}
-        return RwsYumiController(self.controller_url, poses)  # type: ignore[arg-type]
+        return RwsYumiController(self.controller_url, poses,  # type: ignore[arg-type]
+                                 login=FACTORY_LOGIN)
 
     def fresh(self) -> None:
         """Both cubes back near their centres, both arms at rest (the lab hand)."""
@@ -304,7 +309,7 @@ def test_backend_observes_and_pushes_the_twin(twin: Twin, tmp_path: Path,
     crops = {a: tuple(twin.model["crops"][a]) for a in ("left", "right")}
     backend = open_retrying(lambda: build_yumi_backend(
         ["left", "right"], [False, True], crops, {a: f"$CALDIR/{a}.json" for a in crops},
-        twin.camera_url, twin.controller_url, seed=1))
+        twin.camera_url, twin.controller_url, seed=1, credentials_file=FACTORY_DEFAULT))
     try:
         views = backend.observe()
         for arm, v in views.items():
@@ -394,7 +399,8 @@ def test_calibration_mode_moves_the_tcp_shows_the_marker_and_saves(
         "yumi", arms=["left", "right"], mirror=[False, True], seed=0,
         crops={a: tuple(twin.model["crops"][a]) for a in ("left", "right")},
         calibrations={"left": "~/left.json", "right": files["right"]},
-        camera=twin.camera_url, controller_url=twin.controller_url, calibrating=["left"]))
+        camera=twin.camera_url, controller_url=twin.controller_url, calibrating=["left"],
+        credentials_file=FACTORY_DEFAULT))
     try:
         with pytest.raises(BackendError, match="arm left is being calibrated") as e:
             backend.observe()

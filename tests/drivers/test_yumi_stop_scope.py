@@ -19,6 +19,8 @@ from typing import Any
 import pytest
 
 from drivers.errors import BackendError
+from drivers.yumi.controller_state import RAPID_VERSION
+from drivers.yumi.credentials import FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer
@@ -37,10 +39,12 @@ def twin() -> Iterator[tuple[Irc5Controller, RwsYumiController]]:
     lock = threading.Lock()
     hook = TestbedRapid(cell, lock, YUMI_UNITS, pusher_length_mm=PUSHER_MM)
     ctrl = Irc5Controller(units=YUMI_UNITS, poses=hook.poses)
-    server = RwsServer(RwsService(ctrl, program=TestbedInstall(ctrl, hook))).start_thread()
+    install = TestbedInstall(ctrl, hook, version=RAPID_VERSION)  # what the driver expects
+    server = RwsServer(RwsService(ctrl, program=install)).start_thread()
     poses = {u.arm: ArmPose(u.task, u.name, tuple(hook.poses.joints(u)), tool_z_mm=PUSHER_MM)
              for u in YUMI_UNITS}
-    client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0)
+    client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0,
+                               login=FACTORY_LOGIN)
     try:
         yield ctrl, client
     finally:
@@ -61,7 +65,7 @@ def test_a_stop_with_none_of_our_programs_running_leaves_a_persons_program_runni
     time.sleep(0.2)
     assert execution(ctrl) == "running"
     with pytest.raises(BackendError, match="RAPID is running"):  # our push is refused
-        client.execute({"left": [Waypoint("move_j", (350.0, 200.0, 120.0), 200.0)]})
+        client.execute({"left": [Waypoint("move_j", (350.0, 200.0, 120.0), 150.0)]})
     assert execution(ctrl) == "running"
 
 
@@ -72,7 +76,7 @@ def test_a_stop_during_our_program_stops_it(
 
     def move() -> None:
         try:  # a long, slow line: seconds at 20 mm/s
-            client.execute({"left": [Waypoint("move_j", (350.0, 150.0, 120.0), 200.0),
+            client.execute({"left": [Waypoint("move_j", (350.0, 150.0, 120.0), 150.0),
                                      Waypoint("move_l", (350.0, 300.0, 120.0), 20.0)]})
         except BaseException as exc:
             failed.append(exc)

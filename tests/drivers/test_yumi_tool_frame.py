@@ -26,6 +26,7 @@ from abb_robot_client.rws import RWS
 from drivers.errors import BackendError
 from drivers.yumi.arm_calibration import provisional_calibration, tool_of
 from drivers.yumi.check_report import controller_report
+from drivers.yumi.credentials import FACTORY_DEFAULT, FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose
 from sim_twin.rws import Irc5Controller, RwsServer
@@ -72,7 +73,7 @@ def test_calibration_mode_takes_the_controllers_tool_and_calibrate_saves_it(
     path = tmp_path / "left.json"
     path.write_text(json.dumps({"task": "T_ROB_L",
                                 "rest_joints_deg": [40, -90, 30, 0, 40, 0, 135]}))
-    z = tool_of(str(path), "left", url, None)
+    z = tool_of(str(path), "left", url, FACTORY_DEFAULT)
     assert z == pytest.approx(MEASURED)
     assert provisional_calibration(str(path), "left", z).tool_z_mm == pytest.approx(MEASURED)
     with pytest.raises(BackendError, match="has no 'tool_z_mm'"):  # never the flange
@@ -80,7 +81,8 @@ def test_calibration_mode_takes_the_controllers_tool_and_calibrate_saves_it(
     # testbed calibrate: the fit saved with the controller's value, said so
     client = RwsYumiController(url, {"left": ArmPose("T_ROB_L", "ROB_L", (40, -90, 30, 0, 40,
                                                                           0, 135),
-                                                     tool_z_mm=MEASURED)})
+                                                     tool_z_mm=MEASURED)},
+                               login=FACTORY_LOGIN)
     fleet = SimpleNamespace(describe=lambda host: {"controller": client.describe()})
     said: list[str] = []
     saved = with_tool(fleet, SimpleNamespace(name="yumi-a"), "left",
@@ -95,10 +97,10 @@ def test_calibration_mode_takes_the_controllers_tool_and_calibrate_saves_it(
     assert kept["tool_z_mm"] == 184.2
     assert len(said) == 1 and said[0].startswith("FAULT yumi-a: the calibration's tool_z_mm "
                                                  "184.2 is not the controller's tool_pusher")
-    assert tool_of(str(tmp_path / "none.json"), "right", url, None) == pytest.approx(
+    assert tool_of(str(tmp_path / "none.json"), "right", url, FACTORY_DEFAULT) == pytest.approx(
         184.2)  # no file yet: the arm's task's (the right one untouched: the shipped value)
     path.write_text(json.dumps({"task": "T_ROB_L", "tool_z_mm": 184.2}))
-    assert tool_of(str(path), "left", url, None) is None
+    assert tool_of(str(path), "left", url, FACTORY_DEFAULT) is None
     client.close()
 
 
@@ -111,7 +113,7 @@ def test_testbed_check_faults_a_tool_z_mm_that_is_not_tool_pushers(
     set_tool(url, "T_ROB_R", calibrated)  # the right arm agrees: only the left is judged
     arms = {u.arm: ArmPose(u.task, u.name, tuple(poses.joints(u)), tool_z_mm=calibrated)
             for u in YUMI_UNITS}
-    client = RwsYumiController(url, arms)
+    client = RwsYumiController(url, arms, login=FACTORY_LOGIN)
     info = {"controller": client.describe(),
             "tool_z": {"T_ROB_L": calibrated, "T_ROB_R": calibrated}}
     lines, bad = controller_report("yumi-a", info)

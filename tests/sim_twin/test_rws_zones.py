@@ -1,8 +1,9 @@
 """The stationary world zones of OUR RAPID (``tb_zones``) as the twin plays them, driven by
 the UNCHANGED ABB client over HTTP against a real YumiTwinCell: a push planned past the
 zone box stops every arm when the pusher reaches the box's face (the truth there, the
-controller's error in the event log, no ``Done``), a target below the floor in another
-work object stops at the floor, travel above ``tb_zone_z`` outside the box is allowed,
+controller's error in the event log, no ``Done``), a target below the floor is refused
+(in another work object too) and a joint path that dips below it stops at the floor,
+travel above ``tb_zone_z`` outside the box is allowed,
 the arm moves away from the face again, and the zone constants read over RWS as the
 task modules declare them."""
 
@@ -15,7 +16,7 @@ from typing import Any
 
 import pytest
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
-from twin_rws import client, program, run
+from twin_rws import UNDER_SHOULDER_DEG, client, program, run
 
 from sim_twin.rws import Irc5Controller, RwsServer
 from sim_twin.rws.mechunits import YUMI_UNITS
@@ -113,7 +114,12 @@ def test_a_push_past_the_zone_box_stops_every_arm_at_its_face(twin: Any) -> None
     assert tcps(cell, lock)["left"] == pytest.approx((310, 210, 100), abs=1.0)
 
 
-def test_the_floor_zone_stops_a_target_below_it_in_another_work_object(twin: Any) -> None:
+def test_a_shifted_work_object_is_refused_and_the_floor_zone_stops_a_dip(twin: Any) -> None:
+    """A target below the floor is refused before any motion, in wobj0 and (since issue
+    43, our RAPID's version 5) in a work object 15 mm down, which used to pass the file's
+    check: every work object but wobj0's frames is refused. The floor zone still stops
+    what no file check sees: a joint move between two targets 2 mm above the floor whose
+    path dips below it stops on the floor."""
     c, _, cell, lock = twin(floor_z=30.0)
     low = mpe.wobjdata(False, True, "", mpe.pose([0, 0, -15], [1, 0, 0, 0]),
                        mpe.pose([0, 0, 0], [1, 0, 0, 0]))
@@ -121,11 +127,19 @@ def test_the_floor_zone_stops_a_target_below_it_in_another_work_object(twin: Any
     plain = run(c, {"T_ROB_L": program([("L", (400, 200, 20), 100)])})  # 20 < 30 in wobj0
     assert [(e.code, e.args[1]) for e in plain] == [(80001, "Target below the table")]
     assert tcps(cell, lock)["left"] == before  # refused by our RAPID before any motion
-    # 40 mm in a work object 15 mm down passes the file's check, the floor zone stops it
-    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 100), 500),
+    shifted = run(c, {"T_ROB_L": program([("J", (400, 200, 100), 500),
                                           ("L", (400, 200, 40), 100)], wobj=low)}, seqno=2)
-    assert [(e.code, e.args[1]) for e in entries] == [(WORLD_ZONE_CODE, "tb_wz_floor")]
-    assert tcps(cell, lock)["left"] == pytest.approx((400, 200, 30), abs=1.0)
+    assert [(e.code, e.args[1], e.args[3]) for e in shifted] == [
+        (80001, "Work object not supported", "uframe [[0,0,-15],[1,0,0,0]]")]
+    assert tcps(cell, lock)["left"] == before
+    # one arm angle under the shoulder for all three: the driver's plan turns it across
+    # the shoulder's singularity on the way down (twin_rws.UNDER_SHOULDER_DEG)
+    under = UNDER_SHOULDER_DEG["left"]
+    dips = run(c, {"T_ROB_L": program([("J", (480, 210, 100), 150, under),
+                                       ("L", (480, 210, 32), 100, under),
+                                       ("J", (310, 210, 32), 150, under)])}, seqno=3)
+    assert [(e.code, e.args[1]) for e in dips] == [(WORLD_ZONE_CODE, "tb_wz_floor")]
+    assert tcps(cell, lock)["left"][2] == pytest.approx(30, abs=1.0)
 
 
 def test_travel_above_the_zone_height_outside_the_box_is_allowed(twin: Any) -> None:

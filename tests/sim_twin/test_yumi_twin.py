@@ -232,7 +232,8 @@ def rapid_push(c: Any, cube: list[float]) -> Any:
     p = twin_rws.program([("J" if w["kind"] == "move_j" else "L", w["xyz_mm"],
                            w["speed_mm_s"]) for w in push_x(cube) if w["kind"] != "rest"])
     j = c.get_jointtarget("ROB_L")
-    p.MoveAbsJ(mpe.jointtarget(j.robax.tolist(), j.extax.tolist()), mpe.v200, mpe.fine)
+    p.MoveAbsJ(mpe.jointtarget(j.robax.tolist(), j.extax.tolist()),
+               mpe.speeddata(150, 100, 1000, 100), mpe.fine)  # within the caps
     return p
 
 
