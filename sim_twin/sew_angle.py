@@ -17,8 +17,8 @@ The points, on this project's model (``sim_twin.yumi_arms``): the shoulder is th
 axis 1 nearest axis 2, the wrist the point of axis 6 nearest axis 5, the elbow direction
 axis 3's. The reference direction is a controller setting (*Arm-Angle Reference
 Direction*, topic Motion, type Robot) whose value on the lab's YuMi is not known here:
-:data:`ARM_ANGLE_REFERENCE` assumes the base frame's z (up); docs/rws-checklist.md has
-the lab read it.
+:data:`ARM_ANGLE_REFERENCE` assumes z of the arm's own base frame (along axis 1);
+docs/rws-checklist.md has the lab read it.
 """
 
 from __future__ import annotations
@@ -34,9 +34,10 @@ from sim_twin.yumi_arms import _OFFSETS, ArmPose
 Mat = npt.NDArray[np.float64]
 
 ARM_ANGLE_REFERENCE: Final = (0.0, 0.0, 1.0)
-"""The controller's arm-angle reference direction in the robot's base frame (the cell's
-base frame): assumed up. A day-one reading (docs/rws-checklist.md); every arm angle the
-twin solves or reports follows it."""
+"""The controller's arm-angle reference direction in the arm's own base frame (its mount,
+z along axis 1): assumed z, as in the RobotStudio figures for the single-arm YuMi in its
+own frame. A day-one reading (docs/rws-checklist.md); every arm angle the twin solves or
+reports follows it."""
 
 
 def _nearest_on(pa: Mat, da: Mat, pb: Mat, db: Mat) -> Mat:
@@ -74,10 +75,11 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
                     ) -> tuple[Mat, Mat]:
     """Arm angles (N,: rad) of joint frames (N, 8, 4, 4, ``ArmModel.frames_batch``) and
     their gradients (N, 7: rad per rad of each chain joint), the inverse kinematics'
-    extra row: psi = atan2(-(e x (e x r)).h, -(e x r).h), e the unit shoulder-to-wrist
+    extra row (``reference`` in the arm's own base frame, ``frames[:, 0]``, fixed as the
+    joints turn): psi = atan2(-(e x (e x r)).h, -(e x r).h), e the unit shoulder-to-wrist
     vector, r the reference direction, h axis 3's direction."""
     f = np.asarray(frames, dtype=np.float64)
-    r = np.asarray(reference, dtype=np.float64)
+    r = f[:, 0, :3, :3] @ np.asarray(reference, dtype=np.float64)  # the mount's frame
     s = (f[:, 0] @ _SHOULDER)[:, :3]
     w = (f[:, 6] @ _WRIST)[:, :3]
     h = f[:, _ELBOW_JOINT, :3, 2]
@@ -94,7 +96,7 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
     dh[:, _ELBOW_JOINT:] = 0.0  # axis 3's direction moves with the joints before it only
     de = (dw - e[:, None, :] * np.einsum("nki,ni->nk", dw, e)[:, :, None]) / \
         length[:, None, None]
-    da = _cross(de, np.broadcast_to(r, de.shape))
+    da = _cross(de, np.broadcast_to(r[:, None, :], de.shape))
     db = _cross(de, np.broadcast_to(a[:, None, :], de.shape)) + \
         _cross(np.broadcast_to(e[:, None, :], da.shape), da)
     dx = -(np.einsum("nki,ni->nk", da, h) + np.einsum("ni,nki->nk", a, dh))

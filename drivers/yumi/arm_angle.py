@@ -45,12 +45,17 @@ __all__ = ["ARM_ANGLE_REFERENCE", "ARM_JOINTS", "Followed", "angle_step", "arm_a
 Mat = npt.NDArray[np.float64]
 
 ARM_ANGLE_REFERENCE: Final = (0.0, 0.0, 1.0)
-"""The controller's arm-angle reference direction in the robot's base frame: ASSUMED up
-(the base frame's z). It is a system parameter, *Arm-Angle Reference Direction*
-(Controller > Configuration > Motion > Robot, one per arm), whose value on the lab's
-YuMi is a day-one reading (docs/rws-checklist.md; docs/notes/rws.md): another direction
-turns every arm angle the driver sends, and the controller would solve its robtargets
-into other elbows than the ones planned. The twin assumes the same."""
+"""The controller's arm-angle reference direction in the arm's own base frame (its mount
+on the body, z along axis 1): ASSUMED z, along axis 1, as in Elias and Wen's RobotStudio
+figures for the single-arm YuMi in its own frame. It is a system parameter, *Arm-Angle
+Reference Direction* (Controller > Configuration > Motion > Robot, one per arm), whose
+value on the lab's YuMi is a day-one reading (docs/rws-checklist.md; docs/notes/rws.md):
+another direction turns every arm angle the driver sends, and the controller would solve
+its robtargets into other elbows than the ones planned. The twin assumes the same. Why
+not the body's up: over the table the shoulder-to-wrist line comes within 8 deg of the
+vertical (near (160, +-125) with the pusher down), where an arm angle measured from up
+is ill-defined and turns by a hundred degrees across the box; it stays 50 to 88 deg from
+axis 1 there (docs/notes/rws.md)."""
 ARM_ANGLE_WEIGHT_MM: Final = 250.0
 """Millimetres of position error one radian of arm-angle error is worth in the solvers
 (about the elbow's distance from the shoulder-to-wrist line: a radian of it moves the
@@ -73,7 +78,6 @@ SINGULAR_SIGMA: Final = 0.005
 parameterization (the wrist on the shoulder's reference line), where the arm cannot hold
 both the tip and the arm angle."""
 REACH_SCALE_MM: Final = 559.0
-_REFERENCE: Final = np.asarray(ARM_ANGLE_REFERENCE, dtype=np.float64)
 _DELTA_RAD: Final = 1e-5
 """The joint step of the arm angle's numerical derivative (central differences)."""
 
@@ -128,12 +132,19 @@ def _points(pose: Pose) -> tuple[Mat, Mat, Mat]:
     return (f[0] @ _SHOULDER)[:3], (f[6] @ _WRIST)[:3], f[_AXIS_3][:3, 2]
 
 
+def _reference(pose: Pose, reference: Sequence[float]) -> Mat:
+    """``reference`` (in the arm's own base frame, ``frames[0]``: the mount, before axis
+    1 turns) in the body's base frame."""
+    return pose.frames[0][:3, :3] @ np.asarray(reference, dtype=np.float64)
+
+
 def arm_angle_deg(pose: Pose, reference: Sequence[float] = ARM_ANGLE_REFERENCE) -> float:
     """The arm angle (deg, in (-180, 180]) of ``pose``'s joints: the ``eax_a`` the
-    controller takes and reports in a robtarget for them."""
+    controller takes and reports in a robtarget for them (``reference`` in the arm's own
+    base frame)."""
     s, w, h = _points(pose)
-    r = np.asarray(reference, dtype=np.float64)
-    return math.degrees(float(_angles(s[None], w[None], h[None], r)[0]))
+    return math.degrees(float(_angles(s[None], w[None], h[None],
+                                      _reference(pose, reference))[0]))
 
 
 _TURN: Final = np.array([_DELTA_RAD, -_DELTA_RAD] * 7)
@@ -148,7 +159,7 @@ def arm_angle_gradient(pose: Pose, reference: Sequence[float] = ARM_ANGLE_REFERE
     3, axis 3's direction) about joint k's axis (Rodrigues' formula); the shoulder lies
     on axis 1, before every joint."""
     s, w, h = _points(pose)
-    r = np.asarray(reference, dtype=np.float64)
+    r = _reference(pose, reference)
     o = pose.frames[_JOINT, :3, 3]  # (14, 3): each joint's axis, twice
     z = pose.frames[_JOINT, :3, 2]
     v = w[None, :] - o
@@ -193,7 +204,8 @@ on a SingArea Wrist line (:func:`hold_tip`)."""
 
 def _angle_of(pose: Pose) -> float:
     s, w, h = _points(pose)
-    return float(_angles(s[None], w[None], h[None], _REFERENCE)[0])
+    return float(_angles(s[None], w[None], h[None],
+                         _reference(pose, ARM_ANGLE_REFERENCE))[0])
 
 
 def _wrapped_rad(a: float) -> float:

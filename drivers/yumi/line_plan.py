@@ -128,7 +128,7 @@ def _tries(tool: ArmTool, start: Chain, tcp_mm: Chain, ik_angle: float,
                    key=lambda a: abs(angle_step(psi0, a)))
     natural = natural_angle(tool, start, tcp_mm)
     out: list[tuple[float, Chain | None]] = []
-    for angle, before in (*held, *([] if natural is None else [(natural, None)]),
+    for angle, before in (*held, (psi0, None), *([] if natural is None else [(natural, None)]),
                           *((a, None) for a in turns)):
         psi = round((angle + 180.0) % 360.0 - 180.0, 6)
         if before is None and any(b is None and abs(angle_step(psi, t)) < 1.0
@@ -280,7 +280,7 @@ def _plan(tool: ArmTool, waypoints: tuple[Waypoint, ...], rest_abb: Sequence[flo
         furthest.append((out, f"{where}: {sol.reason}"))
         return None
     if w.kind == "move_j" or here is None:
-        q = tuple(pose.chain_deg)
+        q = tuple(pose.chain_deg) if here is None else _nearest_flip(tool, pose.chain_deg, here)
         return _plan(tool, waypoints, rest_abb, k + 1, q, (*held, _held(tool, q)),
                      [*out, PlannedTarget(q, arm_angle_deg(pose))], furthest, budget)
     after = _next_joints(tool, waypoints, k + 1, rest_abb)
@@ -301,3 +301,22 @@ def _plan(tool: ArmTool, waypoints: tuple[Waypoint, ...], rest_abb: Sequence[flo
         furthest.append((out, f"no straight line to {where} the arm can run: "
                               f"{why[0] if why else 'no arm angle tried'}"))
     return None
+
+
+def _nearest_flip(tool: ArmTool, q: Sequence[float], here: Chain) -> Chain:
+    """Of ``q`` and its wrist turned over (axis 4 half a turn, axis 5 negated, axis 6 half
+    a turn: the same flange pose and arm angle), within the limits, the one nearest
+    ``here`` (the largest joint turn): where a MoveJ to the robtarget ends, ConfJ Off
+    ("the closest configuration"), as the twin takes it (``sim_twin/rws/arm_supervision.py``).
+    Over the table the pusher points down near the wrist's singularity (axis 5 near 0),
+    where the two are a few degrees of axis 5 apart and the inverse kinematics' descent
+    may end in either."""
+    m = tool.model
+    base = tuple(float(v) for v in q)
+    out = [base]
+    for d4 in (180.0, -180.0):
+        for d6 in (180.0, -180.0):
+            f = (*base[:4], base[4] + d4, -base[5], base[6] + d6)
+            if m.limit_excess(f) is None:
+                out.append(f)
+    return min(out, key=lambda c: far(c, here))

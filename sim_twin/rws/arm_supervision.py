@@ -406,10 +406,14 @@ class ArmSupervisor:
                 lines: Sequence[tuple[Segment, float, Mat | None]] = (),
                 rot: Mat | None = None) -> list[float] | ArmStop:
         """A joint move's end: in ``conf`` (ConfJ on, the most dexterous such solution),
-        else (ConfJ off, "the closest configuration") the most dexterous solution from
-        which the MoveLs that follow (``lines``) run: the configuration a lab that taught
-        its arm angle and rest pose well gets; the twin looks ahead for it. The arm's
-        present joints seed the search too (a target its own joints produced is found)."""
+        else (ConfJ off, "the closest configuration": a MoveJ "uses the least amount of
+        axis rotation") the solution nearest the arm's joints, or, when the MoveLs that
+        follow (``lines``) do not run from it, the most dexterous from which they do: the
+        configuration a lab that taught its arm angle and rest pose well gets; the twin
+        looks ahead for it. The target's orientation is held exactly (the round pusher
+        is not let turn about its axis at a target: the controller reaches the
+        robtarget's quaternion). The arm's present joints seed the search too (a target
+        its own joints produced is found)."""
         flange = flange_at(xyz, self.tool_mm, rot)
         want = conf if conf_on else None
         key = (arm, tuple(float(v) for v in xyz), float(angle), repr(want), tuple(current),
@@ -417,13 +421,14 @@ class ArmSupervisor:
         s = self._solved.get(key)
         if s is None:
             s = solve(self.models[arm], flange, angle, want,  # type: ignore[arg-type]
-                      current=None, free_yaw=self.free_yaw, seeds=[current], prefer=current)
+                      current=None if conf_on else current, free_yaw=False,
+                      seeds=[current], prefer=current)
             if len(self._solved) >= SOLVED_KEPT:
                 del self._solved[next(iter(self._solved))]
             self._solved[key] = s
         if s.pose is not None and not conf_on and lines and \
                 not self._lines_run(arm, lines, list(s.pose.chain_deg)):
-            for cand in ranked(self.models[arm], flange, angle, self.free_yaw, LOOKAHEAD,
+            for cand in ranked(self.models[arm], flange, angle, False, LOOKAHEAD,
                                prefer=current):
                 if self._lines_run(arm, lines, list(cand.chain_deg)):
                     return list(cand.chain_deg)
@@ -503,12 +508,12 @@ class ArmSupervisor:
         end_flange = flange_at(seg.b, self.tool_mm, r1)
         # the end: the descent from the start's joints (the solution they continue to, the
         # closest but for a rare one), else the search's closest within the limits
-        reach, res = _descend(m, end_flange, q, angle, free_yaw=True)
+        reach, res = _descend(m, end_flange, q, angle, free_yaw=False)
         if res <= REACH_TOL_MM and m.limit_violation(reach.chain_deg) is None:
             end = list(reach.chain_deg)
         else:
             flips = [[*q[:4], q[4] + d, -q[5], q[6] + d] for d in (180.0, -180.0)]
-            s = solve(m, end_flange, angle, None, current=q, free_yaw=True, seeds=[q, *flips])
+            s = solve(m, end_flange, angle, None, current=q, free_yaw=False, seeds=[q, *flips])
             if s.pose is None:
                 return False
             end = list(s.pose.chain_deg)

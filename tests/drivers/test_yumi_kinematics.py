@@ -121,7 +121,7 @@ def test_the_drivers_arm_angle_is_robotstudios_and_the_twins() -> None:
 
     assert ARM_ANGLE_REFERENCE == TWIN_REFERENCE == (0.0, 0.0, 1.0)
     m = arm("left")
-    up, their_y = m.base[:3, :3] @ [0.0, 0.0, 1.0], m.base[:3, :3] @ [0.0, -1.0, 0.0]
+    up, their_y = (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)  # in the arm's own frame
     errors = sorted(_turn(arm_angle_deg(m.pose(q), ref), want)
                     for q, along_z, along_y in ROBOTSTUDIO
                     for ref, want in ((up, along_z), (their_y, along_y)))

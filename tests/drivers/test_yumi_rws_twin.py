@@ -74,9 +74,16 @@ def tcps(cell: YumiTwinCell, lock: threading.Lock) -> dict[str, tuple[float, flo
         return cell.tcp_xyz()
 
 
+HIGH_MM = 120.0
+"""Where :func:`to`'s joint move ends: well above the zones' 80 mm (from rest a joint move
+to a point at 80 mm swings the pusher's tip through the zone outside the table box on
+the way: the driver's own programs leave rest by MoveAbsJ to the measured gate joints)."""
+
+
 def to(xyz: tuple[float, float, float]) -> list[Waypoint]:
     above = (xyz[0], xyz[1], xyz[2] + 40.0)
-    return [Waypoint("move_j", above, 150.0, fine=False), Waypoint("move_l", xyz, 150.0)]
+    return [Waypoint("move_j", (xyz[0], xyz[1], HIGH_MM), 150.0, fine=False),
+            Waypoint("move_l", above, 150.0), Waypoint("move_l", xyz, 150.0)]
 
 
 def test_a_two_arm_step_moves_each_arm_to_its_own_target(yumi: Any) -> None:
@@ -147,7 +154,7 @@ def test_a_target_below_the_table_is_refused_before_any_motion(yumi: Any) -> Non
     before = tcps(cell, lock)
     with pytest.raises(BackendError, match=r"^YuMi controller: event log 80001 'Testbed "
                                            r"Motion Failed': Target below the table; "
-                                           r"RAMDISK:/testbed_T_ROB_R.bin; MoveL cmd_num 2: "
+                                           r"RAMDISK:/testbed_T_ROB_R.bin; MoveL cmd_num 3: "
                                            r"z -5 mm"):
         client.execute({"left": to(LEFT), "right": to((400.0, -200.0, -5.0))})
     got = tcps(cell, lock)
@@ -344,7 +351,7 @@ def test_an_arm_at_an_unknown_pose_is_refused_before_anything_is_sent(
 
 
 @pytest.mark.slow
-def test_a_calibration_grid_over_the_shipped_box_reaches_every_point_but_its_inner_near_corner(
+def test_a_calibration_grid_over_the_shipped_box_reaches_every_point(
         yumi: Any, tmp_path: Path) -> None:
     """Issue 35: ``testbed calibrate``'s 5x4 grid over the right arm's shipped box, as the
     rehearsal runs it. With the pusher down the wrist passes near its singularity over
@@ -354,11 +361,10 @@ def test_a_calibration_grid_over_the_shipped_box_reaches_every_point_but_its_inn
     on the way back from the 16th. Back the way it came, every point is reached.
 
     Issue 43: each robtarget carries an arm angle the driver planned so that the line to
-    it runs (drivers/yumi/line_plan.py), and the twin holds it. The box's inner near
-    corner is the exception: no line from the gate reaches it holding an evenly turned
-    arm angle (the nearest solution there is past axis 2's or 7's limit, at every arm
-    angle: drivers/yumi/layout_check.py FAULTs the corner), so the driver refuses that
-    point before anything moves, names it, and goes on with the next."""
+    it runs (drivers/yumi/line_plan.py), and the twin holds it: every point of the
+    shipped box (its inner edge at ``INNER_EDGE_MM``, testbed/lab/camera_model.py) is
+    reached. A point the driver could not plan would be refused before anything moves,
+    named, and the grid would go on with the next."""
     from sim_twin.yumi_geometry import workspace_mm
     from testbed.lab.calibrate import GRID_INSET_MM
     from testbed.lab.camera_model import push_box
@@ -383,7 +389,7 @@ def test_a_calibration_grid_over_the_shipped_box_reaches_every_point_but_its_inn
             refused.append((round(x), round(y)))
             continue
         assert got == pytest.approx((x, y, 10.0), abs=1.0)
-    assert refused == [(160, -85)], refused  # the inner near corner (150, -75), inset
+    assert refused == [], refused
     reached = [p for p in points if (round(p[0]), round(p[1])) not in refused]
     cmds = motion.last_run["T_ROB_R"].program.commands  # the way back: up to travel height
     assert list(cmds[0].to_point.trans) == pytest.approx([*reached[-2], 80.0], abs=0.05)
