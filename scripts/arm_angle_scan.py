@@ -13,6 +13,14 @@ arm angle (reference as ``drivers/yumi/arm_angle.py`` has it).
 51 points (5 x 5 over the shipped left box at z 10 and 80, and the gate) the left arm
 reaches holding that arm angle with at least 10 deg to every joint limit and the smallest
 singular value of the tip's and the arm angle's Jacobian at least 0.05.
+
+``python scripts/arm_angle_scan.py programs SIDE PSI N``: the redundancy resolved by one
+arm angle ``PSI`` held everywhere (the design docs/notes/auto-day-one.md proposes): the
+gate solved at it, then N push programs to random points of the shipped table box (gate
+-> above the point at 80 mm -> down to 10 -> up -> back to the gate), every line run in
+the driver's model at that arm angle with 3 deg to every limit; how many run, the most a
+joint of axes 1, 2, 7, 3 turns on one leg, and how far the way back ends from the gate
+joints (the correction joint move that would follow).
 """
 
 from __future__ import annotations
@@ -76,5 +84,59 @@ def hold_table() -> None:
         print(f"arm angle {psi:4d}: {good} of {len(pts)}; missed {missed[:4]}")
 
 
+def held_programs(side: str, psi: float, n: int) -> None:
+    from drivers.yumi.wrist_line import line_end, wrist_line
+    from sim_twin.yumi_geometry import workspace_mm
+    from testbed.lab.camera_model import push_box
+
+    sign = 1.0 if side == "left" else -1.0
+    tool = ArmTool(side, PUSHER_MM, sign * 130.0)
+    m = tool.model
+    gate = (310.0, sign * 278.0, 100.0)
+    first = tool.solve(gate).pose
+    assert first is not None
+    best = None
+    for seed in [list(first.chain_deg)] + [list(s) for s in _seeds(m, sign * 130.0, None)[:8]]:
+        got = solve_with_arm_angle(m, _flange(tool, gate, tool.rotation), psi, seed, iters=80)
+        if got is not None and m.limit_excess(got.chain_deg) is None:
+            room = m.limit_room(got.chain_deg)[1]
+            if best is None or room > best[0]:
+                best = (room, tuple(got.chain_deg))
+    assert best is not None, "the gate has no solution at this arm angle"
+    q0 = best[1]
+    print(f"gate joints {np.round(q0, 1)} ({best[0]:.1f} deg to the nearest limit)")
+    box = push_box(workspace_mm(side))
+    rng = np.random.default_rng(3)
+    ran, travel, back, fails = 0, 0.0, 0.0, []
+    for _ in range(n):
+        x, y = float(rng.uniform(box[0], box[2])), float(rng.uniform(box[1], box[3]))
+        q, err, leg = q0, None, 0.0
+        for p in ((x, y, 80.0), (x, y, 10.0), (x, y, 80.0), gate):
+            end = line_end(tool, q, p, psi)
+            if end is None:
+                err = f"no end at {p}"
+                break
+            samples, why = wrist_line(tool, q, end, psi, 3.0, 0.01)
+            if why:
+                err = f"{p}: {why}"
+                break
+            path = np.asarray([q, *samples])[:, :4]
+            leg = max(leg, float(np.abs(np.diff(path, axis=0)).sum(axis=0).max()))
+            q = tuple(samples[-1]) if samples else end
+        if err:
+            fails.append(((round(x), round(y)), err))
+            continue
+        ran += 1
+        travel = max(travel, leg)
+        back = max(back, max(abs(a - b) for a, b in zip(q, q0, strict=True)))
+    print(f"{side} arm angle {psi:g}: {ran}/{n} programs run; the most a joint turns on one "
+          f"leg {travel:.1f} deg; the way back ends {back:.2f} deg from the gate joints")
+    for f in fails[:5]:
+        print("  stops:", f)
+
+
 if __name__ == "__main__":
-    {"reference": reference_table, "hold": hold_table}[sys.argv[1]]()
+    if sys.argv[1] == "programs":
+        held_programs(sys.argv[2], float(sys.argv[3]), int(sys.argv[4]))
+    else:
+        {"reference": reference_table, "hold": hold_table}[sys.argv[1]]()
