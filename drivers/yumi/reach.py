@@ -80,10 +80,48 @@ def _solve(tool: ArmTool, tcp_mm: tuple[float, ...], current: tuple[float, ...] 
            ) -> Solution:
     sol = solve_down(tool.model, tcp_mm, tool.tool_z_mm, tool.arm_angle_deg, tool.rotation,
                      current)
+    psi = HELD_ARM_ANGLE_DEG.get(tool.side)
+    if psi is not None:
+        sol = _held(tool, tcp_mm, current, sol, psi)
     for pose in (sol.pose, sol.near):
         if pose is not None:
             pose.frames.setflags(write=False)
     return sol
+
+
+HELD_ARM_ANGLE_DEG: Final = {"left": -40.0, "right": 40.0}
+"""EXPERIMENT (issue 43, docs/notes/auto-day-one.md): the redundancy resolved by one arm
+angle held everywhere, not axis 7 (scripts/arm_angle_scan.py programs)."""
+
+
+def _held(tool: ArmTool, tcp_mm: tuple[float, ...], current: tuple[float, ...] | None,
+          first: Solution, psi: float) -> Solution:
+    """The solution of ``tcp_mm`` at the arm angle ``psi`` nearest ``current`` (else with
+    the most room), seeded from axis 7's solution and the generic seeds."""
+    from drivers.yumi.arm_angle import solve_with_arm_angle
+    from drivers.yumi.irb14000_ik import _seeds
+
+    m = tool.model
+    f = np.eye(4)
+    f[:3, :3] = tool.rotation
+    f[:3, 3] = np.asarray(tcp_mm, dtype=np.float64) - tool.rotation[:, 2] * tool.tool_z_mm
+    seeds = [list(p.chain_deg) for p in (first.pose, first.near) if p is not None]
+    seeds += ([list(current)] if current is not None else [])
+    seeds += [list(v) for v in _seeds(m, tool.arm_angle_deg, None)[:8]]
+    best: tuple[tuple[bool, float], Pose] | None = None
+    for seed in seeds:
+        got = solve_with_arm_angle(m, f, psi, seed, iters=80)
+        if got is None or m.limit_excess(got.chain_deg) is not None:
+            continue
+        room = m.limit_room(got.chain_deg)[1]
+        near = -max(abs(a - b) for a, b in zip(got.chain_deg, current, strict=True)) \
+            if current is not None else room
+        key = (room >= 3.0, near)
+        if best is None or key > best[0]:
+            best = (key, got)
+    if best is None:
+        return Solution(None, "limit", f"no solution at arm angle {psi:g} within the limits")
+    return Solution(best[1])
 
 
 def reach_margin(tool: ArmTool, tcp_mm: Sequence[float], pose: Pose,
