@@ -8,9 +8,10 @@ refuse (:mod:`sim_twin.rws.arm_supervision` names the controller's errors), and 
 links' distance to each other and to the table along every path.
 
 Where the numbers come from: each arm is a 7-axis chain, ABB's axis order along it being
-1, 2, 7, 3, 4, 5, 6 (axis 7, the "arm angle", is the third joint). The joint origins
-(translation mm, roll-pitch-yaw rad, each joint turning about its own z) and each arm's
-base on the body are the public robot description of the IRB 14000
+1, 2, 7, 3, 4, 5, 6 (axis 7 is the third joint; a jointtarget's ``eax_a`` is its value, a
+robtarget's ``eax_a`` is ABB's arm angle, another number: :mod:`sim_twin.sew_angle`). The
+joint origins (translation mm, roll-pitch-yaw rad, each joint turning about its own z) and
+each arm's base on the body are the public robot description of the IRB 14000
 (OrebroUniversity/yumi, ``yumi_description/urdf/yumi.urdf``: ``yumi_joint_1_l`` at
 (53.55, 72.5, 414.92) mm, rpy (0.9781, -0.5716, 2.3180), the right arm mirrored); the
 link lengths agree with ABB's published modified Denavit-Hartenberg parameters of the

@@ -1,14 +1,17 @@
 """Inverse kinematics of a twin YuMi arm, as its controller solves a robtarget.
 
 Why: a robtarget is a TCP pose, a configuration (``confdata``: the quadrants of axes 1, 4
-and 6) and, on a YuMi, the arm angle (axis 7, ``extax.eax_a``). The controller finds the
-joint angles that put the tool there with axis 7 at that angle, in that configuration,
-and refuses a target it cannot reach, past a joint limit, or reachable only in another
-configuration. The twin does the same here, so the rehearsal refuses what the robot would.
+and 6) and, on a YuMi, the arm angle (``extax.eax_a``: ABB's shoulder-elbow-wrist angle,
+:mod:`sim_twin.sew_angle`; not axis 7's value, which a jointtarget's ``eax_a`` holds).
+The controller finds the seven joint angles that put the tool there with the elbow at
+that arm angle, in that configuration, and refuses a target it cannot reach, past a joint
+limit, or reachable only in another configuration. The twin does the same here, so the
+rehearsal refuses what the robot would: the arm angle is held exactly, never eased.
 
-The solver: axis 7 fixed at the arm angle, the other six found by damped least squares on
-the flange pose (position mm, orientation weighted ``ROT_WEIGHT_MM`` mm per radian), from
-the arm's current joints and from a seed in the commanded configuration's quadrants.
+The solver: all seven joints by damped least squares on the flange pose (position mm,
+orientation weighted ``ROT_WEIGHT_MM`` mm per radian) and the arm angle (weighted
+``ARM_ANGLE_WEIGHT_MM`` mm per radian), from the arm's current joints and from seeds in
+the commanded configuration's quadrants.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from sim_twin.sew_angle import arm_angle_batch
 from sim_twin.yumi_arms import CHAIN_AXES, ArmModel, ArmPose
 
 Mat = npt.NDArray[np.float64]
@@ -29,6 +33,11 @@ POS_TOL_MM: Final = 0.01
 ROT_TOL_RAD: Final = 1e-4
 REACH_TOL_MM: Final = 0.5
 """A best residual above this is "out of reach"."""
+ARM_ANGLE_WEIGHT_MM: Final = 200.0
+"""The arm angle's error counts this many mm per radian in a residual (as the tool's
+orientation does): 0.5 mm of residual is 0.14 deg of arm angle."""
+ARM_ANGLE_TOL_RAD: Final = 1e-4
+"""A solution holds the arm angle within this (0.006 deg)."""
 SINGULAR_SIGMA: Final = 0.005
 """The smallest singular value of the scaled Jacobian (per radian, positions over the
 arm's reach of 560 mm) below which a pose is "close to singularity": about a tenth of a
@@ -38,7 +47,8 @@ a line near one and stops it (50026) only this close, or when the line passes th
 TIE: Final = 1e-6
 """Two solutions whose scores (dexterity, or the largest joint difference in degrees)
 differ by less are equally good to :func:`_pick`: rounding, not the arm."""
-_FREE: Final = (0, 1, 3, 4, 5, 6)  # chain indices solved for (2: axis 7, the arm angle)
+ALL: Final = (0, 1, 2, 3, 4, 5, 6)
+"""Chain indices of the seven joints, all solved for against the pose and the arm angle."""
 
 
 @dataclass(frozen=True)
@@ -111,44 +121,58 @@ def _errors(frames: Mat, flange: Mat, free_yaw: bool) -> tuple[Mat, Mat, Mat | N
     return ep, er, keep
 
 
-def descend_batch(model: ArmModel, flange: Mat, seeds: npt.ArrayLike, iters: int = 80,
-                  free_yaw: bool = False, joints: Sequence[int] = (0, 1, 3, 4, 5, 6)
-                  ) -> tuple[Mat, Mat]:
-    """Damped least squares from every seed (N, 7 chain deg) at once, moving ``joints``
-    (default: all but axis 7, held at the arm angle): the angles reached (N, 7) and their
-    residuals (N,: mm, the orientation weighted ``ROT_WEIGHT_MM`` per radian). Each seed
-    keeps its own damping and stops once within the tolerances: the same descent as one
-    seed at a time, a broad search costing one pass instead of one per seed."""
-    free = list(joints)
+def _angle_error(frames: Mat, want_rad: float) -> tuple[Mat, Mat]:
+    """The arm angle's error (N,: rad, the short way round) of joint frames (N, 8, 4, 4)
+    towards ``want_rad``, and its gradient (N, 7)."""
+    psi, grad = arm_angle_batch(frames)
+    return (want_rad - psi + math.pi) % (2.0 * math.pi) - math.pi, grad
+
+
+def descend_batch(model: ArmModel, flange: Mat, seeds: npt.ArrayLike, arm_angle_deg: float,
+                  iters: int = 80, free_yaw: bool = False) -> tuple[Mat, Mat]:
+    """Damped least squares from every seed (N, 7 chain deg) at once, all seven joints
+    moving, towards the flange pose and the arm angle ``arm_angle_deg``: the angles
+    reached (N, 7) and their residuals (N,: mm, the orientation and the arm angle
+    weighted ``ROT_WEIGHT_MM`` and ``ARM_ANGLE_WEIGHT_MM`` per radian). Each seed keeps
+    its own damping and stops once within the tolerances: the same descent as one seed
+    at a time, a broad search costing one pass instead of one per seed."""
+    want = math.radians(arm_angle_deg)
     q = np.array(seeds, dtype=np.float64).reshape(-1, 7)
     n = q.shape[0]
     lam = np.ones(n)
     frames = model.frames_batch(q)
     ep, er, keep = _errors(frames[:, 7], flange, free_yaw)
-    res = np.linalg.norm(ep, axis=1) + np.linalg.norm(er, axis=1) * ROT_WEIGHT_MM
+    ea, grad = _angle_error(frames, want)
+
+    def residual(ep: Mat, er: Mat, ea: Mat) -> Mat:
+        return np.linalg.norm(ep, axis=1) + np.linalg.norm(er, axis=1) * ROT_WEIGHT_MM + \
+            np.abs(ea) * ARM_ANGLE_WEIGHT_MM
+
+    res = residual(ep, er, ea)
     for _ in range(iters):
         live = (np.linalg.norm(ep, axis=1) >= POS_TOL_MM) | \
-            (np.linalg.norm(er, axis=1) >= ROT_TOL_RAD)
+            (np.linalg.norm(er, axis=1) >= ROT_TOL_RAD) | (np.abs(ea) >= ARM_ANGLE_TOL_RAD)
         if not live.any():
             break
         z, o = frames[:, :7, :3, 2], frames[:, :7, :3, 3]
         p = frames[:, 7, :3, 3]
         jp = _cross(z, p[:, None, :] - o)  # (N, 7, 3)
-        j = np.concatenate([np.swapaxes(jp, 1, 2), np.swapaxes(z, 1, 2)], axis=1)[:, :, free]
-        rot_rows = j[:, 3:] if keep is None else keep @ j[:, 3:]
-        j = np.concatenate([j[:, :3], rot_rows * ROT_WEIGHT_MM], axis=1)
-        e = np.concatenate([ep, er * ROT_WEIGHT_MM], axis=1)
-        a = j @ np.swapaxes(j, 1, 2) + (lam * lam)[:, None, None] * np.eye(6)
+        rot_rows = np.swapaxes(z, 1, 2) if keep is None else keep @ np.swapaxes(z, 1, 2)
+        j = np.concatenate([np.swapaxes(jp, 1, 2), rot_rows * ROT_WEIGHT_MM,
+                            grad[:, None, :] * ARM_ANGLE_WEIGHT_MM], axis=1)  # (N, 7, 7)
+        e = np.concatenate([ep, er * ROT_WEIGHT_MM, ea[:, None] * ARM_ANGLE_WEIGHT_MM], axis=1)
+        a = j @ np.swapaxes(j, 1, 2) + (lam * lam)[:, None, None] * np.eye(7)
         x = np.linalg.solve(a, e[:, :, None])[:, :, 0]
         step = (np.swapaxes(j, 1, 2) @ x[:, :, None])[:, :, 0]
-        trial = q.copy()
-        trial[:, free] += np.degrees(np.clip(step, -0.3, 0.3))
+        trial = q + np.degrees(np.clip(step, -0.3, 0.3))
         tframes = model.frames_batch(trial)
         tep, ter, tkeep = _errors(tframes[:, 7], flange, free_yaw)
-        tres = np.linalg.norm(tep, axis=1) + np.linalg.norm(ter, axis=1) * ROT_WEIGHT_MM
+        tea, tgrad = _angle_error(tframes, want)
+        tres = residual(tep, ter, tea)
         ok = live & (tres < res)
         q[ok], frames[ok], ep[ok], er[ok], res[ok] = trial[ok], tframes[ok], tep[ok], \
             ter[ok], tres[ok]
+        ea[ok], grad[ok] = tea[ok], tgrad[ok]
         if keep is not None and tkeep is not None:
             keep[ok] = tkeep[ok]
         lam = np.where(ok, np.maximum(lam * 0.5, 1e-3),
@@ -156,44 +180,45 @@ def descend_batch(model: ArmModel, flange: Mat, seeds: npt.ArrayLike, iters: int
     return q, res
 
 
-def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], iters: int = 80,
-             free_yaw: bool = False, joints: Sequence[int] = (0, 1, 3, 4, 5, 6)
-             ) -> tuple[ArmPose, float]:
+def _descend(model: ArmModel, flange: Mat, seed: Sequence[float], arm_angle_deg: float,
+             iters: int = 80, free_yaw: bool = False) -> tuple[ArmPose, float]:
     """:func:`descend_batch` from one seed: the pose and its residual (mm)."""
-    q, res = descend_batch(model, flange, [seed], iters, free_yaw, joints)
+    q, res = descend_batch(model, flange, [seed], arm_angle_deg, iters, free_yaw)
     return model.pose(q[0]), float(res[0])
 
 
 def _seeds(current: Sequence[float] | None, conf: Sequence[float], arm_angle: float
            ) -> list[list[float]]:
     """The arm's current joints, then elbow and wrist variants in the quadrants of
-    ``conf`` (axis 1, 4 and 6 in the middle of theirs)."""
+    ``conf`` (axis 1, 4 and 6 in the middle of theirs; axis 7 starting at the arm angle's
+    value, a guess the descent corrects)."""
     c1, c4, c6 = ((c + 0.5) * 90.0 for c in conf[:3])
     out = [list(current)] if current is not None else []
-    out += [[c1, q2, 0.0, q3, c4, q5, c6] for q2 in (-130.0, -80.0) for q3 in (-60.0, 20.0)
-            for q5 in (40.0, 100.0)]
-    for s in out:
-        s[2] = arm_angle
+    out += [[c1, q2, arm_angle, q3, c4, q5, c6] for q2 in (-130.0, -80.0)
+            for q3 in (-60.0, 20.0) for q5 in (40.0, 100.0)]
     return out
 
 
 BROAD: Final = tuple((q1, q2, q3, q4, q5) for q1 in (-120.0, -45.0, 45.0, 120.0)
                      for q2 in (-140.0, -90.0, -40.0) for q3 in (-90.0, -30.0, 40.0)
                      for q4 in (-90.0, 90.0) for q5 in (30.0, 100.0))
-"""Seeds over the whole joint space (axes 1, 2, 3, 4, 5; axis 6 at 0), for a target the
-seeds near the commanded configuration do not solve."""
+"""Seeds over the whole joint space (axes 1, 2, 3, 4, 5; axis 6 at 0, axis 7 at the arm
+angle's value), for a target the seeds near the commanded configuration do not solve."""
+
+
+def _broad(arm_angle_deg: float) -> list[tuple[float, ...]]:
+    return [(q1, q2, arm_angle_deg, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD]
 
 
 def solutions(model: ArmModel, flange: Mat, arm_angle_deg: float,
               seeds: Sequence[Sequence[float]], free_yaw: bool = False
               ) -> tuple[list[ArmPose], float]:
-    """Every seed's solution within ``REACH_TOL_MM`` (angles brought into range by whole
-    turns where they can be), and the best residual (mm)."""
+    """Every seed's solution within ``REACH_TOL_MM`` that holds the arm angle (angles
+    brought into range by whole turns where they can be), and the best residual (mm)."""
     if not len(seeds):
         return [], math.inf
     start = np.array([list(s) for s in seeds], dtype=np.float64)
-    start[:, 2] = arm_angle_deg
-    q, res = descend_batch(model, flange, start, free_yaw=free_yaw)
+    q, res = descend_batch(model, flange, start, arm_angle_deg, free_yaw=free_yaw)
     found: list[ArmPose] = []
     for k in np.flatnonzero(res <= REACH_TOL_MM):
         found += _turns(model, _wrapped(model, model.pose(q[k])))
@@ -233,10 +258,11 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
           current: Sequence[float] | None = None, free_yaw: bool = False,
           seeds: Sequence[Sequence[float]] = (),
           prefer: Sequence[float] | None = None) -> Solution:
-    """The joints that put the flange at ``flange`` (4x4, base frame mm) with axis 7 at
-    ``arm_angle_deg``, in the configuration ``conf`` (cf1, cf4, cf6[, cfx]; None: any,
-    the closest to ``current``, else the most dexterous). ``free_yaw``: the tool's turn
-    about its own axis is free (SingArea\\Wrist with a round tool).
+    """The joints that put the flange at ``flange`` (4x4, base frame mm) with the arm
+    angle ``arm_angle_deg`` (:mod:`sim_twin.sew_angle`), in the configuration ``conf``
+    (cf1, cf4, cf6[, cfx]; None: any, the closest to ``current``, else the most
+    dexterous). ``free_yaw``: the tool's turn about its own axis is free
+    (SingArea\\Wrist with a round tool).
 
     Refused, as the controller refuses: ``reach`` (no joint angles put the flange there:
     the residual in mm), ``limit`` (only past a joint limit: which axis, by how much),
@@ -260,9 +286,7 @@ def solve(model: ArmModel, flange: Mat, arm_angle_deg: float, conf: Sequence[flo
         found = found + more
         hit = _pick(model, found, want, current, free_yaw, prefer)
     if hit is None:
-        more, best2 = solutions(model, flange, arm_angle_deg,
-                                [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],
-                                free_yaw)
+        more, best2 = solutions(model, flange, arm_angle_deg, _broad(arm_angle_deg), free_yaw)
         found, best = found + more, min(best, best2)
         hit = _pick(model, found, want, current, free_yaw, prefer)
     if hit is not None:
@@ -284,9 +308,7 @@ def ranked(model: ArmModel, flange: Mat, arm_angle_deg: float, free_yaw: bool = 
     """The distinct solutions within the limits, best first (as :func:`_pick` ranks them
     without a current pose, ties to the closest to ``prefer``): the candidates of a
     ConfJ-off joint move."""
-    found, _ = solutions(model, flange, arm_angle_deg,
-                         [(q1, q2, 0.0, q3, q4, q5, 0.0) for q1, q2, q3, q4, q5 in BROAD],
-                         free_yaw)
+    found, _ = solutions(model, flange, arm_angle_deg, _broad(arm_angle_deg), free_yaw)
     out: list[ArmPose] = []
     pool = [p for p in found if model.limit_violation(p.chain_deg) is None]
     while pool and len(out) < most:
@@ -348,63 +370,76 @@ def configuration(chain_deg: Sequence[float]) -> tuple[int, int, int]:
     return quadrant(by_axis[1]), quadrant(by_axis[4]), quadrant(by_axis[6])
 
 
-def manipulability(model: ArmModel, pose: ArmPose, free_yaw: bool = False,
-                   joints: Sequence[int] = _FREE) -> float:
-    """The smallest singular value of the six free joints' Jacobian at the flange, with
-    positions over the arm's reach (0: singular); with ``free_yaw`` of the five rows that
-    matter (the tool's turn about its own axis left out: a wrist singularity, axes 4 and
-    6 in line, costs nothing there)."""
-    j = model.jacobian(pose, pose.flange[:3, 3])[:, list(joints)]
+def manipulability(model: ArmModel, pose: ArmPose, free_yaw: bool = False) -> float:
+    """The smallest singular value of the seven joints' Jacobian at the flange with the
+    arm angle's row below it (positions over the arm's reach; 0: singular, the arm or
+    the arm angle's parameterization: the controller cannot hold both); with
+    ``free_yaw`` of the rows that matter (the tool's turn about its own axis left out: a
+    wrist singularity, axes 4 and 6 in line, costs nothing there)."""
+    j = model.jacobian(pose, pose.flange[:3, 3])
     j[:3] /= 560.0
     if free_yaw:
         z = pose.flange[:3, 2]
         e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
         e1 /= np.linalg.norm(e1)
         j = np.vstack([j[:3], np.cross(z, e1) @ j[3:], e1 @ j[3:]])
-    return float(np.linalg.svd(j, compute_uv=False)[-1])
+    _, grad = arm_angle_batch(pose.frames[None])
+    return float(np.linalg.svd(np.vstack([j, grad]), compute_uv=False)[-1])
+
+
+ARM_JOINTS: Final = (0, 1, 2, 3)
+"""Chain indices of axes 1, 2, 7 and 3: the arm's joints, which hold the tip on a SingArea
+Wrist line and the arm angle (``sim_twin.rws.arm_supervision``)."""
 
 
 def tip_descend(model: ArmModel, tip: npt.ArrayLike, tool_mm: float, seed: Sequence[float],
-                joints: Sequence[int] = (0, 1, 3), iters: int = 60) -> tuple[ArmPose, float]:
-    """The joints ``joints`` (chain indices; default axes 1, 2 and 3) that put the
-    pusher's tip (``tool_mm`` along the flange's z) on ``tip`` (base frame, mm), the
-    others held at ``seed``'s; and the tip's distance from it (mm). SingArea Wrist's
-    line (``sim_twin.rws.arm_supervision``): the wrist's axes are interpolated, the arm's
-    three keep the tip on the path."""
-    free = list(joints)
+                arm_angle_deg: float, iters: int = 60) -> tuple[ArmPose, float]:
+    """Axes 1, 2, 7 and 3 (:data:`ARM_JOINTS`) that put the pusher's tip (``tool_mm``
+    along the flange's z) on ``tip`` (base frame, mm) at the arm angle
+    ``arm_angle_deg``, the wrist's axes held at ``seed``'s; and the residual (mm, the
+    arm angle weighted ``ARM_ANGLE_WEIGHT_MM`` per radian). SingArea Wrist's line
+    (``sim_twin.rws.arm_supervision``): the wrist's axes are interpolated, the arm's
+    four keep the tip on the path and the elbow at its arm angle."""
+    free = list(ARM_JOINTS)
     q = np.array(seed, dtype=np.float64)
-    want = np.asarray(tip, dtype=np.float64)
+    want, angle = np.asarray(tip, dtype=np.float64), math.radians(arm_angle_deg)
     pose = model.pose(q)
 
     def at(p: ArmPose) -> Mat:
         return p.flange[:3, 3] + p.flange[:3, 2] * tool_mm
 
-    e = want - at(pose)
+    def error(p: ArmPose) -> tuple[Mat, Mat]:
+        ea, grad = _angle_error(p.frames[None], angle)
+        return np.append(want - at(p), ea[0] * ARM_ANGLE_WEIGHT_MM), grad[0]
+
+    e, grad = error(pose)
     err = float(np.linalg.norm(e))
     lam = 1.0
     for _ in range(iters):
-        if err < POS_TOL_MM:
+        if np.linalg.norm(e[:3]) < POS_TOL_MM and \
+                abs(e[3]) < ARM_ANGLE_TOL_RAD * ARM_ANGLE_WEIGHT_MM:
             break
-        j = model.jacobian(pose, at(pose))[:3, free]
-        step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(3), e)
+        j = np.vstack([model.jacobian(pose, at(pose))[:3], grad * ARM_ANGLE_WEIGHT_MM])[:, free]
+        step = j.T @ np.linalg.solve(j @ j.T + lam * lam * np.eye(4), e)
         trial = q.copy()
         trial[free] += np.degrees(np.clip(step, -0.3, 0.3))
         tpose = model.pose(trial)
-        te = want - at(tpose)
+        te, tgrad = error(tpose)
         terr = float(np.linalg.norm(te))
         if terr < err:
-            q, pose, e, err = trial, tpose, te, terr
+            q, pose, e, grad, err = trial, tpose, te, tgrad, terr
             lam = max(lam * 0.5, 1e-3)
         else:
             lam = min(lam * 4.0, 1e6)
     return pose, err
 
 
-def arm_sigma(model: ArmModel, pose: ArmPose, tool_mm: float,
-              joints: Sequence[int] = (0, 1, 3)) -> float:
-    """The smallest singular value of the tip's position Jacobian over ``joints``
-    (positions over the arm's reach of 560 mm, per radian): 0 where the arm (not the
-    wrist) is singular, the elbow straight or the wrist over axis 1."""
+def arm_sigma(model: ArmModel, pose: ArmPose, tool_mm: float) -> float:
+    """The smallest singular value of the tip's position Jacobian over axes 1, 2, 7 and
+    3 with the arm angle's row below it (positions over the arm's reach of 560 mm, per
+    radian): 0 where the arm (not the wrist) cannot hold both the tip and the arm angle,
+    the elbow straight, the wrist over axis 1, or the arm angle's own singularity."""
     tip = pose.flange[:3, 3] + pose.flange[:3, 2] * tool_mm
-    j = model.jacobian(pose, tip)[:3, list(joints)] / 560.0
+    _, grad = arm_angle_batch(pose.frames[None])
+    j = np.vstack([model.jacobian(pose, tip)[:3] / 560.0, grad])[:, list(ARM_JOINTS)]
     return float(np.linalg.svd(j, compute_uv=False)[-1])

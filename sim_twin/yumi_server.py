@@ -13,7 +13,8 @@ Usage::
 
     python -m sim_twin.yumi_server --arms left,right --seed 7 --port 0 \\
         --port-file /tmp/twin.port [--fps 15] [--realtime 0] [--host 127.0.0.1] \\
-        [--rws-port-file /tmp/twin.rws.port] [--rws-credentials FILE] [--rws-log FILE] \\
+        [--rws-port-file /tmp/twin.rws.port] [--rws-credentials FILE] [--rws-grants agent] \\
+        [--rws-log FILE] \\
         [--zone ARM=x0,y0,x1,y1 ...] [--zone-z 80] [--floor-z 0] [--max-sessions 70] \\
         [--pusher-length-mm 0] [--no-rapid] [--verbose]
 
@@ -62,7 +63,11 @@ The camera port (JSON unless said otherwise; errors are ``{"error": "..."}`` wit
 The RWS port (``sim_twin.rws``; docs/notes/rws.md): RWS 1.0 as RobotWare 6 answers it,
 digest login as ``Default User``/``robotics`` or the ``--rws-credentials`` file's
 ``USER:PASSWORD`` (the format of the agent's ``credentials_file``: one line, ``#``
-comments; mode 0600 or 0400), at most ``--max-sessions`` sessions. A RAPID start runs
+comments; mode 0600 or 0400), at most ``--max-sessions`` sessions. The UAS grants
+(``sim_twin.rws.uas``): ``Default User`` every grant; the file's user, the agent's login
+in a rehearsal, ``--rws-grants`` (default ``agent``: exactly robot/README.md's four, so a
+request the agent's user may not make is refused with the controller's 403; ``person``,
+``factory``, ``none`` or ``UAS_...`` ids separated by commas). A RAPID start runs
 ``TestbedRapid`` on this process's cell (under the same lock as the camera and the lab):
 our modules' semantics, the task modules' symbols readable (``tb_zone_lo``,
 ``tb_zone_hi``, ``tb_zone_z``, ``tb_floor_z``, ``tool_pusher``, ``TB_RAPID_VERSION``, ...),
@@ -93,7 +98,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -113,6 +118,7 @@ from sim_twin.rws.rws_server import RwsServer
 from sim_twin.rws.rws_service import RwsService
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
+from sim_twin.rws.uas import parse_grants
 from sim_twin.rws.world_zones import ArmZone, default_zone, parse_zone
 from sim_twin.yumi_arms import DEFAULT_TOOL_MM
 from sim_twin.yumi_cell import YumiTwinCell
@@ -419,6 +425,9 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="where the RWS port goes (RWS is always served, on 127.0.0.1)")
     p.add_argument("--rws-credentials", type=Path, default=None, metavar="FILE",
                    help="one line USER:PASSWORD, mode 0600/0400: a login besides the factory's")
+    p.add_argument("--rws-grants", default="agent", metavar="GRANTS",
+                   help="the --rws-credentials user's UAS grants: a role (agent, person, "
+                        "factory, none) or UAS_... ids separated by commas (default agent)")
     p.add_argument("--rws-log", type=Path, default=None, metavar="FILE",
                    help="append one JSON line per RWS request served")
     p.add_argument("--zone", action="append", default=[], metavar="ARM=x0,y0,x1,y1",
@@ -449,6 +458,10 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
         p.error("--realtime must be >= 0")
     if a.max_sessions < 1:
         p.error("--max-sessions must be >= 1")
+    try:
+        parse_grants(a.rws_grants)
+    except ValueError as exc:
+        p.error(f"--rws-grants: {exc}")
     if not all(math.isfinite(v) for v in (a.zone_z, a.floor_z, a.pusher_length_mm)):
         p.error("--zone-z, --floor-z and --pusher-length-mm must be finite")
     return a
@@ -480,7 +493,8 @@ class RwsSide:
     our RAPID (or none) installed, and its request log."""
 
     def __init__(self, server: TwinServer, a: argparse.Namespace,
-                 zones: dict[str, ArmZone], users: dict[str, str]) -> None:
+                 zones: dict[str, ArmZone], users: dict[str, str],
+                 grants: Mapping[str, frozenset[str]] | None = None) -> None:
         cell = server.cell
         units = tuple(MechUnit(f"ROB_{cell.sides[arm][0].upper()}",
                                f"T_ROB_{cell.sides[arm][0].upper()}", arm) for arm in cell.arms)
@@ -497,7 +511,7 @@ class RwsSide:
         self.install = TestbedInstall(self.controller, self.motion, loaded=not a.no_rapid)
         self.log = RequestLog(a.rws_log) if a.rws_log is not None else None
         service = RwsService(self.controller, users=users, max_sessions=a.max_sessions,
-                             program=self.install)
+                             program=self.install, grants=grants)
         self.server = RwsServer(service, "127.0.0.1", 0, verbose=a.verbose,
                                 request_log=self.log)
 
@@ -508,25 +522,33 @@ class RwsSide:
 
 
 def _users(a: argparse.Namespace) -> dict[str, str]:
+    return _logins(a)[0]
+
+
+def _logins(a: argparse.Namespace) -> tuple[dict[str, str], dict[str, frozenset[str]]]:
+    """The logins (the factory's, the ``--rws-credentials`` file's) and the UAS grants
+    given: the file's user ``--rws-grants``; ``ValueError`` for a bad file."""
     users = dict(DEFAULT_USERS)
+    grants: dict[str, frozenset[str]] = {}
     if a.rws_credentials is not None:
         user, password = read_login_file(a.rws_credentials)
         users[user] = password
-    return users
+        grants[user] = parse_grants(a.rws_grants)
+    return users, grants
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     a = _args(argv)
     arms = tuple(s.strip() for s in a.arms.split(",") if s.strip())
     try:
-        users = _users(a)
+        users, grants = _logins(a)
         zones = _zones(a, arms, arm_side(arms))
         cell = YumiTwinCell(a.seed, arms, realtime=a.realtime)
     except ValueError as exc:
         print(f"yumi_server: {exc}", file=sys.stderr)
         return 2
     server = TwinServer(cell, a.host, a.port, a.fps, a.verbose)
-    rws = RwsSide(server, a, zones, users)
+    rws = RwsSide(server, a, zones, users, grants)
     server.tcp_source = rws.motion.tcp_xyz
     server.arm_facts = {"tool_z_mm": a.pusher_length_mm,
                         "rest_joints_deg": {arm: list(rws.motion.arms.rest_joints(arm))

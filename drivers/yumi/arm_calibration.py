@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from drivers.errors import BackendError
 from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy
+from drivers.yumi.reach import ARM_ANGLE_MAX_DEG, default_arm_angle
 from drivers.yumi.yumi_controller import ArmPose
 
 __all__ = ["CALIBRATION_BOX_MM", "KNOWN_KEYS", "TOOL_HOW", "ArmCalibration", "layout_keys",
@@ -41,7 +42,8 @@ calibration command supplies the safe box it drives in (``move_tcp`` refuses out
 KNOWN_KEYS = frozenset({
     "homography", "table_box_mm", "z_push_mm", "z_travel_mm", "z_clear_mm", "gate_xy_mm",
     "max_speed_mm_s", "push_speed_mm_s", "start_offset", "stroke", "task", "mechunit",
-    "rest_joints_deg", "tool_quat_wxyz", "robconf", "arm_angle_deg", "tool_z_mm"})
+    "rest_joints_deg", "gate_joints_deg", "tool_quat_wxyz", "robconf", "arm_angle_deg",
+    "tool_z_mm"})
 TOOL_HOW = ("measure the pusher on the robot with the FlexPendant's 4-point TCP method and "
             "write its z (mm, flange to tip; the shipped pusher: 184.2) as tool_z_mm, the "
             "same value as tool_pusher's tframe in TestbedTask_L/_R (robot/README.md, "
@@ -64,6 +66,19 @@ def _tool_z(d: Mapping[str, Any], bad: Any) -> float:
         raise bad(f"'tool_z_mm' must be the pusher's length, 0 < tool_z_mm <= 500 mm, got "
                   f"{z:g}: {TOOL_HOW}")
     return z
+
+
+def _joints(d: Mapping[str, Any], key: str, bad: Any) -> tuple[float, ...] | None:
+    """The file's ``key`` (7 finite angles, axis 7 last), None when not given."""
+    if key not in d:
+        return None
+    try:
+        joints = tuple(float(v) for v in d[key])
+    except (TypeError, ValueError):
+        raise bad(f"'{key}' must be 7 numbers (axes 1-6, then axis 7)") from None
+    if len(joints) != 7 or not all(math.isfinite(v) for v in joints):
+        raise bad(f"'{key}' needs 7 angles (axis 7 last), got {list(joints)}")
+    return joints
 
 
 def _gate(d: Mapping[str, Any], box: Sequence[float], bad: Any) -> tuple[float, float] | None:
@@ -106,6 +121,12 @@ class ArmCalibration:
     (``drivers/yumi/paths.py``)."""
     gate_xy_mm: tuple[float, float] | None = None
     """The gate's (x, y) when the file gives one (else its default, ``drivers/yumi/paths.py``)."""
+    gate_joints_deg: tuple[float, ...] | None = None
+    """The gate as a measured joint target (7 angles, ABB's order: axes 1-6, then 7), the
+    end of the joint move from rest (``drivers/yumi/paths.py``). A file may lack it (an
+    arm not calibrated since issue 43, or being calibrated): it loads, and the driver
+    refuses to move the arm away from rest until ``testbed calibrate`` has written it
+    (``drivers/yumi/gate.py``)."""
 
     @classmethod
     def load(cls, path: str | Path, arm: str) -> ArmCalibration:
@@ -138,6 +159,7 @@ class ArmCalibration:
                                          "push_speed_mm_s", "start_offset", "stroke",
                                          "z_clear_mm") if k in d}
         gate = _gate(d, box, bad)
+        gate_joints = _joints(d, "gate_joints_deg", bad)
         cal = cls(h, box, **nums, tool_z_mm=tool_z, gate_xy_mm=gate)  # type: ignore[arg-type]
         if not 0 < cal.push_speed_mm_s <= cal.max_speed_mm_s <= 1000:
             raise bad("need 0 < push_speed_mm_s <= max_speed_mm_s <= 1000")
@@ -147,26 +169,29 @@ class ArmCalibration:
             raise bad(f"z_clear_mm ({cal.z_clear_mm:g}) must be at or above z_travel_mm "
                       f"({cal.z_travel_mm:g}): the clear height is where the joint moves "
                       f"to and from rest end (drivers/yumi/paths.py)")
+        angle = _arm_angle(d, arm, bad)
         pose = None
-        if "rest_joints_deg" in d:
-            joints = tuple(float(v) for v in d["rest_joints_deg"])
-            if len(joints) != 7:
-                raise bad("'rest_joints_deg' needs 7 angles (axis 7 last)")
+        if (joints := _joints(d, "rest_joints_deg", bad)) is not None:
             side = "L" if arm.startswith("l") else "R"
             pose = ArmPose(task=str(d.get("task", f"T_ROB_{side}")),
                            mechunit=str(d.get("mechunit", f"ROB_{side}")),
                            rest_joints_deg=joints,
                            tool_quat_wxyz=tuple(d.get("tool_quat_wxyz", (0, 0, 1, 0))),
                            robconf=tuple(d.get("robconf", (0, 0, 0, 4))),
-                           arm_angle_deg=float(d.get("arm_angle_deg", 0.0)),
+                           arm_angle_deg=angle,
                            tool_z_mm=tool_z)
         return cls(h, box, **nums, pose=pose, tool_z_mm=tool_z,  # type: ignore[arg-type]
-                   gate_xy_mm=gate)
+                   gate_xy_mm=gate, gate_joints_deg=gate_joints)
 
     @property
     def gate_xy(self) -> tuple[float, float]:
         """The arm's gate (``drivers/yumi/paths.py``)."""
         return gate_xy(self.table_box_mm, self.gate_xy_mm)
+
+    @property
+    def gate_xyz(self) -> tuple[float, float, float]:
+        """The gate's point: its (x, y) at clear height."""
+        return (*self.gate_xy, self.z_clear_mm)
 
     def pixel_to_table(self, u: float, v: float) -> tuple[float, float]:
         x, y, w = self.homography @ np.array([u, v, 1.0])
@@ -177,9 +202,25 @@ class ArmCalibration:
         return (float(u / w), float(v / w))
 
 
+def _arm_angle(d: Mapping[str, Any], arm: str, bad: Any) -> float:
+    """The calibration's ``arm_angle_deg`` (default :func:`default_arm_angle`), refused
+    when not a number or past :data:`ARM_ANGLE_MAX_DEG`."""
+    try:
+        angle = float(d.get("arm_angle_deg", default_arm_angle(arm)))
+    except (TypeError, ValueError):
+        raise bad("'arm_angle_deg' must be a number (deg)") from None
+    if not math.isfinite(angle) or abs(angle) > ARM_ANGLE_MAX_DEG:
+        raise bad(f"'arm_angle_deg' is {angle:g}: ABB's arm angle, at most "
+                  f"{ARM_ANGLE_MAX_DEG:g} deg either way; an older calibration held axis 7's "
+                  f"value there (+-130): set it to {default_arm_angle(arm):g} or remove it "
+                  f"(docs/notes/auto-day-one.md)")
+    return angle
+
+
 def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
     """What the layout's checks read of a calibration (``drivers/yumi/layout_check.py``):
-    the table box, the heights, the tool, the arm angle, the rest joints, the homography."""
+    the table box, the heights, the tool, the arm angle, the rest and gate joints, the
+    homography."""
     out: dict[str, Any] = {"table_box_mm": list(cal.table_box_mm), "z_push_mm": cal.z_push_mm,
                            "z_travel_mm": cal.z_travel_mm, "z_clear_mm": cal.z_clear_mm,
                            "gate_xy_mm": list(cal.gate_xy), "tool_z_mm": cal.tool_z_mm,
@@ -188,6 +229,8 @@ def layout_keys(cal: ArmCalibration) -> dict[str, Any]:
         out.update(rest_joints_deg=list(cal.pose.rest_joints_deg),
                    arm_angle_deg=cal.pose.arm_angle_deg,
                    tool_quat_wxyz=list(cal.pose.tool_quat_wxyz))
+    if cal.gate_joints_deg is not None:
+        out["gate_joints_deg"] = list(cal.gate_joints_deg)
     return out
 
 

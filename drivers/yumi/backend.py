@@ -13,7 +13,14 @@ One push, per arm (all arms' programs run at once, MultiMove)::
 
     canonical face k, cube pose (perception) --start/end in canonical units-->
     crop pixel --(mirror, crop box)--> camera pixel --homography--> table mm
-    --clip to the table box--> waypoints: above start, down, stroke, up, rest pose
+    --clip to the table box--> waypoints: the gate joints (MoveAbsJ), above start,
+    down, stroke, up, the gate, rest pose (``paths.py``)
+
+Before anything is sent, where each arm is, is judged from the joints the controller
+reports (``arm_place.py``): at rest, at its gate, on a straight leg over its table box
+(it goes back by the gate first), or refused with the fix (jog it to rest); a
+calibration without the gate's joints (``gate_joints_deg``) moves nothing
+(``gate.py``).
 
 A picture is only taken with every TCP outside the camera's view; if an arm is in view
 (before or after the shot) it is sent to rest and the picture is taken again.
@@ -28,12 +35,13 @@ here knows the twin.
 Calibration mode (``build_yumi_backend(..., calibrating=[arm])``): that arm may have no
 calibration file yet, or one without a homography; it gets a provisional calibration,
 and only ``frame``, ``move_tcp``, ``rest`` and ``save_calibration`` work (observe, push
-and reset need the homography, so they are errors naming the arm).
+and reset need the homography, so they are errors naming the arm). Its gate's joints are
+measured there (:meth:`YumiBackend._measure_gate`) for ``testbed calibrate`` to write.
 
 Over 450 lines, on purpose: ``YumiBackend`` is one host's observe, push, reset and rest
 over a camera and a controller both arms share; what could leave it has (the calibration
-file: ``arm_calibration.py``, the paths: ``paths.py``, the controller's state:
-``controller_state.py``).
+file: ``arm_calibration.py``, the paths: ``paths.py``, where an arm is: ``arm_place.py``,
+the gate: ``gate.py``, the controller's state: ``controller_state.py``).
 """
 
 from __future__ import annotations
@@ -60,7 +68,9 @@ from drivers.yumi.arm_calibration import (
     tool_of,
     write_atomic,
 )
-from drivers.yumi.paths import leave_rest, to_rest
+from drivers.yumi.arm_place import ArmRoom, Place, place_of
+from drivers.yumi.gate import GATE_HOW, arm_tool, gate_problem
+from drivers.yumi.paths import back_to_gate, leave_rest, to_rest
 from drivers.yumi.yumi_controller import Waypoint, YumiControllerClient
 from testbed.core.types import (
     FACE_DIRECTIONS,
@@ -76,9 +86,6 @@ GOAL_MARGIN = 0.12
 CUBE_HALF = 4.0 / 64.0
 LIFT_TOLERANCE_MM = 1.0
 """A pusher this far below travel height counts as up (the controller's own jitter)."""
-REST_TOLERANCE_MM = 10.0
-"""A pusher this close to its rest point is at rest: its next program starts with the
-joint move from rest to the gate (``drivers/yumi/paths.py``)."""
 log = logging.getLogger(__name__)
 
 
@@ -128,25 +135,21 @@ def plan_push(arm: ArmSetup, centre: Sequence[float], yaw: float, face: int) -> 
     vmax = cal.max_speed_mm_s
     vpush = min(cal.push_speed_mm_s, vmax)
     s_xy, e_xy = table(start, 0.0)[:2], table(end, 0.0)[:2]
-    return [*leave_rest(cal.gate_xy, s_xy, cal.z_clear_mm, cal.z_travel_mm, vmax),
+    gate = gate_joints_of(arm.name, cal)
+    return [*leave_rest(gate, s_xy, cal.z_travel_mm, vmax),
             Waypoint("move_l", (*s_xy, cal.z_push_mm), min(vmax, 2 * vpush)),
             Waypoint("move_l", (*e_xy, cal.z_push_mm), vpush),
             Waypoint("move_l", (*e_xy, cal.z_travel_mm), min(vmax, 2 * vpush), fine=False),
-            *to_rest(cal.gate_xy, cal.z_clear_mm, vmax)]
+            *to_rest(cal.gate_xy, gate, cal.z_clear_mm, vmax)]
 
 
-def rest_tip(arm: str, cal: ArmCalibration) -> tuple[float, float, float] | None:
-    """Where the model puts the pusher's tip at the calibration's rest joints (None: no
-    rest pose, or not an IRB 14000 arm the model can tell)."""
-    from drivers.yumi.irb14000 import arm as model
-    from drivers.yumi.reach import side_of
-
-    side = side_of(arm, cal.pose.task if cal.pose else None)
-    if side is None or cal.pose is None:
-        return None
-    tip = model(side).pose_abb(cal.pose.rest_joints_deg).tcp(cal.tool_z_mm)
-    return (float(tip[0]), float(tip[1]), float(tip[2]))
-
+def gate_joints_of(arm: str, cal: ArmCalibration) -> tuple[float, ...]:
+    """The calibration's gate joints, or a :class:`BackendError` of one line naming the
+    field and the fix: no program leaves rest without them (``drivers/yumi/paths.py``)."""
+    if cal.gate_joints_deg is None:
+        raise BackendError(f"arm {arm}: its calibration has no 'gate_joints_deg' (the "
+                           f"gate's joints): nothing is sent; {GATE_HOW}")
+    return cal.gate_joints_deg
 
 
 def in_view_faults(info: Mapping[str, Any]) -> list[str]:
@@ -189,11 +192,11 @@ class YumiBackend(HostBackend):
         self._violating: dict[str, bool | None] = dict.fromkeys(self._arms, None)
         self._pushes = dict.fromkeys(self._arms, 0)
         self._pose: dict[str, Any] = dict.fromkeys(self._arms, None)
-        self._model_rest = {n: rest_tip(n, a.calibration) for n, a in self._arms.items()}
-        self._rest_tcp: dict[str, tuple[float, float, float]] = {}
-        """Each arm's rest point as the controller reported it after a program that ended
-        at rest (where the model's differs from the robot's by a few mm)."""
-        self._ended_at_rest: dict[str, bool] = {}
+        self._gate: dict[str, tuple[float, ...]] = {}
+        """The gate joints of each arm being calibrated (:meth:`_measure_gate`)."""
+        self._measured_gate: dict[str, tuple[float, ...]] = {}
+        """Each arm being calibrated: the joints the controller reported at its gate, for
+        ``testbed calibrate`` to write (``describe``'s ``layout``, :meth:`save_calibration`)."""
         self._closed = False
         self.retaken = 0
         """Pictures taken again because an arm was in view (for tests and logs)."""
@@ -421,9 +424,20 @@ class YumiBackend(HostBackend):
                 "tool_z": {task[n]: a.calibration.tool_z_mm for n, a in self._arms.items()},
                 "max_speed": {task[n]: a.calibration.max_speed_mm_s
                               for n, a in self._arms.items()},
-                "layout": {n: {"task": task[n], **layout_keys(a.calibration)}
-                           for n, a in self._arms.items()},
+                "layout": {n: {"task": task[n], **layout_keys(a.calibration),
+                               **self._measured(n)} for n, a in self._arms.items()},
                 "camera": camera_report(self._camera, crops, frame=frame)}
+
+    def _measured(self, arm: str) -> dict[str, Any]:
+        """An arm being calibrated, once at its gate: the joints the controller reported
+        there (``gate_joints_deg``) and the gate's point they were read at, which
+        ``testbed calibrate`` writes into the file (``testbed/lab/calibrate.py``)."""
+        joints = self._measured_gate.get(arm)
+        if joints is None:
+            return {}
+        cal = self._arms[arm].calibration
+        return {"gate_joints_deg": [round(float(v), 4) for v in joints],
+                "gate_xy_mm": list(cal.gate_xy), "gate_measured": True}
 
     def _still_look(self) -> tuple[dict[str, tuple[float, float, float]],
                                    npt.NDArray[np.uint8] | None]:
@@ -456,10 +470,12 @@ class YumiBackend(HostBackend):
     def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
         """Calibration: from rest by joints to the gate, straight to above the point at
         travel height, straight down (or up) to it (``drivers/yumi/paths.py``); from the
-        previous point back the way it came to rest first (:meth:`_from_here`).
+        previous point straight up and back to the gate first (:meth:`_move`).
 
         A point outside the arm's table box is refused (ValueError), never clipped: the
-        calibration fit needs the TCP where it was asked to be.
+        calibration fit needs the TCP where it was asked to be. An arm being calibrated
+        goes to its gate alone the first time, and the joints the controller reports
+        there are kept for ``testbed calibrate`` to write (:meth:`_measure_gate`).
         """
         if arm not in self._arms:
             raise ValueError(f"unknown arm {arm!r}; this host has {list(self._arms)}")
@@ -478,76 +494,93 @@ class YumiBackend(HostBackend):
             raise ValueError(f"arm {arm}: z = {z:g} mm is below the table top (z = 0)")
         vmax = cal.max_speed_mm_s
         vslow = min(vmax, 2 * cal.push_speed_mm_s)
-        way = leave_rest(cal.gate_xy, (x, y), cal.z_clear_mm, cal.z_travel_mm, vmax)
+        gate = self._gate_joints(arm)
+        way = leave_rest(gate, (x, y), cal.z_travel_mm, vmax)
         if abs(z - cal.z_travel_mm) > LIFT_TOLERANCE_MM:
             way.append(Waypoint("move_l", (x, y, z), vslow))
         self._move({arm: way})
         return self._controller.tcp_xyz()[arm]
 
-    def _at_rest(self, arm: str, tcp: Sequence[float]) -> bool:
-        """Is ``arm``'s pusher at its rest point (within :data:`REST_TOLERANCE_MM`)? The
-        point is the one the controller reported after a program that ended at rest, or
-        the model's at the rest joints; the first time a program ended at rest, the
-        controller's point is taken as the rest point (a model a few mm off the robot)."""
-        ref = self._rest_tcp.get(arm) or self._model_rest.get(arm)
-        if ref is not None and math.dist(tcp, ref) <= REST_TOLERANCE_MM:
-            return True
-        if self._ended_at_rest.get(arm) and arm not in self._rest_tcp:
-            self._rest_tcp[arm] = (float(tcp[0]), float(tcp[1]), float(tcp[2]))
-            return True
-        return False
+    def _gate_joints(self, arm: str) -> tuple[float, ...]:
+        """The arm's gate joints: its calibration's, or for an arm being calibrated the
+        ones measured at its gate (:meth:`_measure_gate`)."""
+        if arm in self._calibrating:
+            if arm not in self._gate:
+                self._measure_gate(arm)
+            return self._gate[arm]
+        return gate_joints_of(arm, self._arms[arm].calibration)
 
-    def _from_here(self, arm: str, tcp: Sequence[float], wps: Sequence[Waypoint]
-                   ) -> list[Waypoint]:
-        """A program written from rest (``move_j`` to the gate first) or the way to rest
-        (``[rest]``), for an arm that is NOT at rest: straight up to travel height where
-        it is, straight to the gate at clear height, by joints to rest, then the program
-        (``drivers/yumi/paths.py``). A joint move from an unknown pose sweeps the tip along
-        a curve nobody checked; straight lines over the table box stay above the zones.
-
-        Why up to travel height, not clear height, and why by rest: the way back retraces
-        the way out (gate -> above the point at travel height -> down), so the arm comes
-        back to the gate with the joints it left it with. With the pusher down the wrist
-        passes near its singularity over parts of the box (axis 5 near 0), where axis 4
-        turns fast; a way back that is not the way out can wind axis 4 round the other
-        way, half a turn or more, past its limit (the twin stopped a calibration's grid
-        with 50027 on a lift to clear height and across to the gate), and ConfL Off lets
-        the controller take that winding. Rest's MoveAbsJ then unwinds whatever is left
-        before the next program's legs, which run as a push's do."""
+    def _measure_gate(self, arm: str) -> None:
+        """An arm being calibrated goes to its gate alone and the joints the controller
+        reports there (``get_jointtarget``) are its gate joints from then on, and what
+        ``testbed calibrate`` writes (``describe``'s ``layout``, :meth:`save_calibration`).
+        There: by its file's gate joints (MoveAbsJ) when they are at the gate of this
+        calibration; else by a MoveJ to the gate's point, the one joint move whose end
+        the controller chooses (its own inverse kinematics and arm angle: the joints a
+        robot really holds there, whatever the model says), which is then measured and
+        is, from rest, the very joint path every later MoveAbsJ to those joints runs;
+        ``testbed calibrate`` sweeps it (its layout check) before anything else moves."""
         cal = self._arms[arm].calibration
-        x, y, z = (float(v) for v in tcp)
         vmax = cal.max_speed_mm_s
-        lift = [Waypoint("move_l", (x, y, cal.z_travel_mm), min(vmax, 2 * cal.push_speed_mm_s))
-                ] if z < cal.z_travel_mm - LIFT_TOLERANCE_MM else []
-        home = lift + to_rest(cal.gate_xy, cal.z_clear_mm, vmax)
-        if wps and wps[0].kind == "rest":
-            return home
-        return home + list(wps)
+        tool = arm_tool(arm, cal)
+        mine = cal.gate_joints_deg
+        if mine is not None and (tool is None or gate_problem(
+                tool, mine, cal.gate_xyz, cal.table_box_mm) is None):
+            first = leave_rest(mine, cal.gate_xy, cal.z_travel_mm, vmax)[:1]
+        else:
+            first = [Waypoint("move_j", cal.gate_xyz, vmax)]
+        self._move({arm: first})
+        self._gate[arm] = self._measured_gate[arm] = tuple(
+            float(v) for v in self._controller.joints()[arm])
+
+    def _room(self, arm: str) -> ArmRoom:
+        cal = self._arms[arm].calibration
+        if cal.pose is None:
+            raise BackendError(f"arm {arm}: its calibration has no 'rest_joints_deg'")
+        gate = self._gate.get(arm, cal.gate_joints_deg)
+        return ArmRoom(cal.pose.rest_joints_deg, gate, cal.table_box_mm, cal.z_clear_mm,
+                       arm_tool(arm, cal))
+
+    def _way(self, arm: str, place: Place, wps: Sequence[Waypoint]) -> list[Waypoint]:
+        """The program ``arm`` runs from ``place`` for ``wps``, which is written from rest
+        (the joint move to the gate first) or is the way to rest (``[rest]``): from rest
+        as written (the way to rest: nothing); from the gate as written (its first
+        MoveAbsJ is to where the arm is), or straight to rest; from a straight leg, back
+        to the gate joints first (``paths.back_to_gate``), then the program from there."""
+        to_rest_only = bool(wps) and wps[0].kind == "rest"
+        if place.kind == "rest":
+            return [] if to_rest_only else list(wps)
+        if place.kind == "gate":
+            return list(wps[:1]) if to_rest_only else list(wps)
+        cal = self._arms[arm].calibration
+        gate = self._room(arm).gate_joints_deg
+        assert gate is not None  # a leg needs them (arm_place)
+        vmax = cal.max_speed_mm_s
+        back = back_to_gate(place.tcp_mm, cal.gate_xy, gate, cal.z_travel_mm, cal.z_clear_mm,
+                            vmax, min(vmax, 2 * cal.push_speed_mm_s), LIFT_TOLERANCE_MM)
+        if to_rest_only:
+            return [*back, *wps]
+        return [*back, *wps[1:]]  # the program's MoveAbsJ to the gate: where back ends
 
     def _move(self, programs: Mapping[str, Sequence[Waypoint]]) -> None:
         """Run ``programs`` (all arms at once). Each is written from rest (the joint move
-        to the gate first) or is the way to rest (``[rest]``): an arm at rest runs it as
-        written (the way to rest: nothing, the controller gives it a "stay"); an arm
-        elsewhere goes back to rest the way it came first (:meth:`_from_here`). Every
-        target is checked reachable before anything moves (:func:`refuse_unreachable`)."""
+        to the gate first) or is the way to rest (``[rest]``). Where each arm is, is
+        judged from the joints the controller reports (``drivers/yumi/arm_place.py``):
+        at rest, at its gate, on a straight leg over its table box (:meth:`_way`), or
+        refused; every program's gate joints are checked at the gate and every target
+        reachable (:func:`refuse_unreachable`); all before anything is sent."""
         tcp = self._controller.tcp_xyz()
+        joints = self._controller.joints()
         out: dict[str, list[Waypoint]] = {}
         for arm, wps in programs.items():
-            if self._at_rest(arm, tcp[arm]):
-                if wps and wps[0].kind != "move_j":
-                    continue  # at rest already: the way to rest is no move at all
-                out[arm] = list(wps)
-            else:
-                out[arm] = self._from_here(arm, tcp[arm], wps)
+            way = self._way(arm, place_of(arm, self._room(arm), tcp[arm], joints[arm]), wps)
+            if way:
+                out[arm] = way
         if not out:
             return
         for arm, wps in out.items():
-            refuse_unreachable(arm, self._arms[arm].calibration, wps)
-        for arm in out:
-            self._ended_at_rest[arm] = False  # until the program is known to have ended
+            refuse_unreachable(arm, self._arms[arm].calibration, wps, joints[arm])
         self._controller.execute(out)
-        for arm, wps in out.items():
-            self._ended_at_rest[arm] = wps[-1].kind == "rest"
 
     def save_calibration(self, arm: str, data: Mapping[str, Any]) -> str:
         """Validate ``data`` as ``arm``'s calibration and replace its file atomically (a
@@ -563,6 +596,8 @@ class YumiBackend(HostBackend):
                              f"{type(data).__name__}")
         if "tool_z_mm" not in data:  # the frame this agent drove with: the controller's
             data = {**data, "tool_z_mm": self._arms[arm].calibration.tool_z_mm}
+        if "gate_joints_deg" not in data and arm in self._measured_gate:  # read at its gate
+            data = {**data, "gate_joints_deg": self._measured(arm)["gate_joints_deg"]}
         try:
             ArmCalibration.from_dict(data, arm, path)
         except BackendError as exc:
@@ -579,7 +614,8 @@ class YumiBackend(HostBackend):
                 self._controller.close()
 
 
-def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint]) -> None:
+def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoint],
+                       joints: Sequence[float] | None = None) -> None:
     """BackendError, before anything moves, when a waypoint is one the arm cannot reach
     with the pusher down at its arm angle (out of reach, past a joint limit:
     ``drivers/yumi/irb14000_ik.py``; a target whose solutions found here are all near a
@@ -587,7 +623,14 @@ def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoi
     off, and stops a line that passes one with 50026): the controller would stop the task
     half-way through the program; this names the point and the reason instead. It can
     tell only what it knows: an arm whose side cannot be told (not an IRB 14000 task, not named
-    left/right), is not checked here (``testbed check`` still judges its layout)."""
+    left/right), is not checked here (``testbed check`` still judges its layout).
+
+    A joint target (``abs_j``: the driver's only one is the gate) must be within the
+    joint limits and put the pusher's tip at the gate (``drivers/yumi/gate.py``). Every
+    straight line must be one the model runs holding the arm angle the controller turns
+    along it (``drivers/yumi/line_plan.py``: the plan the program's robtargets carry),
+    planned from ``joints`` (the arm's, ABB's order, as the controller reports them; the
+    program's first line is not judged without them)."""
     from drivers.yumi.layout_check import layout_of
 
     lay = layout_of(arm, layout_keys(cal), task=cal.pose.task if cal.pose else None)
@@ -595,6 +638,11 @@ def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoi
         return
     seed = None
     for w in waypoints:
+        if w.kind == "abs_j" and w.joints_deg is not None:
+            if why := gate_problem(lay.tool, w.joints_deg, cal.gate_xyz, cal.table_box_mm):
+                raise BackendError(f"arm {arm}: {why}; nothing was moved: {GATE_HOW}")
+            seed = lay.tool.model.pose_abb(w.joints_deg).chain_deg
+            continue
         if w.xyz_mm is None:
             continue
         sol = lay.tool.solve(w.xyz_mm, seed)
@@ -607,6 +655,14 @@ def refuse_unreachable(arm: str, cal: ArmCalibration, waypoints: Sequence[Waypoi
                 f"the pusher down (tool_z_mm {lay.tool.tool_z_mm:g}, arm angle "
                 f"{lay.tool.arm_angle_deg:g} deg): {sol.reason}; nothing was moved")
         seed = sol.pose.chain_deg
+    from drivers.yumi.line_plan import planned_targets
+
+    start = None if joints is None else lay.tool.model.pose_abb(joints).chain_deg
+    _, why = planned_targets(lay.tool, start, lay.rest_joints_deg, waypoints)
+    if why is not None:
+        raise BackendError(f"arm {arm}: the arm cannot run the program's straight lines "
+                           f"holding the arm angle the controller turns along each: {why}; "
+                           f"nothing was moved")
 
 
 def build_yumi_backend(arms: Sequence[str], mirror: Sequence[bool],

@@ -1,12 +1,16 @@
-"""Inverse kinematics of an IRB 14000 arm for a pusher pointing down at a given arm angle.
+"""Inverse kinematics of an IRB 14000 arm for a pusher pointing down, axis 7 held.
 
-Why numerical, and why this way: the driver sends robtargets (the TCP's position, the
-tool's orientation, the arm angle as axis 7); the controller finds joint angles for them
-or stops the task. Axis 7 is fixed by the target, so six joints remain for a six-number
-pose: a damped least squares (Levenberg-Marquardt) on the flange's pose converges in a
-few iterations from a seed in the arm's working family (elbow out and down, wrist over
-the table), with more seeds when the first fails. What the robot would refuse is told
-precisely: out of reach by N mm, axis k past its limit by N deg, near a singularity.
+Why numerical, and why this way: the driver picks the joints of each robtarget it sends
+(the TCP's position, the tool's orientation) with axis 7 held at the calibration's
+``arm_angle_deg``: the configuration it always chose. The robtarget itself carries ABB's
+arm angle (``eax_a``: the elbow plane's angle, not axis 7's value; docs/notes/rws.md),
+the one of the joints picked here or of a line the arm can run to them
+(``drivers/yumi/arm_angle.py``, ``drivers/yumi/line_plan.py``). With axis 7 held, six
+joints remain for a six-number pose: a damped least squares (Levenberg-Marquardt) on the
+flange's pose converges in a few iterations from a seed in the arm's working family
+(elbow out and down, wrist over the table), with more seeds when the first fails. What
+the robot would refuse is told precisely: out of reach by N mm, axis k past its limit by
+N deg, near a singularity.
 
 The orientation counts ``ROT_WEIGHT_MM`` mm per radian, so an unreachable target leaves
 the tool nearly down and the position short: the shortfall is "out of reach by N mm".
@@ -37,7 +41,7 @@ SINGULAR_SIGMA: Final = 0.03
 REACH_SCALE_MM: Final = 559.0
 """ABB's reach of the IRB 14000 (product specification): the Jacobian's length unit."""
 _FREE: Final = [0, 1, 3, 4, 5, 6]
-"""Chain indices solved for; index 2 is axis 7, the arm angle, given by the target."""
+"""Chain indices solved for; index 2 is axis 7, held at the value asked for."""
 
 
 def quat_matrix(wxyz: Sequence[float]) -> Mat:
@@ -159,7 +163,7 @@ SEEDS: Final = (
     (30.0, 35.0, 0.0, 0.0, 90.0, 10.0, 100.0),
     (-140.0, -120.0, 0.0, 10.0, 0.0, -80.0, 40.0),
 )
-"""Chain seeds (axis 7 replaced by the target's arm angle): the elbow out and down with
+"""Chain seeds (axis 7 replaced by the value held): the elbow out and down with
 the wrist over the table, in a few of its variants; the left arm's, mirrored for the
 right (axes 1, 7, 4 and 6 change sign)."""
 _MIRROR: Final = np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
@@ -179,7 +183,8 @@ def _seeds(model: Arm, arm_angle_deg: float, current: Sequence[float] | None
 def solve_pose(model: Arm, flange: Mat, arm_angle_deg: float,
                current: Sequence[float] | None = None) -> Solution:
     """The joints that put the flange at ``flange`` (4x4, base frame mm) with axis 7 at
-    ``arm_angle_deg``; or why the robot would refuse it (see :class:`Solution`)."""
+    ``arm_angle_deg`` (axis 7's value, not ABB's arm angle: the name is the calibration
+    key's); or why the robot would refuse it (see :class:`Solution`)."""
     best_miss = math.inf
     over: tuple[int, float] | None = None
     singular: tuple[Pose, float] | None = None

@@ -16,10 +16,14 @@ arms' shapes :data:`ARM_GAP_MM` apart over both sweeps; every link and the gripp
 :data:`PATH_MARGIN_MM` (on a joint move :data:`JOINT_MARGIN_MM`) clear of the world
 zones (below ``tb_zone_z`` outside the zone box, and below ``tb_floor_z``, as the
 controller reports them) along every path the
-driver commands (``drivers/yumi/paths.py``): rest by joints to the gate, straight to
-above each corner of the table box at travel height, down to push height, and back up,
-straight to the gate and by joints to rest. A joint move is swept as the controller
-interpolates it (every joint linearly, all together), a straight move as a line.
+driver commands (``drivers/yumi/paths.py``): rest by joints to the gate joints, straight
+to above each corner of the table box at travel height, down to push height, and back
+up, straight to the gate's point, by joints to the gate joints (the correction) and to
+rest; and the correction from every solution of the gate's pose the lines may arrive in
+(``drivers/yumi/gate.py``). A joint move is swept as the controller interpolates it
+(every joint linearly, all together, between two known joint vectors), a straight move
+as a line. The gate joints themselves must be in the file (``gate_joints_deg``) and put
+the pusher's tip over the table box at clear height.
 """
 
 from __future__ import annotations
@@ -32,8 +36,9 @@ from typing import Any, Final
 import numpy as np
 
 from drivers.yumi.arm_shapes import Capsules, arm_capsules, min_distance, table_clearance
+from drivers.yumi.gate import GATE_HOW, gate_problem, gate_solutions
 from drivers.yumi.irb14000 import Pose
-from drivers.yumi.path_sweep import Worst, ZoneSpec, play, worst
+from drivers.yumi.path_sweep import Sample, Worst, ZoneSpec, joint_move, play, worst
 from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy, leave_rest, to_rest
 from drivers.yumi.reach import (
     REACH_MARGIN_MM,
@@ -41,6 +46,7 @@ from drivers.yumi.reach import (
     CornerReach,
     box_corners,
     corner_reaches,
+    default_arm_angle,
     side_of,
 )
 from drivers.yumi.yumi_controller import Waypoint
@@ -84,10 +90,16 @@ class ArmLayout:
     zone_box_mm: tuple[float, float, float, float] | None = None
     """(x0, y0, x1, y1) of ``tb_zone_lo``/``tb_zone_hi``, as the controller reports them."""
     floor_z_mm: float | None = None
+    gate_joints_deg: tuple[float, ...] | None = None
+    """The calibration's gate joints (ABB's order), None: not measured yet."""
 
     @property
     def gate(self) -> tuple[float, float]:
         return gate_xy(self.table_box_mm, self.gate_xy_mm)
+
+    @property
+    def gate_xyz(self) -> tuple[float, float, float]:
+        return (*self.gate, self.z_clear_mm)
 
 
 def layout_of(name: str, cal: Mapping[str, Any], *, task: str | None = None,
@@ -103,7 +115,8 @@ def layout_of(name: str, cal: Mapping[str, Any], *, task: str | None = None,
     tool_z = tool_z_mm if tool_z_mm is not None else cal.get("tool_z_mm")
     if side is None or "table_box_mm" not in cal or tool_z is None:
         return None
-    tool = ArmTool(side, float(tool_z), float(cal.get("arm_angle_deg", 0.0)),
+    tool = ArmTool(side, float(tool_z),
+                   float(cal.get("arm_angle_deg", default_arm_angle(side))),
                    tuple(float(v) for v in cal.get("tool_quat_wxyz", (0, 0, 1, 0))))
     rest = cal.get("rest_joints_deg")
     z = dict(zones or {})
@@ -111,6 +124,7 @@ def layout_of(name: str, cal: Mapping[str, Any], *, task: str | None = None,
     if zone_z_mm is None and z.get("tb_zone_z") is not None:
         zone_z_mm = float(z["tb_zone_z"])
     gate = cal.get("gate_xy_mm")
+    gate_joints = cal.get("gate_joints_deg")
     return ArmLayout(name, tool, tuple(float(v) for v in cal["table_box_mm"]),  # type: ignore[arg-type]
                      float(cal.get("z_push_mm", 10.0)), float(cal.get("z_travel_mm", 80.0)),
                      None if rest is None else tuple(float(v) for v in rest),
@@ -120,7 +134,8 @@ def layout_of(name: str, cal: Mapping[str, Any], *, task: str | None = None,
                      None if gate is None else (float(gate[0]), float(gate[1])),
                      None if lo is None or hi is None else (float(lo[0]), float(lo[1]),
                                                             float(hi[0]), float(hi[1])),
-                     None if z.get("tb_floor_z") is None else float(z["tb_floor_z"]))
+                     None if z.get("tb_floor_z") is None else float(z["tb_floor_z"]),
+                     None if gate_joints is None else tuple(float(v) for v in gate_joints))
 
 
 def _pt(p: Sequence[float]) -> str:
@@ -141,7 +156,8 @@ def reach_lines(lay: ArmLayout, reaches: Sequence[CornerReach]) -> tuple[list[st
                  f"({_height_name(lay, c.tcp_mm[2])} height)")
         if c.margin_mm is None:
             faults.append(f"{where} cannot be reached with the {how}: {c.solution.reason}; "
-                          f"move the table box towards the shoulder or change the arm angle")
+                          f"move the table box towards the shoulder or change the "
+                          f"calibration's arm_angle_deg")
         elif c.margin_mm < REACH_MARGIN_MM:
             faults.append(f"{where} is only {c.margin_mm:.0f} mm inside the arm's reach "
                           f"(want {REACH_MARGIN_MM:g} mm) with the {how}; move the table box "
@@ -203,44 +219,82 @@ def in_view(lay: ArmLayout, pose: Pose) -> str | None:
     return None
 
 
-def corner_programs(lay: ArmLayout, speed: float = 100.0) -> list[tuple[str, list[Waypoint]]]:
+def corner_programs(lay: ArmLayout, gate_joints: Sequence[float], speed: float = 100.0
+                    ) -> list[tuple[str, list[Waypoint]]]:
     """The driver's program to each corner of the table box and back, as it writes a
-    push's (``drivers/yumi/backend.py``, ``plan_push``): from rest by joints to the gate,
-    straight to above the corner at travel height, down to push height, up, straight to
-    the gate, by joints to rest (``drivers/yumi/paths.py``)."""
+    push's (``drivers/yumi/backend.py``, ``plan_push``): from rest by joints to the gate
+    joints, straight to above the corner at travel height, down to push height, up,
+    straight to the gate's point, by joints to the gate joints and to rest
+    (``drivers/yumi/paths.py``)."""
     out = []
     for c in box_corners(lay.table_box_mm, lay.z_push_mm):
         xy = c[:2]
         out.append((f"to corner {_pt(xy)} and back: ", [
-            *leave_rest(lay.gate, xy, lay.z_clear_mm, lay.z_travel_mm, speed),
+            *leave_rest(gate_joints, xy, lay.z_travel_mm, speed),
             Waypoint("move_l", (*xy, lay.z_push_mm), speed),
             Waypoint("move_l", (*xy, lay.z_travel_mm), speed),
-            *to_rest(lay.gate, lay.z_clear_mm, speed)]))
+            *to_rest(lay.gate, gate_joints, lay.z_clear_mm, speed)]))
+    return out
+
+
+def gate_faults(lay: ArmLayout) -> list[str]:
+    """The gate joints: in the file, and at the gate (within the joint limits, the
+    pusher's tip over the table box at clear height: ``drivers/yumi/gate.py``)."""
+    if lay.gate_joints_deg is None:
+        return [f"arm {lay.name}: its calibration has no 'gate_joints_deg' (the gate's "
+                f"joints, the end of the joint move from rest): the driver moves the arm "
+                f"nowhere; {GATE_HOW}"]
+    why = gate_problem(lay.tool, lay.gate_joints_deg, lay.gate_xyz, lay.table_box_mm)
+    return [] if why is None else [f"arm {lay.name}: {why}: every program would be "
+                                   f"refused; {GATE_HOW}"]
+
+
+def corrections(lay: ArmLayout, gate_chain: Sequence[float],
+                arm_angles: Sequence[float] | None = None) -> list[Sample]:
+    """The correction at the gate from every solution of the gate's pose within the joint
+    limits at ``arm_angles`` (default the gate joints' own, the one the driver's lines
+    back to the gate's point carry where they can: ``drivers/yumi/line_plan.py``;
+    ``drivers/yumi/gate.py``) to the gate joints: whichever the controller's lines back
+    to the gate's point arrive in. (A line back at another arm angle, where the gate's
+    own cannot be held, ends where its plan says: its correction is swept with its
+    program.)"""
+    out: list[Sample] = []
+    for k, q in enumerate(gate_solutions(lay.tool, lay.gate_xyz, gate_chain, arm_angles), 1):
+        out += joint_move(lay.tool, q, gate_chain,
+                          f"the correction at the gate from its pose's solution {k} "
+                          f"({_pt(lay.tool.model.pose(q).abb_deg)} deg): joint move to "
+                          f"the gate joints")
     return out
 
 
 def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[Pose]]:
     """(report lines, FAULT reasons, sampled poses) of the driver's paths to every
     corner (:func:`corner_programs`) played through the model
-    (``drivers/yumi/path_sweep.py``): the tip and the links against the zones the
-    controller reports (the joint moves :data:`JOINT_MARGIN_MM` clear, the straight ones
-    :data:`PATH_MARGIN_MM`), the links above the table."""
+    (``drivers/yumi/path_sweep.py``), and of the correction at the gate from every
+    solution of its pose (:func:`corrections`): the tip and the links against the zones
+    the controller reports (the joint moves :data:`JOINT_MARGIN_MM` clear, the straight
+    ones :data:`PATH_MARGIN_MM`), the links above the table. Needs the gate joints
+    (:func:`gate_faults` says when they are missing or wrong)."""
+    assert lay.gate_joints_deg is not None
     zones = ZoneSpec(lay.zone_box_mm, lay.zone_z_mm, lay.floor_z_mm)
     faults: list[str] = []
     poses: list[Pose] = []
-    least: dict[bool, Worst] = {}  # joint legs (True) and straight legs apart
-    for label, wps in corner_programs(lay):
-        samples, err = play(lay.tool, rest.chain_deg, lay.rest_joints_deg, wps, label)
+    least: dict[str, Worst] = {}  # each part of the paths (:data:`PARTS`) apart
+    gate_chain = lay.tool.model.pose_abb(lay.gate_joints_deg).chain_deg
+    runs = [(label, *play(lay.tool, rest.chain_deg, lay.rest_joints_deg, wps, label))
+            for label, wps in corner_programs(lay, lay.gate_joints_deg)]
+    runs.append(("the correction at the gate: ", corrections(lay, gate_chain), None))
+    for label, samples, err in runs:
         poses += [smp.pose for smp in samples[::4]]
         if err is not None:
             faults.append(f"arm {lay.name}: the driver's path {label}cannot be made: {err}; "
                           f"move the gate (gate_xy_mm), lower z_clear_mm or shrink the "
                           f"table box")
             continue
-        for joint in (True, False):
-            w = worst([smp for smp in samples if _is_joint(smp.leg) == joint], lay.tool, zones)
-            if w is not None and (joint not in least or w.clearance < least[joint].clearance):
-                least[joint] = w
+        for part in PARTS:
+            w = worst([smp for smp in samples if part_of(smp.leg) == part], lay.tool, zones)
+            if w is not None and (part not in least or w.clearance < least[part].clearance):
+                least[part] = w
         low = min((table_clearance(arm_capsules(smp.pose, lay.tool.tool_z_mm))
                    for smp in samples[::4]), default=None)
         if low is not None and low[0] < TABLE_GAP_MM:
@@ -248,19 +302,22 @@ def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[
                           f"mm above the table (want {TABLE_GAP_MM:g} mm)")
     g = lay.gate
     how = (f"rest by joints to the gate ({g[0]:.0f}, {g[1]:.0f}, {lay.z_clear_mm:g}), "
-           f"straight to every corner at travel height and down, back the same way")
+           f"straight to every corner at travel height and down, back the same way, the "
+           f"correction at the gate from each of its pose's solutions")
     if not least or all(math.isinf(w.clearance) for w in least.values()):
         return [f"      {lay.name}: paths ({how}): the zones were not read, not swept"
                 ], faults, poses
-    lines = [f"      {lay.name}: paths ({how}): least clearance to the world zones"]
-    for joint, w in sorted(least.items(), reverse=True):
-        lines[0] += (f"{',' if not joint and True in least else ''} on the "
-                     f"{'joint' if joint else 'straight'} moves {w.clearance:.0f} mm, the "
-                     f"{w.part} at {_pt(w.point)} mm ({w.leg})")
-        want = JOINT_MARGIN_MM if joint else PATH_MARGIN_MM
+    lines = [f"      {lay.name}: paths ({how}): least clearance to the world zones: " + "; ".join(
+        f"on {part} {least[part].clearance:.0f} mm, the {least[part].part} at "
+        f"{_pt(least[part].point)} mm ({least[part].leg})" for part in PARTS if part in least)]
+    for part in PARTS:
+        if part not in least:
+            continue
+        w = least[part]
+        want = PATH_MARGIN_MM if part == STRAIGHT else JOINT_MARGIN_MM
         if w.clearance < want:
             where = ("inside" if w.clearance < 0 else "from")
-            faults.append(f"arm {lay.name}: on the driver's path {w.leg} its {w.part} comes "
+            faults.append(f"arm {lay.name}: on the driver's path {w.leg}, its {w.part} comes "
                           f"to {_pt(w.point)} mm, {abs(w.clearance):.0f} mm {where} a world "
                           f"zone (below tb_zone_z {lay.zone_z_mm:g} outside the zone box, or "
                           f"below the floor; want {want:g} mm clear): a zone stop; move the "
@@ -268,9 +325,21 @@ def path_checks(lay: ArmLayout, rest: Pose) -> tuple[list[str], list[str], list[
     return lines, faults, poses
 
 
-def _is_joint(leg: str) -> bool:
-    """A sample on a joint move (``drivers/yumi/path_sweep.py`` names its legs)."""
-    return "joint move" in leg
+STRAIGHT: Final = "the straight moves"
+PARTS: Final = ("the joint moves from rest", "the correction at the gate",
+                "the joint moves back to rest", STRAIGHT)
+"""The parts of the driver's paths whose least clearance is reported (and FAULTed) each
+on its own: the way out, the correction, the way back and the straight legs."""
+
+
+def part_of(leg: str) -> str:
+    """Which of :data:`PARTS` a sample's leg is on (``drivers/yumi/path_sweep.py`` and
+    :func:`corrections` name the legs)."""
+    if "joint move" not in leg:
+        return STRAIGHT
+    if "correction" in leg:
+        return PARTS[1]
+    return PARTS[2] if "joint move to rest" in leg else PARTS[0]
 
 
 def sweep(lay: ArmLayout, reaches: Sequence[CornerReach], paths: Sequence[Pose] = ()
@@ -302,9 +371,12 @@ def check_layout(arms: Sequence[ArmLayout]) -> tuple[list[str], list[str]]:
         if (rest := rest_pose(lay)) is not None:
             faults += rest_faults(lay, rest)
             rests[lay.name] = arm_capsules(rest, lay.tool.tool_z_mm)
-            got, bad, paths = path_checks(lay, rest)
-            lines += got
-            faults += bad
+            gate_bad = gate_faults(lay)
+            faults += gate_bad
+            if not gate_bad:
+                got, bad, paths = path_checks(lay, rest)
+                lines += got
+                faults += bad
         sweeps[lay.name] = sweep(lay, reaches, paths)
     if len(arms) == 2:
         a, b = arms[0].name, arms[1].name

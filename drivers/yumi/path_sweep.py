@@ -5,9 +5,11 @@ use goes below ``tb_zone_z`` outside the zone box, or below ``tb_floor_z``, anyw
 its path, joint moves included. A joint move's path is not programmed: the controller
 interpolates every joint linearly, all together, so the tip swings along a curve. This
 module plays a list of the driver's waypoints (``drivers/yumi/yumi_controller.Waypoint``)
-from a joint vector the way the controller would (a joint move: the target solved from
-where the arm is, the joints interpolated; a straight move: the tip along the line,
-each point solved from the last) and measures every sample against the zones. The
+from a joint vector the way the controller would (a joint move to a joint target, rest
+or the gate: the joints interpolated between two known joint vectors, exactly as the
+controller does; a straight move: the tip along the line and the arm angle the
+robtarget carries turned evenly to it and held, as planned and sent:
+``drivers/yumi/line_plan.py``) and measures every sample against the zones. The
 layout check (``drivers/yumi/layout_check.py``) plays the paths the driver commands for
 every corner of the table box; the tests play the driver's own recorded programs.
 """
@@ -22,13 +24,13 @@ import numpy as np
 
 from drivers.yumi.arm_shapes import arm_capsules
 from drivers.yumi.irb14000 import Pose
+from drivers.yumi.line_plan import planned_targets
 from drivers.yumi.reach import ArmTool
 from drivers.yumi.yumi_controller import Waypoint
 
-__all__ = ["Sample", "Worst", "ZoneSpec", "play", "worst", "zone_clearance"]
+__all__ = ["Sample", "Worst", "ZoneSpec", "joint_move", "play", "worst", "zone_clearance"]
 
 JOINT_STEP_DEG = 1.0
-LINE_STEP_MM = 10.0
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,10 @@ def _tip(pose: Pose, tool: ArmTool) -> tuple[float, float, float]:
     return (float(t[0]), float(t[1]), float(t[2]))
 
 
-def _joints(tool: ArmTool, a: Sequence[float], b: Sequence[float], leg: str) -> list[Sample]:
+def joint_move(tool: ArmTool, a: Sequence[float], b: Sequence[float], leg: str
+               ) -> list[Sample]:
+    """The samples of a joint move from chain joints ``a`` to ``b`` (every joint
+    linearly, all together), ``a`` left out: at least one every :data:`JOINT_STEP_DEG`."""
     qa, qb = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     n = max(2, math.ceil(float(np.max(np.abs(qb - qa))) / JOINT_STEP_DEG))
     poses = [tool.model.pose(qa + (qb - qa) * k / n) for k in range(1, n + 1)]
@@ -97,36 +102,32 @@ def _joints(tool: ArmTool, a: Sequence[float], b: Sequence[float], leg: str) -> 
 def play(tool: ArmTool, start_chain: Sequence[float], rest_abb: Sequence[float] | None,
          waypoints: Sequence[Waypoint], label: str = "") -> tuple[list[Sample], str | None]:
     """The samples of ``waypoints`` played from ``start_chain`` (chain order), and the
-    reason it stopped early (a target the model cannot reach) or None."""
+    reason it stopped early (a target the model cannot reach, a line the arm cannot run
+    holding its arm angle) or None. Each waypoint is planned as the driver sends it
+    (:func:`drivers.yumi.line_plan.planned_targets`: a robtarget's arm angle in
+    ``eax_a``, the joints it ends in); a joint move runs to the planned joints, a
+    straight move as the controller runs it (:func:`drivers.yumi.wrist_line.wrist_line`:
+    the tip on the line, the arm angle turned evenly and held)."""
+    plan, why = planned_targets(tool, start_chain, rest_abb, waypoints)
     q = list(start_chain)
     out: list[Sample] = []
-    for w in waypoints:
-        if w.kind == "rest":
-            if rest_abb is None:
-                return out, "no rest joints"
-            target = tool.model.pose_abb(rest_abb).chain_deg
-            out += _joints(tool, q, target, f"{label}joint move to rest")
-            q = list(target)
-            continue
-        assert w.xyz_mm is not None
-        xyz = tuple(float(v) for v in w.xyz_mm)
-        leg = f"{label}{'joint' if w.kind == 'move_j' else 'straight'} move to {_pt(xyz)}"
-        if w.kind == "move_j":
-            sol = tool.solve(xyz, q)
-            if sol.pose is None:
-                return out, f"{_pt(xyz)}: {sol.reason}"
-            out += _joints(tool, q, sol.pose.chain_deg, leg)
-            q = list(sol.pose.chain_deg)
-            continue
-        here = np.asarray(_tip(tool.model.pose(q), tool))
-        n = max(1, math.ceil(float(np.linalg.norm(np.asarray(xyz) - here)) / LINE_STEP_MM))
-        for k in range(1, n + 1):
-            sol = tool.solve(here + (np.asarray(xyz) - here) * k / n, q)
-            pose = sol.pose if sol.pose is not None else sol.near  # near a singularity:
-            if pose is None:  # the controller's call (SingArea Wrist), as the driver's
-                return out, f"on the way to {_pt(xyz)}: {sol.reason}"
-            q = list(pose.chain_deg)
-            out.append(Sample(pose, _tip(pose, tool), leg))
+    for w, target in zip(waypoints, plan, strict=False):
+        if w.kind in ("rest", "abs_j"):
+            where = ("rest" if w.kind == "rest" else "the gate joints" if not out
+                     else "the gate joints (the correction)")
+            out += joint_move(tool, q, target.chain_deg, f"{label}joint move to {where}")
+        else:
+            assert w.xyz_mm is not None
+            xyz = tuple(float(v) for v in w.xyz_mm)
+            leg = f"{label}{'joint' if w.kind == 'move_j' else 'straight'} move to {_pt(xyz)}"
+            if w.kind == "move_j" or not target.line:
+                out += joint_move(tool, q, target.chain_deg, leg)
+            else:
+                poses = [tool.model.pose(c) for c in target.line]
+                out += [Sample(p, _tip(p, tool), leg) for p in poses]
+        q = list(target.chain_deg)
+    if why is not None:
+        return out, why
     return out, None
 
 

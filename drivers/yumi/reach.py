@@ -2,9 +2,11 @@
 
 Why a module between the kinematics and the checks: the driver (before a motion),
 ``testbed check`` and ``testbed calibrate`` (``drivers/yumi/layout_check.py``) and the
-layout's tests ask the same two questions of a target: is it reachable at this arm angle
-with this tool, and how far further out could it be (the reach margin, mm, measured
-horizontally away from the arm's shoulder, where a reach runs out first).
+layout's tests ask the same two questions of a target: is it reachable with this tool,
+axis 7 held where the driver plans it, and how far further out could it be (the reach
+margin, mm, measured horizontally away from the arm's shoulder, where a reach runs out
+first). Whether the straight lines between targets run is the line planner's
+(``drivers/yumi/line_plan.py``).
 """
 
 from __future__ import annotations
@@ -20,9 +22,8 @@ import numpy.typing as npt
 from drivers.yumi.irb14000 import Arm, Pose, arm
 from drivers.yumi.irb14000_ik import DOWN, Solution, quat_matrix, solve_down
 
-__all__ = ["REACH_MARGIN_MM", "ArmTool", "CornerReach", "box_corners",
-           "corner_reaches",
-           "reach_margin", "side_of"]
+__all__ = ["ARM_ANGLE_DEG", "ARM_ANGLE_MAX_DEG", "REACH_MARGIN_MM", "ArmTool", "CornerReach",
+           "box_corners", "corner_reaches", "default_arm_angle", "reach_margin", "side_of"]
 
 Mat = npt.NDArray[np.float64]
 REACH_MARGIN_MM: Final = 30.0
@@ -30,6 +31,22 @@ REACH_MARGIN_MM: Final = 30.0
 error, a table box grown later, and the controller's own tolerance eat into it."""
 MARGIN_SPAN_MM: Final = 150.0
 """The largest reach margin measured (a corner this far inside is simply "150+")."""
+
+
+ARM_ANGLE_DEG: Final = {"left": -40.0, "right": 40.0}
+"""ABB's arm angle (deg, the reference along axis 1: ``drivers/yumi/arm_angle.py``) each
+arm's targets are solved at when a calibration names none: the elbow out and down with
+the pusher over the table. Held everywhere, every straight line of a push keeps it and
+the way back retraces the way out, 3 deg or more from every joint limit over the
+shipped boxes (docs/notes/auto-day-one.md, "The redundancy")."""
+ARM_ANGLE_MAX_DEG: Final = 90.0
+"""A larger ``arm_angle_deg`` is an old calibration's axis-7 value (+-130), which a real
+controller would read as an arm angle no push of the box can take: refused with the fix."""
+
+
+def default_arm_angle(arm: str) -> float:
+    """The arm angle a calibration of ``arm`` holds when it names none."""
+    return ARM_ANGLE_DEG["right" if arm.startswith("r") else "left"]
 
 
 def side_of(arm_name: str, task: str | None = None) -> str | None:
@@ -42,8 +59,10 @@ def side_of(arm_name: str, task: str | None = None) -> str | None:
 @dataclass(frozen=True)
 class ArmTool:
     """How an arm holds its pusher: the side, the tool's length (flange to tip,
-    ``tool_z_mm``), the arm angle (axis 7) and the tool's orientation (a robtarget's
-    quaternion; default pointing down) its targets are sent with."""
+    ``tool_z_mm``), ABB's arm angle every target is solved at (the calibration's
+    ``arm_angle_deg``, the reference along axis 1: ``drivers/yumi/arm_angle.py``; -40
+    left, +40 right shipped) and the tool's orientation (a robtarget's quaternion;
+    default pointing down) its targets are sent with."""
 
     side: str
     tool_z_mm: float
@@ -73,12 +92,75 @@ class ArmTool:
 @lru_cache(maxsize=8192)
 def _solve(tool: ArmTool, tcp_mm: tuple[float, ...], current: tuple[float, ...] | None
            ) -> Solution:
-    sol = solve_down(tool.model, tcp_mm, tool.tool_z_mm, tool.arm_angle_deg, tool.rotation,
-                     current)
+    seed_axis_7 = AXIS_7_SEED_DEG.get(tool.side, 0.0)
+    first = solve_down(tool.model, tcp_mm, tool.tool_z_mm, seed_axis_7, tool.rotation,
+                       current)
+    sol = _held(tool, tcp_mm, current, first, tool.arm_angle_deg)
     for pose in (sol.pose, sol.near):
         if pose is not None:
             pose.frames.setflags(write=False)
     return sol
+
+
+AXIS_7_SEED_DEG: Final = {"left": 130.0, "right": -130.0}
+"""Axis 7 of the first descent's seeds (the pushes' elbow out, the wrist over the table):
+a start for :func:`_held`, which then moves every joint to the held arm angle."""
+
+
+def _held(tool: ArmTool, tcp_mm: tuple[float, ...], current: tuple[float, ...] | None,
+          first: Solution, psi: float) -> Solution:
+    """The joints of ``tcp_mm`` at the arm angle ``psi`` nearest ``current`` (else with the
+    most room to the limits), seeded from the axis-7 descent's answer, ``current`` and the
+    generic seeds. Why one arm angle held: the controller solves a robtarget at its
+    ``eax_a``, so targets solved at one angle make every straight line hold it and the
+    way back retrace the way out (docs/notes/auto-day-one.md, "The redundancy"). None
+    within the limits: the axis-7 descent's own reason when it found none either (out of
+    reach is what a person can fix), else a ``limit`` naming the angle."""
+    from drivers.yumi.arm_angle import SINGULAR_SIGMA, held_sigma, solve_with_arm_angle
+    from drivers.yumi.irb14000_ik import _seeds
+
+    m = tool.model
+    f = np.eye(4)
+    f[:3, :3] = tool.rotation
+    f[:3, 3] = np.asarray(tcp_mm, dtype=np.float64) - tool.rotation[:, 2] * tool.tool_z_mm
+    seeds = [list(p.chain_deg) for p in (first.pose, first.near) if p is not None]
+    seeds += [list(current)] if current is not None else []
+    seeds += [list(v) for v in _seeds(m, AXIS_7_SEED_DEG.get(tool.side, 0.0), None)[:8]]
+    best: tuple[tuple[bool, float], Pose] | None = None
+    singular: tuple[Pose, float] | None = None
+    for seed in seeds:
+        got = solve_with_arm_angle(m, f, psi, seed, iters=80)
+        if got is None or m.limit_excess(got.chain_deg) is not None:
+            continue
+        sigma = held_sigma(m, got, tool.tool_z_mm)
+        if sigma < HELD_SIGMA_FACTOR * SINGULAR_SIGMA:
+            singular = singular if singular is not None and singular[1] > sigma else (got,
+                                                                                      sigma)
+            continue
+        room = m.limit_room(got.chain_deg)[1]
+        near = -max(abs(a - b) for a, b in zip(got.chain_deg, current, strict=True)) \
+            if current is not None else room
+        key = (room >= HELD_ROOM_DEG, near)
+        if best is None or key > best[0]:
+            best = (key, got)
+    if best is not None:
+        return Solution(best[1])
+    if first.pose is None and first.kind == "reach":
+        return first
+    if singular is not None:
+        return Solution(None, "singular", f"near a singularity at arm angle {psi:g} deg (the "
+                        f"arm's smallest singular value {singular[1]:.4f}, under "
+                        f"{HELD_SIGMA_FACTOR * SINGULAR_SIGMA:g})", near=singular[0])
+    return Solution(None, "limit", f"no joints within the limits at arm angle {psi:g} deg")
+
+
+HELD_SIGMA_FACTOR: Final = 2.0
+"""A target's joints at least this many times the line planner's singularity bound from
+a singularity (``drivers/yumi/arm_angle.py`` SINGULAR_SIGMA, the bound the planner's
+first margin also asks): the lines from it have room to hold the tip and the angle."""
+HELD_ROOM_DEG: Final = 3.0
+"""A solution with this much room (deg) to every joint limit is preferred to a nearer
+one with less (a line from it still has room to run)."""
 
 
 def reach_margin(tool: ArmTool, tcp_mm: Sequence[float], pose: Pose,

@@ -18,16 +18,17 @@ uploaded and nothing moves. Every event log entry since the previous program goe
 ``drivers.yumi.elog`` logger (the agent's stderr: the run's ``hosts/<host>.log``).
 :meth:`stop` stops a running program of ours from another thread, on a second RWS
 session, so it never waits behind the polling; the motion timeout scales with the
-controller's speed ratio (a 10 % run takes ten times as long). Each robtarget carries
-the calibration's ``arm_angle_deg`` in ``eax_a`` (axis 7's value: on a real YuMi the
-controller reads a robtarget's ``eax_a`` as the arm angle, docs/notes/auto-day-one.md).
+controller's speed ratio (a 10 % run takes ten times as long). Each robtarget's
+``eax_a`` is ABB's arm angle of the joints the driver planned for it
+(:meth:`RwsYumiController.program`, ``drivers/yumi/line_plan.py``); a jointtarget's is
+axis 7's value.
 
 Over 450 lines, on purpose: one class, the controller client, whose calls (the program
 files, the start, the wait, the stop from another thread, the reads of the joints and
 the tool) share one RWS session, its request counter and its stop flag, and must agree
 on the same tasks and files; what could leave went: the reading of the controller's
 state to ``controller_state.py``, the zones proof to ``zones_proof.py``, the logins to
-``credentials.py``.
+``credentials.py``, the arm angles to ``arm_angle.py`` and ``line_plan.py``.
 """
 
 from __future__ import annotations
@@ -255,25 +256,59 @@ class RwsYumiController:
         count a push's from it)."""
         return self._count[0]
 
-    def program(self, arm: str, waypoints: Sequence[Waypoint]) -> Any:
-        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read)."""
+    def program(self, arm: str, waypoints: Sequence[Waypoint],
+                start_joints: Sequence[float] | None = None) -> Any:
+        """The ``MotionProgram`` of one arm (public for tests: its RAPID can be read). A
+        joint target (``rest``: the arm's rest joints; ``abs_j``: the waypoint's, the
+        gate's) is a MoveAbsJ, axis 7 as the jointtarget's first external axis
+        (``eax_a``, as the controller reports it in ``get_jointtarget``). A robtarget's
+        ``eax_a`` is ABB's arm angle, not axis 7 (docs/notes/rws.md): each carries the
+        arm angle of the joints the driver planned for it
+        (:func:`drivers.yumi.line_plan.planned_targets`: its inverse kinematics at the
+        calibration's arm angle ``arm_angle_deg``, from the joints before), the plan the
+        layout check sweeps; planned from ``start_joints`` (ABB's order; default: the
+        arm's joints as the controller reports them, read only when a robtarget comes
+        before any joint target). An arm the model cannot plan for (not an IRB 14000
+        arm, a target out of its reach) is refused: nothing is sent."""
+        from drivers.yumi.line_plan import planned_targets
+        from drivers.yumi.reach import ArmTool, default_arm_angle, side_of
+
         mpe = self._mpe
         pose = self._arms[arm]
         mp = mpe.MotionProgram(tool=self._tool(arm, pose.tool_z_mm))
-        extax = [pose.arm_angle_deg, 9e9, 9e9, 9e9, 9e9, 9e9]
-        for w in waypoints:
+        side = side_of(arm, pose.task)
+        if side is None:
+            raise BackendError(f"arm {arm}: task {pose.task} is not an IRB 14000 arm's; the "
+                               f"driver cannot tell its robtargets' arm angle; nothing is sent")
+        angle = pose.arm_angle_deg if pose.arm_angle_deg is not None else \
+            default_arm_angle(side)
+        tool = ArmTool(side, float(pose.tool_z_mm or 0.0), angle,
+                       tuple(float(v) for v in pose.tool_quat_wxyz))
+        start = None
+        first = next((w for w in waypoints if w.kind in ("rest", "abs_j", "move_j",
+                                                         "move_l")), None)
+        if first is not None and first.kind in ("move_j", "move_l"):
+            here = start_joints if start_joints is not None else self.joints()[arm]
+            start = tool.model.pose_abb(here).chain_deg
+        plan, why = planned_targets(tool, start, pose.rest_joints_deg, waypoints)
+        if why is not None:
+            raise BackendError(f"arm {arm}: the driver cannot plan its program: {why}; "
+                               f"nothing is sent")
+        for w, target in zip(waypoints, plan, strict=True):
             speed = mpe.speeddata(float(w.speed_mm_s), V_ORI_DEG_S, V_LEAX_MM_S, V_REAX_DEG_S)
             zone = mpe.fine if w.fine else mpe.z10
-            if w.kind == "rest":
-                j = pose.rest_joints_deg
-                mp.MoveAbsJ(mpe.jointtarget(list(j[:6]), [j[6], 9e9, 9e9, 9e9, 9e9, 9e9]),
+            if w.kind in ("rest", "abs_j"):
+                j = pose.rest_joints_deg if w.kind == "rest" else w.joints_deg
+                assert j is not None and len(j) == 7  # planned_targets refused it else
+                mp.MoveAbsJ(mpe.jointtarget([float(v) for v in j[:6]],
+                                            [float(j[6]), 9e9, 9e9, 9e9, 9e9, 9e9]),
                             speed, zone)
                 continue
-            if w.xyz_mm is None:
-                raise BackendError(f"arm {arm}: a {w.kind} waypoint needs a position")
-            target = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
-                                   mpe.confdata(*pose.robconf), extax)
-            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(target, speed, zone)
+            assert w.xyz_mm is not None and target.arm_angle_deg is not None
+            extax = [round(target.arm_angle_deg, 4), 9e9, 9e9, 9e9, 9e9, 9e9]
+            rob = mpe.robtarget(list(w.xyz_mm), list(pose.tool_quat_wxyz),
+                                mpe.confdata(*pose.robconf), extax)
+            (mp.MoveJ if w.kind == "move_j" else mp.MoveL)(rob, speed, zone)
         return mp
 
     def _tool(self, arm: str, tool_z_mm: float | None) -> Any:

@@ -21,18 +21,25 @@ from typing import Any, Literal, Protocol
 from drivers.errors import BackendError
 from drivers.yumi.controller_state import entry_text
 
-WaypointKind = Literal["move_j", "move_l", "rest"]
+WaypointKind = Literal["move_j", "move_l", "abs_j", "rest"]
+"""``move_l``: a straight line to ``xyz_mm`` (MoveL); ``abs_j``: a joint move to
+``joints_deg`` (MoveAbsJ); ``rest``: a joint move to the arm's rest joints (MoveAbsJ).
+The driver's paths (``drivers/yumi/paths.py``) use only these three, so every path it
+sends is one ``testbed check`` sweeps; ``move_j`` (MoveJ to a robtarget: the controller
+picks the configuration) stays for the client's own tests and is never planned."""
 
 
 @dataclass(frozen=True, slots=True)
 class Waypoint:
-    """One motion command in the robot base frame (mm); ``rest`` is a joint target."""
+    """One motion command in the robot base frame (mm), or a joint target."""
 
     kind: WaypointKind
     xyz_mm: tuple[float, float, float] | None
     speed_mm_s: float
     fine: bool = True
     """Stop exactly at the point (RAPID ``fine``), else fly by (``z10``)."""
+    joints_deg: tuple[float, ...] | None = None
+    """An ``abs_j``'s joint target: 7 angles in ABB's order (axes 1-6, then axis 7)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,7 +54,9 @@ class ArmPose:
     """7 joint angles (axis 7, the arm angle, last) of the rest pose out of view."""
     tool_quat_wxyz: tuple[float, ...] = (0.0, 0.0, 1.0, 0.0)
     robconf: tuple[float, ...] = (0.0, 0.0, 0.0, 4.0)
-    arm_angle_deg: float = 0.0
+    arm_angle_deg: float | None = None
+    """ABB's arm angle its targets are solved at (the calibration's ``arm_angle_deg``);
+    None: the driver's default for the side (``drivers/yumi/arm_calibration.py``)."""
     tool_z_mm: float | None = None
     """The pusher's length (the calibration's ``tool_z_mm``); None: not known, and the
     controller client refuses to send a program (never the flange by default)."""
@@ -61,6 +70,12 @@ class YumiControllerClient(Protocol):
     def tcp_xyz(self) -> dict[str, tuple[float, float, float]]:
         """Current TCP (the pusher's tip) of every arm, in the frame the waypoints use
         (``wobj0``), mm."""
+        ...
+
+    def joints(self) -> dict[str, tuple[float, ...]]:
+        """Current joints of every arm as the controller reports them: 7 angles in
+        ABB's order (axes 1-6, then axis 7), degrees. The driver judges where an arm
+        is from these (``drivers/yumi/arm_place.py``), never from a model's tip."""
         ...
 
     def stop(self) -> None:

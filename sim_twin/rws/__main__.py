@@ -6,12 +6,16 @@ rehearsal (later) starts one of these per YuMi host, as it starts a hardware twi
 Usage::
 
     python -m sim_twin.rws [--host 127.0.0.1] [--port 0] [--port-file F]
-        [--max-sessions 70] [--user NAME:PASSWORD ...] [--idle-timeout S]
+        [--max-sessions 70] [--user NAME:PASSWORD ...] [--grants NAME=GRANTS ...]
+        [--idle-timeout S]
         [--ramdisk-value '$TEMP'] [--opmode AUTO] [--ctrlstate motoron]
         [--cell --arms left,right --seed S --pusher-length-mm L --realtime R
          --rapid testbed|library] [--omit-motiontask] [--verbose]
 
-``Default User`` / ``robotics`` always log in; ``--user`` adds more. With ``--cell`` the
+``Default User`` / ``robotics`` always log in; ``--user`` adds more. Their UAS grants
+(``sim_twin.rws.uas``): ``Default User`` every grant, an added user none (fail closed)
+unless ``--grants NAME=agent|person|factory|none|UAS_ID,...`` gives them (``agent``:
+robot/README.md's four; a bad one: exit 2). With ``--cell`` the
 arms' positions come from a ``YumiTwinCell`` (PyBullet) made here and a RAPID start runs
 the uploaded motion programs on it (``--realtime`` paces the motion, 0: as fast as
 computed) with the semantics of ``--rapid``: ``testbed`` (the default) our RAPID
@@ -42,6 +46,7 @@ from sim_twin.rws.irc5 import CTRLSTATES, OPMODES, Irc5Controller, StartHook
 from sim_twin.rws.mechunits import YUMI_UNITS, MechUnit, PoseSource
 from sim_twin.rws.rws_server import RwsServer, check_loopback
 from sim_twin.rws.rws_service import LabProgram, RwsService
+from sim_twin.rws.uas import grants_of_users, parse_grants
 
 
 def _args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -52,6 +57,9 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--port-file", type=Path, default=None)
     p.add_argument("--max-sessions", type=int, default=70)
     p.add_argument("--user", action="append", default=[], metavar="NAME:PASSWORD")
+    p.add_argument("--grants", action="append", default=[], metavar="NAME=GRANTS",
+                   help="a user's UAS grants: a role (agent, person, factory, none) or "
+                        "UAS_... ids separated by commas")
     p.add_argument("--idle-timeout", type=float, default=None, metavar="S",
                    help="drop sessions idle this long (default: never)")
     p.add_argument("--ramdisk-value", default=DEFAULT_RAMDISK_VALUE,
@@ -80,7 +88,25 @@ def _args(argv: Sequence[str] | None) -> argparse.Namespace:
     for u in a.user:
         if ":" not in u or not u.split(":", 1)[0]:
             p.error(f"--user {u!r}: expected NAME:PASSWORD")
+    try:
+        a.user_grants = grants_of_users(_users(a), dict(_grant_arg(g) for g in a.grants))
+    except ValueError as exc:
+        p.error(f"--grants: {exc}")
     return a
+
+
+def _users(a: argparse.Namespace) -> dict[str, str]:
+    users = dict(DEFAULT_USERS)
+    users.update({name: pw for name, _, pw in (u.partition(":") for u in a.user)})
+    return users
+
+
+def _grant_arg(text: str) -> tuple[str, frozenset[str]]:
+    """``NAME=GRANTS`` (the last ``=`` separates them: a user's name may hold one)."""
+    name, eq, spec = text.rpartition("=")
+    if not eq or not name:
+        raise ValueError(f"{text!r}: expected NAME=GRANTS")
+    return name, parse_grants(spec)
 
 
 def _cell_hook(a: argparse.Namespace, units: tuple[MechUnit, ...]
@@ -108,8 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     hook: StartHook | None = None
     if a.cell:
         cell, poses, hook = _cell_hook(a, units)
-    users = dict(DEFAULT_USERS)
-    users.update({name: pw for name, _, pw in (u.partition(":") for u in a.user)})
+    users = _users(a)
     controller = Irc5Controller(units=units, poses=poses, on_start=hook, opmode=a.opmode,
                                 ctrlstate=a.ctrlstate, files=FileStore(
                                     ramdisk_value=a.ramdisk_value),
@@ -122,7 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         assert isinstance(hook, TestbedRapid)
         program = TestbedInstall(controller, hook)  # our modules' symbols, the lab's switch
     service = RwsService(controller, users=users, max_sessions=a.max_sessions,
-                         idle_timeout_s=a.idle_timeout, program=program)
+                         idle_timeout_s=a.idle_timeout, program=program,
+                         grants=a.user_grants)
     server = RwsServer(service, a.host, a.port, verbose=a.verbose)
     done = threading.Event()
 

@@ -20,8 +20,9 @@ the table and cubes aside)
 The codes and titles are the IRC5 operating manual's event messages as we know them;
 docs/rws-checklist.md asks a lab to confirm each on its controller. A kinematic stop
 stops the task at the moment its arm reaches the instruction it cannot do (the motion
-before it runs); motion supervision stops every task before the links touch
-(:data:`CONTACT_MM`), as collision detection stops the robot on contact.
+before it runs); motion supervision stops every task when two shapes touch
+(:data:`CONTACT_MM`): the real collision detection trips after contact, from the motor
+torques, so the twin's arms stop where the bodies meet, never short of them.
 
 The path model: a MoveL's TCP moves in a straight line, its joints follow by the
 solution nearest the previous sample's (ConfL off: the closest configuration); a MoveJ's
@@ -29,12 +30,15 @@ joints move linearly from the start's to the target's (the pusher in the cell st
 moves in a straight line: its path and the arm's differ a little between the ends, which
 only the collision watch sees). With ConfJ off a MoveJ's end is taken in a configuration
 the MoveLs after it can keep (the twin looks ahead); with SingArea Wrist (our RAPID) a
-line's wrist axes turn evenly from its start's joints to its end's while axes 1-3 keep
-the tip on the line (``ArmSupervisor._wrist_line``), and targets are solved for the
-tool's axis alone (the round pusher's turn about it is free); the robtarget's arm angle
-is taken as axis 7's value, which may ease by up to ``ARM_ANGLE_EASE_DEG`` through a
-pocket where holding it leaves the other joints singular (ABB's arm angle is the elbow
-plane's). Not modelled: an arm against itself or the body, blending in zones.
+line's wrist axes turn evenly from its start's joints to its end's while axes 1, 2, 7 and
+3 keep the tip on the line and the elbow at its arm angle (``ArmSupervisor._wrist_line``),
+and targets are solved for the tool's axis alone (the round pusher's turn about it is
+free). The arm angle is a robtarget's ``eax_a``: ABB's shoulder-elbow-wrist angle
+(:mod:`sim_twin.sew_angle`), not axis 7's value; a line turns it evenly from the start's
+to the target's (the short way round) and holds it exactly at every sample, axis 7
+moving as it must; where the other joints cannot follow, the line stops with the
+controller's code, never an eased arm angle. Not modelled: an arm against itself or the
+body, blending in zones.
 
 Over 450 lines, on purpose: its one job is to judge each arm's path as the
 controller would (joint moves, lines with and without SingArea Wrist, limits,
@@ -54,10 +58,12 @@ import numpy as np
 import numpy.typing as npt
 
 from sim_twin.rws.world_zones import ArmZone, ZoneBox, time_at
+from sim_twin.sew_angle import angle_step, arm_angle
 from sim_twin.yumi_arms import ArmModel, ArmPose, abb_to_chain, chain_to_abb, clearance
 from sim_twin.yumi_arms import table_clearance as table_gap
 from sim_twin.yumi_cell import Segment, Trajectory
 from sim_twin.yumi_ik import (
+    ARM_JOINTS,
     REACH_TOL_MM,
     SINGULAR_SIGMA,
     Solution,
@@ -74,11 +80,17 @@ from sim_twin.yumi_ik import (
 Mat = npt.NDArray[np.float64]
 SAMPLE_MM: Final = 15.0
 """The path is checked at least every this many mm of TCP travel."""
-CONTACT_MM: Final = 2.0
-"""Motion supervision stops the arms when two shapes come this close."""
-ARM_ANGLE_EASE_DEG: Final = 20.0
-"""How far the twin lets axis 7 leave the robtarget's arm angle to pass a pocket (see
-``ArmSupervisor._arm_angle_eased``)."""
+CONTACT_MM: Final = 0.0
+"""Motion supervision trips when two shapes come this close: 0, they touch. Why not a
+margin: RobotWare's collision detection senses a collision from the motor torques, so it
+trips only after contact; then "the robot will stop as quickly as possible. Then it will
+move in the reverse direction to remove residual forces ... The robot remains in the
+state motors on" (ABB, Application manual - Collision Detection, 3HAC18154-1, "What
+happens at a collision"). Assumed about the real stop: the overshoot into the contact
+(the braking distance, a few mm at the pushes' speeds: ABB publishes no figure for the
+YuMi) and the back-off along the path cancel, leaving the arms at the point of contact,
+which is where the twin leaves them; docs/rws-checklist.md ("The two grippers jogged")
+has the lab measure the real stop."""
 WRIST_SAMPLE_MM: Final = 5.0
 """A SingArea Wrist line is sampled at least every this many mm of TCP travel
 (``ArmSupervisor._wrist_line``: a sample costs one small solve)."""
@@ -223,6 +235,12 @@ class ArmSupervisor:
         x, y, z = (float(v) for v in f[:3, 3])
         return (x, y, z), _quat(f[:3, :3])
 
+    def arm_angle(self, arm: str, chain_deg: Sequence[float] | None = None) -> float:
+        """The arm angle (deg, ``eax_a`` of a robtarget) of the arm's joints (default: its
+        own): :func:`sim_twin.sew_angle.arm_angle`."""
+        return arm_angle(self.models[arm].pose(self.joints[arm] if chain_deg is None
+                                               else chain_deg))
+
     def rest_joints(self, arm: str) -> tuple[float, ...]:
         """The rest pose in ABB's joint order (axes 1-6, then 7)."""
         return tuple(chain_to_abb(self.rest[arm]))
@@ -245,8 +263,8 @@ class ArmSupervisor:
         q, m = self.joints[arm], self.models[arm]
         now = m.pose(q).flange[:3, :3]
         for rot in (now, FLANGE_DOWN):
-            s = solve(m, flange_at(cell_xyz, self.tool_mm, rot), q[2], None, current=q,
-                      free_yaw=self.free_yaw, seeds=[q])
+            s = solve(m, flange_at(cell_xyz, self.tool_mm, rot), self.arm_angle(arm), None,
+                      current=q, free_yaw=self.free_yaw, seeds=[q])
             if s.pose is not None:
                 self.joints[arm] = list(s.pose.chain_deg)
                 return
@@ -336,7 +354,8 @@ class ArmSupervisor:
         segs = traj.segments
         for k, seg in enumerate(segs):
             info = meta[k] if k < len(meta) else {}
-            angle = float(info.get("arm_angle_deg", q[2]))  # type: ignore[arg-type]
+            # a robtarget without an arm angle (9E9) keeps the arm's own
+            angle = float(info.get("arm_angle_deg", self.arm_angle(arm, q)))  # type: ignore[arg-type]
             if info.get("kind") in ("move_j", "rest"):
                 lines = []
                 for j in range(k + 1, len(segs)):
@@ -387,10 +406,14 @@ class ArmSupervisor:
                 lines: Sequence[tuple[Segment, float, Mat | None]] = (),
                 rot: Mat | None = None) -> list[float] | ArmStop:
         """A joint move's end: in ``conf`` (ConfJ on, the most dexterous such solution),
-        else (ConfJ off, "the closest configuration") the most dexterous solution from
-        which the MoveLs that follow (``lines``) run: the configuration a lab that taught
-        its arm angle and rest pose well gets; the twin looks ahead for it. The arm's
-        present joints seed the search too (a target its own joints produced is found)."""
+        else (ConfJ off, "the closest configuration": a MoveJ "uses the least amount of
+        axis rotation") the solution nearest the arm's joints, or, when the MoveLs that
+        follow (``lines``) do not run from it, the most dexterous from which they do: the
+        configuration a lab that taught its arm angle and rest pose well gets; the twin
+        looks ahead for it. The target's orientation is held exactly (the round pusher
+        is not let turn about its axis at a target: the controller reaches the
+        robtarget's quaternion). The arm's present joints seed the search too (a target
+        its own joints produced is found)."""
         flange = flange_at(xyz, self.tool_mm, rot)
         want = conf if conf_on else None
         key = (arm, tuple(float(v) for v in xyz), float(angle), repr(want), tuple(current),
@@ -398,13 +421,14 @@ class ArmSupervisor:
         s = self._solved.get(key)
         if s is None:
             s = solve(self.models[arm], flange, angle, want,  # type: ignore[arg-type]
-                      current=None, free_yaw=self.free_yaw, seeds=[current], prefer=current)
+                      current=None if conf_on else current, free_yaw=False,
+                      seeds=[current], prefer=current)
             if len(self._solved) >= SOLVED_KEPT:
                 del self._solved[next(iter(self._solved))]
             self._solved[key] = s
         if s.pose is not None and not conf_on and lines and \
                 not self._lines_run(arm, lines, list(s.pose.chain_deg)):
-            for cand in ranked(self.models[arm], flange, angle, self.free_yaw, LOOKAHEAD,
+            for cand in ranked(self.models[arm], flange, angle, False, LOOKAHEAD,
                                prefer=current):
                 if self._lines_run(arm, lines, list(cand.chain_deg)):
                     return list(cand.chain_deg)
@@ -427,35 +451,35 @@ class ArmSupervisor:
         """A MoveL: the TCP on a straight line, the tool's orientation turned evenly from
         the arm's present one to the target's (``rot``, default down) along it (a MoveL
         from the rest pose turns the tool down as it goes; one to a target with the rest's
-        orientation keeps it), the joints the closest solution. With SingArea Wrist (our
-        RAPID's), the wrist's axes are interpolated instead (:meth:`_wrist_line`)."""
+        orientation keeps it), the arm angle turned evenly from the arm's present one to
+        ``angle`` (the target's ``eax_a``) and held at every sample, the joints the closest
+        solution. With SingArea Wrist (our RAPID's), the wrist's axes are interpolated
+        instead (:meth:`_wrist_line`)."""
         if self.free_yaw:
             stop = self._wrist_line(arm, seg, angle, q, t0, track, rot)
             if stop is not False:
                 return stop
         m = self.models[arm]
-        start_angle = q[2]  # the arm angle turns with the line, as the TCP moves
+        start_angle = self.arm_angle(arm, q)  # the arm angle turns with the line
+        swing = angle_step(start_angle, angle)
         r0 = m.pose(q).flange[:3, :3]
         r1 = FLANGE_DOWN if rot is None else rot
         turn = math.degrees(float(np.linalg.norm(rotation_error(r0, r1))))
         # evenly in time: at most SAMPLE_MM apart, as the TCP never exceeds seg.speed
         n = max(1, math.ceil(seg.speed * seg.duration / SAMPLE_MM),
-                math.ceil(abs(angle - start_angle) / 5.0), math.ceil(turn / 3.0))
+                math.ceil(abs(swing) / 5.0), math.ceil(turn / 3.0))
         a = np.asarray(seg.a)
         for i in range(1, n + 1):
             t = t0 + seg.duration * i / n
             xyz = np.asarray(seg.at(seg.duration * i / n))
             f = float(np.linalg.norm(xyz - a) / seg.length) if seg.length > 0 else i / n
-            seed = [*q[:2], start_angle + f * (angle - start_angle), *q[3:]]
+            now = start_angle + f * swing
             flange = flange_at(xyz, self.tool_mm, turned(r0, r1, f))
-            pose, res = _descend(m, flange, seed, iters=40, free_yaw=self.free_yaw)
+            pose, res = _descend(m, flange, q, now, iters=40, free_yaw=self.free_yaw)
             if res > REACH_TOL_MM:  # slow to converge: longer, then the closest solution
-                pose, res = self._continued(m, flange, seed, q) or (pose, res)
-            stop = self._sample_stop(arm, m, pose, res, q, t, xyz, flange)
-            if stop is not None and stop.reason == "singular":
-                eased = self._arm_angle_eased(m, flange, seed)
-                if eased is not None:
-                    pose, stop = eased, None
+                pose, res = self._continued(m, flange, q, now) or (pose, res)
+            stop = self._sample_stop(arm, m, pose, res, q, t, xyz, flange, now,
+                                     abs(swing) / n)
             if stop is not None:
                 return stop
             q = list(pose.chain_deg)
@@ -465,11 +489,12 @@ class ArmSupervisor:
 
     def _wrist_line(self, arm: str, seg: Segment, angle: float, q: list[float], t0: float,
                     track: _Track, rot: Mat | None = None) -> ArmStop | bool | None:
-        """A MoveL with SingArea Wrist: the TCP on the straight line, axes 4, 5 and 6 (and
-        7, the arm angle) turned evenly from the start's joints to the end's (the
-        solution at the target closest to the start, ConfL Off), axes 1, 2 and 3 keeping
-        the tip on the line; the tool's orientation is exact at both ends and "allowed
-        to differ somewhat" between them (ABB's words for Wrist). Why: with the pusher
+        """A MoveL with SingArea Wrist: the TCP on the straight line, axes 4, 5 and 6 turned
+        evenly from the start's joints to the end's (the solution at the target closest to
+        the start, ConfL Off) and the arm angle evenly from the start's to ``angle``, axes
+        1, 2, 7 and 3 keeping the tip on the line and the elbow at that arm angle; the
+        tool's orientation is exact at both ends and "allowed to differ somewhat" between
+        them (ABB's words for Wrist). Why: with the pusher
         down the wrist passes near its singularity over parts of the table (axis 5 near
         0), where holding the orientation turns axis 4 fast; a string of such lines wound
         axis 4 past its limit (50027 on the rehearsal's pushes), which Wrist exists to
@@ -483,22 +508,23 @@ class ArmSupervisor:
         end_flange = flange_at(seg.b, self.tool_mm, r1)
         # the end: the descent from the start's joints (the solution they continue to, the
         # closest but for a rare one), else the search's closest within the limits
-        reach, res = _descend(m, end_flange, [*q[:2], angle, *q[3:]], free_yaw=True)
+        reach, res = _descend(m, end_flange, q, angle, free_yaw=False)
         if res <= REACH_TOL_MM and m.limit_violation(reach.chain_deg) is None:
             end = list(reach.chain_deg)
         else:
             flips = [[*q[:4], q[4] + d, -q[5], q[6] + d] for d in (180.0, -180.0)]
-            s = solve(m, end_flange, angle, None, current=q, free_yaw=True, seeds=[q, *flips])
+            s = solve(m, end_flange, angle, None, current=q, free_yaw=False, seeds=[q, *flips])
             if s.pose is None:
                 return False
             end = list(s.pose.chain_deg)
-        wrist = (2, 4, 5, 6)  # chain indices of axes 7, 4, 5, 6
-        swing = max(abs(end[k] - q[k]) for k in wrist)
+        start_angle = self.arm_angle(arm, q)
+        turn = angle_step(start_angle, angle)
+        wrist = (4, 5, 6)  # chain indices of axes 4, 5, 6
+        swing = max(max(abs(end[k] - q[k]) for k in wrist), abs(turn))
         # denser than a plain line's: between samples the joints are interpolated, and a
         # zone's entry is found on that path, which must stay near the line
         n = max(1, math.ceil(seg.speed * seg.duration / WRIST_SAMPLE_MM),
                 math.ceil(swing / 2.0))
-        arm_joints = (0, 1, 3)
         a = np.asarray(seg.a)
         before = prev = list(q)
         for i in range(1, n + 1):
@@ -508,9 +534,9 @@ class ArmSupervisor:
             seed = list(prev)
             for k in wrist:
                 seed[k] = q[k] + f * (end[k] - q[k])
-            for k in arm_joints:  # the arm's joints carried on as they went: a near seed
+            for k in ARM_JOINTS:  # the arm's joints carried on as they went: a near seed
                 seed[k] += prev[k] - before[k]
-            pose, err = tip_descend(m, xyz, self.tool_mm, seed, arm_joints)
+            pose, err = tip_descend(m, xyz, self.tool_mm, seed, start_angle + f * turn)
             if err > REACH_TOL_MM:
                 return ArmStop(t, arm, "reach", f"at {_xyz(xyz)}: the arm cannot follow the "
                                                 f"line ({err:.1f} mm off it)")
@@ -518,7 +544,7 @@ class ArmSupervisor:
             if over is not None:
                 return ArmStop(t, arm, "limit", f"at {_xyz(xyz)}: axis {over[0]} "
                                                 f"{over[1]:.1f} deg past its limit")
-            jump = max(abs(pose.chain_deg[k] - prev[k]) for k in arm_joints)
+            jump = max(abs(pose.chain_deg[k] - prev[k]) for k in ARM_JOINTS)
             if jump > JUMP_DEG or arm_sigma(m, pose, self.tool_mm) < SINGULAR_SIGMA:
                 return ArmStop(t, arm, "singular", f"at {_xyz(xyz)}: the linear path passes "
                                                    "an arm singularity")
@@ -527,30 +553,17 @@ class ArmSupervisor:
             track.q.append(prev)
         return None
 
-    def _arm_angle_eased(self, m: ArmModel, flange: Mat, seed: list[float]
-                         ) -> ArmPose | None:
-        """Near a pocket where axis 7 held at the arm angle leaves the other six singular:
-        the pose with axis 7 free too, if it converges clear of singularities within
-        ARM_ANGLE_EASE_DEG of the angle asked for. The twin takes the robtarget's arm
-        angle as axis 7's value; ABB's arm angle is the elbow plane's, a parameterization
-        without these pockets, so the twin lets axis 7 ease rather than stop."""
-        pose, res = _descend(m, flange, seed, iters=200, free_yaw=self.free_yaw,
-                             joints=range(7))
-        if res > REACH_TOL_MM or abs(pose.chain_deg[2] - seed[2]) > ARM_ANGLE_EASE_DEG or \
-                m.limit_violation(pose.chain_deg) is not None or \
-                manipulability(m, pose, self.free_yaw, range(7)) < SINGULAR_SIGMA:
-            return None
-        return pose
-
-    def _continued(self, m: ArmModel, flange: Mat, seed: list[float],
-                   prev: list[float]) -> tuple[ArmPose, float] | None:
-        """A line's next sample when the quick descent did not converge: a long one from
-        the same seed, else the solution closest to ``prev`` if it is near (the arm
-        follows the line); None when the arm cannot follow it."""
-        pose, res = _descend(m, flange, seed, iters=CONTINUE_ITERS, free_yaw=self.free_yaw)
+    def _continued(self, m: ArmModel, flange: Mat, prev: list[float], angle: float
+                   ) -> tuple[ArmPose, float] | None:
+        """A line's next sample (arm angle ``angle``) when the quick descent from the
+        previous sample's joints ``prev`` did not converge: a long one from them, else the
+        solution closest to them if it is near (the arm follows the line); None when the
+        arm cannot follow it."""
+        pose, res = _descend(m, flange, prev, angle, iters=CONTINUE_ITERS,
+                             free_yaw=self.free_yaw)
         if res <= REACH_TOL_MM:
             return pose, res
-        s = solve(m, flange, seed[2], None, current=prev, free_yaw=self.free_yaw, seeds=[prev])
+        s = solve(m, flange, angle, None, current=prev, free_yaw=self.free_yaw, seeds=[prev])
         if s.pose is None:
             return None
         # with SingArea Wrist the wrist's two turning axes (4 and 6, chain 4 and 6) may
@@ -560,11 +573,13 @@ class ArmSupervisor:
         return (s.pose, 0.0) if max(moved) < JUMP_DEG else None
 
     def _sample_stop(self, arm: str, m: ArmModel, pose: ArmPose, res: float,
-                     prev: list[float], t: float, xyz: Sequence[float], flange: Mat
-                     ) -> ArmStop | None:
+                     prev: list[float], t: float, xyz: Sequence[float], flange: Mat,
+                     angle: float, turn: float) -> ArmStop | None:
+        """Why a line's sample (arm angle ``angle``, ``turn`` deg of it since the last
+        sample) stops the arm, or None."""
         if res > REACH_TOL_MM:  # the arm cannot follow the line from where it is
-            s = solve(m, flange, pose.chain_deg[2], None, current=prev,
-                      free_yaw=self.free_yaw, seeds=[prev])
+            s = solve(m, flange, angle, None, current=prev, free_yaw=self.free_yaw,
+                      seeds=[prev])
             if s.pose is None:
                 return ArmStop(t, arm, s.reason or "reach", f"at {_xyz(xyz)}: {s.detail}")
             over = m.limit_violation(pose.chain_deg)
@@ -577,7 +592,6 @@ class ArmSupervisor:
         if over is not None:
             return ArmStop(t, arm, "limit", f"at {_xyz(xyz)}: axis {over[0]} "
                                             f"{over[1]:.1f} deg past its limit")
-        turn = abs(pose.chain_deg[2] - prev[2])  # the commanded arm angle's own change
         jump = max(abs(x - y) for x, y in zip(pose.chain_deg, prev, strict=True))
         flipped = jump > JUMP_DEG + 3.0 * turn and not self.free_yaw  # (Wrist: axes 4, 6 turn)
         if flipped or manipulability(m, pose, self.free_yaw) < SINGULAR_SIGMA:
@@ -586,9 +600,10 @@ class ArmSupervisor:
         return None
 
     def _contact(self, tracks: Mapping[str, _Track], horizon: float) -> ArmStop | None:
-        """The first moment (before ``horizon``) two shapes come within CONTACT_MM: the
-        first sample that does, then bisected back to where the gap closes. An arm that
-        does not move is there too, where it stands."""
+        """The first moment (before ``horizon``) two shapes overlap (their gap below
+        CONTACT_MM): the first sample that does, then bisected back to the moment they
+        touch (within 0.1 mm of the path; the stop is that moment, the arms left at first
+        contact). An arm that does not move is there too, where it stands."""
         tracks = {**{a: _Track([0.0], [list(q)]) for a, q in self.joints.items()}, **tracks}
         times = sorted({t for tr in tracks.values() for t in tr.t if t <= horizon})
         prev = 0.0

@@ -10,7 +10,9 @@ Order of a request: ``/lab/*`` (no authentication: the twin's side, never a
 controller's); else the session cookie or a digest login (``401`` / ``503``, see
 ``sim_twin.rws.digest_auth``); ``/logout`` ends the session (``204``); a ``POST``'s body
 must be a form (``application/x-www-form-urlencoded``, else ``415``, as RWS answers);
-then the resource (``sim_twin.rws.resources``), rendered as JSON when ``json=1``.
+the user's UAS grants must cover the request (else ``403``, ``SYS_CTRL_E_UAS_REJECT``, and
+nothing changes: ``sim_twin.rws.uas``); then the resource (``sim_twin.rws.resources``),
+rendered as JSON when ``json=1``.
 
 The lab side channel:
 
@@ -54,6 +56,7 @@ from sim_twin.rws.errors import GENERIC, RwsError, refused
 from sim_twin.rws.irc5 import Irc5Controller
 from sim_twin.rws.resources import Reply, Request, dispatch
 from sim_twin.rws.shapes import render, render_error
+from sim_twin.rws.uas import demand, grants_of_users
 
 FORM_TYPE = "application/x-www-form-urlencoded"
 LAB_KEYS = ("opmode", "ctrlstate", "speedratio", "execution", "options", "remove_option",
@@ -103,10 +106,14 @@ class RwsService:
 
     def __init__(self, controller: Irc5Controller, *, users: Mapping[str, str] | None = None,
                  max_sessions: int = 70, idle_timeout_s: float | None = None,
-                 realm: str = REALM, program: LabProgram | None = None) -> None:
+                 realm: str = REALM, program: LabProgram | None = None,
+                 grants: Mapping[str, Iterable[str]] | None = None) -> None:
         self.controller = controller
         self.program = program
         self.auth = DigestAuthority(users, realm)
+        self.grants = grants_of_users(self.auth.users, grants)
+        """Each user's UAS grants (``sim_twin.rws.uas.grants_of_users``: unless given, the
+        factory ``Default User`` every grant, any other user none)."""
         self.sessions = SessionTable(max_sessions, idle_timeout_s)
 
     def handle(self, method: str, target: str,
@@ -140,6 +147,8 @@ class RwsService:
             return HttpReply(204, _session_cookies(None))
         try:
             req = Request(method, parts, query, self._form(method, h, body), body)
+            demand(session.user, self.grants.get(session.user, frozenset()), req.method,
+                   req.parts, req.action, req.form)
             reply = dispatch(self.controller, req)
         except RwsError as exc:
             out = self._error(exc, host, as_json)

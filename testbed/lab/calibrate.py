@@ -13,7 +13,8 @@ goes to rest at the end, whatever happens.
 
     load fleet -> host, arm, existing file (read through the host's own transport)
     -> agent --calibrate ARM -> rest, frame (rest out of view?)
-    -> per grid point: move_tcp, frame, marker -> fit -> thresholds -> save -> rest
+    -> per grid point: move_tcp, frame, marker -> fit -> thresholds
+    -> the gate's joints (read at the gate on the way to the first point) -> save -> rest
 
 ``calibrate(cfg, opts, say)`` is the calibration itself; ``testbed calibrate``
 (``cmd_calibrate``) parses and checks its arguments into ``CalibrateOptions`` and calls
@@ -410,6 +411,47 @@ def with_tool(fleet: Any, host: HostConfig, arm: str, data: Mapping[str, Any],
     return out
 
 
+def with_gate(fleet: Any, host: HostConfig, arm: str, data: Mapping[str, Any],
+              say: Callable[[str], None]) -> dict[str, Any]:
+    """``data`` with ``gate_joints_deg``: the joints the controller reported with the arm
+    at its gate during this calibration (the agent drove it there first and read its
+    jointtarget: ``drivers/yumi/backend.py``, ``_measure_gate``), read through the
+    agent's ``describe``; said either way. Measured at the gate of the file the agent
+    started with: when the new table box (``--box``) moves the default gate elsewhere,
+    the measured gate's point is kept as ``gate_xy_mm`` (if it lies in the new box; else
+    no joints are written, and ``testbed check`` FAULTs until the arm is calibrated
+    again with the new box in its file). A backend without a gate says nothing."""
+    from drivers.yumi.paths import gate_xy
+
+    out = dict(data)
+    try:
+        lay = (fleet.describe(host.name).get("layout") or {}).get(arm) or {}
+    except Exception as exc:  # an agent without describe(): nothing measured to write
+        say(f"gate: the joints measured at the gate not read ({exc})")
+        return out
+    if not lay.get("gate_measured"):
+        return out
+    joints = [float(v) for v in lay["gate_joints_deg"]]
+    gx, gy = (float(v) for v in lay["gate_xy_mm"])
+    box = [float(v) for v in out["table_box_mm"]]
+    fx, fy = gate_xy(box, out.get("gate_xy_mm"))
+    if math.dist((fx, fy), (gx, gy)) > 1.0:
+        if not (box[0] <= gx <= box[2] and box[1] <= gy <= box[3]):
+            say(f"FAULT {host.name}: the gate's joints were measured at ({gx:.0f}, {gy:.0f}) "
+                f"mm, outside the new table box {_fmt(box, 0)}: no gate_joints_deg written; "
+                f"calibrate {arm} again (its file now has the new box)")
+            out.pop("gate_joints_deg", None)
+            return out
+        out["gate_xy_mm"] = [gx, gy]
+        say(f"gate: gate_xy_mm ({gx:.0f}, {gy:.0f}) kept where its joints were measured "
+            f"(the new table box's default gate is ({fx:.0f}, {fy:.0f}))")
+    out["gate_joints_deg"] = joints
+    shown = ", ".join(f"{v:g}" for v in joints)
+    say(f"gate: gate_joints_deg [{shown}] read from the controller with the arm at its gate "
+        f"({gx:.0f}, {gy:.0f}, {float(lay.get('z_clear_mm', 0.0)):g}) mm")
+    return out
+
+
 def verify_layout(fleet: Any, host: HostConfig, opts: CalibrateOptions,
                   out: CalibrationOutcome, say: Callable[[str], None]) -> bool:
     """The new calibration's layout, with the other arms' files, through the backend's
@@ -456,6 +498,7 @@ def _fit_and_save(fleet: Any, host: HostConfig, opts: CalibrateOptions, box: cal
     ok = report(out, opts, arm_cfg.crop, say)
     if out.data is not None:
         out.data = with_tool(fleet, host, opts.arm, out.data, say)
+        out.data = with_gate(fleet, host, opts.arm, out.data, say)
         verify_layout(fleet, host, opts, out, say)
     if opts.image is not None and out.last_frame is not None:
         import cv2

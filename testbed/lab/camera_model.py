@@ -30,14 +30,11 @@ pusher: its tip hangs at about (149, +-141, 115) mm, over the workspaces' near e
 the camera's view (the driver's retake rule would retake for ever). This rest holds the
 tip at about (-117, +-276, 268) mm, outside the camera's view, the links over 330 mm
 above the table, the arms apart, no joint within 33 deg of its limit."""
-PUSH_ARM_ANGLE_DEG = 130.0
-"""The left arm's arm angle (axis 7) for its pushes (the right's: minus it): every point
-of the workspaces from the table to travel height reachable, the arm clear of
-singularities with our RAPID's SingArea Wrist. Chosen on the twin's model: at +-135 deg a
-pocket near the right workspace's far outer corner, (308, -367) at push height, has a
-smallest singular value of 0.004 (the twin's controller stopped a push there with 50026
-in a rehearsal); at +-130 it has 0.024, and +-120 leaves a point out of reach
-(docs/notes/yumi-real.md, "The twin's arms")."""
+PUSH_ARM_ANGLE_DEG = -40.0
+"""The left arm's arm angle (ABB's, the reference along axis 1) for its pushes (the
+right's: minus it), the driver's own default (``drivers/yumi/reach.py``
+``ARM_ANGLE_DEG``; a test keeps them equal): held at every target, each straight line
+keeps it and the way back retraces the way out (docs/notes/auto-day-one.md)."""
 DEFAULT_TOOL_Z_MM = 184.2
 """The pusher's tip below the flange when the twin does not say (its default, the
 project's one pusher length: ABB's servo-gripper finger TCP at 114.2 mm plus the rod's
@@ -85,16 +82,20 @@ def true_calibration(cam: Mapping[str, Any], arm: str, plane_z_mm: float = 40.0,
                      n: int = 9) -> dict[str, Any]:
     """The arm's calibration file as a perfect ``testbed calibrate`` would write it: the
     homography fitted to the twin's TRUE projection of the cube-top plane over the arm's
-    workspace. For tests and benchmarks that need a calibrated twin quickly; a rehearsal
-    calibrates with ``testbed calibrate`` itself."""
+    workspace, and the gate joints (the driver's model's for the gate: drivers/yumi/gate.py;
+    a rehearsal's calibration measures them on the twin). For tests and benchmarks that need a
+    calibrated twin quickly; a rehearsal calibrates with ``testbed calibrate`` itself."""
     import cv2
+
+    from drivers.yumi.gate import calibration_gate_joints
 
     box = [float(v) for v in cam["workspaces_mm"][arm]]
     pts, px = project_plane(cam, box, plane_z_mm, n)
     h, _ = cv2.findHomography(px, pts[:, :2])
     side = "L" if arm.startswith("l") else "R"
-    return {"homography": h.tolist(), "table_box_mm": push_box(box), **arm_facts(arm, cam),
-            "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+    cal = {"homography": h.tolist(), "table_box_mm": push_box(box), **arm_facts(arm, cam),
+           "task": f"T_ROB_{side}", "mechunit": f"ROB_{side}"}
+    return {**cal, "gate_joints_deg": calibration_gate_joints(arm, cal)}
 
 
 def push_box(workspace_mm: Sequence[float]) -> list[float]:
@@ -150,5 +151,6 @@ def starting_calibration(lab: HardwareTwinLab, host: str, arm: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     start = true_calibration(cam, arm)
     del start["homography"]  # what a person knows before calibrating: box and rest pose
+    del start["gate_joints_deg"]  # testbed calibrate measures them at the gate
     atomic_write_json(path, start)
     return path

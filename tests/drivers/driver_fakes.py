@@ -375,9 +375,32 @@ def twin_picture(seed: int = 0, cubes: Mapping[str, tuple[float, float]] | None 
 
 
 def yumi_calibration(arm: str) -> dict[str, Any]:
-    return {"homography": YUMI_HOMOGRAPHY, "table_box_mm": YUMI_BOXES[arm],
-            "z_push_mm": 12.0, "z_travel_mm": 90.0, "max_speed_mm_s": 120.0,
-            "push_speed_mm_s": 40.0, "tool_z_mm": 184.2, **_fake_side(arm)}
+    """The fake cell's calibration of ``arm``, with the gate joints ``testbed calibrate``
+    would write for it (the driver's model: drivers/yumi/gate.py)."""
+    from drivers.yumi.gate import calibration_gate_joints
+
+    cal = {"homography": YUMI_HOMOGRAPHY, "table_box_mm": YUMI_BOXES[arm],
+           "z_push_mm": 12.0, "z_travel_mm": 90.0, "max_speed_mm_s": 120.0,
+           "push_speed_mm_s": 40.0, "tool_z_mm": 184.2, **_fake_side(arm)}
+    return {**cal, "gate_joints_deg": calibration_gate_joints(arm, cal)}
+
+
+def yumi_joints(arm: str) -> Any:
+    """The fake controller's joints for ``arm``'s pusher at a point: the driver's model,
+    the pusher down at the arm angle, from the gate joints (as the legs leave them)."""
+    from drivers.yumi.arm_calibration import ArmCalibration
+    from drivers.yumi.gate import arm_tool
+
+    cal = ArmCalibration.from_dict(yumi_calibration(arm), arm)
+    tool = arm_tool(arm, cal)
+    assert tool is not None and cal.gate_joints_deg is not None
+    seed = tool.model.pose_abb(cal.gate_joints_deg).chain_deg
+
+    def solve(_: str, xyz: Any) -> Any:
+        sol = tool.solve(xyz, seed)
+        pose = sol.pose if sol.pose is not None else sol.near
+        return None if pose is None else pose.abb_deg
+    return solve
 
 
 def _fake_side(arm: str) -> dict[str, Any]:
@@ -386,7 +409,7 @@ def _fake_side(arm: str) -> dict[str, Any]:
     model (the driver checks every target with it, issue 35); and the other way round."""
     right = arm == "left"
     return {"task": "T_ROB_R" if right else "T_ROB_L", "mechunit": "ROB_R" if right else "ROB_L",
-            "arm_angle_deg": -130.0 if right else 130.0,
+            "arm_angle_deg": 40.0 if right else -40.0,
             "rest_joints_deg": [-40 if right else 40, -90, 30, 0, 40, 0, -135 if right else 135]}
 
 
@@ -407,5 +430,9 @@ def make_yumi(tmp_path: Path, pictures: Sequence[np.ndarray], *, seed: int = 0,
         cal.write_text(json.dumps(yumi_calibration(arm)))
         setups.append(ArmSetup(arm, YUMI_CROPS[arm], arm == "right",
                                ArmCalibration.load(cal, arm)))
-    ctrl = FakeYumiController(dict(YUMI_REST), in_view_xyz=YUMI_IN_VIEW)
+    solvers = {arm: yumi_joints(arm) for arm in ("left", "right")}
+    ctrl = FakeYumiController(
+        dict(YUMI_REST), in_view_xyz=YUMI_IN_VIEW,
+        rest_joints={a: tuple(_fake_side(a)["rest_joints_deg"]) for a in ("left", "right")},
+        solve=lambda arm, xyz: solvers[arm](arm, xyz))
     return YumiBackend(setups, VideoCaptureCamera(str(video)), ctrl, seed=seed), ctrl

@@ -17,19 +17,23 @@ import pytest
 from driver_fakes import (
     YUMI_BOXES,
     YUMI_CROPS,
+    YUMI_IN_VIEW,
     YUMI_REST,
     local_host,
     make_yumi,
     twin_picture,
     write_video,
     yumi_calibration,
+    yumi_joints,
 )
 
 from drivers.backends.base import ArmOutcome
 from drivers.errors import BackendError
 from drivers.host_fleet import HostFleet
+from drivers.testing.fake_yumi import FakeYumiController
 from drivers.yumi.arm_calibration import ArmCalibration
-from drivers.yumi.backend import ArmSetup, plan_push
+from drivers.yumi.arm_place import JOINT_TOLERANCE_DEG
+from drivers.yumi.backend import ArmSetup, YumiBackend, plan_push
 from drivers.yumi.controller_state import RAPID_VERSION
 from drivers.yumi.credentials import FACTORY_DEFAULT, FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
@@ -58,20 +62,22 @@ def inside_box(arm: str, w: Waypoint) -> bool:
 ])
 def test_push_maps_through_the_calibration(arm: str, face: int, axis: int, sign: int) -> None:
     wps = plan_push(setup(arm), (0.5, 0.5), 0.0, face)
-    # by joints from rest to the gate at clear height, straight (a slant) to above the
-    # start at travel height, down to push height, the stroke, up, straight to the gate,
-    # by joints to rest
-    assert [w.kind for w in wps] == ["move_j", "move_l", "move_l", "move_l", "move_l",
-                                     "move_l", "rest"]
+    # by joints (MoveAbsJ) from rest to the gate joints, straight (a slant) to above the
+    # start at travel height, down to push height, the stroke, up, straight to the
+    # gate's point at clear height, by joints to the gate joints (the correction), by
+    # joints to rest
+    assert [w.kind for w in wps] == ["abs_j", "move_l", "move_l", "move_l", "move_l",
+                                     "move_l", "abs_j", "rest"]
+    gate = setup(arm).calibration.gate_joints_deg
+    assert gate is not None and wps[0].joints_deg == wps[6].joints_deg == gate
     start, end = wps[2].xyz_mm, wps[3].xyz_mm
     assert start is not None and end is not None
     assert sign * (end[axis] - start[axis]) == pytest.approx(0.15 * 256 * 1.25)
     assert end[1 - axis] == pytest.approx(start[1 - axis])
-    assert [w.xyz_mm[2] for w in wps[:-1]] == [  # type: ignore[index]
-        100.0, 90.0, 12.0, 12.0, 90.0, 100.0]
+    assert [w.xyz_mm[2] for w in wps[1:6]] == [  # type: ignore[index]
+        90.0, 12.0, 12.0, 90.0, 100.0]
     assert wps[1].xyz_mm[:2] == start[:2] and wps[4].xyz_mm[:2] == end[:2]  # type: ignore[index]
-    assert wps[0].xyz_mm == wps[5].xyz_mm and wps[0].xyz_mm[:2] == pytest.approx(  # type: ignore[index]
-        setup(arm).calibration.gate_xy)
+    assert wps[5].xyz_mm[:2] == pytest.approx(setup(arm).calibration.gate_xy)  # type: ignore[index]
     assert wps[3].speed_mm_s == 40.0 and all(w.speed_mm_s <= 120.0 for w in wps)
 
 
@@ -86,7 +92,7 @@ def test_waypoints_are_clipped_into_the_table_box() -> None:
         for centre in [(0.01, 0.01), (0.99, 0.5), (0.5, 0.99), (0.0, 1.0)]:
             for arm in ("left", "right"):
                 assert all(inside_box(arm, w) for w in plan_push(setup(arm), centre, 0.3,
-                                                                  face)[:-1])
+                                                                  face) if w.xyz_mm)
 
 
 def test_calibration_errors_name_the_arm_and_the_file(tmp_path: Path) -> None:
@@ -116,7 +122,7 @@ def test_both_arms_move_in_one_program_and_end_at_rest(tmp_path: Path) -> None:
     assert set(programs) == {"left", "right"}  # one MultiMove call for both arms
     for arm, wps in programs.items():
         # (an arm not yet known at rest goes there first: a rest inside the program)
-        assert wps[-1].kind == "rest" and all(w.kind == "rest" or inside_box(arm, w)
+        assert wps[-1].kind == "rest" and all(w.xyz_mm is None or inside_box(arm, w)
                                               for w in wps[:-1])
     backend.push({"left": 1})
     assert "right" not in ctrl.programs[-1]  # at rest: it waits (the controller's "stay")
@@ -127,18 +133,29 @@ def test_both_arms_move_in_one_program_and_end_at_rest(tmp_path: Path) -> None:
 
 def test_a_picture_with_an_arm_in_view_is_taken_again(tmp_path: Path) -> None:
     backend, ctrl = make_yumi(tmp_path, [twin_picture(0)])
-    ctrl.park_in_view("left", reads=1)
+    ctrl.park_in_view("left", reads=2)  # the picture's read and the move's
     n = len(ctrl.programs)
     views = backend.observe()
     assert backend.retaken == 1
-    # not at rest: straight up where it is, straight to the gate, by joints to rest
-    # (the fake reports it high up, z 300: no need to come down first)
+    # on a straight leg over its box (its joints the model's there, the pusher down):
+    # straight up to travel height where it is, straight to the gate's point, by joints
+    # to the gate joints (the correction), by joints to rest
+    cal = backend._arms["left"].calibration
     assert [(w.kind, w.xyz_mm) for w in ctrl.programs[n]["left"]] == [
-        ("move_l", (*backend._arms["left"].calibration.gate_xy, 100.0)), ("rest", None)]
+        ("move_l", (*YUMI_IN_VIEW[:2], 90.0)), ("move_l", (*cal.gate_xy, 100.0)),
+        ("abs_j", None), ("rest", None)]
+    assert ctrl.programs[n]["left"][2].joints_deg == cal.gate_joints_deg
     assert not views["left"].violating
-    ctrl.stuck.add("right")
-    with pytest.raises(BackendError, match="no picture without an arm in view"):
+    ctrl.stuck.add("right")  # over the other arm's table (outside its own box): unknown
+    n = len(ctrl.programs)
+    with pytest.raises(BackendError, match=r"^arm right is where the driver will not move "
+                                           r"it from: joints \[.*\] deg, the pusher's tip "
+                                           r"at \(360, -200, 50\) mm; .*the tip is outside "
+                                           r"the table box.*nothing was sent: jog it to rest "
+                                           r"on the FlexPendant \(manual reduced speed\), "
+                                           r"then PP to Main$"):
         backend.observe()
+    assert len(ctrl.programs) == n  # refused before anything was sent
 
 
 def test_violation_refusal_and_the_reset_recheck(tmp_path: Path) -> None:
@@ -181,17 +198,124 @@ def test_goal_is_drawn_into_the_image_like_the_twin(tmp_path: Path) -> None:
     assert found is not None and math.dist(found, v.goal) < 1.5 / 64
 
 
+# -- issue 43: where an arm is, judged in joint space; the gate a measured joint target ----
+def fake_on(tmp_path: Path, **over: object) -> tuple[YumiBackend, FakeYumiController]:
+    """:func:`make_yumi`'s backend, its left arm's calibration changed by ``over`` (a key
+    set to None is left out of the file)."""
+    backend, ctrl = make_yumi(tmp_path, [twin_picture(0)])
+    cal = {k: v for k, v in {**yumi_calibration("left"), **over}.items() if v is not None}
+    left = ArmSetup("left", YUMI_CROPS["left"], False, ArmCalibration.from_dict(cal, "left"))
+    return YumiBackend([left, backend._arms["right"]], backend._camera, ctrl), ctrl
+
+
+def leg_pose(xyz: tuple[float, float, float]) -> tuple[float, ...]:
+    """The left arm's joints (the fake cell's left is a T_ROB_R) with its pusher down at
+    ``xyz``, the arm angle held: where a stopped leg leaves it."""
+    got = yumi_joints("left")("left", xyz)
+    assert got is not None
+    return tuple(got)
+
+
+def test_at_rest_is_judged_from_the_joints_within_the_tolerance(tmp_path: Path) -> None:
+    backend, ctrl = fake_on(tmp_path)
+    rest = backend._arms["left"].calibration.pose.rest_joints_deg  # type: ignore[union-attr]
+    near = (rest[0] + 0.5 * JOINT_TOLERANCE_DEG, *rest[1:6], rest[6] - 0.5 * JOINT_TOLERANCE_DEG)
+    ctrl.place("left", YUMI_REST["left"], near)
+    backend.rest()
+    assert ctrl.programs == []  # at rest: the way to rest is no move at all
+    off = (rest[0] + 2 * JOINT_TOLERANCE_DEG, *rest[1:])  # the same tip, within a mm
+    ctrl.place("left", YUMI_REST["left"], off)
+    with pytest.raises(BackendError, match=r"^arm left is where the driver will not move "
+                                           r"it from: joints \[-39\.8, -90\.0, .*not at rest "
+                                           r"nor at its gate \(every joint within 0\.1 deg\).*"
+                                           r"nothing was sent: jog it to rest on the "
+                                           r"FlexPendant \(manual reduced speed\), then PP "
+                                           r"to Main$"):
+        backend.rest()
+    assert ctrl.programs == []
+    with pytest.raises(BackendError, match=r"^arm left is where"):
+        backend.push({"left": 0, "right": 1})  # a push too: nothing for either arm
+    assert ctrl.programs == []
+
+
+def test_an_arm_at_an_unknown_pose_is_refused_with_nothing_sent(tmp_path: Path) -> None:
+    backend, ctrl = fake_on(tmp_path)
+    inside = (360.0, -200.0, 50.0)  # over its own table box, below clear height
+    q = leg_pose(inside)
+    turned = (q[0], q[1], q[2], q[3], q[4] + 60.0, q[5], q[6])  # the pusher tilted 60 deg
+    ctrl.place("left", inside, turned)
+    with pytest.raises(BackendError, match=r"the pusher points \d+ deg from the legs' "
+                                           r"direction .*nothing was sent: jog it to rest"):
+        backend.rest()
+    outside = (300.0, -20.0, 50.0)  # beyond its box's inner edge, below clear height
+    ctrl.place("left", outside, leg_pose(outside))
+    with pytest.raises(BackendError, match=r"the tip is outside the table box"):
+        backend.move_tcp("left", (300.0, -200.0, 40.0))
+    high = (360.0, -200.0, 150.0)  # over its box, above clear height: no leg goes there
+    ctrl.place("left", high, leg_pose(high))
+    with pytest.raises(BackendError, match=r"the tip is not between the table and clear "
+                                           r"height 100 mm"):
+        backend.rest()
+    assert ctrl.programs == []
+
+
+def test_an_arm_stopped_on_a_leg_goes_back_by_the_gate(tmp_path: Path) -> None:
+    backend, ctrl = fake_on(tmp_path)
+    cal = backend._arms["left"].calibration
+    low = (400.0, -150.0, 12.0)  # where a stopped push leaves it
+    ctrl.place("left", low, leg_pose(low))
+    backend.rest()
+    assert [(w.kind, w.xyz_mm, w.joints_deg) for w in ctrl.programs[-1]["left"]] == [
+        ("move_l", (400.0, -150.0, 90.0), None), ("move_l", (*cal.gate_xy, 100.0), None),
+        ("abs_j", None, cal.gate_joints_deg), ("rest", None, None)]
+    ctrl.place("left", low, leg_pose(low))  # and a push from there: back to the gate
+    backend.move_tcp("left", (300.0, -250.0, 90.0))  # joints, then on as from rest
+    assert [w.kind for w in ctrl.programs[-1]["left"]] == ["move_l", "move_l", "abs_j",
+                                                          "move_l"]
+    assert ctrl.programs[-1]["left"][2].joints_deg == cal.gate_joints_deg
+
+
+def test_a_calibration_without_gate_joints_is_refused_naming_the_field(
+        tmp_path: Path) -> None:
+    backend, ctrl = fake_on(tmp_path, gate_joints_deg=None)
+    backend.observe()
+    out = backend.push({"left": 0})
+    err = out["left"].error
+    assert err is not None and "'gate_joints_deg'" in err and "run testbed calibrate" in err
+    assert "\n" not in err
+    assert ctrl.programs == []  # nothing sent
+    with pytest.raises(BackendError, match=r"^arm left: its calibration has no "
+                                           r"'gate_joints_deg' \(the gate's joints\): nothing "
+                                           r"is sent; run testbed calibrate"):
+        backend.move_tcp("left", (300.0, -200.0, 40.0))
+    backend.rest()  # at rest: nothing to do, nothing refused
+    assert ctrl.programs == []
+
+
+def test_gate_joints_that_are_not_at_the_gate_are_refused(tmp_path: Path) -> None:
+    gate = yumi_calibration("left")["gate_joints_deg"]
+    backend, ctrl = fake_on(tmp_path, gate_joints_deg=[gate[0] + 10.0, *gate[1:]])
+    with pytest.raises(BackendError, match=r"^arm left: gate_joints_deg \[.*\] put the "
+                                           r"pusher's tip at \(.*\) mm \(the model\), \d+ mm "
+                                           r"from the gate .*\(want 10 mm\); nothing was "
+                                           r"moved: run testbed calibrate"):
+        backend.move_tcp("left", (300.0, -200.0, 40.0))
+    assert ctrl.programs == []
+
+
 def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    poses = {"left": ArmPose("T_ROB_L", "ROB_L", (40, -90, 30, 0, 40, 0, 135),
-                             tool_z_mm=184.2),
-             "right": ArmPose("T_ROB_R", "ROB_R", (-40, -90, 30, 0, 40, 0, -135),
+    # the fake cell's "left" box is at y < 0: the IRB 14000's right arm (driver_fakes._fake_side)
+    poses = {"left": ArmPose("T_ROB_R", "ROB_R", (-40, -90, 30, 0, 40, 0, -135),
+                             tool_z_mm=184.2, arm_angle_deg=40.0),
+             "right": ArmPose("T_ROB_L", "ROB_L", (40, -90, 30, 0, 40, 0, 135),
                               tool_z_mm=184.2)}
     ctrl = RwsYumiController("http://127.0.0.1:1", poses, motion_timeout_s=0.3,
                              login=FACTORY_LOGIN)
     wps = plan_push(setup("left"), (0.5, 0.5), 0.0, 3)
     rapid = ctrl.program("left", wps).get_program_rapid()
-    assert rapid.count("MoveL") == 5 and rapid.count("MoveJ") == 1 and "MoveAbsJ" in rapid
+    # no MoveJ: the gate (twice: from rest, and the correction) and rest are MoveAbsJ
+    assert rapid.count("MoveL") == 5 and "MoveJ " not in rapid and rapid.count("MoveAbsJ") == 3
     flat = rapid.replace(" ", "")  # the shipped tool: its frame and tool_pusher's load
     assert "[[0,0,184.2],[1,0,0,0]],[0.272,[7.5,11.5,53.8],[1,0,0,0],0.0003,0.00032," \
            "9e-05]" in flat or "0.00009]" in flat, flat
@@ -248,10 +372,10 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
     monkeypatch.setattr(ctrl, "_rws", Rws())
     with pytest.raises(BackendError, match=r"did not finish within motion_timeout_s = 0\.3 s"):
         ctrl.execute({"left": wps, "right": [Waypoint("rest", None, 100.0)]})
-    assert calls == [("activate", "T_ROB_L"), ("activate", "T_ROB_R"), ("resetpp",),
-                     ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+    assert calls == [("activate", "T_ROB_R"), ("activate", "T_ROB_L"), ("resetpp",),
                      ("upload", "$TEMP/testbed_T_ROB_R.bin"),
-                     ("start", "once", ["T_ROB_L", "T_ROB_R"]), ("stop",)]
+                     ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+                     ("start", "once", ["T_ROB_R", "T_ROB_L"]), ("stop",)]
     # one arm's program (calibration's move_tcp): the other task still gets a file, a
     # "stay", is activated before the program pointers are reset, and starts: it never
     # replays what its RAM disk held (issue 35)
@@ -259,10 +383,10 @@ def test_rws_adapter_builds_multimove_rapid_without_a_controller(
     ctrl._rws.state = "stopped"
     with pytest.raises(BackendError, match=r"did not finish within"):
         ctrl.execute({"left": wps})
-    assert calls[:6] == [("activate", "T_ROB_L"), ("activate", "T_ROB_R"), ("resetpp",),
-                         ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+    assert calls[:6] == [("activate", "T_ROB_R"), ("activate", "T_ROB_L"), ("resetpp",),
                          ("upload", "$TEMP/testbed_T_ROB_R.bin"),
-                         ("start", "once", ["T_ROB_L", "T_ROB_R"])]
+                         ("upload", "$TEMP/testbed_T_ROB_L.bin"),
+                         ("start", "once", ["T_ROB_R", "T_ROB_L"])]
     stay = ctrl.stay("T_ROB_R").get_program_rapid()
     assert "WaitTime" in stay and "Move" not in stay and "184.2" in stay
 
@@ -313,7 +437,7 @@ def test_a_push_point_off_the_homography_is_an_error_not_a_clipped_waypoint() ->
 
 def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> None:
     from drivers.yumi.arm_calibration import CALIBRATION_BOX_MM
-    from drivers.yumi.backend import YumiBackend, build_yumi_backend
+    from drivers.yumi.backend import build_yumi_backend
 
     video = str(write_video(tmp_path / "cam.avi", [twin_picture(0)]))
     right = tmp_path / "right.json"

@@ -23,6 +23,7 @@ from drivers.yumi.controller_state import (
     rapid_error,
     rapid_of_task,
     refusal,
+    version_refusal,
 )
 from drivers.yumi.credentials import read_login
 
@@ -157,12 +158,14 @@ def test_motion_timeout_defaults_below_the_deadline() -> None:
 
 class Symbols:
     """``get_rapid_variable`` of a controller holding ``values`` ("module/name", task);
-    anything else is RWS's no-such-symbol (an exception)."""
+    anything else is RWS's no-such-symbol (an exception). Counts what was asked."""
 
     def __init__(self, values: dict[tuple[str, str], str]) -> None:
         self.values = values
+        self.asked: list[tuple[str, str]] = []
 
     def get_rapid_variable(self, var: str, task: str) -> str:
+        self.asked.append((var, task))
         return self.values[(var, task)]
 
 
@@ -186,3 +189,20 @@ def test_the_tcp_speed_cap_is_read_and_a_faster_calibration_is_a_fault() -> None
         "task T_ROB_L: the controller's tb_v_tcp_max (the TCP speed cap, mm/s) cannot be "
         "read: the task module is older than the cap; load robot/rapid/ from this checkout "
         "(robot/README.md, 'Install')"]
+
+
+def test_the_driver_reads_every_tasks_rapid_version() -> None:
+    key = "TestbedMotion/TB_RAPID_VERSION"
+    good = {(key, "T_ROB_L"): str(RAPID_VERSION), (key, "T_ROB_R"): str(RAPID_VERSION)}
+    rws = Symbols(good)
+    assert version_refusal(rws, ["T_ROB_L", "T_ROB_R"]) is None
+    assert rws.asked == [(key, "T_ROB_L"), (key, "T_ROB_R")]  # both, every time
+    why = version_refusal(Symbols({**good, (key, "T_ROB_R"): "3"}), ["T_ROB_L", "T_ROB_R"])
+    assert why == (f"task T_ROB_R: TestbedMotion/TB_RAPID_VERSION is 3, this driver needs "
+                   f"{RAPID_VERSION}; load robot/rapid/ from this checkout (robot/README.md, "
+                   f"'Install')")
+    gone = Symbols({(key, "T_ROB_R"): str(RAPID_VERSION)})
+    why = version_refusal(gone, ["T_ROB_L", "T_ROB_R"])
+    assert why is not None and why.startswith("task T_ROB_L: TestbedMotion/TB_RAPID_VERSION "
+                                              "cannot be read")
+    assert version_refusal(Symbols({**good, (key, "T_ROB_L"): "x"}), ["T_ROB_L"]) is not None

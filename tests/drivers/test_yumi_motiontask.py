@@ -28,6 +28,8 @@ from drivers.cameras.camera import VideoCaptureCamera
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.backend import ArmSetup, YumiBackend
 from drivers.yumi.credentials import FACTORY_LOGIN
+from drivers.yumi.irb14000 import Arm as IrbArm
+from drivers.yumi.irb14000_ik import solve_down
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from sim_twin.rws import Irc5Controller, RwsServer
@@ -35,8 +37,11 @@ from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.rws_service import RwsService
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import TestbedRapid
+from sim_twin.sew_angle import arm_angle
+from sim_twin.yumi_arms import ArmModel, abb_to_chain
 from sim_twin.yumi_cell import YumiTwinCell
-from sim_twin.yumi_geometry import workspace_mm
+from sim_twin.yumi_geometry import REST_JOINTS_DEG, workspace_mm
+from testbed.lab.camera_model import PUSH_ARM_ANGLE_DEG
 
 PUSHER_MM = 184.2
 OLD_PUSH = [Waypoint("move_j", (400.0, -200.0, 130.0), 150.0),
@@ -45,6 +50,17 @@ OLD_PUSH = [Waypoint("move_j", (400.0, -200.0, 130.0), 150.0),
 pusher goes up to 130 and down again."""
 MARKER = (300.0, 200.0, 40.0)
 """Where calibration sends the left pusher (inside the left table box)."""
+
+
+def marker_arm_angle() -> float:
+    """The arm angle (a robtarget's ``eax_a``: ABB's, not axis 7's; docs/notes/rws.md,
+    "What eax_a means on a YuMi") of the joints the driver plans for the left pusher down
+    at :data:`MARKER` from rest, axis 7 at the push's value (testbed/lab/camera_model.py
+    ``PUSH_ARM_ANGLE_DEG``): the move the old driver sent, as the controller needs it."""
+    rest = abb_to_chain(REST_JOINTS_DEG["left"])
+    s = solve_down(IrbArm("left"), MARKER, PUSHER_MM, PUSH_ARM_ANGLE_DEG, current=rest)
+    assert s.pose is not None, s
+    return arm_angle(ArmModel("left").pose(s.pose.chain_deg))
 
 
 @dataclass
@@ -88,13 +104,22 @@ def omitting() -> Iterator[Cell]:
 
 
 def backend(c: Cell, tmp_path: Path) -> YumiBackend:
+    """A ``YumiBackend`` on the client; the left arm's gate joints measured as ``testbed
+    calibrate`` does (a MoveJ to the gate's point, the jointtarget read there, back to
+    rest: ``drivers/yumi/backend.py``, ``_measure_gate``), the right arm's none (it is
+    not moved here)."""
     setups = []
     for u in YUMI_UNITS:
         cal = {"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
                "table_box_mm": list(workspace_mm(c.cell.sides[u.arm])),
                "z_push_mm": 12.0, "z_travel_mm": 80.0, "max_speed_mm_s": 150.0,
                "push_speed_mm_s": 100.0, "tool_z_mm": PUSHER_MM,
-               "rest_joints_deg": list(c.hook.poses.joints(u))}
+               "rest_joints_deg": list(c.hook.arms.rest_joints(u.arm))}
+        if u.arm == "left":
+            gate = ArmCalibration.from_dict(cal, u.arm).gate_xyz
+            c.client.execute({"left": [Waypoint("move_j", gate, 150.0)]})
+            cal["gate_joints_deg"] = list(c.client.joints()["left"])
+            c.client.execute({"left": [Waypoint("rest", None, 150.0)]})
         setups.append(ArmSetup(u.arm, (0, 0, 64, 64), u.arm == "right",
                                ArmCalibration.from_dict(cal, u.arm)))
     video = write_video(tmp_path / "cam.avi", [twin_picture(0)])
@@ -124,7 +149,8 @@ def test_the_old_one_task_start_replays_the_other_arms_push(omitting: Cell) -> N
                                              mpe.loaddata(0.272, [7.5, 11.5, 53.8],
                                                           [1, 0, 0, 0], 0, 0, 0)))
     mp.MoveJ(mpe.robtarget(list(MARKER), [0, 0, 1, 0], mpe.confdata(0, 0, 0, 4),
-                           [130.0] + [9e9] * 5), mpe.v200, mpe.fine)
+                           [marker_arm_angle()] + [9e9] * 5), mpe.speeddata(150, 100, 1000, 100),
+             mpe.fine)
     rws.upload_file("$TEMP/testbed_T_ROB_L.bin", mp.get_program_bytes(seqno=9))
     omitting.right_z.clear()
     rws.resetpp()

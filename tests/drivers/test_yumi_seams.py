@@ -28,6 +28,7 @@ from drivers.errors import BackendError
 from drivers.yumi.arm_calibration import ArmCalibration
 from drivers.yumi.controllers import make_controller
 from drivers.yumi.credentials import FACTORY_DEFAULT, FACTORY_LOGIN
+from drivers.yumi.gate import calibration_gate_joints
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from testbed.lab.camera_model import arm_facts
@@ -208,8 +209,9 @@ class Twin:
         xy = np.array([(x, y) for x in np.linspace(x0, x1, 9) for y in np.linspace(y0, y1, 9)])
         uv = self.project(np.c_[xy, np.full(len(xy), 40.0)])
         h, _ = cv2.findHomography(uv, xy)
-        return {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
-                **rest_pose(arm)}
+        cal = {"homography": h.tolist(), "table_box_mm": [x0, y0, x1, y1], **SPEEDS,
+               **rest_pose(arm)}
+        return {**cal, "gate_joints_deg": calibration_gate_joints(arm, cal)}  # issue 43
 
     def canonical(self, arm: str) -> np.ndarray:
         """The cube's true centre in the arm's canonical crop frame."""

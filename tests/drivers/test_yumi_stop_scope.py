@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 
 from drivers.errors import BackendError
+from drivers.yumi.controller_state import RAPID_VERSION
 from drivers.yumi.credentials import FACTORY_LOGIN
 from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
@@ -38,7 +39,8 @@ def twin() -> Iterator[tuple[Irc5Controller, RwsYumiController]]:
     lock = threading.Lock()
     hook = TestbedRapid(cell, lock, YUMI_UNITS, pusher_length_mm=PUSHER_MM)
     ctrl = Irc5Controller(units=YUMI_UNITS, poses=hook.poses)
-    server = RwsServer(RwsService(ctrl, program=TestbedInstall(ctrl, hook))).start_thread()
+    install = TestbedInstall(ctrl, hook, version=RAPID_VERSION)  # what the driver expects
+    server = RwsServer(RwsService(ctrl, program=install)).start_thread()
     poses = {u.arm: ArmPose(u.task, u.name, tuple(hook.poses.joints(u)), tool_z_mm=PUSHER_MM)
              for u in YUMI_UNITS}
     client = RwsYumiController(server.url, poses, http_timeout_s=20.0, motion_timeout_s=60.0,

@@ -35,9 +35,10 @@ from typing import Any
 
 import pytest
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
+from arm_plan import plan_nearest
 from hypothesis import HealthCheck, find, given, settings
 from hypothesis import strategies as st
-from twin_rws import ARM_ANGLE_DEG, DOWN, OurTwin, our_twin, run, tool
+from twin_rws import DOWN, OurTwin, our_twin, run, tool
 
 from sim_twin.constants import TIME_STEP_S
 from sim_twin.rws import testbed_rapid
@@ -56,7 +57,8 @@ from sim_twin.rws.testbed_file import (
     ZONE_OVER,
 )
 from sim_twin.rws.testbed_rapid import DONE, FAILED, WORLD_ZONE_CODE
-from sim_twin.yumi_arms import DEFAULT_TOOL_MM
+from sim_twin.sew_angle import arm_angle
+from sim_twin.yumi_arms import DEFAULT_TOOL_MM, ArmModel, abb_to_chain
 from sim_twin.yumi_cell import Trajectory
 from sim_twin.yumi_geometry import REST_JOINTS_DEG
 
@@ -90,8 +92,8 @@ class Cmd:
     zone: tuple[bool, float, float, float, float, float, float] = (True, 0, 0, 0, 0, 0, 0)
     wait: float = 0.0
     angle: float | None = None
-    """A robtarget's ``eax_a`` (deg; the twin holds it as axis 7's value, docs/notes/rws.md);
-    None: the driver's (:func:`arm_angles`)."""
+    """A robtarget's ``eax_a`` (ABB's arm angle, deg); None: the arm angle of the joints
+    the driver plans for the target (:func:`arm_angles`)."""
 
 
 @dataclass(frozen=True)
@@ -103,10 +105,26 @@ class File:
 
 
 def arm_angles(f: File) -> list[float]:
-    """Each command's ``eax_a``: its own, else the one the driver sends with a push's
-    targets (axis 7 at 130, ``ARM_ANGLE_DEG``: the twin holds a robtarget's ``eax_a`` as
-    axis 7, docs/notes/rws.md)."""
-    return [c.angle if c.angle is not None else ARM_ANGLE_DEG["left"] for c in f.cmds]
+    """Each command's ``eax_a``: its own, else the arm angle of the joints the driver
+    plans for its target (axis 7 at the push's 130, each from the joints before it: rest
+    at first, a MoveAbsJ's after one; ``tests/sim_twin/arm_plan.py``), as a driver that
+    sends its planned joints' arm angle writes it (docs/notes/rws.md, "What eax_a means
+    on a YuMi"). A target the plan cannot reach (or not a number: the file is refused
+    for it) gets the arm angle of the joints before it."""
+    tool_z = f.tool_z if math.isfinite(f.tool_z) else DEFAULT_TOOL_MM
+    current = abb_to_chain(REST_JOINTS_DEG["left"])
+    out: list[float] = []
+    for c in f.cmds:
+        finite = all(math.isfinite(v) for v in c.at)
+        if c.kind == "A" and finite:
+            current = abb_to_chain(c.at)
+        got = plan_nearest("left", c.at, current, tool_z) if c.kind in "JL" and finite \
+            else None
+        if got is not None:
+            current = got[0]
+        out.append(c.angle if c.angle is not None else
+                   got[1] if got is not None else arm_angle(ArmModel("left").pose(current)))
+    return out
 
 
 def motion_program(f: File) -> Any:
@@ -401,16 +419,16 @@ HOSTILE: dict[str, list[float]] = {
     "eax_a": [NAN, INF],
 }
 """Per field, values past its limit (just past, far past, at or below 0, NaN, inf). A
-robtarget's ``eax_a`` has no limit a file can pass but a number's: any finite one is
+robtarget's arm angle has no limit a file can pass but a number's: any finite one is
 legal, and one the arm cannot take is the controller's own error (:func:`legal_cmd`)."""
 
 
 @st.composite
 def legal_cmd(draw: st.DrawFn) -> Cmd:
     """A command within every limit (its values also AT the limits), its target on the
-    table, above it or out of reach; a robtarget's ``eax_a`` mostly the driver's (130),
-    else drawn: one the arm cannot take there ends in the controller's own error, as a
-    target out of reach does."""
+    table, above it or out of reach; a robtarget's arm angle mostly the driver's plan's,
+    else any (130: axis 7's value, the old driver's; or drawn): one the arm cannot take
+    there ends in the controller's own error, as a target out of reach does."""
     kind = draw(st.sampled_from("AJJLLLW"))
     speed = (draw(st.sampled_from([V_TCP_MAX, V_TCP_MAX, 100.0, 60.0])),
              draw(st.sampled_from([V_ORI_MAX, 60.0])), draw(st.sampled_from([V_LEAX_MAX, 5.0])),

@@ -24,6 +24,8 @@ import pytest
 import twin_rws
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
 from abb_robot_client.rws import RWS
+from arm_plan import plan
+from arm_plan import program as planned_program
 
 from sim_twin.rws import Irc5Controller, MechUnit, RwsServer, serve
 from sim_twin.rws.arm_supervision import flange_at
@@ -75,15 +77,21 @@ DOWN_ROT = np.diag([-1.0, 1.0, -1.0])
 
 
 def rt(x: float, y: float, z: float, side: str = "left", tool_z: float = PUSHER_MM,
-       base: tuple[float, float, float] | None = None, angle: float = 0.0) -> Any:
-    """A tool-down robtarget (arm angle ``angle``) with the configuration the twin's arm
-    reaches it in (what a lab reads off the robtarget after jogging there: the library's
-    RAPID keeps ConfJ on); ``base``: the target in the base frame when the program's work
-    object moves it."""
+       base: tuple[float, float, float] | None = None, angle: float | None = None) -> Any:
+    """A tool-down robtarget with the arm angle ``angle`` (``eax_a``: ABB's, not axis 7's;
+    default :data:`ELBOW_UP`) in the configuration the twin's arm reaches it in (what a lab
+    reads off the robtarget after jogging there: the library's RAPID keeps ConfJ on);
+    ``base``: the target in the base frame when the program's work object moves it."""
     bx, by, bz = base or (x, y, z)
+    angle = ELBOW_UP[side] if angle is None else angle
     pose = solve(ArmModel(side), flange_at((bx, by, bz), tool_z, DOWN_ROT), angle, None).pose
     c1, c4, c6 = (0, 0, 0) if pose is None else configuration(pose.chain_deg)
     return mpe.robtarget([x, y, z], DOWN, mpe.confdata(c1, c4, c6, 0), [angle] + [9e9] * 5)
+
+
+ELBOW_UP = {"left": 176.0, "right": -176.0}
+"""The arm angle of the elbow-up posture (axis 7 near 0) these tests' arms reach their
+targets in: the one they took when the twin read ``eax_a`` as axis 7 (at 0)."""
 
 
 def tool(z_mm: float) -> Any:
@@ -403,17 +411,18 @@ def test_multimove_with_numbered_tasks_moves_both_arms_at_once(cell_twin: Any) -
     assert math.dist(mid[6:9], REST_TIP["right"]) > 10
 
 
+@pytest.mark.slow  # a paced line of about 3.5 s
 def test_a_stop_mid_motion_leaves_the_pusher_between_start_and_target(cell_twin: Any) -> None:
     s, _, cell, _, lock = cell_twin(realtime=1.0)  # paced: the line takes ~3.5 s
     c = client(s.url)
     m = mpe.MotionProgramExecClient(abb_client=c)
     start, target = (310.0, 300.0, 100.0), (310.0, 100.0, 100.0)
     first = mpe.MotionProgram(tool=tool(PUSHER_MM))  # by joints from rest to the start
-    first.MoveJ(rt(*start, angle=130.0), mpe.v500, mpe.fine)
+    first.MoveJ(rt(*start, angle=plan("left", start)[1]), mpe.v500, mpe.fine)
     m.execute_motion_program(first, task="T_ROB_L")
     assert tcp(cell, lock, "left") == pytest.approx(start, abs=1.0)
     mp = mpe.MotionProgram(tool=tool(PUSHER_MM))
-    mp.MoveL(rt(*target, angle=130.0), mpe.v60, mpe.fine)
+    mp.MoveL(rt(*target, angle=plan("left", target)[1]), mpe.v60, mpe.fine)
     seq = m.execute_motion_program(mp, task="T_ROB_L", wait=False)
     deadline = time.monotonic() + 20
     while math.dist(c.get_robtarget("ROB_L", tool="pusher").trans.tolist(), start) < 20:
@@ -432,7 +441,8 @@ def test_a_stop_mid_motion_leaves_the_pusher_between_start_and_target(cell_twin:
     with pytest.raises(Exception, match="Could not find log file messages"):  # never closed
         m.read_motion_program_result_log(seq)
     nxt = mpe.MotionProgram(tool=tool(PUSHER_MM))  # the next program starts where it stopped
-    nxt.MoveL(rt(held[0], held[1] - 10, held[2], angle=130.0), mpe.v200, mpe.fine)
+    after = (held[0], held[1] - 10, held[2])
+    nxt.MoveL(rt(*after, angle=plan("left", after)[1]), mpe.v200, mpe.fine)
     m.enable_motion_logging()
     log = m.execute_motion_program(nxt, task="T_ROB_L")
     assert math.dist(log.data[0, 2:], held) < 3.0  # no jump back to the old start
@@ -485,8 +495,11 @@ def test_python_m_sim_twin_rws_cell_runs_programs(tmp_path: Path, rapid: str) ->
             mpe.MotionProgramExecClient(abb_client=c).execute_motion_program(mp, task="T_ROB_L")
         else:  # the default: our RAPID, its own file, its symbols; the file's tool frame
             # must be tool_pusher's (the twin ships it as its pusher, 100 mm here)
-            mp = twin_rws.program([("J", (400, 200, 120), 500), ("L", (400, 200, 50), 200)],
-                                  tool_z_mm=100.0)  # by joints above the target, then down
+            above, q = (400.0, 200.0, 120.0), plan("left", (400.0, 200.0, 120.0),
+                                                    tool_z_mm=100.0)
+            mp = planned_program([("J", above, q[1]),  # by joints above the target, then down
+                                  ("L", (400.0, 200.0, 50.0),
+                                   plan("left", (400.0, 200.0, 50.0), q[0], 100.0)[1])], 100.0)
             assert [e.title for e in twin_rws.run(c, {"T_ROB_L": mp})] == ["Testbed Motion Done"]
             assert c.get_rapid_variable("tb_zone_z", "T_ROB_L/TestbedTask_L") == "80"
         assert c.get_robtarget("ROB_L").trans.tolist() == pytest.approx([400, 200, 150], abs=1.0)

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
-from twin_rws import client, program, run
+from twin_rws import LOGINS, as_person, client, program, run
 
 from drivers.yumi.controller_state import RAPID_VERSION, problems, rapid_of_task
 from sim_twin.rws import Irc5Controller, RwsServer
@@ -40,7 +40,7 @@ def twin() -> Iterator[Callable[[], Made]]:
         hook = TestbedRapid(cell, threading.Lock(), YUMI_UNITS)
         ctrl = Irc5Controller(units=YUMI_UNITS, poses=hook.poses)
         install = TestbedInstall(ctrl, hook)
-        server = RwsServer(RwsService(ctrl, program=install)).start_thread()
+        server = RwsServer(RwsService(ctrl, program=install, **LOGINS)).start_thread()
         made.append((server, cell))
         return client(server.url), ctrl, install
 
@@ -58,9 +58,12 @@ def zones(c: Any, task: str = "T_ROB_L") -> dict[str, str]:
 
 
 def restart(c: Any, mode: str) -> None:
-    """``POST ctrl?action=restart`` as a lab's curl line does; the motors on again after."""
-    c._do_post("ctrl?action=restart", {"restart-mode": mode})
-    c.set_controller_state("motoron")
+    """``POST ctrl?action=restart`` as a lab's curl line does, as the person (the
+    restart grants: robot/README.md), on ``c``'s controller; the motors on again after."""
+    person = as_person(c.base_url)
+    person._do_post("ctrl?action=restart", {"restart-mode": mode})
+    person.set_controller_state("motoron")
+    person.logout()
 
 
 def test_pp_to_main_keeps_the_zones_reported_and_active(twin: Any) -> None:
@@ -94,7 +97,7 @@ def test_reset_rapid_keeps_the_system_modules_and_the_zones(twin: Any) -> None:
     restart(c, "restart")
     assert zones(c)["tb_zones_n"] == "5" and ctrl.ctrlstate == "motoron"
     with pytest.raises(Exception, match="the twin models restart, pstart"):
-        c._do_post("ctrl?action=restart", {"restart-mode": "xstart"})
+        as_person(c.base_url)._do_post("ctrl?action=restart", {"restart-mode": "xstart"})
 
 
 def _issue29_layout(ctrl: Irc5Controller, install: TestbedInstall) -> None:

@@ -14,7 +14,7 @@ import math
 import random
 
 import pytest
-from twin_rws import OurTwin, our_twin, program, run, tool
+from twin_rws import UNDER_SHOULDER_DEG, OurTwin, our_twin, program, run, tool
 
 from sim_twin.rws import testbed_rapid
 from sim_twin.rws.rapid_data import parse_value
@@ -113,14 +113,18 @@ def test_a_lab_sets_tool_pusher_over_rws_and_the_motion_and_zones_use_it() -> No
     the old length are refused, files with the new one run with it, so the real tip goes
     20 mm below each target (the twin is faithful to a wrong measurement), and the zones
     watch that TCP; the value survives a restart and Reset RAPID (TASK PERS, system
-    module)."""
+    module). The lab writes and restarts as the person (the agent holds no such grant)."""
     with our_twin() as t:
-        t.c.set_rapid_variable("tool_pusher", f"[TRUE,{frame(P - 20)},{LOAD}]", SYMBOL)
+        t.person.set_rapid_variable("tool_pusher", f"[TRUE,{frame(P - 20)},{LOAD}]",
+                                    SYMBOL)
         assert read(t) == pusher(P - 20)
         old = run(t.c, {"T_ROB_L": program([DOWN_AT], tool_z_mm=P)})
         assert [e.args[1] for e in old] == [TOOL_DIFFERS]
         assert old[0].args[3:] == [f"file {frame(P)}", f"tool_pusher {frame(P - 20)}"]
-        new = run(t.c, {"T_ROB_L": program([DOWN_AT, ("L", (400, 200, 60), 100)],
+        # the flange 20 mm lower than with the true length: the driver's plan for the line
+        # down turns the arm angle across the shoulder's singularity (UNDER_SHOULDER_DEG)
+        under = UNDER_SHOULDER_DEG["left"]
+        new = run(t.c, {"T_ROB_L": program([(*DOWN_AT, under), ("L", (400, 200, 60), 100, under)],
                                            tool_z_mm=P - 20)}, seqno=2)
         assert [e.title for e in new] == [DONE]
         assert t.tcps()["left"] == pytest.approx((400, 200, 40), abs=0.3)
@@ -128,10 +132,10 @@ def test_a_lab_sets_tool_pusher_over_rws_and_the_motion_and_zones_use_it() -> No
         assert tcp == pytest.approx([400, 200, 60], abs=0.3)
         assert t.hook._offsets["left"] == pytest.approx((0, 0, 20))  # what the zones watch
         for mode in ("restart", "pstart"):
-            t.c._do_post("ctrl?action=restart", {"restart-mode": mode})
+            t.person._do_post("ctrl?action=restart", {"restart-mode": mode})
             assert read(t) == pusher(P - 20)
         with pytest.raises(Exception, match="tooldata"):  # the controller checks the type
-            t.c.set_rapid_variable("tool_pusher", "[TRUE,[[0,0,1]]]", SYMBOL)
+            t.person.set_rapid_variable("tool_pusher", "[TRUE,[[0,0,1]]]", SYMBOL)
 
 
 def test_angle_deg_is_the_angle_between_orientations() -> None:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from twin_rws import client, program, run, start
+from twin_rws import UNDER_SHOULDER_DEG, client, program, run, start
 
 from sim_twin.rws.testbed_rapid import DONE, RAPID_VERSION, WORLD_ZONE_CODE
 from sim_twin.yumi_arms import rest_tip
@@ -102,6 +102,25 @@ def test_rws_on_its_own_port_with_the_files_login_and_the_factorys(twin: Twin) -
     c.logout()
 
 
+def test_the_files_login_holds_the_agents_grants_only(twin: Twin) -> None:
+    """The rehearsal's login is the agent's: ``--rws-grants`` defaults to robot/README.md's
+    four (sim_twin.rws.uas), so it resets the PP but its restart is the controller's 403
+    (``SYS_CTRL_E_UAS_REJECT``) and nothing restarts; the factory login may."""
+    from abb_robot_client.rws import ABBException
+
+    from sim_twin.rws.uas import UAS_REJECT
+
+    c = client(twin.rws_url, username=LOGIN[0], password=LOGIN[1])
+    c.resetpp()  # Execute program
+    newest = [e.seqnum for e in c.read_event_log()][:1]
+    with pytest.raises(ABBException) as refused:
+        c._do_post("ctrl?action=restart", {"restart-mode": "restart"})
+    assert refused.value.code == UAS_REJECT and "'lab user'" in str(refused.value)
+    assert [e.seqnum for e in c.read_event_log()][:1] == newest  # no restart entry
+    assert c.get_controller_state() == "motoron"
+    c.logout()
+
+
 def test_every_request_is_one_json_line_without_secrets(twin: Twin) -> None:
     client(twin.rws_url, username=LOGIN[0], password=LOGIN[1]).get_speedratio()
     wanted = {("GET", "/rw/panel/speedratio?json=1", 401),
@@ -129,11 +148,15 @@ def test_the_command_lines_zone_is_read_over_rws_and_supervised(twin: Twin) -> N
     assert c.get_rapid_variable("tb_zone_hi", "T_ROB_R/TestbedTask_R") == "[495,-25,0]"
     assert c.get_rapid_variable("TB_RAPID_VERSION", "T_ROB_L/TestbedMotion") == str(
         RAPID_VERSION)
-    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 100), 800), ("L", (400, 200, 20), 200),
-                                          ("L", (200, 200, 20), 200)])})
+    # one arm angle under the shoulder: the driver's plan for the line down turns it across
+    # the shoulder's singularity (twin_rws.UNDER_SHOULDER_DEG), and from the face up too
+    under = UNDER_SHOULDER_DEG["left"]
+    entries = run(c, {"T_ROB_L": program([("J", (400, 200, 100), 800, under),
+                                          ("L", (400, 200, 20), 200, under),
+                                          ("L", (200, 200, 20), 200, under)])})
     assert [(e.code, e.args[1]) for e in entries] == [(WORLD_ZONE_CODE, "tb_wz_xlo")]
     assert twin.tcp("left") == pytest.approx([ZONE[0], 200, 20], abs=1.0)
-    back = run(c, {"T_ROB_L": program([("L", (ZONE[0], 200, 100), 300),
+    back = run(c, {"T_ROB_L": program([("L", (ZONE[0], 200, 100), 300, under),
                                        ("R", "left", 800)])}, seqno=2)
     assert [e.title for e in back] == [DONE]
 

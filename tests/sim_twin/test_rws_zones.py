@@ -1,8 +1,9 @@
 """The stationary world zones of OUR RAPID (``tb_zones``) as the twin plays them, driven by
 the UNCHANGED ABB client over HTTP against a real YumiTwinCell: a push planned past the
 zone box stops every arm when the pusher reaches the box's face (the truth there, the
-controller's error in the event log, no ``Done``), a target below the floor in another
-work object stops at the floor, travel above ``tb_zone_z`` outside the box is allowed,
+controller's error in the event log, no ``Done``), a target below the floor is refused
+(in another work object too) and a joint path that dips below it stops at the floor,
+travel above ``tb_zone_z`` outside the box is allowed,
 the arm moves away from the face again, and the zone constants read over RWS as the
 task modules declare them."""
 
@@ -15,7 +16,7 @@ from typing import Any
 
 import pytest
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
-from twin_rws import client, program, run
+from twin_rws import UNDER_SHOULDER_DEG, client, program, run
 
 from sim_twin.rws import Irc5Controller, RwsServer
 from sim_twin.rws.mechunits import YUMI_UNITS
@@ -131,8 +132,12 @@ def test_a_shifted_work_object_is_refused_and_the_floor_zone_stops_a_dip(twin: A
     assert [(e.code, e.args[1], e.args[3]) for e in shifted] == [
         (80001, "Work object not supported", "uframe [[0,0,-15],[1,0,0,0]]")]
     assert tcps(cell, lock)["left"] == before
-    dips = run(c, {"T_ROB_L": program([("J", (480, 210, 100), 150), ("L", (480, 210, 32), 100),
-                                       ("J", (310, 210, 32), 150)])}, seqno=3)
+    # one arm angle under the shoulder for all three: the driver's plan turns it across
+    # the shoulder's singularity on the way down (twin_rws.UNDER_SHOULDER_DEG)
+    under = UNDER_SHOULDER_DEG["left"]
+    dips = run(c, {"T_ROB_L": program([("J", (480, 210, 100), 150, under),
+                                       ("L", (480, 210, 32), 100, under),
+                                       ("J", (310, 210, 32), 150, under)])}, seqno=3)
     assert [(e.code, e.args[1]) for e in dips] == [(WORLD_ZONE_CODE, "tb_wz_floor")]
     assert tcps(cell, lock)["left"][2] == pytest.approx(30, abs=1.0)
 

@@ -110,3 +110,39 @@ def test_the_lab_side_refuses_a_malformed_flag() -> None:
             else:
                 raise AssertionError(f"{body} was accepted")
         assert t.install.event_routines and not t.ctrl.omit_motiontask
+
+
+def test_the_install_restart_writes_10045_before_the_zones_entries() -> None:
+    """The restart after the install is a restart: its entry first (the driver and
+    testbed check need a restart entry AND the zones entries after it, issue 43)."""
+    with our_twin() as t:
+        codes = [e.code for e in reversed(t.c.read_event_log())]
+        first = codes.index(10045)
+        assert codes[first + 1:].count(80003) == 2 and 80003 not in codes[:first]
+
+
+def test_the_event_log_clears_over_rws_and_rolls_over() -> None:
+    """As the RWS manual has it (Application manual 3HAC050973-001, "Clear elog
+    messages"): ``POST rw/elog?action=clearall`` clears every domain, ``POST
+    rw/elog/{domain}?action=clear`` one; a domain keeps a bounded number of entries, the
+    oldest rolling out, the numbers going on."""
+    with our_twin() as t:
+        assert [e.code for e in t.c.read_event_log() if e.code == 10045] == [10045]
+        t.c._do_post("rw/elog/1?action=clear", {})  # the operational domain: 1xxxx
+        assert {e.code // 10000 for e in t.c.read_event_log()} == {8}  # ErrWrite's left
+        t.c._do_post("rw/elog?action=clearall", {})
+        assert t.c.read_event_log() == []
+        for bad in ("rw/elog?action=clear", "rw/elog/0?action=clearall"):
+            try:
+                t.c._do_post(bad, {})
+            except Exception as exc:  # the client raises on the 400
+                assert "400" in str(exc) or "action" in str(exc), exc
+            else:
+                raise AssertionError(f"{bad} was accepted")
+        t.ctrl.elog.capacity = 2
+        before = t.ctrl.elog.newest or 0
+        for _ in range(3):
+            restart(t, "restart")  # 10045 (motors off once), two zones entries
+        log = t.c.read_event_log()
+        assert [e.code for e in log] == [80003, 80003]  # the restart's entry rolled out
+        assert log[-1].seqnum >= before + 8  # the numbers went on

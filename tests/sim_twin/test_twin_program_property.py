@@ -34,6 +34,7 @@ from sim_twin.rws import testbed_rapid as rapid
 from sim_twin.rws.mechunits import YUMI_UNITS
 from sim_twin.rws.testbed_install import TestbedInstall
 from sim_twin.rws.testbed_rapid import DONE, WORLD_ZONE_CODE, TestbedRapid, task_module_of
+from sim_twin.sew_angle import arm_angle
 from sim_twin.yumi_arms import DEFAULT_TOOL_MM, ArmModel, abb_to_chain
 from sim_twin.yumi_cell import YumiTwinCell
 from sim_twin.yumi_geometry import REST_JOINTS_DEG
@@ -59,10 +60,11 @@ def test_inverse_kinematics_finds_every_pose_forward_kinematics_made() -> None:
         rest = abb_to_chain(REST_JOINTS_DEG[side])
         for _ in range(25):
             q = rng.uniform(m.lower * 0.9, m.upper * 0.9)
-            f = m.pose(q).flange
-            s = solve(m, f, q[2], None, current=rest, seeds=[q])
+            f = m.pose(q).flange  # at the pose's own arm angle (not axis 7's value)
+            s = solve(m, f, arm_angle(m.pose(q)), None, current=rest, seeds=[q])
             assert s.pose is not None, (side, q, s)
-        s = solve(m, m.pose(rest).flange, rest[2], None, current=rest, seeds=[rest])
+        s = solve(m, m.pose(rest).flange, arm_angle(m.pose(rest)), None, current=rest,
+                  seeds=[rest])
         assert s.pose is not None  # the rest pose itself (tool forward, not down)
 
 
@@ -87,6 +89,42 @@ def test_a_joint_move_from_rest_to_travel_height_dips_into_the_zone_and_is_stopp
                                              ("L", (150, 370, 40), 200)]), "T_ROB_R": stay()})
         assert errors(got) == []
         assert np.allclose(tw.tcps()["left"], (150, 370, 40), atol=1.0)
+
+
+def _absj(joints: list[float]) -> Any:
+    """A program of one MoveAbsJ to ``joints`` (ABB's order: axes 1-6, then 7 in eax_a),
+    at the driver's speeds (drivers/yumi/rws_controller.py, within our RAPID's caps)."""
+    mp = mpe.MotionProgram(tool=twin_rws.tool())
+    mp.MoveAbsJ(mpe.jointtarget(joints[:6], [joints[6]] + [9e9] * 5),
+                mpe.speeddata(100.0, 100.0, 1000.0, 100.0), mpe.fine)
+    return mp
+
+
+def test_moveabsj_to_any_legal_joints_moves_there_as_our_rapid_accepts_it() -> None:
+    """Issue 43: our RAPID runs a MoveAbsJ to any joint target (the driver's gate is
+    one); the twin used to refuse every one but the rest. A legal target moves the arm
+    there (its joints read back over RWS, the pusher where they put it); an axis past its
+    range, or axis 7 left unset (9E9), is the controller's 50027 and nothing moves."""
+    left = list(REST_JOINTS_DEG["left"])
+    there = [left[0] - 25.0, left[1] + 20.0, *left[2:6], left[6] - 10.0]
+    with our_twin() as tw:
+        got = run(tw.c, {"T_ROB_L": _absj(there), "T_ROB_R": stay()})
+        assert errors(got) == [] and sum(e.title == DONE for e in got) == 2, got
+        j = tw.c.get_jointtarget("ROB_L")
+        assert [*j.robax, j.extax[0]] == pytest.approx(there, abs=0.01)
+        tip = ArmModel("left").tip(abb_to_chain(there), DEFAULT_TOOL_MM)
+        assert tw.tcps()["left"] == pytest.approx(tip, abs=1.0)
+        for bad, axis in (([there[0], -150.0, *there[2:]], "axis 2"),  # -150 < -143.5
+                          ([*there[:6], 9e9], "axis 7")):
+            got = run(tw.c, {"T_ROB_L": _absj(bad), "T_ROB_R": stay()})
+            assert [(c, t) for c, t in errors(got)] == [(50027, "Joint Out of Range")], got
+            assert axis in next(e.desc for e in got if e.code == 50027)
+            assert tw.tcps()["left"] == pytest.approx(tip, abs=1.0)  # nothing moved
+            tw.ctrl.resetpp()  # PP to Main after the error
+        got = run(tw.c, {"T_ROB_L": _absj(left), "T_ROB_R": stay()})
+        assert errors(got) == []  # and back to rest by joints
+        assert tw.tcps()["left"] == pytest.approx(ArmModel("left").tip(
+            abb_to_chain(left), DEFAULT_TOOL_MM), abs=1.0)
 
 
 def _target(rng: np.random.Generator, sign: float) -> list[float]:

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from drivers.yumi.arm_calibration import ArmCalibration
+from drivers.yumi.gate import arm_tool, calibration_gate_joints, gate_problem
 from testbed.cli import main
 from testbed.lab.camera_model import arm_facts, push_box
 from testbed.perception import homography as cal
@@ -64,8 +65,9 @@ class Twin:
         x0, y0, x1, y1 = self.model["workspaces_mm"][arm]
         xy = np.array([(x, y) for x in np.linspace(x0, x1, 9) for y in np.linspace(y0, y1, 9)])
         h, _ = cv2.findHomography(self.project(np.c_[xy, np.full(len(xy), 40.0)]), xy)
-        return {"homography": h.tolist(), "table_box_mm": push_box([x0, y0, x1, y1]),
-                **SPEEDS, **rest_pose(arm)}
+        cal = {"homography": h.tolist(), "table_box_mm": push_box([x0, y0, x1, y1]),
+               **SPEEDS, **rest_pose(arm)}
+        return {**cal, "gate_joints_deg": calibration_gate_joints(arm, cal)}
 
 
 @pytest.fixture(scope="module")
@@ -185,6 +187,17 @@ def test_calibrate_fits_the_true_camera_and_writes_the_file(
     assert "rest pose: out of view" in out and "markers found: " in out
     assert cv2.imread(str(lab / "cal.png")).shape == (480, 640, 3)
     assert _at_rest(twin)
+    # Issue 43: the gate's joints, measured: the arm went to its gate first and the
+    # controller's jointtarget there is written (the file had none); they put the
+    # pusher's tip at the gate, over the table box at clear height.
+    assert c.gate_joints_deg is not None and "gate_joints_deg" not in rest_pose("left")
+    said = re.search(r"gate: gate_joints_deg \[([-\d., e]+)\] read from the controller with "
+                     r"the arm at its gate \((\d+), (\d+), 100\) mm", out)
+    assert said is not None, out
+    assert [float(v) for v in said[1].split(",")] == pytest.approx(c.gate_joints_deg)
+    tool = arm_tool("left", c)
+    assert tool is not None
+    assert gate_problem(tool, c.gate_joints_deg, c.gate_xyz, c.table_box_mm) is None
 
 
 @pytest.mark.slow

@@ -22,6 +22,7 @@ import pytest
 from lab_fixtures import calibrate_exactly, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
+from drivers.yumi.controller_state import RAPID_VERSION
 from testbed.core.types import Fault, PushResult
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.protocol import load_protocol
@@ -84,7 +85,8 @@ def test_check_reports_a_ready_controller(lab: tuple[HardwareTwinLab, Path],
     assert "yumi-a: controller YUMI_TWIN serial 14000-" in text and "RobotWare 6." in text
     assert "mode AUTO, motoron, RAPID stopped, speed ratio 100 %" in text
     assert "608-1 World Zones" in text and "T_ROB_L (active" in text
-    assert "T_ROB_R: testbed RAPID version 5 (this checkout: 5); world zone box" in text
+    v = RAPID_VERSION
+    assert f"T_ROB_R: testbed RAPID version {v} (this checkout: {v}); world zone box" in text
     assert "testbed:" not in text and not any(line.startswith("FAULT") for line in lines)
 
 
@@ -135,7 +137,9 @@ def test_a_trial_records_each_controller_as_it_says_and_never_its_login(
         lab: tuple[HardwareTwinLab, Path], tmp_path: Path) -> None:
     """run.json ``hosts``: each YuMi host over SSH with the build its agent reported and
     its controller as the twin says over RWS (the ``--serial`` it was started with, its
-    RobotWare); no file of the run folder holds the password of a login file."""
+    RobotWare); no file of the run folder holds the password of a login file. And
+    ``controllers_checked``: both passed the read-only check every trial runs first
+    (refusals: tests/testbed/test_trial_preflight.py)."""
     from abb_robot_client.rws import RWS
 
     from drivers.build_id import matches
@@ -149,7 +153,11 @@ def test_a_trial_records_each_controller_as_it_says_and_never_its_login(
                         humans="scripted", name="provenance", evaluate=True, expert=True)
     run, summary = run_trial(fleet, opts)
     assert summary["status"] == "complete"
-    hosts = json.loads((run.path / "run.json").read_text())["hosts"]
+    meta = json.loads((run.path / "run.json").read_text())
+    # the controllers' read-only check ran before step 1, and both passed it
+    checked = meta["controllers_checked"]
+    assert checked["hosts"] == ["yumi-a", "yumi-b"] and 0 < checked["seconds"] < 60
+    hosts = meta["hosts"]
     assert list(hosts) == ["yumi-a", "yumi-b"]
     passwords = []
     for name, twin in twin_lab.hosts.items():
