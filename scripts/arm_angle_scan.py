@@ -5,9 +5,10 @@ Why a script: the figures that decide how the driver should resolve the YuMi's r
 anyone can run them again after a change to the model or the reference.
 
 ``python scripts/arm_angle_scan.py reference``: for a grid over the left table box with the
-pusher down and axis 7 held at 130 (the driver's joints), the angle between the
-shoulder-to-wrist line and the body's up, and the one between that line and axis 1, and the
-arm angle (reference as ``drivers/yumi/arm_angle.py`` has it).
+pusher down and axis 7 held at 130 (the joints the driver took before issue 43), the angle
+between the
+shoulder-to-wrist line and the body's up, and the one between that line and axis 1, and
+the arm angle (reference as ``drivers/yumi/arm_angle.py`` has it).
 
 ``python scripts/arm_angle_scan.py hold``: for arm angles from -90 to 60 deg, how many of
 51 points (5 x 5 over the shipped left box at z 10 and 80, and the gate) the left arm
@@ -15,12 +16,12 @@ reaches holding that arm angle with at least 10 deg to every joint limit and the
 singular value of the tip's and the arm angle's Jacobian at least 0.05.
 
 ``python scripts/arm_angle_scan.py programs SIDE PSI N``: the redundancy resolved by one
-arm angle ``PSI`` held everywhere (the design docs/notes/auto-day-one.md proposes): the
-gate solved at it, then N push programs to random points of the shipped table box (gate
--> above the point at 80 mm -> down to 10 -> up -> back to the gate), every line run in
-the driver's model at that arm angle with 3 deg to every limit; how many run, the most a
-joint of axes 1, 2, 7, 3 turns on one leg, and how far the way back ends from the gate
-joints (the correction joint move that would follow).
+arm angle ``PSI`` held everywhere (what the driver does, ``drivers/yumi/reach.py``): the
+gate solved at it by the driver's own ``ArmTool.solve``, then N push programs to random
+points of the shipped table box (gate -> above the point at 80 mm -> down to 10 -> up ->
+back to the gate), every line run in the driver's model at that arm angle with 3 deg to
+every limit; how many run, the most a joint of axes 1, 2, 7, 3 turns on one leg, and how
+far the way back ends from the gate joints (the correction joint move that would follow).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import sys
 import numpy as np
 
 from drivers.yumi.arm_angle import _points, _tip_jacobian, arm_angle_deg, solve_with_arm_angle
-from drivers.yumi.irb14000_ik import _seeds
+from drivers.yumi.irb14000_ik import _seeds, solve_down
 from drivers.yumi.reach import ArmTool
 from drivers.yumi.wrist_line import _flange
 
@@ -44,7 +45,7 @@ def reference_table() -> None:
     for x in (160, 310, 460):
         for y in (60, 125, 210, 300, 400):
             for z in (10, 90):
-                pose = tool.solve((x, y, z)).pose
+                pose = solve_down(tool.model, (x, y, z), PUSHER_MM, 130.0).pose
                 if pose is None:
                     print(x, y, z, "no joints")
                     continue
@@ -64,7 +65,7 @@ def hold_table() -> None:
         good, missed = 0, []
         for p in pts:
             f = _flange(tool, p, tool.rotation)
-            first = tool.solve(p).pose
+            first = solve_down(m, p, PUSHER_MM, 130.0).pose
             seeds = ([first.chain_deg] if first is not None else []) + \
                 [list(s) for s in _seeds(m, 130.0, None)[:6]]
             best = None
@@ -90,21 +91,13 @@ def held_programs(side: str, psi: float, n: int) -> None:
     from testbed.lab.camera_model import push_box
 
     sign = 1.0 if side == "left" else -1.0
-    tool = ArmTool(side, PUSHER_MM, sign * 130.0)
-    m = tool.model
+    tool = ArmTool(side, PUSHER_MM, psi)
     gate = (310.0, sign * 278.0, 100.0)
-    first = tool.solve(gate).pose
-    assert first is not None
-    best = None
-    for seed in [list(first.chain_deg)] + [list(s) for s in _seeds(m, sign * 130.0, None)[:8]]:
-        got = solve_with_arm_angle(m, _flange(tool, gate, tool.rotation), psi, seed, iters=80)
-        if got is not None and m.limit_excess(got.chain_deg) is None:
-            room = m.limit_room(got.chain_deg)[1]
-            if best is None or room > best[0]:
-                best = (room, tuple(got.chain_deg))
-    assert best is not None, "the gate has no solution at this arm angle"
-    q0 = best[1]
-    print(f"gate joints {np.round(q0, 1)} ({best[0]:.1f} deg to the nearest limit)")
+    got = tool.solve(gate)
+    assert got.pose is not None, f"the gate: {got.reason}"
+    q0 = tuple(got.pose.chain_deg)
+    room = tool.model.limit_room(q0)[1]
+    print(f"gate joints {np.round(q0, 1)} ({room:.1f} deg to the nearest limit)")
     box = push_box(workspace_mm(side))
     rng = np.random.default_rng(3)
     ran, travel, back, fails = 0, 0.0, 0.0, []

@@ -9,9 +9,11 @@ and ``wobjdata`` symbols of the unit's task, so a client reading with the wrong 
 the wrong point, as it would on the robot.
 
 Units: mm, quaternions ``[w, x, y, z]`` (RAPID's ``q1..q4``). The twin has no
-kinematics: ``jointtarget`` answers what the pose source says (by default a fixed pose
-per arm), unrelated to the flange. A YuMi arm has 7 axes; the 7th (the arm angle) is
-``eax_a`` in a jointtarget and ``eaxa`` in a robtarget, as on an IRB 14000.
+kinematics of its own: ``jointtarget`` answers what the pose source says (by default a
+fixed pose per arm), unrelated to the flange. A YuMi arm has 7 axes: a jointtarget's
+``eax_a`` is axis 7's value; a robtarget's ``eaxa`` is ABB's arm angle of the joints
+(``sim_twin/sew_angle.py``; docs/notes/rws.md, "What eax_a means on a YuMi"), as on an
+IRB 14000 under RobotWare's arm-angle definition.
 """
 
 from __future__ import annotations
@@ -92,6 +94,10 @@ class PoseSource(Protocol):
 
     def robconf(self, unit: MechUnit) -> tuple[float, float, float, float]: ...
 
+    def arm_angle(self, unit: MechUnit) -> float:
+        """ABB's arm angle (deg) of the unit's joints: a robtarget's ``eaxa``."""
+        ...
+
 
 class StaticPoses:
     """Poses set by hand (tests, a twin without a cell). Defaults: each arm's flange
@@ -128,6 +134,17 @@ class StaticPoses:
         with self._lock:
             return self._conf[unit.name]
 
+    def arm_angle(self, unit: MechUnit) -> float:
+        """The arm angle of :meth:`joints` on the twin's arm model (a unit that is not a
+        YuMi arm: its 7th joint, there being no arm angle to tell)."""
+        from sim_twin.sew_angle import arm_angle
+        from sim_twin.yumi_arms import ArmModel, abb_to_chain
+
+        joints = self.joints(unit)
+        if unit.arm not in ("left", "right") or len(joints) < 7:
+            return joints[6] if len(joints) > 6 else UNSET
+        return arm_angle(ArmModel(unit.arm).pose(abb_to_chain(joints)))
+
 
 def robtarget_item(unit: MechUnit, poses: PoseSource, tool_value: str, wobj_value: str,
                    coordinate: str) -> dict[str, Any]:
@@ -145,7 +162,7 @@ def robtarget_item(unit: MechUnit, poses: PoseSource, tool_value: str, wobj_valu
         frame = _compose(up, uq, ot, orot)
         p, q = _inverse_apply(frame, p, q)
     joints = poses.joints(unit)
-    ext = [joints[6] if len(joints) > 6 else UNSET] + [UNSET] * 5
+    ext = [poses.arm_angle(unit) if len(joints) > 6 else UNSET] + [UNSET] * 5
     conf = poses.robconf(unit)
     item: dict[str, Any] = {"_type": "ms-robtargets", "_title": unit.name}
     item.update({k: _num(v) for k, v in zip("xyz", p, strict=True)})

@@ -264,6 +264,14 @@ def test_robtarget_is_the_named_tool_in_the_named_frame(twin: Any) -> None:
     j = c.get_jointtarget("ROB_L")
     assert j.robax.tolist() == [0.0, -130.0, 30.0, 0.0, 40.0, 0.0]
     assert j.extax[0] == 135.0 and j.extax[1] == 9e9  # axis 7 is eax_a on an IRB 14000
+    # ... and a robtarget's eaxa is ABB's arm angle of those joints, not axis 7 (issue 43;
+    # docs/notes/rws.md, "What eax_a means on a YuMi")
+    from sim_twin.sew_angle import arm_angle
+    from sim_twin.yumi_arms import ArmModel, abb_to_chain
+
+    angle = arm_angle(ArmModel("left").pose(abb_to_chain([*j.robax.tolist(), j.extax[0]])))
+    assert tip.extax[0] == pytest.approx(angle, abs=1e-4)
+    assert abs(tip.extax[0] - 135.0) > 30.0 and tip.extax[1] == 9e9
 
 
 def test_robtarget_follows_the_cell() -> None:

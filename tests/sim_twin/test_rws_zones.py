@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 from abb_motion_program_exec import abb_motion_program_exec_client as mpe
-from twin_rws import UNDER_SHOULDER_DEG, client, program, run
+from twin_rws import client, program, run
 
 from sim_twin.rws import Irc5Controller, RwsServer
 from sim_twin.rws.mechunits import YUMI_UNITS
@@ -35,6 +35,8 @@ from sim_twin.yumi_arms import DEFAULT_TOOL_MM, rest_tip
 from sim_twin.yumi_cell import Segment, YumiTwinCell
 
 REST_TIP = {side: rest_tip(side) for side in ("left", "right")}
+HELD = {"left": -40.0, "right": 40.0}
+"""The arm angle the driver holds for each arm (drivers/yumi/reach.py ``ARM_ANGLE_DEG``)."""
 """Where the twin's arms rest the pusher's tip (their rest joints, its 184.2 mm tool)."""
 
 Made = tuple[Any, Irc5Controller, YumiTwinCell, threading.Lock]
@@ -89,9 +91,10 @@ def test_a_push_past_the_zone_box_stops_every_arm_at_its_face(twin: Any) -> None
     box = default_zone("left")  # y up to 395 below 80 mm
     right_to = (310.0, -210.0, 100.0)
     entries = run(c, {
-        "T_ROB_L": program([("J", (400, 300, 100), 500), ("L", (400, 300, 10), 200),
-                            ("L", (400, 460, 10), 100)]),  # (down from clear height)
-        "T_ROB_R": program([("J", right_to, 50)])})  # slow: still on its way at the stop
+        "T_ROB_L": program([("J", (400, 300, 100), 500, HELD["left"]),
+                            ("L", (400, 300, 10), 200, HELD["left"]),
+                            ("L", (400, 460, 10), 100, HELD["left"])]),  # (down from 100)
+        "T_ROB_R": program([("J", right_to, 50, HELD["right"])])})  # slow: on its way
     assert [(e.code, e.msgtype, e.title) for e in entries] == [
         (WORLD_ZONE_CODE, 3, WORLD_ZONE_TITLE)]  # the controller's error; no Done at all
     e = entries[0]
@@ -132,12 +135,10 @@ def test_a_shifted_work_object_is_refused_and_the_floor_zone_stops_a_dip(twin: A
     assert [(e.code, e.args[1], e.args[3]) for e in shifted] == [
         (80001, "Work object not supported", "uframe [[0,0,-15],[1,0,0,0]]")]
     assert tcps(cell, lock)["left"] == before
-    # one arm angle under the shoulder for all three: the driver's plan turns it across
-    # the shoulder's singularity on the way down (twin_rws.UNDER_SHOULDER_DEG)
-    under = UNDER_SHOULDER_DEG["left"]
-    dips = run(c, {"T_ROB_L": program([("J", (480, 210, 100), 150, under),
-                                       ("L", (480, 210, 32), 100, under),
-                                       ("J", (310, 210, 32), 150, under)])}, seqno=3)
+    under = HELD["left"]  # one arm angle for all three, as the driver holds it
+    dips = run(c, {"T_ROB_L": program([("J", (400, 210, 100), 150, under),
+                                       ("L", (400, 210, 32), 100, under),
+                                       ("J", (250, 210, 32), 150, under)])}, seqno=3)
     assert [(e.code, e.args[1]) for e in dips] == [(WORLD_ZONE_CODE, "tb_wz_floor")]
     assert tcps(cell, lock)["left"][2] == pytest.approx(30, abs=1.0)
 

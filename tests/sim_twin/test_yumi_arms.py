@@ -189,15 +189,21 @@ def test_the_arm_angle_is_abbs_shoulder_elbow_wrist_angle_as_robotstudio_reports
     assert ARM_ANGLE_REFERENCE == (0.0, 0.0, 1.0)  # the twin's controller: assumed up
 
 
-def _left_line(target: tuple[float, float, float]) -> tuple[Any, Any, float, Any]:
-    """The left arm at the gate as the driver plans it, a MoveL to ``target`` holding the
-    gate's arm angle: (the stop, the arm's track, the arm angle, the supervisor)."""
+def _left_line(target: tuple[float, float, float], angle_deg: float | None = None
+               ) -> tuple[Any, Any, float, Any]:
+    """The left arm at the gate as the driver plans it (or solved at ``angle_deg``), a
+    MoveL to ``target`` holding the gate's arm angle: (the stop, the arm's track, the arm
+    angle, the supervisor)."""
     from sim_twin.rws.arm_supervision import ArmSupervisor
     from sim_twin.yumi_cell import Segment, Trajectory
     from sim_twin.yumi_geometry import REST_JOINTS_DEG
 
     gate = (310.0, 210.0, 100.0)
     q, angle = plan("left", gate)
+    if angle_deg is not None:
+        got = solve(ArmModel("left"), flange_at(gate, DEFAULT_TOOL_MM), angle_deg, None)
+        assert got.pose is not None, got
+        q, angle = list(got.pose.chain_deg), angle_deg
     sup = ArmSupervisor({"left": "left"}, DEFAULT_TOOL_MM, {"left": REST_JOINTS_DEG["left"]})
     sup.free_yaw, sup.joints["left"] = True, q  # our RAPID: SingArea Wrist
     stop, tracks = sup.check({"left": Trajectory([Segment(gate, target, 100.0)])},
@@ -217,12 +223,16 @@ def test_a_line_holds_the_arm_angle_and_axis_7_moves_as_it_must() -> None:
 
 
 def test_a_line_whose_arm_angle_the_arm_cannot_hold_stops_with_the_controllers_code() -> None:
-    """Gate to the box's near inner corner, one eax_a: holding it takes axis 2 past its
-    limit on the way, so the line stops there with 50027, the arm angle held exactly up
-    to the stop; never eased (the twin once let axis 7 drift 20 deg to pass)."""
-    stop, track, angle, sup = _left_line((150.0, 75.0, 100.0))
+    """The gate with the elbow at arm angle 90, a MoveL to the box's far outer corner at
+    clear height holding it: axis 1 passes its limit on the way, so the line stops there
+    with 50027, short of the corner, the arm angle held exactly up to the stop; never
+    eased (the twin once let axis 7 drift 20 deg to pass). The same line at the gate's
+    own arm angle as the driver plans it runs (the test above)."""
+    stop, track, angle, sup = _left_line((470.0, 370.0, 100.0), 90.0)
     assert stop is not None and (stop.code, stop.title) == (50027, "Joint Out of Range")
-    assert "axis 2" in stop.detail
+    assert "axis 1" in stop.detail
+    tip = sup.tip("left", track.q[-1])
+    assert tip[0] < 450.0 and tip[1] < 350.0, tip  # stopped on the way
     assert max(abs(sup.arm_angle("left", q) - angle) for q in track.q) < 0.01
 
 
@@ -237,14 +247,15 @@ def test_a_target_out_of_reach_is_the_controllers_50050(twin: Callable[..., Made
 
 
 def test_a_target_only_past_a_joint_limit_is_50027(twin: Callable[..., Made]) -> None:
-    """High and close to the body, the pusher pointing down, the elbow at arm angle 165:
-    the flange is within reach, but every solution that holds that arm angle bends axis 5
-    past its range (by about 27 deg, with the 184.2 mm pusher and with the gripper's own
-    114.2 mm TCP alike). At arm angles from -120 to 120 the same point is reached: the arm
-    angle is part of the target, and the controller never eases it to pass."""
+    """High beside the shoulder, the pusher pointing down, the elbow at arm angle 135: the
+    flange is within reach, but every solution that holds that arm angle bends axis 5
+    past its range (by about 26 deg with the 184.2 mm pusher, 29 with the gripper's own
+    114.2 mm TCP). At arm angles from -120 to 60 the same point is reached: the arm angle
+    is part of the target, and the controller never eases it to pass
+    (docs/rws-checklist.md's line "A target reachable only past a joint limit")."""
     c, _, cell, _ = twin()
     m = ArmModel("left")
-    target, angle = (200.0, 300.0, 400.0), 165.0
+    target, angle = (150.0, 300.0, 300.0), 135.0
     for tool_mm in (DEFAULT_TOOL_MM, 114.2):  # what the model says of it
         s = solve(m, flange_at(target, tool_mm), angle, None)
         assert s.reason == "limit" and s.detail.startswith("axis 5 "), s
@@ -288,12 +299,12 @@ def test_two_arms_driven_into_each_other_stop_at_contact(twin: Callable[..., Mad
 def test_an_arm_driven_into_the_table_is_stopped_by_motion_supervision(
         twin: Callable[..., Made]) -> None:
     """The pusher's tip may touch the table (the world zones watch it); the gripper that
-    holds it may not: a tool 30 mm long puts the gripper's housing on the table first."""
+    holds it may not: a tool 30 mm long puts the gripper's housing on the table first.
+    Both lines hold the arm angle the driver holds for the left arm (-40:
+    drivers/yumi/reach.py, ``ARM_ANGLE_DEG``)."""
     def down(tool_mm: float) -> Any:
         above, low = (300.0, 200.0, 120.0), (300.0, 200.0, 5.0)
-        q, at_above = plan("left", above, tool_z_mm=tool_mm)
-        return planned_program([("L", above, at_above),
-                                ("L", low, plan("left", low, q, tool_mm)[1])], tool_mm, 50.0)
+        return planned_program([("L", above, -40.0), ("L", low, -40.0)], tool_mm, 50.0)
 
     c, _, _, _ = twin()
     entries = twin_rws.run(c, {"T_ROB_L": down(DEFAULT_TOOL_MM)})
