@@ -86,19 +86,19 @@ def hold_table() -> None:
 
 
 def held_programs(side: str, psi: float, n: int) -> None:
+    from drivers.yumi.paths import gate_xy
     from drivers.yumi.wrist_line import line_end, wrist_line
     from sim_twin.yumi_geometry import workspace_mm
     from testbed.lab.camera_model import push_box
 
-    sign = 1.0 if side == "left" else -1.0
     tool = ArmTool(side, PUSHER_MM, psi)
-    gate = (310.0, sign * 278.0, 100.0)
+    box = push_box(workspace_mm(side))
+    gate = (*gate_xy(box), 100.0)  # the shipped gate (drivers/yumi/paths.py)
     got = tool.solve(gate)
     assert got.pose is not None, f"the gate: {got.reason}"
     q0 = tuple(got.pose.chain_deg)
     room = tool.model.limit_room(q0)[1]
     print(f"gate joints {np.round(q0, 1)} ({room:.1f} deg to the nearest limit)")
-    box = push_box(workspace_mm(side))
     rng = np.random.default_rng(3)
     ran, travel, back, fails = 0, 0.0, 0.0, []
     for _ in range(n):

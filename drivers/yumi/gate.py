@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
-from drivers.yumi.arm_angle import arm_angle_deg, solve_with_arm_angle
+from drivers.yumi.arm_angle import angle_step, arm_angle_deg, solve_with_arm_angle
 from drivers.yumi.irb14000 import abb_to_chain
 from drivers.yumi.irb14000_ik import _seeds, wrapped
 from drivers.yumi.reach import ArmTool, default_arm_angle, side_of
@@ -30,9 +30,12 @@ from drivers.yumi.reach import ArmTool, default_arm_angle, side_of
 if TYPE_CHECKING:
     from drivers.yumi.arm_calibration import ArmCalibration
 
-__all__ = ["GATE_HOW", "GATE_MATCH_MM", "arm_tool", "calibration_gate_joints", "gate_problem",
-           "gate_solutions", "model_gate_joints"]
+__all__ = ["GATE_ANGLE_DEG", "GATE_HOW", "GATE_MATCH_MM", "arm_tool", "calibration_gate_joints",
+           "gate_problem", "gate_solutions", "model_gate_joints"]
 
+GATE_ANGLE_DEG: Final = 1.0
+"""How far the arm angle of ``gate_joints_deg`` (the driver's model) may be from the
+calibration's ``arm_angle_deg``, the angle the gate's robtarget was sent with."""
 GATE_MATCH_MM: Final = 10.0
 """How far the pusher's tip at ``gate_joints_deg`` (the model's forward kinematics) may
 lie from the gate's point at clear height. The joints ``testbed calibrate`` measures
@@ -82,9 +85,15 @@ def model_gate_joints(tool: ArmTool, gate_xyz: Sequence[float], rest_abb: Sequen
 
 def gate_problem(tool: ArmTool, gate_abb: Sequence[float], gate_xyz: Sequence[float],
                  box: Sequence[float]) -> str | None:
-    """Why ``gate_abb`` is not the arm's gate, or None: past a joint limit, or the
-    pusher's tip there (the model) not over the table box ``box`` within
-    :data:`GATE_MATCH_MM` of the gate's point ``gate_xyz`` (at clear height)."""
+    """Why ``gate_abb`` is not the arm's gate, or None: past a joint limit, the pusher's
+    tip there (the model) not over the table box ``box`` within :data:`GATE_MATCH_MM` of
+    the gate's point ``gate_xyz`` (at clear height), or the elbow there not at the arm
+    angle the tool holds within :data:`GATE_ANGLE_DEG`. Why the angle: ``testbed
+    calibrate`` measures the gate joints where the controller put the arm for a robtarget
+    sent with that arm angle; a controller whose *Arm-Angle Reference Direction* is not
+    the driver's (axis 1, ``drivers/yumi/arm_angle.py``) puts the elbow elsewhere, and so
+    would every robtarget the driver sends. Then the check FAULTs and the driver refuses
+    every program (fail closed) instead of running paths nobody swept."""
     chain = abb_to_chain(gate_abb)
     shown = "[" + ", ".join(f"{v:g}" for v in gate_abb) + "]"
     if (over := tool.model.limit_excess(chain)) is not None:
@@ -93,7 +102,15 @@ def gate_problem(tool: ArmTool, gate_abb: Sequence[float], gate_xyz: Sequence[fl
     x0, y0, x1, y1 = (float(v) for v in box)
     off = math.dist(tip, gate_xyz)
     if x0 <= tip[0] <= x1 and y0 <= tip[1] <= y1 and off <= GATE_MATCH_MM:
-        return None
+        angle = arm_angle_deg(tool.model.pose(chain))
+        if abs(angle_step(tool.arm_angle_deg, angle)) <= GATE_ANGLE_DEG:
+            return None
+        return (f"gate_joints_deg {shown} hold the elbow at arm angle {angle:.1f} deg (the "
+                f"driver's model, its reference along axis 1), not the calibration's "
+                f"arm_angle_deg {tool.arm_angle_deg:g}: the controller's Arm-Angle Reference "
+                f"Direction differs from the driver's (docs/rws-checklist.md, \"A robtarget's "
+                f"eaxa is ABB's arm angle\"), or the arm angle changed since the gate was "
+                f"measured")
     gx, gy, gz = (float(v) for v in gate_xyz)
     return (f"gate_joints_deg {shown} put the pusher's tip at ({tip[0]:.0f}, {tip[1]:.0f}, "
             f"{tip[2]:.0f}) mm (the model), {off:.0f} mm from the gate ({gx:.0f}, {gy:.0f}, "

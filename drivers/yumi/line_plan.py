@@ -5,21 +5,22 @@ Why a plan and not one number: a robtarget's ``eax_a`` on a YuMi is ABB's arm an
 (``drivers/yumi/arm_angle.py``), and along a MoveL the controller turns it evenly from the
 arm's to the target's and holds it at every point, axis 7 moving as it must
 (docs/notes/rws.md, "What eax_a means on a YuMi"). With the pusher down over the table
-that is a narrow road: the driver's inverse kinematics (axis 7 held at the calibration's
-``arm_angle_deg``) gives targets whose arm angles differ by up to 160 deg from one leg's
-end to the next, and a line that turns the elbow so far takes axis 7 past its limit on
-the way; one arm angle held everywhere takes axis 7 or 2 past theirs, or passes near a
-singularity, at a quarter of the lines over the shipped box. So each line's arm angle is
-chosen where the line runs (:func:`planned_targets`), tried in this order: the arm angle
-the program holds there before or goes on from (a way back retraces the way out, and
-ends in the gate joints it left); the one the arm would end in moving least; the one of
-the joints the driver's inverse kinematics picks there (the configuration it always
-chose) and the start's turned by :data:`TURNS_DEG`, the least turn first. Those whose
+that is a narrow road. Since issue 43 the driver's inverse kinematics solves every target
+at the calibration's held arm angle (``drivers/yumi/reach.py``: -40 left, +40 right), so
+the first choices below are that angle and a push's lines keep it (in the model every
+corner program of the shipped boxes does; a referee's 48 random programs did too). When
+a line cannot run at it (another layout, another arm angle in the calibration), each
+line's arm angle is chosen where the line runs (:func:`planned_targets`), tried in this
+order: the arm angle the program holds there before or goes on from (a way back retraces
+the way out, and ends in the gate joints it left); the one the arm would end in moving
+least; the one of the joints the inverse kinematics picks there and the start's turned
+by :data:`TURNS_DEG`, the least turn first. Those whose
 line the model runs (``drivers/yumi/wrist_line.py``) with room to every limit and from a
 singularity (:data:`MARGINS`), each arm in its own half of the cell, are taken, those
 whose arm joints turn more than a short line needs last; a line whose
 choice leaves the next one none is tried again with the next choice (a depth-first
-search, bounded by :data:`PLAN_BUDGET`). A program with no plan is refused before
+search, bounded by :data:`PLAN_BUDGET`). Whatever angle a line takes, its robtarget
+carries it, and the layout check sweeps the plan. A program with no plan is refused before
 anything moves (the controller would stop the line half-way), and the layout check
 FAULTs the path.
 

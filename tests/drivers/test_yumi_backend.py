@@ -303,6 +303,28 @@ def test_gate_joints_that_are_not_at_the_gate_are_refused(tmp_path: Path) -> Non
     assert ctrl.programs == []
 
 
+def test_gate_joints_at_another_arm_angle_are_refused_before_anything_moves(
+        tmp_path: Path) -> None:
+    """Issue 43: gate joints that put the pusher at the gate with the elbow at another arm
+    angle than the calibration's (what a controller with another Arm-Angle Reference
+    Direction measures at calibration, for the robtarget the driver sent) mean every
+    robtarget the driver sends would be solved into an elbow nobody swept: refused, named,
+    nothing sent (the layout check FAULTs the same: test_yumi_paths_zones.py)."""
+    from drivers.yumi.gate import calibration_gate_joints
+
+    cal = yumi_calibration("left")  # the fake cell's "left" is a T_ROB_R: arm angle +40
+    assert cal["arm_angle_deg"] == 40.0
+    other = calibration_gate_joints("left", {**cal, "arm_angle_deg": 15.0})
+    backend, ctrl = fake_on(tmp_path, gate_joints_deg=other)
+    with pytest.raises(BackendError, match=r"^arm left: gate_joints_deg \[.*\] hold the elbow "
+                                           r"at arm angle 15\.0 deg \(the driver's model, its "
+                                           r"reference along axis 1\), not the calibration's "
+                                           r"arm_angle_deg 40: the controller's Arm-Angle "
+                                           r"Reference Direction differs"):
+        backend.move_tcp("left", (300.0, -200.0, 40.0))
+    assert ctrl.programs == []
+
+
 def test_rws_adapter_builds_multimove_rapid_without_a_controller(
         monkeypatch: pytest.MonkeyPatch) -> None:
     # the fake cell's "left" box is at y < 0: the IRB 14000's right arm (driver_fakes._fake_side)

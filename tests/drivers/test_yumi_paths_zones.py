@@ -215,6 +215,36 @@ def test_a_calibration_without_or_with_wrong_gate_joints_is_a_fault() -> None:
     assert [f for f in faults if re.match(r"arm left: gate_joints_deg \[.*\] put the pusher's "
                                           r"tip at \(.*\) mm \(the model\), \d+ mm from the "
                                           r"gate \(310, 250, 100\)", f)], faults
+    # the pusher at the gate, the elbow at another arm angle than the calibration's
+    turned = calibration_gate_joints("left", {**calibration("left"), "arm_angle_deg": -20.0})
+    lay = layout_of("left", calibration("left", gate_joints_deg=turned), zones=SHIPPED_ZONES)
+    assert lay is not None
+    _, faults = check_layout([lay])
+    assert [f for f in faults if re.match(r"arm left: gate_joints_deg \[.*\] hold the elbow at "
+                                          r"arm angle -20\.0 deg .* not the calibration's "
+                                          r"arm_angle_deg -40", f)], faults
+
+
+def test_an_old_axis_7_arm_angle_is_refused_with_the_fix_and_the_default_is_the_held_one(
+        ) -> None:
+    """Issue 43: a calibration's ``arm_angle_deg`` is ABB's arm angle every target is
+    solved at; an older file holds axis 7's value there (+-130), which a controller would
+    read as an arm angle no push can take: refused, naming the field and the fix. Absent:
+    the driver's -40 (left) / +40 (right)."""
+    with pytest.raises(BackendError, match=r"'arm_angle_deg' is 130: ABB's arm angle, at "
+                                           r"most 90 deg either way; an older calibration held "
+                                           r"axis 7's value there \(\+-130\): set it to -40 or "
+                                           r"remove it"):
+        ArmCalibration.from_dict(calibration("left", arm_angle_deg=130.0), "left")
+    with pytest.raises(BackendError, match=r"'arm_angle_deg' must be a number"):
+        ArmCalibration.from_dict(calibration("left", arm_angle_deg="up"), "left")
+    for side, want in (("left", -40.0), ("right", 40.0)):
+        cal = calibration(side)
+        del cal["arm_angle_deg"]
+        pose = ArmCalibration.from_dict(cal, side).pose
+        assert pose is not None and pose.arm_angle_deg == want
+    assert ArmCalibration.from_dict(calibration("left", arm_angle_deg=-90.0),
+                                    "left").pose.arm_angle_deg == -90.0  # type: ignore[union-attr]
 
 
 def test_a_calibration_without_tool_z_mm_is_an_error(tmp_path: Path) -> None:
