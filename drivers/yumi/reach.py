@@ -2,10 +2,10 @@
 
 Why a module between the kinematics and the checks: the driver (before a motion),
 ``testbed check`` and ``testbed calibrate`` (``drivers/yumi/layout_check.py``) and the
-layout's tests ask the same two questions of a target: is it reachable with this tool,
-axis 7 held where the driver plans it, and how far further out could it be (the reach
-margin, mm, measured horizontally away from the arm's shoulder, where a reach runs out
-first). Whether the straight lines between targets run is the line planner's
+layout's tests ask the same two questions of a target: is it reachable with this tool at
+the arm angle the calibration holds (:class:`ArmTool`), and how far further out could it
+be (the reach margin, mm, measured horizontally away from the arm's shoulder, where a
+reach runs out first). Whether the straight lines between targets run is the line planner's
 (``drivers/yumi/line_plan.py``).
 """
 
@@ -36,9 +36,10 @@ MARGIN_SPAN_MM: Final = 150.0
 ARM_ANGLE_DEG: Final = {"left": -40.0, "right": 40.0}
 """ABB's arm angle (deg, the reference along axis 1: ``drivers/yumi/arm_angle.py``) each
 arm's targets are solved at when a calibration names none: the elbow out and down with
-the pusher over the table. Held everywhere, every straight line of a push keeps it and
-the way back retraces the way out, 3 deg or more from every joint limit over the
-shipped boxes (docs/notes/auto-day-one.md, "The redundancy")."""
+the pusher over the table. Every target is solved at it, so the lines of every corner
+program of the shipped boxes keep it, 3 deg or more from every joint limit, and the way
+back retraces the way out (the line planner takes another angle where a line cannot run
+at it: ``drivers/yumi/line_plan.py``; docs/notes/auto-day-one.md, "The redundancy")."""
 ARM_ANGLE_MAX_DEG: Final = 90.0
 """A larger ``arm_angle_deg`` is an old calibration's axis-7 value (+-130), which a real
 controller would read as an arm angle no push of the box can take: refused with the fix."""
@@ -112,8 +113,8 @@ def _held(tool: ArmTool, tcp_mm: tuple[float, ...], current: tuple[float, ...] |
     """The joints of ``tcp_mm`` at the arm angle ``psi`` nearest ``current`` (else with the
     most room to the limits), seeded from the axis-7 descent's answer, ``current`` and the
     generic seeds. Why one arm angle held: the controller solves a robtarget at its
-    ``eax_a``, so targets solved at one angle make every straight line hold it and the
-    way back retrace the way out (docs/notes/auto-day-one.md, "The redundancy"). None
+    ``eax_a``, so targets solved at one angle let the straight lines between them hold it
+    and the way back retrace the way out (docs/notes/auto-day-one.md, "The redundancy"). None
     within the limits: the axis-7 descent's own reason when it found none either (out of
     reach is what a person can fix), else a ``limit`` naming the angle."""
     from drivers.yumi.arm_angle import SINGULAR_SIGMA, held_sigma, solve_with_arm_angle
