@@ -12,7 +12,8 @@ Wire (all behind a valid token, ``?token=``; a bad or missing one gets 401 and n
 page, and a socket is refused before it opens)::
 
     GET /?token=T              the page of T's human
-    GET /overview?token=T      the fleet overview (any human's token)
+    GET /overview?token=T      the fleet overview: the operator's token with pause and
+                               stop, the overview token or a human's to look at only
     WS  /ws?token=T            server -> page: binary frames (u32 header length, JSON
                                  header, PNG), JSON texts ("input" replies, "fleet":
                                  the latest counters and modes, for a page with no arm)
@@ -50,6 +51,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from gui.console_core import OVERVIEW
 from gui.errors import ConsoleUnavailable
+from gui.web.tokens import OPERATOR
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +61,8 @@ PING_S = 5.0
 NO_STORE = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer",
             "X-Content-Type-Options": "nosniff"}
 UNAUTHORIZED = "401: this console needs a valid token (the URL printed at start)\n"
+READ_ONLY = ("this overview link is to look at: pause and stop are the operator's (their "
+             "own overview link, or Ctrl-C where the trial runs)")
 POLICY_VIOLATION = 1008
 
 
@@ -67,7 +71,9 @@ class Owner(Protocol):
 
     def human_of(self, token: str | None) -> int | None: ...
 
-    def page(self, wid: int) -> str: ...
+    def overview_role(self, token: str | None) -> str | None: ...
+
+    def page(self, wid: int, controls: bool) -> str: ...
 
     def connected(self, wid: int) -> list[dict[str, Any]]: ...
 
@@ -189,27 +195,31 @@ async def _send_loop(ws: WebSocket, hub: FrameHub, sub: _Subscriber) -> None:
 def build_app(owner: Owner, hub: FrameHub) -> Starlette:
     """The console's ASGI app: two pages and two sockets, every one behind a token."""
 
-    def who(conn: Request | WebSocket, overview: bool) -> int | None:
-        """The surface the token opens: its human's page, or the overview."""
-        human = owner.human_of(conn.query_params.get("token"))
-        if human is None:
-            return None
-        return OVERVIEW if overview else human
+    def who(conn: Request | WebSocket, overview: bool) -> tuple[int, bool] | None:
+        """The surface the token opens, and whether with the operator's controls: its
+        human's page (no controls), or the overview (the operator's token: controls)."""
+        token = conn.query_params.get("token")
+        if overview:
+            role = owner.overview_role(token)
+            return None if role is None else (OVERVIEW, role == OPERATOR)
+        human = owner.human_of(token)
+        return None if human is None else (human, False)
 
     def page(overview: bool) -> Callable[[Request], Any]:
         async def handler(request: Request) -> Response:
-            wid = who(request, overview)
-            if wid is None:
+            got = who(request, overview)
+            if got is None:
                 return PlainTextResponse(UNAUTHORIZED, status_code=401, headers=NO_STORE)
-            return HTMLResponse(owner.page(wid), headers=NO_STORE)
+            return HTMLResponse(owner.page(*got), headers=NO_STORE)
         return handler
 
     def socket_route(overview: bool) -> Callable[[WebSocket], Any]:
         async def handler(ws: WebSocket) -> None:
-            wid = who(ws, overview)
-            if wid is None:
+            got = who(ws, overview)
+            if got is None:
                 await ws.close(code=POLICY_VIOLATION)  # before accept: the handshake fails
                 return
+            wid, controls = got
             await ws.accept()
             sub = hub.subscribe(wid)
             for text in await asyncio.to_thread(owner.connected, wid):
@@ -221,6 +231,15 @@ def build_app(owner: Owner, hub: FrameHub) -> Starlette:
                         msg = parse_message(await ws.receive_text())
                     except KeyError:  # a binary message
                         msg = None
+                    if wid == OVERVIEW and not controls:  # a viewer: nothing it sends acts
+                        got = msg if isinstance(msg, dict) else {}
+                        reply = None if got.get("type") == "painted" else {
+                            "type": "input", "taken": False, "why": READ_ONLY,
+                            "seq": got.get("seq"), "id": got.get("id")}
+                        if reply is not None:
+                            sub.texts.append(json.dumps(reply))
+                            sub.wake.set()
+                        continue
                     try:
                         reply = await asyncio.to_thread(owner.handle, wid, msg)
                     except Exception as exc:  # an input must never drop the page

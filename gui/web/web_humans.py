@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 
 from gui.console_core import OVERVIEW, ConsoleCore, Frame
-from gui.keys import BUTTONS, decode_browser_key
+from gui.keys import BUTTONS, Command, decode_browser_key
 from gui.view import Phase
 from gui.web.server import FrameHub, WebServer, build_app
 from gui.web.tokens import TokenBook
@@ -50,6 +50,30 @@ if TYPE_CHECKING:
 
 _ANNOUNCED: set[tuple[str, ...]] = set()
 """The URLs printed so far by this process (each set once)."""
+OPERATOR_COMMANDS = (Command.PAUSE, Command.STOP)
+"""What only the operator's overview may do (issue 44): one person's pause or stop would
+hold or end the trial for everybody."""
+OPERATOR_ONLY = ("pause and stop are the operator's (their overview link, or Ctrl-C where "
+                 "the trial runs)")
+
+
+def link_base(base_url: str, public_url: str | None) -> str:
+    """What the printed links start with: ``public_url`` as the lab gives it (the name
+    others reach this machine by, a tunnel's or a reverse proxy's address with its path
+    prefix), else the server's own address with a wildcard bind (0.0.0.0, ::) replaced by
+    this machine's name, which a browser elsewhere can use (the bind address cannot)."""
+    if public_url:
+        return public_url.rstrip("/")
+    import socket
+    from urllib.parse import urlsplit, urlunsplit
+
+    parts = urlsplit(base_url)
+    if parts.hostname in ("0.0.0.0", "::"):
+        port = f":{parts.port}" if parts.port else ""
+        return urlunsplit((parts.scheme, f"{socket.getfqdn()}{port}", "", "", ""))
+    return base_url
+
+
 HISTORY_MAX = 100_000
 """Overview curve points kept for a page that opens mid-trial (one per step)."""
 
@@ -148,6 +172,10 @@ class WebHumans(ConsoleCore):
         host: str = "127.0.0.1",
         port: int = 0,
         tokens: list[str] | None = None,
+        overview_token: str | None = None,
+        operator_token: str | None = None,
+        public_url: str | None = None,
+        resumed_at: int | None = None,
         certfile: str | None = None,
         keyfile: str | None = None,
         grace_s: float = 10.0,
@@ -160,7 +188,9 @@ class WebHumans(ConsoleCore):
                          teleop_timeout_s=teleop_timeout_s)
         if (certfile is None) != (keyfile is None):
             raise ValueError("humans.web: give both certfile and keyfile, or neither")
-        self.tokens = TokenBook(tokens) if tokens else TokenBook.for_session(num_humans)
+        self.tokens = TokenBook(tokens, overview_token, operator_token) if tokens else \
+            TokenBook.for_session(num_humans)
+        self.resumed_at = resumed_at
         if len(self.tokens) != num_humans:
             raise ValueError(f"humans.web.tokens: need {num_humans} tokens (one per human), "
                              f"got {len(self.tokens)}")
@@ -176,21 +206,31 @@ class WebHumans(ConsoleCore):
         self._server = WebServer(build_app(self, self._hub), host, port,
                                  certfile=certfile, keyfile=keyfile)
         self._server.start()
-        self.urls = [f"{self.base_url}/?token={self.tokens.token(h)}"
+        self.link_base = link_base(self.base_url, public_url)
+        self.urls = [f"{self.link_base}/?token={self.tokens.token(h)}"
                      for h in range(num_humans)]
-        self.overview_url = f"{self.base_url}/overview?token={self.tokens.token(0)}"
+        self.overview_url = f"{self.link_base}/overview?token={self.tokens.overview}"
+        """The read-only overview (a link to share with whoever should watch)."""
+        self.operator_url = f"{self.link_base}/overview?token={self.tokens.operator}"
+        """The operator's overview: pause and stop (for the operator alone)."""
         if announce is not None and (self.base_url, *self.urls) not in _ANNOUNCED:
             _ANNOUNCED.add((self.base_url, *self.urls))  # once: a protocol's next trial
             lines = [f"web console: {self.human_label(h)}: {u}"
                      for h, u in enumerate(self.urls)]
-            lines.append(f"web console: fleet overview: {self.overview_url}")
+            lines.append(f"web console: fleet overview (to watch; share it): "
+                         f"{self.overview_url}")
+            lines.append(f"web console: operator (pause and stop; keep it to yourself): "
+                         f"{self.operator_url}")
+            if resumed_at is not None:
+                lines.append(f"web console: resumed at step {resumed_at}: the links are the "
+                             f"ones given at the trial's start")
             print("\n".join(lines), file=announce, flush=True)
         with self._cond:
             self._redraw_all()
 
     @classmethod
     def from_config(cls, count: int, cfg: WebConsoleConfig | None = None, *,
-                    names: Sequence[str] = ()) -> WebHumans:
+                    names: Sequence[str] = (), resumed_at: int | None = None) -> WebHumans:
         """Built from ``[humans.web]`` (``testbed.people.people_config.WebConsoleConfig``) and the
         humans' ``names`` (``humans.people``; empty: "human i")."""
         if cfg is None:
@@ -199,7 +239,9 @@ class WebHumans(ConsoleCore):
             cfg = WebConsoleConfig()
         return cls(
             count, names=names, host=cfg.host, port=cfg.port, tokens=list(cfg.tokens) or None,
-            certfile=cfg.certfile, keyfile=cfg.keyfile, grace_s=cfg.grace_s,
+            overview_token=cfg.overview_token, operator_token=cfg.operator_token,
+            public_url=cfg.public_url, resumed_at=resumed_at, certfile=cfg.certfile,
+            keyfile=cfg.keyfile, grace_s=cfg.grace_s,
             away_timeout_s=cfg.away_timeout_s, teleop_timeout_s=cfg.teleop_timeout_s,
         )
 
@@ -284,12 +326,24 @@ class WebHumans(ConsoleCore):
     def human_of(self, token: str | None) -> int | None:
         return self.tokens.human_of(token)
 
-    def page(self, wid: int) -> str:
+    def overview_role(self, token: str | None) -> str | None:
+        return self.tokens.overview_role(token)
+
+    def page(self, wid: int, controls: bool = False) -> str:
         """The page of surface ``wid``; a human's is headed with their label, escaped
-        (a name is text, never markup, whatever a script passed as one)."""
+        (a name is text, never markup, whatever a script passed as one). Pause and stop
+        are shown with the operator's ``controls`` only; a resumed trial says so."""
         overview = wid == OVERVIEW
         label = "" if overview else html.escape(self.human_label(wid))
-        return _page_template(overview).replace("HUMAN_LABEL", label)
+        notice = "" if self.resumed_at is None else (
+            f"This trial was resumed at step {self.resumed_at}; your link is the one "
+            f"given at its start.")
+        text = _page_template(overview).replace("HUMAN_LABEL", label)
+        text = text.replace("<!--NOTICE-->", html.escape(notice))
+        if not controls:
+            text = text.replace('<button id="pause"', '<button id="pause" hidden').replace(
+                '<button class="stop" id="stop"', '<button class="stop" id="stop" hidden')
+        return text
 
     def connected(self, wid: int) -> list[dict[str, Any]]:
         with self._cond:
@@ -331,12 +385,14 @@ class WebHumans(ConsoleCore):
                 self._painted(wid, seq, float(msg["t_sent"]), float(msg["t_painted"]),
                               arrived)
                 return None
+            cmd = decode_browser_key(str(msg["key"])) if kind == "key" else \
+                BUTTONS.get(str(msg.get("name"))) if kind == "button" else None
+            if wid != OVERVIEW and cmd is not None and cmd.command in OPERATOR_COMMANDS:
+                return {"type": "input", "seq": seq, "taken": False, "why": OPERATOR_ONLY,
+                        "id": msg.get("id")}
             with self._cond:
-                if kind == "key":
-                    taken = self._on_command(wid, seq, decode_browser_key(str(msg["key"])),
-                                             arrived)
-                elif kind == "button" and str(msg.get("name")) in BUTTONS:
-                    taken = self._on_command(wid, seq, BUTTONS[str(msg["name"])], arrived)
+                if kind == "key" or (kind == "button" and cmd is not None):
+                    taken = self._on_command(wid, seq, cmd, arrived)
                 elif kind == "click":
                     taken = self._on_click(wid, seq, float(msg["x"]), float(msg["y"]),
                                            arrived)

@@ -70,7 +70,8 @@ def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None, *,
 
 def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
                 people: Sequence[HumanProfile] = (), names: Sequence[str] = (),
-                seed: int = 0, robots: Sequence[str] = ()) -> Humans:
+                seed: int = 0, robots: Sequence[str] = (),
+                resumed_at: int | None = None) -> Humans:
     """Build the humans of a trial; a console is imported only when asked for.
 
     ``web``: the browser console's settings (``humans.web`` of the config), read only
@@ -80,6 +81,8 @@ def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
     arm's index in ``robots``. ``names``: what a console calls each person (the names
     of ``humans.people``, so the windows and pages say who is who, as the records do);
     empty: "human 0", "human 1", ... (a config that names nobody keeps its labels).
+    ``resumed_at``: the step a resumed trial goes on from (the web console tells each
+    person their link is the one given at the start).
     """
     if kind == "scripted":
         return ScriptedHumans(people, seed=seed, robots=robots)
@@ -91,7 +94,8 @@ def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
         from gui.web import WebHumans
 
         humans: Humans = WebHumans.from_config(
-            count, web if web is not None else WebConsoleConfig(), names=names)
+            count, web if web is not None else WebConsoleConfig(), names=names,
+            resumed_at=resumed_at)
         return humans
     raise ValueError(f"unknown humans kind {kind!r}; use scripted, gui or web")
 

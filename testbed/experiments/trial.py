@@ -61,9 +61,11 @@ from testbed.experiments.learners import (
     pretrained_learner,
     resume_learner,
 )
+from testbed.experiments.web_links import links_for_run
 from testbed.fleet.algorithms import Algorithm, get_algorithm
 from testbed.fleet.loop import FleetLoop
 from testbed.fleet.thresholds import SIGNAL, resolve_thresholds
+from testbed.people.people_config import WebConsoleConfig
 from testbed.records.metrics import summarize
 from testbed.records.run_dir import RunDir, new_run_dir
 from testbed.records.steps import RunWriter, read_steps, truncate_torn_tail
@@ -168,10 +170,14 @@ def run_trial(
     cfg, opts = run.cfg, run.opts
     humans = hooks.humans(run.dir.path.name)
     if humans is None:
-        humans = make_humans(opts.humans, cfg.humans.count, cfg.humans.web,
+        web = cfg.humans.web
+        if opts.humans == "web":  # the links kept with the run: a resume gives the same
+            web = links_for_run(run.dir.path, web or WebConsoleConfig(), cfg.humans.count)
+        humans = make_humans(opts.humans, cfg.humans.count, web,
                              people=cfg.humans.profiles, seed=opts.seed,
                              robots=cfg.robot_names,
-                             names=[p.name for p in cfg.humans.people])
+                             names=[p.name for p in cfg.humans.people],
+                             resumed_at=run.start if resume is not None else None)
     own_hosts = hosts is None
     checked: Any = hosts  # what the controllers' check asks: the fleet, never a wrapper
     if hosts is None:

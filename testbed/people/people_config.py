@@ -43,6 +43,18 @@ class WebConsoleConfig(StrictModel):
     tokens: list[str] = Field(default_factory=list)
     """One secret per human (``humans.count`` of them, unique, each >= 16 characters of
     A-Z a-z 0-9 _ -); empty: a random one per human, made at start."""
+    overview_token: str | None = None
+    """The read-only overview's secret (a link to share with whoever should watch); None:
+    random, made at start. Only with ``tokens``."""
+    operator_token: str | None = None
+    """The operator's secret: the overview with pause and stop, which no other link has;
+    None: random, made at start. Only with ``tokens``."""
+    public_url: str | None = None
+    """What the printed links start with, as others reach this machine: its name and
+    port (``https://lab-pc.example.org:8765``), or a tunnel's or a reverse proxy's
+    address with its path prefix (``https://lab.example.org/fleet``); None: the server's
+    own address, a wildcard bind (``0.0.0.0``) replaced by this machine's name
+    (docs/notes/web.md, "Reaching the console")."""
     certfile: str | None = None
     """TLS certificate (PEM) for https; with ``keyfile``. Expands ``~`` and ``$VARS``."""
     keyfile: str | None = None
@@ -81,6 +93,23 @@ class WebConsoleConfig(StrictModel):
         if len(set(self.tokens)) != len(self.tokens):
             raise FieldProblem("tokens", "two humans have the same token; give each "
                                "human their own")
+        for name in ("overview_token", "operator_token"):
+            token = getattr(self, name)
+            if token is None:
+                continue
+            if not self.tokens:
+                raise FieldProblem(name, "given without tokens: give every human's too")
+            if not TOKEN_PATTERN.fullmatch(token):
+                raise FieldProblem(name, f"a token of {len(token)} characters; it needs "
+                                   ">= 16 characters of A-Z a-z 0-9 _ -")
+            if token in self.tokens or (name == "operator_token"
+                                        and token == self.overview_token):
+                raise FieldProblem(name, "the same as another token; give it its own")
+        if self.public_url is not None and not re.fullmatch(
+                r"https?://[^\s/?#]+(/[^\s?#]*)?", self.public_url):
+            raise FieldProblem("public_url", f"{self.public_url!r} is not an http(s) URL "
+                               "(e.g. https://lab-pc.example.org:8765 or "
+                               "https://lab.example.org/fleet)")
         if (self.certfile is None) != (self.keyfile is None):
             given, missing = (("certfile", "keyfile") if self.keyfile is None
                               else ("keyfile", "certfile"))

@@ -71,13 +71,16 @@ class RunDir:
 
     def write_config(self, cfg: StrictModel) -> None:
         """config.toml, without the web console's tokens: a run folder is data a lab
-        keeps, exports and shares, and a token is a credential. A resumed run makes
-        new tokens (printed once), unless its operator passes the config that has them.
+        keeps, exports and shares, and a token is a credential. A resumed run gets its
+        links back from ``web-links.json`` (mode 0600, only the operator's user reads it:
+        ``testbed.experiments.web_links``).
         """
         data = _drop_none(cfg.model_dump(mode="json"))
         web = data.get("humans", {}).get("web", {})
         if web.get("tokens"):
             web["tokens"] = []
+        for key in ("overview_token", "operator_token"):
+            web.pop(key, None)
         atomic_write_bytes(self.path / CONFIG, tomli_w.dumps(data).encode())
 
     def read_config(self, model: type[ModelT]) -> ModelT:

@@ -20,6 +20,7 @@ name both humans.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import socket
 import subprocess
@@ -388,6 +389,12 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
     assert closed_at_step is not None, "the trial ended before human 1's page was closed"
     assert f"web console: ana (human 0): {urls[0]}" in err, "the URLs, printed at start"
     assert f"web console: bo (human 1): {urls[1]}" in err, "... with each human's name"
+    # issue 44: the links are kept with the run for a resume, readable by the operator only
+    kept = json.loads((run / "web-links.json").read_text())
+    assert kept["humans"] == TOKENS
+    assert (run / "web-links.json").stat().st_mode & 0o077 == 0
+    assert (f"web console: operator (pause and stop; keep it to yourself): "
+            f"http://127.0.0.1:{port}/overview?token={kept['operator']}") in err
 
     steps = read_steps(run / "steps.jsonl")
     assert len(steps) == STEPS

@@ -60,10 +60,15 @@ from websockets.sync.client import ClientConnection, connect
 
 from gui import ConsoleUnavailable, StopRequested
 from gui.view import Phase
-from gui.web.web_humans import WebHumans
+from gui.web.server import READ_ONLY
+from gui.web.web_humans import OPERATOR_ONLY, WebHumans
 from testbed.core.types import FleetStatus, HumanEstimate, Mode, RobotStatus
 
 TOKENS = ["human0-token-aaaaaaaaaaaa", "human1-token-bbbbbbbbbbbb"]
+OVERVIEW_TOKEN = "overview-token-cccccccccc"
+"""The read-only overview's token (to watch)."""
+OPERATOR_TOKEN = "operator-token-dddddddddd"
+"""The operator's: the overview with pause and stop (issue 44: the operator's alone)."""
 GRACE_S = 0.5
 AWAY_S = 0.3
 WAIT_S = 5.0
@@ -270,6 +275,7 @@ def assert_no_server_thread() -> None:
 @contextlib.contextmanager
 def console(num_humans: int = 2, **kwargs: Any) -> Iterator[WebHumans]:
     args: dict[str, Any] = {"port": 0, "announce": None, "tokens": TOKENS[:num_humans],
+                            "overview_token": OVERVIEW_TOKEN, "operator_token": OPERATOR_TOKEN,
                             "grace_s": GRACE_S, "away_timeout_s": AWAY_S}
     humans = WebHumans(num_humans, **(args | kwargs))
     try:
@@ -290,11 +296,18 @@ def web() -> Iterator[WebHumans]:
 
 @pytest.fixture
 def open_page(web: WebHumans) -> Iterator[OpenPage]:
-    """``open_page(h)``: a page with human h's token (``path="/ws/overview"``: overview)."""
+    """``open_page(h)``: a page with human h's token (``path="/ws/overview"``: overview);
+    ``open_page("operator")`` / ``open_page("overview")``: the overview with the
+    operator's token / the read-only overview token."""
     pages: list[FakePage] = []
 
-    def open_(human: int, *, path: str = "/ws", query: str = "") -> FakePage:
-        page = FakePage(f"{ws_base(web)}{path}?token={TOKENS[human]}{query}")
+    def open_(human: int | str, *, path: str = "/ws", query: str = "") -> FakePage:
+        if isinstance(human, str):
+            token = OPERATOR_TOKEN if human == "operator" else OVERVIEW_TOKEN
+            path = "/ws/overview"
+        else:
+            token = TOKENS[human]
+        page = FakePage(f"{ws_base(web)}{path}?token={token}{query}")
         pages.append(page)
         return page
 
@@ -525,12 +538,15 @@ def test_reset_done_by_the_button(
 def test_pause_and_resume_from_a_page(
     web: WebHumans, open_page: OpenPage, make_request: RequestFactory
 ) -> None:
-    p0, p1 = open_page(0), open_page(1)
+    p0, p1, op = open_page(0), open_page(1), open_page("operator")
     call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 30))
     web.wait_for_prompt(0)
     point = web.face_click_point(0, 3)
 
-    assert p1.button("pause")["taken"]  # any human pauses the whole fleet
+    for reply in (p1.button("pause"), p1.key(" ")):  # a human cannot pause the fleet
+        assert reply["taken"] is False and reply["why"] == OPERATOR_ONLY, reply
+    assert not web.paused
+    assert op.button("pause")["taken"]  # the operator pauses the whole fleet
     assert web.paused
     paused = p0.wait_frame(lambda h: h["paused"])
     for reply in (p0.key("d", seq=paused["seq"]), p0.click(*point, seq=paused["seq"])):
@@ -539,7 +555,7 @@ def test_pause_and_resume_from_a_page(
     assert call.waiting, "a push while paused answered the request"
     assert web.snapshot(0).phase is Phase.CHOOSE
 
-    assert p1.button("pause")["taken"]
+    assert op.button("pause")["taken"]
     assert not web.paused
     p0.wait_frame(lambda h: not h["paused"] and choosing(h))
     assert p0.key("a")["taken"]
@@ -549,7 +565,7 @@ def test_pause_and_resume_from_a_page(
 def test_stop_then_no_goes_on(
     web: WebHumans, open_page: OpenPage, make_request: RequestFactory
 ) -> None:
-    page = open_page(0)
+    human, page = open_page(0), open_page("operator")
     call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 40))
     web.wait_for_prompt(0)
     assert page.button("stop")["taken"]
@@ -558,23 +574,30 @@ def test_stop_then_no_goes_on(
     page.wait_frame(lambda h: not h["confirming_stop"])
     time.sleep(0.3)
     assert call.waiting and not web.stop_requested
-    assert page.key("w")["taken"]
+    assert human.key("w")["taken"]
     assert call.join()["cell0/left"].action == 0
 
 
 def test_stop_then_yes_stops(
     web: WebHumans, open_page: OpenPage, make_request: RequestFactory
 ) -> None:
-    p0, p1 = open_page(0), open_page(1)
+    p0, p1, op = open_page(0), open_page(1), open_page("operator")
+    viewer = open_page("overview")
     call = ActCall(lambda: web.act([make_request("cell0/left", 0)], 50))
     web.wait_for_prompt(0)
-    assert p0.button("stop")["taken"]
-    p0.wait_frame(lambda h: h["confirming_stop"])
-    assert not p1.button("yes")["taken"]  # human 1 cannot confirm human 0's question
+    for page in (p0, p1):  # issue 44: stopping the trial is the operator's alone
+        for reply in (page.button("stop"), page.key("Escape")):
+            assert reply["taken"] is False and reply["why"] == OPERATOR_ONLY, reply
+    for reply in (viewer.button("stop"), viewer.button("pause")):  # the link to share
+        assert reply["taken"] is False and reply["why"] == READ_ONLY, reply
+    assert op.button("stop")["taken"]
+    op.wait_frame(lambda h: h["confirming_stop"])
+    assert not viewer.button("yes")["taken"]  # nobody else confirms the operator's question
+    assert not p1.button("yes")["taken"]
     time.sleep(0.2)
     assert call.waiting and not web.stop_requested
-    assert p0.button("yes")["taken"]
-    with pytest.raises(StopRequested, match="human 0"):
+    assert op.button("yes")["taken"]
+    with pytest.raises(StopRequested, match="overview"):
         call.join()
     assert web.stop_requested
     p1.wait_frame(lambda h: h["stop_requested"])  # every page is told
@@ -774,10 +797,13 @@ def test_overview_socket_who_is_here_counters_and_history(
     assert web.presence().available.tolist() == [True, False]  # overviews are nobody
 
     assert not overview.key("w")["taken"]  # no arm to push from the overview
-    assert overview.button("pause")["taken"]  # but it pauses the fleet
+    assert overview.button("pause")["why"] == READ_ONLY  # a human's token: only to look
+    operator = open_page("operator")
+    assert not operator.key("w")["taken"]  # no arm to push from the operator's either
+    assert operator.button("pause")["taken"]  # but the operator pauses the fleet
     assert web.paused
-    overview.wait_frame(lambda h: h["paused"])
-    assert overview.button("pause")["taken"]
+    operator.wait_frame(lambda h: h["paused"])
+    assert operator.button("pause")["taken"]
     assert not web.paused
 
 

@@ -10,9 +10,13 @@ const TestbedConsole = (() => {
   let ws = null;
   let nextId = 1;
 
+  // Served under a reverse proxy's path prefix (/fleet/, /fleet/overview), the sockets
+  // are under it too: the prefix is the page's own path less "/" or "/overview".
+  const prefix = location.pathname.replace(/\/(overview)?$/, "");
+
   function wsUrl(path) {
     const scheme = location.protocol === "https:" ? "wss://" : "ws://";
-    return scheme + location.host + path + "?token=" + encodeURIComponent(token);
+    return scheme + location.host + prefix + path + "?token=" + encodeURIComponent(token);
   }
 
   function send(msg) {
