@@ -112,7 +112,7 @@ def fleet_doc(status: FleetStatus, names: Sequence[str] = ()) -> dict[str, Any]:
     return {  # int(): a loop may count in numpy integers, which JSON does not take
         "type": "fleet", **{k: int(getattr(status, k)) for k in counters},
         "rohe": round(float(status.rohe), 5), "paused": bool(status.paused),
-        "robots": robots,
+        "robots": robots, "health": status.health(names),
         "queue": [{"robot": r["robot"], "mode": r["mode"], "waited": r["waited"]}
                   for r in sorted((r for r in robots if r["waited"] is not None),
                                   key=lambda r: -r["waited"])],
@@ -317,6 +317,7 @@ class WebHumans(ConsoleCore):
                 "hard_resets": status.hard_resets, "human_actions": status.human_actions,
                 "idle": status.idle_time, "rohe": round(status.rohe, 5),
                 "modes": [str(r.mode) for r in status.robots],
+                "health": status.health(self.names),
             })
             del self._history[:-HISTORY_MAX]
             self._hub.post_fleet(fleet_doc(status, self.names))

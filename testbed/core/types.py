@@ -19,6 +19,7 @@ Conventions shared by every part:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 from typing import Final
@@ -232,3 +233,28 @@ class FleetStatus:
     paused: bool = False
     operators: list[HumanEstimate] = field(default_factory=list)
     """Per human, by index: the estimates so far (empty before the first step)."""
+    away: list[int] = field(default_factory=list)
+    """The humans away this step (their consoles closed: the row's ``"away"``)."""
+    last_fault: tuple[int, str, str] | None = None
+    """The newest fault so far: (step, robot, reason), the row's ``"faults"``."""
+
+    def health(self, names: Sequence[str] = ()) -> str:
+        """A run's health at a glance (issue 44), for the progress line and the web
+        overview: the arms faulted now, the arms waiting for a person (the longest
+        wait), the humans away, the newest fault; empty when all is well."""
+        parts = []
+        faulted = [r.robot for r in self.robots if r.mode is Mode.FAULT]
+        if faulted:
+            parts.append(f"faulted {len(faulted)} ({', '.join(faulted)})")
+        waits = [r.waited for r in self.robots if r.waited is not None]
+        if waits:
+            parts.append(f"waiting {len(waits)} (longest {max(waits)} steps)")
+        if self.away:
+            who = [names[h] if h < len(names) and names[h] else f"human {h}"
+                   for h in self.away]
+            parts.append(f"away: {', '.join(who)}")
+        if self.last_fault is not None:
+            t, robot, why = self.last_fault
+            short = why if len(why) <= 90 else why[:87] + "..."
+            parts.append(f"last fault at step {t}, {robot}: {short}")
+        return "; ".join(parts)

@@ -186,10 +186,11 @@ class _PlainLines:
         self._last_event = now
 
     def _step_line(self, ph: _Phase, now: float, s: FleetStatus) -> str:
+        health = s.health()
         return (f"{self._line(ph, now, 'step')} | successes {s.successes}, "
                 f"hard resets {s.hard_resets}, idle {s.idle_time}, "
                 f"human actions {s.human_actions}, ROHE {s.rohe:.3f}"
-                + (", paused" if s.paused else ""))
+                + (", paused" if s.paused else "") + (f" | {health}" if health else ""))
 
     def _show(self, ph: _Phase, now: float, text: str) -> None:
         ph.shown_done = ph.done
@@ -292,9 +293,10 @@ class TrialProgress(TrialHooks):
             self._plain.step(self.label, self.steps, s)
             return
         assert self._progress is not None
+        health = s.health()
         counters = (
             f"succ {s.successes}  resets {s.hard_resets}  idle {s.idle_time}  "
-            f"human {s.human_actions}  ROHE {s.rohe:.3f}"
+            f"human {s.human_actions}  ROHE {s.rohe:.3f}" + (f"  | {health}" if health else "")
         )
         self._progress.update(
             self._task(self.label, self.steps), completed=s.t, counters=counters

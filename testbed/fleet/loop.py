@@ -413,6 +413,11 @@ class FleetLoop:
             if self._feed is not None:
                 self._feed.step(self.learner, frames)  # type: ignore[arg-type]
         self.status.t = t + 1
+        self.status.away = [int(h) for h in row.get("away", ())]
+        faults = {r: o.reason for r, o in seen.observations.items() if isinstance(o, Fault)}
+        faults.update(row.get("faults") or {})  # a host's fault at the push
+        for robot, why in sorted(faults.items())[:1]:  # the newest, for the displays
+            self.status.last_fault = (t, robot, str(why))
         self.status.robots = [
             RobotStatus(r, a.mode, seen.images[i] if not d.faulted[i] else None,
                         d.humans_of[r], a.waited)

@@ -63,8 +63,11 @@ class WebConsoleConfig(StrictModel):
     """How long an away human's held intervention goes on before it is released."""
     away_timeout_s: float = Field(5.0, gt=0, allow_inf_nan=False)
     """The longest the fleet waits on an away human's teleop answer in a step."""
-    teleop_timeout_s: float | None = Field(None, gt=0, allow_inf_nan=False)
-    """The longest it waits on a present human's answer (None: as long as it takes)."""
+    teleop_timeout_s: float | None = Field(30.0, gt=0, allow_inf_nan=False)
+    """The longest a step waits on a present human's answer: then that arm's step passes
+    with no push (its row's ``action`` null; a reset stays asked) and the other arms go
+    on, so one colleague who looks away does not stall the fleet (issue 44). ``null``:
+    as long as it takes."""
 
     @field_validator("host")
     @classmethod

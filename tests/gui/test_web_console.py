@@ -829,11 +829,22 @@ def test_human_pages_get_the_fleets_state_each_step_and_the_latest_on_opening(
         "idle_time": 2, "human_actions": 3, "rohe": 0.125, "paused": False,
         "robots": [{"robot": "cell0/left", "mode": "teleop", "human": 1, "waited": None},
                    {"robot": "cell0/right", "mode": "idle", "human": None, "waited": 4}],
-        "queue": [{"robot": "cell0/right", "mode": "idle", "waited": 4}]}
+        "queue": [{"robot": "cell0/right", "mode": "idle", "waited": 4}],
+        "health": "waiting 1 (longest 4 steps)"}
     late = open_page(1)
     wait_until(lambda: [x["t"] for x in fleet_texts(late)] == [6], "the latest, at once")
     overview.wait_frame(lambda h: h.get("point", {}).get("t") == 6)
     assert fleet_texts(overview) == [], "the overview has its own counters"
+    # issue 44: a run's health at a glance, on the overview and every page
+    robots = [RobotStatus("cell0/left", Mode.FAULT, None, None),
+              RobotStatus("cell0/right", Mode.IDLE, None, None, 7)]
+    web.show(7, FleetStatus(7, 50, robots=robots, away=[1],
+                            last_fault=(6, "cell0/left", "agent on host cell0: motors off")))
+    want = ("faulted 1 (cell0/left); waiting 1 (longest 7 steps); away: human 1; last fault "
+            "at step 6, cell0/left: agent on host cell0: motors off")
+    head = overview.wait_frame(lambda h: h.get("point", {}).get("t") == 7)
+    assert head["point"]["health"] == want
+    wait_until(lambda: fleet_texts(page)[-1]["health"] == want, "the health, on a page")
 
 
 # ---- 10, 11: TLS and the port ---------------------------------------------------------------

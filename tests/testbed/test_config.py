@@ -299,7 +299,7 @@ def test_web_console_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> 
     web = default_twin_config().humans.web
     assert (web.host, web.port, web.tokens, web.certfile, web.keyfile) == (
         "127.0.0.1", 8765, [], None, None)  # loopback unless the config says otherwise
-    assert (web.grace_s, web.away_timeout_s, web.teleop_timeout_s) == (10.0, 5.0, None)
+    assert (web.grace_s, web.away_timeout_s, web.teleop_timeout_s) == (10.0, 5.0, 30.0)
     home = lab_home(tmp_path, monkeypatch)
     (home / "tls").mkdir()
     for name in ("cert.pem", "key.pem"):

@@ -66,6 +66,8 @@ class AwayHumans:
         self.gone = dict(gone or {})
         self.asked = 0
         self.requests: dict[int, list[HumanRequest]] = {}
+        self.health: dict[int, str] = {}
+        """What the consoles were shown of the run's health, per step (issue 44)."""
 
     def presence(self) -> Presence:
         t = self.asked
@@ -80,7 +82,7 @@ class AwayHumans:
         return ScriptedHumans().act(requests, t)
 
     def show(self, t: int, status: FleetStatus) -> None:
-        return None
+        self.health[t] = status.health()
 
     def close(self) -> None:
         return None
@@ -124,6 +126,8 @@ def test_an_away_human_gets_no_new_request_until_back(tmp_path: Path) -> None:
             assert asked == {0, 1} and "away" not in row
             assert _on(row) == {"h/a": 0, "h/b": 1, "h/c": None}
         assert "released" not in row  # nobody was gone
+        # the consoles and the progress line say who is away (issue 44)
+        assert ("away: human 1" in humans.health[t]) is (t in (2, 3, 4)), humans.health[t]
     # Back at step 5: a new teleop, served from 0.
     assert [(r.robot, r.served) for r in humans.requests[5] if r.human == 1] == [("h/b", 0)]
 

@@ -187,3 +187,31 @@ def test_plain_phase_line_every_30_s_and_its_last_count_when_cut_short() -> None
     assert got[3].startswith("pretrain policy: 8/300")  # the last count, before it stopped
     assert got[4] == "pretrain policy: interrupted, 8/300 in 0:01:20"
     assert len(got) == 5
+
+
+def test_the_step_line_shows_faulted_waiting_and_away_and_the_last_fault() -> None:
+    """Issue 44: a healthy run at a glance. The step line says which arms are faulted,
+    how many wait for a person (the longest wait), who is away and the newest fault;
+    a run where all is well says nothing more."""
+    from testbed.core.types import Mode, RobotStatus
+
+    buf = io.StringIO()
+    bar, clock = plain(buf, steps=2, every=1)
+    robots = [RobotStatus("yumi-a/left", Mode.FAULT, None),
+              RobotStatus("yumi-a/right", Mode.IDLE, None, None, 3),
+              RobotStatus("cell1/left", Mode.AUTONOMOUS, None)]
+    long = "agent on host yumi-a: backend error: " + "the motors are off " * 8
+    with bar:
+        clock.t += 1.0
+        bar.on_step(outcome(1, 2))
+        clock.t += 1.0
+        status = FleetStatus(t=2, steps=2, robots=robots, away=[1],
+                             last_fault=(1, "yumi-a/left", long))
+        bar.on_step(StepOutcome(t=1, row={}, status=status))
+    got = [g for g in lines(buf) if re.match(r"trial: \d/2", g)]
+    assert " | " not in got[0].split(" | ", 1)[1]  # step 1: all well, nothing added
+    tail = got[1].split(" | ")[2]
+    assert tail.startswith("faulted 1 (yumi-a/left); waiting 1 (longest 3 steps); away: "
+                           "human 1; last fault at step 1, yumi-a/left: agent on host "
+                           "yumi-a: backend error: the motors")
+    assert tail.endswith("...") and len(tail) < 220  # a long reason is cut, not the line

@@ -205,6 +205,15 @@ def test_replay_gives_what_the_loop_gave_its_learner_across_a_resume(tmp_path: P
                              session=session)
             for t in range(first, last):
                 loop.step(t)
+                if t == 3:  # the newest fault, for the progress line and the overview
+                    assert loop.status.last_fault is not None
+                    assert loop.status.last_fault[:2] == (3, ARMS[0])
+                    assert "camera lost" in loop.status.last_fault[2]
+            if session == 0:  # step 4's, and the arm faulted then shows as faulted
+                assert loop.status.last_fault is not None
+                assert loop.status.last_fault[:2] == (4, ARMS[1])
+                assert "host lost" in loop.status.last_fault[2]
+                assert loop.status.health().startswith(f"faulted 1 ({ARMS[1]})")
             loop.close()
         data.close()
     rows = read_steps(tmp_path / "steps.jsonl")

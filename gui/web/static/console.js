@@ -301,6 +301,8 @@ const TestbedConsole = (() => {
         document.getElementById("counters").textContent =
           `t ${last.t}  successes ${last.successes}  hard resets ${last.hard_resets}  ` +
           `human actions ${last.human_actions}  idle ${last.idle}  ROHE ${last.rohe}`;
+        // faulted arms, waiting arms, who is away, the newest fault (issue 44)
+        document.getElementById("health").textContent = last.health || "all well";
       }
       showHumans(head.humans || []);
       showOperators(head.operators || []);
