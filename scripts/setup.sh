@@ -21,7 +21,7 @@ case "$mode" in
   *) echo "usage: scripts/setup.sh [--dev|--host [DIR]]" >&2; exit 2 ;;
 esac
 cd "$(dirname "$0")/.."
-extras="operator,console,web,yumi"
+extras="operator,console,web,yumi,export"
 apt_pkgs=(openssh-client)
 case "$mode" in
   --dev) extras="operator,console,web,yumi,ray,dev,export"
@@ -69,13 +69,38 @@ for c in python3.11 python3; do
     py="$c"; break
   fi
 done
-[ -n "$py" ] || { echo "Python 3.11 is required (pybullet ships wheels for 3.11 only)" >&2; exit 2; }
-[ -x .venv/bin/python ] || "$py" -m venv .venv
+if [ -z "$py" ]; then
+  # where the releases labs use keep it (README, "A fresh operator machine")
+  . /etc/os-release 2>/dev/null || true
+  case "${ID:-}:${VERSION_ID:-}" in
+    debian:12) how="sudo apt-get install python3.11 python3.11-venv" ;;
+    ubuntu:22.04|ubuntu:24.04)
+      how="sudo add-apt-repository ppa:deadsnakes/ppa && sudo apt-get update && sudo apt-get install python3.11 python3.11-venv" ;;
+    *) how="install uv (https://docs.astral.sh/uv/), then: uv python install 3.11 and put its python3.11 on PATH" ;;
+  esac
+  echo "Python 3.11 is required (pybullet ships wheels for 3.11 only); on ${PRETTY_NAME:-this system}: $how" >&2
+  exit 2
+fi
+if [ ! -x .venv/bin/python ] && ! "$py" -m venv .venv >/dev/null 2>&1; then
+  rm -rf .venv
+  echo "$py cannot make a virtual environment: install its venv package (Debian, Ubuntu: sudo apt-get install python3.11-venv)" >&2
+  exit 2
+fi
 # --no-compile: pip byte-compiles every module it installs one file at a time (torch
 # alone: 40 s against 12 s here); compileall below does it on every core, once.
 pip=(.venv/bin/python -m pip install -q --no-compile --disable-pip-version-check)
-# torch first and pinned: a bare "torch" would pull a CUDA build of several GB.
-"${pip[@]}" "torch==2.13.0"
+# torch first and pinned: a bare "torch" would pull a CUDA build of several GB, and so
+# does torch==2.13.0 from PyPI itself on Linux. Without an NVIDIA GPU the CPU build comes
+# from PyTorch's own CPU index (about 200 MB); where that index cannot be reached (a lab
+# mirror, a machine without the internet) the pinned wheel comes from pip's own indexes,
+# which such a machine's pip config names.
+cpu_index="https://download.pytorch.org/whl/cpu"
+if ! command -v nvidia-smi >/dev/null 2>&1 \
+   && .venv/bin/python -c "import urllib.request as u; u.urlopen('$cpu_index/torch/', timeout=5)" >/dev/null 2>&1; then
+  "${pip[@]}" --index-url "$cpu_index" "torch==2.13.0"
+else
+  "${pip[@]}" "torch==2.13.0"
+fi
 # The headless OpenCV must go before the GUI build is installed: both own cv2/.
 .venv/bin/python -m pip uninstall -q -y opencv-python-headless >/dev/null 2>&1 || true
 "${pip[@]}" -e ".[${extras}]"
