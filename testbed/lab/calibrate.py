@@ -244,6 +244,8 @@ def run_calibration(fleet: Any, opts: CalibrateOptions, box: cal.Box,
     out.frame_size = (int(frame.shape[1]), int(frame.shape[0]))
     out.rest_marker = cal.find_marker(frame, opts.marker_id)
     out.last_frame = frame
+    if not _marker_seen_at_centre(fleet, opts, box, out, say):
+        return out  # the arm looked once, over the box's centre, and goes no further
     # 10 mm inside the box: its corners are the edge of the arm's reach with the 184.2 mm
     # pusher (the twin: a joint 0.1-1 deg past its limit near the inner edge)
     points = cal.grid_points(box, opts.grid, inset_mm=GRID_INSET_MM)
@@ -286,6 +288,38 @@ def run_calibration(fleet: Any, opts: CalibrateOptions, box: cal.Box,
     out.crop = cal.propose_crop(fit.homography, box, out.frame_size)
     out.data = cal.calibration_data(existing, fit, box)
     return out
+
+
+def _marker_seen_at_centre(fleet: Any, opts: CalibrateOptions, box: cal.Box,
+                           out: CalibrationOutcome, say: Callable[[str], None]) -> bool:
+    """The marker looked for once, with the pusher over the box's centre, before the arm
+    is driven through the grid (issue 44): a marker that is missing, of another id or
+    dictionary, hidden by the gripper or unlit fails here in one move, with what to
+    check, instead of after twenty. False (``out.error`` set) when it is not seen."""
+    from drivers.host_fleet import HostCallError
+
+    centre = ((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0, opts.z_mm)
+    try:
+        fleet.move_tcp(opts.host, opts.arm, centre)
+    except HostCallError as exc:
+        if not fleet.host_status()[opts.host].connected:
+            raise
+        say(f"  marker check over the box's centre {_fmt(centre[:2])} mm: refused ({exc}); "
+            f"the grid follows")
+        return True
+    frame = fleet.frame(opts.host)
+    out.last_frame = frame
+    pixel = cal.find_marker(frame, opts.marker_id)
+    if pixel is None:
+        out.error = (f"marker {opts.marker_id} ({cal.MARKER_DICT}) not seen with the pusher "
+                     f"over the box's centre {_fmt(centre[:2])} mm, so the arm did not go "
+                     f"through the grid: check that the marker is on the pusher's cap and "
+                     f"not hidden by the gripper (robot/README.md, 'The calibration "
+                     f"marker'), --marker-id, the light and the camera's view")
+        return False
+    say(f"  marker {opts.marker_id} seen over the box's centre at {_fmt(pixel, 2)} px: "
+        f"the grid follows")
+    return True
 
 
 def report(out: CalibrationOutcome, opts: CalibrateOptions, current_crop: Any,

@@ -242,7 +242,10 @@ def test_too_few_markers_fails_and_writes_nothing(
                "left", "--grid", "3x3", "--marker-id", "7", "--box", "160,120,420,360"])
     out = capsys.readouterr().out
     assert rc == 1, out
-    assert "only 0 of 9 points showed marker 7" in out and "nothing written" in out
+    # issue 44: looked for once, over the box's centre, before any grid point
+    assert ("marker 7 (DICT_4X4_50) not seen with the pusher over the box's centre "
+            "(290.0, 240.0) mm, so the arm did not go through the grid") in out, out
+    assert "point  1/9" not in out and "nothing written" in out
     assert (lab / "left.json").read_bytes() == before
     assert _at_rest(twin)
 
