@@ -236,7 +236,8 @@ class FleetStatus:
     away: list[int] = field(default_factory=list)
     """The humans away this step (their consoles closed: the row's ``"away"``)."""
     last_fault: tuple[int, str, str] | None = None
-    """The newest fault so far: (step, robot, reason), the row's ``"faults"``."""
+    """The newest fault so far: (step, robot, reason), an arm's host faulted at the
+    observation or at the push (the latter also in the row's ``"faults"``)."""
 
     def health(self, names: Sequence[str] = ()) -> str:
         """A run's health at a glance (issue 44), for the progress line and the web
