@@ -33,6 +33,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from importlib import resources
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
@@ -55,6 +56,18 @@ OPERATOR_COMMANDS = (Command.PAUSE, Command.STOP)
 hold or end the trial for everybody."""
 OPERATOR_ONLY = ("pause and stop are the operator's (their overview link, or Ctrl-C where "
                  "the trial runs)")
+
+
+def _is_loopback(host: str) -> bool:
+    """Whether a bind address is this machine only (plain http is enough there)."""
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def link_base(base_url: str, public_url: str | None) -> str:
@@ -176,6 +189,8 @@ class WebHumans(ConsoleCore):
         operator_token: str | None = None,
         public_url: str | None = None,
         resumed_at: int | None = None,
+        tls: str = "auto",
+        tls_dir: Path | None = None,
         certfile: str | None = None,
         keyfile: str | None = None,
         grace_s: float = 10.0,
@@ -188,6 +203,17 @@ class WebHumans(ConsoleCore):
                          teleop_timeout_s=teleop_timeout_s)
         if (certfile is None) != (keyfile is None):
             raise ValueError("humans.web: give both certfile and keyfile, or neither")
+        self_signed_here = certfile is None and tls == "auto" and not _is_loopback(host)
+        if self_signed_here:  # https by default off loopback (gui/web/tls.py)
+            from gui.web.tls import self_signed
+
+            certfile, keyfile = self_signed(host, tls_dir)
+        self.fingerprint: str | None = None
+        """The certificate's SHA-256 fingerprint when the console serves https."""
+        if certfile is not None:
+            from gui.web.tls import certificate_fingerprint
+
+            self.fingerprint = certificate_fingerprint(certfile)
         self.tokens = TokenBook(tokens, overview_token, operator_token) if tokens else \
             TokenBook.for_session(num_humans)
         self.resumed_at = resumed_at
@@ -221,6 +247,11 @@ class WebHumans(ConsoleCore):
                          f"{self.overview_url}")
             lines.append(f"web console: operator (pause and stop; keep it to yourself): "
                          f"{self.operator_url}")
+            if self.fingerprint is not None:
+                kind = "self-signed: compare it with what the browser shows before " \
+                       "accepting it" if self_signed_here else "the lab's"
+                lines.append(f"web console: https, certificate SHA-256 {self.fingerprint} "
+                             f"({kind})")
             if resumed_at is not None:
                 lines.append(f"web console: resumed at step {resumed_at}: the links are the "
                              f"ones given at the trial's start")
@@ -240,7 +271,8 @@ class WebHumans(ConsoleCore):
         return cls(
             count, names=names, host=cfg.host, port=cfg.port, tokens=list(cfg.tokens) or None,
             overview_token=cfg.overview_token, operator_token=cfg.operator_token,
-            public_url=cfg.public_url, resumed_at=resumed_at, certfile=cfg.certfile,
+            public_url=cfg.public_url, resumed_at=resumed_at, tls=cfg.tls,
+            certfile=cfg.certfile,
             keyfile=cfg.keyfile, grace_s=cfg.grace_s,
             away_timeout_s=cfg.away_timeout_s, teleop_timeout_s=cfg.teleop_timeout_s,
         )

@@ -55,6 +55,11 @@ class WebConsoleConfig(StrictModel):
     address with its path prefix (``https://lab.example.org/fleet``); None: the server's
     own address, a wildcard bind (``0.0.0.0``) replaced by this machine's name
     (docs/notes/web.md, "Reaching the console")."""
+    tls: Literal["auto", "off"] = "auto"
+    """``auto``: https off loopback, with ``certfile``/``keyfile`` when given, else a
+    self-signed certificate made once on this machine, its fingerprint printed with the
+    links (gui/web/tls.py); plain http on loopback. ``off``: plain http anywhere (behind
+    a reverse proxy that terminates TLS)."""
     certfile: str | None = None
     """TLS certificate (PEM) for https; with ``keyfile``. Expands ``~`` and ``$VARS``."""
     keyfile: str | None = None
@@ -113,6 +118,9 @@ class WebConsoleConfig(StrictModel):
             raise FieldProblem("public_url", f"{self.public_url!r} is not an http(s) URL "
                                "(e.g. https://lab-pc.example.org:8765 or "
                                "https://lab.example.org/fleet)")
+        if self.tls == "off" and self.certfile is not None:
+            raise FieldProblem("tls", '"off" with a certfile: remove the certfile for plain '
+                               'http, or tls = "auto" to serve https with it')
         if (self.certfile is None) != (self.keyfile is None):
             given, missing = (("certfile", "keyfile") if self.keyfile is None
                               else ("keyfile", "certfile"))

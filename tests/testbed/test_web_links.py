@@ -183,3 +183,55 @@ def test_a_colleague_reaches_the_console_through_an_ssh_tunnel(tmp_path: Path) -
         finally:
             tunnel.terminate()
             tunnel.wait(10)
+
+
+def test_off_loopback_the_console_serves_https_with_a_kept_certificate_and_prints_it(
+        tmp_path: Path) -> None:
+    """Issue 44: https by default for a console others reach. With no certificate of the
+    lab's, one is made on this machine once (its key 0600) and kept, so its fingerprint,
+    printed with the links, stays the same; a browser that checks the fingerprint gets
+    the very certificate printed. ``tls = "off"`` (a proxy terminates TLS) and loopback
+    stay plain http."""
+    import hashlib
+    import ssl
+    import urllib.request
+
+    from gui.web.tls import certificate_fingerprint
+
+    said = io.StringIO()
+    with WebHumans(1, host="0.0.0.0", port=0, tokens=TOKENS[:1], announce=said,
+                   tls_dir=tmp_path / "tls") as web:
+        assert web.base_url.startswith("https://")
+        cert = tmp_path / "tls" / "console-cert.pem"
+        assert stat.S_IMODE((tmp_path / "tls" / "console-key.pem").stat().st_mode) == 0o600
+        assert web.fingerprint == certificate_fingerprint(cert)
+        assert (f"web console: https, certificate SHA-256 {web.fingerprint} (self-signed: "
+                f"compare it with what the browser shows") in said.getvalue()
+        assert all(u.startswith(f"https://{socket.getfqdn()}:") for u in web.urls)
+        ctx = ssl.create_default_context(cafile=str(cert))
+        ctx.check_hostname = False  # fetched by address; the chain is still verified
+        opener = urllib.request.build_opener(urllib.request.ProxyHandler({}),
+                                             urllib.request.HTTPSHandler(context=ctx))
+        url = f"https://127.0.0.1:{web.port}/?token={TOKENS[0]}"
+        with opener.open(url, timeout=10.0) as resp:
+            assert resp.status == 200
+        with socket.create_connection(("127.0.0.1", web.port), timeout=10.0) as raw, \
+                ctx.wrap_socket(raw) as tls:
+            der = tls.getpeercert(binary_form=True)
+        assert der is not None
+        seen = hashlib.sha256(der).hexdigest().upper()
+        assert web.fingerprint.replace(":", "") == seen
+        first = web.fingerprint
+    with WebHumans(1, host="0.0.0.0", port=0, tokens=TOKENS[:1], announce=None,
+                   tls_dir=tmp_path / "tls") as web:
+        assert web.fingerprint == first  # kept: a colleague accepts it once
+    with WebHumans(1, host="0.0.0.0", port=0, tokens=TOKENS[:1], announce=None, tls="off",
+                   tls_dir=tmp_path / "none") as web:
+        assert web.base_url.startswith("http://") and web.fingerprint is None
+    with WebHumans(1, port=0, tokens=TOKENS[:1], announce=None,
+                   tls_dir=tmp_path / "none") as web:
+        assert web.base_url.startswith("http://127.0.0.1:")
+    assert not (tmp_path / "none").exists()
+    with pytest.raises(ConfigError, match=r"humans\.web\.tls"):
+        parse_config({"humans": {"count": 1, "kind": "web", "web": {
+            "tls": "off", "certfile": str(cert), "keyfile": str(cert)}}})
