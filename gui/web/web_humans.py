@@ -41,7 +41,9 @@ import numpy as np
 from gui.console_core import OVERVIEW, ConsoleCore, Frame
 from gui.keys import BUTTONS, Command, decode_browser_key
 from gui.view import Phase
+from gui.web.links import link_base, link_lines
 from gui.web.server import FrameHub, WebServer, build_app
+from gui.web.tls import certificate_fingerprint, console_certificate
 from gui.web.tokens import TokenBook
 from testbed.core.humans import Presence
 from testbed.core.types import FleetStatus
@@ -56,35 +58,6 @@ OPERATOR_COMMANDS = (Command.PAUSE, Command.STOP)
 hold or end the trial for everybody."""
 OPERATOR_ONLY = ("pause and stop are the operator's (their overview link, or Ctrl-C where "
                  "the trial runs)")
-
-
-def _is_loopback(host: str) -> bool:
-    """Whether a bind address is this machine only (plain http is enough there)."""
-    import ipaddress
-
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def link_base(base_url: str, public_url: str | None) -> str:
-    """What the printed links start with: ``public_url`` as the lab gives it (the name
-    others reach this machine by, a tunnel's or a reverse proxy's address with its path
-    prefix), else the server's own address with a wildcard bind (0.0.0.0, ::) replaced by
-    this machine's name, which a browser elsewhere can use (the bind address cannot)."""
-    if public_url:
-        return public_url.rstrip("/")
-    import socket
-    from urllib.parse import urlsplit, urlunsplit
-
-    parts = urlsplit(base_url)
-    if parts.hostname in ("0.0.0.0", "::"):
-        port = f":{parts.port}" if parts.port else ""
-        return urlunsplit((parts.scheme, f"{socket.getfqdn()}{port}", "", "", ""))
-    return base_url
 
 
 HISTORY_MAX = 100_000
@@ -201,19 +174,10 @@ class WebHumans(ConsoleCore):
     ) -> None:
         super().__init__(num_humans, names=names, scale=scale,
                          teleop_timeout_s=teleop_timeout_s)
-        if (certfile is None) != (keyfile is None):
-            raise ValueError("humans.web: give both certfile and keyfile, or neither")
-        self_signed_here = certfile is None and tls == "auto" and not _is_loopback(host)
-        if self_signed_here:  # https by default off loopback (gui/web/tls.py)
-            from gui.web.tls import self_signed
-
-            certfile, keyfile = self_signed(host, tls_dir)
-        self.fingerprint: str | None = None
+        certfile, keyfile, self_signed_here = console_certificate(host, tls, tls_dir,
+                                                                  certfile, keyfile)
+        self.fingerprint = None if certfile is None else certificate_fingerprint(certfile)
         """The certificate's SHA-256 fingerprint when the console serves https."""
-        if certfile is not None:
-            from gui.web.tls import certificate_fingerprint
-
-            self.fingerprint = certificate_fingerprint(certfile)
         self.tokens = TokenBook(tokens, overview_token, operator_token) if tokens else \
             TokenBook.for_session(num_humans)
         self.resumed_at = resumed_at
@@ -241,20 +205,9 @@ class WebHumans(ConsoleCore):
         """The operator's overview: pause and stop (for the operator alone)."""
         if announce is not None and (self.base_url, *self.urls) not in _ANNOUNCED:
             _ANNOUNCED.add((self.base_url, *self.urls))  # once: a protocol's next trial
-            lines = [f"web console: {self.human_label(h)}: {u}"
-                     for h, u in enumerate(self.urls)]
-            lines.append(f"web console: fleet overview (to watch; share it): "
-                         f"{self.overview_url}")
-            lines.append(f"web console: operator (pause and stop; keep it to yourself): "
-                         f"{self.operator_url}")
-            if self.fingerprint is not None:
-                kind = "self-signed: compare it with what the browser shows before " \
-                       "accepting it" if self_signed_here else "the lab's"
-                lines.append(f"web console: https, certificate SHA-256 {self.fingerprint} "
-                             f"({kind})")
-            if resumed_at is not None:
-                lines.append(f"web console: resumed at step {resumed_at}: the links are the "
-                             f"ones given at the trial's start")
+            lines = link_lines([self.human_label(h) for h in range(num_humans)], self.urls,
+                               self.overview_url, self.operator_url, self.fingerprint,
+                               self_signed_here, resumed_at)
             print("\n".join(lines), file=announce, flush=True)
         with self._cond:
             self._redraw_all()

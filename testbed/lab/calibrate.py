@@ -13,6 +13,7 @@ goes to rest at the end, whatever happens.
 
     load fleet -> host, arm, existing file (read through the host's own transport)
     -> agent --calibrate ARM -> rest, frame (rest out of view?)
+    -> the marker once, over the box's centre (not seen: stop there)
     -> per grid point: move_tcp, frame, marker -> fit -> thresholds
     -> the gate's joints (read at the gate on the way to the first point) -> save -> rest
 

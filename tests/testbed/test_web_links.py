@@ -18,7 +18,8 @@ from pathlib import Path
 import pytest
 
 from gui.console_core import OVERVIEW
-from gui.web.web_humans import WebHumans, link_base
+from gui.web.links import link_base
+from gui.web.web_humans import WebHumans
 from testbed.core.config import ConfigError
 from testbed.experiments import web_links
 from testbed.experiments.fleet_config import parse_config
