@@ -34,7 +34,6 @@ state to ``controller_state.py``, the zones proof to ``zones_proof.py``, the log
 from __future__ import annotations
 
 import contextlib
-import ipaddress
 import logging
 import os
 import threading
@@ -58,6 +57,7 @@ from drivers.yumi.controller_state import (
 from drivers.yumi.credentials import FACTORY_DEFAULT, RwsLogin
 from drivers.yumi.yumi_controller import ArmPose, Waypoint, _since, check_result, program_file
 from drivers.yumi.zones_proof import ZonesProof, proof_path
+from testbed.core.addresses import is_loopback_host
 
 elog_log = logging.getLogger("drivers.yumi.elog")
 elog_log.setLevel(logging.INFO)  # the controller's own words belong in the host log
@@ -100,13 +100,7 @@ def _patch_timeout(rws: Any, timeout_s: float, counter: list[int] | None = None)
 
 def is_loopback(url: str) -> bool:
     """Whether ``url`` names this machine (the hardware twin's controller)."""
-    host = urlsplit(url.strip()).hostname or ""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+    return is_loopback_host(urlsplit(url.strip()).hostname or "")
 
 
 def _login_or_factory(login: RwsLogin | None, url: str) -> RwsLogin:

@@ -25,8 +25,9 @@ import socket
 from pathlib import Path
 from typing import Final
 
-__all__ = ["DEFAULT_DIR", "certificate_fingerprint", "console_certificate", "is_loopback",
-           "self_signed"]
+from testbed.core.addresses import is_loopback_host
+
+__all__ = ["DEFAULT_DIR", "certificate_fingerprint", "console_certificate", "self_signed"]
 
 DEFAULT_DIR: Final = Path("~/.local/state/fleet-testbed/web-tls")
 """Where the self-signed certificate and its key are kept (``$XDG_STATE_HOME`` first)."""
@@ -38,23 +39,13 @@ def default_dir() -> Path:
     return Path(state) / "fleet-testbed" / "web-tls" if state else DEFAULT_DIR.expanduser()
 
 
-def is_loopback(host: str) -> bool:
-    """Whether a bind address is this machine only (plain http is enough there)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
 def console_certificate(host: str, tls: str, folder: Path | None, certfile: str | None,
                         keyfile: str | None) -> tuple[str | None, str | None, bool]:
     """(certfile, keyfile, made here) the console serves with: the lab's when given; off
     loopback with ``tls = "auto"``, this machine's self-signed one; else none (http)."""
     if (certfile is None) != (keyfile is None):
         raise ValueError("humans.web: give both certfile and keyfile, or neither")
-    if certfile is None and tls == "auto" and not is_loopback(host):
+    if certfile is None and tls == "auto" and not is_loopback_host(host):
         made, key = self_signed(host, folder)
         return made, key, True
     return certfile, keyfile, False
