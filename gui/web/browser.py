@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -41,8 +41,11 @@ def browser_missing() -> list[str]:
 
 
 @contextmanager
-def chromium(width: int = 900, height: int = 1000) -> Iterator[Any]:
-    """One headless Chromium window driven by Selenium; quit on exit."""
+def chromium(width: int = 900, height: int = 1000, extra_args: Sequence[str] = ()
+             ) -> Iterator[Any]:
+    """One headless Chromium window driven by Selenium; quit on exit. ``extra_args``:
+    more command-line switches (a colleague's browser trusting the console's
+    self-signed certificate by its key: ``--ignore-certificate-errors-spki-list=...``)."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -52,7 +55,8 @@ def chromium(width: int = 900, height: int = 1000) -> Iterator[Any]:
     opts = webdriver.ChromeOptions()
     opts.binary_location = shutil.which("chromium") or CHROMIUM
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--disable-extensions", "--no-first-run", f"--window-size={width},{height}"):
+                "--disable-extensions", "--no-first-run", f"--window-size={width},{height}",
+                *extra_args):
         opts.add_argument(arg)
     service = Service(shutil.which("chromedriver") or CHROMEDRIVER)  # no driver download
     driver = webdriver.Chrome(service=service, options=opts)

@@ -321,25 +321,33 @@ class WebHumans(ConsoleCore):
         are shown with the operator's ``controls`` only; a resumed trial says so."""
         overview = wid == OVERVIEW
         label = "" if overview else html.escape(self.human_label(wid))
-        notice = "" if self.resumed_at is None else (
-            f"This trial was resumed at step {self.resumed_at}; your link is the one "
-            f"given at its start.")
         text = _page_template(overview).replace("HUMAN_LABEL", label)
-        text = text.replace("<!--NOTICE-->", html.escape(notice))
+        text = text.replace("<!--NOTICE-->", html.escape(self.resume_notice()))
         if not controls:
             text = text.replace('<button id="pause"', '<button id="pause" hidden').replace(
                 '<button class="stop" id="stop"', '<button class="stop" id="stop" hidden')
         return text
 
+    def resume_notice(self) -> str:
+        """What every page says of a resumed trial ("" for one that was not): on a page
+        loaded now, and on one left open through the crash, which finds the console
+        again by itself and is told on its new socket (``connected``)."""
+        if self.resumed_at is None:
+            return ""
+        return (f"This trial was resumed at step {self.resumed_at}; your link is the one "
+                f"given at its start.")
+
     def connected(self, wid: int) -> list[dict[str, Any]]:
+        session = ([{"type": "session", "notice": self.resume_notice()}]
+                   if self.resumed_at is not None else [])
         with self._cond:
             if wid == OVERVIEW:
                 self._overview_pages += 1
-                return [{"type": "history", "points": list(self._history)}]
+                return [{"type": "history", "points": list(self._history)}, *session]
             self._pages[wid] += 1
             self._redraw(OVERVIEW)  # the overview shows who is here
             self._cond.notify_all()
-            return []
+            return session
 
     def disconnected(self, wid: int) -> None:
         with self._cond:

@@ -13,6 +13,9 @@ Override what you need; every default does nothing:
   put the cubes back itself (a rehearsal's lab hand): the protocol then does not
   prompt the operator.
 * ``humans(name)``: the humans of that run (None: built from the config).
+* ``wrap_humans(humans, run)``: the humans the run asks, given the ones built from the
+  config (a rehearsal's lab around them): built by the trial, so a web console keeps
+  the run's links and says it was resumed.
 * ``wrap_hosts(hosts, run)``: the hosts the run drives (a ``HostsWrapper``, say).
 * ``on_phase(name, done, total)``: pretraining's progress (collect, pretrain ...).
 * ``on_step(outcome)``: a timestep finished (logged and checkpointed).
@@ -48,6 +51,11 @@ class TrialHooks:
         """The hosts run ``run`` drives, given the ones built for it."""
         return hosts
 
+    def wrap_humans(self, humans: Humans, run: RunDir) -> Humans:
+        """The humans run ``run`` asks, given the ones the trial built from the config
+        (never called for humans that ``humans`` supplied)."""
+        return humans
+
     def on_phase(self, name: str, done: int, total: int) -> None:
         """Pretraining phase ``name`` is at ``done`` of ``total``."""
 
@@ -57,8 +65,8 @@ class TrialHooks:
 
 class HookList(TrialHooks):
     """Several hooks as one, called in order: every ``before_run``, ``on_phase`` and
-    ``on_step``; ``humans`` from the first that has them; ``wrap_hosts`` composed (the
-    first hook's wrapper innermost)."""
+    ``on_step``; ``humans`` from the first that has them; ``wrap_hosts`` and
+    ``wrap_humans`` composed (the first hook's wrapper innermost)."""
 
     def __init__(self, hooks: Iterable[TrialHooks | None]) -> None:
         self.hooks: list[TrialHooks] = [h for h in hooks if h is not None]
@@ -78,6 +86,11 @@ class HookList(TrialHooks):
         for h in self.hooks:
             hosts = h.wrap_hosts(hosts, run)
         return hosts
+
+    def wrap_humans(self, humans: Humans, run: RunDir) -> Humans:
+        for h in self.hooks:
+            humans = h.wrap_humans(humans, run)
+        return humans
 
     def on_phase(self, name: str, done: int, total: int) -> None:
         for h in self.hooks:

@@ -532,6 +532,9 @@ class _EvaluationHooks(TrialHooks):
     def humans(self, name: str) -> Humans | None:
         return self.hooks.humans(name)
 
+    def wrap_humans(self, humans: Humans, run: RunDir) -> Humans:
+        return self.hooks.wrap_humans(humans, run)
+
     def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:
         return self.hooks.wrap_hosts(hosts, run)
 

@@ -178,6 +178,7 @@ def run_trial(
                              robots=cfg.robot_names,
                              names=[p.name for p in cfg.humans.people],
                              resumed_at=run.start if resume is not None else None)
+        humans = hooks.wrap_humans(humans, run.dir)
     own_hosts = hosts is None
     checked: Any = hosts  # what the controllers' check asks: the fleet, never a wrapper
     if hosts is None:

@@ -335,14 +335,11 @@ class _RehearsalHooks(TrialHooks):
         self.lab.reset_all(name)
         return True
 
-    def humans(self, name: str) -> Humans | None:
-        from testbed.experiments.build import make_humans
-
-        fleet = self.lab.fleet
-        inner = make_humans(self.kind, fleet.humans.count, fleet.humans.web,
-                            people=fleet.humans.profiles, robots=fleet.robot_names,
-                            names=[p.name for p in fleet.humans.people])
-        return TwinLabHumans(inner, self.lab.labs, self.views, expert=self.kind == "scripted")
+    def wrap_humans(self, humans: Humans, run: RunDir) -> Humans:
+        """The run's humans as the trial built them (a web console with the run's kept
+        links, told when it was resumed), with the lab around them."""
+        return TwinLabHumans(humans, self.lab.labs, self.views,
+                             expert=self.kind == "scripted")
 
     def wrap_hosts(self, hosts: Hosts, run: RunDir) -> Hosts:
         """The run's truth recorder; a resumed run (its checkpoint's step in

@@ -116,6 +116,8 @@ const TestbedConsole = (() => {
       state.points = msg.points;
     } else if (msg.type === "fleet") {
       state.fleet = msg;
+    } else if (msg.type === "session") {  // a resumed trial, told to a page left open
+      document.getElementById("notice").textContent = msg.notice;
     }
   }
 
