@@ -63,9 +63,12 @@ def test_a_resume_gets_the_links_its_run_gave_and_only_the_operator_reads_them(
         assert (f"web console: operator (pause and stop; keep it to yourself): "
                 f"{web.link_base}/overview?token={first.operator_token}") in printed
         assert "web console: resumed at step 7: the links are the ones given" in printed
+        notice = "This trial was resumed at step 7; your link is the one given at its start."
         for wid in (0, OVERVIEW):
-            assert ("This trial was resumed at step 7; your link is the one given at its "
-                    "start.") in web.page(wid)
+            assert notice in web.page(wid)
+            # a page left open through the crash reconnects: its new socket is told
+            assert {"type": "session", "notice": notice} in web.connected(wid)
+            web.disconnected(wid)
     with WebHumans.from_config(2, again.model_copy(update={"port": 0}), resumed_at=7) as web:
         assert web.resumed_at == 7 and web.urls[0].endswith(f"/?token={first.tokens[0]}")
 
@@ -129,6 +132,8 @@ def test_only_the_operators_overview_shows_pause_and_stop() -> None:
         assert '<button id="pause" data-button="pause">' in operator
         assert '<button class="stop" id="stop" data-button="stop">' in operator
         assert "resumed" not in operator  # a run that was not resumed says nothing
+        assert not [m for m in web.connected(0) if m["type"] == "session"]
+        web.disconnected(0)
         assert web.overview_role(web.tokens.operator) == "operator"
         assert web.overview_role(web.tokens.overview) == "viewer"
         assert web.overview_role(TOKENS[1]) == "viewer"
