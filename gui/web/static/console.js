@@ -116,7 +116,7 @@ const TestbedConsole = (() => {
       state.points = msg.points;
     } else if (msg.type === "fleet") {
       state.fleet = msg;
-    } else if (msg.type === "session") {  // a resumed trial, told to a page left open
+    } else if (msg.type === "session") {  // told to a page left open through a restart
       document.getElementById("notice").textContent = msg.notice;
     }
   }
