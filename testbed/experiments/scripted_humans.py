@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.core.humans import Presence, unnamed_human
+from testbed.core.humans import ON_SITE, Presence, unnamed_human
 from testbed.core.types import (
     NUM_ACTIONS,
     FleetStatus,
@@ -46,7 +46,9 @@ class ScriptedHumans:
     Their time to a first action is in steps (the row's ``first.steps``: the profile's
     ``latency``); they report no ``waited_s``: seconds would be the twin's speed, not
     the human's, and would make two runs of one seed differ (the records of a seed are
-    the same, serial or overlapped, local or on a Ray worker).
+    the same, serial or overlapped, local or on a Ray worker). A remote profile
+    (``where``) is never asked to reset (the allocator's rule); were one asked, ``act``
+    raises rather than rehearse a reset no one in the room did.
     """
 
     def __init__(self, profiles: Sequence[HumanProfile] = (), seed: int = 0,
@@ -74,6 +76,9 @@ class ScriptedHumans:
                     continue
                 out[req.robot] = HumanResponse(req.robot, action=self._push(req, prof, t))
             else:
+                if prof.where != ON_SITE:  # the allocator's rule, held to here
+                    raise RuntimeError(f"{req.robot}: a hard reset for {prof.name}, who "
+                                       "is remote; only a person on site resets")
                 done = req.served + 1 >= req.min_steps + prof.latency
                 out[req.robot] = HumanResponse(req.robot, reset_done=done)
         return out

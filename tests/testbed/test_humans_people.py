@@ -188,3 +188,39 @@ def test_people_in_the_config_name_the_humans(tmp_path: Path) -> None:
                                                 {"name": "bo"}]})
     assert h.count == 2 and h.names == ["ana", "bo"]
     assert HumansConfig(count=3).names == ["human0", "human1", "human2"]
+
+
+def test_each_person_is_on_site_or_remote_for_every_kind() -> None:
+    """``where`` (issue 44): on site by default (old configs unchanged), remote for any
+    kind, scripted ones too (the twin rehearses a lab's split); with humans, someone is
+    on site, or the config names ``people`` and says why and how to fix it."""
+    from testbed.core.config import ConfigError
+    from testbed.experiments.fleet_config import parse_config
+    from testbed.people.people_config import HumansConfig
+
+    assert HumansConfig(count=3).on_site == [True, True, True]
+    assert HumanProfile(name="ana").where == "on_site"
+    for kind in ("scripted", "gui", "web"):
+        h = HumansConfig.model_validate({"kind": kind, "people": [
+            {"name": "ana"}, {"name": "bo", "where": "remote"}]})
+        assert h.on_site == [True, False] and h.places == ["on_site", "remote"]
+    with pytest.raises(ConfigError) as caught:
+        parse_config({"humans": {"people": [{"name": "ana", "where": "remote"}]}})
+    line = str(caught.value)
+    assert line.startswith("config: humans.people: nobody is on site"), line
+    assert "hard reset needs a person in the room" in line and "\n" not in line
+    assert 'where = "on_site"' in line
+    assert HumansConfig(count=0).on_site == []  # no humans: nobody to ask for
+
+
+def test_a_remote_scripted_human_is_never_asked_to_reset() -> None:
+    """The allocator never asks; were a reset ever sent to a remote scripted human,
+    the twin would fail loud instead of rehearsing a reset nobody in the room did."""
+    humans = ScriptedHumans([HumanProfile(name="ana"),
+                             HumanProfile(name="bo", where="remote")], robots=["a"])
+    obs = ArmObservation("a", IMG, violating=True, goal=(0.5, 0.5), expert_action=0)
+    reset = InterventionKind.RESET
+    assert humans.act([HumanRequest("a", 0, reset, obs, served=0, min_steps=1)], 0)[
+        "a"].reset_done
+    with pytest.raises(RuntimeError, match="a hard reset for bo, who is remote"):
+        humans.act([HumanRequest("a", 1, reset, obs, served=0, min_steps=1)], 0)
