@@ -55,6 +55,21 @@ def place_words(where: str) -> str:
     raise ValueError(f"unknown place {where!r}; use one of {', '.join(PLACES)}")
 
 
+def reset_taker(human: int, places: Sequence[str]) -> int:
+    """Who answers a hard reset addressed to ``human``: that human when on site (or when
+    the places are not known, or ``human`` is not among them), else one of the on-site
+    people (the ``human``-th of them, round robin).
+
+    Why: the allocator gives a remote person no reset, but the data collection before a
+    trial (``testbed.experiments.pretraining``) addresses its resets by arm index, to
+    whoever has that index; the consoles and the scripted humans route such a reset to
+    a person in the room, so a remote person is never shown one."""
+    if not 0 <= human < len(places) or places[human] != REMOTE:
+        return human
+    on_site = [j for j, p in enumerate(places) if p != REMOTE]
+    return on_site[human % len(on_site)] if on_site else human
+
+
 class HumansStopRequested(Exception):
     """A human asked for a graceful stop of the trial (Esc, confirmed, on the console)."""
 

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.core.humans import ON_SITE, Presence, unnamed_human
+from testbed.core.humans import Presence, reset_taker, unnamed_human
 from testbed.core.types import (
     NUM_ACTIONS,
     FleetStatus,
@@ -47,8 +47,10 @@ class ScriptedHumans:
     ``latency``); they report no ``waited_s``: seconds would be the twin's speed, not
     the human's, and would make two runs of one seed differ (the records of a seed are
     the same, serial or overlapped, local or on a Ray worker). A remote profile
-    (``where``) is never asked to reset (the allocator's rule); were one asked, ``act``
-    raises rather than rehearse a reset no one in the room did.
+    (``where``) is never given a reset in a trial (the allocator's rule, which the
+    twin's records show); a reset addressed to one anyway (the data collection before
+    a trial, ``testbed.experiments.pretraining``, addresses them by arm index) is done
+    as an on-site profile does it (``testbed.core.humans.reset_taker``).
     """
 
     def __init__(self, profiles: Sequence[HumanProfile] = (), seed: int = 0,
@@ -75,10 +77,9 @@ class ScriptedHumans:
                     out[req.robot] = HumanResponse(req.robot)  # not yet: the step passes
                     continue
                 out[req.robot] = HumanResponse(req.robot, action=self._push(req, prof, t))
-            else:
-                if prof.where != ON_SITE:  # the allocator's rule, held to here
-                    raise RuntimeError(f"{req.robot}: a hard reset for {prof.name}, who "
-                                       "is remote; only a person on site resets")
+            else:  # by an on-site profile: a remote person never resets
+                places = [p.where for p in self.profiles]
+                prof = self._profile(reset_taker(req.human, places))
                 done = req.served + 1 >= req.min_steps + prof.latency
                 out[req.robot] = HumanResponse(req.robot, reset_done=done)
         return out

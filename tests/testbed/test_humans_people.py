@@ -213,14 +213,18 @@ def test_each_person_is_on_site_or_remote_for_every_kind() -> None:
     assert HumansConfig(count=0).on_site == []  # no humans: nobody to ask for
 
 
-def test_a_remote_scripted_human_is_never_asked_to_reset() -> None:
-    """The allocator never asks; were a reset ever sent to a remote scripted human,
-    the twin would fail loud instead of rehearsing a reset nobody in the room did."""
-    humans = ScriptedHumans([HumanProfile(name="ana"),
+def test_a_reset_addressed_to_a_remote_scripted_human_is_done_by_one_on_site() -> None:
+    """The allocator never sends one; the data collection before a trial addresses its
+    resets by arm index: the reset is then done as the on-site profile does it (here
+    ana's 2 steps of latency), never by the remote one (bo, instant)."""
+    from testbed.core.humans import reset_taker
+
+    humans = ScriptedHumans([HumanProfile(name="ana", latency=2),
                              HumanProfile(name="bo", where="remote")], robots=["a"])
     obs = ArmObservation("a", IMG, violating=True, goal=(0.5, 0.5), expert_action=0)
-    reset = InterventionKind.RESET
-    assert humans.act([HumanRequest("a", 0, reset, obs, served=0, min_steps=1)], 0)[
-        "a"].reset_done
-    with pytest.raises(RuntimeError, match="a hard reset for bo, who is remote"):
-        humans.act([HumanRequest("a", 1, reset, obs, served=0, min_steps=1)], 0)
+    for served, done in ((0, False), (1, False), (2, True)):
+        req = HumanRequest("a", 1, InterventionKind.RESET, obs, served=served, min_steps=1)
+        assert humans.act([req], 0)["a"].reset_done is done
+    places = ["remote", "on_site", "remote", "on_site"]
+    assert [reset_taker(h, places) for h in range(5)] == [1, 1, 1, 3, 4]
+    assert reset_taker(0, []) == 0 and reset_taker(0, ["remote"]) == 0
