@@ -275,7 +275,8 @@ class Allocator:
         (M, N) float, human h's expected gain on arm i this step
         (``testbed.fleet.operators.OperatorModel.gains``): the matched allocation
         (:meth:`_pair_matched`). Held interventions, away humans and the tie draw are
-        the same either way.
+        the same either way. Who may be given a violating arm is the constructor's
+        ``on_site`` (module doc).
         """
         key_arr = self._check_keys(keys)
         viol = self._check_violating(violating)

@@ -432,7 +432,6 @@ def test_each_page_says_where_its_person_is_and_the_overview_says_everyones(
         err = capsys.readouterr().err.splitlines()
         assert err[:2] == ["people: cleo: on site (teleop and hard resets)",
                            "people: dev: remote (teleop only)"]
-        assert err[2].startswith("web console: cleo (human 0): "), "then the links"
         body = http_get(web.urls[1])[1]
         assert '<p class="place" id="place">You are remote (teleop only).</p>' in body
         body = http_get(web.urls[0])[1]
