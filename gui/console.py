@@ -76,7 +76,9 @@ class ConsoleHumans(ConsoleCore):
     ``displays``: one X display per human (default: ``$DISPLAY`` for all); the overview
     opens on the first. Requests for a human index >= ``num_humans`` go to human
     ``index % num_humans`` (queued after that human's own). ``names``: each human's
-    name, in their window's title and header (empty: "human i").
+    name, in their window's title and header (empty: "human i"). ``places``: each
+    human's place (``"on_site"`` / ``"remote"``), beside the name in their header and
+    the overview's lines (empty: not shown).
     """
 
     def __init__(
@@ -84,6 +86,7 @@ class ConsoleHumans(ConsoleCore):
         num_humans: int,
         *,
         names: Sequence[str] = (),
+        places: Sequence[str] = (),
         scale: int = 6,
         title: str = "testbed",
         overview: bool = True,
@@ -92,7 +95,7 @@ class ConsoleHumans(ConsoleCore):
         start_timeout_s: float = 30.0,
         state_path: str | Path | None = None,
     ) -> None:
-        super().__init__(num_humans, names=names, scale=scale,
+        super().__init__(num_humans, names=names, places=places, scale=scale,
                          teleop_timeout_s=teleop_timeout_s)
         self.title = title
         disp = list(displays) if displays is not None else [default_display()] * num_humans

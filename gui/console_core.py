@@ -46,7 +46,8 @@ from gui.desk import Desk
 from gui.errors import StopRequested
 from gui.keys import Command, KeyCommand
 from gui.layout import ConsoleLayout, Point
-from gui.view import ConsoleView, Phase, human_label
+from gui.view import ConsoleView, Phase, check_places, human_label, place_tag
+from testbed.core.humans import reset_taker
 from testbed.core.types import FleetStatus, HumanRequest, HumanResponse, InterventionKind
 
 TELEOP: Final = InterventionKind.TELEOP
@@ -135,18 +136,23 @@ class ConsoleCore:
     Requests for a human index >= ``num_humans`` go to human ``index % num_humans``.
     ``names``: each human's name, by index (the config's ``humans.people``), shown on
     every surface beside the index (``gui.view.human_label``); empty: "human i".
+    ``places``: each human's place, by index (``"on_site"`` / ``"remote"``), shown beside
+    the name on their surface and the overview's (``gui.view.place_tag``); empty: none.
     """
 
-    def __init__(self, num_humans: int, *, names: Sequence[str] = (), scale: int = 6,
+    def __init__(self, num_humans: int, *, names: Sequence[str] = (),
+                 places: Sequence[str] = (), scale: int = 6,
                  teleop_timeout_s: float | None = None) -> None:
         if num_humans < 1:
             raise ValueError(f"num_humans must be >= 1, got {num_humans}")
         self.num_humans = num_humans
         self.names = check_names(names, num_humans)
+        self.places = check_places(places, num_humans)
         self.layout = ConsoleLayout(scale=scale)
         self.teleop_timeout_s = teleop_timeout_s
         self._cond = threading.Condition(threading.RLock())
-        self._desks = [Desk(h, self.layout, name=self.human_name(h))
+        self._desks = [Desk(h, self.layout, name=self.human_name(h),
+                            place=self.human_place(h))
                        for h in range(num_humans)]
         self._seq = 0
         self._serial = 0
@@ -187,6 +193,15 @@ class ConsoleCore:
         """Human ``human``'s name, or None when the console was given no names."""
         return self.names[human] if self.names else None
 
+    def human_place(self, human: int) -> str | None:
+        """Human ``human``'s place, or None when the console was given no places."""
+        return self.places[human] if self.places else None
+
+    def overview_label(self, human: int) -> str:
+        """``"ana (human 0), remote"``: the label, and the place when told."""
+        tag = place_tag(self.human_place(human))
+        return self.human_label(human) + (f", {tag}" if tag else "")
+
     def human_label(self, human: int) -> str:
         """``"ana (human 0)"`` (or ``"human 0"``): what every surface calls this human."""
         return human_label(human, self.human_name(human))
@@ -206,8 +221,9 @@ class ConsoleCore:
         """Show each human their request; return when every teleop request has a push."""
         t_act = time.monotonic()
         groups: dict[int, list[HumanRequest]] = defaultdict(list)
-        for req in requests:
-            groups[req.human % self.num_humans].append(req)
+        for req in requests:  # a reset for a remote person goes to one on site
+            h = req.human % self.num_humans
+            groups[h if req.kind is TELEOP else reset_taker(h, self.places)].append(req)
         with self._cond:
             self._raise_if_stopped()
             self._serial += 1
@@ -330,7 +346,7 @@ class ConsoleCore:
         seq = self._seq
         if wid == OVERVIEW:
             frame = draw.render_overview(self._status, num_robots=self._num_robots,
-                                         humans=[self.human_label(h)
+                                         humans=[self.overview_label(h)
                                                  for h in range(self.num_humans)],
                                          **self._flags(wid))
         else:

@@ -111,10 +111,13 @@ class Desk:
         locate: Callable[[npt.NDArray[np.uint8]], CubeMarker | None] = locate_cube,
         *,
         name: str | None = None,
+        place: str | None = None,
     ) -> None:
         self.human = human
         self.name = name
         """Shown with every view (the header names the person), None when unnamed."""
+        self.place = place
+        """Shown with every view beside the name (``ConsoleView.place``), None: untold."""
         self.layout = layout
         self._locate = locate
         self._items: list[_Item] = []
@@ -249,7 +252,8 @@ class Desk:
     def view(self) -> ConsoleView:
         item = self._current()
         if item is None:
-            return ConsoleView(self.human, Phase.IDLE, t=self._t, name=self.name)
+            return ConsoleView(self.human, Phase.IDLE, t=self._t, name=self.name,
+                               place=self.place)
         if item.teleop:
             phase = Phase.CHOOSE if item.answer is None and not item.expired else Phase.SENT
         else:
@@ -261,7 +265,7 @@ class Desk:
         )
         return ConsoleView(
             self.human, phase, item.request, self._t, item.cube, item.markers,
-            sent_action=item.answer, queued=waiting, name=self.name,
+            sent_action=item.answer, queued=waiting, name=self.name, place=self.place,
         )
 
     def register(self, seq: int, view: ConsoleView, posted_at: float | None = None) -> None:

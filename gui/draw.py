@@ -21,7 +21,8 @@ import numpy.typing as npt
 from gui.keys import ARROW_NAMES, KEY_NAMES
 from gui.layout import ConsoleLayout, CubeMarker
 from gui.scene import workspace_polygon
-from gui.view import ConsoleView, Phase, human_label
+from gui.view import ConsoleView, Phase, human_label, place_tag
+from testbed.core.humans import REMOTE
 from testbed.core.types import (
     SUCCESS_RADIUS,
     FleetStatus,
@@ -160,12 +161,16 @@ def _header(img: Frame, layout: ConsoleLayout, view: ConsoleView) -> None:
     w = layout.width
     req = view.request
     host, _, arm = (req.robot.partition("/") if req else ("", "", ""))
-    who = human_label(view.human, view.name) + (f" | {host} / {arm or host}" if req else "")
+    tag = place_tag(view.place)
+    who = (human_label(view.human, view.name) + (f", {tag}" if tag else "")
+           + (f" | {host} / {arm or host}" if req else ""))
     _text(img, _fit(who, w - 70), (6, 17), TEXT, 0.5, 1)
     if view.t is not None:
         _text(img, f"t={view.t}", (w - 64, 17), DIM_TEXT)
     if req is None:
-        _text(img, "no arm assigned", (6, 36), DIM_TEXT)
+        idle = "no arm assigned" + (" (remote: teleop only, no resets)"
+                                    if view.place == REMOTE else "")
+        _text(img, _fit(idle, w), (6, 36), DIM_TEXT)
         return
     teleop = req.kind is InterventionKind.TELEOP
     name = "TELEOP" if teleop else "HARD RESET"

@@ -7,10 +7,12 @@ testable alone (the drawing from hand-made views, the logic without OpenCV).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
 from gui.layout import CubeMarker, Point
+from testbed.core.humans import ON_SITE, REMOTE
 from testbed.core.types import HumanRequest
 
 
@@ -44,6 +46,9 @@ class ConsoleView:
     stop_requested: bool = False
     name: str | None = None
     """The human's name (the config's ``humans.people``), None when unnamed."""
+    place: str | None = None
+    """Where the human is (``"on_site"`` / ``"remote"``, the config's ``where``), None
+    when the console was not told."""
 
 
 def human_label(human: int, name: str | None = None) -> str:
@@ -56,3 +61,30 @@ def human_label(human: int, name: str | None = None) -> str:
     a window to a line of the records.
     """
     return f"{name} (human {human})" if name else f"human {human}"
+
+
+def place_tag(place: str | None) -> str:
+    """A person's place as a console shows it beside their label: ``"on site"``,
+    ``"remote"``, or ``""`` when the console was not told (``testbed.core.humans.
+    place_words`` says what each is given; a remote person's idle line says it too)."""
+    if place is None:
+        return ""
+    if place == ON_SITE:
+        return "on site"
+    if place == REMOTE:
+        return "remote"
+    raise ValueError(f"unknown place {place!r}; use {ON_SITE!r} or {REMOTE!r}")
+
+
+def check_places(places: Sequence[str], num_humans: int) -> tuple[str, ...]:
+    """Each human's place (``"on_site"`` / ``"remote"``, the config's ``where``) as a
+    console shows it, or a ValueError saying what is wrong; empty: not told."""
+    given = tuple(places)
+    if given and len(given) != num_humans:
+        raise ValueError(f"places: need {num_humans} (one per human), got {len(given)}")
+    for i, place in enumerate(given):
+        try:
+            place_tag(place)
+        except ValueError as exc:
+            raise ValueError(f"places[{i}]: {exc}") from None
+    return given

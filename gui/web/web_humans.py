@@ -45,7 +45,7 @@ from gui.web.links import link_base, link_lines
 from gui.web.server import FrameHub, WebServer, build_app
 from gui.web.tls import certificate_fingerprint, console_certificate
 from gui.web.tokens import TokenBook
-from testbed.core.humans import Presence
+from testbed.core.humans import Presence, place_words
 from testbed.core.types import FleetStatus
 
 if TYPE_CHECKING:
@@ -148,6 +148,8 @@ class WebHumans(ConsoleCore):
     the same random ones, so a protocol's trials keep their URLs (a fixed ``port``
     too: the pages reconnect by themselves between trials). ``names``: each human's
     name, on their printed link, their page and the fleet's pages (empty: "human i").
+    ``places``: each human's place (``"on_site"`` / ``"remote"``), on their page (what
+    they will be given) and beside their name on the overview (empty: not shown).
     """
 
     def __init__(
@@ -155,6 +157,7 @@ class WebHumans(ConsoleCore):
         num_humans: int,
         *,
         names: Sequence[str] = (),
+        places: Sequence[str] = (),
         host: str = "127.0.0.1",
         port: int = 0,
         tokens: list[str] | None = None,
@@ -172,7 +175,7 @@ class WebHumans(ConsoleCore):
         scale: int = 6,
         announce: TextIO | None = sys.stderr,
     ) -> None:
-        super().__init__(num_humans, names=names, scale=scale,
+        super().__init__(num_humans, names=names, places=places, scale=scale,
                          teleop_timeout_s=teleop_timeout_s)
         certfile, keyfile, self_signed_here = console_certificate(host, tls, tls_dir,
                                                                   certfile, keyfile)
@@ -214,15 +217,17 @@ class WebHumans(ConsoleCore):
 
     @classmethod
     def from_config(cls, count: int, cfg: WebConsoleConfig | None = None, *,
-                    names: Sequence[str] = (), resumed_at: int | None = None) -> WebHumans:
+                    names: Sequence[str] = (), places: Sequence[str] = (),
+                    resumed_at: int | None = None) -> WebHumans:
         """Built from ``[humans.web]`` (``testbed.people.people_config.WebConsoleConfig``) and the
-        humans' ``names`` (``humans.people``; empty: "human i")."""
+        humans' ``names`` and ``places`` (``humans.people``; empty: "human i", untold)."""
         if cfg is None:
             from testbed.people.people_config import WebConsoleConfig
 
             cfg = WebConsoleConfig()
         return cls(
-            count, names=names, host=cfg.host, port=cfg.port, tokens=list(cfg.tokens) or None,
+            count, names=names, places=places, host=cfg.host, port=cfg.port,
+            tokens=list(cfg.tokens) or None,
             overview_token=cfg.overview_token, operator_token=cfg.operator_token,
             public_url=cfg.public_url, resumed_at=resumed_at, tls=cfg.tls,
             certfile=cfg.certfile,
@@ -288,10 +293,12 @@ class WebHumans(ConsoleCore):
         self._hub.post(wid, _encode_png(frame), header)
 
     def _name_of(self, human: int) -> dict[str, str]:
-        """``{"name": ...}`` for a named human, ``{}`` otherwise: an unnamed console's
-        headers stay what they were, and a page falls back to "human i" without it."""
-        name = self.human_name(human)
-        return {} if name is None else {"name": name}
+        """``{"name": ...}`` for a named human, and ``"where"`` (``on_site``, ``remote``)
+        when the console knows it; ``{}`` otherwise: an unnamed console's headers stay
+        what they were, and a page falls back to "human i" without it."""
+        name, place = self.human_name(human), self.human_place(human)
+        return ({} if name is None else {"name": name}) | (
+            {} if place is None else {"where": place})
 
     def show(self, t: int, status: FleetStatus) -> None:
         """The overview's frame and curve point, and the fleet's state on every human's
@@ -323,6 +330,9 @@ class WebHumans(ConsoleCore):
         label = "" if overview else html.escape(self.human_label(wid))
         text = _page_template(overview).replace("HUMAN_LABEL", label)
         text = text.replace("<!--NOTICE-->", html.escape(self.resume_notice()))
+        place = None if overview else self.human_place(wid)
+        text = text.replace("<!--PLACE-->", "" if place is None else
+                            html.escape(f"You are {place_words(place)}."))
         if not controls:
             text = text.replace('<button id="pause"', '<button id="pause" hidden').replace(
                 '<button class="stop" id="stop"', '<button class="stop" id="stop" hidden')

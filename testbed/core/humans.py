@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Final, Literal, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -31,6 +31,43 @@ def unnamed_human(index: int) -> str:
     labellers) must tell it from a name someone gave, and ``core`` is what the people's
     schema, the records and the learner all import."""
     return f"human{index}"
+
+
+Place = Literal["on_site", "remote"]
+"""Where a person is (``HumanProfile.where``): in the room with the arms, or elsewhere."""
+ON_SITE: Final = "on_site"
+REMOTE: Final = "remote"
+PLACES: Final[tuple[Place, ...]] = ("on_site", "remote")
+
+
+def place_words(where: str) -> str:
+    """What a person at ``where`` is given, as the consoles and the start lines say it:
+    ``"on site (teleop and hard resets)"`` or ``"remote (teleop only)"``.
+
+    Why one home, here: a hard reset puts a cube back by hand, so only a person in the
+    room can do it; the allocator gives a remote person teleops only, and every surface
+    that names a person's place (both consoles, the lines printed before a trial) must
+    say the same words. ``core``, because ``gui`` may import nothing else."""
+    if where == ON_SITE:
+        return "on site (teleop and hard resets)"
+    if where == REMOTE:
+        return "remote (teleop only)"
+    raise ValueError(f"unknown place {where!r}; use one of {', '.join(PLACES)}")
+
+
+def reset_taker(human: int, places: Sequence[str]) -> int:
+    """Who answers a hard reset addressed to ``human``: that human when on site (or when
+    the places are not known, or ``human`` is not among them), else one of the on-site
+    people (the ``human``-th of them, round robin).
+
+    Why: the allocator gives a remote person no reset, but the data collection before a
+    trial (``testbed.experiments.pretraining``) addresses its resets by arm index, to
+    whoever has that index; the consoles and the scripted humans route such a reset to
+    a person in the room, so a remote person is never shown one."""
+    if not 0 <= human < len(places) or places[human] != REMOTE:
+        return human
+    on_site = [j for j, p in enumerate(places) if p != REMOTE]
+    return on_site[human % len(on_site)] if on_site else human
 
 
 class HumansStopRequested(Exception):

@@ -19,10 +19,11 @@ from typing import TYPE_CHECKING, Any
 
 from testbed.core.backend_registry import backend_of
 from testbed.core.host_config import HostConfig
-from testbed.core.humans import Humans
+from testbed.core.humans import Humans, unnamed_human
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.people.people_config import HumanProfile, WebConsoleConfig
+from testbed.people.places import announce_places
 
 if TYPE_CHECKING:
     from drivers.host_fleet import HostFleet
@@ -70,8 +71,8 @@ def build_hosts(cfg: FleetConfig, seed: int, log_dir: Path | None = None, *,
 
 def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
                 people: Sequence[HumanProfile] = (), names: Sequence[str] = (),
-                seed: int = 0, robots: Sequence[str] = (),
-                resumed_at: int | None = None) -> Humans:
+                places: Sequence[str] | None = None, seed: int = 0,
+                robots: Sequence[str] = (), resumed_at: int | None = None) -> Humans:
     """Build the humans of a trial; a console is imported only when asked for.
 
     ``web``: the browser console's settings (``humans.web`` of the config), read only
@@ -82,20 +83,26 @@ def make_humans(kind: str, count: int, web: WebConsoleConfig | None = None, *,
     of ``humans.people``, so the windows and pages say who is who, as the records do);
     empty: "human 0", "human 1", ... (a config that names nobody keeps its labels).
     ``resumed_at``: the step a resumed trial goes on from (the web console tells each
-    person their link is the one given at the start).
+    person their link is the one given at the start). ``places``: each person's
+    ``where`` (``"on_site"``, ``"remote"``), shown by the consoles; default: the
+    ``people``'s. Before the humans are built, the operator is told each person's place
+    and what they will be given (``testbed.people.places.announce_places``).
     """
+    places = [p.where for p in people] if places is None else list(places)
+    announce_places(kind, [p.name for p in people] if len(people) == len(places)
+                    else [unnamed_human(i) for i in range(len(places))], places)
     if kind == "scripted":
         return ScriptedHumans(people, seed=seed, robots=robots)
     if kind == "gui":
         from gui.console import ConsoleHumans
 
-        return ConsoleHumans(num_humans=count, names=names)
+        return ConsoleHumans(num_humans=count, names=names, places=places)
     if kind == "web":
         from gui.web import WebHumans
 
         humans: Humans = WebHumans.from_config(
             count, web if web is not None else WebConsoleConfig(), names=names,
-            resumed_at=resumed_at)
+            places=places, resumed_at=resumed_at)
         return humans
     raise ValueError(f"unknown humans kind {kind!r}; use scripted, gui or web")
 

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.core.humans import Presence, unnamed_human
+from testbed.core.humans import Presence, reset_taker, unnamed_human
 from testbed.core.types import (
     NUM_ACTIONS,
     FleetStatus,
@@ -46,7 +46,11 @@ class ScriptedHumans:
     Their time to a first action is in steps (the row's ``first.steps``: the profile's
     ``latency``); they report no ``waited_s``: seconds would be the twin's speed, not
     the human's, and would make two runs of one seed differ (the records of a seed are
-    the same, serial or overlapped, local or on a Ray worker).
+    the same, serial or overlapped, local or on a Ray worker). A remote profile
+    (``where``) is never given a reset in a trial (the allocator's rule, which the
+    twin's records show); a reset addressed to one anyway (the data collection before
+    a trial, ``testbed.experiments.pretraining``, addresses them by arm index) is done
+    as an on-site profile does it (``testbed.core.humans.reset_taker``).
     """
 
     def __init__(self, profiles: Sequence[HumanProfile] = (), seed: int = 0,
@@ -73,7 +77,9 @@ class ScriptedHumans:
                     out[req.robot] = HumanResponse(req.robot)  # not yet: the step passes
                     continue
                 out[req.robot] = HumanResponse(req.robot, action=self._push(req, prof, t))
-            else:
+            else:  # by an on-site profile: a remote person never resets
+                places = [p.where for p in self.profiles]
+                prof = self._profile(reset_taker(req.human, places))
                 done = req.served + 1 >= req.min_steps + prof.latency
                 out[req.robot] = HumanResponse(req.robot, reset_done=done)
         return out

@@ -277,7 +277,8 @@ def _humans_record(cfg: FleetConfig, opts: TrialOptions) -> dict[str, Any]:
     scripted humans, their profile (testbed/people/people_config.py ``HumanProfile``)."""
     scripted = opts.humans == "scripted"
     return {"kind": opts.humans, "people": [
-        p.model_dump() if scripted else {"name": p.name} for p in cfg.humans.profiles]}
+        p.model_dump() if scripted else {"name": p.name, "where": p.where}
+        for p in cfg.humans.profiles]}
 
 
 def _resumed(path: Path) -> _Run:
@@ -341,7 +342,8 @@ def _algorithm(run: _Run) -> Algorithm:
     params = run.cfg.algorithm
     placeholders = params.model_copy(update=dict.fromkeys(params.quantile_thresholds, 0.0))
     return get_algorithm(run.opts.algorithm, placeholders, len(run.cfg.robot_names),
-                         run.cfg.humans.count, run.opts.seed, run.cfg.monitor)
+                         run.cfg.humans.count, run.opts.seed, run.cfg.monitor,
+                         on_site=run.cfg.humans.on_site)
 
 
 def _prepare(run: _Run, hosts: Hosts, humans: Humans, hooks: TrialHooks

@@ -8,7 +8,7 @@ keys go in :mod:`testbed.fleet.priorities`; a new named algorithm (or ablation) 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -240,11 +240,14 @@ ALGORITHM_NAMES: Final[tuple[str, ...]] = tuple(ALGORITHMS)
 
 
 def get_algorithm(name: str, params: AlgorithmConfig, num_robots: int, num_humans: int,
-                  seed: int | None, monitor: MonitorConfig | None = None) -> Algorithm:
+                  seed: int | None, monitor: MonitorConfig | None = None, *,
+                  on_site: Sequence[bool] | None = None) -> Algorithm:
     """Build the algorithm ``name`` (its priority function and allocator) for a fleet.
 
     ``seed`` seeds both the allocator's tie-breaks and the priority's own randomness
-    (independent streams). Unknown names raise ``ValueError`` listing the valid ones.
+    (independent streams). ``on_site``: per human, in the room with the arms (the
+    config's ``humans.on_site``; None: everyone), the allocator's mask: only those are
+    given hard resets. Unknown names raise ``ValueError`` listing the valid ones.
     """
     spec = ALGORITHMS.get(name.strip().lower()) if isinstance(name, str) else None
     if spec is None:
@@ -252,7 +255,8 @@ def get_algorithm(name: str, params: AlgorithmConfig, num_robots: int, num_human
                          f"{', '.join(ALGORITHM_NAMES)}")
     alloc_seed, prio_seed = np.random.SeedSequence(seed).spawn(2)
     allocator = Allocator(num_robots, num_humans, params.t_T, params.t_R,
-                          seed=int(alloc_seed.generate_state(1, np.uint64)[0]))
+                          seed=int(alloc_seed.generate_state(1, np.uint64)[0]),
+                          on_site=None if on_site is None else np.array(on_site, dtype=bool))
     priority = spec.priority(params, num_robots, num_humans, prio_seed, allocator,
                              monitor or MonitorConfig())
     return Algorithm(spec=spec, priority=priority, allocator=allocator, params=params)

@@ -15,7 +15,7 @@ One step (docs/notes/core.md, "Allocation rules")::
           │                                                 │
           ▼                                                 │
     served += 1; teleop on a violating arm ─► reset, served = 0
-          │                                                 │
+          │        (a remote human's: ended, the human free)│
     held = teleop & served < t_T                            │
          | reset  & (served < t_R | arm violating)          │
           │                                                 ▼
@@ -25,6 +25,8 @@ One step (docs/notes/core.md, "Allocation rules")::
           │                                    │
           └──► free, available humans ──► top-F candidates (F = their number; one whose
                                 arm is among them keeps it; the rest pair up in order)
+                                (some humans remote: each candidate in key order to a
+                                free human allowed on it; a violating arm on-site only)
                                                ▼
                       assignment (N,): human index or -1;  kinds / served per arm
 
@@ -34,6 +36,18 @@ does not keep an arm it is no longer held on; a *held* intervention of an away h
 goes on, because ending it is the console's call (its grace period): the fleet loop
 then frees that human with :meth:`Allocator.release_human`. Without the mask every
 human is available, exactly as before the mask existed (same RNG stream, same records).
+
+``on_site`` (optional, bool (M,), a constructor argument: the config's
+``humans.people[].where``) says who is in the room with the arms. Only an on-site human
+is given a violating arm (a hard reset is hands on the cube); a remote human's teleop
+on an arm that becomes violating is not converted to a reset: the human is free, and
+the arm is a candidate for an on-site human (it waits while none is free). With some
+humans remote the pairing is :meth:`Allocator._pair_matched`'s with equal gains (each
+candidate in key order to a free human allowed on it; a candidate nobody free may take
+is passed over, so the next one can use the human; a teleop prefers a free remote
+human, keeping the on-site people for resets). Without the mask, or with everyone on
+site, Algorithm 1 exactly as before (same RNG stream, same records). It is
+configuration, not state: :meth:`Allocator.state_dict` does not keep it.
 
 ``served`` counts the earlier consecutive timesteps a human has spent on the current
 intervention; it starts at 0 on the first timestep. A kind change restarts it: the
@@ -129,7 +143,8 @@ class Allocator:
     of the current intervention, 0 on its first), :attr:`waited` (consecutive
     timesteps the arm has waited for a human, this one included; 0: not waiting);
     :meth:`held_kinds` gives kinds and served as tuples for the fleet loop and the
-    console.
+    console. ``on_site`` (bool (M,); None: everyone) marks who may be given a hard
+    reset (module doc).
     """
 
     def __init__(
@@ -139,6 +154,7 @@ class Allocator:
         min_teleop_steps: int,
         hard_reset_steps: int,
         seed: int | None = None,
+        on_site: npt.ArrayLike | None = None,
     ) -> None:
         for name, value, low in (
             ("num_robots", num_robots, 1),
@@ -154,6 +170,13 @@ class Allocator:
         self.num_humans: Final[int] = int(num_humans)
         self.min_teleop_steps: Final[int] = int(min_teleop_steps)
         self.hard_reset_steps: Final[int] = int(hard_reset_steps)
+        self.on_site: Final[npt.NDArray[np.bool_]] = (
+            np.ones(self.num_humans, dtype=bool) if on_site is None
+            else _bool_mask("on_site", on_site, self.num_humans).copy())
+        """(M,) per human: on site (may be given a hard reset), or remote (teleops only).
+        Configuration, not state: not in :meth:`state_dict`, so a resume takes the
+        config's places as they are now."""
+        self.on_site.setflags(write=False)
         self._rng = np.random.default_rng(seed)
         # Per human: the arm of the last step (-1: none), its kind code, its served count.
         self._human_arm = np.full(self.num_humans, -1, dtype=np.int64)
@@ -252,7 +275,8 @@ class Allocator:
         (M, N) float, human h's expected gain on arm i this step
         (``testbed.fleet.operators.OperatorModel.gains``): the matched allocation
         (:meth:`_pair_matched`). Held interventions, away humans and the tie draw are
-        the same either way.
+        the same either way. Who may be given a violating arm is the constructor's
+        ``on_site`` (module doc).
         """
         key_arr = self._check_keys(keys)
         viol = self._check_violating(violating)
@@ -286,10 +310,11 @@ class Allocator:
                 order = np.lexsort(-sort_rows)
                 ranked = candidates[order]
                 new = (new_arm, new_kind, new_served)
-                if gain_arr is None:
+                if gain_arr is None and self.on_site.all():
                     self._pair_blind(ranked[:num_free], free, kind, served, viol, new)
-                else:
-                    self._pair_matched(ranked, num_free, free, kind, served, viol, gain_arr,
+                else:  # remote humans, blind: equal gains (the same pairing, rule for rule)
+                    self._pair_matched(ranked, num_free, free, kind, served, viol,
+                                       np.zeros((m, n)) if gain_arr is None else gain_arr,
                                        new)
 
         self._human_arm = new_arm.astype(np.int64)
@@ -339,43 +364,80 @@ class Allocator:
                       served: npt.NDArray[np.int64], viol: npt.NDArray[np.bool_],
                       gains: npt.NDArray[np.float64], new: _NewState) -> None:
         """The matched pairing (``algorithm.operators = "matched"``; docs/notes/core.md,
-        "Allocation rules"): the candidates in key order (``ranked``), each to the free
-        human with the highest gain on it, until no free human is left.
+        "Allocation rules"), and the blind one when some humans are remote (with equal
+        gains): the candidates in key order (``ranked``), each to the free human allowed
+        on it with the highest gain on it, until no free human is left.
 
+        * Allowed: an on-site human on any arm; a remote human on an arm that is not
+          violating (a teleop) only. A candidate no free human is allowed on (a
+          violating arm with only remote humans free) gets nobody; the humans stay free
+          for the next candidate.
         * A teleop candidate (not violating) whose best remaining gain is below 0 (the
           policy alone is expected to do better than every free human) stays
           autonomous; the humans stay free for the next candidate. A violating arm
-          always gets a person (a reset's gain is positive anyway).
-        * Ties (equal gains) go, in this order, to the arm's own human of the last
-          step, then to a human who would not keep an arm among the top F (Algorithm
-          1's keepers), then to the lowest index. So humans with equal gains are paired
-          exactly as :meth:`_pair_blind` pairs them: the same arms, the same humans,
-          the same kinds and served counts. With unequal gains, keeping one's own arm
-          is this tie-break only: the top arm goes to the best person, whoever held it.
+          always gets a person who may reset it (a reset's gain is positive anyway).
+        * Ties (equal gains) go to the arm's own human of the last step, then (a teleop
+          only, :meth:`_tie_winner`) to a remote human, then to a human who would not
+          keep an arm among the top F (Algorithm 1's keepers), then to the lowest index.
+          So humans all on site with equal gains are paired exactly as
+          :meth:`_pair_blind` pairs them: the same arms, the same humans, the same kinds
+          and served counts. With unequal gains, keeping one's own arm is this
+          tie-break only: the top arm goes to the best person, whoever held it.
         """
         new_arm, new_kind, new_served = new
         prev_arm = self._human_arm
+        own_arm = np.maximum(prev_arm, 0)
         top = np.zeros(self.num_robots, dtype=bool)
         top[ranked[:num_free]] = True
-        keeper = free & (prev_arm >= 0) & top[np.maximum(prev_arm, 0)]
+        keeper = free & (prev_arm >= 0) & top[own_arm] & (self.on_site | ~viol[own_arm])
+        # Per position: the violating candidates after it (whom an on-site person serves).
+        ranked_viol = viol[ranked].astype(np.int64)
+        viol_after = np.cumsum(ranked_viol[::-1])[::-1] - ranked_viol
         left = free.copy()
-        for arm in ranked:
-            pool = np.flatnonzero(left)
-            if pool.size == 0:
+        for p, arm in enumerate(ranked):
+            if not left.any():
                 break
+            pool = np.flatnonzero(left & (self.on_site | ~viol[arm]))
+            if pool.size == 0:
+                continue  # a violating arm and only remote humans free: it waits
             g = gains[pool, arm]
             best = g.max()
             if not viol[arm] and best < -GAIN_TOLERANCE:
                 continue  # the policy alone is expected to do better: autonomous
-            tied = pool[g == best]
-            own = tied[prev_arm[tied] == arm]
-            others = tied[~keeper[tied]]
-            j = int(own[0] if own.size else others[0] if others.size else tied[0])
+            j = self._tie_winner(pool[g == best], int(arm), bool(viol[arm]), keeper,
+                                 left, int(viol_after[p]))
             k = KIND_RESET if viol[arm] else KIND_TELEOP
             new_arm[j] = arm
             new_kind[j] = k
             new_served[j] = served[j] if prev_arm[j] == arm and kind[j] == k else 0
             left[j] = False
+
+    def _tie_winner(self, tied: npt.NDArray[np.int64], arm: int, violating: bool,
+                    keeper: npt.NDArray[np.bool_], left: npt.NDArray[np.bool_],
+                    viol_after: int) -> int:
+        """Who of ``tied`` (free, allowed on ``arm``, equal best gain) takes ``arm``.
+
+        The arm's own human of the last step first; except that an on-site human keeps
+        a teleop arm from a tied remote one only while the on-site people left
+        outnumber the violating candidates still to come (``viol_after``): a remote
+        person takes the teleop rather than leave a later reset waiting. Then, for a
+        teleop, remote humans before on-site ones (keep the people in the room free
+        for resets); within each, a human who would not keep a top-F arm, then the
+        lowest index. All on site, this is the tie rule it always was.
+        """
+        on_site = self.on_site
+        remote = tied[~on_site[tied]]
+        own = tied[self._human_arm[tied] == arm]
+        if own.size:
+            j = int(own[0])
+            spare = int(np.count_nonzero(left & on_site)) - 1 >= viol_after
+            if violating or not on_site[j] or remote.size == 0 or spare:
+                return j
+        for group in ((tied,) if violating else (remote, tied)):
+            if group.size:
+                others = group[~keeper[group]]
+                return int(others[0] if others.size else group[0])
+        raise AssertionError("_tie_winner: no human tied")  # the caller's pool is not empty
 
     def release(self, robot: int) -> int | None:
         """Free the human on arm ``robot`` now (e.g. its host faulted for good).
@@ -482,9 +544,12 @@ class Allocator:
         convert = had & (kind == KIND_TELEOP) & arm_viol
         kind[convert] = KIND_RESET
         served[convert] = 0
+        # A remote human is never held on a reset: a teleop whose arm violates ends (the
+        # arm, free, is a candidate for an on-site person) instead of becoming one.
         held = had & (
             ((kind == KIND_TELEOP) & (served < self.min_teleop_steps))
-            | ((kind == KIND_RESET) & ((served < self.hard_reset_steps) | arm_viol))
+            | ((kind == KIND_RESET) & ((served < self.hard_reset_steps) | arm_viol)
+               & self.on_site)
         )
         return kind, served, held
 

@@ -373,7 +373,10 @@ class RandomPriority:
     are present, so an arm made eligible always gets a human and ``effort`` counts only
     human-steps that happen; the budget's deficit then catches up when they are back.
     With every human present the cap is M - held, never binding: the draws and keys
-    are those of a run without the mask.
+    are those of a run without the mask. Remote humans (``Allocator.on_site``): the
+    violating arms made eligible are at most the free on-site people who are present
+    (only they reset), so again every eligible arm gets a human; everyone on site, the
+    cap never binds.
     """
 
     names: tuple[str, ...] = ("c", "x")
@@ -411,6 +414,9 @@ class RandomPriority:
         held_humans = (self.allocator.held_humans(viol) if self.allocator is not None
                        else np.zeros(m, dtype=bool))
         free_present = int(np.count_nonzero(present & ~held_humans))
+        on_site = (self.allocator.on_site if self.allocator is not None
+                   else np.ones(m, dtype=bool))
+        free_on_site = int(np.count_nonzero(present & ~held_humans & on_site))
 
         self.steps += 1
         deficit = self.budget * m * self.steps - self.effort
@@ -422,8 +428,11 @@ class RandomPriority:
 
         open_arms = ~held & ~faulted
         ranked = order[open_arms[order]]
-        ranked = np.concatenate([ranked[viol[ranked]], ranked[~viol[ranked]]])
-        chosen = ranked[: min(max(busy - num_held, 0), free_present)]
+        count = min(max(busy - num_held, 0), free_present)
+        # Violating arms first, as many as there are free on-site people to reset them
+        # (all of the count when everyone is on site: the paper's scheme), then others.
+        resets = ranked[viol[ranked]][: min(count, free_on_site)]
+        chosen = np.concatenate([resets, ranked[~viol[ranked]][: count - resets.size]])
         self.effort += num_held + chosen.size
 
         keys = np.zeros((n, 2), dtype=np.float64)

@@ -14,7 +14,7 @@ from typing import Any, Literal, Self
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from testbed.core.config import FieldProblem, Name, StrictModel, checking_files, expand_path
-from testbed.core.humans import unnamed_human
+from testbed.core.humans import ON_SITE, Place, unnamed_human
 
 __all__ = ["TOKEN_PATTERN", "HumanProfile", "HumansConfig", "WebConsoleConfig"]
 
@@ -139,8 +139,8 @@ class WebConsoleConfig(StrictModel):
 
 
 class HumanProfile(StrictModel):
-    """One human of the fleet (TOML ``[[humans.people]]``): a name, and for a scripted
-    human how it behaves.
+    """One human of the fleet (TOML ``[[humans.people]]``): a name, where they are, and
+    for a scripted human how it behaves.
 
     The name is how the records and the report know the person (the per-human table);
     it is recorded in every run (config.toml, run.json ``humans``), so it must never be
@@ -148,9 +148,17 @@ class HumanProfile(StrictModel):
     ``availability`` describe a *scripted* human (``kind = "scripted"``), so a twin
     protocol can rehearse operators who differ (``testbed.experiments.scripted_humans``);
     a person at a console is measured, not described, so they are refused there.
+    ``where`` is every kind's (a scripted human's too, so the twin rehearses a lab's
+    split): a hard reset is hands on the cube, so only an ``on_site`` person is given
+    one (docs/notes/core.md, "Allocation rules").
     """
 
     name: Name
+    where: Place = "on_site"
+    """``on_site``: in the room with the arms, given teleops and hard resets; ``remote``:
+    anywhere else, given teleops only (a remote person's teleop on an arm that violates
+    ends, and the reset goes to an on-site person). Default: on site, as every human was
+    before the field existed."""
     skill: float = Field(1.0, ge=0.0, le=1.0, allow_inf_nan=False)
     """How often a teleop push is the expert's; otherwise one of the other three faces."""
     latency: int = Field(0, ge=0, le=1000)
@@ -175,8 +183,9 @@ class HumansConfig(StrictModel):
     """The browser console's settings (TOML ``[humans.web]``), read when kind is web."""
     people: list[HumanProfile] = Field(default_factory=list)
     """One entry per human, in index order (TOML ``[[humans.people]]``); empty: humans
-    named ``human0``, ``human1``, ... with perfect scripted profiles. Given without
-    ``count``, it sets the count."""
+    named ``human0``, ``human1``, ... with perfect scripted profiles, all on site. Given
+    without ``count``, it sets the count. With humans, at least one must be on site
+    (``where``): only a person in the room can do a hard reset."""
 
     @model_validator(mode="before")
     @classmethod
@@ -197,6 +206,10 @@ class HumansConfig(StrictModel):
             if name in names[:i]:
                 raise FieldProblem(f"people[{i}].name", f"{name!r} twice; each human "
                                    "needs their own name")
+        if self.people and not any(self.on_site):
+            raise FieldProblem("people", "nobody is on site, and a hard reset needs a "
+                               "person in the room with the arms: set where = \"on_site\" "
+                               "for at least one of [[humans.people]]")
         if self.kind != "scripted":
             for i, p in enumerate(self.people):
                 if p.scripted_only:
@@ -214,6 +227,17 @@ class HumansConfig(StrictModel):
     def profiles(self) -> list[HumanProfile]:
         """Each human's profile, by index (perfect ones when ``people`` is empty)."""
         return list(self.people) or [HumanProfile(name=n) for n in self.names]
+
+    @property
+    def on_site(self) -> list[bool]:
+        """Per human, by index: on site (may be given hard resets)? All True when
+        ``people`` is empty; the allocator's mask (``Allocator(on_site=...)``)."""
+        return [p.where == ON_SITE for p in self.profiles]
+
+    @property
+    def places(self) -> list[str]:
+        """Each human's ``where``, by index (what the consoles are told)."""
+        return [p.where for p in self.profiles]
 
     @model_validator(mode="after")
     def _one_token_per_human(self) -> Self:

@@ -49,7 +49,7 @@ from testbed.planning.plan_sim import FleetShape, sim_params, simulate
 from testbed.results.report import find_runs  # the report's rule, re-exported
 
 __all__ = ["LEVEL", "AlgorithmPlan", "Plan", "PlanOptions", "find_runs", "fmt_metric",
-           "interval", "plan_algorithm", "write_fits", "write_plan"]
+           "interval", "plan_algorithm", "planned_on_site", "write_fits", "write_plan"]
 
 LEVEL: Final = 0.95
 FloatArray = npt.NDArray[np.float64]
@@ -76,6 +76,10 @@ class PlanOptions:
     bin_steps: int = BIN_STEPS
     min_gain: float = 0.05
     seed: int = 0
+    on_site: int | None = None
+    """How many of each planned M people are on site (the first ones; the rest remote,
+    teleop only); None: each planned person in the place of the fitted person they are
+    drawn as (:func:`planned_on_site`)."""
 
 
 @dataclass
@@ -133,6 +137,23 @@ def _slug(label: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", label)
 
 
+def planned_on_site(fit: PlanFit, num_humans: int, on_site: int | None = None
+                    ) -> npt.NDArray[np.bool_]:
+    """(M,) which planned people are on site (only they are given hard resets).
+
+    ``on_site`` given: the first ``min(on_site, M)``. Else planned person j is fitted
+    person j mod H (``plan_sim.sim_params``) and takes that person's place in the runs;
+    were nobody on site then (the runs' first people remote), person 0 is: a fleet
+    with people needs one in the room, as its config does (``HumansConfig``)."""
+    if on_site is not None:
+        return np.arange(num_humans) < on_site
+    fitted = [h.on_site for h in fit.humans] or [True]
+    place = np.array([fitted[j % len(fitted)] for j in range(num_humans)], dtype=bool)
+    if num_humans and not place.any():
+        place[0] = True
+    return place
+
+
 def plan_algorithm(fit: PlanFit, options: PlanOptions) -> AlgorithmPlan:
     """Every point of the grid, the runs' own point and its two neighbours (one more
     person, two more arms), all with the same posterior draws."""
@@ -147,7 +168,8 @@ def plan_algorithm(fit: PlanFit, options: PlanOptions) -> AlgorithmPlan:
 
     def run(point: Point, length: int, salt: int) -> dict[str, FloatArray]:
         n, m = point
-        values = simulate(sim_params(draws, m), shape, n, m, length,
+        params = sim_params(draws, m, planned_on_site(fit, m, options.on_site))
+        values = simulate(params, shape, n, m, length,
                           seed=np.random.SeedSequence([options.seed, n, m, salt]))
         return {k: v.reshape(options.replicates, options.runs).mean(axis=1)
                 for k, v in values.items()}
@@ -234,7 +256,7 @@ def _markdown(plan: AlgorithmPlan, options: PlanOptions) -> str:
             f"steps (t_T={fit.t_T}, t_R={fit.t_R}); predicted for {plan.steps} steps, "
             f"{options.replicates} replicates"
             + (f" of the mean of {options.runs} runs" if options.runs > 1 else "")
-            + f", {LEVEL:.0%} intervals.\n")
+            + f", {LEVEL:.0%} intervals.\n" + _places(fit, options))
     cols = ["N", "M", *(TITLES[m] for m in METRICS)]
     lines = [head, "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     grid = [(n, m) for n in options.robots for m in options.humans]
@@ -246,6 +268,19 @@ def _markdown(plan: AlgorithmPlan, options: PlanOptions) -> str:
               "at M, or ROHE falling):", "", *(f"- {k}" for k in plan.knees), "",
               f"One more person or two more arms? {plan.answer}.", *fit.notes, ""]
     return "\n".join(lines)
+
+
+def _places(fit: PlanFit, options: PlanOptions) -> str:
+    """Who is on site, in a line, when anyone is remote (else nothing: every plan
+    before the places existed reads as it did)."""
+    if options.on_site is not None:
+        return (f"\nPlaces: the first {options.on_site} of each M on site (teleop and hard "
+                "resets), the rest remote (teleop only).\n")
+    if all(h.on_site for h in fit.humans):
+        return ""
+    who = ", ".join(f"{h.name} {'on site' if h.on_site else 'remote'}" for h in fit.humans)
+    return (f"\nPlaces as in the runs ({who}): planned person j is fitted person j mod "
+            f"{len(fit.humans)}, in their place; only those on site reset.\n")
 
 
 def _check(plan: AlgorithmPlan) -> list[str]:

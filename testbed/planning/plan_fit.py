@@ -216,6 +216,8 @@ class HumanFit:
 
     index: int
     name: str
+    on_site: bool = True
+    """The person's place in the runs (``HumanProfile.where``): only on site resets."""
     pushes: Outcomes = field(default_factory=Outcomes)
     latency: list[int] = field(default_factory=list)
     """Per teleop with a push: steps from the assignment to the first push."""
@@ -386,6 +388,8 @@ class _Run:
     names: list[str]
     params: dict[str, Any]
     """The run's ``[algorithm]`` table."""
+    on_site: list[bool]
+    """Per human: on site (config.toml's ``[[humans.people]]`` ``where``; all before it)."""
 
 
 def _load(path: Path) -> _Run | str:
@@ -406,10 +410,13 @@ def _load(path: Path) -> _Run | str:
     humans = config.get("humans", {})
     count = int(humans.get("count", 2))
     names = display_names(path, humans, count)
+    people = humans.get("people") or []
+    on_site = ([p.get("where", "on_site") != "remote" for p in people]
+               if len(people) == count else [True] * count)
     rows = read_steps(path / "steps.jsonl")
     if not rows:
         return "no steps"
-    return _Run(path, label, algorithm, rows, count, names, params)
+    return _Run(path, label, algorithm, rows, count, names, params, on_site)
 
 
 def fit_runs(paths: Iterable[Path], bin_steps: int = BIN_STEPS
@@ -461,7 +468,7 @@ def _count(fit: PlanFit, run: _Run) -> None:
     fit.steps = max(fit.steps, len(run.rows))
     while len(fit.humans) < run.num_humans:
         h = len(fit.humans)
-        fit.humans.append(HumanFit(h, run.names[h]))
+        fit.humans.append(HumanFit(h, run.names[h], run.on_site[h]))
     counter = _RunCounter(fit, run.num_humans)
     for row in run.rows:
         counter.row(row)

@@ -12,7 +12,8 @@ allocates every step by Algorithm 1.
 The allocation is the real allocator's, vectorised over replicates: :class:`BatchAllocator`
 is ``testbed.fleet.allocator.Allocator``'s blind ``step`` (no gains) with a leading
 replicate axis, rule for rule (the carry-over, the held interventions, the candidates in
-lexicographic key order with the tie draw, the keepers, the rest paired in index order).
+lexicographic key order with the tie draw, the keepers, the rest paired in index order;
+with remote humans, only on-site ones reset, candidate by candidate as the allocator).
 One ``Allocator.step`` costs ~30 us here; the 3 x 3 grid at 250 steps and 200 replicates
 would be ~14 s of it alone, and the plan's budget is 10 s for everything
 (``benchmarks/bench_plan.py``). ``tests/testbed/test_plan_sim.py`` holds it to the real
@@ -78,16 +79,20 @@ class BatchAllocator:
     ``step`` takes keys (R, N, K), violating (R, N), available (R, M) and optionally the
     tie draw (R, N) (else drawn from its own generator, ``rng.random((R, N))``), and
     returns per arm: human (-1 none), kind code, served, as ``Allocator``'s
-    ``assignment``, ``kind_codes``, ``served``.
+    ``assignment``, ``kind_codes``, ``served``. ``on_site`` (M,) as ``Allocator``'s:
+    with some humans remote the pairing is the allocator's candidate by candidate
+    (:meth:`_pair_allowed`), vectorised over replicates.
     """
 
     def __init__(self, replicates: int, num_robots: int, num_humans: int,
                  min_teleop_steps: int, hard_reset_steps: int,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, on_site: npt.ArrayLike | None = None) -> None:
         self.shape: Final = (int(replicates), int(num_robots), int(num_humans))
         self.t_T: Final = int(min_teleop_steps)
         self.t_R: Final = int(hard_reset_steps)
         r, _, m = self.shape
+        self.on_site: Final = (np.ones(m, dtype=bool) if on_site is None
+                               else np.asarray(on_site, dtype=bool).reshape(m))
         self.arm = np.full((r, m), -1, dtype=np.int64)
         self.kind = np.zeros((r, m), dtype=np.int8)
         self.served = np.zeros((r, m), dtype=np.int64)
@@ -104,7 +109,8 @@ class BatchAllocator:
         kind[convert] = KIND_RESET
         served[convert] = 0
         held = had & (((kind == KIND_TELEOP) & (served < self.t_T))
-                      | ((kind == KIND_RESET) & ((served < self.t_R) | arm_viol)))
+                      | ((kind == KIND_RESET) & ((served < self.t_R) | arm_viol)
+                         & self.on_site))
         return kind, served, held
 
     def step(self, keys: FloatArray, violating: BoolArray, available: BoolArray,
@@ -129,6 +135,11 @@ class BatchAllocator:
         rank = np.empty_like(order)
         np.put_along_axis(rank, order, np.arange(n)[None, :].repeat(r, 0), axis=-1)
         chosen = cand & (rank < free.sum(axis=1)[:, None])
+        if not self.on_site.all():
+            new = (new_arm, new_kind, new_served)
+            self._pair_allowed(order, cand, chosen, free, kind, served, violating, new)
+            self.arm, self.kind, self.served = new
+            return self.per_arm()
         # Keepers: a free human whose last arm is chosen again keeps it.
         keep = free & (self.arm >= 0) & chosen[rows, np.maximum(self.arm, 0)]
         kept_kind = np.where(violating[rows, np.maximum(self.arm, 0)], KIND_RESET,
@@ -156,6 +167,50 @@ class BatchAllocator:
         self.arm, self.kind, self.served = new_arm, new_kind, new_served
         return self.per_arm()
 
+    def _pair_allowed(self, order: IntArray, cand: BoolArray, chosen: BoolArray,
+                      free: BoolArray, kind: npt.NDArray[np.int8], served: IntArray,
+                      viol: BoolArray,
+                      new: tuple[IntArray, npt.NDArray[np.int8], IntArray]) -> None:
+        """``Allocator._pair_matched`` with equal gains (some humans remote): position by
+        position of the key order, every replicate's candidate there to the free human
+        allowed on it that ``Allocator._tie_winner`` picks, as one score per human
+        (lowest wins): own arm (when allowed to keep it), remote first for a teleop,
+        not a keeper, lowest index."""
+        new_arm, new_kind, new_served = new
+        r, n, m = self.shape
+        rows = np.arange(r)
+        on_site = self.on_site[None, :]
+        prev = self.arm
+        own_arm = np.maximum(prev, 0)
+        keeper = (free & (prev >= 0) & chosen[rows[:, None], own_arm]
+                  & (on_site | ~viol[rows[:, None], own_arm]))
+        ranked_viol = np.take_along_axis(viol & cand, order, axis=-1).astype(np.int64)
+        viol_after = np.cumsum(ranked_viol[:, ::-1], axis=-1)[:, ::-1] - ranked_viol
+        index = np.arange(m)[None, :]
+        left = free.copy()
+        for p in range(n):
+            arm = order[:, p]
+            is_cand = cand[rows, arm]
+            if not is_cand.any():
+                break  # the candidates come first in every replicate's order
+            v = viol[rows, arm]
+            allowed = left & (on_site | ~v[:, None]) & is_cand[:, None]
+            go = allowed.any(axis=1)
+            own = allowed & (prev == arm[:, None])
+            spare = (left & on_site).sum(axis=1) - 1 >= viol_after[:, p]
+            own_ok = (v | (own & ~on_site).any(axis=1) | ~(allowed & ~on_site).any(axis=1)
+                      | spare)
+            score = ((~(own & own_ok[:, None])) * 4 * m + (~v[:, None] & on_site) * 2 * m
+                     + keeper * m + index)
+            j = np.where(allowed, score, np.iinfo(np.int64).max).argmin(axis=1)
+            gr, gj, ga = rows[go], j[go], arm[go]
+            k = np.where(v[go], KIND_RESET, KIND_TELEOP).astype(np.int8)
+            new_arm[gr, gj] = ga
+            new_kind[gr, gj] = k
+            new_served[gr, gj] = np.where((prev[gr, gj] == ga) & (kind[gr, gj] == k),
+                                          served[gr, gj], 0)
+            left[gr, gj] = False
+
     def per_arm(self) -> tuple[IntArray, npt.NDArray[np.int8], IntArray]:
         """(human, kind code, served) per arm (R, N), as ``Allocator``'s queries."""
         r, n, _ = self.shape
@@ -174,11 +229,12 @@ class RealAllocators:
     """R real ``Allocator``s stepped one after another: the reference engine (slow)."""
 
     def __init__(self, replicates: int, num_robots: int, num_humans: int,
-                 min_teleop_steps: int, hard_reset_steps: int, seed: int | None = None
-                 ) -> None:
+                 min_teleop_steps: int, hard_reset_steps: int, seed: int | None = None,
+                 on_site: npt.ArrayLike | None = None) -> None:
         seeds = np.random.SeedSequence(seed).generate_state(replicates)
         self.allocators = [Allocator(num_robots, num_humans, min_teleop_steps,
-                                     hard_reset_steps, seed=int(s)) for s in seeds]
+                                     hard_reset_steps, seed=int(s), on_site=on_site)
+                           for s in seeds]
 
     def step(self, keys: FloatArray, violating: BoolArray, available: BoolArray
              ) -> tuple[IntArray, npt.NDArray[np.int8], IntArray]:
@@ -213,13 +269,19 @@ class SimParams:
     latency_cdf: FloatArray
     """(R, M, S)"""
     reset_cdf: FloatArray
+    on_site: BoolArray
+    """(M,) the planned humans' places: only those on site reset (``Allocator``)."""
 
 
-def sim_params(draws: Draws, num_humans: int) -> SimParams:
-    """Map the fitted humans onto ``num_humans`` planned ones (:class:`SimParams`)."""
+def sim_params(draws: Draws, num_humans: int, on_site: npt.ArrayLike | None = None
+               ) -> SimParams:
+    """Map the fitted humans onto ``num_humans`` planned ones (:class:`SimParams`);
+    ``on_site``: the planned humans' places, (M,) (None: everyone on site)."""
     idx = np.arange(num_humans) % draws.human.shape[1]
+    place = (np.ones(num_humans, dtype=bool) if on_site is None
+             else np.asarray(on_site, dtype=bool).reshape(num_humans))
     return SimParams(draws, draws.human[:, idx], draws.available[:, idx],
-                     draws.latency_cdf[:, idx], draws.reset_cdf[:, idx])
+                     draws.latency_cdf[:, idx], draws.reset_cdf[:, idx], place)
 
 
 def _pick(cdf: FloatArray, values: IntArray, u: FloatArray) -> IntArray:
@@ -247,9 +309,11 @@ def simulate(params: SimParams, shape: FleetShape, num_robots: int, num_humans: 
     the (R,) values, each computed as ``plan_fit.run_metrics`` computes a run's."""
     rng = np.random.default_rng(seed)
     r, n, m = params.human.shape[0], num_robots, num_humans
-    alloc: _Allocators = (BatchAllocator(r, n, m, shape.t_T, shape.t_R, seed=0)
+    alloc: _Allocators = (BatchAllocator(r, n, m, shape.t_T, shape.t_R, seed=0,
+                                         on_site=params.on_site)
                           if engine == "batch" else
-                          RealAllocators(r, n, m, shape.t_T, shape.t_R, seed=0))
+                          RealAllocators(r, n, m, shape.t_T, shape.t_R, seed=0,
+                                         on_site=params.on_site))
     state = _State(np.zeros((r, n), bool), np.zeros((r, n), np.int8),
                    np.zeros((r, n), np.int64), np.zeros((r, n), np.int64),
                    rng.random((r, n)) < params.draws.trouble.start[:, None])

@@ -230,6 +230,40 @@ def test_the_header_and_the_window_title_name_the_human(
     assert window_name(1) == "testbed console - human 1"
 
 
+def test_the_header_says_where_the_human_is(
+    make_request: RequestFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 44: the place beside the name; a remote person with no arm reads why no
+    reset comes to them; the overview's line has the label it is given."""
+    drawn: list[str] = []
+    put_text = draw._text
+
+    def recording(img: np.ndarray, text: str, *args: Any, **kwargs: Any) -> None:
+        drawn.append(text)
+        put_text(img, text, *args, **kwargs)
+
+    monkeypatch.setattr(draw, "_text", recording)
+    desk = Desk(1, LAYOUT, locate=lambda _img: CUBE, name="bo", place="remote")
+    desk.assign([make_request(human=1)], t=7, serial=1)
+    remote = draw.render_console(desk.view(), LAYOUT)
+    assert [t for t in drawn if "human" in t] == ["bo (human 1), remote | cell0 / left"]
+    drawn.clear()
+    draw.render_console(ConsoleView(0, Phase.IDLE, name="ana", place="on_site"), LAYOUT)
+    assert {"ana (human 0), on site", "no arm assigned"} <= set(drawn)
+    drawn.clear()
+    draw.render_console(ConsoleView(1, Phase.IDLE, name="bo", place="remote"), LAYOUT)
+    assert {"bo (human 1), remote",
+            "no arm assigned (remote: teleop only, no resets)"} <= set(drawn)
+    desk = Desk(1, LAYOUT, locate=lambda _img: CUBE, name="bo")
+    desk.assign([make_request(human=1)], t=7, serial=1)
+    assert (draw.render_console(desk.view(), LAYOUT)[:20] != remote[:20]).any()
+    drawn.clear()
+    draw.render_overview(FleetStatus(3, 10), humans=["ana (human 0), on site",
+                                                     "bo (human 1), remote"])
+    assert [t for t in drawn if "(human" in t] == [
+        "ana (human 0), on site: no estimate yet", "bo (human 1), remote: no estimate yet"]
+
+
 def test_why_this_arm_asked_names_the_failure_alarm_and_its_threshold() -> None:
     """Issue 36, item 4: an arm the monitor algorithm called shows the alarm as the
     reason, with the score and the threshold it passed (both consoles draw these lines)."""

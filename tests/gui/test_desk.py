@@ -261,3 +261,45 @@ def test_a_named_console_calls_each_human_by_name_beside_the_index(
 def test_names_a_console_cannot_show_are_refused(names: list[str], why: str) -> None:
     with pytest.raises(ValueError, match=why):
         _Surfaceless(2, names=names)
+
+
+def test_a_console_told_the_places_shows_each_beside_the_name(
+    make_request: RequestFactory,
+) -> None:
+    """Issue 44: ``places`` (the config's ``where``) go to every view and the overview's
+    lines; a console not told shows what it always showed."""
+    core = _Surfaceless(2, names=["ana", "bo"], places=["on_site", "remote"])
+    assert [core.overview_label(h) for h in range(2)] == ["ana (human 0), on site",
+                                                          "bo (human 1), remote"]
+    assert core.human_label(1) == "bo (human 1)", "titles and links keep the label"
+    core._desks[1].assign([make_request(human=1)], t=0, serial=1)
+    assert core._desks[1].view().place == "remote"
+    assert core._desks[0].view().place == "on_site", "an idle view too"
+    plain = _Surfaceless(2)
+    assert plain.places == () and plain.overview_label(0) == "human 0"
+    assert plain._desks[0].view().place is None
+
+
+@pytest.mark.parametrize(("places", "why"), [
+    (["on_site"], "need 2"), (["on_site", "lab"], r"places\[1\]: unknown place 'lab'")])
+def test_places_a_console_cannot_show_are_refused(places: list[str], why: str) -> None:
+    with pytest.raises(ValueError, match=why):
+        _Surfaceless(2, places=places)
+
+
+def test_a_reset_addressed_to_a_remote_person_is_shown_to_one_on_site(
+    make_request: RequestFactory,
+) -> None:
+    """The allocator never sends one; the data collection before a trial addresses its
+    resets by arm index (``testbed.experiments.pretraining``): the console shows such a
+    reset to a person on site, never to the remote one; teleops go where addressed."""
+    core = _Surfaceless(3, places=["remote", "on_site", "remote"], teleop_timeout_s=0.05)
+    out = core.act([make_request("cell0/left", 0, kind="reset"),
+                    make_request("cell0/right", 2, kind="teleop")], 0)
+    assert out["cell0/left"].reset_done is False
+    assert core._desks[1].view().phase is Phase.RESET
+    view = core._desks[1].view()
+    assert view.request is not None and view.request.robot == "cell0/left"
+    assert core._desks[0].view().phase is Phase.IDLE
+    view = core._desks[2].view()
+    assert view.request is not None and view.request.robot == "cell0/right"

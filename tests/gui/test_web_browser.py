@@ -8,13 +8,14 @@ own name, with the names of those who hold the arms.
 
 Then end to end, ``testbed trial --humans web`` on the twin: the trial runs in its own
 process; two headless Chromium windows open the two humans' URLs and answer as people
-would: human 0 (ana, in the config's ``humans.people``) presses ``w`` on the keyboard
-(push up, action 0), human 1 (bo) clicks face marker 3 on the image (push right), and
-both press the "Reset done" button on a hard-reset frame. Midway, human 1's page is
-closed. The records must show exactly those pushes on the arms each human held, hard
-resets completed by the button, and after the close: human 1 away, never newly
-assigned, and the trial going on to its last step; the printed links and the overview
-name both humans.
+would: human 0 (ana, in the config's ``humans.people``, on site) presses ``w`` on the
+keyboard (push up, action 0), human 1 (bo, remote: teleop only) clicks face marker 3 on
+the image (push right), and a person given a hard-reset frame presses the "Reset done"
+button. Midway, human 1's page is closed. The records must show exactly those pushes on
+the arms each human held, hard resets completed by the button, every one ana's (bo's
+page never shows one, before the trial or in it: issue 44), and after the close: human 1
+away, never newly assigned, and the trial going on to its last step; the printed links
+and places and the overview name both humans and say where each is.
 """
 
 from __future__ import annotations
@@ -278,7 +279,8 @@ def _config(port: int) -> dict[str, Any]:
         "algorithm": {"u_hat": 0.0},
         "learning": {"ensemble_size": 2, "batch_size": 32, "demos": 40,
                      "critic_transitions": 40, "pretrain_steps": 5},
-        "humans": {"count": 2, "kind": "web", "people": [{"name": "ana"}, {"name": "bo"}],
+        "humans": {"count": 2, "kind": "web",
+                   "people": [{"name": "ana"}, {"name": "bo", "where": "remote"}],
                    "web": {"port": port, "tokens": TOKENS, "grace_s": 1.0,
                            "away_timeout_s": 0.5}},
     }
@@ -362,6 +364,7 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
         with chromium() as page0, chromium() as page1:
             open_console(page0, urls[0], timeout_s=120)
             open_console(page1, urls[1], timeout_s=120)
+            places = [p.find_element("id", "place").text for p in (page0, page1)]
             h0, h1 = BrowserHuman(page0, 0).start(), BrowserHuman(page1, 1).start()
             try:
                 deadline = time.monotonic() + 240
@@ -389,6 +392,10 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
     assert closed_at_step is not None, "the trial ended before human 1's page was closed"
     assert f"web console: ana (human 0): {urls[0]}" in err, "the URLs, printed at start"
     assert f"web console: bo (human 1): {urls[1]}" in err, "... with each human's name"
+    assert "people: ana: on site (teleop and hard resets)\npeople: bo: remote (teleop only)" \
+        in err, "each person's place, printed at start"
+    assert places == ["You are on site (teleop and hard resets).",
+                      "You are remote (teleop only)."]
     # issue 44: the links are kept with the run for a resume, readable by the operator only
     kept = json.loads((run / "web-links.json").read_text())
     assert kept["humans"] == TOKENS
@@ -405,8 +412,11 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
             pushed[row["human"]] += 1
     assert pushed[0] > 0 and pushed[1] > 0, f"a human's page pushed nothing: {pushed}"
 
-    # the reset button completed a hard reset: the arm went back to work
-    assert any(a[0] == "reset" for a in h0.answers + h1.answers), "no reset button pressed"
+    # the reset button completed a hard reset: the arm went back to work; the remote
+    # person's page never showed one, and no reset in the records is theirs
+    assert any(a[0] == "reset" for a in h0.answers), "no reset button pressed"
+    assert not [a for a in h1.answers if a[0] == "reset"], h1.answers
+    assert all(r["human"] == 0 for s in steps for r in s["robots"] if r["mode"] == "reset")
     completed = 0
     for i in range(len(steps[0]["robots"])):
         modes = [s["robots"][i]["mode"] for s in steps]
@@ -430,7 +440,7 @@ def test_two_humans_in_browsers_run_a_trial(tmp_path: Path) -> None:
     last = steps[-1]
     assert points[-1]["modes"] == [r["mode"] for r in last["robots"]]
     assert [x["present"] for x in overview["head"]["humans"]] == [True, False]
-    assert presence.startswith("ana (human 0): ") and presence.endswith(
-        "\u00b7 bo (human 1): away"), presence  # the config's names, on the page
+    assert presence.startswith("ana (human 0), on site: ") and presence.endswith(
+        "\u00b7 bo (human 1), remote: away"), presence  # the config's names and places
     released = [x for s in steps for x in s.get("released", [])]
     assert all(x["human"] == 1 and x["why"] == "away" for x in released), released

@@ -415,6 +415,38 @@ def test_named_humans_on_their_links_pages_frames_and_the_fleets_text() -> None:
                  "reset_steps": 7.25, "latency_steps": 1.9, "pushes": 17, "resets": 2}]
 
 
+def test_each_page_says_where_its_person_is_and_the_overview_says_everyones(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Issue 44: built from the config's people (``make_humans``), the operator is told
+    each person's place before the console starts; a person's page says what they will
+    be given (a remote one: teleop only); the overview's who-is-here has each place."""
+    from testbed.experiments.build import make_humans
+    from testbed.people.people_config import HumanProfile, WebConsoleConfig
+
+    people = [HumanProfile(name="cleo"), HumanProfile(name="dev", where="remote")]
+    web = make_humans("web", 2, WebConsoleConfig(port=0, tokens=TOKENS), people=people,
+                      names=["cleo", "dev"])
+    try:
+        assert isinstance(web, WebHumans) and web.places == ("on_site", "remote")
+        err = capsys.readouterr().err.splitlines()
+        assert err[:2] == ["people: cleo: on site (teleop and hard resets)",
+                           "people: dev: remote (teleop only)"]
+        body = http_get(web.urls[1])[1]
+        assert '<p class="place" id="place">You are remote (teleop only).</p>' in body
+        body = http_get(web.urls[0])[1]
+        assert ('<p class="place" id="place">You are on site (teleop and hard resets).'
+                '</p>') in body
+        with FakePage(f"{ws_base(web)}/ws/overview?token={web.tokens.overview}") as view:
+            head = view.wait_frame(lambda h: "humans" in h)
+            assert [(h["name"], h["where"]) for h in head["humans"]] == [
+                ("cleo", "on_site"), ("dev", "remote")]
+    finally:
+        web.close()
+    with console(names=["ana", "bo"]) as plain:  # not told: the page of before
+        assert '<p class="place" id="place"></p>' in http_get(plain.urls[0])[1]
+
+
 # ---- 3: who acts for whom, and what each input means ----------------------------------------
 def test_one_human_cannot_act_for_another(
     web: WebHumans, open_page: OpenPage, make_request: RequestFactory

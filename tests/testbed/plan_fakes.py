@@ -169,7 +169,8 @@ def run_world(folder: Path, world: World, *, arms: int, people: Sequence[HumanPr
     names = [f"cell{i // 2}/{'left' if i % 2 == 0 else 'right'}" for i in range(arms)]
     m = len(people)
     params = AlgorithmConfig(t_T=world.t_T, t_R=world.t_R, t_I=0, u_hat=U_HAT, r_hat=1.0)
-    algorithm = get_algorithm("cur", params, arms, m, seed=seed)
+    algorithm = get_algorithm("cur", params, arms, m, seed=seed,
+                              on_site=[p.where == "on_site" for p in people])
     folder.mkdir(parents=True)
     states = None
     if world.trouble is not None:

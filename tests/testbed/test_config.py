@@ -125,6 +125,14 @@ MALFORMED: list[tuple[str, str, str]] = [
     ("web-port", "[humans.web]\nport = 65536\n", "humans.web.port"),
     ("web-host", '[humans.web]\nhost = "http://lab-pc"\n', "humans.web.host"),
     ("web-unknown-key", '[humans.web]\ntoken = "x"\n', "humans.web.token: unknown key"),
+    # Where the people are: a hard reset needs one in the room (issue 44).
+    ("nobody-on-site", '[[humans.people]]\nname = "ana"\nwhere = "remote"\n'
+     '[[humans.people]]\nname = "bo"\nwhere = "remote"\n',
+     "humans.people: nobody is on site, and a hard reset needs a person in the room"),
+    ("nobody-on-site-web", '[humans]\nkind = "web"\n[[humans.people]]\nname = "ana"\n'
+     'where = "remote"\n', "humans.people: nobody is on site"),
+    ("where-unknown", '[[humans.people]]\nname = "ana"\nwhere = "lab"\n',
+     "humans.people[0].where"),
 ]
 
 

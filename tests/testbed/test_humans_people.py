@@ -188,3 +188,43 @@ def test_people_in_the_config_name_the_humans(tmp_path: Path) -> None:
                                                 {"name": "bo"}]})
     assert h.count == 2 and h.names == ["ana", "bo"]
     assert HumansConfig(count=3).names == ["human0", "human1", "human2"]
+
+
+def test_each_person_is_on_site_or_remote_for_every_kind() -> None:
+    """``where`` (issue 44): on site by default (old configs unchanged), remote for any
+    kind, scripted ones too (the twin rehearses a lab's split); with humans, someone is
+    on site, or the config names ``people`` and says why and how to fix it."""
+    from testbed.core.config import ConfigError
+    from testbed.experiments.fleet_config import parse_config
+    from testbed.people.people_config import HumansConfig
+
+    assert HumansConfig(count=3).on_site == [True, True, True]
+    assert HumanProfile(name="ana").where == "on_site"
+    for kind in ("scripted", "gui", "web"):
+        h = HumansConfig.model_validate({"kind": kind, "people": [
+            {"name": "ana"}, {"name": "bo", "where": "remote"}]})
+        assert h.on_site == [True, False] and h.places == ["on_site", "remote"]
+    with pytest.raises(ConfigError) as caught:
+        parse_config({"humans": {"people": [{"name": "ana", "where": "remote"}]}})
+    line = str(caught.value)
+    assert line.startswith("config: humans.people: nobody is on site"), line
+    assert "hard reset needs a person in the room" in line and "\n" not in line
+    assert 'where = "on_site"' in line
+    assert HumansConfig(count=0).on_site == []  # no humans: nobody to ask for
+
+
+def test_a_reset_addressed_to_a_remote_scripted_human_is_done_by_one_on_site() -> None:
+    """The allocator never sends one; the data collection before a trial addresses its
+    resets by arm index: the reset is then done as the on-site profile does it (here
+    ana's 2 steps of latency), never by the remote one (bo, instant)."""
+    from testbed.core.humans import reset_taker
+
+    humans = ScriptedHumans([HumanProfile(name="ana", latency=2),
+                             HumanProfile(name="bo", where="remote")], robots=["a"])
+    obs = ArmObservation("a", IMG, violating=True, goal=(0.5, 0.5), expert_action=0)
+    for served, done in ((0, False), (1, False), (2, True)):
+        req = HumanRequest("a", 1, InterventionKind.RESET, obs, served=served, min_steps=1)
+        assert humans.act([req], 0)["a"].reset_done is done
+    places = ["remote", "on_site", "remote", "on_site"]
+    assert [reset_taker(h, places) for h in range(5)] == [1, 1, 1, 3, 4]
+    assert reset_taker(0, []) == 0 and reset_taker(0, ["remote"]) == 0

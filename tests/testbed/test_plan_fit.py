@@ -162,3 +162,21 @@ def test_the_fit_recovers_the_hidden_trouble(tmp_path: Path) -> None:
     assert np.all(np.abs(ask[2:] - TROUBLE.request_late) < 0.06)
     # the per-run counts add up to the whole, for the bootstrap over runs
     assert np.allclose(sum(r.calm_ask for r in f.trouble_runs), c.calm_ask)
+
+
+def test_the_fit_keeps_each_persons_place_and_the_plan_says_it(tmp_path: Path) -> None:
+    """A run with a remote person (``where``): no reset row is theirs, the fit reads the
+    place from the run's config, and the plan says where its people are."""
+    from testbed.planning.plan import PlanOptions, write_fits
+
+    people = [HumanProfile(name="ana", where="remote"), HumanProfile(name="bo")]
+    run = run_world(tmp_path / "cur-t1", WORLD, arms=4, people=people, steps=150, seed=4)
+    rows = [r for s in read_steps(run / "steps.jsonl") for r in s["robots"]]
+    assert any(r["mode"] == "reset" for r in rows)
+    assert all(r["human"] == 1 for r in rows if r["mode"] == "reset")
+    assert any(r["mode"] == "teleop" and r["human"] == 0 for r in rows)
+    fits, _ = fit_runs([run], BIN)
+    assert [(h.name, h.on_site) for h in fits[0].humans] == [("ana", False), ("bo", True)]
+    plan = write_fits(fits, [], PlanOptions((4,), (1, 2), replicates=20), tmp_path / "plan")
+    assert ("Places as in the runs (ana remote, bo on site): planned person j is fitted "
+            "person j mod 2, in their place; only those on site reset.") in plan.markdown

@@ -50,6 +50,51 @@ def test_the_batch_allocator_is_algorithm_1_on_the_same_requests(n: int, m: int,
     assert kinds_seen == {0, 1, 2}  # teleops and resets both happened
 
 
+@pytest.mark.parametrize(("n", "m", "on_site"), [
+    (7, 3, [True, False, False]), (3, 5, [False, True, False, True, False]),
+    (6, 6, [True, False] * 3), (9, 2, [False, True]), (4, 1, [False])])
+def test_the_batch_allocator_follows_the_allocator_with_remote_people(
+        n: int, m: int, on_site: list[bool]) -> None:
+    # Only the on-site people reset (issue 44), candidate by candidate in key order, in
+    # both engines: the same assignments, kinds and served counts, ties included.
+    replicates, t_T, t_R = 5, 2, 3
+    real = [Allocator(n, m, t_T, t_R, seed=s, on_site=np.array(on_site))
+            for s in range(replicates)]
+    streams = [np.random.default_rng(s) for s in range(replicates)]
+    batch = BatchAllocator(replicates, n, m, t_T, t_R, on_site=on_site)
+    rng = np.random.default_rng(43)
+    viol = np.zeros((replicates, n), dtype=bool)
+    resets = 0
+    for _ in range(300):
+        viol = (viol & (rng.random((replicates, n)) > 0.3)) | (rng.random((replicates, n)) < 0.1)
+        keys = rng.choice([-1.0, 0.0, 0.0, 0.5, 1.0], size=(replicates, n, 2))
+        available = rng.random((replicates, m)) < 0.8
+        tie = np.stack([s.random(n) for s in streams])
+        human, kind, served = batch.step(keys, viol, available, tie)
+        for r, a in enumerate(real):
+            assert a.step(keys[r], viol[r], available[r]).tolist() == human[r].tolist()
+            assert a.kind_codes.tolist() == kind[r].tolist()
+            assert a.served.tolist() == served[r].tolist()
+        assert np.array(on_site)[human[kind == 2]].all()
+        resets += int((kind == 2).sum())
+    assert resets > 0 or not any(on_site)
+
+
+def test_the_plan_places_its_people_as_the_runs_or_as_asked() -> None:
+    from testbed.planning.plan import planned_on_site
+    from testbed.planning.plan_fit import HumanFit, PlanFit
+
+    fit = PlanFit("cur", "cur", [], [], 10, 2, 3, 0, 50, "resets_first", False,
+                  humans=[HumanFit(0, "ana", False), HumanFit(1, "bo", True)])
+    # planned person j is fitted person j mod H, in their place ...
+    assert planned_on_site(fit, 4).tolist() == [False, True, False, True]
+    # ... but a fleet with people has one on site, as its config must
+    assert planned_on_site(fit, 1).tolist() == [True]
+    assert planned_on_site(fit, 3, on_site=1).tolist() == [True, False, False]
+    assert planned_on_site(PlanFit("x", "cur", [], [], 10, 2, 3, 0, 50, "resets_first",
+                                   False), 2).tolist() == [True, True]
+
+
 def truth(world: World, replicates: int, bins: int, bin_steps: int, *,
           available: tuple[float, float] = (1.0, 0.7), eligible: float = 1.0) -> Draws:
     """The world's own rates as one draw per replicate (no fit): ana instant, bo 2
@@ -94,6 +139,12 @@ def test_the_simulation_allocates_as_the_real_allocator(order: KeyOrder,
     busy = got["batch"]
     assert (busy["hard_resets"] > 0).all() and (busy["human_actions"] > 0).all()
     assert (busy["unserved"] > 0).all()  # the humans were short: the allocation mattered
+    # one person on site of three: the engines still agree, and resets wait longer
+    places = {engine: simulate(sim_params(draws, 3, [False, True, False]), shape, 7, 3, 120,
+                               seed=5, engine=engine) for engine in ("batch", "real")}
+    for metric in METRICS:
+        np.testing.assert_array_equal(places["batch"][metric], places["real"][metric])
+    assert places["batch"]["wait"].mean() > busy["wait"].mean()
 
 
 @pytest.mark.parametrize("world", [

@@ -195,8 +195,8 @@ def test_make_humans_builds_the_web_console_from_its_config(
     class WebHumans(AwayHumans):  # stands in for gui.web.WebHumans (its classmethod)
         @classmethod
         def from_config(cls, count: int, web: WebConsoleConfig,
-                        names: Sequence[str] = (), resumed_at: int | None = None
-                        ) -> WebHumans:
+                        names: Sequence[str] = (), places: Sequence[str] = (),
+                        resumed_at: int | None = None) -> WebHumans:
             built.append((count, web))
             return cls()
 

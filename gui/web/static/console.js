@@ -133,6 +133,8 @@ const TestbedConsole = (() => {
 
   // gui.view.human_label: the name with the index beside it; "human <i>" when unnamed.
   function label(human, name) { return name ? `${name} (human ${human})` : `human ${human}`; }
+  // gui.view.place_tag: where a person is, beside their label; nothing when untold.
+  function place(where) { return where === "remote" ? ", remote" : where ? ", on site" : ""; }
 
   function showFleet(doc, me) {
     const table = document.getElementById("fleet-robots");
@@ -263,7 +265,9 @@ const TestbedConsole = (() => {
       const span = document.createElement("span");
       span.className = x.present ? "here" : "away";
       span.dataset.human = String(x.human);
-      span.textContent = `${label(x.human, x.name)}: ${x.present ? x.phase : "away"}`;
+      span.dataset.where = x.where || "";
+      span.textContent = `${label(x.human, x.name)}${place(x.where)}: ` +
+        (x.present ? x.phase : "away");
       items.push(span);
     });
     document.getElementById("humans").replaceChildren(...items);
