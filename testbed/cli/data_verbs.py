@@ -296,6 +296,10 @@ def _plan_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-gain", type=_fraction, default=0.05, metavar="F",
                    help="an added human pays while it adds at least this share of "
                    "successes (default 0.05) and ROHE does not fall")
+    p.add_argument("--on-site", type=int, metavar="K", dest="on_site",
+                   help="of each planned number of humans, how many are on site (the "
+                   "rest remote: teleop only, no hard resets; default: the places of "
+                   "the runs' people)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", metavar="DIR", help="where to write plan.md, plan.csv and the "
                    "figures (default: first dir)")
@@ -335,8 +339,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
         check_out_dir("--out", args.out)
     from testbed.planning.plan import PlanOptions, write_plan
 
+    if args.on_site is not None and args.on_site < 1:
+        raise ConfigError(f"--on-site: {args.on_site}; at least 1 (a hard reset needs a "
+                          "person in the room with the arms)")
     options = PlanOptions(args.robots, args.humans, args.steps, args.replicates, args.runs,
-                          args.bin_steps, args.min_gain, args.seed)
+                          args.bin_steps, args.min_gain, args.seed, on_site=args.on_site)
     against = [Path(d) for d in args.against or []]
     for d in against:
         if not d.is_dir():

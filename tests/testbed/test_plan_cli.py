@@ -201,3 +201,28 @@ def test_against_puts_a_measured_sweep_beside_the_plan(
     assert row.count("[") == len(METRICS) and ("in" in row or "OUT" in row)
     line = one_line(["plan", str(protocol), "--trials", "--against", str(sweep)], capsys)
     assert "--against: only without --trials" in line
+
+
+def test_on_site_plans_the_first_k_in_the_room_and_fewer_resets_served(
+        protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--on-site 1``: of 3 planned people only the first does hard resets, which the
+    plan says, and which costs the fleet: more idle time than with all 3 in the room."""
+    def plan(out: Path, *extra: str) -> dict[str, float]:
+        assert main(["plan", str(protocol), "--robots", "6", "--humans", "3", "--replicates",
+                     "60", "--steps", "150", "--out", str(out), *extra]) == 0
+        with (out / "plan.csv").open() as f:
+            return {r["metric"]: float(r["mean"]) for r in csv.DictReader(f)
+                    if r["point"] == "N6-M3"}
+
+    everyone = plan(tmp_path / "all")
+    one = plan(tmp_path / "one", "--on-site", "1")
+    md = (tmp_path / "one" / "plan.md").read_text()
+    assert "Places: the first 1 of each M on site (teleop and hard resets)" in md
+    assert "Places:" not in (tmp_path / "all" / "plan.md").read_text()
+    assert one["idle_time"] > everyone["idle_time"], (one, everyone)
+    capsys.readouterr()
+    assert main(["plan", str(protocol), "--robots", "6", "--humans", "3",
+                 "--on-site", "0"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "testbed plan: --on-site: 0; at least 1 (a hard reset needs a person in the room "
+        "with the arms)")
