@@ -497,7 +497,8 @@ class HostFleet:
 
     def move_tcp(self, host: str, arm: str, xyz_mm: Sequence[float], *,
                  timeout_s: float | None = None) -> tuple[float, float, float]:
-        """Calibration: ``arm``'s TCP to ``xyz_mm`` (robot base frame, from above); the TCP
+        """Calibration: ``arm``'s TCP to ``xyz_mm`` (the robot's world frame (wobj0), mm,
+        from above); the TCP
         the controller reports there. Default timeout: ``max(deadline_s, 60)`` (a motion)."""
         s = self._session(host)
         if arm not in s.arms:

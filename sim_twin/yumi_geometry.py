@@ -6,7 +6,8 @@ camera model (K, lens distortion, pose) are the contract that the server publish
 sub-pixel. Keeping them as plain numbers and numpy/cv2 functions (no PyBullet) makes
 that contract easy to test and to read.
 
-Frames: the robot base frame, millimetres, x forward (away from the robot), y to the
+Frames: the robot's world frame (wobj0; the twin's base frame is its world frame),
+millimetres, x forward (away from the robot), y to the
 robot's left, z up, the table top at z = 0. The camera looks straight down from
 ``CAMERA_HEIGHT_MM`` above the workspaces' centre; its image axes are
 

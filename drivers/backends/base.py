@@ -140,7 +140,8 @@ class HostBackend(ABC):
         raise NotImplementedError(f"backend {self.kind!r} has no camera frame")
 
     def move_tcp(self, arm: str, xyz_mm: Sequence[float]) -> tuple[float, float, float]:
-        """Calibration: bring ``arm``'s TCP to ``xyz_mm`` (robot base frame) from above;
+        """Calibration: bring ``arm``'s TCP to ``xyz_mm`` (the robot's world frame (wobj0),
+        mm) from above;
         returns the TCP position the controller reports there."""
         raise NotImplementedError(f"backend {self.kind!r} cannot move a TCP to a point")
 

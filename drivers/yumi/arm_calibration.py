@@ -29,15 +29,40 @@ import numpy.typing as npt
 
 from drivers.errors import BackendError
 from drivers.yumi.paths import DEFAULT_Z_CLEAR_MM, gate_xy
-from drivers.yumi.reach import ARM_ANGLE_MAX_DEG, default_arm_angle
+from drivers.yumi.reach import ARM_ANGLE_MAX_DEG, default_arm_angle, side_of
 from drivers.yumi.yumi_controller import ArmPose
 
-__all__ = ["CALIBRATION_BOX_MM", "KNOWN_KEYS", "TOOL_HOW", "ArmCalibration", "layout_keys",
-           "provisional_calibration", "tool_of", "write_atomic"]
+__all__ = ["CALIBRATION_BOX_MM", "KNOWN_KEYS", "SHIPPED_TABLE_BOX_MM", "TOOL_HOW",
+           "ArmCalibration", "default_table_box", "layout_keys", "provisional_calibration",
+           "tool_of", "write_atomic"]
+
+SHIPPED_TABLE_BOX_MM: dict[str, tuple[float, float, float, float]] = {
+    "left": (150.0, 75.0, 470.0, 370.0), "right": (150.0, -370.0, 470.0, -75.0)}
+"""Each arm's table box (x0, y0, x1, y1) when its calibration file has none: the shipped
+layout's, in the robot's world frame (wobj0), mm; left and right mirror each other in y.
+Why these: the hardware twin's workspaces (x 150 to 470, |y| 50 to 370:
+``sim_twin/yumi_geometry.py``) with the inner edge held 75 mm from the body's centre line
+(``testbed/lab/camera_model.py``, ``INNER_EDGE_MM``: two arms at their inner far corners
+keep 29 mm apart), at least 25 mm inside the shipped world zone boxes (``tb_zone_lo``,
+``tb_zone_hi`` of ``robot/rapid/TestbedTask_L.mod``, ``_R.mod``). With the 184.2 mm
+pusher every corner is reached and every path of the layout check is clear
+(``tests/drivers/test_yumi_paths_zones.py``), and every point of ``testbed calibrate``'s
+5x4 grid over it is reached on the twin (``tests/drivers/test_yumi_rws_twin.py``). So a
+lab's first ``testbed calibrate`` needs no ``--box`` (it prints the box it drives in), and
+an arm being calibrated has its gate where the shipped layout has it."""
 
 CALIBRATION_BOX_MM = (-1000.0, -1000.0, 1000.0, 1000.0)
-"""Table box of an arm being calibrated whose file has none: wide on purpose; the
-calibration command supplies the safe box it drives in (``move_tcp`` refuses outside)."""
+"""Table box of an arm being calibrated whose file has none and whose side (left, right)
+cannot be told: wide on purpose; the calibration command supplies the safe box it drives
+in (``move_tcp`` refuses outside)."""
+
+
+def default_table_box(arm: str, task: str | None = None
+                      ) -> tuple[float, float, float, float] | None:
+    """:data:`SHIPPED_TABLE_BOX_MM` of ``arm``'s side (from its task ``T_ROB_L``/``_R``,
+    else its name ``left``/``right``); None when the side cannot be told."""
+    side = side_of(arm, task)
+    return None if side is None else SHIPPED_TABLE_BOX_MM[side]
 
 KNOWN_KEYS = frozenset({
     "homography", "table_box_mm", "z_push_mm", "z_travel_mm", "z_clear_mm", "gate_xy_mm",
@@ -99,7 +124,8 @@ class ArmCalibration:
     """One arm's calibration file (JSON), validated on load."""
 
     homography: npt.NDArray[np.float64]
-    """3x3: camera pixel (u, v, 1) -> table point in the robot base frame (x, y, w), mm."""
+    """3x3: camera pixel (u, v, 1) -> table point (x, y, w), mm, in the robot's world frame
+    (wobj0): every target the driver sends is in it (robot/README.md, "Frames")."""
     table_box_mm: tuple[float, float, float, float]
     """(x_min, y_min, x_max, y_max): every waypoint's (x, y) is clipped into it."""
     z_push_mm: float = 10.0
@@ -262,7 +288,9 @@ def provisional_calibration(path: str, arm: str, tool_z_mm: float | None = None
                             ) -> ArmCalibration:
     """An arm being calibrated: the file's speeds, heights, table box, tool and rest pose
     when it has them, an identity homography (unused: pictures are off in calibration
-    mode) and, without a table box in the file, the wide :data:`CALIBRATION_BOX_MM`.
+    mode) and, without a table box in the file, the arm's :func:`default_table_box` (the
+    box ``testbed calibrate`` then drives in by default; its gate is the shipped one), or
+    the wide :data:`CALIBRATION_BOX_MM` for an arm whose side cannot be told.
     Without ``tool_z_mm`` in the file, ``tool_z_mm`` (the controller's ``tool_pusher``,
     :func:`~drivers.yumi.rws_controller.controller_tools`) is the tool; without either,
     a BackendError (never the flange)."""
@@ -276,7 +304,9 @@ def provisional_calibration(path: str, arm: str, tool_z_mm: float | None = None
         if not isinstance(d, dict):
             raise BackendError(f"arm {arm}: calibration {p} is not a JSON object")
     d = {**d, "homography": np.eye(3).tolist()}
-    d.setdefault("table_box_mm", list(CALIBRATION_BOX_MM))
+    task = d.get("task")
+    d.setdefault("table_box_mm", list(default_table_box(arm, task if isinstance(task, str)
+                                                        else None) or CALIBRATION_BOX_MM))
     if tool_z_mm is not None:
         d.setdefault("tool_z_mm", float(tool_z_mm))
     return ArmCalibration.from_dict(d, arm, str(p))

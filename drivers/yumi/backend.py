@@ -1,8 +1,8 @@
 """The ABB YuMi (IRB 14000) host: two arms, one overhead camera, one controller.
 
 Why it looks like this: the policy acts in the arm's canonical 64x64 image frame, the
-robot moves in millimetres in its base frame. A per-arm calibration file holds the
-image-to-table homography that joins the two, plus the safety envelope (a table box
+robot moves in millimetres in the robot's world frame (wobj0). A per-arm calibration
+file holds the image-to-table homography that joins the two, plus the safety envelope (a table box
 every waypoint is clipped into, a speed cap, push and travel heights) and the rest pose
 out of the camera's view. The task bookkeeping the twin does in simulation (goal drawn
 into the image, success, violation, soft reset after success or 50 pushes) is done

@@ -22,8 +22,9 @@ Where each number comes from (nothing here is copied from a file; the numbers ar
   (53.55, -72.5, 414.92) mm, (-0.9795, -0.5682, -2.3155)): that description's
   ``<origin>`` of each joint. The lengths agree with ABB's: upper arm 172.83 + 78.73 =
   251.6 mm, forearm 164.61 + 100.39 = 265 mm. The body frame of the description is the
-  robot's base frame (its foot on the table, x forward, z up): the frame the driver's
-  targets are in (``wobj0``; docs/notes/yumi-real.md) and the cell's
+  robot's base frame (its foot on the table, x forward, z up), which is the robot's world
+  frame (wobj0): the frame the driver's targets are in (docs/notes/yumi-real.md) and the
+  cell's
   (``sim_twin/yumi_geometry.py``).
 - The flange (``tool0``): 7 mm along axis 6 from its joint frame, where the description
   mounts the gripper (``yumi_link_7_l_joint``).

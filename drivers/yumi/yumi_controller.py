@@ -31,7 +31,7 @@ picks the configuration) stays for the client's own tests and is never planned."
 
 @dataclass(frozen=True, slots=True)
 class Waypoint:
-    """One motion command in the robot base frame (mm), or a joint target."""
+    """One motion command in the robot's world frame (wobj0), mm, or a joint target."""
 
     kind: WaypointKind
     xyz_mm: tuple[float, float, float] | None

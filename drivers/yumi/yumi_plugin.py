@@ -135,6 +135,16 @@ class YumiPlugin(BackendPlugin):
         lines, faults = controller_report(host.name, info)
         return lines, [*in_view_faults(info), *faults, *deadline_faults(host, info)]
 
+    def default_table_box(self, arm: str, calibration: Mapping[str, Any] | None = None
+                          ) -> tuple[float, float, float, float] | None:
+        """The shipped layout's table box of the arm's side (its file's ``task``, else its
+        name): ``drivers/yumi/arm_calibration.py``'s ``default_table_box``, the box the
+        agent drives an arm being calibrated in when its file has none."""
+        from drivers.yumi.arm_calibration import default_table_box
+
+        task = (calibration or {}).get("task")
+        return default_table_box(arm, task if isinstance(task, str) else None)
+
     def layout_report(self, host: HostBase, calibrations: Mapping[str, Mapping[str, Any]],
                       info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
         """The arms' layout through the IRB 14000's kinematics, as ``testbed check``

@@ -83,8 +83,11 @@ def _calibrate_arguments(p: argparse.ArgumentParser) -> None:
                    help="fleet config or protocol file with the yumi host")
     p.add_argument("--host", required=True, metavar="NAME")
     p.add_argument("--arm", required=True, metavar="NAME")
-    p.add_argument("--box", metavar="x0,y0,x1,y1", help="safe box of TCP points, mm, robot "
-                   "base frame (default: the calibration's table_box_mm); written as table_box_mm")
+    p.add_argument("--box", metavar="x0,y0,x1,y1", help="safe box of TCP points, mm, in the "
+                   "robot's world frame (wobj0): ABB's world frame of the YuMi, x forward, y "
+                   "to the robot's left, z up (default: the calibration's table_box_mm, else "
+                   "the backend's default for the arm, printed; a YuMi: left 150,75,470,370, "
+                   "right 150,-370,470,-75); written as table_box_mm")
     p.add_argument("--grid", default="5x4", metavar="NXxNY", help="points over the box (5x4)")
     p.add_argument("--z", type=float, default=10.0, metavar="MM", help="TCP height (default "
                    "10: the marker in the cube-top plane)")

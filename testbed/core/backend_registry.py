@@ -242,6 +242,16 @@ class Backend:
         None (the default): a rehearsal refuses its hosts, naming the field."""
         return None
 
+    def default_table_box(self, arm: str, calibration: Mapping[str, Any] | None = None
+                          ) -> tuple[float, float, float, float] | None:
+        """The table box (x0, y0, x1, y1), mm, in the robot's world frame, that an arm
+        whose ``calibration`` (its file's keys; None: no file yet) has no
+        ``table_box_mm`` is driven in while it is calibrated: what ``testbed calibrate``
+        uses when given no ``--box``. None (the default): the backend has none, and
+        ``--box`` is required. Backends with the ``calibration`` capability whose arms
+        have a shipped layout override it."""
+        return None
+
     def layout_report(self, host: HostLike, calibrations: Mapping[str, Mapping[str, Any]],
                       info: Mapping[str, Any] | None = None) -> tuple[list[str], list[str]]:
         """What ``testbed calibrate`` prints of the arms' layout after a fit: (report lines,

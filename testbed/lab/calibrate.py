@@ -51,6 +51,13 @@ CUBE_TOP_MM = 40.0
 EXIT_FAILED = 1
 
 
+TABLE_FRAME = "the robot's world frame (wobj0)"
+"""The one name of the frame every box, TCP point and table point is in (``--box``,
+``table_box_mm``, the homography's output): ABB's world frame of the YuMi, which the
+driver's targets and readings use (``wobj0``; robot/README.md, "Frames": not either
+arm's base frame). ``testbed calibrate --help`` and the docs say the same words
+(tests/testbed/test_calibrate_box.py)."""
+
 GRID_INSET_MM = 10.0
 """How far inside the safe box the calibration's grid lies (its points, not its fit)."""
 
@@ -135,7 +142,8 @@ def default_marker_id(arm: str) -> int:
 
 def default_options(host: str, arm: str) -> CalibrateOptions:
     """What ``testbed calibrate --config FILE --host HOST --arm ARM`` runs: every other
-    argument at its default (the safe box from the arm's file, a 5x4 grid, ...)."""
+    argument at its default (the safe box: the arm's file's table box, else the backend's
+    default for the arm; a 5x4 grid, ...)."""
     return CalibrateOptions(host=host, arm=arm, box=None, marker_id=default_marker_id(arm))
 
 
@@ -361,17 +369,14 @@ def _overlay(out: CalibrationOutcome, opts: CalibrateOptions, mirror: bool) -> A
     return cal.draw_overlays(out.last_frame, [arm])
 
 
-def _check_inside(box: cal.Box, table_box: Any, where: str) -> None:
-    """``--box`` must lie in the file's table box: the host refuses TCP points outside
-    the box it was started with, so say so now rather than at every point."""
-    try:
-        tb = cal.parse_box(",".join(str(v) for v in table_box), "table_box_mm")
-    except ValueError:
-        return  # the host's provisional calibration will say what is wrong with it
+def _check_inside(box: cal.Box, table_box: cal.Box, whose: str, fix: str) -> None:
+    """``--box`` must lie in the table box the host drives the arm in: the host refuses
+    TCP points outside it, so say so now rather than at every point."""
+    tb = table_box
     if box[0] < tb[0] or box[1] < tb[1] or box[2] > tb[2] or box[3] > tb[3]:
-        raise ConfigError(f"--box: {_fmt(box)} leaves the table box {_fmt(tb)} of {where}, "
+        raise ConfigError(f"--box: {_fmt(box)} leaves the table box {_fmt(tb)}, {whose}, "
                           f"and the host refuses TCP points outside it; give a box inside it "
-                          f"or widen table_box_mm in that file on the host first")
+                          f"or {fix}")
 
 
 def make_fleet(host: HostConfig, arm: str) -> Any:
@@ -387,30 +392,54 @@ def make_fleet(host: HostConfig, arm: str) -> Any:
     return HostFleet([host], trial_seed=0, calibrating={host.name: arms})
 
 
-def _safe_box(opts: CalibrateOptions, existing: Mapping[str, Any] | None, where: str
-              ) -> cal.Box:
-    """``--box``, checked to lie in the file's table box, or the file's table box."""
+def _safe_box(opts: CalibrateOptions, existing: Mapping[str, Any] | None, where: str,
+              default: cal.Box | None, backend: str) -> tuple[cal.Box, str]:
+    """The box the grid lies in and where it came from (said before anything moves).
+
+    The host drives the arm in its file's ``table_box_mm``, or, when the file has none,
+    in the backend's default table box for the arm (``default``: a YuMi's shipped one,
+    ``drivers/yumi/arm_calibration.py``), so a first calibration needs no ``--box``.
+    ``--box`` must lie inside that box; with neither a file's box nor a default,
+    ``--box`` is required (ConfigError naming it)."""
+    host_box: cal.Box | None = None
+    whose = fix = ""
+    if existing is not None and "table_box_mm" in existing:
+        try:
+            host_box = cal.parse_box(",".join(str(v) for v in existing["table_box_mm"]),
+                                     "table_box_mm")
+        except ValueError as exc:
+            if opts.box is None:
+                raise ConfigError(f"{where}: {exc}") from None
+            # with --box: the host's provisional calibration says what is wrong with it
+        whose = f"the table_box_mm of {where}"
+        fix = "widen table_box_mm in that file on the host first"
+    elif default is not None:
+        host_box = default
+        whose = (f"the {backend} backend's default for arm {opts.arm} ({where} has no "
+                 f"table_box_mm)")
+        fix = "write table_box_mm into that file on the host first"
     if opts.box is not None:
-        if existing is not None and "table_box_mm" in existing:
-            _check_inside(opts.box, existing["table_box_mm"], where)
-        return opts.box
-    if existing is None or "table_box_mm" not in existing:
-        raise ConfigError(f"--box: required, the arm's calibration ({where})"
-                          f" has no table_box_mm to take the safe box from")
-    try:
-        return cal.parse_box(",".join(str(v) for v in existing["table_box_mm"]),
-                             "table_box_mm")
-    except ValueError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
+        if host_box is not None:
+            _check_inside(opts.box, host_box, whose, fix)
+        return opts.box, "--box"
+    if host_box is None:
+        raise ConfigError(f"--box: required, the arm's calibration ({where}) has no "
+                          f"table_box_mm and the {backend} backend has no default box for "
+                          f"arm {opts.arm}; give --box x0,y0,x1,y1 (mm, {TABLE_FRAME})")
+    if existing is not None and "table_box_mm" in existing:
+        return host_box, f"{where}'s table_box_mm; --box for another inside it"
+    return host_box, (f"the {backend} backend's default for arm {opts.arm}: {where} has no "
+                      f"table_box_mm yet; --box for another inside it")
 
 
-def _announce(host: str, opts: CalibrateOptions, box: cal.Box, say: Callable[[str], None]
-              ) -> None:
+def _announce(host: str, opts: CalibrateOptions, box: cal.Box, source: str,
+              say: Callable[[str], None]) -> None:
     """What is about to move, where, and what the person at the table must keep clear."""
     plane = opts.z_mm + opts.marker_above_tcp_mm
-    say(f"calibrate {host}/{opts.arm}: {opts.grid[0]}x{opts.grid[1]} points over box "
-        f"{_fmt(box)} mm at z = {opts.z_mm:g} mm; marker {cal.MARKER_DICT} id "
-        f"{opts.marker_id} in the plane z = {plane:g} mm")
+    say(f"calibrate {host}/{opts.arm}: {opts.grid[0]}x{opts.grid[1]} points at z = "
+        f"{opts.z_mm:g} mm; marker {cal.MARKER_DICT} id {opts.marker_id} in the plane "
+        f"z = {plane:g} mm")
+    say(f"box {_fmt(box)} mm (x0, y0, x1, y1 in {TABLE_FRAME}): {source}")
     if abs(plane - CUBE_TOP_MM) > 2.0:
         say(f"warning: the marker plane (z = {plane:g} mm) is not the cube's top face "
             f"(z = {CUBE_TOP_MM:g} mm); pixels of the cube will map with a parallax error")
@@ -576,8 +605,10 @@ def calibrate(cfg: FleetConfig, opts: CalibrateOptions,
     host = calibration_target(cfg, opts.host, opts.arm)
     arm_cfg = next(a for a in host.arms if a.name == opts.arm)
     existing = existing_calibration(host, opts.arm, say)
-    box = _safe_box(opts, existing, str(arm_cfg.calibration))
-    _announce(host.name, opts, box, say)
+    backend = backend_of(host)
+    box, source = _safe_box(opts, existing, str(arm_cfg.calibration),
+                            backend.default_table_box(opts.arm, existing), backend.name)
+    _announce(host.name, opts, box, source, say)
     fleet = make_fleet(host, opts.arm)
     try:
         fleet.start()

@@ -458,7 +458,7 @@ def test_a_push_point_off_the_homography_is_an_error_not_a_clipped_waypoint() ->
 
 
 def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> None:
-    from drivers.yumi.arm_calibration import CALIBRATION_BOX_MM
+    from drivers.yumi.arm_calibration import SHIPPED_TABLE_BOX_MM
     from drivers.yumi.backend import build_yumi_backend
 
     video = str(write_video(tmp_path / "cam.avi", [twin_picture(0)]))
@@ -484,7 +484,8 @@ def test_calibration_mode_build_errors_and_provisional_box(tmp_path: Path) -> No
                                            r"of T_ROB_L cannot be read: .*4-point TCP"):
         build(tmp_path / "none-yet.json", ["left"])  # no file, no controller: no tool
     backend = build(rest_only, ["left"])
-    assert backend._arms["left"].calibration.table_box_mm == CALIBRATION_BOX_MM
+    # no table box in the file: the shipped one of its side (issue 44), where its gate is
+    assert backend._arms["left"].calibration.table_box_mm == SHIPPED_TABLE_BOX_MM["left"]
     with pytest.raises(BackendError, match="arm left is being calibrated"):
         backend.push({"right": 0})
     assert backend.frame().shape == (256, 576, 3)

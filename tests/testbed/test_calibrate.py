@@ -99,11 +99,11 @@ def twin(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Twin]:
 @pytest.fixture(scope="module")
 def lab(twin: Twin, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A fleet config of one yumi host on the twin; left arm never calibrated (its file
-    has the lab's safe box and speeds only), right arm calibrated; left crop a bit off."""
+    has the lab's speeds, rest pose and tool only: no table box, as a lab writes it
+    before its first calibration), right arm calibrated; left crop a bit off."""
     d = tmp_path_factory.mktemp("lab")
     m = twin.model
-    (d / "left.json").write_text(json.dumps({"table_box_mm": m["workspaces_mm"]["left"],
-                                             **SPEEDS, **rest_pose("left")}))
+    (d / "left.json").write_text(json.dumps({**SPEEDS, **rest_pose("left")}))
     (d / "right.json").write_text(json.dumps(twin.true_calibration("right")))
     x0, y0, x1, y1 = m["crops"]["left"]
     port = twin.base.rsplit(":", 1)[1]
@@ -164,7 +164,14 @@ def test_calibrate_fits_the_true_camera_and_writes_the_file(
     data = json.loads((lab / "left.json").read_text())
     c = ArmCalibration.load(lab / "left.json", "left")
     assert {k: data[k] for k in SPEEDS} == SPEEDS
-    assert data["table_box_mm"] == twin.model["workspaces_mm"]["left"]
+    # Issue 44: no --box and no table box in the file: the shipped box of the left arm
+    # (the twin's workspace, inner edge 75 mm off centre), said before the arm moved,
+    # and written as the file's table box
+    assert data["table_box_mm"] == push_box(twin.model["workspaces_mm"]["left"])
+    assert ("box (150.0, 75.0, 470.0, 370.0) mm (x0, y0, x1, y1 in the robot's world frame "
+            "(wobj0)): the yumi backend's default for arm left: ") in out, out
+    assert out.index("box (150.0, 75.0") < out.index("point  1/12"), out
+    assert "FAULT" not in out and "markers found: 12/12" in out, out  # the layout: no fault
     assert json.loads((lab / "copy.json").read_text()) == data
     assert sorted(p.name for p in lab.iterdir() if p.name.startswith(".")) == []
     # Against the TRUTH: points of the cube-top plane (z = 40 mm) over the workspace.
@@ -177,13 +184,16 @@ def test_calibrate_fits_the_true_camera_and_writes_the_file(
     print(f"true error: max {err_px.max():.3f} px / {err_mm.max():.3f} mm, median "
           f"{np.median(err_px):.3f} px / {np.median(err_mm):.3f} mm; {took:.1f} s")
     assert err_px.max() <= 1.5 and err_mm.max() <= 3.0, (err_px.max(), err_mm.max())
-    # What it printed: the errors, the crop (the twin's natural one, +-2 px), the rest pose.
+    # What it printed: the errors, the crop (the square around the box's TRUE projection,
+    # +-2 px: the default box's, 25 mm short of the workspace's inner edge), the rest pose.
     m = re.search(r"median ([\d.]+) px / ([\d.]+) mm, max ([\d.]+) px / ([\d.]+) mm", out)
     assert m is not None, out
     assert float(m[3]) <= 1.0 and float(m[4]) <= 1.5, out
     crop = re.search(r"proposed crop for left: (\d+),(\d+),(\d+),(\d+)", out)
     assert crop is not None, out
-    assert np.abs(np.array(crop.groups(), int) - twin.model["crops"]["left"]).max() <= 2, out
+    true_crop = cal.propose_crop(twin.true_calibration("left")["homography"],
+                                 tuple(data["table_box_mm"]), (640, 480))
+    assert np.abs(np.array(crop.groups(), int) - true_crop).max() <= 2, (out, true_crop)
     assert "rest pose: out of view" in out and "markers found: " in out
     assert cv2.imread(str(lab / "cal.png")).shape == (480, 640, 3)
     assert _at_rest(twin)
@@ -266,14 +276,21 @@ def test_bad_arguments_exit_2_with_one_line(lab: Path, argv: list[str], says: st
     assert rc == 2 and says in err and err.count("\n") == 1, err
 
 
-def test_no_safe_box_anywhere_is_exit_2(lab: Path, tmp_path: Path,
-                                        capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_box_outside_the_default_is_exit_2_before_anything_moves(
+        twin: Twin, lab: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """No file yet: the host would drive the arm in the default box, so a --box outside
+    it (here the right arm's, given for the left) is refused in one line naming --box."""
     text = (lab / "fleet.toml").read_text().replace(f"{lab}/left.json", f"{tmp_path}/new.json")
     (tmp_path / "fleet.toml").write_text(text)
     rc = main(["calibrate", "--config", str(tmp_path / "fleet.toml"), "--host", "yumi",
-               "--arm", "left"])
-    err = capsys.readouterr().err
-    assert rc == 2 and "--box: required" in err, err
+               "--arm", "left", "--box", "150,-370,470,-75"])
+    captured = capsys.readouterr()
+    assert rc == 2 and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith("testbed calibrate: --box: (150.0, -370.0, 470.0, -75.0) "
+                                   "leaves the table box (150.0, 75.0, 470.0, 370.0), the yumi "
+                                   "backend's default for arm left"), captured.err
+    assert "point " not in captured.out and not (tmp_path / "new.json").exists()
+    assert _at_rest(twin)
 
 
 def test_report_names_rejected_points_and_applies_the_thresholds() -> None:
