@@ -11,7 +11,8 @@ that one key, nothing else), then answers what the page asks until told to stop:
   never presses it, and records it if the page ever asked them;
 
 and writes what it saw as JSON: its pushes and resets (with the page's frame numbers),
-every notice the page showed (a resumed trial says so), every place label, the times the
+every notice the page showed (a resumed trial says so), what it said of the person
+(their label, and whether they are on site or remote), the times the
 page lost and found its server, and the address its own connection came from.
 
     python first_day_person.py URL SPKI on_site|remote LOG STOPFILE
@@ -49,7 +50,7 @@ def _text(driver: Any, element_id: str) -> str:
 
 def main(url: str, spki: str, where: str, log: Path, stop_file: Path) -> int:
     seen: dict[str, Any] = {"where": where, "source": _source_address(url), "pushes": [],
-                            "resets": [], "resets_shown": [], "notices": [], "who": [],
+                            "resets": [], "resets_shown": [], "notices": [], "who": [], "place": [],
                             "drops": 0, "errors": []}
     done: set[int] = set()
     with tempfile.TemporaryDirectory() as profile, chromium(extra_args=(
@@ -64,7 +65,7 @@ def main(url: str, spki: str, where: str, log: Path, stop_file: Path) -> int:
                 if was_open and not st.get("open"):
                     seen["drops"] += 1
                 was_open = bool(st.get("open"))
-                for key, element in (("notices", "notice"), ("who", "who")):
+                for key, element in (("notices", "notice"), ("who", "who"), ("place", "place")):
                     text = _text(page, element).strip()
                     if text and text not in seen[key]:
                         seen[key].append(text)

@@ -186,6 +186,9 @@ def test_the_first_day_colleagues_in_browsers_a_crash_a_resume_and_an_on_site_re
         assert s["drops"] >= 1, f"{name}'s page never lost the killed console"
         assert any("resumed at step" in n for n in s["notices"]), (name, s["notices"])
         assert s["pushes"], f"{name} never pushed: {s}"
+        assert s["who"] == [f"{name} (human {PEOPLE.index((name, where))})"], s["who"]
+        assert s["place"] == [{"on_site": "You are on site (teleop and hard resets).",
+                               "remote": "You are remote (teleop only)."}[where]], s["place"]
 
     # hard resets: only the person on site was asked, and did them
     assert seen["remote"]["resets_shown"] == [], "a remote person was given a hard reset"
