@@ -305,7 +305,7 @@ def load_protocol(path: Path, *, check_files: bool = True) -> Protocol:
 
 
 def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True, *,
-                 hooks: TrialHooks | None = None) -> Report:
+                 hooks: TrialHooks | None = None, plan: bool = True) -> Report:
     """Run every (trial, algorithm) of ``proto`` not yet complete, then the report.
 
     ``proto.fleet`` is the fleet driven (a caller may rewrite it with ``model_copy``;
@@ -323,11 +323,19 @@ def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True, *,
     With ``until``: after each complete trial, :func:`sequential_decision` says whether
     to run the next (at least ``trials``, at most ``until.max_trials``); the
     evaluations wait till the end and cover the trials run.
+
+    ``plan``: first print what is left to do and how long it takes
+    (``testbed.experiments.time_plan``; ``testbed protocol`` prints its own, naming
+    its file).
     """
     from testbed.core.config import ConfigError
 
     hooks = hooks if hooks is not None else TrialHooks()
     folder = Path(out or proto.out)
+    if plan:
+        from testbed.experiments.time_plan import say_protocol_plan
+
+        say_protocol_plan(proto, folder)
     folder.mkdir(parents=True, exist_ok=True)
     cache: dict[Path, dict[str, Any]] = {}
     done = 0
