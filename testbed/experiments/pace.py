@@ -103,10 +103,10 @@ def _same_arms(config: Path, cfg: FleetConfig) -> bool:
     return theirs == [(h.name, h.backend, [a.name for a in h.arms]) for h in cfg.hosts]
 
 
-def rows_of_runs(folders: Iterable[Path], cfg: FleetConfig) -> tuple[list[dict[str, Any]],
-                                                                      list[Path]]:
+def rows_of_runs(folders: Iterable[Path], cfg: FleetConfig
+                 ) -> dict[Path, list[dict[str, Any]]]:
     """The last ``ROWS_PER_RUN`` rows of each of the ``RECENT_RUNS`` newest runs of
-    ``cfg``'s arms found directly in ``folders``, and those runs."""
+    ``cfg``'s arms found directly in ``folders``, by run."""
     runs: list[Path] = []
     for folder in folders:
         if folder.is_dir():
@@ -114,12 +114,13 @@ def rows_of_runs(folders: Iterable[Path], cfg: FleetConfig) -> tuple[list[dict[s
                      if _same_arms(p.parent / "config.toml", cfg)]
     runs = sorted(set(runs), key=lambda r: (r / "steps.jsonl").stat().st_mtime,
                   reverse=True)[:RECENT_RUNS]
-    rows: list[dict[str, Any]] = []
+    found: dict[Path, list[dict[str, Any]]] = {}
     for run in runs:
         try:
             lines = (run / "steps.jsonl").read_text(encoding="utf-8").splitlines()
         except (OSError, UnicodeDecodeError):
             continue
+        rows = found.setdefault(run, [])
         for line in lines[-ROWS_PER_RUN:]:
             try:
                 row = json.loads(line)
@@ -127,7 +128,7 @@ def rows_of_runs(folders: Iterable[Path], cfg: FleetConfig) -> tuple[list[dict[s
                 continue
             if isinstance(row, dict) and isinstance(row.get("robots"), list):
                 rows.append(row)
-    return rows, runs
+    return found
 
 
 def _rate(arms: Sequence[dict[str, Any]], mode: str) -> tuple[float, int] | None:
@@ -140,32 +141,40 @@ def _rate(arms: Sequence[dict[str, Any]], mode: str) -> tuple[float, int] | None
 def fleet_pace(cfg: FleetConfig, folders: Sequence[Path]) -> FleetPace:
     """The fleet step of ``cfg``'s arms (see the module's order) from the runs in
     ``folders`` (the folder of runs, a protocol's folder), else nominal."""
-    rows, runs = rows_of_runs(folders, cfg)
-    where = ", ".join(sorted({str(r.parent) for r in runs})) or ", ".join(map(str, folders))
-    push = [max(float(a["readings"]["push_s"]) for a in row["robots"]
-                if "push_s" in (a.get("readings") or {}))
-            for row in rows if any("push_s" in (a.get("readings") or {})
-                                   for a in row["robots"])]
-    took = [float(row["duration_s"]) for row in rows
-            if isinstance(row.get("duration_s"), (int, float)) and row["duration_s"] > 0]
+    by_run = rows_of_runs(folders, cfg)
+    rows = [row for got in by_run.values() for row in got]
+    where = ", ".join(sorted({str(r.parent) for r in by_run})) or ", ".join(map(str, folders))
+    push = {run: [m for m in map(_slowest_push, got) if m is not None]
+            for run, got in by_run.items()}
+    took = {run: [float(r["duration_s"]) for r in got
+                  if isinstance(r.get("duration_s"), (int, float)) and r["duration_s"] > 0]
+            for run, got in by_run.items()}
     arms = [a for row in rows for a in row["robots"] if isinstance(a, dict)]
     teleop, policy = _rate(arms, "teleop"), _rate(arms, "autonomous")
     rates = {"teleop_violation": ASSUMED_TELEOP_VIOLATION if teleop is None else teleop[0],
              "policy_violation": ASSUMED_POLICY_VIOLATION if policy is None else policy[0],
              "rates_source": _rates_source(teleop, policy)}
-    if len(push) >= MIN_STEPS:
-        return FleetPace(statistics.median(push), "measured push",
-                         f"the arms' pushes (readings.push_s, the slowest arm's per step) "
-                         f"over {len(push)} steps of {len(runs)} run(s) in {where}",
-                         **rates)  # type: ignore[arg-type]
-    if len(took) >= MIN_STEPS:
-        return FleetPace(statistics.median(took), "measured step",
-                         f"whole steps (duration_s, training and humans included) over "
-                         f"{len(took)} steps of {len(runs)} run(s) in {where}",
-                         **rates)  # type: ignore[arg-type]
+    for kind, measured, what in (
+            ("measured push", push, "the arms' pushes (readings.push_s, the slowest arm's "
+             "per step)"),
+            ("measured step", took, "whole steps (duration_s, training and humans "
+             "included)")):
+        values = [v for got in measured.values() for v in got]
+        if len(values) >= MIN_STEPS:
+            n_runs = sum(1 for got in measured.values() if got)
+            return FleetPace(statistics.median(values), kind,  # type: ignore[arg-type]
+                             f"{what} over {len(values)} steps of {n_runs} run(s) in {where}",
+                             **rates)
     why = (f"only {len(rows)} step(s) of these arms on record in {where}" if rows
            else f"no earlier runs of these arms in {where}")
     return _nominal(cfg, why, rates)
+
+
+def _slowest_push(row: dict[str, Any]) -> float | None:
+    """A step's slowest arm's push (a fleet's hosts push at once), None: none measured."""
+    pushes = [float(a["readings"]["push_s"]) for a in row["robots"]
+              if isinstance(a, dict) and "push_s" in (a.get("readings") or {})]
+    return max(pushes) if pushes else None
 
 
 def _rates_source(teleop: tuple[float, int] | None, policy: tuple[float, int] | None) -> str:

@@ -10,8 +10,13 @@ algorithm of a protocol) start from the same theta_0 without paying for it again
 
 Which critics are pretrained is part of that key (issue 13): a protocol pretrains the
 critics any of its algorithms reads, once; a lone trial its own algorithm's; ``testbed
-pretrain`` both (it does not know the algorithm). With no critic to pretrain, the BC
-rollouts (the critics' data) are not collected either.
+pretrain --config`` what the trial or protocol of its config would (``--demos``: both).
+With no critic to pretrain, the BC rollouts (the critics' data) are not collected either.
+
+The collections keep what they have as they go (``Keep``) and go on from it, and
+``pretrain`` skips what an earlier try kept (``Resume``): ``testbed.experiments.theta0``
+holds them in the cache (issue 44). The demonstrations have a key of their own
+(``demos_key``), without the learning config or the critics.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from testbed.core.hosts import LoopHosts
 from testbed.core.humans import Humans
 from testbed.core.types import ArmObservation, HumanRequest, InterventionKind
 from testbed.experiments.fleet_config import FleetConfig
+from testbed.fleet.algorithms import ALGORITHMS
 from testbed.learning.learning_config import LearningConfig
 
 if TYPE_CHECKING:  # the learning package imports torch: only when data is really built
@@ -55,6 +61,14 @@ def critic_set(critics: Iterable[str] | None) -> tuple[str, ...]:
         raise ValueError(f"critics: unknown critic(s) {', '.join(map(repr, unknown))}; "
                          f"use {', '.join(CRITICS)}")
     return tuple(c for c in CRITICS if c in given)
+
+
+def pretrain_critics(algorithms: Iterable[str]) -> list[str]:
+    """The critics theta_0 is pretrained with: every one that any of ``algorithms``
+    reads (one theta_0 for a whole protocol, no critic pretrained for nobody)."""
+    read: set[str] = set().union(*(ALGORITHMS[a].critics for a in algorithms))
+    return sorted(read)
+
 
 Progress = Callable[[str, int, int], None]
 

@@ -3,7 +3,8 @@
 Kept out of the loop (as Stable-Baselines3's ProgressBarCallback): the loop reports a
 ``StepOutcome``; this turns it into a display with successes, hard resets, idle time,
 human actions and ROHE. Pretraining phases (collect, pretrain policy, rollout, pretrain
-critics) are reported through ``on_phase``.
+critics) are reported through ``on_phase``; one that goes on from what an earlier try
+kept through ``on_phase_resumed`` first, so its speed and ETA count this run's work only.
 
 Two displays, chosen by ``TESTBED_PROGRESS`` (``auto``, the default; ``plain``; ``bar``):
 

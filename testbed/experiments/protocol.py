@@ -49,8 +49,9 @@ from testbed.core.config import ConfigError, _one_line, validation_context
 from testbed.core.hosts import Hosts
 from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
+from testbed.experiments.pretraining import pretrain_critics
 from testbed.experiments.sweep_point import SweepPoint
-from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
+from testbed.fleet.algorithms import ALGORITHM_NAMES
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 from testbed.results.report import (
     METRICS,
@@ -212,6 +213,18 @@ class Protocol(BaseModel):
             return self.fleet
         return SweepPoint(dict(way.set)).apply(self.fleet)
 
+    def evaluated(self) -> list[str]:
+        """What each trial's evaluations evaluate (``_evaluate_all``): every algorithm's
+        final policy, theta_0 (``START``) with ``evaluate_start``, the twin's expert with
+        ``evaluate_expert`` on simulated hosts; none without ``evaluate_steps``."""
+        if self.evaluate_steps == 0:
+            return []
+        names = [*self.algorithms, *([START] if self.evaluate_start else [])]
+        if self.evaluate_expert and all(backend_of(h).capabilities.simulated
+                                        for h in self.fleet.hosts):
+            names.append("expert")
+        return names
+
     def seed(self, k: int) -> int:
         """Trial ``k``'s seed: ``seeds[k]``, else ``k``. A trial beyond the listed seeds
         (only with ``until``) gets ``max(seeds) + 1 + (k - len(seeds))``: distinct from
@@ -260,13 +273,6 @@ class Protocol(BaseModel):
 
 START = "theta0"
 """The name of the policy every run of a trial starts from, in evaluation runs."""
-
-
-def pretrain_critics(algorithms: list[str]) -> list[str]:
-    """The critics theta_0 is pretrained with: every one that any of ``algorithms``
-    reads (one theta_0 for the whole protocol, no critic pretrained for nobody)."""
-    read = set().union(*(ALGORITHMS[a].critics for a in algorithms))
-    return sorted(read)
 
 
 def williams_square(n: int) -> list[list[int]]:

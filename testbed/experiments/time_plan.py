@@ -30,24 +30,49 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.pace import FleetPace, GradPace, fleet_pace, measure_gradient
-from testbed.experiments.pretraining import critic_set
-from testbed.experiments.theta0 import CacheState, cache_state
+from testbed.experiments.pretraining import critic_set, pretrain_critics
+from testbed.experiments.theta0 import CacheState, cache_state, theta0_folder
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.learning.learning_config import LearningConfig
 from testbed.records.run_dir import RunDir
 
 if TYPE_CHECKING:
-    from testbed.experiments.protocol import Protocol
     from testbed.experiments.trial import TrialOptions
 
 __all__ = ["Phase", "Plan", "Target", "duration", "fleet_steps", "plan_lines",
            "protocol_plan", "run_seconds", "theta0_phases", "trial_plan"]
 
 Measure = Callable[[LearningConfig, Iterable[str]], GradPace]
+
+
+class ProtocolFile(Protocol):
+    """What a plan reads of a protocol (``testbed.experiments.protocol.Protocol``), named
+    here rather than imported: ``run_protocol`` prints this plan, so this module must
+    not import that one."""
+
+    @property
+    def fleet(self) -> FleetConfig: ...
+    @property
+    def algorithms(self) -> list[str]: ...
+    @property
+    def trials(self) -> int: ...
+    @property
+    def steps(self) -> int: ...
+    @property
+    def humans(self) -> str: ...
+    @property
+    def evaluate_steps(self) -> int: ...
+    @property
+    def prompt_when(self) -> str: ...
+    @property
+    def until(self) -> Any: ...
+    def fleet_of(self, name: str) -> FleetConfig: ...
+    def algorithm_of(self, name: str) -> str: ...
+    def evaluated(self) -> list[str]: ...
 
 
 @dataclass(frozen=True)
@@ -261,15 +286,12 @@ def collect_plan(cfg: FleetConfig, count: int, have: int, where: Path, folder: P
     return Plan([collect_phase(cfg, have, count, fleet, where)], fleet, None)
 
 
-def protocol_targets(proto: Protocol, names: Iterable[str] | None = None
+def protocol_targets(proto: ProtocolFile, names: Iterable[str] | None = None
                      ) -> list[tuple[FleetConfig, tuple[str, ...], str]]:
     """Each theta_0 the runs of ``names`` (default: every algorithm of ``proto``) start
     from: its fleet, its critics (every one any algorithm of the protocol reads, as
     ``run_protocol_run`` asks) and, when there are several (a way whose fleet changes
     what shapes theta_0), which algorithms it is for."""
-    from testbed.experiments.protocol import pretrain_critics
-    from testbed.experiments.theta0 import theta0_folder
-
     union = pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
     found: dict[Path, tuple[FleetConfig, tuple[str, ...], list[str]]] = {}
     for a in proto.algorithms if names is None else names:
@@ -280,7 +302,7 @@ def protocol_targets(proto: Protocol, names: Iterable[str] | None = None
             for cfg, critics, who in found.values()]
 
 
-def protocol_plan(proto: Protocol, folder: Path, *,
+def protocol_plan(proto: ProtocolFile, folder: Path, *,
                   grad: GradPace | Measure | None = None) -> Plan:
     """A protocol's plan: each theta_0 its runs still to start need, then its training
     runs and its evaluations still to do (``trials`` of them; with ``until``, at least
@@ -329,23 +351,13 @@ def _steps_left(run: RunDir, steps: int) -> int:
     return 0 if run.summary.exists() else max(0, steps - resumed_start(run.path))
 
 
-def _evaluations(proto: Protocol, folder: Path) -> list[int]:
+def _evaluations(proto: ProtocolFile, folder: Path) -> list[int]:
     """The steps of each evaluation run not done yet (the paper's, after the runs)."""
-    from testbed.core.backend_registry import backend_of
-    from testbed.experiments.protocol import START
-
-    if proto.evaluate_steps == 0:
-        return []
-    names = list(proto.algorithms)
-    names += [START] if proto.evaluate_start else []
-    if proto.evaluate_expert and all(backend_of(h).capabilities.simulated
-                                     for h in proto.fleet.hosts):
-        names.append("expert")
-    return [proto.evaluate_steps for k in range(proto.trials) for a in names
+    return [proto.evaluate_steps for k in range(proto.trials) for a in proto.evaluated()
             if not (folder / f"eval-{a}-t{k}" / "summary.json").exists()]
 
 
-def _protocol_notes(proto: Protocol) -> list[str]:
+def _protocol_notes(proto: ProtocolFile) -> list[str]:
     notes = []
     if proto.until is not None:
         notes.append(f"until: at least {proto.trials} trials (counted here), up to "
@@ -356,14 +368,11 @@ def _protocol_notes(proto: Protocol) -> list[str]:
 
 
 def duration(seconds: float) -> str:
-    """``42 s``, ``3 min 05 s``, ``2 h 07 min``."""
+    """``42 s``, ``3 min 05 s``, ``2 h 07 min`` (to the nearest minute past an hour)."""
     s = round(seconds)
-    if s < 60:
-        return f"{s} s"
-    m, s = divmod(s, 60)
-    if m < 60:
-        return f"{m} min {s:02d} s"
-    h, m = divmod(m, 60)
+    if s < 3600:
+        return f"{s} s" if s < 60 else f"{s // 60} min {s % 60:02d} s"
+    h, m = divmod(round(seconds / 60), 60)
     return f"{h} h {m:02d} min"
 
 
@@ -407,7 +416,7 @@ def print_plan(lines: Sequence[str]) -> None:
     print("\n".join(lines), flush=True)
 
 
-def say_protocol_plan(proto: Protocol, folder: Path, ahead: str | None = None) -> Plan:
+def say_protocol_plan(proto: ProtocolFile, folder: Path, ahead: str | None = None) -> Plan:
     """Print ``proto``'s plan for ``folder`` (``run_protocol`` does, before its first
     prompt); ``ahead``: the arguments of ``testbed collect``/``pretrain`` that name it."""
     plan = protocol_plan(proto, folder)
