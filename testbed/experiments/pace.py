@@ -35,7 +35,7 @@ from typing import Any, Final, Literal
 
 import numpy as np
 
-from testbed.core.backend_registry import backend_of
+from testbed.core.backend_registry import DEFAULT_BACKEND, backend_of
 from testbed.core.types import IMAGE_SIZE
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.learning.learning_config import LearningConfig
@@ -96,7 +96,7 @@ def _same_arms(config: Path, cfg: FleetConfig) -> bool:
     if not isinstance(hosts, list):
         return False
     try:
-        theirs = [(h["name"], h.get("backend", "twin"), [a["name"] for a in h["arms"]])
+        theirs = [(h["name"], h.get("backend", DEFAULT_BACKEND), [a["name"] for a in h["arms"]])
                   for h in hosts]
     except (KeyError, TypeError):
         return False

@@ -86,6 +86,8 @@ class Phase:
     fleet_steps: int = 0
     note: str = ""
     skipped: bool = False
+    theta0: bool = True
+    """A phase of theta_0 (else a run's steps)."""
 
 
 @dataclass(frozen=True)
@@ -115,11 +117,7 @@ class Plan:
     @property
     def pretrains(self) -> bool:
         """Whether any theta_0 phase is still to do before step 1."""
-        return any(p.name in THETA0_PHASES and not p.skipped for p in self.phases)
-
-
-THETA0_PHASES = ("collect demonstrations", "pretrain the policy", "roll out the policy",
-                 "pretrain the critics")
+        return any(p.theta0 and not p.skipped for p in self.phases)
 
 
 class _Grad:
@@ -250,7 +248,8 @@ def trial_plan(cfg: FleetConfig, opts: TrialOptions, start: int = 0, *,
     critics = ALGORITHMS[opts.algorithm].critics
     phases.append(Phase(f"trial {opts.name or opts.algorithm}", steps, "steps",
                         run_seconds(cfg, opts.algorithm, steps, fleet,
-                                    None if opts.evaluate else rates, critics), steps))
+                                    None if opts.evaluate else rates, critics), steps,
+                        theta0=False))
     return Plan(phases, fleet, rates.used, notes)
 
 
@@ -325,11 +324,13 @@ def protocol_plan(proto: ProtocolFile, folder: Path, *,
     phases = (_targets_phases(protocol_targets(proto, starting), folder, fleet, rates)
               if starting else [])
     phases.append(Phase("training runs", train_steps, "steps", train_s, train_steps,
-                        f"{runs_left} of {proto.trials * len(proto.algorithms)} runs to go"))
+                        f"{runs_left} of {proto.trials * len(proto.algorithms)} runs to go",
+                        theta0=False))
     evals = _evaluations(proto, folder)
     if evals:
         phases.append(Phase("evaluation runs", sum(evals), "steps",
-                            sum(evals) * fleet.step_s, sum(evals), f"{len(evals)} runs"))
+                            sum(evals) * fleet.step_s, sum(evals), f"{len(evals)} runs",
+                            theta0=False))
     return Plan(phases, fleet, rates.used, _protocol_notes(proto))
 
 

@@ -148,6 +148,15 @@ def test_the_printed_plan_has_each_phase_its_total_and_its_sources(tmp_path: Pat
     assert ("testbed collect --config lab.toml, then testbed pretrain --config lab.toml"
             in text and "--policy learner.pt" in text)
     assert "--policy" not in "\n".join(plan_lines(plan, "gui", "X", policy=False))
+    # one theta_0 of several (a protocol's way): its phases are named for whom, and the
+    # hint stays; runs alone (theta_0 cached) need none
+    labelled = theta0_phases(Target(cfg, (), empty(tmp_path), "for cur-weighted"), PACE, grad)
+    assert labelled[0].name == "collect demonstrations (for cur-weighted)"
+    assert "theta_0: skip it" in "\n".join(plan_lines(Plan(labelled, PACE, GRAD), "gui"))
+    done = CacheState(tmp_path, tmp_path / "d.npz", True, 375, False, 0)
+    cached = theta0_phases(Target(cfg, (), done), PACE, grad)
+    assert not Plan(cached, PACE, None).pretrains
+    assert "theta_0:" not in "\n".join(plan_lines(Plan(cached, PACE, None), "gui"))
 
 
 def _run(folder: Path, cfg: FleetConfig, rows: list[dict[str, Any]]) -> None:
