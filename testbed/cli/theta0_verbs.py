@@ -52,8 +52,6 @@ class _Cache:
     humans: str
     targets: list[tuple[FleetConfig, tuple[str, ...], str]]
     """Each theta_0: its fleet, its critics, a label ("" for one alone)."""
-    ahead: str
-    """The arguments that name it (the plan's hint)."""
 
 
 def _add_cache_arguments(p: argparse.ArgumentParser) -> None:
@@ -72,7 +70,6 @@ def _cache_of(args: argparse.Namespace) -> _Cache:
     from testbed.fleet.algorithms import ALGORITHMS
 
     algorithm = getattr(args, "algorithm", None)
-    ahead = [f"--config {args.config}"] if args.config else []
     if args.config is not None and file_kind(read_toml(args.config)) == "protocol":
         from testbed.experiments.protocol import load_protocol
         from testbed.experiments.time_plan import protocol_targets
@@ -87,12 +84,10 @@ def _cache_of(args: argparse.Namespace) -> _Cache:
         cfg = load_config(args)
         name = algorithm or cfg.algorithm.name
         check_algorithm(name)
-        ahead += [f"--algorithm {algorithm}"] if algorithm else []
         folder, humans = Path(args.runs or cfg.trial.out), args.humans or cfg.humans.kind
         targets = [(cfg, critic_set(ALGORITHMS[name].critics), "")]
     check_out_dir("--runs", str(folder))
-    ahead += [f"--runs {args.runs}"] if args.runs else []
-    return _Cache(folder, humans, targets, " ".join(ahead))
+    return _Cache(folder, humans, targets)
 
 
 def _humans(kind: str, cfg: FleetConfig) -> Humans:
@@ -132,7 +127,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     for path, (cfg, count) in files.items():
         check_humans(cache.humans, cfg)
         print_plan(plan_lines(collect_plan(cfg, count, npz_length(path), path, cache.folder),
-                              cache.humans, cache.ahead))
+                              cache.humans, None))
     if args.dry_run:
         return 0
     for path, (cfg, count) in files.items():
@@ -161,7 +156,7 @@ def _collect_file(args: argparse.Namespace) -> int:
     kind = args.humans or cfg.humans.kind
     check_humans(kind, cfg)
     print_plan(plan_lines(collect_plan(cfg, count, 0, Path(out), Path(cfg.trial.out)), kind,
-                          f"--config {args.config or 'FILE'}"))
+                          None))
     if args.dry_run:
         return 0
     humans = _humans(kind, cfg)
@@ -238,8 +233,7 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
         check_device(cfg)
         st = cache_state(cache.folder, cfg, critics)
         check_humans(cache.humans, cfg, teleop=st.demos < cfg.learning.demos and not st.done)
-    print_plan(plan_lines(theta0_plan(cache.targets, cache.folder), cache.humans,
-                          cache.ahead))
+    print_plan(plan_lines(theta0_plan(cache.targets, cache.folder), cache.humans, None))
     if args.dry_run:
         return 0
     made: list[Path] = []
@@ -283,7 +277,7 @@ def _pretrain_file(args: argparse.Namespace) -> int:
         why = " ".join(str(exc).split())[:160]
         raise ConfigError(f"--demos: {args.demos} is not a demonstrations file ({why}); "
                           "give the .npz of testbed collect") from None
-    _print_file_plan(cfg, kind, Path(args.demos), len(demos), args.config)
+    _print_file_plan(cfg, kind, Path(args.demos), len(demos))
     if args.dry_run:
         return 0
     humans = _humans(kind, cfg)
@@ -303,12 +297,11 @@ def _pretrain_file(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_file_plan(cfg: FleetConfig, kind: str, demos: Path, count: int,
-                     config: str | None) -> None:
+def _print_file_plan(cfg: FleetConfig, kind: str, demos: Path, count: int) -> None:
     """``pretrain --demos``' plan: its demonstrations are given, the rest as theta_0's."""
     from testbed.experiments.time_plan import file_plan, plan_lines, print_plan
 
-    print_plan(plan_lines(file_plan(cfg, demos, count), kind, f"--config {config or 'FILE'}"))
+    print_plan(plan_lines(file_plan(cfg, demos, count), kind, None))
 
 
 PRETRAIN = Verb(

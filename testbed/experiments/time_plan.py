@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -274,8 +274,8 @@ def file_plan(cfg: FleetConfig, demos: Path, count: int, *,
     fresh = CacheState(demos.parent, demos, False, count, False, 0)
     given = cfg.model_copy(update={"learning": cfg.learning.model_copy(
         update={"demos": count})})
-    phases = theta0_phases(Target(given, CRITICS, fresh), fleet, rates)
-    return Plan(phases, fleet, rates.used)
+    collect, *rest = theta0_phases(Target(given, CRITICS, fresh), fleet, rates)
+    return Plan([replace(collect, note=f"given: {demos}"), *rest], fleet, rates.used)
 
 
 def collect_plan(cfg: FleetConfig, count: int, have: int, where: Path, folder: Path
@@ -377,12 +377,13 @@ def duration(seconds: float) -> str:
     return f"{h} h {m:02d} min"
 
 
-def plan_lines(plan: Plan, humans: str, ahead: str = "--config FILE", *,
+def plan_lines(plan: Plan, humans: str, ahead: str | None = "--config FILE", *,
                policy: bool = True) -> list[str]:
     """The plan as the operator reads it: a line per phase (count, fleet steps, time or
     why it is skipped), the total, each rate's source, and how to skip theta_0 or run
-    it ahead (``ahead``: the arguments that name this fleet and folder; ``policy``:
-    a trial, which ``--policy`` starts from a given learner instead)."""
+    it ahead (``ahead``: the arguments that name this fleet and folder; None: no such
+    line, for ``testbed collect``/``pretrain`` themselves; ``policy``: a trial, which
+    ``--policy`` starts from a given learner instead)."""
     rows = [("phase", "count", "fleet steps", "time")]
     for p in plan.phases:
         count = f"{p.count} {p.unit}" if p.count or not p.skipped else "-"
@@ -405,7 +406,7 @@ def plan_lines(plan: Plan, humans: str, ahead: str = "--config FILE", *,
     if humans != "scripted" and not f.includes_learning:
         out.append("  not counted: the humans' time to choose each teleop push")
     out += [f"  {n}" for n in plan.notes]
-    if plan.pretrains:
+    if plan.pretrains and ahead is not None:
         skip = "skip it with --policy learner.pt, or " if policy else ""
         out.append(f"  theta_0: {skip}make it ahead (the same cache; a re-run goes on from "
                    f"what it kept): testbed collect {ahead}, then testbed pretrain {ahead}")
