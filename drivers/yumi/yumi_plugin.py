@@ -114,6 +114,10 @@ class YumiPlugin(BackendPlugin):
     verify_imports: ClassVar[tuple[str, ...]] = (
         "drivers.yumi.backend", "drivers.cameras.camera", "drivers.yumi.rws_controller",
         "abb_robot_client.rws", "abb_motion_program_exec", "cv2")
+    nominal_push_s: ClassVar[float | None] = 8.5
+    """A push at the calibration's default speeds (150 mm/s travel, 50 mm/s stroke) is
+    the step: 8.5 s (docs/notes/rehearsal.md, "Rehearsal step"; 7.8 s for a 40 mm
+    stroke on the real-time twin, docs/notes/yumi-real.md)."""
 
     # -- the controller's side --------------------------------------------------------
     def hardware_twin(self) -> HardwareTwin:

@@ -69,6 +69,13 @@ def add_trial_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", help="run folder name (default: ALGORITHM-sSEED)")
 
 
+def add_dry_run(p: argparse.ArgumentParser) -> None:
+    """``--dry-run``: print what would be done and how long it would take, then stop."""
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the plan (each phase before step 1, the steps, how long "
+                   "each takes) and exit: no arm moves, no folder is made")
+
+
 def add_fanout_arguments(p: argparse.ArgumentParser) -> None:
     """Where many trials run: here one after another (default), or as Ray tasks."""
     g = p.add_mutually_exclusive_group()

@@ -1,5 +1,5 @@
-"""The verbs about data and what is learnt from it: ``collect``, ``pretrain``,
-``export``, ``train`` and ``report``.
+"""The verbs about data and what is learnt from it: ``export``, ``train``, ``report``
+and ``plan`` (``collect`` and ``pretrain``, theta_0's steps: ``theta0_verbs``).
 
 Each is one ``Verb`` (its arguments and its handler together). Imported for
 ``testbed --help``, so torch, the hosts and the dataset writers are imported inside the
@@ -9,113 +9,17 @@ handlers.
 from __future__ import annotations
 
 import argparse
-import zipfile
 from pathlib import Path
 
-from testbed.cli.arguments import HUMANS, Verb, add_config, positive
+from testbed.cli.arguments import Verb, add_config, positive
 from testbed.cli.checks import (
     check_device,
-    check_humans,
     check_out_dir,
     check_out_file,
     load_config,
     with_pretrain_steps,
 )
 from testbed.core.config import ConfigError
-
-
-# ---- collect ----------------------------------------------------------------------------
-def _collect_arguments(p: argparse.ArgumentParser) -> None:
-    add_config(p)
-    p.add_argument("--count", type=positive, help="pairs (default: config learning.demos)")
-    p.add_argument("--humans", choices=HUMANS)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="demos.npz", metavar="NPZ")
-
-
-def cmd_collect(args: argparse.Namespace) -> int:
-    from testbed.experiments.build import build_hosts, make_humans
-    from testbed.experiments.pretraining import collect_demos, save_transitions
-    from testbed.experiments.progress import TrialProgress
-
-    cfg = load_config(args)
-    count = args.count or cfg.learning.demos
-    check_out_file("--out", args.out)
-    check_humans(args.humans or cfg.humans.kind, cfg)
-    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web,
-                         names=[p.name for p in cfg.humans.people])
-    hosts = build_hosts(cfg, args.seed)
-    try:
-        hosts.start()
-        with TrialProgress(count, 0, 0, label="collect") as bar:
-            demos = collect_demos(hosts, humans, count, cfg.algorithm.t_R, bar.on_phase)
-    finally:
-        hosts.close()
-        humans.close()
-    save_transitions(demos, Path(args.out))
-    print(f"{len(demos)} state-action pairs -> {args.out}")
-    return 0
-
-
-COLLECT = Verb(
-    "collect", help="offline demonstrations (375 pairs by default)",
-    description="Humans drive every arm; keep the state-action pairs.",
-    add_arguments=_collect_arguments, run=cmd_collect)
-
-
-# ---- pretrain ---------------------------------------------------------------------------
-def _pretrain_arguments(p: argparse.ArgumentParser) -> None:
-    add_config(p)
-    p.add_argument("--demos", required=True, metavar="NPZ")
-    p.add_argument("--humans", choices=HUMANS)
-    p.add_argument("--steps", type=int,
-                   help="gradient steps of each phase, policy and critics (default: config)")
-    p.add_argument("--out", default="learner.pt", metavar="PT")
-
-
-def cmd_pretrain(args: argparse.Namespace) -> int:
-    from testbed.experiments.build import build_hosts, make_humans
-    from testbed.experiments.learners import PRETRAIN_SEED, new_learner
-    from testbed.experiments.pretraining import load_transitions, pretrain
-    from testbed.experiments.progress import TrialProgress
-
-    cfg = with_pretrain_steps(load_config(args), args.steps)
-    if not Path(args.demos).is_file():
-        raise ConfigError(f"--demos: no such file {args.demos!r}; run testbed collect first")
-    check_out_file("--out", args.out)
-    check_device(cfg)
-    check_humans(args.humans or cfg.humans.kind, cfg, teleop=False)
-    try:
-        demos = load_transitions(Path(args.demos))
-    except ConfigError:
-        raise
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # not an .npz
-        why = " ".join(str(exc).split())[:160]
-        raise ConfigError(f"--demos: {args.demos} is not a demonstrations file ({why}); "
-                          "give the .npz of testbed collect") from None
-    humans = make_humans(args.humans or cfg.humans.kind, cfg.humans.count, cfg.humans.web,
-                         names=[p.name for p in cfg.humans.people])
-    hosts = build_hosts(cfg, PRETRAIN_SEED)
-    learner = new_learner(cfg, PRETRAIN_SEED)
-    try:
-        hosts.start()
-        with TrialProgress(cfg.learning.pretrain_steps, 0, 0, label="pretrain") as bar:
-            # both critics: this learner.pt may serve any algorithm
-            pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
-                     PRETRAIN_SEED, bar.on_phase, critics=None)
-    finally:
-        hosts.close()
-        humans.close()
-    learner.save(Path(args.out))
-    print(f"learner -> {args.out}")
-    return 0
-
-
-PRETRAIN = Verb(
-    "pretrain", help="pretrain policy and critics from demonstrations",
-    description="Train the policy on demos, roll it out for the critics' data, train the "
-    "critics; write learner.pt.",
-    add_arguments=_pretrain_arguments, run=cmd_pretrain)
 
 
 # ---- export -----------------------------------------------------------------------------

@@ -9,12 +9,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from testbed.cli.arguments import (
     HUMANS,
     Verb,
     add_config,
+    add_dry_run,
     add_fanout_arguments,
     add_trial_arguments,
     positive,
@@ -30,6 +31,10 @@ from testbed.cli.checks import (
     trial_options,
 )
 from testbed.experiments.controller_gate import TrialRefused
+from testbed.experiments.fleet_config import FleetConfig
+
+if TYPE_CHECKING:
+    from testbed.experiments.trial import TrialOptions
 
 
 def print_summary(run_dir: Path, summary: dict[str, Any]) -> None:
@@ -42,6 +47,7 @@ def print_summary(run_dir: Path, summary: dict[str, Any]) -> None:
 def _trial_arguments(p: argparse.ArgumentParser) -> None:
     add_trial_arguments(p)
     p.add_argument("--resume", metavar="DIR", help="continue a crashed or killed trial")
+    add_dry_run(p)
 
 
 def cmd_trial(args: argparse.Namespace) -> int:
@@ -55,6 +61,9 @@ def cmd_trial(args: argparse.Namespace) -> int:
         resume = None
         cfg = load_config(args)
         opts = trial_options(cfg, args)
+    say_trial_plan(cfg, opts, args, resume)
+    if args.dry_run:
+        return 0
     try:
         with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
             run, summary = run_trial(cfg, opts, resume=resume, hooks=bar)
@@ -62,6 +71,22 @@ def cmd_trial(args: argparse.Namespace) -> int:
         return refused("trial", exc)
     print_summary(run.path, summary)
     return 0
+
+
+def say_trial_plan(cfg: FleetConfig, opts: TrialOptions, args: argparse.Namespace,
+                   resume: Path | None) -> None:
+    """What the trial is about to do before step 1 and how long it takes (theta_0's
+    phases it still needs, its steps), before anything moves; how to make theta_0
+    ahead with the arguments that name this trial's cache."""
+    from testbed.experiments.time_plan import plan_lines, print_plan, resumed_start, trial_plan
+
+    ahead = [f"--config {args.config}"] if getattr(args, "config", None) else []
+    if opts.algorithm != cfg.algorithm.name:
+        ahead.append(f"--algorithm {opts.algorithm}")
+    if opts.out != cfg.trial.out or not ahead:  # no --config, no --runs: a file
+        ahead.append(f"--runs {opts.out}")
+    start = resumed_start(resume) if resume is not None else 0
+    print_plan(plan_lines(trial_plan(cfg, opts, start), opts.humans, " ".join(ahead)))
 
 
 TRIAL = Verb(
@@ -118,16 +143,22 @@ def _protocol_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="DIR", help="override the protocol's output folder")
     p.add_argument("--yes", action="store_true", help="do not prompt between trials")
     add_fanout_arguments(p)
+    add_dry_run(p)
 
 
 def cmd_protocol(args: argparse.Namespace) -> int:
     from testbed.experiments.protocol import load_protocol, run_protocol
+    from testbed.experiments.time_plan import say_protocol_plan
 
     proto = load_protocol(Path(args.file))
     if args.out is not None:
         check_out_dir("--out", args.out)
     check_device(proto.fleet)
     check_humans(proto.humans, proto.fleet)
+    say_protocol_plan(proto, Path(args.out or proto.out),
+                      f"--config {args.file}" + (f" --runs {args.out}" if args.out else ""))
+    if args.dry_run:
+        return 0
     if args.workers is not None or args.ray is not None:
         from testbed.experiments.fanout import run_protocol_on_ray
         from testbed.results.report import write_report
@@ -139,7 +170,7 @@ def cmd_protocol(args: argparse.Namespace) -> int:
                               proto.until.reference if proto.until is not None else None)
     else:
         try:
-            report = run_protocol(proto, out=args.out, ask=not args.yes)
+            report = run_protocol(proto, out=args.out, ask=not args.yes, plan=False)
         except TrialRefused as exc:
             return refused("protocol", exc)
     print(report.markdown)

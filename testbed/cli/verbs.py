@@ -3,12 +3,13 @@
 One place that names them all: ``build_parser`` adds a subparser per entry and ``main``
 runs the entry of the verb given, so a verb is added here and in its module, nothing
 else. The verbs live by what they are about: ``run_verbs`` (trials), ``data_verbs``
-(demonstrations, learners, datasets, reports), ``lab_verbs`` (the lab's hardware).
+(learners, datasets, reports), ``theta0_verbs`` (theta_0 ahead: demonstrations and
+pretraining), ``lab_verbs`` (the lab's hardware).
 """
 
 from __future__ import annotations
 
-from testbed.cli import data_verbs, lab_verbs, run_verbs
+from testbed.cli import data_verbs, lab_verbs, run_verbs, theta0_verbs
 from testbed.cli.arguments import Verb
 
 __all__ = ["VERBS", "Verb"]
@@ -23,8 +24,8 @@ VERBS: tuple[Verb, ...] = (
     lab_verbs.CHECK,
     lab_verbs.CALIBRATE,
     lab_verbs.REHEARSE,
-    data_verbs.COLLECT,
-    data_verbs.PRETRAIN,
+    theta0_verbs.COLLECT,
+    theta0_verbs.PRETRAIN,
     run_verbs.EVALUATE,
     data_verbs.EXPORT,
     data_verbs.TRAIN,

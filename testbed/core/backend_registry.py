@@ -222,6 +222,11 @@ class Backend:
     host_requirements: ClassVar[tuple[str, ...]] = ()
     """What else a robot host installs for it (``pip`` requirements): a lab's own backend
     names its package here (``"lab-ur5e==1.2"``); the product's use ``extra``."""
+    nominal_push_s: ClassVar[float | None] = None
+    """Seconds a fleet step of its arms nominally takes (the push and the picture after
+    it; a host's arms push at once): what the time estimate before step 1
+    (``testbed/experiments/pace.py``) assumes until the lab has pushes of its own on
+    record. None: not declared (the estimate then says it assumed a default)."""
     origin: str = field(default="", compare=False)
     """Where it was found, set by the registry (entry point, package and version)."""
 

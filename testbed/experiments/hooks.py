@@ -18,6 +18,8 @@ Override what you need; every default does nothing:
   the run's links and says it was resumed.
 * ``wrap_hosts(hosts, run)``: the hosts the run drives (a ``HostsWrapper``, say).
 * ``on_phase(name, done, total)``: pretraining's progress (collect, pretrain ...).
+* ``on_phase_resumed(name, done, total)``: a phase goes on from ``done`` that an
+  earlier try kept (a collection cut short); default: ``on_phase``.
 * ``on_step(outcome)``: a timestep finished (logged and checkpointed).
 """
 
@@ -59,6 +61,11 @@ class TrialHooks:
     def on_phase(self, name: str, done: int, total: int) -> None:
         """Pretraining phase ``name`` is at ``done`` of ``total``."""
 
+    def on_phase_resumed(self, name: str, done: int, total: int) -> None:
+        """Phase ``name`` goes on from ``done`` of ``total`` kept by an earlier try (a
+        display then counts its speed from here); by default as ``on_phase``."""
+        self.on_phase(name, done, total)
+
     def on_step(self, outcome: StepOutcome) -> None:
         """A timestep finished: logged, its data stored, its checkpoint submitted."""
 
@@ -95,6 +102,10 @@ class HookList(TrialHooks):
     def on_phase(self, name: str, done: int, total: int) -> None:
         for h in self.hooks:
             h.on_phase(name, done, total)
+
+    def on_phase_resumed(self, name: str, done: int, total: int) -> None:
+        for h in self.hooks:
+            h.on_phase_resumed(name, done, total)
 
     def on_step(self, outcome: StepOutcome) -> None:
         for h in self.hooks:

@@ -18,28 +18,20 @@ from typing import Any
 
 from testbed.core.hosts import Hosts
 from testbed.core.humans import Humans
-from testbed.experiments.build import build_hosts
 from testbed.experiments.fleet_config import FleetConfig
-from testbed.experiments.pretraining import (
-    Progress,
-    collect_demos,
-    critic_set,
-    load_transitions,
-    pretrain,
-    pretrain_key,
-    save_transitions,
+from testbed.experiments.hooks import TrialHooks
+from testbed.experiments.pretraining import Progress, critic_set
+from testbed.experiments.theta0 import (
+    PRETRAIN_HOSTS_SEED,
+    PRETRAIN_SEED,
+    make_theta0,
+    own_hosts,
+    theta0_folder,
 )
 from testbed.records.run_dir import RunDir
 
 __all__ = ["PRETRAIN_HOSTS_SEED", "PRETRAIN_SEED", "keep_demos", "load_learner",
            "new_learner", "pretrained_learner", "resume_learner"]
-
-PRETRAIN_SEED = 0
-"""Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison)."""
-
-PRETRAIN_HOSTS_SEED = PRETRAIN_SEED + 104729
-"""The hosts' trial seed while pretraining: the same world whichever trial pretrains."""
-
 
 def new_learner(cfg: FleetConfig, seed: int) -> Any:
     from testbed.learning import Learner
@@ -88,7 +80,7 @@ def pretrained_learner(
     cfg: FleetConfig,
     humans: Humans,
     out: Path,
-    progress: Progress | None,
+    progress: Progress | TrialHooks | None,
     hosts: Hosts | None = None,
     trial_seed: int | None = None,
     critics: Iterable[str] | None = None,
@@ -97,7 +89,9 @@ def pretrained_learner(
 
     ``critics``: the critics to pretrain (None: both), part of the cache key. The
     learner comes back with every part set to train; the caller narrows it
-    (``Learner.set_parts``) to what its algorithm reads.
+    (``Learner.set_parts``) to what its algorithm reads. ``progress``: a trial's hooks
+    (``on_phase``, and ``on_phase_resumed`` for a phase that goes on from what an
+    earlier try kept) or a bare progress callable.
 
     A cold cache pretrains on the trial's own ``hosts`` (already started): one agent
     per host, ever, which on hardware means one lock, one camera client, one SSH
@@ -106,48 +100,23 @@ def pretrained_learner(
     puts every host where a fresh start with that seed would; and the learner is
     always reloaded from the checkpoint: so a trial is reproducible, cold cache or
     warm. Without ``hosts`` (``testbed pretrain``-like callers, benchmarks) pretraining
-    builds and closes hosts of its own.
+    builds and closes hosts of its own. Each phase keeps what it made in the cache as
+    it goes, and a cache that holds part of it goes on from there
+    (``testbed.experiments.theta0``).
     """
     which = critic_set(critics)
-    cache = out / ".pretrained" / pretrain_key(cfg, PRETRAIN_SEED, which)
-    ckpt = cache / "learner.pt"
+    ckpt = theta0_folder(out, cfg, which) / "learner.pt"
     if not ckpt.exists():
-        cache.mkdir(parents=True, exist_ok=True)
         if hosts is None:
-            own = build_hosts(cfg, PRETRAIN_HOSTS_SEED)
-            try:
-                own.start()
-                _pretrain_into(cfg, humans, cache, own, progress, which)
-            finally:
-                try:
-                    own.rest()
-                finally:
-                    own.close()
+            with own_hosts(cfg) as own:
+                make_theta0(cfg, humans, out, which, own, progress)
         else:
             if trial_seed is None:
                 raise ValueError("pretraining on the trial's hosts needs the trial seed")
             hosts.reseed(PRETRAIN_HOSTS_SEED)
-            _pretrain_into(cfg, humans, cache, hosts, progress, which)
+            make_theta0(cfg, humans, out, which, hosts, progress)
             hosts.reseed(trial_seed)
     return load_learner(cfg, ckpt), ckpt
-
-
-def _pretrain_into(
-    cfg: FleetConfig, humans: Humans, cache: Path, hosts: Hosts, progress: Progress | None,
-    critics: tuple[str, ...],
-) -> None:
-    """Collect the demos (unless cached), pretrain theta_0, write it to ``cache``."""
-    demos_path = cache / "demos.npz"
-    if demos_path.exists():
-        demos = load_transitions(demos_path)
-    else:
-        demos = collect_demos(hosts, humans, cfg.learning.demos, cfg.algorithm.t_R, progress)
-        save_transitions(demos, demos_path)
-    learner = new_learner(cfg, PRETRAIN_SEED)
-    data = pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
-                    PRETRAIN_SEED, progress, critics=critics)
-    save_transitions(data, cache / "transitions.npz")
-    learner.save(cache / "learner.pt")
 
 
 def keep_demos(demos: Path, run: RunDir) -> None:

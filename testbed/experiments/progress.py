@@ -3,7 +3,8 @@
 Kept out of the loop (as Stable-Baselines3's ProgressBarCallback): the loop reports a
 ``StepOutcome``; this turns it into a display with successes, hard resets, idle time,
 human actions and ROHE. Pretraining phases (collect, pretrain policy, rollout, pretrain
-critics) are reported through ``on_phase``.
+critics) are reported through ``on_phase``; one that goes on from what an earlier try
+kept through ``on_phase_resumed`` first, so its speed and ETA count this run's work only.
 
 Two displays, chosen by ``TESTBED_PROGRESS`` (``auto``, the default; ``plain``; ``bar``):
 
@@ -122,12 +123,16 @@ class _PlainLines:
         out.flush()
 
     def _phase(self, name: str, done: int, total: int, what: str,
-               resumable: bool = False) -> _Phase:
+               resumable: bool = False, kept: bool = False) -> _Phase:
+        """``resumable``: a first report past 0 comes after one unit of this run's work
+        (a resumed trial's first step); ``kept``: the first report is what an earlier
+        try kept, before any work of this run (a resumed collection)."""
         ph = self._phases.get(name)
         if ph is None:
             # it began when the previous report (or the display) ended: phases follow
             # one another, and the first report comes after its first unit of work
-            first = max(0, min(done, total) - 1) if resumable else 0
+            first = (min(done, total) if kept
+                     else max(0, min(done, total) - 1) if resumable else 0)
             ph = self._phases[name] = _Phase(name, total, self._last_event, first)
             self.write(f"{name}: started, {total} {what}s"
                        + (f", resuming after {first}" if first else ""))
@@ -160,11 +165,12 @@ class _PlainLines:
         ph.ended = True
         self.write(f"{ph.name}: {how}, {ph.done}/{ph.total} in {_clock(now - ph.start)}")
 
-    def phase(self, name: str, done: int, total: int) -> None:
+    def phase(self, name: str, done: int, total: int, kept: bool = False) -> None:
+        """``kept``: the phase's first report, at what an earlier try kept."""
         now = self._clock()
         unit = _unit(name)
         fresh = name not in self._phases
-        ph = self._phase(name, done, total, unit)
+        ph = self._phase(name, done, total, unit, kept=kept)
         ph.done = done
         if fresh:  # its start line stands for its first report
             ph.shown_done, ph.shown_at = done, now
@@ -274,10 +280,11 @@ class TrialProgress(TrialHooks):
         if self._plain is not None:
             self._plain.close(failed=exc_type is not None)
 
-    def _task(self, name: str, total: int) -> TaskID:
+    def _task(self, name: str, total: int, done: int = 0) -> TaskID:
         assert self._progress is not None
         if name not in self._tasks:
-            self._tasks[name] = self._progress.add_task(name, total=total, counters="")
+            self._tasks[name] = self._progress.add_task(name, total=total, completed=done,
+                                                        counters="")
         return self._tasks[name]
 
     def on_phase(self, name: str, done: int, total: int) -> None:
@@ -286,6 +293,15 @@ class TrialProgress(TrialHooks):
             return
         assert self._progress is not None
         self._progress.update(self._task(name, total), completed=done, total=total)
+
+    def on_phase_resumed(self, name: str, done: int, total: int) -> None:
+        """A phase going on from ``done`` kept by an earlier try: its speed and ETA
+        count only what this run does (the bar: rich's, from its own updates)."""
+        if self._plain is not None:
+            self._plain.phase(name, done, total, kept=True)
+            return
+        assert self._progress is not None
+        self._task(name, total, done)
 
     def on_step(self, outcome: StepOutcome) -> None:
         s = outcome.status

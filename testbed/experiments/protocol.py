@@ -49,8 +49,9 @@ from testbed.core.config import ConfigError, _one_line, validation_context
 from testbed.core.hosts import Hosts
 from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
+from testbed.experiments.pretraining import pretrain_critics
 from testbed.experiments.sweep_point import SweepPoint
-from testbed.fleet.algorithms import ALGORITHM_NAMES, ALGORITHMS
+from testbed.fleet.algorithms import ALGORITHM_NAMES
 from testbed.records.run_dir import RunDir, evaluated, evaluation_label
 from testbed.results.report import (
     METRICS,
@@ -212,6 +213,18 @@ class Protocol(BaseModel):
             return self.fleet
         return SweepPoint(dict(way.set)).apply(self.fleet)
 
+    def evaluated(self) -> list[str]:
+        """What each trial's evaluations evaluate (``_evaluate_all``): every algorithm's
+        final policy, theta_0 (``START``) with ``evaluate_start``, the twin's expert with
+        ``evaluate_expert`` on simulated hosts; none without ``evaluate_steps``."""
+        if self.evaluate_steps == 0:
+            return []
+        names = [*self.algorithms, *([START] if self.evaluate_start else [])]
+        if self.evaluate_expert and all(backend_of(h).capabilities.simulated
+                                        for h in self.fleet.hosts):
+            names.append("expert")
+        return names
+
     def seed(self, k: int) -> int:
         """Trial ``k``'s seed: ``seeds[k]``, else ``k``. A trial beyond the listed seeds
         (only with ``until``) gets ``max(seeds) + 1 + (k - len(seeds))``: distinct from
@@ -262,13 +275,6 @@ START = "theta0"
 """The name of the policy every run of a trial starts from, in evaluation runs."""
 
 
-def pretrain_critics(algorithms: list[str]) -> list[str]:
-    """The critics theta_0 is pretrained with: every one that any of ``algorithms``
-    reads (one theta_0 for the whole protocol, no critic pretrained for nobody)."""
-    read = set().union(*(ALGORITHMS[a].critics for a in algorithms))
-    return sorted(read)
-
-
 def williams_square(n: int) -> list[list[int]]:
     """A Williams design: rows of a Latin square in which, for even ``n``, each symbol
     follows each other one exactly once; for odd ``n`` the square and its mirror (2n
@@ -305,7 +311,7 @@ def load_protocol(path: Path, *, check_files: bool = True) -> Protocol:
 
 
 def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True, *,
-                 hooks: TrialHooks | None = None) -> Report:
+                 hooks: TrialHooks | None = None, plan: bool = True) -> Report:
     """Run every (trial, algorithm) of ``proto`` not yet complete, then the report.
 
     ``proto.fleet`` is the fleet driven (a caller may rewrite it with ``model_copy``;
@@ -323,11 +329,19 @@ def run_protocol(proto: Protocol, out: str | None = None, ask: bool = True, *,
     With ``until``: after each complete trial, :func:`sequential_decision` says whether
     to run the next (at least ``trials``, at most ``until.max_trials``); the
     evaluations wait till the end and cover the trials run.
+
+    ``plan``: first print what is left to do and how long it takes
+    (``testbed.experiments.time_plan``; ``testbed protocol`` prints its own, naming
+    its file).
     """
     from testbed.core.config import ConfigError
 
     hooks = hooks if hooks is not None else TrialHooks()
     folder = Path(out or proto.out)
+    if plan:
+        from testbed.experiments.time_plan import say_protocol_plan
+
+        say_protocol_plan(proto, folder)
     folder.mkdir(parents=True, exist_ok=True)
     cache: dict[Path, dict[str, Any]] = {}
     done = 0

@@ -391,7 +391,7 @@ def _starting_learner(run: _Run, algorithm: Algorithm, hosts: Hosts, humans: Hum
     if opts.policy is not None:
         return hosts, load_learner(run.cfg, Path(opts.policy))
     critics = algorithm.spec.critics | set(opts.pretrain_critics or ())
-    learner, theta_0 = pretrained_learner(run.cfg, humans, Path(opts.out), hooks.on_phase,
+    learner, theta_0 = pretrained_learner(run.cfg, humans, Path(opts.out), hooks,
                                           hosts=hosts, trial_seed=opts.seed,
                                           critics=critics)
     keep_demos(theta_0.parent / "demos.npz", run.dir)

@@ -215,3 +215,32 @@ def test_the_step_line_shows_faulted_waiting_and_away_and_the_last_fault() -> No
                            "human 1; last fault at step 1, yumi-a/left: agent on host "
                            "yumi-a: backend error: the motors")
     assert tail.endswith("...") and len(tail) < 220  # a long reason is cut, not the line
+
+
+def test_a_collection_resumed_counts_its_eta_from_what_it_kept() -> None:
+    """Issue 44: a collection that goes on from 300 kept pairs says so, and its speed and
+    ETA count only the pairs of this run (300 kept pairs counted as done in 10 s would
+    give an ETA of seconds for 75 pairs at 2 s a step)."""
+    buf = io.StringIO()
+    bar, clock = plain(buf, every_s=1.0)
+    with bar:
+        bar.on_phase_resumed("collect", 300, 375)
+        for done in (304, 308):  # 4 arms: 4 pairs a step, 2 s a step
+            clock.t += 2.0
+            bar.on_phase("collect", done, 375)
+    got = lines(buf)
+    assert got[0] == "collect: started, 375 pairs, resuming after 300"
+    assert got[1] == "collect: 304/375 (81%), elapsed 0:00:02, 2.00 pairs/s, ETA 0:00:36"
+    assert got[2].startswith("collect: 308/375 (82%), elapsed 0:00:04, 2.00 pairs/s, ETA 0:00:34")
+
+
+def test_the_bar_starts_a_resumed_phase_where_it_was() -> None:
+    buf = io.StringIO()
+    bar = TrialProgress(5, 2, 4, console=Console(file=buf, force_terminal=True, width=120))
+    with bar:
+        bar.on_phase_resumed("rollout", 600, 1000)
+        assert bar._progress is not None
+        (task,) = bar._progress.tasks
+        assert (task.description, task.completed, task.total) == ("rollout", 600, 1000)
+        bar.on_phase("rollout", 610, 1000)
+        assert task.completed == 610 and len(bar._progress.tasks) == 1
