@@ -25,7 +25,7 @@ extras="operator,console,web,yumi,export"
 apt_pkgs=(openssh-client)
 case "$mode" in
   --dev) extras="operator,console,web,yumi,ray,dev,export"
-         apt_pkgs+=(openssh-server xvfb xauth xdotool chromium chromium-driver iproute2) ;;
+         apt_pkgs+=(openssh-server xvfb xauth xdotool chromium chromium-driver iproute2 nginx) ;;
   --host) extras="headless,yumi"
           apt_pkgs=(openssh-server git) ;;  # reached over SSH; git stamps the build
 esac
