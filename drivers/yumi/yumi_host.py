@@ -117,8 +117,11 @@ class YumiHost(HostBase):
     hardware twin's RWS in a rehearsal)."""
     credentials_file: str | None = None
     """A file ON THE HOST holding the controller's login, one line ``USER:PASSWORD``, mode
-    0600 (``drivers/yumi/credentials.py``); never the password itself. None: the factory
-    login, with a warning in the host log."""
+    0600 (``drivers/yumi/credentials.py``); never the password itself. Required to drive
+    a controller: None loads (old configs keep loading) but the agent's controller client
+    refuses it when it starts, in one line, and never falls back to ABB's factory login.
+    ``"factory-default"`` names the factory login, which the driver takes only from a
+    controller on loopback (the hardware twin; ``drivers/yumi/rws_controller.py``)."""
     deadline_s: float = Field(20.0, gt=0, le=600)
     """Per-call deadline for a push or an observation (a YuMi push is a motion of seconds)."""
     lock_dir: str | None = None
