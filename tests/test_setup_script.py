@@ -5,7 +5,8 @@ new operator met "Python 3.11 is required" with no way forward. The script is ru
 real, from a copy in a folder of its own (so it makes no venv in this checkout), with a
 PATH whose ``python3.11`` and ``python3`` are stand-ins: one that is not 3.11, one that
 is 3.11 but cannot make a venv (its venv package missing). Everything else is the
-machine's own (dpkg, the system's /etc/os-release).
+machine's own (dpkg, the system's /etc/os-release). And ``scripts/trial.sh --dry-run``
+skips the setup once the venv is made (a stand-in setup.sh says whether it ran).
 """
 
 from __future__ import annotations
@@ -62,3 +63,30 @@ def test_a_python_3_11_without_venv_is_told_to_install_it(tmp_path: Path) -> Non
         "cannot make a virtual environment: install its venv package (Debian, Ubuntu: sudo "
         "apt-get install python3.11-venv)"), got.stderr
     assert not (tmp_path / ".venv").exists()
+
+
+def _trial_sh(tmp: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """``scripts/trial.sh`` copied beside a stand-in setup.sh (it leaves a mark) and,
+    when ``tmp/.venv`` exists, a stand-in testbed that says its arguments."""
+    (tmp / "scripts").mkdir(exist_ok=True)
+    shutil.copy(ROOT / "scripts" / "trial.sh", tmp / "scripts" / "trial.sh")
+    setup = tmp / "scripts" / "setup.sh"
+    setup.write_text("#!/bin/sh\ntouch setup-ran\nmkdir -p .venv/bin\n"
+                     "printf '#!/bin/sh\\necho testbed \"$@\"\\n' > .venv/bin/testbed\n"
+                     "chmod +x .venv/bin/testbed\n")
+    setup.chmod(0o755)
+    return subprocess.run(["bash", str(tmp / "scripts" / "trial.sh"), *args], cwd=tmp,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_trial_sh_dry_run_skips_the_setup_once_the_venv_is_made(tmp_path: Path) -> None:
+    first = _trial_sh(tmp_path, "--dry-run")  # no .venv yet: set up first
+    assert first.returncode == 0, first.stderr
+    assert (tmp_path / "setup-ran").exists() and first.stdout == "testbed trial --dry-run\n"
+    (tmp_path / "setup-ran").unlink()
+    again = _trial_sh(tmp_path, "--steps", "5", "--dry-run")
+    assert again.returncode == 0, again.stderr
+    assert not (tmp_path / "setup-ran").exists()
+    assert again.stdout == "testbed trial --steps 5 --dry-run\n"
+    real = _trial_sh(tmp_path, "--steps", "5")  # a real trial still sets up
+    assert real.returncode == 0 and (tmp_path / "setup-ran").exists()

@@ -34,8 +34,28 @@ def refused(verb: str, exc: TrialRefused) -> int:
 
 
 def load_config(args: argparse.Namespace) -> FleetConfig:
-    """The fleet of ``--config``: a fleet config or a protocol file's ``[fleet]``."""
-    return load_fleet(getattr(args, "config", None))
+    """The fleet of ``--config``: a fleet config or a protocol file's ``[fleet]``. With
+    ``--dry-run`` the files it names (keys, known_hosts, calibrations) are not required:
+    a plan is printed before the lab is set up (:func:`say_unchecked`)."""
+    return load_fleet(getattr(args, "config", None), check_files=not dry_run(args))
+
+
+def dry_run(args: argparse.Namespace) -> bool:
+    """Whether the verb only prints its plan (``--dry-run``): then neither the config's
+    files nor the humans' display or web extra are checked, the rest is."""
+    return bool(getattr(args, "dry_run", False))
+
+
+UNCHECKED = ("  --dry-run: not checked: the files the config names (keys, known_hosts, "
+             "calibrations, certificates) and the humans' display or web extra; the run "
+             "itself checks them")
+"""What a plan printed by ``--dry-run`` says it left unchecked (issue: a dry run before
+the lab's setup is done)."""
+
+
+def say_unchecked() -> None:
+    """After a ``--dry-run``'s plan: what it did not check."""
+    print(UNCHECKED, flush=True)
 
 
 def check_device(cfg: FleetConfig) -> None:
@@ -55,7 +75,8 @@ WEB_EXTRA = ("starlette", "uvicorn", "websockets")
 starts, so a missing one is one line, not an ImportError after pretraining."""
 
 
-def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
+def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True,
+                 available: bool = True) -> None:
     """The humans can work here: the console can open its windows (``gui``), the browser
     console has someone to serve (``web``; its address, port, tokens and TLS files are
     checked with the config), or the scripted expert has a twin to read its pushes from
@@ -63,13 +84,16 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
 
     A yumi host whose controller is on loopback is a hardware twin (a lab's IRC5 is on
     its own network, never on this machine): a rehearsal's scripted humans read it over
-    the twin's side channel.
+    the twin's side channel. ``available=False`` (a ``--dry-run``): what this machine
+    has (a display, the web extra) is not checked, what the config says still is.
     """
     where = "--humans (or humans.kind)"
     if kind == "gui":
         if cfg.humans.count < 1:
             raise ConfigError("humans.count: the operator console needs at least one person; "
                               "set humans.count >= 1")
+        if not available:
+            return
         from gui.display import check_window_system, default_display
         from gui.errors import ConsoleUnavailable
 
@@ -81,6 +105,8 @@ def check_humans(kind: str, cfg: FleetConfig, *, teleop: bool = True) -> None:
         if cfg.humans.count < 1:
             raise ConfigError("humans.count: the browser console needs at least one person; "
                               "set humans.count >= 1")
+        if not available:
+            return
         import importlib.util
 
         missing = [m for m in WEB_EXTRA if importlib.util.find_spec(m) is None]
@@ -175,7 +201,7 @@ def trial_options(cfg: FleetConfig, args: argparse.Namespace, **over: Any) -> Tr
     check_name(opts.name)
     check_out_dir("--out (or trial.out)", opts.out)
     check_device(cfg)
-    check_humans(opts.humans, cfg, teleop=not opts.evaluate)
+    check_humans(opts.humans, cfg, teleop=not opts.evaluate, available=not dry_run(args))
     if opts.policy is not None:
         check_policy(opts.policy, cfg)
     return opts

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,9 +26,11 @@ from testbed.cli.checks import (
     check_humans,
     check_out_dir,
     check_policy,
+    dry_run,
     load_config,
     refused,
     resume_options,
+    say_unchecked,
     trial_options,
 )
 from testbed.experiments.controller_gate import TrialRefused
@@ -63,6 +66,7 @@ def cmd_trial(args: argparse.Namespace) -> int:
         opts = trial_options(cfg, args)
     say_trial_plan(cfg, opts, args, resume)
     if args.dry_run:
+        say_unchecked()
         return 0
     try:
         with TrialProgress(opts.steps, cfg.humans.count, len(cfg.robot_names)) as bar:
@@ -77,16 +81,17 @@ def say_trial_plan(cfg: FleetConfig, opts: TrialOptions, args: argparse.Namespac
                    resume: Path | None) -> None:
     """What the trial is about to do before step 1 and how long it takes (theta_0's
     phases it still needs, its steps), before anything moves; how to make theta_0
-    ahead with the arguments that name this trial's cache."""
+    ahead with the arguments that name this trial's cache (its folder of runs, its
+    algorithm, its humans)."""
+    from testbed.cli.theta0_verbs import ahead_arguments
     from testbed.experiments.time_plan import plan_lines, print_plan, resumed_start, trial_plan
 
-    ahead = [f"--config {args.config}"] if getattr(args, "config", None) else []
-    if opts.algorithm != cfg.algorithm.name:
-        ahead.append(f"--algorithm {opts.algorithm}")
-    if opts.out != cfg.trial.out or not ahead:  # no --config, no --runs: a file
-        ahead.append(f"--runs {opts.out}")
     start = resumed_start(resume) if resume is not None else 0
-    print_plan(plan_lines(trial_plan(cfg, opts, start), opts.humans, " ".join(ahead)))
+    plan = trial_plan(cfg, opts, start)
+    ahead = (ahead_arguments(getattr(args, "config", None), cfg, opts.algorithm, opts.out,
+                             opts.humans, check_files=not dry_run(args))
+             if plan.pretrains else None)
+    print_plan(plan_lines(plan, opts.humans, ahead))
 
 
 TRIAL = Verb(
@@ -150,14 +155,16 @@ def cmd_protocol(args: argparse.Namespace) -> int:
     from testbed.experiments.protocol import load_protocol, run_protocol
     from testbed.experiments.time_plan import say_protocol_plan
 
-    proto = load_protocol(Path(args.file))
+    proto = load_protocol(Path(args.file), check_files=not args.dry_run)
     if args.out is not None:
         check_out_dir("--out", args.out)
     check_device(proto.fleet)
-    check_humans(proto.humans, proto.fleet)
-    say_protocol_plan(proto, Path(args.out or proto.out),
-                      f"--config {args.file}" + (f" --runs {args.out}" if args.out else ""))
+    check_humans(proto.humans, proto.fleet, available=not args.dry_run)
+    # collect/pretrain --config FILE fill this very folder: the protocol's out, its humans
+    say_protocol_plan(proto, Path(args.out or proto.out), f"--config {shlex.quote(args.file)}"
+                      + (f" --runs {shlex.quote(args.out)}" if args.out else ""))
     if args.dry_run:
+        say_unchecked()
         return 0
     if args.workers is not None or args.ray is not None:
         from testbed.experiments.fanout import run_protocol_on_ray

@@ -16,6 +16,7 @@ Imported for ``testbed --help``: the hosts, torch and the protocol are imported 
 from __future__ import annotations
 
 import argparse
+import shlex
 import shutil
 import zipfile
 from collections.abc import Callable
@@ -30,7 +31,9 @@ from testbed.cli.checks import (
     check_humans,
     check_out_dir,
     check_out_file,
+    dry_run,
     load_config,
+    say_unchecked,
     with_pretrain_steps,
 )
 from testbed.core.config import ConfigError
@@ -40,6 +43,7 @@ if TYPE_CHECKING:
     from testbed.core.hosts import Hosts
     from testbed.core.humans import Humans
     from testbed.experiments.progress import TrialProgress
+    from testbed.experiments.protocol import Protocol
 
 T = TypeVar("T")
 
@@ -62,38 +66,71 @@ def _add_cache_arguments(p: argparse.ArgumentParser) -> None:
 
 def _cache_of(args: argparse.Namespace) -> _Cache:
     """What ``--config`` (a protocol: every theta_0 its runs start from, the critics
-    any of its algorithms reads; a fleet config: its trial's, for ``--algorithm``)
-    needs in its folder of runs."""
-    from testbed.core.config import read_toml
-    from testbed.experiments.fleet_config import file_kind
+    any of its algorithms reads; a fleet config, or a protocol with ``--algorithm``:
+    the trial's of that config, for ``--algorithm``) needs in its folder of runs."""
     from testbed.experiments.pretraining import critic_set
     from testbed.fleet.algorithms import ALGORITHMS
 
     algorithm = getattr(args, "algorithm", None)
-    if args.config is not None and file_kind(read_toml(args.config)) == "protocol":
-        from testbed.experiments.protocol import load_protocol
+    proto = _protocol_of(args.config, check_files=not dry_run(args))
+    if proto is not None and algorithm is None:
         from testbed.experiments.time_plan import protocol_targets
 
-        if algorithm is not None:
-            raise ConfigError("--algorithm: a protocol's theta_0 serves all its algorithms; "
-                              "name one with a fleet config")
-        proto = load_protocol(Path(args.config))
-        folder, humans = Path(args.runs or proto.out), args.humans or proto.humans
         targets = protocol_targets(proto)
-    else:
+    else:  # the trial's: testbed trial --config FILE [--algorithm NAME]
         cfg = load_config(args)
         name = algorithm or cfg.algorithm.name
         check_algorithm(name)
-        folder, humans = Path(args.runs or cfg.trial.out), args.humans or cfg.humans.kind
         targets = [(cfg, critic_set(ALGORITHMS[name].critics), "")]
+    folder = Path(args.runs or (proto.out if proto is not None else targets[0][0].trial.out))
+    humans = args.humans or (proto.humans if proto is not None else targets[0][0].humans.kind)
     check_out_dir("--runs", str(folder))
     return _Cache(folder, humans, targets)
 
 
-def _humans(kind: str, cfg: FleetConfig) -> Humans:
+def _protocol_of(config: str | None, *, check_files: bool) -> Protocol | None:
+    """The protocol of ``--config`` when it names a protocol file, else None."""
+    from testbed.core.config import read_toml
+    from testbed.experiments.fleet_config import file_kind
+
+    if config is None or file_kind(read_toml(config)) != "protocol":
+        return None
+    from testbed.experiments.protocol import load_protocol
+
+    return load_protocol(Path(config), check_files=check_files)
+
+
+def ahead_arguments(config: str | None, cfg: FleetConfig, algorithm: str, out: str,
+                    humans: str, *, check_files: bool = True) -> str:
+    """The arguments of ``testbed collect``/``pretrain`` that fill the very cache
+    ``testbed trial --config config --algorithm algorithm --out out --humans humans``
+    reads (``cfg``: its fleet): each one that differs from what collect and pretrain
+    take by default (a protocol file's out and humans are not a trial's: named), and
+    always a folder or a config, without which collect writes a file instead."""
+    proto = _protocol_of(config, check_files=check_files)
+    parts = [f"--config {shlex.quote(config)}"] if config else []
+    if proto is not None or algorithm != cfg.algorithm.name:
+        parts.append(f"--algorithm {algorithm}")
+    if config is None or Path(out) != Path(proto.out if proto is not None else cfg.trial.out):
+        parts.append(f"--runs {shlex.quote(out)}")
+    if humans != (proto.humans if proto is not None else cfg.humans.kind):
+        parts.append(f"--humans {humans}")
+    return " ".join(parts)
+
+
+def _humans(kind: str, cfg: FleetConfig, folder: Path | None = None) -> Humans:
+    """The humans of a collection or a pretraining; a browser console's links are those
+    of the folder of runs ``folder`` (the trial's and protocol's of that folder, kept in
+    its web-links.json: ``testbed.experiments.web_links``)."""
     from testbed.experiments.build import make_humans
 
-    return make_humans(kind, cfg.humans.count, cfg.humans.web,
+    web = cfg.humans.web
+    if kind == "web" and folder is not None:
+        from testbed.experiments.web_links import links_for_folder
+        from testbed.people.people_config import WebConsoleConfig
+
+        web = links_for_folder(folder, web or WebConsoleConfig(), cfg.humans.count)
+    return make_humans(kind, cfg.humans.count, web,
                        names=[p.name for p in cfg.humans.people])
 
 
@@ -103,6 +140,10 @@ def _collect_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--count", type=positive, help="pairs (default: config learning.demos)")
     p.add_argument("--humans", choices=HUMANS)
     p.add_argument("--seed", type=int, help="with --out: the hosts' seed (default 0)")
+    p.add_argument("--algorithm", metavar="NAME", help="with a protocol file: collect for "
+                   "the trial of its [fleet] (testbed trial --config FILE --algorithm NAME) "
+                   "rather than for its protocol; a fleet config's demonstrations are every "
+                   "algorithm's")
     p.add_argument("--out", metavar="NPZ", help="write the pairs to this file (default "
                    "without --config or --runs: demos.npz); with either and no --out they "
                    "go to the cache its trial or protocol reads, kept as they come")
@@ -125,17 +166,19 @@ def cmd_collect(args: argparse.Namespace) -> int:
         count = args.count or max(cfg.learning.demos, files.get(path, (cfg, 0))[1])
         files[path] = (cfg, count)
     for path, (cfg, count) in files.items():
-        check_humans(cache.humans, cfg)
+        check_humans(cache.humans, cfg, available=not args.dry_run)
         print_plan(plan_lines(collect_plan(cfg, count, npz_length(path), path, cache.folder),
                               cache.humans, None))
     if args.dry_run:
+        say_unchecked()
         return 0
     for path, (cfg, count) in files.items():
         have = npz_length(path)
         with _progress(count, "collect") as bar:
-            demos = _on_own_hosts(cfg, cache.humans, lambda hosts, humans, c=cfg, p=path,
-                                  n=count, b=bar: collect_into(p, hosts, humans, n,
-                                                               c.algorithm.t_R, as_report(b)))
+            demos = _on_own_hosts(cfg, cache.humans, cache.folder,
+                                  lambda hosts, humans, c=cfg, p=path, n=count, b=bar:
+                                  collect_into(p, hosts, humans, n, c.algorithm.t_R,
+                                               as_report(b)))
         print(f"{min(len(demos), count)} state-action pairs ({min(have, count)} kept from "
               f"before) -> {path}")
     return 0
@@ -154,10 +197,11 @@ def _collect_file(args: argparse.Namespace) -> int:
     count = args.count or cfg.learning.demos
     check_out_file("--out", out)
     kind = args.humans or cfg.humans.kind
-    check_humans(kind, cfg)
+    check_humans(kind, cfg, available=not args.dry_run)
     print_plan(plan_lines(collect_plan(cfg, count, 0, Path(out), Path(cfg.trial.out)), kind,
                           None))
     if args.dry_run:
+        say_unchecked()
         return 0
     humans = _humans(kind, cfg)
     hosts = build_hosts(cfg, 0 if args.seed is None else args.seed)
@@ -179,12 +223,14 @@ def _progress(total: int, label: str) -> TrialProgress:
     return TrialProgress(total, 0, 0, label=label)
 
 
-def _on_own_hosts(cfg: FleetConfig, kind: str, work: Callable[[Hosts, Humans], T]) -> T:
+def _on_own_hosts(cfg: FleetConfig, kind: str, folder: Path,
+                  work: Callable[[Hosts, Humans], T]) -> T:
     """``work(hosts, humans)`` on the fleet's own hosts at the pretraining seed (the
-    trial's pretraining world), then the arms at rest and the humans closed."""
+    trial's pretraining world), then the arms at rest and the humans closed; the
+    humans' links are those of the folder of runs ``folder``."""
     from testbed.experiments.theta0 import own_hosts
 
-    humans = _humans(kind, cfg)
+    humans = _humans(kind, cfg, folder)
     try:
         with own_hosts(cfg) as hosts:
             return work(hosts, humans)
@@ -209,9 +255,10 @@ def _pretrain_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--humans", choices=HUMANS)
     p.add_argument("--steps", type=int, help="with --demos: gradient steps of each phase, "
                    "policy and critics (default: config)")
-    p.add_argument("--algorithm", metavar="NAME", help="a fleet config's trial algorithm, "
-                   "whose critics theta_0 pretrains (default: the config's; a protocol: "
-                   "those any of its algorithms reads)")
+    p.add_argument("--algorithm", metavar="NAME", help="the trial algorithm whose critics "
+                   "theta_0 pretrains (default: the config's; a protocol file: those any of "
+                   "its algorithms reads, unless NAME: then the theta_0 of testbed trial "
+                   "--config FILE --algorithm NAME)")
     p.add_argument("--out", metavar="PT", help="with --demos: the learner (default "
                    "learner.pt); without: also a copy of theta_0 here")
     _add_cache_arguments(p)
@@ -232,17 +279,20 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
     for cfg, critics, _ in cache.targets:
         check_device(cfg)
         st = cache_state(cache.folder, cfg, critics)
-        check_humans(cache.humans, cfg, teleop=st.demos < cfg.learning.demos and not st.done)
+        check_humans(cache.humans, cfg, teleop=st.demos < cfg.learning.demos and not st.done,
+                     available=not args.dry_run)
     print_plan(plan_lines(theta0_plan(cache.targets, cache.folder), cache.humans, None))
     if args.dry_run:
+        say_unchecked()
         return 0
     made: list[Path] = []
     for cfg, critics, _ in cache.targets:
         st = cache_state(cache.folder, cfg, critics)
         if not st.done:
             with _progress(cfg.learning.pretrain_steps, "pretrain") as bar:
-                _on_own_hosts(cfg, cache.humans, lambda hosts, humans, c=cfg, w=critics,
-                              b=bar: make_theta0(c, humans, cache.folder, w, hosts, b))
+                _on_own_hosts(cfg, cache.humans, cache.folder,
+                              lambda hosts, humans, c=cfg, w=critics, b=bar:
+                              make_theta0(c, humans, cache.folder, w, hosts, b))
         made.append(st.folder / "learner.pt")
         print(f"theta_0 ({', '.join(critics) or 'no critic'}) -> {made[-1]}")
     if args.out is not None:
@@ -268,7 +318,7 @@ def _pretrain_file(args: argparse.Namespace) -> int:
     check_out_file("--out", out)
     check_device(cfg)
     kind = args.humans or cfg.humans.kind
-    check_humans(kind, cfg, teleop=False)
+    check_humans(kind, cfg, teleop=False, available=not args.dry_run)
     try:
         demos = load_transitions(Path(args.demos))
     except ConfigError:
@@ -279,6 +329,7 @@ def _pretrain_file(args: argparse.Namespace) -> int:
                           "give the .npz of testbed collect") from None
     _print_file_plan(cfg, kind, Path(args.demos), len(demos))
     if args.dry_run:
+        say_unchecked()
         return 0
     humans = _humans(kind, cfg)
     hosts = build_hosts(cfg, PRETRAIN_SEED)

@@ -16,10 +16,12 @@ which assumed. A fleet step, in order of preference:
 How often a push violates (each violation costs its arm t_R steps of hard reset) comes
 from the same rows (the humans' teleop pushes, the policy's own), else an assumed rate.
 
-A gradient step is timed here, now: one policy update and one critic update of a learner
-of the config's ensemble at its batch size (a couple of seconds at the paper's sizes on
-2 CPU cores, less on a GPU), on random images: what a pretraining step costs on this
-machine. Never read from the learner's own code paths' counters: nothing to keep in step.
+A gradient step is timed here, now: policy updates and critic updates of a learner of
+the config's ensemble at its batch size (a couple of seconds each at the paper's sizes on
+2 CPU cores, less on a GPU), on random images, after a warm-up, the median of up to
+three within a few seconds: what a pretraining step costs on this machine under its
+load now (one step alone swung about 2x between runs). Never read from the learner's
+own code paths' counters: nothing to keep in step.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import json
 import statistics
 import time
 import tomllib
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Literal
@@ -57,6 +59,14 @@ MIN_STEPS: Final = 5
 """Fewer measured steps than this: not a measure."""
 MIN_PUSHES: Final = 20
 """Fewer pushes of a kind than this: its violation rate is assumed."""
+GRAD_SAMPLES: Final = 3
+"""Gradient steps of each kind timed after the warm-up, at most: their median."""
+GRAD_BUDGET_S: Final = 2.0
+"""Seconds of timed steps of each kind, at most (one at least): the paper's sizes on 2
+cores time one policy step and two or three critic steps, so a ``--dry-run`` stays
+within seconds."""
+LARGE_SPREAD: Final = 0.25
+"""The slowest timed step this much over the fastest: the plan says so."""
 
 
 @dataclass(frozen=True)
@@ -202,10 +212,14 @@ def _nominal(cfg: FleetConfig, why: str, rates: dict[str, Any]) -> FleetPace:
 
 
 def measure_gradient(lc: LearningConfig, critics: Iterable[str] = ("safety", "goal"),
-                     clock: Any = time.perf_counter) -> GradPace:
-    """One policy update and one critic update (of ``critics``; none: 0 s) timed on a
-    learner of ``lc``'s sizes here, now, on random images. torch's global random state
-    is left as it was (a trial after it draws what it would have)."""
+                     clock: Any = time.perf_counter, *, samples: int = GRAD_SAMPLES,
+                     budget_s: float = GRAD_BUDGET_S) -> GradPace:
+    """Policy updates and critic updates (of ``critics``; none: 0 s) timed on a learner
+    of ``lc``'s sizes here, now, on random images: of each, one warm-up step, then up to
+    ``samples`` timed while they fit in ``budget_s`` (at least one), their median (one
+    step alone swung about 2x between runs with the machine's load); the spread is said
+    when it is large. torch's global random state is left as it was (a trial after it
+    draws what it would have)."""
     import torch
 
     from testbed.learning import Learner
@@ -221,15 +235,34 @@ def measure_gradient(lc: LearningConfig, critics: Iterable[str] = ("safety", "go
         learner.add_human(images, actions)
         learner.add_transitions(images, actions, images, np.arange(n) % 4 == 0,
                                 np.arange(n) % 4 == 1)
-        t0 = clock()
-        learner.train_step()
-        policy_s = clock() - t0
-        critic_s = 0.0
+        policy = _timed(learner.train_step, clock, samples, budget_s)
+        critic: list[float] = []
         if which:
             learner.set_parts(train=which)
-            t0 = clock()
-            learner.train_step()
-            critic_s = clock() - t0
+            critic = _timed(learner.train_step, clock, samples, budget_s)
+    policy_s = statistics.median(policy)
+    critic_s = statistics.median(critic) if critic else 0.0
+    counts = f"{len(policy)}" + (f" and {len(critic)}" if critic else "")
+    spread = "; ".join(f"{what} {min(t):.3g}-{max(t):.3g} s" for what, t in
+                       (("policy", policy), ("critics", critic))
+                       if len(t) > 1 and max(t) > (1.0 + LARGE_SPREAD) * min(t))
     return GradPace(policy_s, critic_s,
-                    f"one of each timed here just now (ensemble {lc.ensemble_size}, batch "
-                    f"{lc.batch_size}, device {learner.device})")
+                    f"the median of {counts} timed here just now after a warm-up "
+                    f"(ensemble {lc.ensemble_size}, batch {lc.batch_size}, device "
+                    f"{learner.device})" + (f"; spread {spread}: this machine's load"
+                                            if spread else ""))
+
+
+def _timed(step: Callable[[], object], clock: Any, samples: int, budget_s: float
+           ) -> list[float]:
+    """``step`` once untimed (its first allocations), then timed up to ``samples``
+    times: another only while one more, as long as the last, fits in ``budget_s``."""
+    step()
+    times: list[float] = []
+    while len(times) < max(1, samples):
+        t0 = clock()
+        step()
+        times.append(clock() - t0)
+        if sum(times) + times[-1] > budget_s:
+            break
+    return times

@@ -171,8 +171,10 @@ def run_trial(
     humans = hooks.humans(run.dir.path.name)
     if humans is None:
         web = cfg.humans.web
-        if opts.humans == "web":  # the links kept with the run: a resume gives the same
-            web = links_for_run(run.dir.path, web or WebConsoleConfig(), cfg.humans.count)
+        if opts.humans == "web":  # the links kept with the run and its folder of runs:
+            # a resume, and every command of the day in that folder, give the same
+            web = links_for_run(run.dir.path, web or WebConsoleConfig(), cfg.humans.count,
+                                run.dir.path.parent)
         humans = make_humans(opts.humans, cfg.humans.count, web,
                              people=cfg.humans.profiles, seed=opts.seed,
                              robots=cfg.robot_names,

@@ -602,9 +602,15 @@ def calibrate(cfg: FleetConfig, opts: CalibrateOptions,
     ``testbed calibrate`` (``cmd_calibrate``) and a rehearsal's first morning
     (``testbed.lab.rehearsal``) both run this.
     """
+    from drivers.errors import DriverError
+
     host = calibration_target(cfg, opts.host, opts.arm)
     arm_cfg = next(a for a in host.arms if a.name == opts.arm)
-    existing = existing_calibration(host, opts.arm, say)
+    try:
+        existing = existing_calibration(host, opts.arm, say)
+    except DriverError as exc:  # unreachable: one line naming it, as testbed check's
+        say(f"FAULT {host.name}: cannot read its calibration file: {exc}")
+        return EXIT_FAILED
     backend = backend_of(host)
     box, source = _safe_box(opts, existing, str(arm_cfg.calibration),
                             backend.default_table_box(opts.arm, existing), backend.name)
@@ -617,11 +623,7 @@ def calibrate(cfg: FleetConfig, opts: CalibrateOptions,
             say(f"FAILED: host {host.name} did not start: {status.error}")
             return EXIT_FAILED
         return _fit_and_save(fleet, host, opts, box, existing, say)
-    except Exception as exc:
-        from drivers.errors import DriverError
-
-        if not isinstance(exc, DriverError):
-            raise
+    except DriverError as exc:
         say(f"FAILED: {exc}")
         return EXIT_FAILED
     finally:

@@ -13,6 +13,7 @@ from typing import Any, Literal, Self
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
+from testbed.core.addresses import is_loopback_host
 from testbed.core.config import FieldProblem, Name, StrictModel, checking_files, expand_path
 from testbed.core.humans import ON_SITE, Place, unnamed_human
 
@@ -118,6 +119,13 @@ class WebConsoleConfig(StrictModel):
             raise FieldProblem("public_url", f"{self.public_url!r} is not an http(s) URL "
                                "(e.g. https://lab-pc.example.org:8765 or "
                                "https://lab.example.org/fleet)")
+        if (self.public_url is not None and self.public_url.startswith("http://")
+                and self.tls == "auto" and not is_loopback_host(self.host)):
+            # certainly dead: the console serves https here (gui/web/tls.py). An https
+            # public_url before a plain loopback console is a proxy's or tunnel's: fine
+            raise FieldProblem("public_url", 'http:// but the console serves https off '
+                               'loopback (tls = "auto"); write https://..., or tls = "off" '
+                               "behind a proxy that terminates TLS")
         if self.tls == "off" and self.certfile is not None:
             raise FieldProblem("tls", '"off" with a certfile: remove the certfile for plain '
                                'http, or tls = "auto" to serve https with it')

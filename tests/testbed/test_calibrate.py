@@ -336,3 +336,31 @@ def test_the_existing_file_is_read_on_the_host_over_real_ssh(tmp_path: Path) -> 
         where, text = read_host_file(host, str(tmp_path / "cal.json"))
         assert where == str(tmp_path / "cal.json") and json.loads(text or "")["table_box_mm"]
         assert read_host_file(host, "~/surely/not/there.json")[1] is None
+
+
+def test_an_unreachable_host_is_one_line_naming_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The host's calibration file is read over SSH first: a host that does not answer
+    (here a closed port on loopback) is one FAULT line naming it, exit 1 as ``testbed
+    check``'s unreachable host, never a traceback."""
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    for name in ("key", "known_hosts"):
+        (tmp_path / name).write_text("")
+    cfg = tmp_path / "lab.toml"
+    cfg.write_text(
+        '[[hosts]]\nname = "yumi-a"\nbackend = "yumi"\ntransport = "ssh"\n'
+        f'address = "127.0.0.1"\nport = {port}\nuser = "lab"\nkey_file = "{tmp_path}/key"\n'
+        f'known_hosts = "{tmp_path}/known_hosts"\npython = "/usr/bin/python3"\n'
+        'connect_timeout_s = 3\ncamera = "0"\ncontroller_url = "http://192.0.2.1"\n'
+        'arms = [{name = "left", crop = [0, 0, 300, 300], calibration = "/c/l.json"}]\n')
+    code = main(["calibrate", "--config", str(cfg), "--host", "yumi-a", "--arm", "left"])
+    got = capsys.readouterr()
+    assert code == 1
+    assert "Traceback" not in got.out + got.err
+    faults = [ln for ln in got.out.splitlines() if ln.startswith("FAULT")]
+    assert len(faults) == 1 and faults[0].startswith(
+        "FAULT yumi-a: cannot read its calibration file: "), got.out

@@ -58,6 +58,8 @@ MALFORMED: list[tuple[str, str, str]] = [
     ("ensemble-huge", "[learning]\nensemble_size = 100\n", "learning.ensemble_size"),
     ("device", '[learning]\ndevice = "tpu"\n', "learning.device"),
     ("critic-steps", "[learning]\ncritic_pretrain_steps = -1\n", "learning.critic_pretrain_steps"),
+    ("web-dead-link", '[humans.web]\nhost = "0.0.0.0"\npublic_url = "http://lab-pc:8765"\n',
+     "humans.web.public_url"),
     ("steps-zero", "[trial]\nsteps = 0\n", "trial.steps"),
     ("host-name-space", '[[hosts]]\nname = "cell 0"\n', "name"),
     ("mirror-int", HOST + 'arms = [{name = "a", mirror = 3}]\n', "mirror"),
@@ -330,3 +332,26 @@ def test_web_console_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> 
     with pytest.raises(ConfigError) as err:
         parse_config({"humans": {"count": 1, "web": {"tokens": ["my pass word, do not show"]}}})
     assert "humans.web.tokens[0]" in str(err.value) and "pass word" not in str(err.value)
+
+
+def test_a_public_url_the_console_cannot_answer_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Off loopback with tls = "auto" the console serves https: an http:// public_url
+    prints dead links (exit 2, one line saying both ways out). An https public_url
+    before a loopback console (a proxy or a tunnel terminating TLS) and http with tls =
+    "off" or on loopback stay accepted."""
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text('[humans]\nkind = "web"\n[humans.web]\nhost = "0.0.0.0"\n'
+                   'public_url = "http://lab-pc:8765"\n')
+    assert main(["check", "--config", str(cfg)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"testbed check: {cfg}: ")
+    assert ('humans.web.public_url: http:// but the console serves https off loopback (tls '
+            '= "auto"); write https://..., or tls = "off" behind a proxy that terminates '
+            "TLS") in err
+    for web in ({"host": "0.0.0.0", "public_url": "https://lab-pc:8765"},
+                {"host": "127.0.0.1", "public_url": "https://lab.example.org/fleet"},
+                {"host": "0.0.0.0", "tls": "off", "public_url": "http://lab-pc:8765"},
+                {"host": "127.0.0.1", "public_url": "http://127.0.0.1:9000"}):
+        assert parse_config({"humans": {"web": web}}).humans.web.public_url == \
+            web["public_url"]

@@ -262,3 +262,39 @@ def test_trial_prints_its_plan_before_anything_moves(tmp_path: Path) -> None:
     assert re.search(r"^  collect demonstrations +12 pairs +\d+ +~\d+ s$", plan, re.M)
     assert re.search(r"^  total +~\d+ (s|min \d\d s)$", plan, re.M)
     assert "gradient step: policy" in plan and "timed here just now" in plan
+
+
+class _Clock:
+    """A clock whose timed steps last the given seconds, in order (each timed step
+    reads it twice: before and after)."""
+
+    def __init__(self, steps: list[float]) -> None:
+        self.steps, self.now, self.reads = list(steps), 0.0, 0
+
+    def __call__(self) -> float:
+        self.reads += 1
+        if self.reads % 2 == 0:
+            self.now += self.steps.pop(0)
+        return self.now
+
+
+def test_the_gradient_rate_is_the_median_of_a_few_steps_after_a_warm_up() -> None:
+    """One step alone swung about 2x between runs: the real learner (tiny sizes) takes a
+    warm-up step of each kind, then up to 3 timed within the budget; the median is the
+    rate and a large spread is said, as the machine's load."""
+    from testbed.experiments.pace import measure_gradient
+    from testbed.learning.learning_config import LearningConfig
+
+    lc = LearningConfig(ensemble_size=2, batch_size=16)
+    clock = _Clock([1.0, 3.0, 2.0, 0.5, 0.5, 0.52])
+    got = measure_gradient(lc, ("safety",), clock, budget_s=10.0)
+    assert (got.policy_s, got.critic_s) == (2.0, 0.5)
+    assert clock.reads == 12 and not clock.steps  # 3 timed of each, warm-ups untimed
+    assert got.source.startswith("the median of 3 and 3 timed here just now after a "
+                                 "warm-up (ensemble 2, batch 16, device cpu)")
+    assert got.source.endswith("; spread policy 1-3 s: this machine's load")
+    # a step as long as the budget: one timed (and no spread to say); no critic: 0 s
+    slow = _Clock([1.5, 9.0])
+    got = measure_gradient(lc, (), slow, budget_s=2.0)
+    assert (got.policy_s, got.critic_s, slow.steps) == (1.5, 0.0, [9.0])
+    assert "the median of 1 timed" in got.source and "spread" not in got.source

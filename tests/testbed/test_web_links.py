@@ -241,3 +241,30 @@ def test_off_loopback_the_console_serves_https_with_a_kept_certificate_and_print
     with pytest.raises(ConfigError, match=r"humans\.web\.tls"):
         parse_config({"humans": {"count": 1, "kind": "web", "web": {
             "tls": "off", "certfile": str(cert), "keyfile": str(cert)}}})
+
+
+def test_every_command_of_a_folder_of_runs_gives_the_same_links(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """collect, then pretrain, then the protocol, each a process of its own, in one
+    folder of runs: the first keeps its links in the folder's web-links.json (0600),
+    every later one reads them back (its runs too); a config's own tokens still win."""
+    folder = tmp_path / "runs"
+    monkeypatch.setattr(web_links, "_SESSION", {})  # testbed collect
+    collect = web_links.links_for_folder(folder, WebConsoleConfig(port=0), 2)
+    assert stat.S_IMODE((folder / LINKS_FILE).stat().st_mode) == 0o600
+    assert json.loads((folder / LINKS_FILE).read_text()) == {
+        "humans": collect.tokens, "overview": collect.overview_token,
+        "operator": collect.operator_token}
+    monkeypatch.setattr(web_links, "_SESSION", {})  # testbed pretrain
+    pretrain = web_links.links_for_folder(folder, WebConsoleConfig(port=0), 2)
+    monkeypatch.setattr(web_links, "_SESSION", {})  # testbed protocol: a run in the folder
+    run = links_for_run(folder / "cur-t0", WebConsoleConfig(port=0), 2, folder)
+    for got in (pretrain, run):
+        assert (got.tokens, got.overview_token, got.operator_token) == (
+            collect.tokens, collect.overview_token, collect.operator_token)
+    monkeypatch.setattr(web_links, "_SESSION", {})  # another folder: other links
+    assert web_links.links_for_folder(tmp_path / "other", WebConsoleConfig(port=0),
+                                      2).tokens != collect.tokens
+    monkeypatch.setattr(web_links, "_SESSION", {})
+    given = web_links.links_for_folder(folder, WebConsoleConfig(port=0, tokens=TOKENS), 2)
+    assert given.tokens == TOKENS and given.operator_token == collect.operator_token
