@@ -6,7 +6,8 @@ opens the link as a person would, trusting the console's certificate only by the
 fingerprint the operator read out (Chromium's ``--ignore-certificate-errors-spki-list``:
 that one key, nothing else), then answers what the page asks until told to stop:
 
-* an arm to teleoperate: a push key (``w``), as a person types on their laptop;
+* an arm to teleoperate: a push key (``w``), as a person types on their laptop (each
+  push logged with how many times the page had lost its console by then);
 * a hard reset: the "Reset done" button, if this person is on site; a remote person
   never presses it, and records it if the page ever asked them;
 
@@ -76,7 +77,7 @@ def main(url: str, spki: str, where: str, log: Path, stop_file: Path) -> int:
                     done.add(seq)
                     if phase == "choose":
                         press_key(page, "w")
-                        seen["pushes"].append([head.get("robot"), seq])
+                        seen["pushes"].append([head.get("robot"), seq, seen["drops"]])
                     else:
                         seen["resets_shown"].append([head.get("robot"), seq])
                         if where == "on_site":

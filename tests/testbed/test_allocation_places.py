@@ -6,9 +6,9 @@ candidate never waits while an on-site person is free; a teleop never takes a ne
 on-site person while a remote one stays free, their own arm aside; every teleop
 candidate served while anyone is free), on hand-built steps (the conversion that frees
 a remote human, remote first, the on-site person who leaves a teleop for a reset), and
-against the allocator without the mask: everyone on site is the allocation of before,
-arm for arm, RNG stream included. The Random baseline sizes its resets to the on-site
-people, so every arm it makes eligible still gets a person.
+against Algorithm 1: the pairing with places, with no remote person free, allocates
+exactly as the allocator without places, arm for arm. The Random baseline sizes its
+resets to the on-site people, so every arm it makes eligible still gets a person.
 """
 
 from __future__ import annotations
@@ -39,22 +39,30 @@ def _random_steps(rng: np.random.Generator, n: int, m: int, k: int, steps: int,
 
 
 @pytest.mark.parametrize("gains", [False, True], ids=["blind", "matched"])
-def test_everyone_on_site_is_the_allocation_without_the_mask(gains: bool) -> None:
-    rng = np.random.default_rng(7)
+def test_the_pairing_for_remote_people_is_algorithm_1_when_no_remote_one_is_free(
+        gains: bool) -> None:
+    """The pairing with places (``_pair_matched`` with the on-site rules) against
+    Algorithm 1's own (``_pair_blind``, or the matched pairing without places): a fleet
+    with one more person, remote and never present, must allocate its on-site people
+    exactly as the fleet without her, arm for arm, step after step. (A mask of all True
+    is no mask by construction, the unchanged ``_pair_blind``; this fleet takes the
+    pairing with places, which must reduce to Algorithm 1.)"""
+    rng = np.random.default_rng(11)
     for case in range(60):
-        n, m, k = int(rng.integers(1, 9)), int(rng.integers(0, 7)), int(rng.integers(1, 4))
+        n, m, k = int(rng.integers(1, 9)), int(rng.integers(1, 7)), int(rng.integers(1, 4))
         t_T, t_R = int(rng.integers(1, 5)), int(rng.integers(1, 5))
         plain = Allocator(n, m, t_T, t_R, seed=case)
-        masked = Allocator(n, m, t_T, t_R, seed=case, on_site=np.ones(m, dtype=bool))
+        places = Allocator(n, m + 1, t_T, t_R, seed=case,
+                           on_site=np.array([True] * m + [False]))
         for keys, viol, available, g in _random_steps(rng, n, m, k, 60, True, gains):
-            assert masked.held_humans(viol).tolist() == plain.held_humans(viol).tolist()
+            here = np.ones(m, dtype=bool) if available is None else available
             a = plain.step(keys, viol, available, g)
-            b = masked.step(keys, viol, available, g)
-            assert a.tolist() == b.tolist()
-            assert plain.kind_codes.tolist() == masked.kind_codes.tolist()
-            assert plain.served.tolist() == masked.served.tolist()
-            assert plain.waited.tolist() == masked.waited.tolist()
-        assert plain.state_dict() == masked.state_dict()  # the RNG stream too
+            b = places.step(keys, viol, np.append(here, False),
+                            None if g is None else np.vstack([g, np.zeros((1, n))]))
+            assert a.tolist() == b.tolist(), (case, keys, viol)
+            assert plain.kind_codes.tolist() == places.kind_codes.tolist()
+            assert plain.served.tolist() == places.served.tolist()
+            assert plain.waited.tolist() == places.waited.tolist()
 
 
 @pytest.mark.parametrize("gains", [False, True], ids=["blind", "matched"])

@@ -190,6 +190,10 @@ def test_the_first_day_colleagues_in_browsers_a_crash_a_resume_and_an_on_site_re
         assert s["place"] == [{"on_site": "You are on site (teleop and hard resets).",
                                "remote": "You are remote (teleop only)."}[where]], s["place"]
 
+    # the pages left open were consoles again after the resume, not only notices
+    assert any(p[2] >= 1 for s in seen.values() for p in s["pushes"]), \
+        "nobody pushed after the resume"
+
     # hard resets: only the person on site was asked, and did them
     assert seen["remote"]["resets_shown"] == [], "a remote person was given a hard reset"
     assert seen["on_site"]["resets"], "the on-site person never did a hard reset"
