@@ -70,7 +70,8 @@ def _protocol(tmp: Path, port: int, address: str) -> Path:
               f'[fleet.humans.web]\nhost = "0.0.0.0"\nport = {port}\n'
               f'public_url = "https://{address}:{port}"\n{people}\n')
     path = tiny_protocol(tmp)
-    text, n = re.subn(r"\[fleet\.humans\][^\[]*", humans, path.read_text())
+    text, n = re.subn(r"^\[fleet\.humans\]\n.*?(?=^\[fleet\.algorithm\])", humans,
+                      path.read_text(), flags=re.M | re.S)
     assert n == 1
     path.write_text(text)
     return path
