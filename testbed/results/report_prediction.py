@@ -5,7 +5,10 @@ What each table says (docs/notes/monitor.md has the definitions and the twin's f
 
 * AUROC and average precision of each signal for "a violation within k steps" (k = 1..
   ``monitor.horizon``) and "this episode fails", on the policy's own pushes: the mean
-  over the group's runs with its 95 % interval (``intervals.interval``);
+  over the group's runs with its 95 % interval in [0, 1] (``intervals.rate_interval``:
+  logit t below 10 runs, a bootstrap clustered by run from 10) and the number of runs
+  that entered it (a run with no positive or no negative for the target has no AUROC
+  and is not counted);
 * the lead time and false alarms at the threshold that catches ``monitor.recall`` of the
   failed episodes (each run its own threshold);
 * the reliability of the scores that claim to be probabilities (risk, goal risk):
@@ -30,7 +33,7 @@ import numpy as np
 
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import reliability
-from testbed.results.intervals import Interval, interval
+from testbed.results.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, rate_interval
 from testbed.results.prediction_runs import (
     NEW_SIGNALS,
     SIGNALS,
@@ -39,9 +42,9 @@ from testbed.results.prediction_runs import (
     replays,
     run_prediction,
 )
-from testbed.results.report_tables import Table, method_note
+from testbed.results.report_tables import Table
 
-__all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables"]
+__all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables", "rate_note"]
 
 HEAD_FILE = "failure-head.json"
 """The failure head fitted on the report's runs, beside its CSVs (``[monitor] head``)."""
@@ -56,15 +59,45 @@ CAVEAT = ("Labels: a policy push's episode and the steps to its violation "
 
 
 def _cell(iv: Interval) -> str:
+    """The mean, its interval and, as ``(n=...)``, the runs that entered it."""
     if iv.method == "none":
         return "-"
     if iv.method == "one":
-        return f"{iv.mean:.3f}"
-    return f"{iv.mean:.3f} [{iv.low:.3f}, {iv.high:.3f}]"
+        return f"{iv.mean:.3f} (n=1)"
+    return f"{iv.mean:.3f} [{iv.low:.3f}, {iv.high:.3f}] (n={iv.n})"
 
 
 def _iv(values: Sequence[float]) -> Interval:
-    return interval([v for v in values if not math.isnan(v)])
+    """A rate's interval over the runs that have it (NaN: the run could not give it)."""
+    return rate_interval([v for v in values if not math.isnan(v)])
+
+
+def _count_iv(values: Sequence[float]) -> Interval:
+    """A count's interval (t or BCa over runs), never below 0: a count cannot be."""
+    iv = interval([v for v in values if not math.isnan(v)])
+    return Interval(iv.mean, iv.low if math.isnan(iv.low) else max(0.0, iv.low), iv.high,
+                    iv.n, iv.method)
+
+
+def _without_negatives(values: Sequence[float], base: Sequence[float]) -> list[float]:
+    """Average precision is 1 on a run whose pushes are all positive, whatever the
+    signal: such a run has no negative and enters no cell (NaN)."""
+    return [math.nan if b >= 1.0 else v for v, b in zip(values, base, strict=True)]
+
+
+def rate_note(counts: Sequence[int]) -> str:
+    """What the prediction tables' intervals are, and which rule these run counts used."""
+    used = sorted(set(counts))
+    kinds = ", ".join(f"{n} run{'s' if n != 1 else ''}: " + (
+        "no interval" if n < 2 else "cluster bootstrap" if n >= BOOTSTRAP_MIN_TRIALS
+        else "logit t") for n in used) or "no run"
+    return (f"95% intervals of the mean over runs, in [0, 1]: below {BOOTSTRAP_MIN_TRIALS} "
+            "runs Student's t on the logit scale mapped back (a rate of 0 or 1 enters as "
+            f"0.01 or 0.99), from {BOOTSTRAP_MIN_TRIALS} on a percentile bootstrap "
+            "clustered by run (whole runs resampled, 9999 times, seeded); clipped to "
+            f"[0, 1] either way; here {kinds}. (n=...): the runs that entered the cell; "
+            "a run with no positive or no negative for its target is not counted. runs: "
+            "the runs that computed the signal.")
 
 
 def _num(x: float) -> float | str:
@@ -133,20 +166,28 @@ def _ranking(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig,
     header = ["algorithm", "signal", "runs", "pushes", *(f"k={k}" for k in ks),
               "episode fails"]
     csv_rows: list[list[Any]] = [["algorithm", "signal", "runs", "pushes"] + [
-        f"{c}_{s}" for c in [*(f"k{k}" for k in ks), "fails"] for s in ("mean", "low", "high")]]
+        f"{c}_{s}" for c in [*(f"k{k}" for k in ks), "fails"]
+        for s in ("mean", "low", "high", "runs")]]
     rows: list[list[str]] = []
     counts: list[int] = []
     for g, runs in scored.items():
         for sig in _signals(runs):
             figs = [r.figures[sig] for r in runs if sig in r.figures]
-            per_k = [f.auroc_k if which == "auroc" else f.ap_k for f in figs]
-            fails = [f.auroc_fail if which == "auroc" else f.ap_fail for f in figs]
-            ivs = [_iv([v[k - 1] for v in per_k]) for k in ks] + [_iv(fails)]
-            counts.append(len(figs))
+            if which == "auroc":
+                per_k = [[f.auroc_k[k - 1] for f in figs] for k in ks]
+                fails = [f.auroc_fail for f in figs]
+            else:
+                per_k = [_without_negatives([f.ap_k[k - 1] for f in figs],
+                                            [f.base_k[k - 1] for f in figs]) for k in ks]
+                fails = _without_negatives([f.ap_fail for f in figs],
+                                           [f.base_fail for f in figs])
+            ivs = [_iv(v) for v in per_k] + [_iv(fails)]
+            counts += [iv.n for iv in ivs]
             pushes = sum(f.pushes for f in figs)
             rows.append([g, sig, str(len(figs)), str(pushes), *map(_cell, ivs)])
             csv_rows.append([g, sig, len(figs), pushes,
-                             *(_num(x) for iv in ivs for x in (iv.mean, iv.low, iv.high))])
+                             *(x for iv in ivs for x in (*map(_num, (iv.mean, iv.low, iv.high)),
+                                                         iv.n))])
         if which == "ap" and runs and any(r.figures for r in runs):
             figs = [next(iter(r.figures.values())) for r in runs if r.figures]
             base = [_iv([f.base_k[k - 1] for f in figs]) for k in ks]
@@ -155,11 +196,11 @@ def _ranking(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig,
     name = "AUROC" if which == "auroc" else "Average precision"
     notes = [("0.5: no better than chance. " if which == "auroc" else
               "The base rate (the share of positives) is what a signal without skill gets. ")
-             + CAVEAT, method_note(counts or [0]), *_absent_notes(scored)]
+             + CAVEAT, rate_note(counts), *_absent_notes(scored)]
     return Table(f"prediction-{which}",
                  f"Failure prediction, {name}: each signal on the policy's own pushes, for "
                  "'a violation within k steps' and 'this episode fails' (mean over runs "
-                 "[95% interval])", header, rows, notes, csv_rows)
+                 "[95% interval] (n=runs in it))", header, rows, notes, csv_rows)
 
 
 def _lead(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig) -> Table:
@@ -174,7 +215,7 @@ def _lead(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig) -> 
             caught = _iv([ld.caught for ld in leads])
             steps = [s for ld in leads for s in ld.steps]
             median = float(np.median(steps)) if steps else math.nan
-            fa = _iv([ld.false_alarms_per_success for ld in leads])
+            fa = _count_iv([ld.false_alarms_per_success for ld in leads])
             share = _iv([ld.successes_alarmed for ld in leads])
             rows.append([g, sig, str(failed), _cell(caught),
                          "-" if math.isnan(median) else f"{median:g}", _cell(fa), _cell(share)])
@@ -188,7 +229,10 @@ def _lead(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig) -> 
                   "episode of the group (0: the alarm came on the push that took the cube "
                   "out, before it ran); false alarms: alarmed policy pushes in episodes that "
                   "succeeded, per such episode; caught, false alarms and the share: mean "
-                  "over runs [95% interval]."], csv_rows)
+                  "over runs [95% interval] (n=runs in it: a run with no failed episode has "
+                  "no caught share); caught and the share as in prediction-auroc, false "
+                  "alarms (a count) by t below 10 runs, BCa bootstrap from 10, never below "
+                  "0."], csv_rows)
 
 
 def _reliability(scored: Mapping[str, Sequence[RunPrediction]]) -> Table:

@@ -9,8 +9,10 @@ import pytest
 
 from testbed.results.intervals import (
     BOOTSTRAP_MIN_TRIALS,
+    Interval,
     interval,
     paired,
+    rate_interval,
     sign_flip_p,
     smallest_p,
 )
@@ -81,3 +83,30 @@ def test_a_trial_without_both_runs_is_left_out_and_named() -> None:
     assert cmp.keys == (0, 2) and cmp.diffs == (0.5, 1.0)
     assert set(cmp.unpaired) == {1, 3}
     assert cmp.floor == 0.5
+
+
+def test_a_rate_interval_stays_in_0_1_where_a_t_interval_leaves_it() -> None:
+    """Issue 45: "0.94 [0.85, 1.04]", a t interval over 3 AUROC near 1. The rate's
+    interval (logit t below 10 runs, cluster bootstrap from 10) stays in [0, 1] and
+    holds the mean it is shown beside."""
+    runs = [0.90, 0.92, 1.0]
+    assert interval(runs).high > 1.0  # what the table used to print
+    for values in (runs, [0.999, 1.0, 0.98], [0.0, 0.02, 0.1], [0.97, 0.99, 1.0, 1.0, 0.995],
+                   [1.0] * 11 + [0.9]):
+        iv = rate_interval(values)
+        assert 0.0 <= iv.low <= iv.mean <= iv.high <= 1.0, (values, iv)
+        assert iv.low < iv.high and iv.n == len(values)
+    assert rate_interval(runs).method == "logit t"
+    assert rate_interval([0.5] * 3) == Interval(0.5, 0.5, 0.5, 3, "exact")
+
+
+def test_a_rate_interval_from_10_runs_is_a_seeded_bootstrap_of_the_runs() -> None:
+    v = list(np.random.default_rng(4).uniform(0.85, 1.0, 12))
+    iv = rate_interval(v, seed=3)
+    assert iv.method == "cluster bootstrap" and iv == rate_interval(v, seed=3)
+    assert rate_interval(v, seed=4) != iv  # the seed is what it draws from
+    # the percentile interval of the mean of 12 runs drawn with replacement: about the
+    # normal interval of the mean with the runs' spread (sd / sqrt(n), ddof 0)
+    half = 1.96 * float(np.std(v)) / math.sqrt(len(v))
+    assert iv.low == pytest.approx(np.mean(v) - half, abs=0.004)
+    assert iv.high == pytest.approx(np.mean(v) + half, abs=0.004)

@@ -25,14 +25,16 @@ ROBOTS = ["c/left", "c/right"]
 G = [(0.2, 0.3), (0.7, 0.6), (0.4, 0.8), (0.5, 0.5)]
 
 
-def plan(rng: np.random.Generator, steps: int) -> list[dict[str, Any]]:
-    """One arm: policy episodes that succeed or end in a violation, then a reset."""
+def plan(rng: np.random.Generator, steps: int, fail_share: float = 0.4
+         ) -> list[dict[str, Any]]:
+    """One arm: policy episodes that succeed or end in a violation (a share
+    ``fail_share`` of them), then a reset."""
     out: list[dict[str, Any]] = []
     g = 0
     while len(out) < steps:
         goal = G[g % len(G)]
         n = int(rng.integers(2, 7))
-        fail = rng.random() < 0.4
+        fail = rng.random() < fail_share
         out += [auto(goal=goal) for _ in range(n - 1)]
         if fail:
             out += [auto(goal=goal, violation=True), step("idle", goal=goal),
@@ -66,13 +68,13 @@ def theta0(run: Path, kept_as: int) -> None:
 
 
 def write_run(run: Path, algorithm: str, seed: int, steps: int = 240,
-              theta: int | None = None) -> None:
+              theta: int | None = None, fail_share: float = 0.4) -> None:
     """Rows with an ``oracle`` monitor score (1 when the episode's violation is at most
     2 steps ahead), a constant one, one that is always 0 (never computed), and the data
     store; with ``theta``, the images show what the oracle knows (bright when a violation
     is at most 2 steps ahead) and the run keeps a theta_0 (``theta0``)."""
     rng = np.random.default_rng(seed)
-    plans = (plan(rng, steps), plan(rng, steps))
+    plans = (plan(rng, steps, fail_share), plan(rng, steps, fail_share))
     frames = frames_of(*plans)
     run.mkdir(parents=True)
     data = RunDataWriter(run, ROBOTS)
@@ -133,7 +135,7 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     auc = tables["prediction-auroc"]
     assert auc.header[4:] == ["k=1", "k=2", "k=3", "episode fails"]
     oracle = next(r for r in auc.rows if r[1] == "oracle")
-    assert oracle[2] == "3" and oracle[6] == "1.000 [1.000, 1.000]"
+    assert oracle[2] == "3" and oracle[6] == "1.000 [1.000, 1.000] (n=3)"
     signals = [r[1] for r in auc.rows]
     # risk: cur reads it (noise here); the failure head, fitted on the runs from the other
     # theta_0, reads in the images what the oracle knows: as good as the oracle at k = 3
@@ -152,9 +154,43 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     assert {r[1] for r in rel.rows} == {"risk"}  # random in [0, 0.5): five bins
     assert [r[2] for r in rel.rows] == [f"[{b / 10:.1f}, {(b + 1) / 10:.1f})" for b in range(5)]
     alarm = {r[1]: r for r in tables["prediction-alarm"].rows}
-    assert alarm["oracle"][5] in ("yes", "no", "-")
+    # the oracle is 0 on every push of a successful episode (no violation ahead), so every
+    # calibration peak is 0 and no successful episode scores above the threshold: no false
+    # alarm, split or online. Split counts every successful episode of the three runs;
+    # online each run's from its 20th (the alarm needs 19 first: 1 / alpha - 1)
+    successes = [successful_episodes(s) for s in range(3)]
+    judged = sum(max(0, n - 19) for n in successes)
+    assert alarm["oracle"][3:] == [f"0.000 ± 0.000 ({sum(successes)})",
+                                   f"0.000 ± 0.000 ({judged})", "yes"]
     md = "\n".join(t.markdown() for t in tables.values())
     assert "novelty: not in its rows" in md
+
+
+def successful_episodes(seed: int, steps: int = 240) -> int:
+    """The successful episodes ``write_run`` plans for ``seed`` (both arms): its own draw."""
+    rng = np.random.default_rng(seed)
+    return sum(x["success"] for _ in range(2) for x in plan(rng, steps))
+
+
+def test_a_cell_counts_only_the_runs_that_entered_it(tmp_path: Path) -> None:
+    """A run without a violation has no positive: no AUROC or average precision of any
+    signal for any target. It computed the signals (runs: 3), but each cell says 2."""
+    for s in range(2):
+        write_run(tmp_path / f"r{s}", "fleet-ed", s)
+    write_run(tmp_path / "calm", "fleet-ed", 2, fail_share=0.0)
+    tables = {t.key: t for t in prediction_tables(
+        {"ed": [tmp_path / "r0", tmp_path / "r1", tmp_path / "calm"]}, MonitorConfig(horizon=3))}
+    for key in ("prediction-auroc", "prediction-ap"):
+        row = next(r for r in tables[key].rows if r[1] == "uncertainty")
+        assert row[2] == "3" and all(c.endswith("(n=2)") for c in row[4:]), row
+        csv = tables[key].csv_rows
+        runs = [i for i, h in enumerate(csv[0]) if h.endswith("_runs")]
+        line = next(r for r in csv[1:] if r[1] == "uncertainty")
+        assert line[2] == 3 and len(runs) == 4 and all(line[i] == 2 for i in runs)
+        for row in tables[key].rows:  # every interval inside [0, 1] (t over 2 runs is not)
+            for c in row[4:]:
+                low, high = map(float, c.split("[")[1].split("]")[0].split(", "))
+                assert 0.0 <= low <= float(c.split()[0]) <= high <= 1.0, row
 
 
 def test_the_failure_head_says_why_it_could_not_score_a_run(tmp_path: Path) -> None:
