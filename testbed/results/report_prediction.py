@@ -35,6 +35,7 @@ from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import reliability
 from testbed.results.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, rate_interval
 from testbed.results.prediction_runs import (
+    HEAD_K,
     NEW_SIGNALS,
     SIGNALS,
     RunPrediction,
@@ -49,8 +50,10 @@ __all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables",
 HEAD_FILE = "failure-head.json"
 """The failure head fitted on the report's runs, beside its CSVs (``[monitor] head``)."""
 
-PROBABILITIES = ("risk", "goal_risk")
-"""Signals that claim to be a probability of a violation (a reliability table each)."""
+PROBABILITIES = ("risk", "goal_risk", "fail_head")
+"""Signals that claim to be a probability of a violation (a reliability table each):
+the critics' of their episode's violation, the failure head's of one within ``HEAD_K``
+steps (what it was fitted to say, so what its bins are judged against)."""
 CAVEAT = ("Labels: a policy push's episode and the steps to its violation "
           "(testbed/monitor/labels.py). A person who took an arm because a signal was high "
           "may have prevented the violation it foresaw, which the label then counts as a "
@@ -247,9 +250,13 @@ def _reliability(scored: Mapping[str, Sequence[RunPrediction]]) -> Table:
             for r in runs:
                 if sig in r.figures and r.pushes is not None:
                     p = r.pushes
-                    use = ~np.isnan(p.scores[sig]) & (p.fails | p.succeeded)
+                    if sig == "fail_head":
+                        label, known = p.within(HEAD_K)
+                    else:
+                        label, known = p.fails, p.fails | p.succeeded
+                    use = ~np.isnan(p.scores[sig]) & known
                     s.append(p.scores[sig][use])
-                    y.append(p.fails[use])
+                    y.append(label[use])
             if not s or not np.concatenate(s).size:
                 continue
             table, ece = reliability(np.clip(np.concatenate(s), 0.0, 1.0), np.concatenate(y))
@@ -262,7 +269,9 @@ def _reliability(scored: Mapping[str, Sequence[RunPrediction]]) -> Table:
                                  _num(b.frequency), _num(b.freq_low), _num(b.freq_high)])
     notes.append("Is a 0.3 a 30 % chance? Each bin's pushes (of episodes that succeeded or "
                  "failed, every run of the group pooled) against the share whose episode "
-                 "ended in a violation (Wilson interval). The safety critic estimates a "
+                 "ended in a violation (Wilson interval); for fail_head (each run scored by "
+                 f"a head that never saw its theta_0), the share with a violation within "
+                 f"{HEAD_K} steps, what the head predicts. The safety critic estimates a "
                  "discounted probability (gamma_safe), so it sits below the frequency when "
                  "violations come late.")
     return Table("prediction-reliability",

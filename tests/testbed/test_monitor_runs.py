@@ -151,8 +151,14 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     assert (tmp_path / "cur-t0" / "monitor-features.npz").is_file()  # computed once
     assert "(base rate)" in [r[1] for r in tables["prediction-ap"].rows]
     rel = tables["prediction-reliability"]
-    assert {r[1] for r in rel.rows} == {"risk"}  # random in [0, 0.5): five bins
-    assert [r[2] for r in rel.rows] == [f"[{b / 10:.1f}, {(b + 1) / 10:.1f})" for b in range(5)]
+    assert {r[1] for r in rel.rows} == {"risk", "fail_head"}
+    # the head (each run scored by one that never saw its theta_0) is judged against
+    # what it predicts, a violation within 3 steps: near 0 where it says 0, 1 where 1
+    head_bins = [(r[2], r[5]) for r in rel.rows if r[1] == "fail_head"]
+    assert head_bins == [("[0.0, 0.1)", "0.000"), ("[0.9, 1.0)", "1.000")], head_bins
+    assert "cur, fail_head: expected calibration error 0.00" in " ".join(rel.notes)
+    risk_bins = [r[2] for r in rel.rows if r[1] == "risk"]  # random in [0, 0.5): five bins
+    assert risk_bins == [f"[{b / 10:.1f}, {(b + 1) / 10:.1f})" for b in range(5)]
     alarm = {r[1]: r for r in tables["prediction-alarm"].rows}
     # the oracle is 0 on every push of a successful episode (no violation ahead), so every
     # calibration peak is 0 and no successful episode scores above the threshold: no false
