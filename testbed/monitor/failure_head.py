@@ -14,8 +14,9 @@ L2-penalised log loss, fitted by scipy's L-BFGS (exact gradient); inputs standar
 the training pushes. Each signal enters with its logarithm too (the long tails of ood
 and uncertainty); the features enter as they are.
 
-Where it is fitted and used: ``testbed report`` scores it leave one theta_0 out (each
-run's pushes by a head fitted on the runs that started from another theta_0) and writes
+Where it is fitted and used: ``testbed report`` scores it leave one theta_0 out, theta_0
+identified by a hash of its weights (each run's pushes by a head fitted on the runs that
+started from another theta_0) and writes
 the head fitted on all its runs to ``failure-head.json``; ``[monitor] head`` names that
 file and ``score = "fail_head"`` makes it the monitor algorithm's alarm, on the live
 policy's features (``PolicyOutput.features``).

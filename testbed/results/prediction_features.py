@@ -4,7 +4,8 @@ the run's theta_0 (issue 36, item 3; ``testbed/monitor/failure_head.py``).
 Why theta_0's trunk: it is fixed before the run's first step and kept with it
 (``learner-start.pt``), so the features of a push never depend on what the run went on
 to learn from it, and runs from different theta_0 let the report score a head on
-policies it never saw (leave one theta_0 out). Live, the monitor reads the current
+policies it never saw (leave one theta_0 out, theta_0 identified by a hash of its weights:
+``theta0_digest``). Live, the monitor reads the current
 policy's features instead (what that costs is measured in docs/notes/monitor.md).
 
 The features are computed once per run and kept beside its records in
@@ -24,19 +25,53 @@ import numpy as np
 from testbed.records.run_dir import START_LEARNER
 from testbed.records.store import RunData, RunDataError
 
-__all__ = ["CACHE", "push_features", "theta0_digest"]
+__all__ = ["CACHE", "WEIGHTS", "push_features", "theta0_digest"]
 
 CACHE: Final = "monitor-features.npz"
 BATCH: Final = 1024
 """Images read before they go through theta_0 (12 MB): a 100-arm run's are never all in
 memory."""
+WEIGHTS: Final = (("policy", "policy", None), ("safety.net", "safety", "net"),
+                  ("safety.target", "safety", "target"), ("goal.net", "goal", "net"),
+                  ("goal.target", "goal", "target"))
+"""What ``theta0_digest`` hashes of a ``Learner.state_dict`` (name, key, sub-key): the
+parameters, not the seed, sampler, optimisers, counters, feature statistics or data."""
 
 
 def theta0_digest(run: Path) -> str | None:
-    """SHA-256 of the run's theta_0 (``learner-start.pt``), None without one."""
+    """SHA-256 of the run's theta_0 weights (``learner-start.pt``), None without one.
+
+    Why the weights and not the file: a protocol's trials pretrain one theta_0 and save it
+    with their own seed, sampler, optimiser state and counters, so a hash of the bytes
+    made one network into one theta_0 per trial, and "leave one theta_0 out" was leave one
+    trial seed out (issue 45, item 1). This hashes what the learner acts and judges with,
+    ``WEIGHTS`` (the policy ensemble, each critic's net and target), each tensor's name,
+    dtype, shape and bytes, in name order; the file is memory-mapped, so the data a
+    theta_0 also keeps is never read. A file that is not a learner checkpoint falls back
+    to its bytes ("file:" prefixed): ``push_features`` then names why it is unreadable.
+    """
     path = run / START_LEARNER
     if not path.is_file():
         return None
+    import torch  # only here: testbed.results imports no torch at import time
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+        parts = [(name, state[key][sub] if sub else state[key])
+                 for name, key, sub in WEIGHTS]
+    except (OSError, ValueError, RuntimeError, KeyError, TypeError,
+            pickle.UnpicklingError):
+        return "file:" + _file_digest(path)
+    h = hashlib.sha256()
+    for name, tensors in parts:
+        for key in sorted(tensors):
+            t = tensors[key].detach().contiguous()
+            h.update(f"{name}.{key}|{t.dtype}|{tuple(t.shape)}|".encode())
+            h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
+def _file_digest(path: Path) -> str:
     h = hashlib.sha256()
     with path.open("rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):

@@ -51,9 +51,10 @@ HEAD_K: Final = 3
 """The horizon the failure head learns (the issue's goal: a violation within 3 steps)."""
 HEAD_INPUTS: Final = ("risk",)
 """The signals the failure head reads with the features, where a run has them: the
-safety critic's risk. On the twin's baseline (15 runs pooled, leave one theta_0 out;
-AUROC at k = 3 of C.U.R.'s and the monitor's runs) features with risk scored 0.94 /
-0.93, with every signal 0.94 / 0.92, alone 0.93 / 0.89 (docs/notes/monitor.md)."""
+safety critic's risk. On the twin's baseline (15 runs pooled, AUROC at k = 3 of
+C.U.R.'s and the monitor's runs) features with risk scored 0.94 / 0.93, with every signal
+0.94 / 0.92, alone 0.93 / 0.89 (docs/notes/monitor.md): measured leave one trial seed
+out, as every run shared theta_0's weights (issue 45, item 1), not re-measured yet."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
 _FROM_FRAMES: Final = ("uncertainty", "risk")
 
@@ -223,9 +224,10 @@ def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
                      ) -> tuple[str | None, FailureHead | None]:
     """Score each run with a failure head on its pushes' trunk features under theta_0
     and its signals (``HEAD_INPUTS`` it has), fitted on the runs that started from
-    another theta_0 (leave one theta_0 out: no run is scored by a head that saw its
-    policy), as the signal ``fail_head``. Runs of every algorithm are pooled: the labels
-    are the policy's own pushes, whoever allocated the people. Returns (why no run could
+    another theta_0 (leave one theta_0 out, theta_0 identified by a hash of its weights,
+    ``theta0_digest``: no run is scored by a head that saw its policy), as the signal
+    ``fail_head``. Runs of every algorithm are pooled: the labels are the policy's own
+    pushes, whoever allocated the people. Returns (why no run could
     be scored, or None; the head fitted on every usable run that has ``HEAD_INPUTS``, on
     the features alone when none has, for ``[monitor] head``; None if none could be)."""
     usable: list[tuple[RunPrediction, str, np.ndarray]] = []

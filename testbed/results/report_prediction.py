@@ -140,7 +140,8 @@ def prediction_tables(groups: Mapping[str, Sequence[Path]],
         ranking.files[HEAD_FILE] = (json.dumps(head.to_json(), indent=1) + "\n").encode()
         reads = ", ".join(head.inputs) or "no signal"
         ranking.notes.append(
-            f"fail_head: scored leave one theta_0 out; the head fitted on "
+            f"fail_head: scored leave one theta_0 out (theta_0 identified by a hash of "
+            f"its weights); the head fitted on "
             f"{len(head.fitted_on.get('runs', ()))} runs ({reads} and {head.features} trunk "
             f"features) is in {HEAD_FILE}, for [monitor] head with score = \"fail_head\".")
     return [ranking, _ranking(scored, cfg, "ap"), _lead(scored, cfg),

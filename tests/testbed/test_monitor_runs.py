@@ -17,12 +17,16 @@ from testbed.records.run_dir import START_LEARNER
 from testbed.records.step_record import StepRecord
 from testbed.records.steps import RunWriter
 from testbed.records.store import RunDataWriter
+from testbed.results.prediction_features import theta0_digest
 from testbed.results.prediction_runs import run_prediction
 from testbed.results.report_prediction import prediction_tables
 from tests.testbed.test_frame_classes_records import auto, frames_of, step
 
 ROBOTS = ["c/left", "c/right"]
 G = [(0.2, 0.3), (0.7, 0.6), (0.4, 0.8), (0.5, 0.5)]
+LAST_BIAS = "members.0.1.4.bias"
+"""The policy's output bias (after the trunk): moving it changes the weights, not the
+trunk's features."""
 
 
 def plan(rng: np.random.Generator, steps: int, fail_share: float = 0.4
@@ -55,24 +59,33 @@ def _violation_ahead(p: list[dict[str, Any]], t: int) -> int | None:
     return None
 
 
-def theta0(run: Path, kept_as: int) -> None:
-    """A theta_0 for ``run``: one small policy, the same weights every time, saved with
-    ``kept_as`` for its seed (runs with another ``kept_as`` have another theta_0 file,
-    as a protocol's trials do, but features that mean the same)."""
+def theta0(run: Path, kept_as: int, weights: int | None = None) -> None:
+    """A theta_0 for ``run``: one small policy saved with ``kept_as`` for its seed (and a
+    sampler state of its own). Its weights are ``weights``' (default ``kept_as``): the
+    same trunk every time, so the features mean the same, with the policy's last bias
+    moved by ``weights`` / 100, so another ``weights`` is another network (the digest
+    hashes the weights, not the file)."""
+    import torch
+
     from testbed.learning import checkpoint
     from testbed.learning.learner import Learner
     from testbed.learning.learning_config import LearningConfig
 
     state = Learner(LearningConfig(ensemble_size=1), seed=0).state_dict()
+    w = kept_as if weights is None else weights
+    state["policy"][LAST_BIAS] = state["policy"][LAST_BIAS] + w / 100
+    state["sampler"] = torch.Generator().manual_seed(kept_as).get_state()
     checkpoint.save_atomic({**state, "seed": kept_as}, run / START_LEARNER)
 
 
 def write_run(run: Path, algorithm: str, seed: int, steps: int = 240,
-              theta: int | None = None, fail_share: float = 0.4) -> None:
+              theta: int | None = None, fail_share: float = 0.4,
+              weights: int | None = None) -> None:
     """Rows with an ``oracle`` monitor score (1 when the episode's violation is at most
     2 steps ahead), a constant one, one that is always 0 (never computed), and the data
     store; with ``theta``, the images show what the oracle knows (bright when a violation
-    is at most 2 steps ahead) and the run keeps a theta_0 (``theta0``)."""
+    is at most 2 steps ahead) and the run keeps a theta_0 (``theta0``: seed ``theta``,
+    weights ``weights``, default ``theta``'s)."""
     rng = np.random.default_rng(seed)
     plans = (plan(rng, steps, fail_share), plan(rng, steps, fail_share))
     frames = frames_of(*plans)
@@ -103,7 +116,7 @@ def write_run(run: Path, algorithm: str, seed: int, steps: int = 240,
     data.close()
     (run / "run.json").write_text(json.dumps({"options": {"algorithm": algorithm}}))
     if theta is not None:
-        theta0(run, theta)
+        theta0(run, theta, weights)
 
 
 def test_an_oracle_ranks_perfectly_at_its_horizon_and_a_constant_at_chance(
@@ -212,3 +225,25 @@ def test_the_failure_head_says_why_it_could_not_score_a_run(tmp_path: Path) -> N
     md = auc.markdown()
     assert "fail_head: the failure head needs runs from two theta_0 with features" in md
     assert "fail_head: it kept no theta_0 (learner-start.pt)" in md
+
+
+def test_one_theta_0_is_its_weights_not_its_file(tmp_path: Path) -> None:
+    """Two trials that start from one network save it with their own seed and sampler
+    (issue 45, item 1): the files differ, the digest does not, and the report counts one
+    theta_0, so no run can be scored by a head that never saw its policy. Other weights,
+    with the same seed, are another theta_0."""
+    write_run(tmp_path / "a", "cur", 0, theta=0)
+    write_run(tmp_path / "b", "cur", 1, theta=1, weights=0)  # seed 1, weights of a
+    theta0(tmp_path / "c", kept_as=0, weights=1)  # seed 0, other weights
+    a, b = (tmp_path / n / START_LEARNER for n in "ab")
+    assert a.read_bytes() != b.read_bytes()
+    digest = {n: theta0_digest(tmp_path / n) for n in "abc"}
+    assert digest["a"] == digest["b"] and digest["a"] != digest["c"]
+    assert all(len(d or "") == 64 for d in digest.values()), digest
+    assert theta0_digest(tmp_path / "none") is None
+    tables = {t.key: t for t in prediction_tables(
+        {"cur": [tmp_path / "a", tmp_path / "b"]}, MonitorConfig(horizon=3))}
+    auc = tables["prediction-auroc"]
+    assert "fail_head" not in [r[1] for r in auc.rows] and not auc.files
+    assert "fail_head: the failure head needs runs from two theta_0 with features" in \
+        auc.markdown()
