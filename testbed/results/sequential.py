@@ -70,8 +70,8 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["CAP", "RECORD", "SCALE_FRACTION", "Bets", "Decision", "PairState", "bets", "decide",
-           "e_values", "reachable", "record"]
+__all__ = ["CAP", "RECORD", "SCALE_FRACTION", "Bets", "Decision", "PairState", "anytime_p",
+           "bets", "decide", "e_values", "fewest_trials", "reachable", "record"]
 
 CAP: Final = 0.9
 """The largest fraction of either wealth bet on one trial."""
@@ -147,6 +147,33 @@ def bets(diffs: npt.ArrayLike) -> Bets:
 def e_values(diffs: npt.ArrayLike) -> FloatArray:
     """The e-value after each trial (:func:`bets`)."""
     return bets(diffs).e
+
+
+def anytime_p(e: npt.ArrayLike) -> float:
+    """The anytime-valid p-value after the e-values ``e`` (one pair, trial by trial):
+    ``min(1, 1 / max e)``. Why the largest, not the last: by Ville's inequality the
+    chance under the null that the e-process *ever* reaches 1/p is at most p, so the
+    running maximum may be read at any stopping time (a fixed-n p-value may not)."""
+    es = np.asarray(e, dtype=float).reshape(-1)
+    if es.size == 0:
+        return 1.0
+    top = float(np.max(es))
+    return 1.0 if top <= 1.0 else 1.0 / top
+
+
+FEWEST_LIMIT: Final = 1000
+"""How far :func:`fewest_trials` looks (any alpha above 1e-200 is settled within it)."""
+
+
+def fewest_trials(alpha: float, limit: int = FEWEST_LIMIT) -> int | None:
+    """The fewest trials that can settle a pair at ``alpha``: the smallest n for which n
+    same-sign differences of one size (each outcome X_k = +-1, the most one trial can
+    give) bring the e-value to 1/alpha under this module's bets; None: not within
+    ``limit``. Computed from :func:`e_values`, so a change to the bets changes it."""
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must be in (0, 1), not {alpha}")
+    hit = np.flatnonzero(e_values(np.ones(limit)) >= 1 / alpha)
+    return int(hit[0]) + 1 if len(hit) else None
 
 
 def reachable(e: float, remaining: int) -> float:

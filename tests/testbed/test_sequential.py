@@ -24,7 +24,17 @@ from testbed.experiments.protocol import Protocol, run_protocol, sequential_deci
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.records.steps import RunWriter
 from testbed.results.report import write_report
-from testbed.results.sequential import CAP, RECORD, bets, decide, e_values, reachable
+from testbed.results.report_sequential import FIXED_N_MARK
+from testbed.results.sequential import (
+    CAP,
+    RECORD,
+    anytime_p,
+    bets,
+    decide,
+    e_values,
+    fewest_trials,
+    reachable,
+)
 
 ALPHAS = (0.05, 0.1)
 
@@ -235,10 +245,31 @@ def test_the_decision_the_protocol_takes_from_its_runs_and_the_report_table(
     assert keys.index("sequential") == keys.index("learning-paired") + 1
     table = report.tables[keys.index("sequential")]
     rows = {r[0]: r for r in table.rows}
-    assert rows["bc"][3] == "after 6 trials (t5): below cur" and rows["bc"][6] == "4"
-    assert rows["fleet-ed"][5].startswith("cannot be settled within 10 trials")
+    assert rows["bc"][3] == "after 6 trials (t5): below cur" and rows["bc"][7] == "4"
+    assert rows["fleet-ed"][6].startswith("cannot be settled within 10 trials")
     assert "saved 4 trials (12 runs of 3 algorithms" in table.notes[0]
-    assert "Ville's inequality" in table.notes[1]
+    assert "Ville's inequality" in table.notes[2]
+    # the anytime p beside the e-value: 1 / the largest e-value (six -4s: e 23.57)
+    assert table.header[5] == "anytime p (1 / max e)"
+    bc_e = rec["pairs"]["bc"]["e_values"]
+    assert rows["bc"][5] == f"{1 / max(bc_e):.3g}" == "0.0424"
+    fe_e = rec["pairs"]["fleet-ed"]["e_values"]
+    assert rows["fleet-ed"][5] == f"{min(1.0, 1 / max(fe_e)):.3g}"
+    # the fewest trials, at alpha and at the Bonferroni split over the 2 pairs
+    assert ("settle a pair in at alpha 0.05: 6 trials" in table.notes[1]
+            and "Bonferroni split, alpha / 2 = 0.025" in table.notes[1]
+            and "it needs 7 trials" in table.notes[1])
+    # the fixed-n figures of the paired table flagged here, and not in a fixed protocol
+    paired = report.tables[keys.index("learning-paired")]
+    assert paired.header[4:6] == [f"95% interval {FIXED_N_MARK}", f"sign-flip p {FIXED_N_MARK}"]
+    assert paired.notes[0].startswith(f"{FIXED_N_MARK} fixed-n figures, not valid after "
+                                      "optional stopping")
+    (out / RECORD).rename(tmp_path / "kept.json")
+    fixed = write_report([out], tmp_path / "rep-fixed")
+    plain = fixed.tables[[t.key for t in fixed.tables].index("learning-paired")]
+    assert plain.header[4:6] == ["95% interval", "sign-flip p"]
+    assert not any(FIXED_N_MARK in n for n in plain.notes) and FIXED_N_MARK not in fixed.markdown
+    (tmp_path / "kept.json").rename(out / RECORD)
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "Sequential test: each algorithm against cur on successes" in md
     assert (tmp_path / "rep" / "report-sequential.csv").exists()
@@ -248,6 +279,36 @@ def test_the_decision_the_protocol_takes_from_its_runs_and_the_report_table(
     (out / RECORD).write_text('{"format": "sequential/0"}')
     report = write_report([out], tmp_path / "rep2")
     assert "cannot be read by this build" in report.markdown
+
+
+def test_the_anytime_p_is_one_over_the_largest_e_value_so_far() -> None:
+    """Not the last e-value (it can fall back), never above 1, 1 with no trial."""
+    assert anytime_p([1.0, 1.855, 25.0, 12.5]) == pytest.approx(1 / 25.0)
+    assert anytime_p([1.0, 0.5, 0.2]) == 1.0 and anytime_p([]) == 1.0
+    e = e_values([-4.0] * 6)
+    assert anytime_p(e) == pytest.approx(1 / float(e[-1])) == pytest.approx(0.04242, abs=1e-5)
+    wobbly = e_values([3.0, 2.0, 4.0, -9.0, -8.0])
+    assert wobbly[-1] < wobbly.max()
+    assert anytime_p(wobbly) == pytest.approx(1 / float(wobbly.max()))
+
+
+@pytest.mark.parametrize("alpha", [0.2, 0.1, 0.05, 0.025, 0.05 / 3, 0.01])
+def test_the_fewest_trials_match_every_sign_pattern_tried_by_brute_force(alpha: float) -> None:
+    """Over every sign pattern of n equal-sized differences (and random sizes), no
+    e-value reaches 1/alpha before the fewest trials, and one does at it."""
+    n_min = fewest_trials(alpha)
+    rng = np.random.default_rng(5)
+    assert n_min is not None
+
+    def best(n: int) -> float:
+        signs = ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1) * 2.0 - 1.0
+        sizes = rng.uniform(0.1, 10.0, (2 ** n, n))
+        return float(max(e_values(signs).max(), e_values(signs * sizes).max()))
+
+    assert best(n_min) >= 1 / alpha
+    assert all(best(n) < 1 / alpha for n in range(1, n_min))
+    assert fewest_trials(0.05) == 6 and fewest_trials(0.025) == 7
+    assert fewest_trials(0.05, limit=5) is None
 
 
 class _StopAt(ScriptedHumans):
