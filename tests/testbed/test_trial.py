@@ -307,10 +307,13 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     auc = md.partition("Failure prediction, AUROC")[2].split("\n\n")[1]
     cur_signals = {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| cur |")}
     bc_signals = {ln.split(" | ")[1] for ln in auc.splitlines() if ln.startswith("| bc |")}
-    # ood and ood_u too, unless a run's ood was 0 throughout (named, not scored); the
-    # failure head on two runs with the same signals
-    assert {"uncertainty", "risk", "novelty", "fail_head"} <= cur_signals
-    assert {"uncertainty", "novelty", "fail_head"} <= bc_signals and "risk" not in bc_signals
+    # ood and ood_u too, unless a run's ood was 0 throughout (named, not scored). The
+    # failure head is scored only on runs whose theta_0 (its weights' hash) it never saw:
+    # every trial here pretrains from PRETRAIN_SEED, so cur's runs share one theta_0 and
+    # bc's another only by their critics (issue 45): which runs it scores is
+    # test_monitor_runs.py's to check, not this protocol's
+    assert {"uncertainty", "risk", "novelty"} <= cur_signals
+    assert {"uncertainty", "novelty"} <= bc_signals and "risk" not in bc_signals
     assert "bc: not scored: goal_risk: its critic did not run" in md
     assert "risk: its critic did not run (bc reads no risk" in md
     assert "The conformal alarm: false alarms per successful episode" in md
