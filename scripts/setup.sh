@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up this checkout on a fresh Debian/Ubuntu machine: system packages (when missing)
-# and a virtual environment with the project installed (README "Two installs").
+# and a virtual environment with the project installed (docs/setup.md, "Two installs").
 #   scripts/setup.sh              operator machine (.venv, Python 3.11): the extra `operator`
 #                                 (torch, the twin, SSH, plots), GUI OpenCV (console), web
 #                                 console, YuMi clients; editable
@@ -70,7 +70,7 @@ for c in python3.11 python3; do
   fi
 done
 if [ -z "$py" ]; then
-  # where the releases labs use keep it (README, "A fresh operator machine")
+  # where the releases labs use keep it (docs/setup.md, "A fresh operator machine")
   . /etc/os-release 2>/dev/null || true
   case "${ID:-}:${VERSION_ID:-}" in
     debian:12) how="sudo apt-get install python3.11 python3.11-venv" ;;

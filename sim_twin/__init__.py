@@ -24,7 +24,7 @@ try:
 except ModuleNotFoundError as exc:
     if exc.name != "pybullet":
         raise
-    # A robot host's install has no PyBullet (README "Two installs"): one line that names
+    # A robot host's install has no PyBullet (docs/setup.md, "Two installs"): one line that names
     # the extra (testbed.core.extras says the same for the controller's rooms; this
     # package imports nothing of the project).
     raise ImportError("sim_twin needs the operator install: pip install "

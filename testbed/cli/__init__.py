@@ -1,7 +1,7 @@
 """The ``testbed`` command: the top of testbed, the one room that may import every other.
 
 Every verb is one entry of ``testbed.cli.verbs.VERBS`` (its arguments and its handler
-together, README "Two commands"); this module builds the parser from them and turns
+together, README "The verbs"); this module builds the parser from them and turns
 their outcomes into exit statuses: 0 done, 1 the run failed (a fault the operator must
 look at), 2 bad config or argument (one line naming the field and the fix, never a
 traceback), 130 Ctrl-C.

@@ -1,7 +1,7 @@
 """The config's loading: TOML read, validated by pydantic, every error one line.
 
 Why pydantic: it gives typed, nested validation with the failing field's path for free,
-so every bad config becomes one line that names the field (the README's "Config") instead
+so every bad config becomes one line that names the field (docs/config.md) instead
 of a traceback deep inside a driver. Why only the loading here: each room keeps its own
 schema (the hosts' with their backends, ``testbed/core/host_config.py`` for what every
 host has; the humans' in ``testbed/people/``; the algorithm's in ``testbed/fleet/``;
@@ -185,7 +185,7 @@ def _one_line(err: ValidationError, source: str, prefix: tuple[str, ...] = ()) -
     elif isinstance(problem, FieldProblem):
         fix = ""  # its message says what to do
     else:
-        fix = f"got {got!r}" if not isinstance(got, dict | list) else "see README, section Config"
+        fix = f"got {got!r}" if not isinstance(got, dict | list) else "see docs/config.md"
     loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in parts)
     loc = loc.replace(".[", "[") or "(top level)"
     more = len(err.errors()) - 1

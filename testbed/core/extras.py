@@ -1,6 +1,6 @@
 """What a host install lacks, said in one line: the operator-only packages and the error.
 
-Why: a robot host installs the project without the extra ``operator`` (README "Two
+Why: a robot host installs the project without the extra ``operator`` (docs/setup.md, "Two
 installs": no torch, pybullet, kornia or matplotlib there), and the same package tree is
 on its disk, so ``import testbed.learning`` or a ``testbed`` verb can still be tried
 there. That must fail with one line that names the extra and says why, not with a bare
