@@ -73,6 +73,7 @@ def wealth(x: npt.ArrayLike, m: npt.ArrayLike, lo: float = -1.0, hi: float = 1.0
     aGRAPA's (the sequential test's, for a sequence read at every outcome)."""
     xs = np.atleast_2d(np.asarray(x, dtype=float))
     ms = np.asarray(m, dtype=float).reshape(-1)
+    own = xs  # the plug-in bet depends on the outcomes only: once per row of x
     rows = max(len(xs), len(ms))
     xs = np.broadcast_to(xs, (rows, xs.shape[1]))
     ms = np.broadcast_to(ms, (rows,))
@@ -89,7 +90,7 @@ def wealth(x: npt.ArrayLike, m: npt.ArrayLike, lo: float = -1.0, hi: float = 1.0
     for k in range(n):
         y = xs[:, k] - ms
         if horizon is not None:
-            size = _plug_in(xs[:, :k], lo, hi, horizon, alpha)
+            size = _plug_in(own[:, :k], lo, hi, horizon, alpha)
             lams = {1: np.minimum(size, cap_up), -1: -np.minimum(size, cap_down)}
         else:
             lams = {}

@@ -50,7 +50,7 @@ def test_zero_leaves_the_sequence_exactly_when_the_pair_is_settled() -> None:
             d = rng.normal(rng.uniform(-2, 2), 1.0, 12)
             cs = confidence_sequence(d, alpha)
             ever = np.maximum.accumulate(e_values(d)) >= 1 / alpha
-            assert np.array_equal(~((cs.low < 0) & (0 < cs.high)), ever), (d, alpha)
+            assert np.array_equal(~((cs.low < 0) & (cs.high > 0)), ever), (d, alpha)
     # six -4s: e 23.6 >= 20 at the sixth, not before; below 0 from then on
     cs = confidence_sequence([-4.0] * 7, 0.05)
     assert np.all(cs.high[:5] > 0) and cs.high[5] < 0 and cs.high[6] < cs.high[5]
@@ -100,7 +100,7 @@ def test_a_shifted_mean_is_found_and_the_set_holds_it() -> None:
 
 
 def test_bad_inputs_are_refused() -> None:
-    with pytest.raises(ValueError, match="in \\[-1.0, 1.0\\]"):
+    with pytest.raises(ValueError, match=r"in \[-1.0, 1.0\]"):
         betting_set([0.5, 1.5], 0.05)
     with pytest.raises(ValueError, match="alpha"):
         betting_set([0.5], 1.0)
