@@ -33,7 +33,7 @@ from __future__ import annotations
 import sys
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -45,7 +45,7 @@ from pydantic import (
 )
 
 from testbed.core.backend_registry import backend_of
-from testbed.core.config import ConfigError, _one_line, validation_context
+from testbed.core.config import ConfigError, FieldProblem, _one_line, validation_context
 from testbed.core.hosts import Hosts
 from testbed.experiments.fleet_config import FleetConfig, require_protocol
 from testbed.experiments.hooks import TrialHooks, as_hooks
@@ -93,7 +93,31 @@ class Until(BaseModel):
     reference: str = PAPER_FIRST
     metric: str = "rohe"
     alpha: float = Field(0.05, gt=0, lt=1)
+    """The family-wise alpha, split by Bonferroni over :meth:`comparisons`."""
     max_trials: int = Field(12, ge=1, le=100)
+    primary: str | None = None
+    """The algorithm whose difference from ``reference`` on ``metric`` is the primary
+    endpoint: the decision waits for it alone, the other pairs are secondary (reported,
+    flagged, no sequential claim). None (protocols before it): every pair is primary."""
+    family: dict[str, Annotated[int, Field(ge=1)]] = Field(default_factory=dict)
+    """Other protocols (by name) whose primary comparisons share this one's reference
+    runs, each with how many it has: they split alpha with this one's. Empty: this
+    protocol's primaries alone."""
+
+    def primaries(self, algorithms: list[str]) -> list[str]:
+        """The primary pairs (by algorithm): ``primary``, else every algorithm but the
+        reference."""
+        if self.primary is not None:
+            return [self.primary]
+        return [a for a in algorithms if a != self.reference]
+
+    def comparisons(self, algorithms: list[str]) -> int:
+        """The family's primary comparisons: this protocol's and ``family``'s."""
+        return len(self.primaries(algorithms)) + sum(self.family.values())
+
+    def per_comparison_alpha(self, algorithms: list[str]) -> float:
+        """``alpha / comparisons`` (Bonferroni): the alpha each pair is tested at."""
+        return self.alpha / self.comparisons(algorithms)
 
     @field_validator("metric")
     @classmethod
@@ -191,6 +215,15 @@ class Protocol(BaseModel):
         if until.max_trials < self.trials:
             raise ValueError(f"until.max_trials ({until.max_trials}) is below trials "
                              f"({self.trials}), the minimum")
+        if until.primary is not None and (until.primary not in self.algorithms
+                                          or until.primary == until.reference):
+            others = [a for a in self.algorithms if a != until.reference]
+            raise FieldProblem("until.primary", f"{until.primary!r} is not one of the "
+                               f"algorithms compared with {until.reference!r}; use one of "
+                               f"{', '.join(others)} (or leave it out: every pair primary)")
+        if self.name in until.family:
+            raise FieldProblem("until.family", f"names this protocol ({self.name!r}); "
+                               "list only the other protocols sharing its reference runs")
         if self.seeds is not None and len(self.seeds) < self.trials:
             raise ValueError("seeds must have one seed per trial (with until: at least "
                              "trials, the minimum; trials beyond the list get seeds after "
@@ -406,11 +439,13 @@ def sequential_decision(proto: Protocol, folder: Path, done: int,
     ref = values[until.reference]
     diffs = {a: [float(x) - float(r) for x, r in zip(v, ref, strict=True)]
              for a, v in values.items() if a != until.reference}
-    decision = decide(diffs, alpha=until.alpha, min_trials=proto.trials,
-                      max_trials=until.max_trials)
+    decision = decide(diffs, alpha=until.per_comparison_alpha(proto.algorithms),
+                      min_trials=proto.trials, max_trials=until.max_trials,
+                      primary=until.primaries(proto.algorithms))
     atomic_write_json(folder / RECORD, record(
         decision, reference=until.reference, metric=until.metric,
-        seeds=[proto.seed(k) for k in range(done)]))
+        seeds=[proto.seed(k) for k in range(done)], protocol=proto.name,
+        family_alpha=until.alpha, family=until.family))
     if decision.stop:
         sys.stderr.write(f"protocol {proto.name}: stops after {done} trial(s): "
                          f"{decision.why} (e-values in {folder / RECORD})\n")

@@ -19,9 +19,13 @@ the per-trial difference removes what the trial's draw shares. The report gives
 
 A share or a rank statistic (an AUROC, an average precision, a recall) lives in [0, 1],
 where a t interval of a few values near 1 runs past 1 ("0.94 [0.85, 1.04]"). For those
-:func:`rate_interval`: below ``BOOTSTRAP_MIN_TRIALS`` values, Student's t on the logit
-scale mapped back; from that many on, a percentile bootstrap clustered by run (whole runs
-resampled with replacement, the mean recomputed; seeded); clipped to [0, 1] either way.
+:func:`rate_interval`: below ``BOOTSTRAP_MIN_TRIALS`` runs (or when every run gave the
+same value) the betting confidence interval for a mean bounded in [0, 1] (Waudby-Smith
+and Ramdas, JRSS-B 2023; :mod:`testbed.results.betting`), valid at any number of runs
+under one assumption, that the runs' values are independent draws with one mean (no
+normality, no variance estimate that three values cannot give); from that many on, a
+percentile bootstrap clustered by run (whole runs resampled with replacement, the mean
+recomputed; seeded). Both lie in [0, 1].
 
 scipy does the arithmetic (``scipy.stats.t``, ``bootstrap``, ``permutation_test``); this
 module decides which applies and keeps the answer as plain numbers for the tables.
@@ -36,7 +40,7 @@ from typing import Final
 
 import numpy as np
 
-__all__ = ["BOOTSTRAP_MIN_TRIALS", "EXACT_MAX_PAIRS", "LEVEL", "LOGIT_EPS", "Interval",
+__all__ = ["BOOTSTRAP_MIN_TRIALS", "EXACT_MAX_PAIRS", "LEVEL", "Interval",
            "Paired", "interval", "paired", "rate_interval", "sign_flip_p", "smallest_p"]
 
 LEVEL: Final = 0.95
@@ -46,11 +50,6 @@ EXACT_MAX_PAIRS: Final = 16
 """Up to this many pairs the sign-flip test enumerates all 2^n patterns (65536); beyond,
 100000 random patterns (seeded), and the p-value is an estimate."""
 RESAMPLES: Final = 9999
-LOGIT_EPS: Final = 0.01
-"""A rate below this or above 1 minus it (an AUROC of 1 is common) enters the logit as
-this far inside [0, 1]: the logit of 1 is infinite, and a run's AUROC of 1 from a few
-dozen positives says no more than 0.99 (a smaller value would let one such run decide
-the interval's width)."""
 _TOL: Final = 1e-12
 
 
@@ -95,37 +94,31 @@ def interval(values: Sequence[float], level: float = LEVEL, seed: int = 0) -> In
 
 
 def rate_interval(values: Sequence[float], level: float = LEVEL, seed: int = 0) -> Interval:
-    """The mean of ``values`` (one rate in [0, 1] per run) with a ``level`` interval that
-    stays in [0, 1] (module docstring: the rule). Below ``BOOTSTRAP_MIN_TRIALS`` runs
-    (method ``logit t``) the interval is widened where needed to hold the plain mean it
-    is shown beside (the logit scale centres on another mean); from that many on (method
-    ``cluster bootstrap``) it is the percentile interval of ``RESAMPLES`` means of runs
-    drawn with replacement from a generator seeded with ``seed``."""
+    """The mean of ``values`` (one rate in [0, 1] per run, in run order) with a ``level``
+    interval in [0, 1] (module docstring: the rule). Below ``BOOTSTRAP_MIN_TRIALS`` runs,
+    or all runs equal (method ``betting``): the betting interval of
+    :func:`testbed.results.betting.betting_set` on [0, 1] after the last run (every mean
+    whose e-value stayed below ``1 / (1 - level)`` over the runs). From that many on
+    (method ``cluster bootstrap``): the percentile interval of ``RESAMPLES`` means of
+    runs drawn with replacement from a generator seeded with ``seed``. One run: no
+    interval (``one``)."""
     v = np.asarray(values, dtype=float)
     n = len(v)
-    if n < 2 or np.ptp(v) <= _TOL * max(1.0, abs(float(v.mean()))):
+    if n < 2:
         iv = interval(v, level, seed)
         return Interval(iv.mean, *_clip01(iv.low, iv.high), iv.n, iv.method)
+    if np.any(v < 0) or np.any(v > 1):
+        raise ValueError("a rate must lie in [0, 1]")
     mean = float(v.mean())
-    if n < BOOTSTRAP_MIN_TRIALS:
-        from scipy import stats
+    if n < BOOTSTRAP_MIN_TRIALS or np.ptp(v) <= _TOL:
+        from testbed.results.betting import betting_set
 
-        z = _logit(np.clip(v, LOGIT_EPS, 1 - LOGIT_EPS))
-        half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * float(z.std(ddof=1)) / math.sqrt(n)
-        low, high = _expit(float(z.mean()) - half), _expit(float(z.mean()) + half)
-        return Interval(mean, *_clip01(min(low, mean), max(high, mean)), n, "logit t")
+        cs = betting_set(v, 1 - level, lo=0.0, hi=1.0, fixed_n=True)
+        return Interval(mean, float(cs.low[-1]), float(cs.high[-1]), n, "betting")
     rng = np.random.default_rng(seed)
     means = v[rng.integers(0, n, size=(RESAMPLES, n))].mean(axis=1)
     low, high = np.quantile(means, [0.5 - level / 2, 0.5 + level / 2])
     return Interval(mean, *_clip01(float(low), float(high)), n, "cluster bootstrap")
-
-
-def _logit(p: np.ndarray) -> np.ndarray:
-    return np.log(p / (1 - p))
-
-
-def _expit(x: float) -> float:
-    return 1.0 / (1.0 + math.exp(-x)) if x >= 0 else math.exp(x) / (1.0 + math.exp(x))
 
 
 def _clip01(low: float, high: float) -> tuple[float, float]:

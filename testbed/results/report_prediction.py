@@ -6,7 +6,7 @@ What each table says (docs/notes/monitor.md has the definitions and the twin's f
 * AUROC and average precision of each signal for "a violation within k steps" (k = 1..
   ``monitor.horizon``) and "this episode fails", on the policy's own pushes: the mean
   over the group's runs with its 95 % interval in [0, 1] (``intervals.rate_interval``:
-  logit t below 10 runs, a bootstrap clustered by run from 10) and the number of runs
+  betting below 10 runs, a bootstrap clustered by run from 10) and the number of runs
   that entered it (a run with no positive or no negative for the target has no AUROC
   and is not counted);
 * the lead time and false alarms at the threshold that catches ``monitor.recall`` of the
@@ -93,12 +93,13 @@ def rate_note(counts: Sequence[int]) -> str:
     used = sorted(set(counts))
     kinds = ", ".join(f"{n} run{'s' if n != 1 else ''}: " + (
         "no interval" if n < 2 else "cluster bootstrap" if n >= BOOTSTRAP_MIN_TRIALS
-        else "logit t") for n in used) or "no run"
+        else "betting") for n in used) or "no run"
     return (f"95% intervals of the mean over runs, in [0, 1]: below {BOOTSTRAP_MIN_TRIALS} "
-            "runs Student's t on the logit scale mapped back (a rate of 0 or 1 enters as "
-            f"0.01 or 0.99), from {BOOTSTRAP_MIN_TRIALS} on a percentile bootstrap "
-            "clustered by run (whole runs resampled, 9999 times, seeded); clipped to "
-            f"[0, 1] either way; here {kinds}. (n=...): the runs that entered the cell; "
+            "runs (or all runs equal) the betting interval for a mean bounded in [0, 1] "
+            "(Waudby-Smith and Ramdas 2023: valid at any number of independent runs, no "
+            f"normality), from {BOOTSTRAP_MIN_TRIALS} on a percentile bootstrap "
+            f"clustered by run (whole runs resampled, 9999 times, seeded); here {kinds}. "
+            "(n=...): the runs that entered the cell; "
             "a run with no positive or no negative for its target is not counted. runs: "
             "the runs that computed the signal.")
 

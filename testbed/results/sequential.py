@@ -70,15 +70,14 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["CAP", "RECORD", "SCALE_FRACTION", "Bets", "Decision", "PairState", "anytime_p",
-           "bets", "decide", "e_values", "fewest_trials", "reachable", "record"]
+from testbed.results.betting import CAP, BetSet, betting_set, wealth
 
-CAP: Final = 0.9
-"""The largest fraction of either wealth bet on one trial."""
+__all__ = ["CAP", "RECORD", "SCALE_FRACTION", "Bets", "Decision", "PairState", "anytime_p",
+           "bets", "confidence_sequence", "decide", "e_values", "fewest_trials", "outcomes",
+           "reachable", "record"]
+
 SCALE_FRACTION: Final = 0.5
 """The scale a difference is divided by: this share of the mean |difference| so far."""
-PRIOR_MEAN: Final = 0.5
-PRIOR_VARIANCE: Final = 0.25
 FORMAT: Final = "sequential/1"
 RECORD: Final = "sequential.json"
 """The file in a protocol's folder with each trial's e-values (:func:`record`)."""
@@ -109,39 +108,47 @@ class Bets:
 
 def bets(diffs: npt.ArrayLike) -> Bets:
     """The e-process of ``diffs`` (shape ``(n,)`` or ``(replays, n)``), vectorised over
-    replays: the outcome and both bets at trial k use only trials before k."""
+    replays: the outcome and both bets at trial k use only trials before k (the bets:
+    :func:`testbed.results.betting.wealth` at mean 0 on ``[-1, 1]``)."""
+    x = outcomes(diffs)
+    squeeze = x.ndim == 1
+    w = wealth(x, 0.0)
+    out = {"x": np.atleast_2d(x), "lam_up": w.lam_up, "lam_down": w.lam_down, "up": w.up,
+           "down": w.down}
+    if squeeze:
+        out = {k: v[0] for k, v in out.items()}
+    return Bets(**out)
+
+
+def outcomes(diffs: npt.ArrayLike) -> FloatArray:
+    """The bounded outcomes ``X_k = clip(D_k / s_k, -1, 1)`` of ``diffs`` (shape ``(n,)``
+    or ``(replays, n)``), ``s_k`` = ``SCALE_FRACTION`` x the mean |difference| of the
+    trials before k (none, or all 0: ``X_k = sign(D_k)``)."""
     d = np.asarray(diffs, dtype=float)
     if not np.all(np.isfinite(d)):
         raise ValueError("a paired difference is not a finite number")
     squeeze = d.ndim == 1
     d = np.atleast_2d(d)
     reps, n = d.shape
-    out = {k: np.empty((reps, n)) for k in ("x", "lam_up", "lam_down", "up", "down")}
+    x = np.empty((reps, n))
     abs_sum = np.zeros(reps)
-    up, down = np.ones(reps), np.ones(reps)
-    # each side's running estimates, the prior pseudo-observation included
-    sums = {1: np.full(reps, PRIOR_MEAN), -1: np.full(reps, -PRIOR_MEAN)}
-    sq = {1: np.full(reps, PRIOR_VARIANCE), -1: np.full(reps, PRIOR_VARIANCE)}
     for k in range(n):
         scale = SCALE_FRACTION * abs_sum / max(k, 1)
         safe = np.where(scale > 0, scale, 1.0)
-        x = np.clip(np.where(scale > 0, d[:, k] / safe, np.sign(d[:, k])), -1.0, 1.0)
-        lams = {}
-        for side in (1, -1):
-            mu = sums[side] / (k + 1)
-            growth = mu / (sq[side] / (k + 1) + mu * mu)
-            lams[side] = np.clip(growth, 0.0, CAP) if side == 1 else np.clip(growth, -CAP, 0.0)
-            sq[side] = sq[side] + (x - mu) ** 2
-            sums[side] = sums[side] + x
-        up = up * (1 + lams[1] * x)
-        down = down * (1 + lams[-1] * x)
+        x[:, k] = np.clip(np.where(scale > 0, d[:, k] / safe, np.sign(d[:, k])), -1.0, 1.0)
         abs_sum = abs_sum + np.abs(d[:, k])
-        for key, value in (("x", x), ("lam_up", lams[1]), ("lam_down", lams[-1]),
-                           ("up", up), ("down", down)):
-            out[key][:, k] = value
-    if squeeze:
-        out = {k: v[0] for k, v in out.items()}
-    return Bets(**out)
+    return x[0] if squeeze else x
+
+
+def confidence_sequence(diffs: Sequence[float], alpha: float) -> BetSet:
+    """The ``1 - alpha`` confidence sequence, after each trial, of the mean of the
+    clipped outcomes (:func:`outcomes`) of one pair's ``diffs``: the betting set of
+    :func:`testbed.results.betting.betting_set` on ``[-1, 1]``. Valid at every trial at
+    once (so whenever the protocol stopped) if every trial's outcome has one
+    conditional mean given the trials before; at 0 it needs only the sign-flip null and
+    its wealths are this module's, so 0 leaves it exactly when the e-value reaches
+    1/alpha."""
+    return betting_set(outcomes(np.asarray(diffs, dtype=float).reshape(-1)), alpha)
 
 
 def e_values(diffs: npt.ArrayLike) -> FloatArray:
@@ -211,11 +218,15 @@ class Decision:
     trials: int
     """Finished trials (every algorithm of each)."""
     alpha: float
+    """The alpha each pair is tested at (the per-comparison alpha of the family)."""
     min_trials: int
     max_trials: int
     pairs: dict[str, PairState] = field(default_factory=dict)
     stop: bool = False
     why: str = ""
+    primary: tuple[str, ...] = ()
+    """The pairs the decision is taken on (the primary endpoints); the others are
+    secondary: computed, not waited for."""
 
     @property
     def threshold(self) -> float:
@@ -238,24 +249,31 @@ def _pair(name: str, diffs: Sequence[float], alpha: float, max_trials: int) -> P
 
 
 def decide(differences: Mapping[str, Sequence[float]], *, alpha: float, min_trials: int,
-           max_trials: int) -> Decision:
+           max_trials: int, primary: Sequence[str] | None = None) -> Decision:
     """The stopping decision after the finished trials (``differences``: per algorithm,
     its difference from the reference in each finished trial, in trial order; all of
-    one length)."""
+    one length). ``primary``: the pairs the decision waits for (None: every pair); the
+    others are secondary, their e-values computed but no reason to run on or stop."""
     lengths = {len(v) for v in differences.values()}
     if len(lengths) > 1:
         raise ValueError("every pair needs one difference per finished trial")
     done = lengths.pop() if lengths else 0
     pairs = {name: _pair(name, diffs, alpha, max_trials)
              for name, diffs in differences.items()}
-    base = Decision(done, alpha, min_trials, max_trials, pairs)
-    open_ = [p.algorithm for p in pairs.values() if p.status == "open"]
-    futile = [p.algorithm for p in pairs.values() if p.futile]
-    unsettled = [p.algorithm for p in pairs.values() if p.settled_after is None]
+    chosen = tuple(differences) if primary is None else tuple(primary)
+    if not set(chosen) <= set(pairs):
+        raise ValueError(f"primary {sorted(set(chosen) - set(pairs))} is not a pair here")
+    base = Decision(done, alpha, min_trials, max_trials, pairs, primary=chosen)
+    watched = [pairs[n] for n in chosen]
+    open_ = [p.algorithm for p in watched if p.status == "open"]
+    futile = [p.algorithm for p in watched if p.futile]
+    unsettled = [p.algorithm for p in watched if p.settled_after is None]
+    every = "every pair" if len(chosen) == len(pairs) else (
+        "the primary pair" if len(chosen) == 1 else "every primary pair")
     if done < min_trials:
         return base
     if not unsettled:
-        return _with(base, True, "every pair is settled")
+        return _with(base, True, f"{every} is settled")
     if done >= max_trials:
         return _with(base, True, f"max_trials ({max_trials}) reached; not settled: "
                      + ", ".join(unsettled))
@@ -263,20 +281,31 @@ def decide(differences: Mapping[str, Sequence[float]], *, alpha: float, min_tria
         return base
     return _with(base, True, f"{', '.join(futile)} cannot be settled within "
                  f"max_trials ({max_trials}); every other pair is settled"
-                 if len(futile) < len(pairs) else
-                 f"no pair can be settled within max_trials ({max_trials})")
+                 if len(futile) < len(watched) else
+                 f"no {'primary ' if len(chosen) < len(pairs) else ''}pair can be settled "
+                 f"within max_trials ({max_trials})")
 
 
 def _with(d: Decision, stop: bool, why: str) -> Decision:
-    return Decision(d.trials, d.alpha, d.min_trials, d.max_trials, d.pairs, stop, why)
+    return Decision(d.trials, d.alpha, d.min_trials, d.max_trials, d.pairs, stop, why,
+                    d.primary)
 
 
-def record(decision: Decision, *, reference: str, metric: str,
-           seeds: Sequence[int]) -> dict[str, Any]:
+def record(decision: Decision, *, reference: str, metric: str, seeds: Sequence[int],
+           protocol: str = "", family_alpha: float | None = None,
+           family: Mapping[str, int] | None = None) -> dict[str, Any]:
     """The JSON the protocol keeps in its folder (``sequential.json``): the settings,
-    each trial's e-values, and per pair its differences, e-values and status."""
+    each trial's e-values, and per pair its differences, e-values and status.
+    ``alpha``/``threshold`` are the per-comparison test's; ``family_alpha`` the
+    protocol's declared alpha, split by Bonferroni over ``comparisons`` (its primary
+    pairs and ``family``'s: the other protocols sharing its reference runs, each with
+    its number of primary comparisons)."""
     pairs = decision.pairs
+    fam = dict(family or {})
     return {
+        "protocol": protocol, "primary": list(decision.primary), "family": fam,
+        "family_alpha": decision.alpha if family_alpha is None else family_alpha,
+        "comparisons": len(decision.primary) + sum(fam.values()),
         "format": FORMAT,
         "method": "testing by betting (Waudby-Smith and Ramdas, JRSS-B 2023, aGRAPA) on "
                   "the paired differences, clipped at a predictable scale; settled at "

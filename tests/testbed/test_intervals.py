@@ -9,7 +9,6 @@ import pytest
 
 from testbed.results.intervals import (
     BOOTSTRAP_MIN_TRIALS,
-    Interval,
     interval,
     paired,
     rate_interval,
@@ -85,19 +84,67 @@ def test_a_trial_without_both_runs_is_left_out_and_named() -> None:
     assert cmp.floor == 0.5
 
 
-def test_a_rate_interval_stays_in_0_1_where_a_t_interval_leaves_it() -> None:
-    """Issue 45: "0.94 [0.85, 1.04]", a t interval over 3 AUROC near 1. The rate's
-    interval (logit t below 10 runs, cluster bootstrap from 10) stays in [0, 1] and
-    holds the mean it is shown beside."""
+def _reference_rate_bounds(v: list[float], alpha: float, grid: int) -> tuple[float, float]:
+    """The betting interval on [0, 1], one candidate and one run at a time: WSR's
+    predictable plug-in bet sqrt(2 log(2/alpha) / (n var)), capped at 0.9 / m and
+    0.9 / (1 - m), the two wealths averaged, a candidate rejected once that reaches
+    1/alpha; the ends the first rejected candidates on each side."""
+    n = len(v)
+    ms = [k / (grid + 1) for k in range(1, grid + 1)]
+    kept = []
+    for m in ms:
+        up = down = 1.0
+        total, ss, rejected = 0.5, 0.25 * 0.25, False
+        for k, x in enumerate(v):
+            size = math.sqrt(2 * math.log(2 / alpha) / (n * ss / (k + 1)))
+            up *= 1 + min(size, 0.9 / m) * (x - m)
+            down *= 1 - min(size, 0.9 / (1 - m)) * (x - m)
+            rejected = rejected or (up + down) / 2 >= 1 / alpha
+            ss += (x - total / (k + 1)) ** 2
+            total += x
+        if not rejected:
+            kept.append(ms.index(m))
+    return (ms[kept[0] - 1] if kept[0] else 0.0,
+            ms[kept[-1] + 1] if kept[-1] < grid - 1 else 1.0)
+
+
+def test_a_rate_interval_below_10_runs_is_the_betting_interval_by_a_plain_loop() -> None:
+    """Issue 45: "0.94 [0.85, 1.04]", a t interval over 3 AUROC near 1. Below 10 runs
+    the rate's interval is the betting interval for a mean in [0, 1]: the same ends as a
+    plain reimplementation (on the module's 2001-point grid), in [0, 1]."""
     runs = [0.90, 0.92, 1.0]
     assert interval(runs).high > 1.0  # what the table used to print
-    for values in (runs, [0.999, 1.0, 0.98], [0.0, 0.02, 0.1], [0.97, 0.99, 1.0, 1.0, 0.995],
-                   [1.0] * 11 + [0.9]):
+    for values in (runs, [1.0, 1.0, 1.0], [0.0, 0.02, 0.1], [0.97, 0.99, 1.0, 1.0, 0.995],
+                   [0.2, 0.9, 0.5, 0.6], [0.5] * 12):
         iv = rate_interval(values)
-        assert 0.0 <= iv.low <= iv.mean <= iv.high <= 1.0, (values, iv)
-        assert iv.low < iv.high and iv.n == len(values)
-    assert rate_interval(runs).method == "logit t"
-    assert rate_interval([0.5] * 3) == Interval(0.5, 0.5, 0.5, 3, "exact")
+        assert iv.method == "betting" and iv.n == len(values)
+        assert (iv.low, iv.high) == pytest.approx(_reference_rate_bounds(values, 0.05, 2001),
+                                                  abs=1e-12), values
+        assert 0.0 <= iv.low < iv.mean < iv.high <= 1.0 or iv.mean in (0.0, 1.0), values
+    # three AUROC of 1: at least 0.27, near the Clopper-Pearson bound of 3 of 3 (0.292),
+    # not [1, 1] (every run equal is no proof the mean is that value)
+    ones = rate_interval([1.0, 1.0, 1.0])
+    assert (round(ones.low, 4), ones.high) == (0.2707, 1.0)
+    assert rate_interval([0.5] * 3).low == pytest.approx(0.1334, abs=1e-4)
+    assert rate_interval([0.4]).method == "one"
+
+
+@pytest.mark.parametrize("n", [3, 9])
+def test_the_betting_interval_covers_a_known_mean_at_least_as_often_as_it_says(n: int) -> None:
+    """500 replays (seed fixed) of n runs from Bernoulli and Beta rates of known mean:
+    the 95% interval holds the mean in at least 95% of them."""
+    rng = np.random.default_rng(450 + n)
+    for name, draw, mean in (
+            ("bernoulli 0.9", lambda: (rng.random(n) < 0.9).astype(float), 0.9),
+            ("beta(2, 5)", lambda: rng.beta(2.0, 5.0, n), 2 / 7),
+            ("beta(9, 1)", lambda: rng.beta(9.0, 1.0, n), 0.9)):
+        hits = sum(rate_interval(list(draw())).contains(mean) for _ in range(500))
+        assert hits / 500 >= 0.95, (name, n, hits / 500)
+
+
+def test_a_rate_outside_0_1_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"rate must lie in \[0, 1\]"):
+        rate_interval([0.5, 1.2, 0.9])
 
 
 def test_a_rate_interval_from_10_runs_is_a_seeded_bootstrap_of_the_runs() -> None:

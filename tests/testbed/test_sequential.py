@@ -17,14 +17,21 @@ from typing import Any
 import numpy as np
 import pytest
 
+from testbed.core.config import ConfigError
 from testbed.core.humans import HumansStopRequested
 from testbed.core.types import FleetStatus
 from testbed.experiments.hooks import TrialHooks
-from testbed.experiments.protocol import Protocol, run_protocol, sequential_decision
+from testbed.experiments.protocol import Protocol, load_protocol, run_protocol, sequential_decision
 from testbed.experiments.scripted_humans import ScriptedHumans
 from testbed.records.steps import RunWriter
 from testbed.results.report import write_report
-from testbed.results.report_sequential import FIXED_N_MARK
+from testbed.results.report_sequential import (
+    FIXED_N_MARK,
+    family_of,
+    flag_fixed_n,
+    sequential_table,
+)
+from testbed.results.report_tables import Table
 from testbed.results.sequential import (
     CAP,
     RECORD,
@@ -218,24 +225,28 @@ def _fake_run(folder: Path, algorithm: str, trial: int, successes: int) -> None:
 
 def test_the_decision_the_protocol_takes_from_its_runs_and_the_report_table(
         tmp_path: Path) -> None:
-    """Synthetic runs through the function the protocol calls after each trial."""
+    """Synthetic runs through the function the protocol calls after each trial; bc is
+    the primary endpoint, Fleet-ED secondary."""
     proto = Protocol.model_validate({
         "name": "seq", "trials": 3, "algorithms": ["bc", "fleet-ed", "cur"],
-        "seeds": [1, 2, 3], "until": {"metric": "successes", "max_trials": 10}})
+        "seeds": [1, 2, 3], "until": {"metric": "successes", "max_trials": 10,
+                                      "primary": "bc"}})
     out = tmp_path / "p"
     for k in range(7):  # bc 4 below C.U.R. every trial; Fleet-ED alternately +-1
         _fake_run(out / f"cur-t{k}", "cur", k, 7)
         _fake_run(out / f"bc-t{k}", "bc", k, 3)
         _fake_run(out / f"fleet-ed-t{k}", "fleet-ed", k, 8 if k % 2 else 6)
     first = sequential_decision(proto, out, 3)
-    assert not first.stop and first.trials == 3
+    assert not first.stop and first.trials == 3 and first.primary == ("bc",)
     rec = json.loads((out / RECORD).read_text())
     assert rec["trials_done"] == 3 and [t["seed"] for t in rec["trials"]] == [1, 2, 3]
     later = sequential_decision(proto, out, 6)
     assert later.stop and later.pairs["bc"].settled_after == 6
     assert later.pairs["bc"].direction == -1 and later.pairs["fleet-ed"].futile
-    assert later.why.startswith("fleet-ed cannot be settled within max_trials (10)")
+    assert later.why == "the primary pair is settled"  # Fleet-ED is not waited for
     rec = json.loads((out / RECORD).read_text())
+    assert (rec["primary"], rec["comparisons"], rec["family"]) == (["bc"], 1, {})
+    assert rec["alpha"] == rec["family_alpha"] == 0.05 and rec["protocol"] == "seq"
     assert rec["pairs"]["bc"]["differences"] == [-4.0] * 6
     assert [t["e_values"]["bc"] for t in rec["trials"]] == rec["pairs"]["bc"]["e_values"]
     assert [t["seed"] for t in rec["trials"]] == [1, 2, 3, 4, 5, 6]
@@ -245,25 +256,38 @@ def test_the_decision_the_protocol_takes_from_its_runs_and_the_report_table(
     assert keys.index("sequential") == keys.index("learning-paired") + 1
     table = report.tables[keys.index("sequential")]
     rows = {r[0]: r for r in table.rows}
-    assert rows["bc"][3] == "after 6 trials (t5): below cur" and rows["bc"][7] == "4"
-    assert rows["fleet-ed"][6].startswith("cannot be settled within 10 trials")
+    assert table.header[1] == "endpoint" and rows["bc"][1] == "primary"
+    assert rows["bc"][4] == "after 6 trials (t5): below cur" and rows["bc"][9] == "4"
+    assert rows["fleet-ed"][1] == "secondary"
+    assert rows["fleet-ed"][8] == "secondary: no sequential claim" and rows["fleet-ed"][4] == "-"
     assert "saved 4 trials (12 runs of 3 algorithms" in table.notes[0]
-    assert "Ville's inequality" in table.notes[2]
+    assert "Secondary endpoint: fleet-ed" in table.notes[2]
+    assert "Ville's inequality" in table.notes[3]
     # the anytime p beside the e-value: 1 / the largest e-value (six -4s: e 23.57)
-    assert table.header[5] == "anytime p (1 / max e)"
+    assert table.header[6] == "anytime p (1 / max e)"
     bc_e = rec["pairs"]["bc"]["e_values"]
-    assert rows["bc"][5] == f"{1 / max(bc_e):.3g}" == "0.0424"
+    assert rows["bc"][6] == f"{1 / max(bc_e):.3g}" == "0.0424"
     fe_e = rec["pairs"]["fleet-ed"]["e_values"]
-    assert rows["fleet-ed"][5] == f"{min(1.0, 1 / max(fe_e)):.3g}"
-    # the fewest trials, at alpha and at the Bonferroni split over the 2 pairs
-    assert ("settle a pair in at alpha 0.05: 6 trials" in table.notes[1]
-            and "Bonferroni split, alpha / 2 = 0.025" in table.notes[1]
-            and "it needs 7 trials" in table.notes[1])
-    # the fixed-n figures of the paired table flagged here, and not in a fixed protocol
+    assert rows["fleet-ed"][6] == f"{min(1.0, 1 / max(fe_e)):.3g}"
+    # the confidence sequence: below 0 (settled below), to -1 (every outcome clipped)
+    assert table.header[7] == "confidence sequence (0.95, clipped scale)"
+    low, high = (float(x) for x in rows["bc"][7].strip("[]").split(", "))
+    assert low == -1.0 and -0.05 < high < 0
+    # one primary comparison, no family: alpha 0.05 unsplit, 6 trials at the fewest
+    assert ("over the family's 1 primary comparison: 1 primary comparison here (bc)"
+            in table.notes[1] and "settle a pair in at 0.05: 6 trials" in table.notes[1])
+    csv = (tmp_path / "rep" / "report-sequential.csv").read_text().splitlines()
+    assert csv[0].split(",")[:4] == ["algorithm", "endpoint", "metric", "trials"]
+    # the fixed-n figures of the paired and the intervals tables flagged here, and not in
+    # a fixed protocol
     paired = report.tables[keys.index("learning-paired")]
     assert paired.header[4:6] == [f"95% interval {FIXED_N_MARK}", f"sign-flip p {FIXED_N_MARK}"]
     assert paired.notes[0].startswith(f"{FIXED_N_MARK} fixed-n figures, not valid after "
                                       "optional stopping")
+    ivs = report.tables[keys.index("learning-intervals")]
+    assert ivs.header[:2] == ["algorithm", "trials"]
+    assert all(h.endswith(FIXED_N_MARK) for h in ivs.header[2:])
+    assert "intervals of the means over trials" in ivs.notes[0]
     (out / RECORD).rename(tmp_path / "kept.json")
     fixed = write_report([out], tmp_path / "rep-fixed")
     plain = fixed.tables[[t.key for t in fixed.tables].index("learning-paired")]
@@ -272,13 +296,98 @@ def test_the_decision_the_protocol_takes_from_its_runs_and_the_report_table(
     (tmp_path / "kept.json").rename(out / RECORD)
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "Sequential test: each algorithm against cur on successes" in md
-    assert (tmp_path / "rep" / "report-sequential.csv").exists()
     page = (tmp_path / "rep" / "report.html").read_text()
     assert '<section id="sequential">' in page and "after 6 trials (t5): below cur" in page
     # a file this build cannot read: said, not a crash
     (out / RECORD).write_text('{"format": "sequential/0"}')
     report = write_report([out], tmp_path / "rep2")
     assert "cannot be read by this build" in report.markdown
+
+
+def test_a_record_from_before_endpoints_reads_every_pair_primary_at_the_split() -> None:
+    """Old sequential.json files (no primary, no family): both pairs primary, alpha /
+    2 each, so six -4s (e 23.6 < 40) are not settled here though the protocol said so."""
+    d = [-4.0] * 6
+    e = [float(x) for x in e_values(d)]
+    rec = {"format": "sequential/1", "reference": "cur", "metric": "rohe", "alpha": 0.05,
+           "threshold": 20.0, "min_trials": 3, "max_trials": 12, "trials_done": 6,
+           "cap": CAP, "stop": True, "why": "every pair is settled",
+           "pairs": {"a": {"differences": d, "e_values": e, "settled_after": 6,
+                           "direction": -1, "status": "settled"},
+                     "b": {"differences": d, "e_values": e, "settled_after": 6,
+                           "direction": -1, "status": "settled"}}}
+    fam = family_of(rec)
+    assert (fam.comparisons, fam.per_comparison, fam.declared) == (2, 0.025, False)
+    table = sequential_table(rec)
+    rows = {r[0]: r for r in table.rows}
+    assert rows["a"][1] == "primary" and rows["a"][4] == "-" and rows["a"][8] == "open"
+    assert table.title.endswith("settled at e-value >= 40 (per-comparison alpha 0.025)")
+    assert "It decided at alpha 0.05 per pair" in table.notes[0]
+    assert "predates declared endpoints" in table.notes[1]
+    assert "settle a pair in at 0.025: 7 trials" in table.notes[1]
+    low, high = (float(x) for x in rows["a"][7].strip("[]").split(", "))
+    assert low == -1.0 and high > 0  # at 97.5 %, 0 is still inside after six
+    # declared: a family of two protocols, one primary here
+    new = {**rec, "primary": ["a"], "family": {"other": 1}, "comparisons": 2,
+           "family_alpha": 0.05, "alpha": 0.025, "threshold": 40.0}
+    table = sequential_table(new)
+    rows = {r[0]: r for r in table.rows}
+    assert rows["b"][1] == "secondary" and "other (1)" in table.notes[1]
+    assert "It decided at" not in table.notes[0]
+
+
+def test_every_table_with_fixed_n_figures_is_flagged_and_no_other() -> None:
+    gain = Table("gain-intervals", "g", ["algorithm", "trials", "learning_gain"], [])
+    gp = Table("gain-paired", "g", ["algorithm", "metric", "per trial", "mean difference",
+                                    "95% interval", "sign-flip p", "pairs"], [])
+    auroc = Table("prediction-auroc", "a", ["algorithm", "signal"], [], ["n1"])
+    humans = Table("humans", "h", ["algorithm"], [], ["n"])
+    assert flag_fixed_n(gain).header[2] == f"learning_gain {FIXED_N_MARK}"
+    assert flag_fixed_n(gp).header[4:6] == [f"95% interval {FIXED_N_MARK}",
+                                            f"sign-flip p {FIXED_N_MARK}"]
+    flagged = flag_fixed_n(auroc)
+    assert flagged.header == auroc.header and flagged.notes[0].startswith(FIXED_N_MARK)
+    assert "intervals over runs" in flagged.notes[0] and flagged.notes[1] == "n1"
+    assert flag_fixed_n(humans) is humans
+
+
+def test_primary_and_family_are_checked_in_one_line_each(tmp_path: Path) -> None:
+    base: dict[str, Any] = {"name": "p", "trials": 3, "algorithms": ["bc", "fleet-ed", "cur"]}
+    old = Protocol.model_validate({**base, "until": {}})
+    assert old.until is not None and old.until.primaries(old.algorithms) == ["bc", "fleet-ed"]
+    assert old.until.per_comparison_alpha(old.algorithms) == 0.025
+    new = Protocol.model_validate({**base, "until": {"primary": "bc", "family": {"q": 2}}})
+    assert new.until is not None and new.until.comparisons(new.algorithms) == 3
+    assert new.until.per_comparison_alpha(new.algorithms) == pytest.approx(0.05 / 3)
+    for until, match in (({"primary": "cur"}, "until.primary: 'cur' is not one of the "
+                          "algorithms compared with 'cur'; use one of bc, fleet-ed"),
+                         ({"primary": "random"}, "until.primary: 'random' is not one"),
+                         ({"family": {"p": 1}}, "until.family: names this protocol"),
+                         ({"family": {"q": 0}}, "until.family.q")):
+        path = tmp_path / "p.toml"
+        fam = ", ".join(f"{k} = {v}" for k, v in until.get("family", {}).items())
+        extra = (f'primary = "{until["primary"]}"' if "primary" in until
+                 else f"family = {{ {fam} }}")
+        path.write_text('name = "p"\ntrials = 3\nalgorithms = ["bc", "fleet-ed", "cur"]\n'
+                        f"until = {{ {extra} }}\n[fleet]\nname = \"x\"\n")
+        with pytest.raises(ConfigError, match=match) as err:
+            load_protocol(path, check_files=False)
+        assert "\n" not in str(err.value)
+
+
+def test_a_secondary_pair_neither_holds_nor_stops_the_protocol() -> None:
+    settled, unsure = [-4.0] * 6, [1.0, -1.0] * 3
+    d = decide({"a": settled, "b": unsure}, alpha=0.05, min_trials=3, max_trials=20,
+               primary=["a"])
+    assert d.stop and d.why == "the primary pair is settled"
+    both = decide({"a": settled, "b": unsure}, alpha=0.05, min_trials=3, max_trials=20)
+    assert both.pairs["b"].status == "open"
+    assert not both.stop and both.primary == ("a", "b")
+    waits = decide({"a": settled, "b": unsure}, alpha=0.05, min_trials=3, max_trials=20,
+                   primary=["b"])
+    assert not waits.stop
+    with pytest.raises(ValueError, match="not a pair"):
+        decide({"a": settled}, alpha=0.05, min_trials=3, max_trials=20, primary=["z"])
 
 
 def test_the_anytime_p_is_one_over_the_largest_e_value_so_far() -> None:
