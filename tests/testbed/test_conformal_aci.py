@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,7 +40,8 @@ def test_the_threshold_at_any_level_is_the_order_statistic_or_never_or_always() 
 
 
 def test_the_bound_is_the_stated_formula() -> None:
-    # alpha + (alpha + A gamma (1 - alpha)) / (gamma T), alpha - (1 - alpha + A gamma alpha) / (gamma T)
+    # high: alpha + (alpha + A gamma (1 - alpha)) / (gamma T)
+    # low: alpha - (1 - alpha + A gamma alpha) / (gamma T)
     low, high = aci_bounds(0.05, 0.05, 80)
     assert high == pytest.approx(0.05 + 0.0975 / 4.0) and high == pytest.approx(0.074375)
     assert low == pytest.approx(0.05 - 0.9525 / 4.0)
@@ -187,3 +189,51 @@ def test_the_clustered_bound_covers_where_the_binomial_one_does_not() -> None:
         naive += r.rate + 1.645 * se >= 0.05
     assert covered / 400 >= 0.917
     assert naive / 400 < 0.917 - 0.03
+
+
+def test_the_live_rate_is_read_from_the_rows_untouched_and_touched_apart(tmp_path: Path) -> None:
+    """A monitor run by hand, arm 0: a success before the alarm was ready (not judged),
+    an untouched success the alarm fired in (key a at a policy push), one it did not, and
+    a success after a teleop the alarm had called (touched: counted apart)."""
+    from testbed.records.step_record import StepRecord
+    from testbed.records.steps import RunWriter
+    from testbed.records.store import RunDataWriter
+    from testbed.results.report_alarm import false_alarm_table, live_alarm
+    from tests.testbed.test_frame_classes_records import G1, G2, auto, frames_of, step, teleop
+
+    arm0 = [auto(goal=G1), auto(goal=G1, success=True),
+            auto(goal=G2), auto(goal=G2, success=True),
+            auto(goal=G1), auto(goal=G1, success=True),
+            auto(goal=G2), teleop(goal=G2), auto(goal=G2, success=True)]
+    arm1 = [step("idle", goal=G1) for _ in arm0]
+    alarmed = {2, 6}  # arm 0's key a
+    frames = frames_of(arm0, arm1)
+    run = tmp_path / "m"
+    run.mkdir()
+    data = RunDataWriter(run, ["c/left", "c/right"])
+    with RunWriter(run) as w:
+        for t in range(len(arm0)):
+            row = {"t": t, "wall_time": 1.7e9 + t, "duration_s": 1.0, "robots": []}
+            for a, p in enumerate((arm0, arm1)):
+                mon = {"alarm_score": 0.5} | ({"alarm_level": 0.05} if t >= 2 else {})
+                row["robots"].append({
+                    "robot": ["c/left", "c/right"][a], "mode": p[t]["mode"],
+                    "human": p[t]["human"], "action": p[t]["action"],
+                    "success": p[t]["success"], "violation": p[t]["violation"],
+                    "uncertainty": 0.1, "risk": 0.1, "monitor": mon,
+                    "key": [0.0, 1.0 if a == 0 and t in alarmed else 0.0, 0.0, 0.0, 0.0]})
+            f = frames[t * 2:(t + 1) * 2]
+            data.append(StepRecord.from_row(row, 0, np.zeros((2, 64, 64, 3), np.uint8),
+                                            f["observed"], f["goal"]).to_frames())
+            w.write_step(row)
+    data.close()
+    live = live_alarm(run)
+    assert live is not None
+    assert (live.judged, live.fired, live.touched, live.touched_fired) == (2, 1, 1, 1)
+    assert live.arms == 2 and live.config.alarm == "aci"
+    assert live.guarantee == pytest.approx(aci_bounds(0.05, 0.05, 2, arms=2)[1])
+    table = false_alarm_table({"monitor": [run]})
+    assert table is not None
+    upper = stats.beta.ppf(0.95, 2, 1)  # Clopper-Pearson, 1 of 2 in one run
+    assert table.rows[0][4:7] == ["2", f"0.500 [{upper:.3f}] (1)", "no"]
+    assert table.rows[0][8:] == ["1", "1.000 (1)"]

@@ -223,7 +223,7 @@ def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
     entries = [r for row in rows for r in row["robots"] if r["mode"] != "fault"]
     assert all("alarm_score" in r["monitor"] and "ood" in r["monitor"] for r in entries)
     ready = [row["t"] for row in rows
-             if any("alarm_threshold" in r.get("monitor", {}) for r in row["robots"])]
+             if any("alarm_level" in r.get("monitor", {}) for r in row["robots"])]
     assert ready and ready == list(range(ready[0], 40))  # ready once, then for good
     before = [r for row in rows[:ready[0]] for r in row["robots"]]
     assert all(r["key"][1] == r["key"][2] == 0 for r in before)  # no alarm before
@@ -296,5 +296,5 @@ def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
               if e["mode"] != "fault"]
     assert all(0.0 < s < 1.0 for s in scores) and len(set(scores)) > 10  # the head's P
     ready = [row["t"] for row in rows
-             if any("alarm_threshold" in e["monitor"] for e in row["robots"])]
+             if any("alarm_level" in e["monitor"] for e in row["robots"])]
     assert ready == list(range(ready[0], 40)) and ready[0] <= t  # ready before, and after
