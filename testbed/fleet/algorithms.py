@@ -211,7 +211,8 @@ def _monitor(p: AlgorithmConfig, n: int, m: int, seed: np.random.SeedSequence,
                          "built")
     head = FailureHead.load(monitor.head) if monitor.head is not None else None
     return MonitorPriority(n, score=monitor.score, alpha=monitor.alpha, window=monitor.window,
-                           u_hat=p.u_hat, r_hat=p.r_hat, head=head)
+                           u_hat=p.u_hat, r_hat=p.r_hat, head=head, alarm=monitor.alarm,
+                           gamma=monitor.gamma)
 
 
 ABLATIONS: Final = ("c", "u", "r", "cu", "cr", "ur", "uc", "ru", "cru")

@@ -5,20 +5,25 @@ Key (c, a, s, u, r), larger first (the allocator's rules, docs/notes/core.md):
 
 * c = 1 for a violating arm (its hard reset comes first, as in every algorithm);
 * a = 1 where the alarm fires: the arm's score (``monitor.score``) is above the
-  conformal threshold of the last ``monitor.window`` successful episodes' peaks
-  (``testbed.monitor.conformal``), so a successful episode calls a person with
-  probability at most ``monitor.alpha`` while its peaks stay exchangeable;
+  conformal threshold of the last ``monitor.window`` untouched successful episodes'
+  peaks (``testbed.monitor.conformal``: ACI by default, ``monitor.alarm``), so the share
+  of untouched successful episodes it fires in stays within ACI's stated bound of
+  ``monitor.alpha`` (the split alarm's: at most alpha while its peaks stay exchangeable);
 * s = that score on an alarmed arm (the ranking by predicted failure), else 0;
 * u, r: C.U.R.'s thresholded uncertainty and risk, used only **until the alarm is ready**
-  (fewer than 1/alpha - 1 successful episodes with a policy push): the fleet then runs as
+  (fewer than 1/alpha - 1 untouched successful episodes): the fleet then runs as
   C.U.R. without its initial period. Once ready, u and r are 0: an arm whose score is
   under the threshold gets no person, whatever its uncertainty.
 
 The alarm learns from the fleet's own episodes, arm by arm, as the loop reports each
 step (``observe``): an episode's peak is its largest score over the policy's pushes
-(autonomous with a push), kept across a person's teleop of the same episode; a success
-adds the peak to the calibration, a violation or a new goal drops it. The same rules as
-``testbed.monitor.labels`` (one episode ends at a success, a violation or a goal change).
+(autonomous with a push); a success no person touched (no teleop or reset in it) adds the
+peak to the calibration and, once the alarm is ready, is judged (did the alarm fire at
+one of its policy pushes: ACI's err); a success a person touched, a violation or a new
+goal drops it (a person's rescue would calibrate on the score that called them). The
+same rules as ``testbed.records.frame_classes`` (one episode ends at a success, a
+violation, whose idle, reset and fault frames after it still belong to it, or a goal
+change), so ``testbed/results/report_alarm.py`` reads the same episodes from the rows.
 
 Scores: any learned signal by name; ``fail_head``: the failure head of ``monitor.head``
 (``testbed/monitor/failure_head.py``: P(a violation within k steps) from the policy's
@@ -42,7 +47,7 @@ import numpy as np
 
 from testbed.core.types import Mode
 from testbed.fleet.priorities import FloatArray, OrderedPriority, PrioritySignals, check_t
-from testbed.monitor.conformal import ConformalAlarm
+from testbed.monitor.conformal import DEFAULT_GAMMA, make_alarm
 from testbed.monitor.failure_head import FailureHead
 from testbed.records.store import MODES
 
@@ -59,6 +64,11 @@ SCALE_FLOOR: Final = 1e-6
 REFERENCE: Final = 2000
 """Policy-push values whose median scales each part of a combined score (the latest)."""
 _AUTONOMOUS: Final = MODES.index(Mode.AUTONOMOUS.value)
+_TOUCHED: Final = frozenset(MODES.index(m.value) for m in (Mode.TELEOP, Mode.RESET))
+"""Modes in which a person has the arm: its episode is touched."""
+_AFTER_VIOLATION: Final = frozenset(MODES.index(m.value)
+                                    for m in (Mode.IDLE, Mode.RESET, Mode.FAULT))
+"""Modes that keep a violated episode going (``testbed.records.frame_classes``)."""
 
 
 def both_high(parts: Sequence[FloatArray], references: Sequence[FloatArray]) -> FloatArray:
@@ -83,7 +93,8 @@ class MonitorPriority:
         return frozenset({*COMBINED.get(score, (score,)), "uncertainty", "risk"})
 
     def __init__(self, num_robots: int, *, score: str, alpha: float, window: int,
-                 u_hat: float, r_hat: float, head: FailureHead | None = None) -> None:
+                 u_hat: float, r_hat: float, head: FailureHead | None = None,
+                 alarm: str = "aci", gamma: float = DEFAULT_GAMMA) -> None:
         if (score == "fail_head") != (head is not None):
             raise ValueError('a failure head is given with score = "fail_head", and only then')
         self.num_robots: Final[int] = num_robots
@@ -94,8 +105,16 @@ class MonitorPriority:
         the registry's, exactly: ``tests/testbed/test_train_parts.py``)."""
         self._cur = OrderedPriority("ur", num_robots, u_hat=u_hat, r_hat=r_hat)
         """C.U.R.'s thresholded (u, r), the keys until the alarm is ready."""
-        self.alarm = ConformalAlarm(alpha, window)
+        self.alarm = make_alarm(alarm, alpha, window, gamma)
         self._peak = np.full(num_robots, -math.inf)
+        self._touched = np.zeros(num_robots, bool)
+        """A person had the arm in its current episode."""
+        self._fired = np.zeros(num_robots, bool)
+        """The alarm fired at a policy push of the arm's current episode."""
+        self._violated = np.zeros(num_robots, bool)
+        """The arm's episode ended in a violation; its reset is still the episode's."""
+        self._alarmed = np.zeros(num_robots, bool)
+        """The last keys' a (the alarm fired for the arm)."""
         self._goal = np.full((num_robots, 2), np.nan)
         self._last = np.zeros(num_robots)
         self._raw: dict[str, FloatArray] = {}
@@ -135,51 +154,81 @@ class MonitorPriority:
         else:
             keys[:, 3:] = self._cur.keys(s)
         keys[s.faulted_array(n)] = 0.0
+        self._alarmed = keys[:, 1] > 0
         return keys
 
     def row_fields(self, robot: int) -> dict[str, float]:
         """What the step's row keeps of the alarm for an arm (its ``monitor``): the score
-        and, once the alarm is ready, its threshold."""
+        and, once the alarm is ready, its level (ACI's a_t; alpha for split) and its
+        threshold where finite (ACI's is +inf while a_t <= 0, -inf from 1)."""
         out = {"alarm_score": float(self._last[robot])}
         if self.alarm.ready:
-            out["alarm_threshold"] = self.alarm.threshold
+            out["alarm_level"] = self.alarm.level
+            if math.isfinite(self.alarm.threshold):
+                out["alarm_threshold"] = self.alarm.threshold
         return out
 
     # ---- learning from the fleet's episodes ----------------------------------------------
     def observe(self, frames: np.ndarray) -> None:
-        """The step's frames (the data store's, one per arm): peaks, episode ends,
-        the combined score's reference."""
+        """The step's frames (the data store's, one per arm): peaks, who touched each
+        episode, episode ends, the combined score's reference. The successes of a step
+        reach the alarm after every arm's frame, judged by whether it was ready at the
+        step's keys (what the rows say: ``alarm_level``)."""
+        ready = self.alarm.ready
+        settled: list[tuple[float, bool]] = []
         for a in range(self.num_robots):
             f = frames[a]
             if not bool(f["observed"]):
                 continue
+            mode = int(f["mode"])
+            if self._violated[a]:
+                if mode in _AFTER_VIOLATION:
+                    continue
+                self._violated[a] = False
             goal = np.asarray(f["goal"], dtype=float)
             if not np.isnan(self._goal[a]).any() and not np.allclose(goal, self._goal[a]):
-                self._peak[a] = -math.inf  # a new goal without a success: dropped
+                self._restart(a)  # a new goal without a success: dropped
             self._goal[a] = goal
-            if int(f["mode"]) == _AUTONOMOUS and int(f["action"]) >= 0:
+            self._touched[a] |= mode in _TOUCHED
+            if mode == _AUTONOMOUS and int(f["action"]) >= 0:
                 self._peak[a] = max(self._peak[a], float(self._last[a]))
+                self._fired[a] |= bool(self._alarmed[a])
                 for name, ref in self._reference.items():
                     ref.append(float(self._raw[name][a]))
             if bool(f["success"]):
-                if math.isfinite(self._peak[a]):
-                    self.alarm.add(float(self._peak[a]))
-                self._peak[a] = -math.inf
+                if math.isfinite(self._peak[a]) and not self._touched[a]:
+                    settled.append((float(self._peak[a]), bool(self._fired[a])))
+                self._restart(a)
             elif bool(f["violation"]):
-                self._peak[a] = -math.inf
+                self._restart(a)
+                self._violated[a] = True
+        for peak, fired in settled:
+            self.alarm.add(peak, fired if ready else None)
+
+    def _restart(self, a: int) -> None:
+        """Arm ``a``'s episode ended: a new one has no peak, no person, no alarm yet."""
+        self._peak[a] = -math.inf
+        self._touched[a] = self._fired[a] = False
 
     def state_dict(self) -> dict[str, Any]:
         """JSON-safe: no peak (-inf) and no goal seen yet (NaN) are null."""
         return {"alarm": self.alarm.state_dict(),
                 "peak": [p if math.isfinite(p) else None for p in self._peak.tolist()],
+                "touched": self._touched.tolist(), "fired": self._fired.tolist(),
+                "violated": self._violated.tolist(), "alarmed": self._alarmed.tolist(),
                 "goal": [None if np.isnan(g).any() else g.tolist() for g in self._goal],
                 "last": self._last.tolist(),
                 "raw": {k: v.tolist() for k, v in self._raw.items()},
                 "reference": {k: list(v) for k, v in self._reference.items()}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """A state of ``state_dict``, or one a run before issue 45 kept (the alarm's peaks
+        calibrate the configured alarm; the episodes running then count as untouched)."""
         self.alarm.load_state_dict(state["alarm"])
         self._peak = np.array([-math.inf if p is None else p for p in state["peak"]])
+        n = self.num_robots  # a checkpoint from before issue 45 has none of these four
+        for name in ("touched", "fired", "violated", "alarmed"):
+            setattr(self, f"_{name}", np.array(state.get(name, [False] * n), dtype=bool))
         self._goal = np.array([[np.nan, np.nan] if g is None else g for g in state["goal"]],
                               dtype=float)
         self._last = np.asarray(state["last"], dtype=float)

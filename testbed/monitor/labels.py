@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from testbed.core.types import EpisodeOutcome, FrameClass
 
-__all__ = ["POLICY_CLASSES", "PolicyPushes", "policy_pushes"]
+__all__ = ["POLICY_CLASSES", "PolicyPushes", "episode_ids", "policy_pushes"]
 
 POLICY_CLASSES: Final = (int(FrameClass.ROBOT), int(FrameClass.PRE_INTERVENTION))
 """The frame classes of the policy's own pushes."""
@@ -99,6 +99,12 @@ class PolicyPushes:
         return ids[order], maxima[order]
 
 
+def episode_ids(frames: np.ndarray, episodes: np.ndarray) -> npt.NDArray[np.int64]:
+    """Each frame's episode as one id per (arm, episode) in the run (``PolicyPushes.episode``)."""
+    span = int(episodes.max()) + 1 if len(frames) else 1
+    return frames["arm"].astype(np.int64) * span + episodes.astype(np.int64)
+
+
 def policy_pushes(frames: np.ndarray, classes: np.ndarray, outcomes: np.ndarray,
                   episodes: np.ndarray, scores: Mapping[str, npt.ArrayLike]
                   ) -> PolicyPushes:
@@ -112,8 +118,7 @@ def policy_pushes(frames: np.ndarray, classes: np.ndarray, outcomes: np.ndarray,
                              f"not one value per frame ({n})")
     t = frames["t"].astype(np.int64)
     arm = frames["arm"].astype(np.int64)
-    span = int(episodes.max()) + 1 if n else 1
-    episode = arm * span + episodes.astype(np.int64)
+    episode = episode_ids(frames, episodes)
     # the step of each episode's violation (the frame that took the cube out)
     violating = np.asarray(frames["violation"], dtype=bool)
     ended_at = dict(zip(episode[violating].tolist(), t[violating].tolist(), strict=True))

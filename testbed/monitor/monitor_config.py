@@ -14,7 +14,13 @@ from typing import Any, Literal, get_args
 from pydantic import Field, ValidationInfo, field_validator
 
 from testbed.core.config import StrictModel
-from testbed.monitor.conformal import DEFAULT_WINDOW, episodes_needed
+from testbed.monitor.conformal import (
+    DEFAULT_GAMMA,
+    DEFAULT_WINDOW,
+    AlarmKind,
+    check_gamma,
+    episodes_needed,
+)
 from testbed.monitor.failure_head import FailureHead, HeadError
 
 __all__ = ["SCORES", "MonitorConfig", "Score"]
@@ -37,8 +43,15 @@ class MonitorConfig(StrictModel):
                          "k steps' scored (k = 1..horizon)")
     recall: float = Field(0.8, gt=0.0, le=1.0, description="the share of failed episodes the "
                           "lead time and false alarms are read at")
-    window: int = Field(DEFAULT_WINDOW, ge=1, description="the latest successful episodes the "
-                        "online alarm calibrates on")
+    window: int = Field(DEFAULT_WINDOW, ge=1, description="the latest untouched successful "
+                        "episodes (no teleop, no reset) the alarm calibrates on")
+    alarm: AlarmKind = Field("aci", description="the alarm: \"aci\" (adaptive conformal "
+                             "inference: its realised false-alarm rate is within a stated "
+                             "bound of alpha for any drift of the scores) or \"split\" (split "
+                             "conformal on the window: a bound only while the episodes stay "
+                             "exchangeable); docs/notes/monitor.md")
+    gamma: float = Field(DEFAULT_GAMMA, description="ACI's step in (0, 1]: the level moves "
+                         "by gamma (alpha - fired) after each judged episode")
     score: Score = Field("risk", description="what the monitor algorithm's alarm watches ("
                          + ", ".join(SCORES) + "); the safety critic's risk by default: the "
                          "best single signal the twin measured (docs/notes/monitor.md)")
@@ -60,6 +73,14 @@ class MonitorConfig(StrictModel):
         if not 0.0 < v < 1.0:
             raise ValueError("must be in (0, 1)")
         return float(v)
+
+    @field_validator("gamma")
+    @classmethod
+    def _gamma(cls, v: float) -> float:
+        try:
+            return check_gamma(v)
+        except ValueError:
+            raise ValueError("must be in (0, 1]") from None
 
     @field_validator("head")
     @classmethod

@@ -22,17 +22,17 @@ from typing import Any, Final
 
 import numpy as np
 
-from testbed.core.types import EpisodeOutcome
+from testbed.core.types import EpisodeOutcome, Mode
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.fleet.monitor_priority import both_high
-from testbed.monitor.conformal import Replay, replay_online, replay_split
+from testbed.monitor.conformal import Replay, replay_online
 from testbed.monitor.failure_head import FailureHead, design
-from testbed.monitor.labels import POLICY_CLASSES, PolicyPushes, policy_pushes
+from testbed.monitor.labels import POLICY_CLASSES, PolicyPushes, episode_ids, policy_pushes
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import LeadTime, auroc, average_precision, lead_time
 from testbed.records.run_classes import STORE, run_classes
 from testbed.records.steps import RecordError, read_steps
-from testbed.records.store import RunDataError
+from testbed.records.store import MODES, RunDataError
 from testbed.results.prediction_features import push_features, theta0_digest
 
 __all__ = ["HEAD_INPUTS", "HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
@@ -45,8 +45,10 @@ NEW_SIGNALS: Final = ("ood", "ood_u", "fail_head")
 space, it together with the uncertainty (``both_high``), and the failure head
 (``add_failure_head``: a violation within ``HEAD_K`` steps from theta_0's trunk features
 and risk, learned on the runs from other theta_0)."""
-NOT_SCORES: Final = frozenset({"alarm_threshold"})
-"""``monitor`` entries that are not a score of the arm (the alarm's threshold)."""
+NOT_SCORES: Final = frozenset({"alarm_threshold", "alarm_level"})
+"""``monitor`` entries that are not a score of the arm (the alarm's threshold and level)."""
+TOUCHING_MODES: Final = (MODES.index(Mode.TELEOP.value), MODES.index(Mode.RESET.value))
+"""Modes in which a person has the arm: the episode is touched (it does not calibrate)."""
 HEAD_K: Final = 3
 """The horizon the failure head learns (the issue's goal: a violation within 3 steps)."""
 HEAD_INPUTS: Final = ("risk",)
@@ -88,12 +90,17 @@ class RunPrediction:
     notes: list[str] = field(default_factory=list)
     frames: np.ndarray | None = None
     """The data-store index of each policy push (None: the classes came from the rows)."""
+    touched: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """The episodes (``PolicyPushes.episode`` ids) in which a person had the arm (teleop
+    or reset)."""
 
-    def success_peaks(self, signal: str) -> np.ndarray:
-        """The signal's peak per successful episode, in the order they ran."""
+    def success_peaks(self, signal: str, touched: bool = False) -> np.ndarray:
+        """The signal's peak per successful episode no person touched (``touched``: per
+        one a person did), in the order they ran."""
         if self.pushes is None or signal not in self.figures:
             return np.zeros(0)
-        return self.pushes.episode_max(signal, EpisodeOutcome.SUCCESS)[1]
+        ids, peaks = self.pushes.episode_max(signal, EpisodeOutcome.SUCCESS)
+        return peaks[np.isin(ids, self.touched) == touched]
 
 
 def _config(path: Path) -> dict[str, Any]:
@@ -173,6 +180,8 @@ def run_prediction(path: Path, group: str, config: MonitorConfig | None = None
         pushes.scores["ood_u"] = _ood_u(pushes.scores["ood"], pushes.scores["uncertainty"])
         scores["ood_u"] = pushes.scores["ood_u"]
     result.pushes = pushes
+    episode = episode_ids(rc.frames, rc.classes.episodes)
+    result.touched = np.unique(episode[np.isin(rc.frames["mode"], TOUCHING_MODES)])
     for name in scores:
         values = pushes.scores[name]
         if np.isnan(values).all():
@@ -306,25 +315,11 @@ def _predict(head: FailureHead, p: PolicyPushes, feats: np.ndarray) -> np.ndarra
 
 def replays(runs: Sequence[RunPrediction], signal: str, cfg: MonitorConfig
             ) -> tuple[Replay, Replay]:
-    """The alarm's false-alarm rate on ``signal`` over ``runs`` (one algorithm's trials):
-
-    * split: the successful episodes' peaks of all ``runs`` pooled, calibrated on a random
-      half and counted on the other, 1000 times (exchangeable by construction, so it
-      checks the arithmetic and the bound's slack);
-    * online: as deployed, each run's successful episodes in the order they ran, each
-      judged by the threshold of the ``window`` before it, pooled over runs (a learning
-      policy: what breaks exchangeability shows here). Episodes before a run's alarm is
-      ready are not counted (``Replay.episodes`` says how many were).
-    """
+    """The split and the ACI alarm replayed on ``signal`` over ``runs`` (one algorithm's
+    trials), as deployed: each run's untouched successful episodes in the order they ran,
+    each judged by the alarm as it stood before it (``replay_online``: ``monitor.window``,
+    ``monitor.alpha``, ``monitor.gamma``), the rate pooled over runs with its upper bound
+    clustered by run. A run whose pushes could not be read gives no episode."""
     peaks = [r.success_peaks(signal) for r in runs]
-    split = replay_split(np.concatenate(peaks) if peaks else np.zeros(0), cfg.alpha,
-                         splits=1000)
-    hits, judged = 0.0, 0
-    for pk in peaks:
-        on = replay_online(pk, cfg.alpha, cfg.window)
-        if on.episodes:
-            hits += on.rate * on.episodes
-            judged += on.episodes
-    rate = hits / judged if judged else math.nan
-    err = math.sqrt(max(rate * (1 - rate), 1e-12) / judged) if judged else math.nan
-    return split, Replay(cfg.alpha, rate, err, judged, 1)
+    return (replay_online(peaks, cfg.alpha, cfg.window, kind="split"),
+            replay_online(peaks, cfg.alpha, cfg.window, kind="aci", gamma=cfg.gamma))

@@ -13,8 +13,9 @@ What each table says (docs/notes/monitor.md has the definitions and the twin's f
   failed episodes (each run its own threshold);
 * the reliability of the scores that claim to be probabilities (risk, goal risk):
   pooled over a group's runs, against "this episode fails";
-* the conformal alarm's false-alarm rate per successful episode by replay, against
-  ``monitor.alpha``;
+* the conformal alarms (split and ACI) replayed on each run's untouched successful
+  episodes in order: the false-alarm rate with its upper bound clustered by run
+  (``testbed.monitor.false_alarms``), against ``monitor.alpha``;
 * beside them, ``failure-head.json``: the failure head fitted on every run with theta_0's
   features (``prediction_runs.add_failure_head``), what ``[monitor] head`` reads.
 
@@ -118,12 +119,14 @@ def monitor_tables(groups: Sequence[tuple[str, Sequence[Path], Mapping[str, Any]
     """The report's failure-prediction tables for its groups (name, run folders, the first
     run's config.toml: its ``[monitor]``), and the monitor algorithm's own table for its
     runs, if any."""
-    from testbed.results.report_alarm import alarm_table
+    from testbed.results.report_alarm import alarm_table, false_alarm_table
 
     tables = prediction_tables({g: paths for g, paths, _ in groups},
                                monitor_config(groups[0][2]) if groups else None)
     alarms = alarm_table(monitor_runs)
-    return tables + ([alarms] if alarms is not None else [])
+    live = false_alarm_table({g: [p for p in paths if p in monitor_runs]
+                              for g, paths, _ in groups})
+    return tables + [t for t in (alarms, live) if t is not None]
 
 
 def prediction_tables(groups: Mapping[str, Sequence[Path]],
@@ -282,33 +285,49 @@ def _reliability(scored: Mapping[str, Sequence[RunPrediction]]) -> Table:
 
 
 def _alarm(scored: Mapping[str, Sequence[RunPrediction]], cfg: MonitorConfig) -> Table:
-    header = ["algorithm", "signal", "alpha", "split replay (episodes)",
-              "online replay (episodes judged)", "within alpha"]
-    rows, csv_rows = [], [["algorithm", "signal", "alpha", "split_rate", "split_mc_error",
-                           "split_episodes", "online_rate", "online_error", "online_episodes"]]
+    header = ["algorithm", "signal", "alpha", "runs", "episodes judged",
+              "split: rate [upper bound]", "split: bound <= alpha",
+              "ACI: rate [upper bound]", "ACI: bound <= alpha", "ACI's guarantee (most)"]
+    rows, csv_rows = [], [["algorithm", "signal", "alpha", "runs", "episodes",
+                           "split_fired", "split_rate", "split_upper", "aci_fired",
+                           "aci_rate", "aci_upper", "aci_guarantee"]]
     for g, runs in scored.items():
         for sig in _signals(runs):
-            split, online = replays(runs, sig, cfg)
+            split, aci = replays(runs, sig, cfg)
+            most = max(aci.guarantee, default=math.nan)
 
             def cell(rep: Any) -> str:
-                if math.isnan(rep.rate):
-                    return f"- ({rep.episodes}: too few)"
-                return f"{rep.rate:.3f} ± {2 * rep.mc_error:.3f} ({rep.episodes})"
-            holds = [rep.holds for rep in (split, online) if not math.isnan(rep.rate)]
-            rows.append([g, sig, f"{cfg.alpha:g}", cell(split), cell(online),
-                         "-" if not holds else ("yes" if all(holds) else "no")])
-            csv_rows.append([g, sig, cfg.alpha, _num(split.rate), _num(split.mc_error),
-                             split.episodes, _num(online.rate), _num(online.mc_error),
-                             online.episodes])
+                if rep.rate.runs == 0:
+                    return "-"
+                return f"{rep.rate.rate:.3f} [{rep.rate.upper:.3f}] ({rep.rate.fired})"
+            rows.append([g, sig, f"{cfg.alpha:g}", split.rate.runs, split.rate.episodes,
+                         cell(split), _yes(split), cell(aci), _yes(aci),
+                         "-" if math.isnan(most) else f"{most:.3f}"])
+            csv_rows.append([g, sig, cfg.alpha, split.rate.runs, split.rate.episodes,
+                             split.rate.fired, _num(split.rate.rate), _num(split.rate.upper),
+                             aci.rate.fired, _num(aci.rate.rate), _num(aci.rate.upper),
+                             _num(most)])
     return Table("prediction-alarm",
-                 f"The conformal alarm: false alarms per successful episode against alpha "
-                 f"{cfg.alpha:g} (window {cfg.window})", header, rows,
-                 ["An episode is alarmed when any policy push in it scores above the "
-                  "threshold: the ceil((n+1)(1-alpha))-th smallest peak of n successful "
-                  "episodes (testbed/monitor/conformal.py). Split: every run of the group "
-                  "pooled, calibrated on a random half, counted on the other, 1000 times "
-                  "(± twice the Monte-Carlo error). Online: each run's episodes in order, "
-                  "each judged by the window before it (± twice the binomial error). "
-                  "Within alpha: the rate is at most alpha plus twice its error. "
-                  f"The alarm needs {math.ceil(1 / cfg.alpha - 1 - 1e-12)} successful "
-                  "episodes before it can fire (until then it stays silent)."], csv_rows)
+                 f"The conformal alarms replayed: false alarms per untouched successful "
+                 f"episode against alpha {cfg.alpha:g} (window {cfg.window}, ACI's gamma "
+                 f"{cfg.gamma:g})", header, [[str(c) for c in r] for r in rows],
+                 ["Each run's successful episodes that no person touched (no teleop, no "
+                  "reset), in the order they ran; each judged by the alarm as it stood "
+                  "before it (fired: its peak above the threshold), then calibrating it "
+                  "(testbed/monitor/conformal.py::replay_online). Split: the "
+                  "ceil((n+1)(1-alpha))-th smallest of the window's peaks; ACI: the same "
+                  "at a level moved by gamma (alpha - fired) after each episode. Rate: "
+                  "alarmed over judged, pooled over runs (alarmed count in parentheses); "
+                  "[upper bound]: one-sided 95 %, Korn-Graubard clustered by run "
+                  "(testbed/monitor/false_alarms.py). ACI's guarantee: the most its rate "
+                  "can be in the run with the fewest episodes, alpha + (alpha + gamma "
+                  "(1 - alpha)) / (gamma T), for any sequence of peaks. "
+                  f"The alarm judges from the {math.ceil(1 / cfg.alpha - 1 - 1e-12)}th "
+                  "untouched success on (until then it stays silent). A person who took "
+                  "an arm leaves its episode out: the replay says nothing of the alarm on "
+                  "the successes people rescued."], csv_rows)
+
+
+def _yes(rep: Any) -> str:
+    """Whether a replay's upper bound is at most alpha ("-": nothing judged)."""
+    return "-" if rep.rate.runs == 0 else ("yes" if rep.holds else "no")

@@ -126,26 +126,32 @@ def test_the_threshold_is_the_conformal_order_statistic() -> None:
 def test_the_false_alarm_rate_on_held_out_successes_is_at_most_alpha(alpha: float) -> None:
     rng = np.random.default_rng(2)
     peaks = rng.gamma(2.0, size=400)
-    split = replay_split(peaks, alpha, splits=2000)
+    split = replay_split(peaks, alpha, splits=2000)  # a sanity check of the arithmetic
     assert split.rate <= alpha + 2 * split.mc_error
     assert split.rate >= alpha - 1 / 201 - 2 * split.mc_error  # and not far below
-    online = replay_online(peaks, alpha, window=100)
-    assert online.episodes == 400 - episodes_needed(alpha)
-    assert online.holds
+    online = replay_online([peaks], alpha, window=100, kind="split")
+    assert online.judged == (400 - episodes_needed(alpha),)
+    # exchangeable: P(fire) <= alpha for each episode, so the count is at most a
+    # binomial(judged, alpha)'s 99.9 % quantile
+    from scipy import stats
+
+    assert online.fired[0] <= stats.binom.ppf(0.999, online.judged[0], alpha)
 
 
 def test_the_online_alarm_follows_a_policy_whose_scores_fall_and_resumes_its_state() -> None:
     alarm = ConformalAlarm(0.1, window=20)
     assert not alarm.ready and not alarm.fires([1e9]).any()
     for p in np.linspace(10, 11, 20):
-        alarm.add(float(p))
+        alarm.add(float(p), fired=False)
     assert alarm.ready and 10.0 < alarm.threshold <= 11.0
+    assert alarm.judged == 11  # the 10th to the 20th: 9 calibrate first (1/alpha - 1)
     for p in np.linspace(1, 2, 20):  # the policy learned: its scores fell
         alarm.add(float(p))
     assert alarm.threshold <= 2.0 and alarm.fires([2.5, 1.0]).tolist() == [True, False]
     again = ConformalAlarm(0.1, window=20)
     again.load_state_dict(alarm.state_dict())
     assert again.threshold == alarm.threshold and again.calibrated_on == 20
+    assert again.judged == alarm.judged == 11
 
 
 def test_the_failure_head_learns_which_signals_foretell_a_failure() -> None:

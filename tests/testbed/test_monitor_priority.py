@@ -63,7 +63,8 @@ def test_it_runs_as_cur_until_its_alarm_is_ready_then_only_where_the_alarm_fires
     # u and r no longer count
     assert keys.tolist() == [[1, 0, 0, 0, 0], [0, 1, 0.7, 0, 0], [0, 1, 0.9, 0, 0]]
     assert p.keys(signals(31, [0.45, 0.5, 0.1])).tolist() == [[0] * 5] * 3  # trusted
-    assert p.row_fields(0) == {"alarm_score": 0.45, "alarm_threshold": 0.5}
+    assert p.row_fields(0) == {"alarm_score": 0.45, "alarm_threshold": 0.5,
+                               "alarm_level": 0.1}  # ACI: nothing judged yet, a_1 = alpha
 
 
 def test_a_peak_counts_only_when_its_episode_succeeds() -> None:
@@ -76,9 +77,56 @@ def test_a_peak_counts_only_when_its_episode_succeeds() -> None:
     p.keys(signals(2, [0.4, 0.25, 0.35]))
     p.observe(frames(["autonomous", "teleop", "autonomous"], goal=0.7,
                      success=[True, True, True]))
-    # arm 0: 0.4 (the failed episode's 0.9 was dropped); arm 1: its policy push at t 1
-    # (0.2; the teleop's step does not count); arm 2: max(0.3, 0.35)
-    assert sorted(p.alarm.state_dict()["peaks"]) == [0.2, 0.35, 0.4]
+    # arm 0: 0.4 (the failed episode's 0.9 was dropped); arm 1: none (a person had the
+    # arm: a touched success does not calibrate, issue 45); arm 2: max(0.3, 0.35)
+    assert sorted(p.alarm.state_dict()["peaks"]) == [0.35, 0.4]
+
+
+def test_a_touched_success_does_not_calibrate_and_an_alarm_nobody_answered_is_judged() -> None:
+    """Issue 45, item 2: a success in which a person had the arm (teleop or reset) adds
+    no peak; once ready, an untouched success in which the alarm fired at a policy push
+    moves ACI's level by gamma (alpha - 1); the reset after a violation is the violated
+    episode's, not a touch of the next one."""
+    p = MonitorPriority(N, score="uncertainty", alpha=0.5, window=10, u_hat=1, r_hat=1,
+                        gamma=0.1)
+    p.keys(signals(0, [0.3, 0.6, 0.2]))
+    p.observe(frames(["autonomous", "autonomous", "autonomous"], violation=[False, False, True]))
+    p.keys(signals(1, [0.4, 0.0, 0.0]))
+    p.observe(frames(["autonomous", "teleop", "reset"], success=[True, True, False]))
+    # arm 0: untouched, peak 0.4 (not ready before: calibrates only); arm 1: touched
+    assert p.alarm.state_dict()["peaks"] == [0.4] and p.alarm.ready and p.alarm.judged == 0
+    p.keys(signals(2, [0.1, 0.9, 0.7]))  # ready: threshold 0.4 (k = ceil(2 * 0.5) = 1)
+    assert p.keys(signals(2, [0.1, 0.9, 0.7]))[:, 1].tolist() == [0.0, 1.0, 1.0]
+    # arm 1 (alarmed, nobody came) and arm 2 (its first push after the reset) succeed
+    p.observe(frames(["autonomous", "autonomous", "autonomous"], success=[False, True, True]))
+    assert p.alarm.judged == 2 and p.alarm.fired == 2
+    assert p.alarm.level == pytest.approx(0.5 + 2 * 0.1 * (0.5 - 1.0))
+    assert sorted(p.alarm.state_dict()["peaks"]) == [0.4, 0.7, 0.9]
+
+
+def test_a_state_from_before_issue_45_loads_and_a_resumed_one_goes_on_alike() -> None:
+    p = MonitorPriority(N, score="uncertainty", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    rng = np.random.default_rng(5)
+    steps = [(rng.random(N).tolist(), (rng.random(N) < 0.3).tolist(),
+              ["teleop" if x < 0.1 else "autonomous" for x in rng.random(N)])
+             for _ in range(60)]
+    for t, (u, succ, modes) in enumerate(steps[:30]):
+        p.keys(signals(t, u))
+        p.observe(frames(modes, success=succ))
+    q = MonitorPriority(N, score="uncertainty", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    q.load_state_dict(json.loads(json.dumps(p.state_dict(), allow_nan=False)))
+    for t, (u, succ, modes) in enumerate(steps[30:], start=30):
+        assert np.array_equal(q.keys(signals(t, u)), p.keys(signals(t, u)))
+        p.observe(frames(modes, success=succ))
+        q.observe(frames(modes, success=succ))
+        assert q.alarm.state_dict() == p.alarm.state_dict()
+    assert p.alarm.judged > 10 and p.alarm.level != 0.5  # it judged and moved
+    old = {k: v for k, v in p.state_dict().items()
+           if k not in ("touched", "fired", "violated", "alarmed")}
+    old["alarm"] = {"alpha": 0.5, "window": 10, "peaks": [0.2, None, 0.6]}
+    r = MonitorPriority(N, score="uncertainty", alpha=0.5, window=10, u_hat=1, r_hat=1)
+    r.load_state_dict(old)
+    assert r.alarm.calibrated_on == 2 and r.alarm.level == 0.5 and r.alarm.ready
 
 
 def test_ood_u_is_high_only_where_both_are() -> None:
@@ -175,7 +223,7 @@ def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
     entries = [r for row in rows for r in row["robots"] if r["mode"] != "fault"]
     assert all("alarm_score" in r["monitor"] and "ood" in r["monitor"] for r in entries)
     ready = [row["t"] for row in rows
-             if any("alarm_threshold" in r.get("monitor", {}) for r in row["robots"])]
+             if any("alarm_level" in r.get("monitor", {}) for r in row["robots"])]
     assert ready and ready == list(range(ready[0], 40))  # ready once, then for good
     before = [r for row in rows[:ready[0]] for r in row["robots"]]
     assert all(r["key"][1] == r["key"][2] == 0 for r in before)  # no alarm before
@@ -248,5 +296,5 @@ def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
               if e["mode"] != "fault"]
     assert all(0.0 < s < 1.0 for s in scores) and len(set(scores)) > 10  # the head's P
     ready = [row["t"] for row in rows
-             if any("alarm_threshold" in e["monitor"] for e in row["robots"])]
+             if any("alarm_level" in e["monitor"] for e in row["robots"])]
     assert ready == list(range(ready[0], 40)) and ready[0] <= t  # ready before, and after

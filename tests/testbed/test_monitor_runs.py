@@ -174,13 +174,22 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     assert risk_bins == [f"[{b / 10:.1f}, {(b + 1) / 10:.1f})" for b in range(5)]
     alarm = {r[1]: r for r in tables["prediction-alarm"].rows}
     # the oracle is 0 on every push of a successful episode (no violation ahead), so every
-    # calibration peak is 0 and no successful episode scores above the threshold: no false
-    # alarm, split or online. Split counts every successful episode of the three runs;
-    # online each run's from its 20th (the alarm needs 19 first: 1 / alpha - 1)
+    # calibration peak is 0 and no untouched successful episode scores above the
+    # threshold: no false alarm, split or ACI (whose level rises by gamma alpha = 0.0025
+    # an episode, short of 1, where it would fire on everything). Each run judges from its
+    # 20th (19 calibrate first: 1 / alpha - 1). 0 alarms in 3 runs: the same rate in each
+    # (design effect 1), Clopper-Pearson on judged (z / t_2)^2 effective episodes, which is
+    # above alpha: 3 runs cannot show a rate below 0.05
+    from scipy import stats
+
     successes = [successful_episodes(s) for s in range(3)]
     judged = sum(max(0, n - 19) for n in successes)
-    assert alarm["oracle"][3:] == [f"0.000 ± 0.000 ({sum(successes)})",
-                                   f"0.000 ± 0.000 ({judged})", "yes"]
+    n_eff = judged * (stats.norm.ppf(0.95) / stats.t.ppf(0.95, 2)) ** 2
+    upper = 1 - 0.05 ** (1 / n_eff)
+    most = 0.05 + (0.05 + 0.05 * 0.95) / (0.05 * min(n - 19 for n in successes))
+    assert upper > 0.05
+    assert alarm["oracle"][3:] == ["3", str(judged), f"0.000 [{upper:.3f}] (0)", "no",
+                                   f"0.000 [{upper:.3f}] (0)", "no", f"{most:.3f}"]
     md = "\n".join(t.markdown() for t in tables.values())
     assert "novelty: not in its rows" in md
 
