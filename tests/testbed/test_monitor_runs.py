@@ -59,12 +59,13 @@ def _violation_ahead(p: list[dict[str, Any]], t: int) -> int | None:
     return None
 
 
-def theta0(run: Path, kept_as: int, weights: int | None = None) -> None:
+def theta0(run: Path, kept_as: int, weights: int | None = None, critics: int = 0) -> None:
     """A theta_0 for ``run``: one small policy saved with ``kept_as`` for its seed (and a
     sampler state of its own). Its weights are ``weights``' (default ``kept_as``): the
     same trunk every time, so the features mean the same, with the policy's last bias
     moved by ``weights`` / 100, so another ``weights`` is another network (the digest
-    hashes the weights, not the file)."""
+    hashes the weights, not the file); ``critics`` moves every critic parameter (net
+    and target) by ``critics`` / 100: what BC and C.U.R. pretraining differ by."""
     import torch
 
     from testbed.learning import checkpoint
@@ -74,6 +75,10 @@ def theta0(run: Path, kept_as: int, weights: int | None = None) -> None:
     state = Learner(LearningConfig(ensemble_size=1), seed=0).state_dict()
     w = kept_as if weights is None else weights
     state["policy"][LAST_BIAS] = state["policy"][LAST_BIAS] + w / 100
+    for critic in ("safety", "goal"):
+        for part in ("net", "target"):
+            state[critic][part] = {k: v + critics / 100 if v.is_floating_point() else v
+                                   for k, v in state[critic][part].items()}
     state["sampler"] = torch.Generator().manual_seed(kept_as).get_state()
     checkpoint.save_atomic({**state, "seed": kept_as}, run / START_LEARNER)
 
@@ -247,3 +252,20 @@ def test_one_theta_0_is_its_weights_not_its_file(tmp_path: Path) -> None:
     assert "fail_head" not in [r[1] for r in auc.rows] and not auc.files
     assert "fail_head: the failure head needs runs from two theta_0 with features" in \
         auc.markdown()
+
+
+def test_theta_0_is_the_policy_the_head_reads_not_the_critics(tmp_path: Path) -> None:
+    """The digest hashes the policy and nothing else of the learner (issue 45, item 1):
+    a BC run pretrains no critic and a C.U.R. run of the same trial the safety critic,
+    over one policy, so critics that differ leave one theta_0 (dropping the policy from
+    the hash, or adding the critics to it, fails here); a policy that differs in one
+    parameter of its last layer is another theta_0 (hashing only part of the policy, or
+    the critics alone, fails here)."""
+    theta0(tmp_path / "bc", kept_as=0, weights=0, critics=0)
+    theta0(tmp_path / "cur", kept_as=0, weights=0, critics=3)
+    theta0(tmp_path / "other", kept_as=0, weights=1, critics=0)
+    assert (tmp_path / "bc" / START_LEARNER).read_bytes() != \
+        (tmp_path / "cur" / START_LEARNER).read_bytes()
+    digest = {n: theta0_digest(tmp_path / n) for n in ("bc", "cur", "other")}
+    assert digest["bc"] == digest["cur"], "critics that differ made two theta_0"
+    assert digest["bc"] != digest["other"], "policies that differ made one theta_0"
