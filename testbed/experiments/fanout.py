@@ -20,7 +20,9 @@ shared.
 
 Before the fan-out one task makes theta_0 (the pretraining cache), holding every CPU
 (otherwise every first trial would pretrain the same theta_0 at once) but computing
-at the trials' thread count, so theta_0 is the serial run's at that count.
+at the trials' thread count, so theta_0 is the serial run's at that count. A protocol
+with ``pretrain_per_trial`` has a theta_0 per trial seed instead, each cached apart: one
+task per trial makes it, at the trial's CPUs, and that trial's runs wait for it.
 
 Threads: each trial task takes ``cpus_per_trial`` CPUs and torch uses that many
 threads (``TESTBED_THREADS``), so two trials do not oversubscribe the cores. The
@@ -89,13 +91,16 @@ def _threads(n: int) -> None:
     os.environ[THREADS_ENV] = str(n)
 
 
-def _pretrain(fleet: FleetConfig, folder: str, critics: list[str], threads: int) -> str:
-    """theta_0 into ``folder/.pretrained`` (the cache every trial then reads)."""
-    from testbed.experiments.learners import pretrained_learner
+def _pretrain(fleet: FleetConfig, folder: str, critics: list[str], threads: int,
+              seed: int | None = None) -> str:
+    """theta_0 pretrained from ``seed`` (None: the shared ``PRETRAIN_SEED``) into
+    ``folder/.pretrained`` (the cache the trials then read)."""
+    from testbed.experiments.learners import PRETRAIN_SEED, pretrained_learner
     from testbed.experiments.scripted_humans import ScriptedHumans
 
     _threads(threads)
-    _, path = pretrained_learner(fleet, ScriptedHumans(), Path(folder), None, critics=critics)
+    _, path = pretrained_learner(fleet, ScriptedHumans(), Path(folder), None, critics=critics,
+                                 pretrain_seed=PRETRAIN_SEED if seed is None else seed)
     return str(path)
 
 
@@ -146,15 +151,18 @@ def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = 
     at a time, and after each wave :func:`sequential_decision` reads the finished trials
     exactly as the serial loop does, so a fanned-out protocol stops after the trial the
     serial one stops after and runs no trial past it. Evaluations of finished trials run
-    beside the next wave."""
-    from testbed.experiments.protocol import pretrain_critics, sequential_decision
+    beside the next wave. With ``pretrain_per_trial`` each trial's runs wait for a task
+    that pretrains its own theta_0 (at the trial's CPUs) instead."""
+    from testbed.experiments.protocol import sequential_decision
 
     check_fanout(proto.fleet, proto.humans, f"protocol {proto.name!r}")
+    critics = protocol_critics(proto)
     ray = _init(address, workers)
     try:
-        pre = _remote(ray, _pretrain, _cpus(ray))
-        ray.get(pre.remote(proto.fleet, str(folder), pretrain_critics(proto.algorithms),
-                           cpus_per_trial))
+        if not proto.pretrain_per_trial:
+            pre = _remote(ray, _pretrain, _cpus(ray))
+            ray.get(pre.remote(proto.fleet, str(folder), critics, cpus_per_trial))
+        own = _remote(ray, _pretrain, cpus_per_trial)
         trial = _remote(ray, _protocol_run, cpus_per_trial)
         evaluation = _remote(ray, _evaluation, cpus_per_trial)
         evaluations: list[Any] = []
@@ -163,7 +171,10 @@ def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = 
         while done < proto.max_trials:
             runs: list[Any] = []
             for k in range(done, min(done + wave, proto.max_trials)):
-                refs = _trial_tasks(proto, folder, k, trial, cpus_per_trial)
+                theta = ([own.remote(proto.fleet, str(folder), critics, cpus_per_trial,
+                                     proto.pretrain_seed(k))]
+                         if proto.pretrain_per_trial else [])
+                refs = _trial_tasks(proto, folder, k, trial, cpus_per_trial, theta)
                 runs.extend(refs.values())
                 evaluations.extend(_evaluation_tasks(proto, folder, k, evaluation,
                                                      cpus_per_trial, refs))
@@ -177,13 +188,23 @@ def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = 
         ray.shutdown()
 
 
-def _trial_tasks(proto: Protocol, folder: Path, k: int, trial: Any, cpus: int
-                 ) -> dict[str, Any]:
-    """Trial ``k``'s runs as tasks, by algorithm (the matched run before Random)."""
+def protocol_critics(proto: Protocol) -> list[str]:
+    """The critics a protocol's theta_0 is pretrained with, as ``run_protocol_run`` asks
+    (by the algorithm each name runs: a way's name is no algorithm)."""
+    from testbed.experiments.protocol import pretrain_critics
+
+    return pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
+
+
+def _trial_tasks(proto: Protocol, folder: Path, k: int, trial: Any, cpus: int,
+                 theta: list[Any] | None = None) -> dict[str, Any]:
+    """Trial ``k``'s runs as tasks, by algorithm (the matched run before Random), each
+    after ``theta`` (the task pretraining the trial's own theta_0, if any)."""
     match = proto.fleet.algorithm.budget_match
     done: dict[str, Any] = {}
     for algorithm in proto.run_order(k):
-        after = [done[match]] if algorithm == "random" and match in done else []
+        after = [*(theta or []),
+                 *([done[match]] if algorithm == "random" and match in done else [])]
         done[algorithm] = trial.remote(proto, str(folder), k, algorithm, cpus, *after)
     return done
 

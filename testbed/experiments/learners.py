@@ -26,6 +26,7 @@ from testbed.experiments.theta0 import (
     PRETRAIN_SEED,
     make_theta0,
     own_hosts,
+    pretrain_hosts_seed,
     theta0_folder,
 )
 from testbed.records.run_dir import RunDir
@@ -84,6 +85,7 @@ def pretrained_learner(
     hosts: Hosts | None = None,
     trial_seed: int | None = None,
     critics: Iterable[str] | None = None,
+    pretrain_seed: int = PRETRAIN_SEED,
 ) -> tuple[Any, Path]:
     """theta_0: from the cache if this exact pretraining was done before, else made now.
 
@@ -103,18 +105,23 @@ def pretrained_learner(
     builds and closes hosts of its own. Each phase keeps what it made in the cache as
     it goes, and a cache that holds part of it goes on from there
     (``testbed.experiments.theta0``).
+
+    ``pretrain_seed``: the seed theta_0 is pretrained from (``PRETRAIN_SEED``: the one
+    every trial shares; a protocol with ``pretrain_per_trial`` gives the trial's seed,
+    and each seed's theta_0 is cached apart, its hosts' world at
+    ``pretrain_hosts_seed(pretrain_seed)``).
     """
     which = critic_set(critics)
-    ckpt = theta0_folder(out, cfg, which) / "learner.pt"
+    ckpt = theta0_folder(out, cfg, which, pretrain_seed) / "learner.pt"
     if not ckpt.exists():
         if hosts is None:
-            with own_hosts(cfg) as own:
-                make_theta0(cfg, humans, out, which, own, progress)
+            with own_hosts(cfg, pretrain_seed) as own:
+                make_theta0(cfg, humans, out, which, own, progress, seed=pretrain_seed)
         else:
             if trial_seed is None:
                 raise ValueError("pretraining on the trial's hosts needs the trial seed")
-            hosts.reseed(PRETRAIN_HOSTS_SEED)
-            make_theta0(cfg, humans, out, which, hosts, progress)
+            hosts.reseed(pretrain_hosts_seed(pretrain_seed))
+            make_theta0(cfg, humans, out, which, hosts, progress, seed=pretrain_seed)
             hosts.reseed(trial_seed)
     return load_learner(cfg, ckpt), ckpt
 

@@ -161,6 +161,11 @@ class Protocol(BaseModel):
     learning gain per human action, (eval successes - theta_0's) / human actions."""
     until: Until | None = None
     """Stop when the answer is settled (:class:`Until`); None: exactly ``trials``."""
+    pretrain_per_trial: bool = Field(False, strict=True)
+    """Each trial pretrains its own theta_0 from its seed (own demonstrations, own
+    initialisation, cached per seed), so leaving one theta_0 out of the failure head's
+    fit holds out a policy (issue 45, item 1); false: every trial starts from one theta_0
+    (``PRETRAIN_SEED``), the algorithms' fair comparison within a trial either way."""
 
     @model_validator(mode="before")
     @classmethod
@@ -193,6 +198,10 @@ class Protocol(BaseModel):
         if bad:
             raise ValueError(f"unknown algorithm {bad[0]!r}; use {', '.join(ALGORITHM_NAMES)}"
                              " or a way of [ways]")
+        if self.pretrain_per_trial and self.seeds is not None \
+                and len(set(self.seeds)) < len(self.seeds):
+            raise ValueError("pretrain_per_trial: seeds must differ (a trial's theta_0 is "
+                             "pretrained from its seed)")
         if self.until is not None:
             self._check_until(self.until)
         elif self.seeds is not None and len(self.seeds) != self.trials:
@@ -268,6 +277,11 @@ class Protocol(BaseModel):
         if k < len(self.seeds):
             return self.seeds[k]
         return max(self.seeds) + 1 + (k - len(self.seeds))
+
+    def pretrain_seed(self, k: int) -> int | None:
+        """The seed trial ``k``'s theta_0 is pretrained from: its own with
+        ``pretrain_per_trial``, else None (the one every trial shares)."""
+        return self.seed(k) if self.pretrain_per_trial else None
 
     def run_order(self, k: int) -> list[str]:
         """The algorithms of trial ``k`` in the order they run.
@@ -496,7 +510,8 @@ def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
                         seed=proto.seed(k), out=str(folder), humans=proto.humans,
                         name=f"{algorithm}-t{k}", label=algorithm,
                         pretrain_critics=pretrain_critics(
-                            [proto.algorithm_of(a) for a in proto.algorithms]))
+                            [proto.algorithm_of(a) for a in proto.algorithms]),
+                        pretrain_seed=proto.pretrain_seed(k))
     run_meta: dict[str, Any] = {
         **(meta or {}),
         "protocol": {"name": proto.name, "trial": k, "position": order.index(algorithm),

@@ -64,13 +64,22 @@ if TYPE_CHECKING:
 
 __all__ = ["CACHE", "KEEP_EVERY_S", "PRETRAIN_HOSTS_SEED", "PRETRAIN_SEED", "CacheState",
            "PartialFile", "Report", "as_report", "cache_state", "collect_into", "demos_file",
-           "make_theta0", "npz_length", "own_hosts", "theta0_folder"]
+           "make_theta0", "npz_length", "own_hosts", "pretrain_hosts_seed", "theta0_folder"]
 
 PRETRAIN_SEED: Final = 0
-"""Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison)."""
+"""Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison),
+pretrained from this seed; a protocol with ``pretrain_per_trial`` pretrains each trial's
+from the trial's seed instead (issue 45, item 1: a held-out theta_0 that is one)."""
 
 PRETRAIN_HOSTS_SEED: Final = PRETRAIN_SEED + 104729
 """The hosts' trial seed while pretraining: the same world whichever trial pretrains."""
+
+
+def pretrain_hosts_seed(seed: int) -> int:
+    """The hosts' seed while pretraining theta_0 from ``seed``: ``PRETRAIN_HOSTS_SEED``
+    for the shared theta_0 (as before), shifted by the seed for a trial's own, so each
+    trial's demonstrations come from a world of its own."""
+    return PRETRAIN_HOSTS_SEED + seed - PRETRAIN_SEED
 
 CACHE: Final = ".pretrained"
 KEEP_EVERY_S: Final = 5.0
@@ -79,14 +88,17 @@ a crash loses at most these seconds of pushes; on the twin, where 375 pairs take
 second, it is written once or twice."""
 
 
-def theta0_folder(out: Path, cfg: FleetConfig, critics: Iterable[str] | None) -> Path:
-    """The folder of the theta_0 of ``cfg`` with ``critics`` (None: both) under ``out``."""
-    return out / CACHE / pretrain_key(cfg, PRETRAIN_SEED, critic_set(critics))
+def theta0_folder(out: Path, cfg: FleetConfig, critics: Iterable[str] | None,
+                  seed: int = PRETRAIN_SEED) -> Path:
+    """The folder of the theta_0 of ``cfg`` with ``critics`` (None: both) pretrained from
+    ``seed`` under ``out`` (one per seed: the seed is part of its key)."""
+    return out / CACHE / pretrain_key(cfg, seed, critic_set(critics))
 
 
-def demos_file(out: Path, cfg: FleetConfig) -> Path:
-    """The demonstrations of ``cfg``'s arms under ``out``, as collected so far."""
-    return out / CACHE / "demos" / f"{demos_key(cfg, PRETRAIN_SEED)}.npz"
+def demos_file(out: Path, cfg: FleetConfig, seed: int = PRETRAIN_SEED) -> Path:
+    """The demonstrations of ``cfg``'s arms for pretraining seed ``seed`` under ``out``,
+    as collected so far."""
+    return out / CACHE / "demos" / f"{demos_key(cfg, seed)}.npz"
 
 
 def npz_length(path: Path) -> int:
@@ -114,9 +126,10 @@ class CacheState:
     """BC rollouts kept so far."""
 
 
-def cache_state(out: Path, cfg: FleetConfig, critics: Iterable[str] | None) -> CacheState:
-    folder = theta0_folder(out, cfg, critics)
-    shared = demos_file(out, cfg)
+def cache_state(out: Path, cfg: FleetConfig, critics: Iterable[str] | None,
+                seed: int = PRETRAIN_SEED) -> CacheState:
+    folder = theta0_folder(out, cfg, critics, seed)
+    shared = demos_file(out, cfg, seed)
     own = folder / "demos.npz"
     return CacheState(folder, shared, (folder / "learner.pt").exists(),
                       npz_length(own) if own.exists() else npz_length(shared),
@@ -175,12 +188,13 @@ def collect_into(path: Path, hosts: Hosts, humans: Humans, count: int, t_R: int,
 
 
 @contextlib.contextmanager
-def own_hosts(cfg: FleetConfig) -> Iterator[Hosts]:
-    """The fleet's hosts at the pretraining seed, started, then rested and closed: for a
-    caller without a trial's hosts (``testbed collect``/``pretrain``, the Ray task)."""
+def own_hosts(cfg: FleetConfig, seed: int = PRETRAIN_SEED) -> Iterator[Hosts]:
+    """The fleet's hosts at the pretraining seed's world (``pretrain_hosts_seed``),
+    started, then rested and closed: for a caller without a trial's hosts (``testbed
+    collect``/``pretrain``, the Ray task)."""
     from testbed.experiments.build import build_hosts
 
-    hosts = build_hosts(cfg, PRETRAIN_HOSTS_SEED)
+    hosts = build_hosts(cfg, pretrain_hosts_seed(seed))
     try:
         hosts.start()
         yield hosts
@@ -193,16 +207,17 @@ def own_hosts(cfg: FleetConfig) -> Iterator[Hosts]:
 
 def make_theta0(cfg: FleetConfig, humans: Humans, out: Path, critics: Iterable[str] | None,
                 hosts: Hosts, progress: Progress | TrialHooks | None,
-                every_s: float = KEEP_EVERY_S) -> Path:
-    """theta_0 of ``cfg`` with ``critics`` into its folder under ``out``, each phase
-    going on from what the cache kept; its learner.pt. ``hosts`` are started and at the
-    pretraining seed."""
+                every_s: float = KEEP_EVERY_S, seed: int = PRETRAIN_SEED) -> Path:
+    """theta_0 of ``cfg`` with ``critics`` pretrained from ``seed`` (the learner's
+    initialisation, its sampling and the rollouts' noise) into its folder under ``out``,
+    each phase going on from what the cache kept; its learner.pt. ``hosts`` are started
+    and at ``pretrain_hosts_seed(seed)``."""
     report = as_report(progress)
     which = critic_set(critics)
-    folder = theta0_folder(out, cfg, which)
+    folder = theta0_folder(out, cfg, which, seed)
     folder.mkdir(parents=True, exist_ok=True)
-    demos = _demos_for(folder, cfg, humans, out, hosts, report, every_s)
-    learner, trained = _policy_of(folder, cfg)
+    demos = _demos_for(folder, cfg, humans, out, hosts, report, every_s, seed)
+    learner, trained = _policy_of(folder, cfg, seed)
     rollouts_path = folder / "rollouts.npz"
     kept = load_transitions(rollouts_path) if rollouts_path.exists() else None
     resume = Resume(policy_trained=trained, rollouts=kept,
@@ -210,7 +225,7 @@ def make_theta0(cfg: FleetConfig, humans: Humans, out: Path, critics: Iterable[s
                     after_policy=lambda learner: learner.save(folder / "policy.pt"),
                     resumed=report.resumed)
     data = pretrain(learner, cfg.learning, demos, hosts, humans, cfg.algorithm.t_R,
-                    PRETRAIN_SEED, report.phase, critics=which, resume=resume)
+                    seed, report.phase, critics=which, resume=resume)
     save_transitions(data, folder / "transitions.npz")
     learner.save(folder / "learner.pt")
     for done_with in ("policy.pt", "rollouts.npz"):
@@ -219,14 +234,14 @@ def make_theta0(cfg: FleetConfig, humans: Humans, out: Path, critics: Iterable[s
 
 
 def _demos_for(folder: Path, cfg: FleetConfig, humans: Humans, out: Path, hosts: Hosts,
-               report: Report, every_s: float) -> Transitions:
+               report: Report, every_s: float, seed: int = PRETRAIN_SEED) -> Transitions:
     """theta_0's demonstrations: its own demos.npz (an older cache's, or written
     before), else the first ``learning.demos`` of the shared collection, grown as
     needed, and written as its own."""
     own = folder / "demos.npz"
     if own.exists():
         return load_transitions(own)
-    shared = demos_file(out, cfg)
+    shared = demos_file(out, cfg, seed)
     demos = collect_into(shared, hosts, humans, cfg.learning.demos, cfg.algorithm.t_R,
                          report, every_s)
     if npz_length(shared) == len(demos):
@@ -237,7 +252,8 @@ def _demos_for(folder: Path, cfg: FleetConfig, humans: Humans, out: Path, hosts:
     return demos
 
 
-def _policy_of(folder: Path, cfg: FleetConfig) -> tuple[Any, bool]:
+def _policy_of(folder: Path, cfg: FleetConfig, seed: int = PRETRAIN_SEED
+               ) -> tuple[Any, bool]:
     """The learner pretraining goes on with: the policy checkpointed after its phase
     (True), else a new one (False)."""
     from testbed.learning import Learner
@@ -245,4 +261,4 @@ def _policy_of(folder: Path, cfg: FleetConfig) -> tuple[Any, bool]:
     policy = folder / "policy.pt"
     if policy.exists():
         return Learner.load(policy, cfg.learning), True
-    return Learner(cfg.learning, seed=PRETRAIN_SEED), False
+    return Learner(cfg.learning, seed=seed), False

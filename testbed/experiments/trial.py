@@ -55,6 +55,7 @@ from testbed.experiments.controller_gate import (
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import (
+    PRETRAIN_SEED,
     keep_demos,
     load_learner,
     name_fleet,
@@ -101,6 +102,10 @@ class TrialOptions:
     sets the union over its algorithms, so they all share one theta_0. The trial's own
     algorithm's critics are always added (None: just those). The trial itself trains
     online only what its algorithm reads."""
+    pretrain_seed: int | None = None
+    """The seed theta_0 is pretrained from: None, the one every trial shares
+    (``PRETRAIN_SEED``); a protocol with ``pretrain_per_trial`` gives the trial's seed,
+    so each trial starts from a policy of its own (issue 45, item 1)."""
 
 
 COMPLETE = "complete"
@@ -393,9 +398,10 @@ def _starting_learner(run: _Run, algorithm: Algorithm, hosts: Hosts, humans: Hum
     if opts.policy is not None:
         return hosts, load_learner(run.cfg, Path(opts.policy))
     critics = algorithm.spec.critics | set(opts.pretrain_critics or ())
-    learner, theta_0 = pretrained_learner(run.cfg, humans, Path(opts.out), hooks,
-                                          hosts=hosts, trial_seed=opts.seed,
-                                          critics=critics)
+    learner, theta_0 = pretrained_learner(
+        run.cfg, humans, Path(opts.out), hooks, hosts=hosts, trial_seed=opts.seed,
+        critics=critics, pretrain_seed=(PRETRAIN_SEED if opts.pretrain_seed is None
+                                        else opts.pretrain_seed))
     keep_demos(theta_0.parent / "demos.npz", run.dir)
     return hosts, learner
 

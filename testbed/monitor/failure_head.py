@@ -9,14 +9,16 @@ say where the cube is and what the policy makes of it, the signals say what it k
 before it), and the labelled pushes of a protocol are a few thousand with a few hundred
 positives: enough for 66 weights with an L2 penalty, not for a network. On the twin the
 head on features and risk ranked "a violation within 3 steps" at AUROC 0.93 against
-risk's 0.86, scored on runs whose theta_0 it never saw (docs/notes/monitor.md).
+risk's 0.86, scored leave one trial seed out on runs that all shared one theta_0, so not
+on a policy it never saw (docs/notes/monitor.md says how to re-measure it per trial).
 L2-penalised log loss, fitted by scipy's L-BFGS (exact gradient); inputs standardised on
 the training pushes. Each signal enters with its logarithm too (the long tails of ood
 and uncertainty); the features enter as they are.
 
 Where it is fitted and used: ``testbed report`` scores it leave one theta_0 out, theta_0
-identified by a hash of its weights (each run's pushes by a head fitted on the runs that
-started from another theta_0) and writes
+identified by a hash of its policy's weights (each run's pushes by a head fitted on the
+runs that started from another theta_0; leave one trial seed out, said so, when every
+run shares one) and writes
 the head fitted on all its runs to ``failure-head.json``; ``[monitor] head`` names that
 file and ``score = "fail_head"`` makes it the monitor algorithm's alarm, on the live
 policy's features (``PolicyOutput.features``).

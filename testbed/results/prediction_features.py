@@ -31,11 +31,12 @@ CACHE: Final = "monitor-features.npz"
 BATCH: Final = 1024
 """Images read before they go through theta_0 (12 MB): a 100-arm run's are never all in
 memory."""
-WEIGHTS: Final = (("policy", "policy", None), ("safety.net", "safety", "net"),
-                  ("safety.target", "safety", "target"), ("goal.net", "goal", "net"),
-                  ("goal.target", "goal", "target"))
+WEIGHTS: Final = (("policy", "policy", None),)
 """What ``theta0_digest`` hashes of a ``Learner.state_dict`` (name, key, sub-key): the
-parameters, not the seed, sampler, optimisers, counters, feature statistics or data."""
+policy ensemble's parameters, what the failure head reads (its trunk features) and what
+acts; not the critics (BC pretrains none, C.U.R. the safety critic, so the two runs of
+one trial would count as two theta_0 with one policy), nor the seed, sampler,
+optimisers, counters, feature statistics or data."""
 
 
 def theta0_digest(run: Path) -> str | None:

@@ -35,8 +35,9 @@ from testbed.records.steps import RecordError, read_steps
 from testbed.records.store import MODES, RunDataError
 from testbed.results.prediction_features import push_features, theta0_digest
 
-__all__ = ["HEAD_INPUTS", "HEAD_K", "NEW_SIGNALS", "SIGNALS", "RunPrediction", "SignalFigures",
-           "add_failure_head", "replays", "run_prediction", "score_signal"]
+__all__ = ["HEAD_INPUTS", "HEAD_K", "NEW_SIGNALS", "SIGNALS", "SPLITS", "RunPrediction",
+           "SignalFigures", "add_failure_head", "head_groups", "replays", "run_prediction",
+           "score_signal", "trial_seed"]
 
 SIGNALS: Final = ("uncertainty", "risk", "novelty", "goal_risk")
 """Today's signals (issue 36's baseline), in the tables' order."""
@@ -56,7 +57,11 @@ HEAD_INPUTS: Final = ("risk",)
 safety critic's risk. On the twin's baseline (15 runs pooled, AUROC at k = 3 of
 C.U.R.'s and the monitor's runs) features with risk scored 0.94 / 0.93, with every signal
 0.94 / 0.92, alone 0.93 / 0.89 (docs/notes/monitor.md): measured leave one trial seed
-out, as every run shared theta_0's weights (issue 45, item 1), not re-measured yet."""
+out, as every run shared theta_0's weights (issue 45, item 1), not re-measured yet.
+Fixed here, not chosen by the code: a person chose risk from those three sets' scores
+on the very folds they were scored on, so their 0.94 is the best of three there, with
+the optimism that brings; the per-trial re-measure (protocols/twin-monitor-per-trial.toml)
+scores this fixed set on runs the choice never saw, and no fold chooses an input."""
 _READ_AS: Final = {"risk": "risk", "goal_risk": "goal_risk"}
 _FROM_FRAMES: Final = ("uncertainty", "risk")
 
@@ -232,13 +237,21 @@ def score_signal(p: PolicyPushes, name: str, cfg: MonitorConfig) -> SignalFigure
 def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
                      ) -> tuple[str | None, FailureHead | None]:
     """Score each run with a failure head on its pushes' trunk features under theta_0
-    and its signals (``HEAD_INPUTS`` it has), fitted on the runs that started from
-    another theta_0 (leave one theta_0 out, theta_0 identified by a hash of its weights,
-    ``theta0_digest``: no run is scored by a head that saw its policy), as the signal
+    and its signals (``HEAD_INPUTS`` it has), fitted on the runs of the other groups
+    (``head_groups``: leave one theta_0 out, theta_0 identified by a hash of its policy's
+    weights, where the runs have two or more, so no run is scored by a head that saw its
+    policy; else leave one trial seed out, which holds out no policy), as the signal
     ``fail_head``. Runs of every algorithm are pooled: the labels are the policy's own
-    pushes, whoever allocated the people. Returns (why no run could
-    be scored, or None; the head fitted on every usable run that has ``HEAD_INPUTS``, on
-    the features alone when none has, for ``[monitor] head``; None if none could be)."""
+    pushes, whoever allocated the people.
+
+    The inputs are fixed (``HEAD_INPUTS``, and the features), never chosen by comparing
+    scores on these folds: a run's head reads what its training runs have of them, which
+    depends on which signals the runs computed, not on any label (issue 45, item 1).
+
+    Returns (why no run could be scored, or None; the head fitted on every usable run
+    that has ``HEAD_INPUTS``, on the features alone when none has, for ``[monitor]
+    head``, its ``fitted_on`` naming the split, the theta_0 digests and the trial seeds
+    it saw; None if none could be)."""
     usable: list[tuple[RunPrediction, str, np.ndarray]] = []
     for r in runs:
         if r.pushes is None:
@@ -248,11 +261,13 @@ def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
             r.absent.setdefault("fail_head", why)
         else:
             usable.append((r, *why))
-    if len({digest for _, digest, _ in usable}) < 2:
-        return "the failure head needs runs from two theta_0 with features", None
-    for r, digest, feats in usable:
+    split, group = head_groups([(r.path, d) for r, d, _ in usable])
+    if split is None:
+        return ("the failure head needs runs from two theta_0 with features (or, from "
+                "one theta_0, two trial seeds)"), None
+    for r, _, feats in usable:
         inputs = [s for s in HEAD_INPUTS if s in r.figures]
-        pool = [(o, f) for o, d, f in usable if d != digest
+        pool = [(o, f) for o, _, f in usable if group[o.path] != group[r.path]
                 and all(s in o.figures for s in inputs)]
         try:
             head = _fit(pool, inputs)
@@ -270,7 +285,39 @@ def add_failure_head(runs: Sequence[RunPrediction], cfg: MonitorConfig
     except ValueError:
         return None, None
     final.fitted_on["theta_0"] = len({d for _, d, _ in pool})
+    final.fitted_on["theta0_digests"] = sorted({d for _, d, _ in pool})
+    final.fitted_on["trial_seeds"] = sorted({s for r, _, _ in pool
+                                             if (s := trial_seed(r.path)) is not None})
+    final.fitted_on["split"] = split
     return None, final
+
+
+SPLITS: Final = ("theta_0", "trial seed")
+"""What ``head_groups`` leaves out: a theta_0 (a policy the head never saw), or, when
+every run shares one theta_0, a trial seed (the same policy, other episodes)."""
+
+
+def trial_seed(run: Path) -> int | None:
+    """The run's trial seed (run.json's options), None when run.json cannot say."""
+    try:
+        meta = json.loads((run / "run.json").read_text())
+        seed = meta["options"]["seed"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return int(seed) if isinstance(seed, int) else None
+
+
+def head_groups(runs: Sequence[tuple[Path, str]]) -> tuple[str | None, dict[Path, str]]:
+    """How the failure head's runs (folder, theta_0 digest) are grouped for scoring:
+    by theta_0 when they have two or more (``"theta_0"``); when they all share one, by
+    trial seed (``"trial seed"``), named so, since no policy is then held out; None
+    (and no groups) when neither gives two groups (or a run's seed is unknown)."""
+    if len({d for _, d in runs}) >= 2:
+        return SPLITS[0], {p: d for p, d in runs}
+    seeds = {p: trial_seed(p) for p, _ in runs}
+    if None in seeds.values() or len(set(seeds.values())) < 2:
+        return None, {}
+    return SPLITS[1], {p: f"seed {s}" for p, s in seeds.items()}
 
 
 def _features(r: RunPrediction) -> tuple[str, np.ndarray] | str:
@@ -293,7 +340,7 @@ def _rows(p: PolicyPushes, feats: np.ndarray, inputs: Sequence[str]
 def _fit(pool: Sequence[tuple[RunPrediction, np.ndarray]], inputs: Sequence[str]
          ) -> FailureHead:
     if not pool:
-        raise ValueError("no run from another theta_0 has its signals")
+        raise ValueError("no run of another group (theta_0, or trial seed) has its signals")
     parts = []
     for r, feats in pool:
         assert r.pushes is not None

@@ -34,6 +34,7 @@ import numpy as np
 
 from testbed.monitor.monitor_config import MonitorConfig
 from testbed.monitor.predictor_metrics import reliability
+from testbed.results.head_provenance import live_head_notes
 from testbed.results.intervals import BOOTSTRAP_MIN_TRIALS, Interval, interval, rate_interval
 from testbed.results.prediction_runs import (
     HEAD_K,
@@ -46,7 +47,8 @@ from testbed.results.prediction_runs import (
 )
 from testbed.results.report_tables import Table
 
-__all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables", "rate_note"]
+__all__ = ["HEAD_FILE", "monitor_config", "monitor_tables", "prediction_tables", "rate_note",
+           "split_note"]
 
 HEAD_FILE = "failure-head.json"
 """The failure head fitted on the report's runs, beside its CSVs (``[monitor] head``)."""
@@ -105,6 +107,20 @@ def rate_note(counts: Sequence[int]) -> str:
             "the runs that computed the signal.")
 
 
+def split_note(fitted_on: Mapping[str, Any]) -> str:
+    """What the failure head's leave-one-out held out (``prediction_runs.head_groups``):
+    a theta_0, a policy no run's head saw; or, with one theta_0 for every run, a trial
+    seed, which holds out no policy, said so."""
+    n = fitted_on.get("theta_0", 0)
+    if fitted_on.get("split") == "trial seed":
+        return ("scored leave one trial seed out, not leave one theta_0 out: every run "
+                "started from one theta_0 (one policy's weights), so each run was scored "
+                "by a head fitted on runs of the same policy, and no policy was held out "
+                "(pretrain_per_trial = true in a protocol gives each trial its own).")
+    return (f"scored leave one theta_0 out ({n} theta_0, identified by a hash of their "
+            "policy's weights): no run was scored by a head that saw its policy.")
+
+
 def _num(x: float) -> float | str:
     return "" if math.isnan(x) else round(float(x), 6)
 
@@ -144,10 +160,12 @@ def prediction_tables(groups: Mapping[str, Sequence[Path]],
         ranking.files[HEAD_FILE] = (json.dumps(head.to_json(), indent=1) + "\n").encode()
         reads = ", ".join(head.inputs) or "no signal"
         ranking.notes.append(
-            f"fail_head: scored leave one theta_0 out (theta_0 identified by a hash of "
-            f"its weights); the head fitted on "
+            f"fail_head: {split_note(head.fitted_on)} Its inputs are fixed ({reads} and "
+            f"the trunk features), not chosen on these folds. The head fitted on "
             f"{len(head.fitted_on.get('runs', ()))} runs ({reads} and {head.features} trunk "
-            f"features) is in {HEAD_FILE}, for [monitor] head with score = \"fail_head\".")
+            f"features) is in {HEAD_FILE}, for [monitor] head with score = \"fail_head\" "
+            "on runs of other theta_0 (it records the ones it saw).")
+    ranking.notes += live_head_notes([p for paths in groups.values() for p in paths])
     return [ranking, _ranking(scored, cfg, "ap"), _lead(scored, cfg),
             _reliability(scored), _alarm(scored, cfg)]
 

@@ -59,12 +59,13 @@ def _violation_ahead(p: list[dict[str, Any]], t: int) -> int | None:
     return None
 
 
-def theta0(run: Path, kept_as: int, weights: int | None = None) -> None:
+def theta0(run: Path, kept_as: int, weights: int | None = None, critics: int = 0) -> None:
     """A theta_0 for ``run``: one small policy saved with ``kept_as`` for its seed (and a
     sampler state of its own). Its weights are ``weights``' (default ``kept_as``): the
     same trunk every time, so the features mean the same, with the policy's last bias
     moved by ``weights`` / 100, so another ``weights`` is another network (the digest
-    hashes the weights, not the file)."""
+    hashes the weights, not the file); ``critics`` moves every critic parameter (net
+    and target) by ``critics`` / 100: what BC and C.U.R. pretraining differ by."""
     import torch
 
     from testbed.learning import checkpoint
@@ -74,18 +75,23 @@ def theta0(run: Path, kept_as: int, weights: int | None = None) -> None:
     state = Learner(LearningConfig(ensemble_size=1), seed=0).state_dict()
     w = kept_as if weights is None else weights
     state["policy"][LAST_BIAS] = state["policy"][LAST_BIAS] + w / 100
+    for critic in ("safety", "goal"):
+        for part in ("net", "target"):
+            state[critic][part] = {k: v + critics / 100 if v.is_floating_point() else v
+                                   for k, v in state[critic][part].items()}
     state["sampler"] = torch.Generator().manual_seed(kept_as).get_state()
     checkpoint.save_atomic({**state, "seed": kept_as}, run / START_LEARNER)
 
 
 def write_run(run: Path, algorithm: str, seed: int, steps: int = 240,
               theta: int | None = None, fail_share: float = 0.4,
-              weights: int | None = None) -> None:
+              weights: int | None = None, trial: int | None = None) -> None:
     """Rows with an ``oracle`` monitor score (1 when the episode's violation is at most
     2 steps ahead), a constant one, one that is always 0 (never computed), and the data
     store; with ``theta``, the images show what the oracle knows (bright when a violation
     is at most 2 steps ahead) and the run keeps a theta_0 (``theta0``: seed ``theta``,
-    weights ``weights``, default ``theta``'s)."""
+    weights ``weights``, default ``theta``'s); ``trial``: the trial seed run.json keeps
+    (None: run.json says none)."""
     rng = np.random.default_rng(seed)
     plans = (plan(rng, steps, fail_share), plan(rng, steps, fail_share))
     frames = frames_of(*plans)
@@ -114,7 +120,10 @@ def write_run(run: Path, algorithm: str, seed: int, steps: int = 240,
                                             f["goal"]).to_frames())
             w.write_step(row)
     data.close()
-    (run / "run.json").write_text(json.dumps({"options": {"algorithm": algorithm}}))
+    options: dict[str, Any] = {"algorithm": algorithm}
+    if trial is not None:
+        options["seed"] = trial
+    (run / "run.json").write_text(json.dumps({"options": options}))
     if theta is not None:
         theta0(run, theta, weights)
 
@@ -161,6 +170,10 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     fitted = FailureHead.load(tmp_path / "head.json")
     assert (fitted.inputs, fitted.features, fitted.k) == (("risk",), 64, 3)
     assert fitted.fitted_on["theta_0"] == 2 and len(fitted.fitted_on["runs"]) == 3
+    digests = sorted({theta0_digest(tmp_path / f"cur-t{s}") for s in range(3)})
+    assert fitted.fitted_on["split"] == "theta_0" and len(digests) == 2
+    assert fitted.fitted_on["theta0_digests"] == digests  # what the report checks it by
+    assert "fail_head: scored leave one theta_0 out (2 theta_0" in " ".join(auc.notes)
     assert (tmp_path / "cur-t0" / "monitor-features.npz").is_file()  # computed once
     assert "(base rate)" in [r[1] for r in tables["prediction-ap"].rows]
     rel = tables["prediction-reliability"]
@@ -232,7 +245,8 @@ def test_the_failure_head_says_why_it_could_not_score_a_run(tmp_path: Path) -> N
     auc = tables["prediction-auroc"]
     assert "fail_head" not in [r[1] for r in auc.rows] and not auc.files
     md = auc.markdown()
-    assert "fail_head: the failure head needs runs from two theta_0 with features" in md
+    assert ("fail_head: the failure head needs runs from two theta_0 with features (or, "
+            "from one theta_0, two trial seeds)") in md
     assert "fail_head: it kept no theta_0 (learner-start.pt)" in md
 
 
@@ -256,3 +270,42 @@ def test_one_theta_0_is_its_weights_not_its_file(tmp_path: Path) -> None:
     assert "fail_head" not in [r[1] for r in auc.rows] and not auc.files
     assert "fail_head: the failure head needs runs from two theta_0 with features" in \
         auc.markdown()
+
+
+def test_one_theta_0_is_split_by_trial_seed_and_says_no_policy_was_held_out(
+        tmp_path: Path) -> None:
+    """Every run from one theta_0 (a protocol without pretrain_per_trial), three trial
+    seeds: each run is scored by a head fitted on the other seeds' runs, and the report
+    names that split for what it is, never claiming a held-out policy (issue 45)."""
+    for s in range(3):
+        write_run(tmp_path / f"cur-t{s}", "cur", s, theta=s, weights=0, trial=s)
+    tables = {t.key: t for t in prediction_tables(
+        {"cur": [tmp_path / f"cur-t{s}" for s in range(3)]}, MonitorConfig(horizon=3))}
+    auc = tables["prediction-auroc"]
+    head = next(r for r in auc.rows if r[1] == "fail_head")
+    assert head[2] == "3"  # every run scored, by heads of the other two seeds
+    notes = " ".join(auc.notes)
+    assert "scored leave one trial seed out, not leave one theta_0 out" in notes
+    assert "no policy was held out" in notes
+    assert "leave one theta_0 out (" not in notes and "head that saw its policy" not in notes
+    (tmp_path / "head.json").write_bytes(auc.files["failure-head.json"])
+    fitted = FailureHead.load(tmp_path / "head.json").fitted_on
+    assert (fitted["split"], fitted["theta_0"], fitted["trial_seeds"]) == \
+        ("trial seed", 1, [0, 1, 2])
+
+
+def test_theta_0_is_the_policy_the_head_reads_not_the_critics(tmp_path: Path) -> None:
+    """The digest hashes the policy and nothing else of the learner (issue 45, item 1):
+    a BC run pretrains no critic and a C.U.R. run of the same trial the safety critic,
+    over one policy, so critics that differ leave one theta_0 (dropping the policy from
+    the hash, or adding the critics to it, fails here); a policy that differs in one
+    parameter of its last layer is another theta_0 (hashing only part of the policy, or
+    the critics alone, fails here)."""
+    theta0(tmp_path / "bc", kept_as=0, weights=0, critics=0)
+    theta0(tmp_path / "cur", kept_as=0, weights=0, critics=3)
+    theta0(tmp_path / "other", kept_as=0, weights=1, critics=0)
+    assert (tmp_path / "bc" / START_LEARNER).read_bytes() != \
+        (tmp_path / "cur" / START_LEARNER).read_bytes()
+    digest = {n: theta0_digest(tmp_path / n) for n in ("bc", "cur", "other")}
+    assert digest["bc"] == digest["cur"], "critics that differ made two theta_0"
+    assert digest["bc"] != digest["other"], "policies that differ made one theta_0"
