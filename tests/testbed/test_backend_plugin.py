@@ -312,11 +312,11 @@ def test_a_lab_backends_fields_are_validated_and_named(lab_arm: Path, tmp_path: 
     assert other.returncode == 2
     assert "hosts[0].camera: camera is a yumi-only field, not one of a lab-arm host" in (
         other.stderr)
-    unknown = _cli(lab_arm, tmp_path, "trial", "--config", "fleet.toml", "--steps", "1")
-    assert unknown.returncode == 0 or "lab-arm" not in unknown.stderr  # sanity: it is known
     (tmp_path / "ur5.toml").write_text(FLEET.replace('"lab-arm"', '"ur5e"'))
     ur5 = _cli(lab_arm, tmp_path, "trial", "--config", "ur5.toml")
     assert ur5.returncode == 2
+    # lab-arm is among the known backends (this line once ran a 1-step trial to show it,
+    # with an assert any failure not naming lab-arm passed; the trial test runs it)
     assert "hosts[0].backend: unknown backend; got 'ur5e'; use 'lab-arm' or 'twin' or 'yumi'" \
         in ur5.stderr
 
