@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from testbed.experiments.theta0 import CACHE
 from testbed.fleet.algorithm_config import AlgorithmConfig
 from testbed.fleet.algorithms import get_algorithm
 from testbed.fleet.monitor_priority import MONITOR_READS, MonitorPriority
@@ -204,9 +206,31 @@ def test_testbed_plan_reads_a_monitor_run_as_resets_first() -> None:
     assert key_order("monitor") == key_order("cur") == "resets_first"
 
 
+@pytest.fixture(scope="module")
+def theta0_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Where the first of the two twin trials below leaves its theta_0 cache for the
+    other: both pretrain the same theta_0 (its key: the learning config, the arms, t_R
+    and the seed; not the monitor's fields), and a trial is the same with the cache cold
+    or warm (``testbed.experiments.learners.pretrained_learner``), which is not what
+    these tests check. Kept under its key, so a config that differs pretrains anew."""
+    return tmp_path_factory.mktemp("monitor-theta0")
+
+
+def _take_cache(runs: Path, cache: Path) -> None:
+    """Start ``runs`` with the module's theta_0 cache, where an earlier test made it."""
+    if (cache / CACHE).is_dir():
+        shutil.copytree(cache / CACHE, runs / CACHE)
+
+
+def _keep_cache(runs: Path, cache: Path) -> None:
+    """Leave the theta_0 ``runs`` pretrained for the module's other twin trial."""
+    if (runs / CACHE).is_dir() and not (cache / CACHE).exists():
+        shutil.copytree(runs / CACHE, cache / CACHE)
+
+
 @pytest.mark.slow
 def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
-        tmp_path: Path) -> None:
+        tmp_path: Path, theta0_cache: Path) -> None:
     """The monitor end to end on the twin: C.U.R.'s rule until its alarm is ready (alpha
     0.2: 4 successful episodes), then its score and threshold in every arm's row, and the
     report's table of it at work."""
@@ -214,11 +238,13 @@ def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
         '[trial]\nsteps = 40\nseed = 3\n[learning]\nensemble_size = 2\nbatch_size = 32\n'
         'demos = 60\ncritic_transitions = 40\npretrain_steps = 10\n[monitor]\nalpha = 0.2\n')
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    _take_cache(tmp_path / "runs", theta0_cache)
     run = subprocess.run([sys.executable, "-m", "testbed.cli", "trial", "--config",
                           "small.toml", "--algorithm", "monitor", "--out", "runs", "--name",
                           "m"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
                          env=env)
     assert run.returncode == 0, run.stderr[-3000:]
+    _keep_cache(tmp_path / "runs", theta0_cache)
     rows = read_steps(tmp_path / "runs" / "m" / "steps.jsonl")
     entries = [r for row in rows for r in row["robots"] if r["mode"] != "fault"]
     assert all("alarm_score" in r["monitor"] and "ood" in r["monitor"] for r in entries)
@@ -240,7 +266,7 @@ def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
 
 @pytest.mark.slow
 def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
-        tmp_path: Path) -> None:
+        tmp_path: Path, theta0_cache: Path) -> None:
     """score = "fail_head" live, on the twin: the head reads each arm's trunk features
     from act. Killed with SIGKILL mid-trial: the alarm's state at the last checkpoint is
     the one an unbroken trial of the same seed has at that step, and the resumed trial
@@ -265,6 +291,7 @@ def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
                               env=env)
 
     run = tmp_path / "runs" / "k"
+    _take_cache(tmp_path / "runs", theta0_cache)
     proc = subprocess.Popen(
         [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml", "--algorithm",
          "monitor", "--out", "runs", "--name", "k"], cwd=tmp_path, env=env,
@@ -283,6 +310,7 @@ def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
     ref = trial("--config", "small.toml", "--algorithm", "monitor", "--out", "runs", "--name",
                 "ref", "--steps", str(t + 1))
     assert ref.returncode == 0, ref.stderr[-3000:]
+    _keep_cache(tmp_path / "runs", theta0_cache)
     ref_state = json.loads((tmp_path / "runs" / "ref" / "state.json").read_text())
     killed_alarm = state["algorithm"]["priority"]
     assert killed_alarm == ref_state["algorithm"]["priority"]
