@@ -233,10 +233,13 @@ def test_a_twin_trial_of_the_monitor_records_its_alarm_and_the_report_says_so(
         tmp_path: Path, theta0_cache: Path) -> None:
     """The monitor end to end on the twin: C.U.R.'s rule until its alarm is ready (alpha
     0.2: 4 successful episodes), then its score and threshold in every arm's row, and the
-    report's table of it at work."""
+    report's table of it at work. The alarm calibrates on successes no person touched
+    (issue 45), so theta_0 must succeed on its own: 150 demonstrations and 150 steps (at
+    60 and 10 no untouched success came in 40 steps; at these, seed 3 is ready at step 16
+    with 7 of them)."""
     (tmp_path / "small.toml").write_text(
         '[trial]\nsteps = 40\nseed = 3\n[learning]\nensemble_size = 2\nbatch_size = 32\n'
-        'demos = 60\ncritic_transitions = 40\npretrain_steps = 10\n[monitor]\nalpha = 0.2\n')
+        'demos = 150\ncritic_transitions = 40\npretrain_steps = 150\n[monitor]\nalpha = 0.2\n')
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     _take_cache(tmp_path / "runs", theta0_cache)
     run = subprocess.run([sys.executable, "-m", "testbed.cli", "trial", "--config",
@@ -281,7 +284,7 @@ def test_a_monitor_trial_on_a_failure_head_killed_and_resumed_keeps_its_alarm(
                 features=64).save(tmp_path / "head.json")
     (tmp_path / "small.toml").write_text(
         '[trial]\nsteps = 40\nseed = 3\n[learning]\nensemble_size = 2\nbatch_size = 32\n'
-        'demos = 60\ncritic_transitions = 40\npretrain_steps = 10\n[monitor]\nalpha = 0.2\n'
+        'demos = 150\ncritic_transitions = 40\npretrain_steps = 150\n[monitor]\nalpha = 0.2\n'
         'score = "fail_head"\nhead = "head.json"\n')
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
 
