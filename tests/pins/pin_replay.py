@@ -303,10 +303,12 @@ def use_book(monkeypatch: pytest.MonkeyPatch, book: LearnerBook) -> None:
 
     def pretrained_learner(cfg: Any, humans: Any, out: Path, progress: Any,
                            hosts: Any = None, trial_seed: int | None = None,
-                           critics: Iterable[str] | None = None) -> tuple[Any, Path]:
+                           critics: Iterable[str] | None = None,
+                           pretrain_seed: int = learners.PRETRAIN_SEED) -> tuple[Any, Path]:
         if book.recording:
             learner, ckpt = real_pretrained(cfg, humans, out, progress, hosts=hosts,
-                                            trial_seed=trial_seed, critics=critics)
+                                            trial_seed=trial_seed, critics=critics,
+                                            pretrain_seed=pretrain_seed)
             return book.recorder(learner), ckpt
         return book.replayer(), Path(out) / ".pretrained" / "replayed" / "learner.pt"
 
@@ -320,8 +322,10 @@ def use_book(monkeypatch: pytest.MonkeyPatch, book: LearnerBook) -> None:
 
 
 # ---- the scenarios --------------------------------------------------------------------
-def run_trial_scenario(root: Path, book: LearnerBook) -> dict[str, Any]:
-    """``TRIAL`` as ``testbed trial --config trial.toml --name trial`` runs it."""
+def run_trial_scenario(root: Path, book: LearnerBook,
+                       hooks: BindRuns | None = None) -> dict[str, Any]:
+    """``TRIAL`` as ``testbed trial --config trial.toml --name trial`` runs it (``hooks``:
+    ``BindRuns(book)`` or one of its kind)."""
     from testbed.experiments.fleet_config import parse_config
     from testbed.experiments.trial import TrialOptions, run_trial
 
@@ -329,16 +333,20 @@ def run_trial_scenario(root: Path, book: LearnerBook) -> dict[str, Any]:
     opts = TrialOptions(algorithm=cfg.algorithm.name, steps=cfg.trial.steps,
                         seed=cfg.trial.seed, out=str(root / "runs"),
                         humans=cfg.humans.kind, name="trial")
-    run_trial(cfg, opts, hooks=BindRuns(book))
+    run_trial(cfg, opts, hooks=hooks or BindRuns(book))
     return pins_of(root / "runs", book)
 
 
-def run_protocol_scenario(root: Path, book: LearnerBook) -> dict[str, Any]:
-    """``PROTOCOL`` as ``testbed protocol`` runs it (without its prompts)."""
+def run_protocol_scenario(root: Path, book: LearnerBook,
+                          hooks: BindRuns | None = None) -> dict[str, Any]:
+    """``PROTOCOL`` as ``testbed protocol`` runs it, without its prompts and its time
+    plan (which times real gradient steps, several seconds of CPU, for an estimate the
+    pins never read; it draws from no random stream the runs use)."""
     from testbed.experiments.protocol import Protocol, run_protocol
 
     proto = Protocol.model_validate(PROTOCOL)
-    run_protocol(proto, out=str(root / "proto"), ask=False, hooks=BindRuns(book))
+    run_protocol(proto, out=str(root / "proto"), ask=False, hooks=hooks or BindRuns(book),
+                 plan=False)
     return pins_of(root / "proto", book)
 
 
@@ -383,18 +391,21 @@ def data_digest(folder: Path) -> str:
 def pins_of(runs: Path, book: LearnerBook) -> dict[str, Any]:
     """Per run folder: its rows (timing aside), the digest of its data store's frames
     (wall_time zeroed), run.json's ``META_KEYS`` and the digest of its learner's calls."""
-    out: dict[str, Any] = {}
-    for run in sorted(p for p in runs.iterdir() if (p / "steps.jsonl").exists()):
-        meta = json.loads((run / "run.json").read_text())
-        calls = book.calls(run.name)
-        out[run.name] = {
-            "rows": _rows(run / "steps.jsonl"),
-            "data": data_digest(run / "data"),
-            "meta": {k: meta[k] for k in META_KEYS if k in meta},
-            "learner_calls": {"count": len(calls), "sha256": hashlib.sha256(
-                "\n".join(calls).encode()).hexdigest()},
-        }
-    return out
+    return {run.name: pins_of_run(run, book)
+            for run in sorted(p for p in runs.iterdir() if (p / "steps.jsonl").exists())}
+
+
+def pins_of_run(run: Path, book: LearnerBook) -> dict[str, Any]:
+    """One run folder's pins (:func:`pins_of`)."""
+    meta = json.loads((run / "run.json").read_text())
+    calls = book.calls(run.name)
+    return {
+        "rows": _rows(run / "steps.jsonl"),
+        "data": data_digest(run / "data"),
+        "meta": {k: meta[k] for k in META_KEYS if k in meta},
+        "learner_calls": {"count": len(calls), "sha256": hashlib.sha256(
+            "\n".join(calls).encode()).hexdigest()},
+    }
 
 
 def differences(got: Mapping[str, Any], want: Mapping[str, Any]) -> list[str]:

@@ -55,20 +55,25 @@ import pytest
 from pin_replay import (
     RECORDS,
     TRACE,
+    BindRuns,
     LearnerBook,
     differences,
     dump_json,
+    pins_of_run,
     run_protocol_scenario,
     run_trial_scenario,
     use_book,
 )
 
+from testbed.core.humans import Humans
 from testbed.fleet.allocator import Allocator
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDING = os.environ.get("TESTBED_RECORD_DIGESTS") == "1"
-SCENARIOS: dict[str, Callable[[Path, LearnerBook], dict[str, Any]]] = {
+SCENARIOS: dict[str, Callable[[Path, LearnerBook, BindRuns | None], dict[str, Any]]] = {
     "trial": run_trial_scenario, "protocol": run_protocol_scenario}
+FOLDERS = {"trial": "runs", "protocol": "proto"}
+"""Where each scenario writes its run folders, under its root."""
 
 
 def _record(root: Path) -> None:
@@ -80,7 +85,7 @@ def _record(root: Path) -> None:
         book = LearnerBook()
         with pytest.MonkeyPatch.context() as mp:
             use_book(mp, book)
-            pins[name] = scenario(root / name, book)
+            pins[name] = scenario(root / name, book, None)
         traces[name] = book.traces
     TRACE.write_text(dump_json(traces) + "\n")
     RECORDS.write_text(dump_json(pins) + "\n")
@@ -96,7 +101,7 @@ def pinned(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]
 def _replay(scenario: str, root: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     book = LearnerBook(json.loads(TRACE.read_text())[scenario])
     use_book(monkeypatch, book)
-    got = SCENARIOS[scenario](root, book)
+    got = SCENARIOS[scenario](root, book, None)
     # every recorded run got its learner from the trace, and no run another learner
     assert sorted(book.learners) == sorted(book.traces)
     return got
@@ -110,6 +115,35 @@ def test_the_replayed_learner_gives_the_pinned_records(
     got = _replay(scenario, tmp_path, monkeypatch)
     problems = differences(got, pinned[scenario])
     assert not problems, "\n".join(problems)
+
+
+class _Differs(Exception):
+    """A finished run's rows differ from its pins: the scenario may stop there."""
+
+
+class _StopAtADifference(BindRuns):
+    """``BindRuns`` that, as each run starts, pins the runs finished before it (a
+    protocol runs them one after another) and ends the scenario at the first whose rows
+    differ from their pins. The rest of the protocol cannot take that difference back,
+    so running it would prove nothing more: a planted change's test takes the runs up to
+    the first it changes, not all 14."""
+
+    def __init__(self, book: LearnerBook, folder: Path, pinned: dict[str, Any]) -> None:
+        super().__init__(book)
+        self.folder, self.pinned = folder, pinned
+        self.got: dict[str, Any] = {}
+        """The pins of every finished run judged so far."""
+
+    def humans(self, name: str) -> Humans | None:
+        finished = sorted(p for p in self.folder.iterdir() if p.name not in self.got
+                          and p.name != name and (p / "summary.json").exists()
+                          ) if self.folder.exists() else []
+        for run in finished:
+            self.got[run.name] = pins_of_run(run, self.book)
+            if run.name in self.pinned and any("first differs" in p for p in differences(
+                    {run.name: self.got[run.name]}, {run.name: self.pinned[run.name]})):
+                raise _Differs(run.name)
+        return super().humans(name)
 
 
 class _ReversedTies(np.random.Generator):
@@ -145,7 +179,13 @@ def test_a_planted_change_of_the_allocator_is_reported(
     teleops), or its ties broken the other way (Fleet-TD's keys tie among violating
     arms: (0, 1)), changes the records, and the comparison says at which step."""
     _plant(change, monkeypatch)
-    got = _replay(scenario, tmp_path, monkeypatch)
+    book = LearnerBook(json.loads(TRACE.read_text())[scenario])
+    use_book(monkeypatch, book)
+    stop = _StopAtADifference(book, tmp_path / FOLDERS[scenario], pinned[scenario])
+    try:
+        got = SCENARIOS[scenario](tmp_path, book, stop)
+    except _Differs:
+        got = stop.got  # the runs up to the first that differs
     problems = differences(got, pinned[scenario])
     assert any("first differs" in p for p in problems), problems
 

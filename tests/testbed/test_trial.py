@@ -10,6 +10,7 @@ import json
 import os
 import platform
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -22,6 +23,7 @@ import torch
 
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.learners import resume_learner
+from testbed.experiments.theta0 import CACHE
 from testbed.learning import Learner
 from testbed.records.metrics import summarize
 from testbed.records.run_dir import RunDir
@@ -58,8 +60,45 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return d
 
 
+@pytest.fixture(scope="module")
+def cold_then_warm(workdir: Path) -> list[set[int]]:
+    """Two 12-step trials of one seed into ``cold``: the first pretrains theta_0 on its
+    own hosts (a cold cache), the second takes it from the cache; the agent processes
+    each started. ``test_same_seed_same_records_cold_then_warm_one_agent_per_host``
+    checks them; the other tests start from the theta_0 they made (``theta0``)."""
+    agents = []
+    for name in ("r1", "r2"):
+        err = workdir / f"{name}.err"
+        with open(err, "wb") as err_file:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml",
+                 "--out", "cold", "--name", name, "--steps", "12"],
+                cwd=workdir, stdout=subprocess.DEVNULL, stderr=err_file,
+                env={**{k: v for k, v in os.environ.items() if k != "TESTBED_THREADS"},
+                     "PYTHONPATH": str(ROOT)},  # the default threads (not a worker's share)
+            )
+            agents.append(_agents_of(proc))
+        assert proc.wait(timeout=10) == 0, err.read_text()[-3000:]
+    return agents
+
+
+@pytest.fixture(scope="module")
+def theta0(workdir: Path, cold_then_warm: list[set[int]]) -> Path:
+    """The theta_0 cache the cold trial made, hard-linked into the other outputs' caches
+    (``runs``, ``proto``): the small config pretrains the same theta_0 there (its key:
+    the learning config, the robots, t_R, the seed, the critics; a protocol of bc and
+    cur pretrains cur's critics), so pretraining it again would only repeat what the
+    cold trial's records already prove. A cache hit is the product's own path (r2)."""
+    cache = workdir / "cold" / CACHE
+    assert any(cache.glob("*/learner.pt")), "the cold trial left no theta_0"
+    for out in ("runs", "proto"):
+        if not (workdir / out / CACHE).exists():
+            shutil.copytree(cache, workdir / out / CACHE, copy_function=os.link)
+    return cache
+
+
 @pytest.mark.slow
-def test_twin_trial_summary_equals_recomputation(workdir: Path) -> None:
+def test_twin_trial_summary_equals_recomputation(workdir: Path, theta0: Path) -> None:
     proc = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", "a", cwd=workdir)
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = workdir / "runs" / "a"
@@ -106,24 +145,54 @@ def _assert_code_and_hosts(meta: dict[str, object], run: Path) -> None:
         assert f"build {entry['build']}" in (run / "hosts" / f"{name}.log").read_text()
 
 
+def _children(pid: int) -> list[int]:
+    """The child pids of ``pid``: every thread's ``children`` list (the kernel's, a few
+    bytes; scanning all of /proc at 50 Hz cost the test seconds of CPU on a busy
+    machine), or a scan of /proc where the kernel keeps no such list."""
+    proc = Path(f"/proc/{pid}")
+    if not (proc / "task" / str(pid) / "children").exists():
+        return _children_by_scan(pid) if proc.exists() else []
+    kids: list[int] = []
+    try:
+        for task in (proc / "task").iterdir():
+            try:
+                kids.extend(int(c) for c in (task / "children").read_text().split())
+            except OSError:
+                continue  # that thread ended meanwhile
+    except OSError:
+        return []  # the process ended meanwhile
+    return kids
+
+
+def _children_by_scan(pid: int) -> list[int]:
+    kids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                kids.append(int(d.name))
+    return kids
+
+
 def _agents_of(proc: subprocess.Popen[bytes], timeout_s: float = 240) -> set[int]:
     """Pids of the agent processes ``proc`` starts (local transport: its children), seen
-    by polling /proc until it exits; an agent lives for its whole trial, so none is
-    missed."""
+    by polling its children until it exits; an agent lives for its whole trial, so none
+    is missed."""
     seen: set[int] = set()
     deadline = time.monotonic() + timeout_s
     while proc.poll() is None and time.monotonic() < deadline:
-        for d in Path("/proc").iterdir():
-            if not d.name.isdigit():
+        for kid in _children(proc.pid):
+            if kid in seen:
                 continue
-            try:
-                stat = (d / "stat").read_text()
-                cmdline = (d / "cmdline").read_bytes()
+            try:  # read again each time: a child not yet exec'd shows its parent's
+                cmdline = Path(f"/proc/{kid}/cmdline").read_bytes()
             except OSError:
                 continue
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            if ppid == proc.pid and b"drivers.agent" in cmdline:
-                seen.add(int(d.name))
+            if b"drivers.agent" in cmdline:
+                seen.add(kid)
         time.sleep(0.02)
     return seen
 
@@ -135,23 +204,12 @@ def _without_timing(text: str) -> str:
 
 
 @pytest.mark.slow
-def test_same_seed_same_records_cold_then_warm_one_agent_per_host(workdir: Path) -> None:
+def test_same_seed_same_records_cold_then_warm_one_agent_per_host(
+        workdir: Path, cold_then_warm: list[set[int]]) -> None:
     """Reproducible, training overlap included, whether theta_0 is made now (cold cache:
     pretraining on the trial's own hosts, then reseeded) or taken from the cache; and
     pretraining starts no agent of its own: one agent process per host, ever."""
-    agents = []
-    for name in ("r1", "r2"):
-        err = workdir / f"{name}.err"
-        with open(err, "wb") as err_file:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml",
-                 "--out", "cold", "--name", name, "--steps", "12"],
-                cwd=workdir, stdout=subprocess.DEVNULL, stderr=err_file,
-                env={**{k: v for k, v in os.environ.items() if k != "TESTBED_THREADS"},
-                     "PYTHONPATH": str(ROOT)},  # the default threads (not a worker's share)
-            )
-            agents.append(_agents_of(proc))
-        assert proc.wait(timeout=10) == 0, err.read_text()[-3000:]
+    agents = cold_then_warm
     assert [len(a) for a in agents] == [2, 2]  # 2 hosts: pretraining reused the trial's
     # at the default threads: every core this process may use, OpenMP passive
     numerics = json.loads((workdir / "cold" / "r1" / "run.json").read_text())["numerics"]
@@ -184,13 +242,9 @@ def _assert_same_learner(a: Learner, b: Learner) -> None:
 
 
 @pytest.mark.slow
-def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
-    # the pretraining cache warm first, so the kill lands in the loop (the module's first
-    # test has made it when it ran: a run of this test alone makes it here)
-    if not any((workdir / "runs" / ".pretrained").glob("*/learner.pt")):
-        warm = _cli("trial", "--config", "small.toml", "--out", "runs", "--name", "warm",
-                    "--steps", "1", cwd=workdir)
-        assert warm.returncode == 0, warm.stderr[-3000:]
+def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path, theta0: Path) -> None:
+    # the pretraining cache is warm (``theta0``), so the kill lands in the loop
+    assert any((workdir / "runs" / CACHE).glob("*/learner.pt"))
     run = workdir / "runs" / "k"
     proc = subprocess.Popen(
         [sys.executable, "-m", "testbed.cli", "trial", "--config", "small.toml", "--out", "runs",
@@ -249,7 +303,8 @@ def test_kill_9_then_resume_finishes_with_valid_record(workdir: Path) -> None:
 
 
 @pytest.mark.slow
-def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdir: Path) -> None:
+def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(
+        workdir: Path, theta0: Path) -> None:
     proto = {
         "name": "mini",
         "trials": 2,
@@ -316,7 +371,7 @@ def test_protocol_runs_to_its_report_and_evaluate_uses_the_trained_policy(workdi
     assert {"uncertainty", "novelty"} <= bc_signals and "risk" not in bc_signals
     assert "bc: not scored: goal_risk: its critic did not run" in md
     assert "risk: its critic did not run (bc reads no risk" in md
-    assert "The conformal alarm: false alarms per successful episode" in md
+    assert "The conformal alarms replayed: false alarms per untouched successful" in md
     # BC gives humans hard resets only: it never teleoperates
     for s in read_steps(out / "bc-t0" / "steps.jsonl"):
         assert all(r["mode"] != "teleop" for r in s["robots"])
