@@ -31,6 +31,7 @@ from testbed.records.store import MODES, RunData
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.ssh,
+    pytest.mark.timeout(600),  # the run's one calibration (and its host install) if first
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
 
