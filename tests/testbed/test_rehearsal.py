@@ -62,8 +62,9 @@ def test_the_rehearsals_calibration_fits_every_arm_within_bounds(
              if re.match(r"calibrate \S+ \(testbed calibrate --config \S+ --host ", ln)]
     assert heads == ARMS, kept.said  # each arm calibrated, none kept from before
     said = "\n".join(kept.said)
-    assert "from the last session" not in said and "FAULT" not in said, said
-    assert "FAILED" not in said and said.count("markers found: ") == 4, said
+    assert "from the last session" not in said, said
+    assert not [ln for ln in kept.said if ln.startswith(("FAULT", "FAILED"))], said
+    assert said.count("markers found: 20/20") == 4, said  # every grid point's marker seen
     cfg = (kept.lab / "fleet" / "config.toml").read_text()
     assert 'transport = "ssh"' in cfg and "workdir" not in cfg
     assert re.search(r'python = ".*/\.venv-host/bin/python"', cfg), cfg
