@@ -76,7 +76,7 @@ if TYPE_CHECKING:
     from testbed.fleet.loop import StepOutcome
 
 __all__ = ["RehearsalError", "RehearsalOptions", "RehearsalResult", "hardware_twins",
-           "quick_learning", "rehearse", "require_faults"]
+           "lab_calibration", "quick_learning", "rehearse", "require_faults"]
 
 Say = Callable[[str], None]
 CALIBRATED = "calibration.json"
@@ -147,10 +147,7 @@ def rehearse(opts: RehearsalOptions, say: Say = print) -> RehearsalResult:
                                                              else "its agent's own twin)")
                           for n, h in lab.hosts.items())
         say(f"hardware twins: {where}")
-        calibration = _kept_calibration(lab, fleet, say)
-        if calibration is None:
-            calibration = _calibrate_all(lab, fleet, fleet_file, say)
-            atomic_write_json(lab.root / CALIBRATED, calibration)
+        calibration = lab_calibration(lab, fleet, fleet_file, say)
         run_proto = proto.model_copy(update={**update, "fleet": fleet})
         _same_theta_0(run_proto, folder)
         hooks = _RehearsalHooks(lab, arm_views(fleet, hosts=lab.labs), opts.humans)
@@ -233,6 +230,20 @@ def _same_theta_0(proto: Protocol, folder: Path) -> None:
         new = pretrain_key(proto.fleet_of(a), PRETRAIN_SEED, critics)
         if old != new and (cache / old).is_dir() and not (cache / new).exists():
             (cache / new).symlink_to(old, target_is_directory=True)
+
+
+def lab_calibration(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path, say: Say
+                    ) -> dict[str, dict[str, float]]:
+    """Each calibrated arm's error against the twin's true camera: the calibrations kept
+    from a session before when they still hold (``_kept_calibration``), else every arm
+    calibrated with ``testbed calibrate`` and kept (``calibration.json``) for the next
+    session. A rehearsal's first morning; the tests' one calibration of a run runs it too
+    (``tests/testbed/kept_calibration.py``), so what they keep is what a rehearsal makes."""
+    calibration = _kept_calibration(lab, fleet, say)
+    if calibration is None:
+        calibration = _calibrate_all(lab, fleet, fleet_file, say)
+        atomic_write_json(lab.root / CALIBRATED, calibration)
+    return calibration
 
 
 def _kept_calibration(lab: HardwareTwinLab, fleet: FleetConfig, say: Say

@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 from host_install import HostVenv, install_build
+from kept_calibration import kept_calibration, start_from
 from lab_fixtures import PHYSICAL, calibrate_exactly, tiny_policy, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
@@ -26,7 +27,7 @@ from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.hooks import TrialHooks
 from testbed.experiments.learners import PRETRAIN_HOSTS_SEED
 from testbed.experiments.protocol import load_protocol
-from testbed.lab.camera_model import true_calibration, true_model_error
+from testbed.lab.camera_model import arm_facts, true_calibration, true_model_error
 from testbed.lab.hardware_twin import HardwareTwinLab
 from testbed.lab.lab_humans import TwinLabHumans, arm_views
 from testbed.lab.twin_truth import TruthRecorder, truth_agreement
@@ -47,22 +48,61 @@ def robot_modes(run: Path) -> dict[str, list[str]]:
     return modes
 
 
+ARMS = ["yumi-a/left", "yumi-a/right", "yumi-b/left", "yumi-b/right"]
+
+
+def test_the_rehearsals_calibration_fits_every_arm_within_bounds(
+        request: pytest.FixtureRequest, tmp_path: Path) -> None:
+    """The run's one calibration of the rehearsal lab, which every rehearsal test starts
+    from (kept_calibration.py): what ``rehearse`` runs before its runs, ``testbed
+    calibrate`` for every arm over SSH against the twin, the agents from a robot host's
+    install; each arm within the issue's bounds against the twin's TRUE camera."""
+    kept = kept_calibration(request, tiny_protocol(tmp_path))
+    heads = [ln.split()[1] for ln in kept.said
+             if re.match(r"calibrate \S+ \(testbed calibrate --config \S+ --host ", ln)]
+    assert heads == ARMS, kept.said  # each arm calibrated, none kept from before
+    said = "\n".join(kept.said)
+    assert "from the last session" not in said, said
+    assert not [ln for ln in kept.said if ln.startswith(("FAULT", "FAILED"))], said
+    assert said.count("markers found: 20/20") == 4, said  # every grid point's marker seen
+    cfg = (kept.lab / "fleet" / "config.toml").read_text()
+    assert 'transport = "ssh"' in cfg and "workdir" not in cfg
+    assert re.search(r'python = ".*/\.venv-host/bin/python"', cfg), cfg
+    assert sorted(kept.figures) == ARMS
+    for robot, fig in kept.figures.items():
+        assert fig["max_px"] <= 1.5 and fig["max_mm"] <= 3.0, (robot, fig)
+        host, arm = robot.split("/")
+        data = json.loads((kept.lab / "calib" / f"{host}-{arm}.json").read_text())
+        cam = kept.cameras[host]  # the figures are the file's, against the true camera
+        assert true_model_error(cam, data["homography"],
+                                cam["workspaces_mm"][arm]) == pytest.approx(fig)
+        assert len(data["gate_joints_deg"]) == 7  # measured at the gate
+        facts = arm_facts(arm, cam)
+        assert {k: data[k] for k in facts} == facts
+
+
 def test_rehearse_runs_the_physical_protocol_over_ssh_and_perception_agrees_with_truth(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], host_venv: HostVenv) -> None:
+        request: pytest.FixtureRequest, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        host_venv: HostVenv) -> None:
     # The agents run from a robot host's install (scripts/setup.sh --host, this build):
     # no checkout on their path, no torch, no pybullet, as on a lab's host.
     from drivers.build_id import build_id
 
     install_build(host_venv, build_id(), tmp_path)
     out = tmp_path / "rehearsal"
+    protocol = tiny_protocol(tmp_path)
+    start_from(kept_calibration(request, protocol), out)  # the run's one calibration
     steps = 15
-    status = main(["rehearse", str(tiny_protocol(tmp_path)), "--steps", str(steps),
+    status = main(["rehearse", str(protocol), "--steps", str(steps),
                    "--algorithms", "bc,fleet-ed", "--out", str(out),
                    "--host-python", str(host_venv.python)])
     printed = capsys.readouterr().out
     assert status == 0, printed[-3000:]
     assert f"rehearsal: {out}" in printed
-    # every arm calibrated by testbed calibrate against the twin, within the issue's bounds
+    # every arm's calibration kept (the test above made it), checked by the rehearsal
+    # against this lab's twins' true cameras, within the issue's bounds
+    assert "calibration: every arm's from the last session" in printed, printed[-3000:]
+    assert "calibrate yumi-a/left" not in printed
     figures = re.findall(r"calibration (\S+): against the twin's true camera model median "
                          r"[\d.]+ px / [\d.]+ mm, max ([\d.]+) px / ([\d.]+) mm", printed)
     assert len(figures) == 4

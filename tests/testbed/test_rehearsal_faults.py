@@ -6,7 +6,9 @@ agents running ``--backend yumi`` with ABB's client, the fleet loop and its reco
 off, a RAPID error, a zone stop, a frozen camera and a lost SSH link; each is named once,
 faults its host's arms until a scripted person clears it, and the trial finishes with
 every step recorded once, every teleop label in the data store, and perception agreeing
-with the twin's truth on the arm-steps that were not faulted.
+with the twin's truth on the arm-steps that were not faulted. The lab starts from the
+run's one calibration (kept_calibration.py, checked in test_rehearsal.py), as a
+rehearsal run again does: the faults are this test's subject, not the calibration.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import json
 from pathlib import Path
 
 import pytest
+from kept_calibration import kept_calibration, start_from
 from lab_fixtures import tiny_protocol
 
 from drivers.testing.sshd import sshd_available
@@ -28,6 +31,7 @@ from testbed.records.store import MODES, RunData
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.ssh,
+    pytest.mark.timeout(600),  # the run's one calibration (and its host install) if first
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
 
@@ -35,12 +39,16 @@ STEPS = 30
 
 
 def test_a_faults_rehearsal_meets_every_kind_loses_no_label_and_finishes(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        request: pytest.FixtureRequest, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "rehearsal"
-    status = main(["rehearse", str(tiny_protocol(tmp_path)), "--steps", str(STEPS),
+    protocol = tiny_protocol(tmp_path)
+    start_from(kept_calibration(request, protocol), out)
+    status = main(["rehearse", str(protocol), "--steps", str(STEPS),
                    "--algorithms", "fleet-ed", "--faults", "--out", str(out)])
     printed = capsys.readouterr().out
     assert status == 0, printed[-3000:]
+    assert "calibration: every arm's from the last session" in printed, printed[-3000:]
     lines = printed.splitlines()
     assert sum(line.startswith("FAULT ") for line in lines) == len(FAULT_KINDS), printed[-3000:]
     for name in FAULT_KINDS.values():  # each named in one line

@@ -5,7 +5,10 @@ continue where it stopped (issue 35, item 8): the twins, sshds and agents of the
 process gone with it (none left holding a port or a robot lock), the calibration kept,
 the run in progress resumed from its checkpoint, and every step, frame, truth row and
 fault recorded once. Everything is real, as in test_rehearsal.py (two hardware twins
-behind two sshds, the agents on ABB's client); the learning sizes are the tests'.
+behind two sshds, the agents on ABB's client); the learning sizes are the tests'. The
+first session starts from the run's one calibration (kept_calibration.py, checked in
+test_rehearsal.py) as a rehearsal run again does: what this test proves of calibration
+is that the session after the kill keeps it, not that it can be made.
 ``benchmarks/bench_rehearsal_day.py`` does the same to the whole day.
 """
 
@@ -20,6 +23,7 @@ import time
 from pathlib import Path
 
 import pytest
+from kept_calibration import kept_calibration, start_from
 from lab_fixtures import tiny_protocol
 
 from drivers.testing.sshd import sshd_available
@@ -32,7 +36,7 @@ from testbed.records.store import MODES, RunData
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.ssh,
-    pytest.mark.timeout(1200),  # two rehearsal sessions, four arms calibrated in the first
+    pytest.mark.timeout(1200),  # two rehearsal sessions (and the run's one calibration)
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
 
@@ -83,9 +87,12 @@ def _check_run(run: Path, killed_at: int | None) -> None:
 
 
 def test_a_rehearsal_killed_mid_run_goes_on_when_run_again_and_keeps_every_row_once(
-        tmp_path: Path) -> None:
+        request: pytest.FixtureRequest, tmp_path: Path) -> None:
     out = tmp_path / "rehearsal"
-    cmd = [sys.executable, "-m", "testbed.cli", "rehearse", str(tiny_protocol(tmp_path)),
+    protocol = tiny_protocol(tmp_path)
+    kept = kept_calibration(request, protocol)
+    start_from(kept, out)
+    cmd = [sys.executable, "-m", "testbed.cli", "rehearse", str(protocol),
            "--steps", str(STEPS), "--algorithms", "bc,fleet-ed", "--faults", "--out",
            str(out), "--camera-fps", "30"]
     first_log = tmp_path / "first.log"
@@ -93,7 +100,7 @@ def test_a_rehearsal_killed_mid_run_goes_on_when_run_again_and_keeps_every_row_o
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 600  # four arms calibrate first: minutes under load
+        deadline = time.monotonic() + 600  # theta_0 is pretrained first: minutes under load
         while (max((_rows(r) for r in out.glob("*-t0")), default=0) < KILL_AT
                and proc.poll() is None and time.monotonic() < deadline):
             time.sleep(0.05)
@@ -111,6 +118,8 @@ def test_a_rehearsal_killed_mid_run_goes_on_when_run_again_and_keeps_every_row_o
         time.sleep(0.1)
     assert not _alive(out), "the killed rehearsal's twins and sshds still run"
     assert json.loads((run / "run.json").read_text())["status"] == "running"
+    for f in sorted((kept.lab / "calib").glob("*.json")):  # the first session kept them too
+        assert (out / "lab" / "calib" / f.name).read_bytes() == f.read_bytes(), f.name
 
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=240,
                            stdin=subprocess.DEVNULL)
