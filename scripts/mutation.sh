@@ -26,7 +26,7 @@ for module in "$@"; do
     echo "== $module"
     if [ -z "${SCORE_ONLY:-}" ]; then
         nice -n 10 "$PY" scripts/mutation_run.py run "$module" > "mutation-$module.log" 2>&1 \
-            || { echo "mutmut failed on $module: see mutation-$module.log"; tail -20 "mutation-$module.log"; status=1; continue; }
+            || { echo "mutmut failed on $module: see mutation-$module.log"; tail -c 1500 "mutation-$module.log"; echo; status=1; continue; }
     fi
     "$PY" scripts/mutation_run.py score "$module" ${DIFF:+--diff} || status=1
 done

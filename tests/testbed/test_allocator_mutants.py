@@ -1,0 +1,114 @@
+"""The allocator's edges that scripts/mutation.sh found untested (docs/notes/tests.md).
+
+Why: testbed/fleet/allocator.py decides who helps which arm, and its state is what a
+crashed trial resumes from. A mutation run showed changes no test noticed: t_T / t_R by
+kind (``min_steps``), freeing one human leaving the others on their arms, a freed
+human's recorded state, and each consistency check of a checkpoint taken alone (an arm
+index equal to the fleet's size, a negative served or waited count, a list of the wrong
+length, a checkpoint without waits).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+import pytest
+
+from testbed.core.types import InterventionKind
+from testbed.fleet.allocator import Allocator
+
+
+def busy_allocator() -> Allocator:
+    """3 arms, 2 humans, t_T 2, t_R 3: human 0 teleops arm 2, human 1 resets arm 0."""
+    alloc = Allocator(3, 2, min_teleop_steps=2, hard_reset_steps=3, seed=0)
+    alloc.step(np.array([1.0, 0.0, 2.0]), np.array([True, False, False]))
+    assert alloc.assignment.tolist() == [1, -1, 0]
+    return alloc
+
+
+def test_min_steps_is_t_teleop_for_a_teleop_and_t_reset_for_a_reset() -> None:
+    alloc = Allocator(2, 1, min_teleop_steps=4, hard_reset_steps=7)
+    assert alloc.min_steps(InterventionKind.TELEOP) == 4
+    assert alloc.min_steps("teleop") == 4
+    assert alloc.min_steps(InterventionKind.RESET) == 7
+    assert alloc.min_steps("reset") == 7
+
+
+def test_releasing_one_arm_leaves_the_other_human_where_it_is() -> None:
+    alloc = busy_allocator()
+    alloc.step(np.array([1.0, 0.0, 2.0]), np.array([True, False, False]))
+    assert alloc.release(2) == 0
+    assert alloc.assignment.tolist() == [1, -1, -1]
+    assert alloc.held_kinds() == [(InterventionKind.RESET, 1), (None, 0), (None, 0)]
+    state = alloc.state_dict()
+    assert state["human_arm"] == [-1, 0]
+    assert state["human_kind"] == [None, "reset"]
+    assert state["human_served"] == [0, 1]
+    # the freed state is a valid checkpoint
+    Allocator(3, 2, min_teleop_steps=2, hard_reset_steps=3).load_state_dict(state)
+
+
+def test_release_human_records_the_human_as_free() -> None:
+    alloc = busy_allocator()
+    alloc.step(np.array([1.0, 0.0, 2.0]), np.array([True, False, False]))
+    assert alloc.release_human(1) == 0
+    state = alloc.state_dict()
+    assert (state["human_arm"], state["human_kind"], state["human_served"]) == \
+        ([2, -1], ["teleop", None], [1, 0])
+
+
+def _state() -> dict[str, Any]:
+    state: dict[str, Any] = json.loads(json.dumps(busy_allocator().state_dict()))
+    return state
+
+
+def _load(state: dict[str, Any]) -> Allocator:
+    alloc = Allocator(3, 2, min_teleop_steps=2, hard_reset_steps=3)
+    alloc.load_state_dict(state)
+    return alloc
+
+
+def test_another_version_is_named_in_the_error() -> None:
+    state = _state() | {"version": 2}
+    with pytest.raises(ValueError, match=r"^allocator state version 2 is not 1$"):
+        _load(state)
+
+
+@pytest.mark.parametrize("patch", [
+    {"human_arm": [2, 3]},                                  # arm index == num_robots
+    {"human_arm": [2, -2], "human_kind": ["teleop", None]},  # below -1, kinds fine
+    {"human_served": [0, -1]},                              # a negative served count
+    {"arm_waited": [0, -1, 0]},                             # a negative wait
+])
+def test_each_inconsistency_alone_is_refused(patch: dict[str, list[Any]]) -> None:
+    state = _state()
+    fine = state | {"human_kind": patch.get("human_kind", state["human_kind"])}
+    fine["human_arm"] = [2, -1] if "human_kind" in patch else fine["human_arm"]
+    _load(fine)  # the same state without the one bad value loads
+    with pytest.raises(ValueError, match="inconsistent"):
+        _load(state | patch)
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("human_arm", [2, 0, -1]),
+    ("human_kind", ["teleop", "reset", None]),
+    ("human_served", [0, 0, 0]),
+    ("arm_waited", [0, 0, 0, 0]),
+])
+def test_a_list_of_the_wrong_length_is_refused(field: str, value: list[Any]) -> None:
+    state = _state()
+    state[field] = value
+    with pytest.raises(ValueError):
+        _load(state)
+
+
+def test_a_checkpoint_without_waits_starts_every_wait_at_zero() -> None:
+    state = _state()
+    state["arm_waited"] = [2, 5, 1]
+    assert _load(state).waited.tolist() == [2, 5, 1]
+    del state["arm_waited"]
+    loaded = _load(state)
+    assert loaded.waited.tolist() == [0, 0, 0]
+    assert loaded.assignment.tolist() == [1, -1, 0]
