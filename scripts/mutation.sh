@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Mutation testing: do the unit tests notice a change to the code? (docs/notes/tests.md,
 # "Tests that can fail"). For each MODULE named (a key of [tool.testbed.mutation] in
-# pyproject.toml: allocator, priorities, metrics, frame_classes, wire, yumi_programs), mutmut
+# pyproject.toml: allocator, priorities, metrics, frame_classes, wire, yumi_zones), mutmut
 # mutates that module's files, runs that module's fast unit tests against each mutant,
 # one at a time and niced (a 2-core machine others share), and this prints the score:
 # killed / total, and every mutant not killed by name.
