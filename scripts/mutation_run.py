@@ -11,11 +11,14 @@ workers from here, so they see the same). One module per process, from an empty
 Usage (scripts/mutation.sh calls it): ``python scripts/mutation_run.py run NAME`` then
 ``python scripts/mutation_run.py score NAME [--diff]``. The score counts a mutant as
 killed when a test failed or timed out on it; every other mutant (survived, no test
-covered it) is listed by name, and ``--diff`` prints what it changed.
+covered it) is listed by name, and ``--diff`` prints what it changed. An entry may name
+``functions``: globs over mutmut's mutant names (``drivers.wire.x_parse_*``); then only
+those mutants are run and scored (a module of which one part is under test).
 """
 
 from __future__ import annotations
 
+import fnmatch
 import shutil
 import sys
 import tomllib
@@ -51,7 +54,7 @@ def run(name: str) -> int:
     from mutmut.__main__ import cli
 
     try:
-        cli(["run", "--max-children", "1"])
+        cli(["run", "--max-children", "1", *module_entry(name).get("functions", [])])
     except SystemExit as stop:
         return int(stop.code or 0)
     return 0
@@ -68,7 +71,9 @@ def score(name: str, diff: bool) -> int:
     for pattern in entry["mutate"]:
         data = SourceFileMutationData(path=pattern)
         data.load()
-        status = {key: status_by_exit_code[code] for key, code in data.exit_code_by_key.items()}
+        globs = entry.get("functions", ["*"])
+        status = {key: status_by_exit_code[code] for key, code in data.exit_code_by_key.items()
+                  if any(fnmatch.fnmatch(key, g) for g in globs)}
         if not status:
             print(f"{pattern}: no results (run it first)")
             return 1
