@@ -94,6 +94,8 @@ def test_thrifty_uses_its_own_eps() -> None:
     prio.scores(signals([1.0, 1.0], [2.0, 2.0]))
     out = prio.scores(signals([1.0, 3.0], [2.0, 2.0]), update=False)
     assert out.tolist() == [0.0, 1.0]
+    out = prio.scores(signals([1.0, 1.0], [2.0, 6.0]), update=False)  # the novelty's too
+    assert out.tolist() == [0.0, 2.0]
 
 
 def test_thrifty_alpha_is_a_closed_unit_interval() -> None:
