@@ -11,13 +11,14 @@ length, a checkpoint without waits).
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import numpy as np
 import pytest
 
 from testbed.core.types import InterventionKind
-from testbed.fleet.allocator import Allocator
+from testbed.fleet.allocator import Allocator, _jsonable
 
 
 def busy_allocator() -> Allocator:
@@ -81,13 +82,16 @@ def test_another_version_is_named_in_the_error() -> None:
     {"human_arm": [2, -2], "human_kind": ["teleop", None]},  # below -1, kinds fine
     {"human_served": [0, -1]},                              # a negative served count
     {"arm_waited": [0, -1, 0]},                             # a negative wait
+    {"human_kind": ["teleop", None]},                       # a busy human with no kind
 ])
 def test_each_inconsistency_alone_is_refused(patch: dict[str, list[Any]]) -> None:
     state = _state()
     fine = state | {"human_kind": patch.get("human_kind", state["human_kind"])}
-    fine["human_arm"] = [2, -1] if "human_kind" in patch else fine["human_arm"]
+    fine["human_arm"] = [2, -1] if patch.get("human_kind") == ["teleop", None] else \
+        fine["human_arm"]
     _load(fine)  # the same state without the one bad value loads
-    with pytest.raises(ValueError, match="inconsistent"):
+    with pytest.raises(ValueError, match=r"^allocator state is inconsistent \(arms, kinds, "
+                                         r"served, waited\)$"):
         _load(state | patch)
 
 
@@ -112,3 +116,22 @@ def test_a_checkpoint_without_waits_starts_every_wait_at_zero() -> None:
     loaded = _load(state)
     assert loaded.waited.tolist() == [0, 0, 0]
     assert loaded.assignment.tolist() == [1, -1, 0]
+
+
+def test_a_bad_rng_state_is_named() -> None:
+    state = _state() | {"rng": {"bit_generator": "PCG64", "state": "nope"}}
+    with pytest.raises(ValueError, match=r"^allocator state: bad RNG state \("):
+        _load(state)
+
+
+def test_gains_that_are_not_numbers_are_a_value_error_naming_the_shape() -> None:
+    alloc = Allocator(2, 1, 1, 1, seed=0)
+    with pytest.raises(ValueError, match=re.escape("gains must be a float array (M, N): ")):
+        alloc.step(np.ones(2), np.zeros(2, dtype=bool), gains=[["a", "b"]])
+
+
+def test_rng_states_become_plain_json_types() -> None:
+    got = _jsonable({"a": (np.int64(3), [np.float32(0.5), "x"]), 1: {"b": np.uint64(7)}})
+    assert got == {"a": [3, [0.5, "x"]], "1": {"b": 7}}
+    assert type(got["a"][0]) is int and type(got["a"][1][0]) is float
+    assert type(got["1"]["b"]) is int
