@@ -14,6 +14,7 @@ killed when a test failed or timed out on it; every other mutant (survived, no t
 covered it) is listed by name, and ``--diff`` prints what it changed. An entry may name
 ``functions``: globs over mutmut's mutant names (``drivers.wire.x_parse_*``); then only
 those mutants are run and scored (a module of which one part is under test).
+``rerun NAME`` runs only the last run's survivors again, with the tests as they are now.
 """
 
 from __future__ import annotations
@@ -60,6 +61,40 @@ def run(name: str) -> int:
     return 0
 
 
+def not_killed(name: str) -> list[str]:
+    """The mutants of the last run of ``name`` that no test killed, by name."""
+    from mutmut.mutation.data import SourceFileMutationData
+    from mutmut.stats import status_by_exit_code
+
+    entry = module_entry(name)
+    globs = entry.get("functions", ["*"])
+    out = []
+    for pattern in entry["mutate"]:
+        data = SourceFileMutationData(path=pattern)
+        data.load()
+        out += [key for key, code in data.exit_code_by_key.items()
+                if status_by_exit_code[code] not in KILLED
+                and any(fnmatch.fnmatch(key, g) for g in globs)]
+    return sorted(out)
+
+
+def rerun(name: str) -> int:
+    """Run the last run's survivors again (./mutants kept: the tests are copied afresh,
+    new tests are added to mutmut's stats): what the tests added since kill."""
+    configure(name)
+    names = not_killed(name)
+    if not names:
+        print(f"mutation: {name}: no mutant left to run again")
+        return 0
+    from mutmut.__main__ import cli
+
+    try:
+        cli(["run", "--max-children", "1", *names])
+    except SystemExit as stop:
+        return int(stop.code or 0)
+    return 0
+
+
 def score(name: str, diff: bool) -> int:
     """Print killed / total per mutated file and the names of the mutants not killed."""
     configure(name)
@@ -89,12 +124,14 @@ def score(name: str, diff: bool) -> int:
 
 
 def main(argv: list[str]) -> int:
-    """``run NAME`` or ``score NAME [--diff]``."""
-    if len(argv) < 2 or argv[0] not in ("run", "score"):
+    """``run NAME``, ``rerun NAME`` or ``score NAME [--diff]``."""
+    if len(argv) < 2 or argv[0] not in ("run", "rerun", "score"):
         print(__doc__)
         return 2
     if argv[0] == "run":
         return run(argv[1])
+    if argv[0] == "rerun":
+        return rerun(argv[1])
     return score(argv[1], "--diff" in argv[2:])
 
 
