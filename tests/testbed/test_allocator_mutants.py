@@ -135,3 +135,38 @@ def test_rng_states_become_plain_json_types() -> None:
     assert got == {"a": [3, [0.5, "x"]], "1": {"b": 7}}
     assert type(got["a"][0]) is int and type(got["a"][1][0]) is float
     assert type(got["1"]["b"]) is int
+
+
+def test_gains_of_the_wrong_shape_or_not_finite_are_named() -> None:
+    alloc = Allocator(2, 1, 1, 1, seed=0)
+    keys, viol = np.ones(2), np.zeros(2, dtype=bool)
+    with pytest.raises(ValueError, match=re.escape(
+            "gains must have shape (1, 2) (humans x arms), got (2, 2)")):
+        alloc.step(keys, viol, gains=np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"^gains must be finite \(no NaN or infinity\)$"):
+        alloc.step(keys, viol, gains=[[0.0, np.inf]])
+
+
+def test_a_remote_human_keeping_its_teleop_arm_leaves_the_arm_above_to_another() -> None:
+    """All remote, equal gains: on the top arm the two free humans tie; the one whose own
+    arm is also among the top F (a keeper) gives way, and keeps its own arm after."""
+    alloc = Allocator(2, 2, 1, 1, seed=0, on_site=np.array([False, False]))
+    viol = np.zeros(2, dtype=bool)
+    alloc.step(np.array([0.0, 1.0]), viol, available=np.array([True, False]))
+    assert alloc.assignment.tolist() == [-1, 0]
+    alloc.step(np.array([2.0, 1.0]), viol)
+    assert alloc.assignment.tolist() == [1, 0]
+    assert alloc.held_kinds() == [(InterventionKind.TELEOP, 0), (InterventionKind.TELEOP, 1)]
+
+
+def test_an_on_site_owner_gives_its_teleop_arm_to_a_remote_one_for_a_later_reset() -> None:
+    """h1 (on site) owned arm 1's teleop; arm 2 violates and comes later in key order. One
+    on-site person left and one reset to come: the remote h2 takes arm 1, h1 resets arm 2."""
+    alloc = Allocator(3, 3, 1, 1, seed=0, on_site=np.array([False, True, False]))
+    alloc.step(np.array([0.0, 1.0, 0.0]), np.zeros(3, dtype=bool),
+               available=np.array([False, True, False]))
+    assert alloc.assignment.tolist() == [-1, 1, -1]
+    alloc.step(np.array([3.0, 2.0, 1.0]), np.array([False, False, True]))
+    assert alloc.assignment.tolist() == [0, 2, 1]
+    assert alloc.kinds == [InterventionKind.TELEOP, InterventionKind.TELEOP,
+                           InterventionKind.RESET]
