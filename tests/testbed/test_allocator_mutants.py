@@ -170,3 +170,15 @@ def test_an_on_site_owner_gives_its_teleop_arm_to_a_remote_one_for_a_later_reset
     assert alloc.assignment.tolist() == [0, 2, 1]
     assert alloc.kinds == [InterventionKind.TELEOP, InterventionKind.TELEOP,
                            InterventionKind.RESET]
+
+
+def test_a_reset_two_places_down_still_counts_against_the_on_site_owner() -> None:
+    """The same rule with the reset right after the owner's arm and more arms after it:
+    the violating candidates still to come are counted over every later position."""
+    alloc = Allocator(4, 2, 1, 1, seed=0, on_site=np.array([True, False]))
+    alloc.step(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(4, dtype=bool),
+               available=np.array([True, False]))
+    assert alloc.assignment.tolist() == [0, -1, -1, -1]
+    alloc.step(np.array([4.0, 3.0, 2.0, 1.0]), np.array([False, True, False, False]))
+    assert alloc.assignment.tolist() == [1, 0, -1, -1]
+    assert alloc.kinds[:2] == [InterventionKind.TELEOP, InterventionKind.RESET]
