@@ -62,7 +62,8 @@ def run(name: str) -> int:
 
 
 def not_killed(name: str) -> list[str]:
-    """The mutants of the last run of ``name`` that no test killed, by name."""
+    """The mutants of the last run of ``name`` that ran and no test killed, by name (not
+    the ones a stopped run never reached)."""
     from mutmut.mutation.data import SourceFileMutationData
     from mutmut.stats import status_by_exit_code
 
@@ -73,7 +74,7 @@ def not_killed(name: str) -> list[str]:
         data = SourceFileMutationData(path=pattern)
         data.load()
         out += [key for key, code in data.exit_code_by_key.items()
-                if status_by_exit_code[code] not in KILLED
+                if status_by_exit_code[code] not in (*KILLED, "not checked")
                 and any(fnmatch.fnmatch(key, g) for g in globs)]
     return sorted(out)
 
