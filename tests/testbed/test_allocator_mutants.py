@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from testbed.core.types import InterventionKind
-from testbed.fleet.allocator import Allocator, _jsonable
+from testbed.fleet.allocator import GAIN_TOLERANCE, Allocator, _jsonable
 
 
 def busy_allocator() -> Allocator:
@@ -182,3 +182,22 @@ def test_a_reset_two_places_down_still_counts_against_the_on_site_owner() -> Non
     alloc.step(np.array([4.0, 3.0, 2.0, 1.0]), np.array([False, True, False, False]))
     assert alloc.assignment.tolist() == [1, 0, -1, -1]
     assert alloc.kinds[:2] == [InterventionKind.TELEOP, InterventionKind.RESET]
+
+
+def test_a_remote_human_keeps_its_own_top_arm_over_another_remote_one() -> None:
+    alloc = Allocator(2, 2, 1, 1, seed=0, on_site=np.array([False, False]))
+    viol = np.zeros(2, dtype=bool)
+    alloc.step(np.array([1.0, 0.0]), viol, available=np.array([True, False]))
+    assert alloc.assignment.tolist() == [0, -1]
+    alloc.step(np.array([2.0, 1.0]), viol)
+    assert alloc.assignment.tolist() == [0, 1]
+    assert alloc.served.tolist() == [1, 0]
+
+
+def test_a_best_gain_of_minus_the_tolerance_is_still_a_teleop() -> None:
+    """Only a best gain *below* -GAIN_TOLERANCE leaves a teleop candidate autonomous."""
+    alloc = Allocator(2, 1, 1, 1, seed=0)
+    keys, viol = np.array([2.0, 1.0]), np.zeros(2, dtype=bool)
+    assert alloc.step(keys, viol, gains=[[-GAIN_TOLERANCE, 0.0]]).tolist() == [0, -1]
+    alloc = Allocator(2, 1, 1, 1, seed=0)
+    assert alloc.step(keys, viol, gains=[[-2 * GAIN_TOLERANCE, 0.0]]).tolist() == [-1, 0]
