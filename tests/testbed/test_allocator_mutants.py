@@ -201,3 +201,14 @@ def test_a_best_gain_of_minus_the_tolerance_is_still_a_teleop() -> None:
     assert alloc.step(keys, viol, gains=[[-GAIN_TOLERANCE, 0.0]]).tolist() == [0, -1]
     alloc = Allocator(2, 1, 1, 1, seed=0)
     assert alloc.step(keys, viol, gains=[[-2 * GAIN_TOLERANCE, 0.0]]).tolist() == [-1, 0]
+
+
+def test_a_human_left_free_by_a_step_has_served_0_in_the_checkpoint() -> None:
+    alloc = Allocator(2, 2, 1, 1, seed=0)
+    alloc.step(np.array([1.0, 0.0]), np.zeros(2, dtype=bool))
+    state = alloc.state_dict()
+    assert (state["human_arm"], state["human_kind"], state["human_served"]) == (
+        [0, -1], ["teleop", None], [0, 0])
+    alloc.step(np.array([0.0, 0.0]), np.zeros(2, dtype=bool))  # the teleop ends: t_T = 1
+    state = alloc.state_dict()
+    assert (state["human_arm"], state["human_served"]) == ([-1, -1], [0, 0])
