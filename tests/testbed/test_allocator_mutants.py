@@ -212,3 +212,28 @@ def test_a_human_left_free_by_a_step_has_served_0_in_the_checkpoint() -> None:
     alloc.step(np.array([0.0, 0.0]), np.zeros(2, dtype=bool))  # the teleop ends: t_T = 1
     state = alloc.state_dict()
     assert (state["human_arm"], state["human_served"]) == ([-1, -1], [0, 0])
+
+
+@pytest.mark.parametrize(("args", "want"), [
+    ((2, -1, 1, 1), "num_humans must be >= 0, got -1"),
+    ((2, 1, 0, 1), "min_teleop_steps must be >= 1, got 0"),
+    ((2, 1, 1, 0), "hard_reset_steps must be >= 1, got 0"),
+    ((0, 1, 1, 1), "num_robots must be >= 1, got 0"),
+])
+def test_a_bad_constructor_argument_is_named(args: tuple[int, int, int, int], want: str
+                                             ) -> None:
+    with pytest.raises(ValueError, match=f"^{re.escape(want)}$"):
+        Allocator(*args)
+
+
+def test_the_places_are_read_only() -> None:
+    alloc = Allocator(2, 2, 1, 1, on_site=np.array([True, False]))
+    assert not alloc.on_site.flags.writeable
+    with pytest.raises(ValueError):
+        alloc.on_site[1] = True
+
+
+def test_keys_of_the_wrong_shape_name_the_shape_given() -> None:
+    with pytest.raises(ValueError, match=re.escape(
+            "keys must have shape (2, K) with K >= 1, got (3,)")):
+        Allocator(2, 1, 1, 1).step([1.0, 2.0, 3.0], np.zeros(2, dtype=bool))
