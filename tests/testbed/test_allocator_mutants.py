@@ -237,3 +237,11 @@ def test_keys_of_the_wrong_shape_name_the_shape_given() -> None:
     with pytest.raises(ValueError, match=re.escape(
             "keys must have shape (2, K) with K >= 1, got (3,)")):
         Allocator(2, 1, 1, 1).step([1.0, 2.0, 3.0], np.zeros(2, dtype=bool))
+
+
+def test_a_fresh_allocator_has_nobody_on_any_arm() -> None:
+    alloc = Allocator(3, 2, 2, 3, seed=0)
+    state = alloc.state_dict()
+    assert (state["human_arm"], state["human_kind"], state["human_served"],
+            state["arm_waited"], state["steps"]) == ([-1, -1], [None, None], [0, 0],
+                                                      [0, 0, 0], 0)
