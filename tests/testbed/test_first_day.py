@@ -54,7 +54,7 @@ from testbed.records.steps import read_steps
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.ssh,
-    pytest.mark.timeout(1500),  # two rehearsal sessions, four arms calibrated in the first
+    pytest.mark.timeout(1500),  # two rehearsal sessions under a loaded suite
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
 
@@ -63,6 +63,10 @@ PERSON = Path(__file__).with_name("first_day_person.py")
 STEPS = 14
 KILL_AT = 6
 PEOPLE = (("ana", "on_site"), ("bo", "remote"))
+LEARNING = {"demos": 8, "critic_transitions": 4}
+"""theta_0's data, halved from ``lab_fixtures.TINY_LEARNING``'s: its fleet steps (the
+demos and rollouts on the twins) come before the first step and the kill, and no
+assertion reads what the learner learnt from them (3 gradient steps either way)."""
 
 
 def _free_port() -> int:
@@ -72,9 +76,9 @@ def _free_port() -> int:
 
 
 def _protocol(tmp: Path, port: int, address: str) -> Path:
-    """The shipped physical protocol (tiny learning), its humans in browsers: ana on
-    site, bo remote, the console on every interface, its links named by the address
-    the colleagues reach (``public_url``), https by default."""
+    """The shipped physical protocol (tiny learning, ``LEARNING``), its humans in
+    browsers: ana on site, bo remote, the console on every interface, its links named
+    by the address the colleagues reach (``public_url``), https by default."""
     people = "".join(f'\n[[fleet.humans.people]]\nname = "{n}"\nwhere = "{w}"\n'
                      for n, w in PEOPLE)
     humans = (f'[fleet.humans]\ncount = {len(PEOPLE)}\nkind = "web"\n\n'
@@ -84,6 +88,9 @@ def _protocol(tmp: Path, port: int, address: str) -> Path:
     text, n = re.subn(r"^\[fleet\.humans\]\n.*?(?=^\[fleet\.algorithm\])", humans,
                       path.read_text(), flags=re.M | re.S)
     assert n == 1
+    for field, value in LEARNING.items():
+        text, n = re.subn(rf"^{field} = \d+$", f"{field} = {value}", text, flags=re.M)
+        assert n == 1, field
     path.write_text(text)
     return path
 
