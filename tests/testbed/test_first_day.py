@@ -14,7 +14,13 @@ open as a colleague would leave them, find the console again by themselves with 
 links of the first session, and each says the trial was resumed.
 
 Stand-ins, named: the robots are the hardware twins (``testbed rehearse``); a colleague's
-laptop is a network namespace on this machine.
+laptop is a network namespace on this machine; the arms' calibrations are the exact ones
+(``lab_fixtures.calibrate_exactly``) written into the lab folder before the first session,
+as a lab calibrated that morning, so the first session keeps them as a resumed one does
+(``testbed/lab/rehearsal.py::_kept_calibration``). Calibrating four arms with ``testbed
+calibrate`` inside a rehearsal is ``tests/testbed/test_rehearsal.py``'s to prove, keeping
+them across a kill ``tests/testbed/test_rehearsal_resume.py``'s; here it was a minute of
+CPU before the first link, none of it what this test checks.
 """
 
 from __future__ import annotations
@@ -34,16 +40,21 @@ from typing import Any
 
 import pytest
 from colleagues import Colleague, colleagues, netns_missing
-from lab_fixtures import tiny_protocol
+from lab_fixtures import calibrate_exactly, tiny_protocol
 
 from drivers.testing.sshd import sshd_available
 from gui.web.browser import browser_missing
+from testbed.core.atomic import atomic_write_json
+from testbed.experiments.protocol import load_protocol
+from testbed.lab.camera_model import true_model_error
+from testbed.lab.hardware_twin import HardwareTwinLab
+from testbed.lab.rehearsal import CALIBRATED
 from testbed.records.steps import read_steps
 
 pytestmark = [
     pytest.mark.slow,
     pytest.mark.ssh,
-    pytest.mark.timeout(1500),  # two rehearsal sessions, four arms calibrated in the first
+    pytest.mark.timeout(1500),  # two rehearsal sessions under a loaded suite
     pytest.mark.skipif(not sshd_available(), reason="needs OpenSSH sshd (openssh-server)"),
 ]
 
@@ -52,6 +63,10 @@ PERSON = Path(__file__).with_name("first_day_person.py")
 STEPS = 14
 KILL_AT = 6
 PEOPLE = (("ana", "on_site"), ("bo", "remote"))
+LEARNING = {"demos": 8, "critic_transitions": 4}
+"""theta_0's data, halved from ``lab_fixtures.TINY_LEARNING``'s: its fleet steps (the
+demos and rollouts on the twins) come before the first step and the kill, and no
+assertion reads what the learner learnt from them (3 gradient steps either way)."""
 
 
 def _free_port() -> int:
@@ -61,9 +76,9 @@ def _free_port() -> int:
 
 
 def _protocol(tmp: Path, port: int, address: str) -> Path:
-    """The shipped physical protocol (tiny learning), its humans in browsers: ana on
-    site, bo remote, the console on every interface, its links named by the address
-    the colleagues reach (``public_url``), https by default."""
+    """The shipped physical protocol (tiny learning, ``LEARNING``), its humans in
+    browsers: ana on site, bo remote, the console on every interface, its links named
+    by the address the colleagues reach (``public_url``), https by default."""
     people = "".join(f'\n[[fleet.humans.people]]\nname = "{n}"\nwhere = "{w}"\n'
                      for n, w in PEOPLE)
     humans = (f'[fleet.humans]\ncount = {len(PEOPLE)}\nkind = "web"\n\n'
@@ -73,8 +88,30 @@ def _protocol(tmp: Path, port: int, address: str) -> Path:
     text, n = re.subn(r"^\[fleet\.humans\]\n.*?(?=^\[fleet\.algorithm\])", humans,
                       path.read_text(), flags=re.M | re.S)
     assert n == 1
+    for field, value in LEARNING.items():
+        text, n = re.subn(rf"^{field} = \d+$", f"{field} = {value}", text, flags=re.M)
+        assert n == 1, field
     path.write_text(text)
     return path
+
+
+def _calibrated_lab(proto_path: Path, out: Path) -> None:
+    """The rehearsal's lab folder as a session that calibrated every arm leaves it: the
+    same twins (``rehearse``'s seed, the protocol's hosts and arms) started once, each
+    arm's exact calibration written (``lab_fixtures.calibrate_exactly``) with its error
+    against the twin's true camera (``CALIBRATED``), the twins stopped. ``rehearse``
+    then checks and keeps them (``_kept_calibration``) instead of calibrating."""
+    proto = load_protocol(proto_path, check_files=False)
+    with HardwareTwinLab(proto.fleet, out / "lab", seed=proto.seed(0)) as lab:
+        calibrate_exactly(lab)
+        figures: dict[str, dict[str, float]] = {}
+        for name, host in lab.hosts.items():
+            cam = host.lab.camera()
+            for arm in host.arms:
+                data = json.loads(lab.calibration_path(name, arm).read_text())
+                figures[f"{name}/{arm}"] = true_model_error(
+                    cam, data["homography"], cam["workspaces_mm"][arm])
+        atomic_write_json(lab.root / CALIBRATED, figures)
 
 
 def _rows(out: Path) -> int:
@@ -133,6 +170,7 @@ def test_the_first_day_colleagues_in_browsers_a_crash_a_resume_and_an_on_site_re
     env = {**os.environ, "XDG_STATE_HOME": str(state), "PYTHONPATH": str(ROOT)}
     with colleagues(len(PEOPLE)) as machines:
         proto = _protocol(tmp_path, port, machines[0].gateway)
+        _calibrated_lab(proto, out)
         cmd = [sys.executable, "-m", "testbed.cli", "rehearse", str(proto), "--steps",
                str(STEPS), "--algorithms", "cur", "--humans", "web", "--out", str(out)]
         first_log, second_log = tmp_path / "first.log", tmp_path / "second.log"
@@ -144,6 +182,7 @@ def test_the_first_day_colleagues_in_browsers_a_crash_a_resume_and_an_on_site_re
             _wait_for("links", lambda: len(_links(first_log.read_text())) == len(PEOPLE),
                       first, first_log, 600)
             printed = first_log.read_text()
+            assert "calibration: every arm's from the last session" in printed, printed[-4000:]
             links, spki = _links(printed), _trust(state, printed)
             for c, (name, where) in zip(machines, PEOPLE, strict=True):
                 people.append(_person(c, links[name], spki, where, tmp_path))
