@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
-from scipy import stats
 
 __all__ = ["CONFIDENCE", "AlarmRate", "alarm_rate"]
 
@@ -59,6 +58,8 @@ def _cp_upper(x: float, n: float, confidence: float) -> float:
         return math.nan
     if x >= n:
         return 1.0
+    from scipy import stats  # the report's; a robot host's install imports this module without it
+
     return float(stats.beta.ppf(confidence, x + 1.0, n - x))
 
 
@@ -82,6 +83,8 @@ def alarm_rate(fired: Sequence[int], judged: Sequence[int], alpha: float,
     between = runs / (runs - 1) * float(np.sum((f - p * n) ** 2)) / total ** 2
     binomial = p * (1.0 - p) / total
     deff = max(1.0, between / binomial) if binomial > 0 else 1.0
+    from scipy import stats
+
     df_factor = (stats.norm.ppf(confidence) / stats.t.ppf(confidence, runs - 1)) ** 2
     n_eff = total / deff * df_factor
     return AlarmRate(alpha, runs, int(total), int(x), p, _cp_upper(p * n_eff, n_eff, confidence),

@@ -45,10 +45,10 @@ def theta0_digest(run: Path) -> str | None:
     Why the weights and not the file: a protocol's trials pretrain one theta_0 and save it
     with their own seed, sampler, optimiser state and counters, so a hash of the bytes
     made one network into one theta_0 per trial, and "leave one theta_0 out" was leave one
-    trial seed out (issue 45, item 1). This hashes what the learner acts and judges with,
-    ``WEIGHTS`` (the policy ensemble, each critic's net and target), each tensor's name,
-    dtype, shape and bytes, in name order; the file is memory-mapped, so the data a
-    theta_0 also keeps is never read. A file that is not a learner checkpoint falls back
+    trial seed out (issue 45, item 1). This hashes what the head reads, ``WEIGHTS`` (the
+    policy ensemble only: not the critics), each tensor's name, dtype, shape and bytes,
+    in name order; the file is memory-mapped, so the data a theta_0 also keeps is never
+    read. A file that is not a learner checkpoint falls back
     to its bytes ("file:" prefixed): ``push_features`` then names why it is unreadable.
     """
     path = run / START_LEARNER

@@ -157,7 +157,9 @@ def test_the_report_tables_say_each_signal_per_algorithm_with_intervals(tmp_path
     auc = tables["prediction-auroc"]
     assert auc.header[4:] == ["k=1", "k=2", "k=3", "episode fails"]
     oracle = next(r for r in auc.rows if r[1] == "oracle")
-    assert oracle[2] == "3" and oracle[6] == "1.000 [1.000, 1.000] (n=3)"
+    # three runs of AUROC 1: the betting interval's lower end is the m where three full
+    # bets against it reach 1 / alpha, (1 + 0.9 (1 - m) / m)^3 = 40, m = 0.271
+    assert oracle[2] == "3" and oracle[6] == "1.000 [0.271, 1.000] (n=3)"
     signals = [r[1] for r in auc.rows]
     # risk: cur reads it (noise here); the failure head, fitted on the runs from the other
     # theta_0, reads in the images what the oracle knows: as good as the oracle at k = 3
