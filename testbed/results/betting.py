@@ -36,7 +36,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["CAP", "GRID", "BetSet", "betting_set", "wealth"]
+__all__ = ["CAP", "GRID", "BetSet", "Wealth", "betting_set", "wealth"]
 
 CAP: Final = 0.9
 """The largest share of either wealth bet on one outcome (the sequential test's)."""

@@ -70,7 +70,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from testbed.results.betting import CAP, BetSet, betting_set, wealth
+from testbed.results.betting import CAP, BetSet, Wealth, betting_set, wealth
 
 __all__ = ["CAP", "RECORD", "SCALE_FRACTION", "Bets", "Decision", "PairState", "anytime_p",
            "bets", "confidence_sequence", "decide", "e_values", "fewest_trials", "outcomes",
@@ -86,24 +86,14 @@ FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class Bets:
-    """The betting of one or many sequences of differences (last axis: trials)."""
+class Bets(Wealth):
+    """The betting of one or many sequences of differences (last axis: trials): the
+    wealths of :class:`testbed.results.betting.Wealth` at mean 0 (``lam_up`` in [0, CAP],
+    ``lam_down`` in [-CAP, 0], ``up`` and ``down`` after each trial, ``e`` their
+    average, each starting at 1), with the bounded outcomes they bet on."""
 
-    x: FloatArray
+    x: FloatArray = field(default_factory=lambda: np.zeros(0))
     """The bounded outcomes X_k in [-1, 1]."""
-    lam_up: FloatArray
-    """The bet on "above the reference" at each trial, in [0, CAP]."""
-    lam_down: FloatArray
-    """The bet on "below", in [-CAP, 0]."""
-    up: FloatArray
-    """The wealth betting "above" after each trial."""
-    down: FloatArray
-    """The wealth betting "below" after each trial."""
-
-    @property
-    def e(self) -> FloatArray:
-        """The e-value after each trial: the two wealths' average (each starts at 1)."""
-        return np.asarray((self.up + self.down) / 2, dtype=float)
 
 
 def bets(diffs: npt.ArrayLike) -> Bets:
