@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from testbed.core.humans import Humans
     from testbed.experiments.progress import TrialProgress
     from testbed.experiments.protocol import Protocol
+    from testbed.experiments.theta0 import Theta0Spec
 
 T = TypeVar("T")
 
@@ -54,8 +55,9 @@ class _Cache:
 
     folder: Path
     humans: str
-    targets: list[tuple[FleetConfig, tuple[str, ...], str]]
-    """Each theta_0: its fleet, its critics, a label ("" for one alone)."""
+    targets: list[Theta0Spec]
+    """Each theta_0: its fleet, its critics, a label ("" for one alone), its seed (a
+    protocol with ``pretrain_per_trial``: one per trial, each from its trial's seed)."""
 
 
 def _add_cache_arguments(p: argparse.ArgumentParser) -> None:
@@ -66,9 +68,11 @@ def _add_cache_arguments(p: argparse.ArgumentParser) -> None:
 
 def _cache_of(args: argparse.Namespace) -> _Cache:
     """What ``--config`` (a protocol: every theta_0 its runs start from, the critics
-    any of its algorithms reads; a fleet config, or a protocol with ``--algorithm``:
-    the trial's of that config, for ``--algorithm``) needs in its folder of runs."""
+    any of its algorithms reads, one per trial with ``pretrain_per_trial``; a fleet
+    config, or a protocol with ``--algorithm``: the trial's of that config, for
+    ``--algorithm``) needs in its folder of runs."""
     from testbed.experiments.pretraining import critic_set
+    from testbed.experiments.theta0 import Theta0Spec
     from testbed.fleet.algorithms import ALGORITHMS
 
     algorithm = getattr(args, "algorithm", None)
@@ -81,9 +85,10 @@ def _cache_of(args: argparse.Namespace) -> _Cache:
         cfg = load_config(args)
         name = algorithm or cfg.algorithm.name
         check_algorithm(name)
-        targets = [(cfg, critic_set(ALGORITHMS[name].critics), "")]
-    folder = Path(args.runs or (proto.out if proto is not None else targets[0][0].trial.out))
-    humans = args.humans or (proto.humans if proto is not None else targets[0][0].humans.kind)
+        targets = [Theta0Spec(cfg, critic_set(ALGORITHMS[name].critics))]
+    first = targets[0].cfg
+    folder = Path(args.runs or (proto.out if proto is not None else first.trial.out))
+    humans = args.humans or (proto.humans if proto is not None else first.humans.kind)
     check_out_dir("--runs", str(folder))
     return _Cache(folder, humans, targets)
 
@@ -160,25 +165,25 @@ def cmd_collect(args: argparse.Namespace) -> int:
         raise ConfigError("--seed: the cache's demonstrations are collected at the "
                           "pretraining seed (the trial's); give --out NPZ for another")
     cache = _cache_of(args)
-    files: dict[Path, tuple[FleetConfig, int]] = {}
-    for cfg, _, _ in cache.targets:  # one collection per set of arms, the most asked
-        path = demos_file(cache.folder, cfg)
-        count = args.count or max(cfg.learning.demos, files.get(path, (cfg, 0))[1])
-        files[path] = (cfg, count)
-    for path, (cfg, count) in files.items():
+    files: dict[Path, tuple[FleetConfig, int, int]] = {}
+    for cfg, _, _, seed in cache.targets:  # one per set of arms and seed, the most asked
+        path = demos_file(cache.folder, cfg, seed)
+        count = args.count or max(cfg.learning.demos, files.get(path, (cfg, 0, seed))[1])
+        files[path] = (cfg, count, seed)
+    for path, (cfg, count, _) in files.items():
         check_humans(cache.humans, cfg, available=not args.dry_run)
         print_plan(plan_lines(collect_plan(cfg, count, npz_length(path), path, cache.folder),
                               cache.humans, None))
     if args.dry_run:
         say_unchecked()
         return 0
-    for path, (cfg, count) in files.items():
+    for path, (cfg, count, seed) in files.items():
         have = npz_length(path)
         with _progress(count, "collect") as bar:
             demos = _on_own_hosts(cfg, cache.humans, cache.folder,
                                   lambda hosts, humans, c=cfg, p=path, n=count, b=bar:
                                   collect_into(p, hosts, humans, n, c.algorithm.t_R,
-                                               as_report(b)))
+                                               as_report(b)), seed)
         print(f"{min(len(demos), count)} state-action pairs ({min(have, count)} kept from "
               f"before) -> {path}")
     return 0
@@ -224,15 +229,16 @@ def _progress(total: int, label: str) -> TrialProgress:
 
 
 def _on_own_hosts(cfg: FleetConfig, kind: str, folder: Path,
-                  work: Callable[[Hosts, Humans], T]) -> T:
-    """``work(hosts, humans)`` on the fleet's own hosts at the pretraining seed (the
-    trial's pretraining world), then the arms at rest and the humans closed; the
-    humans' links are those of the folder of runs ``folder``."""
-    from testbed.experiments.theta0 import own_hosts
+                  work: Callable[[Hosts, Humans], T], seed: int | None = None) -> T:
+    """``work(hosts, humans)`` on the fleet's own hosts at the pretraining seed ``seed``'s
+    world (default ``PRETRAIN_SEED``'s: the trial's pretraining world), then the arms at
+    rest and the humans closed; the humans' links are those of the folder of runs
+    ``folder``."""
+    from testbed.experiments.theta0 import PRETRAIN_SEED, own_hosts
 
     humans = _humans(kind, cfg, folder)
     try:
-        with own_hosts(cfg) as hosts:
+        with own_hosts(cfg, PRETRAIN_SEED if seed is None else seed) as hosts:
             return work(hosts, humans)
     finally:
         humans.close()
@@ -276,9 +282,9 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
     if args.out is not None:
         check_out_file("--out", args.out)
     cache = _cache_of(args)
-    for cfg, critics, _ in cache.targets:
+    for cfg, critics, _, seed in cache.targets:
         check_device(cfg)
-        st = cache_state(cache.folder, cfg, critics)
+        st = cache_state(cache.folder, cfg, critics, seed)
         check_humans(cache.humans, cfg, teleop=st.demos < cfg.learning.demos and not st.done,
                      available=not args.dry_run)
     print_plan(plan_lines(theta0_plan(cache.targets, cache.folder), cache.humans, None))
@@ -286,15 +292,17 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
         say_unchecked()
         return 0
     made: list[Path] = []
-    for cfg, critics, _ in cache.targets:
-        st = cache_state(cache.folder, cfg, critics)
+    for cfg, critics, label, seed in cache.targets:
+        st = cache_state(cache.folder, cfg, critics, seed)
         if not st.done:
             with _progress(cfg.learning.pretrain_steps, "pretrain") as bar:
                 _on_own_hosts(cfg, cache.humans, cache.folder,
-                              lambda hosts, humans, c=cfg, w=critics, b=bar:
-                              make_theta0(c, humans, cache.folder, w, hosts, b))
+                              lambda hosts, humans, c=cfg, w=critics, b=bar, s=seed:
+                              make_theta0(c, humans, cache.folder, w, hosts, b, seed=s),
+                              seed)
         made.append(st.folder / "learner.pt")
-        print(f"theta_0 ({', '.join(critics) or 'no critic'}) -> {made[-1]}")
+        which = ", ".join(critics) or "no critic"
+        print(f"theta_0 ({which}{'; ' + label if label else ''}) -> {made[-1]}")
     if args.out is not None:
         shutil.copyfile(made[0], args.out)
         print(f"learner -> {args.out}")

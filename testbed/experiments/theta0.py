@@ -37,7 +37,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, NamedTuple
 
 import numpy as np
 
@@ -63,8 +63,9 @@ if TYPE_CHECKING:
     from testbed.learning.api import Transitions
 
 __all__ = ["CACHE", "KEEP_EVERY_S", "PRETRAIN_HOSTS_SEED", "PRETRAIN_SEED", "CacheState",
-           "PartialFile", "Report", "as_report", "cache_state", "collect_into", "demos_file",
-           "make_theta0", "npz_length", "own_hosts", "pretrain_hosts_seed", "theta0_folder"]
+           "PartialFile", "Report", "Theta0Spec", "as_report", "cache_state", "collect_into",
+           "demos_file", "make_theta0", "npz_length", "own_hosts", "pretrain_hosts_seed",
+           "theta0_folder"]
 
 PRETRAIN_SEED: Final = 0
 """Every algorithm and trial of a fleet starts from the same theta_0 (a fair comparison),
@@ -80,6 +81,19 @@ def pretrain_hosts_seed(seed: int) -> int:
     for the shared theta_0 (as before), shifted by the seed for a trial's own, so each
     trial's demonstrations come from a world of its own."""
     return PRETRAIN_HOSTS_SEED + seed - PRETRAIN_SEED
+
+
+class Theta0Spec(NamedTuple):
+    """One theta_0 to have before step 1, as the plan and ``testbed collect``/``pretrain``
+    name it: its fleet, its critics, which of several it is ("" for one alone: "for cur,
+    monitor", "trial 2") and the seed it is pretrained from (a protocol with
+    ``pretrain_per_trial`` has one per trial, each its trial's seed)."""
+
+    cfg: FleetConfig
+    critics: tuple[str, ...]
+    label: str = ""
+    seed: int = PRETRAIN_SEED
+
 
 CACHE: Final = ".pretrained"
 KEEP_EVERY_S: Final = 5.0

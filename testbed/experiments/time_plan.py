@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.pace import FleetPace, GradPace, fleet_pace, measure_gradient
 from testbed.experiments.pretraining import critic_set, pretrain_critics
-from testbed.experiments.theta0 import CacheState, cache_state, theta0_folder
+from testbed.experiments.theta0 import CacheState, Theta0Spec, cache_state, theta0_folder
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.learning.learning_config import LearningConfig
 from testbed.records.run_dir import RunDir
@@ -73,6 +73,7 @@ class ProtocolFile(Protocol):
     def fleet_of(self, name: str) -> FleetConfig: ...
     def algorithm_of(self, name: str) -> str: ...
     def evaluated(self) -> list[str]: ...
+    def pretrain_seed(self, k: int) -> int | None: ...
 
 
 @dataclass(frozen=True)
@@ -253,11 +254,11 @@ def trial_plan(cfg: FleetConfig, opts: TrialOptions, start: int = 0, *,
     return Plan(phases, fleet, rates.used, notes)
 
 
-def theta0_plan(targets: Sequence[tuple[FleetConfig, Iterable[str], str]], folder: Path,
-                *, grad: GradPace | Measure | None = None) -> Plan:
-    """The phases of each theta_0 of ``targets`` (its fleet, critics and a label, ""
-    for one alone) under the folder of runs ``folder``: ``testbed pretrain``'s plan."""
-    fleet = fleet_pace(targets[0][0], [folder])
+def theta0_plan(targets: Sequence[Theta0Spec], folder: Path, *,
+                grad: GradPace | Measure | None = None) -> Plan:
+    """The phases of each theta_0 of ``targets`` (its fleet, critics, label and seed)
+    under the folder of runs ``folder``: ``testbed pretrain``'s plan."""
+    fleet = fleet_pace(targets[0].cfg, [folder])
     rates = _Grad(grad)
     phases = _targets_phases(targets, folder, fleet, rates)
     return Plan(phases, fleet, rates.used)
@@ -285,20 +286,31 @@ def collect_plan(cfg: FleetConfig, count: int, have: int, where: Path, folder: P
     return Plan([collect_phase(cfg, have, count, fleet, where)], fleet, None)
 
 
-def protocol_targets(proto: ProtocolFile, names: Iterable[str] | None = None
-                     ) -> list[tuple[FleetConfig, tuple[str, ...], str]]:
-    """Each theta_0 the runs of ``names`` (default: every algorithm of ``proto``) start
-    from: its fleet, its critics (every one any algorithm of the protocol reads, as
-    ``run_protocol_run`` asks) and, when there are several (a way whose fleet changes
-    what shapes theta_0), which algorithms it is for."""
+def protocol_targets(proto: ProtocolFile, runs: Iterable[tuple[str, int]] | None = None
+                     ) -> list[Theta0Spec]:
+    """Each theta_0 the runs ``runs`` (algorithm, trial; default: all) start from: its
+    fleet, its critics (any algorithm of the protocol reads: ``run_protocol_run``), its
+    seed (the trial's with ``pretrain_per_trial``) and, when there are several, which:
+    the algorithms it is for (a way's fleet may shape theta_0), its trial, or both."""
     union = pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
-    found: dict[Path, tuple[FleetConfig, tuple[str, ...], list[str]]] = {}
-    for a in proto.algorithms if names is None else names:
+    todo = [(a, k) for a in proto.algorithms for k in range(proto.trials)] \
+        if runs is None else list(runs)
+    per_trial = any(proto.pretrain_seed(k) is not None for _, k in todo)
+    found: dict[tuple[Path, int | None], tuple[FleetConfig, tuple[str, ...], list[str]]] = {}
+    for a, k in sorted(todo, key=lambda run: run[1] if per_trial else 0):
         cfg = proto.fleet_of(a)
         critics = critic_set(set(ALGORITHMS[proto.algorithm_of(a)].critics) | set(union))
-        found.setdefault(theta0_folder(Path(), cfg, critics), (cfg, critics, []))[2].append(a)
-    return [(cfg, critics, f"for {', '.join(who)}" if len(found) > 1 else "")
-            for cfg, critics, who in found.values()]
+        key = (theta0_folder(Path(), cfg, critics), k if per_trial else None)
+        found.setdefault(key, (cfg, critics, []))[2].append(a)
+    several = len({folder for folder, _ in found}) > 1
+    out = []
+    for (_, k), (cfg, critics, who) in found.items():
+        label = ", ".join(([f"for {', '.join(dict.fromkeys(who))}"] if several else [])
+                          + ([] if k is None else [f"trial {k}"]))
+        seed = None if k is None else proto.pretrain_seed(k)
+        out.append(Theta0Spec(cfg, critics, label) if seed is None
+                   else Theta0Spec(cfg, critics, label, seed))
+    return out
 
 
 def protocol_plan(proto: ProtocolFile, folder: Path, *,
@@ -309,7 +321,7 @@ def protocol_plan(proto: ProtocolFile, folder: Path, *,
     fleet = fleet_pace(proto.fleet, [folder])
     rates = _Grad(grad)
     train_s, train_steps, runs_left = 0.0, 0, 0
-    starting: list[str] = []
+    starting: list[tuple[str, int]] = []
     for a in proto.algorithms:
         cfg, algorithm = proto.fleet_of(a), proto.algorithm_of(a)
         runs = [RunDir(folder / f"{a}-t{k}") for k in range(proto.trials)]
@@ -319,8 +331,8 @@ def protocol_plan(proto: ProtocolFile, folder: Path, *,
             train_steps += left
             train_s += run_seconds(cfg, algorithm, left, fleet, rates,
                                    ALGORITHMS[algorithm].critics)
-        if any(not r.summary.exists() and not r.state.exists() for r in runs):
-            starting.append(a)
+        starting += [(a, k) for k, r in enumerate(runs)
+                     if not r.summary.exists() and not r.state.exists()]
     phases = (_targets_phases(protocol_targets(proto, starting), folder, fleet, rates)
               if starting else [])
     phases.append(Phase("training runs", train_steps, "steps", train_s, train_steps,
@@ -334,16 +346,16 @@ def protocol_plan(proto: ProtocolFile, folder: Path, *,
     return Plan(phases, fleet, rates.used, _protocol_notes(proto))
 
 
-def _targets_phases(targets: Sequence[tuple[FleetConfig, Iterable[str], str]], folder: Path,
-                    fleet: FleetPace, rates: _Grad) -> list[Phase]:
+def _targets_phases(targets: Sequence[Theta0Spec], folder: Path, fleet: FleetPace,
+                    rates: _Grad) -> list[Phase]:
     """The phases of every theta_0 of ``targets`` in ``folder``, one collection per set
-    of arms however many of them draw on it."""
+    of arms and seed however many of them draw on it."""
     planned: dict[Path, int] = {}
     phases: list[Phase] = []
-    for cfg, critics, label in targets:
+    for cfg, critics, label, seed in targets:
         which = critic_set(critics)
-        phases += theta0_phases(Target(cfg, which, cache_state(folder, cfg, which), label),
-                                fleet, rates, planned)
+        phases += theta0_phases(Target(cfg, which, cache_state(folder, cfg, which, seed),
+                                       label), fleet, rates, planned)
     return phases
 
 
