@@ -279,3 +279,14 @@ def test_replay_online_judges_each_episode_by_the_alarm_before_it() -> None:
     peaks = [np.linspace(1.0, 2.0, 30)]
     assert replay_online(peaks, 0.1) == replay_online(peaks, 0.1, 200, kind="aci",
                                                       gamma=0.05)
+
+
+def test_an_alarm_not_ready_has_no_threshold_whatever_its_level() -> None:
+    """A state with a level above alpha but fewer peaks than alpha needs (19 at 0.05):
+    the alarm is not ready, so it has no threshold (+inf) and is silent, though one peak
+    at the level 0.6 alone would give one (k = ceil(2 x 0.4) = 1)."""
+    aci = AdaptiveAlarm(0.05, window=50)
+    aci.load_state_dict({"peaks": [1.0], "a_t": 0.6})
+    assert not aci.ready and aci.level == 0.6
+    assert level_threshold([1.0], 0.6) == 1.0
+    assert aci.threshold == math.inf and not aci.fires([2.0]).any()

@@ -107,3 +107,11 @@ def test_holds_is_upper_at_most_alpha() -> None:
 
     assert rate(0.05).holds and rate(0.049).holds and not rate(0.0501).holds
     assert not rate(math.nan).holds
+
+
+def test_a_run_that_judged_one_episode_counts() -> None:
+    """Only a run that judged none is left out: one judged episode is a run."""
+    one = alarm_rate([1], [1], 0.05)
+    assert (one.runs, one.episodes, one.fired, one.upper) == (1, 1, 1, 1.0)
+    two = alarm_rate([0, 0], [1, 4], 0.05)
+    assert (two.runs, two.episodes) == (2, 5)
