@@ -85,9 +85,20 @@ def test_contains_allows_only_a_rounding_error_past_either_end() -> None:
     assert not iv.contains(0.2 - 1e-11) and not iv.contains(0.8 + 1e-11)
 
 
+def test_no_one_or_equal_values_say_so_with_their_count() -> None:
+    none = interval([])
+    assert (none.n, none.method) == (0, "none")
+    assert math.isnan(none.mean) and math.isnan(none.low) and math.isnan(none.high)
+    one = interval([0.4])
+    assert (one.n, one.method, one.mean) == (1, "one", 0.4) and math.isnan(one.high)
+    same = interval([5.0] * 4)
+    assert (same.n, same.method, same.mean, same.low, same.high) == (4, "exact", 5.0, 5.0, 5.0)
+
+
 def test_every_value_equal_means_equal_to_within_1e_12_of_the_mean_or_of_1() -> None:
     assert interval([0.0, 1.5e-12]).method == "t"  # 1.5e-12 apart near 0: a spread
     assert interval([0.0, 0.5e-12]).method == "exact"
+    assert interval([0.0, 1e-12]).method == "exact"  # exactly 1e-12 apart: equal
     assert interval([1e9, 1e9 + 1e-4]).method == "exact"  # 1e-12 of 1e9 is 1e-3
     assert interval([1e9, 1e9 + 0.01]).method == "t"
 
@@ -97,6 +108,10 @@ def test_the_t_interval_at_another_level_by_hand() -> None:
     half = T_95_2 / math.sqrt(3)
     assert (iv.method, iv.n) == ("t", 3)
     assert (iv.low, iv.high) == pytest.approx((2.0 - half, 2.0 + half), rel=1e-12)
+    # 1, 2, 4: mean 7/3, sample variance 7/3 (a spread other than 1)
+    iv = interval([1.0, 2.0, 4.0], level=0.9)
+    half = T_95_2 * math.sqrt(7 / 3) / math.sqrt(3)
+    assert (iv.low, iv.high) == pytest.approx((7 / 3 - half, 7 / 3 + half), rel=1e-12)
 
 
 def test_the_bootstrap_is_bca_at_the_level_with_9999_resamples_from_the_seed() -> None:
@@ -111,6 +126,7 @@ def test_the_bootstrap_is_bca_at_the_level_with_9999_resamples_from_the_seed() -
         assert (iv.method, iv.n, iv.mean) == ("bootstrap", 11, pytest.approx(v.mean()))
         assert (iv.low, iv.high) == (pytest.approx(ci.low, rel=1e-12),
                                      pytest.approx(ci.high, rel=1e-12))
+    assert interval(v) == interval(v, seed=0) != interval(v, seed=1)  # the default seed 0
 
 
 def test_a_rate_of_no_or_one_run_has_no_interval() -> None:
@@ -131,8 +147,9 @@ def test_clip01_clips_each_end_to_0_1_and_keeps_nan() -> None:
 
 
 def test_a_negative_rate_is_refused_and_the_ends_0_and_1_are_not() -> None:
-    with pytest.raises(ValueError, match=r"rate must lie in \[0, 1\]"):
+    with pytest.raises(ValueError, match=r"rate must lie in \[0, 1\]") as err:
         rate_interval([0.5, -0.1, 0.9])
+    assert str(err.value) == "a rate must lie in [0, 1]"
     assert rate_interval([0.0, 1.0]).method == "betting"
 
 
@@ -155,8 +172,11 @@ def test_the_cluster_bootstrap_is_the_percentile_interval_of_9999_resampled_mean
         low, high = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
         iv = rate_interval(list(v), level=level, seed=seed)
         assert iv.method == "cluster bootstrap" and iv.n == 13
+        assert iv.mean == pytest.approx(float(np.mean(v)), rel=1e-12)
         assert (iv.low, iv.high) == (pytest.approx(low, abs=1e-12),
                                      pytest.approx(high, abs=1e-12))
+    assert rate_interval(list(v)) == rate_interval(list(v), seed=0) != rate_interval(
+        list(v), seed=1)  # the default seed 0
 
 
 def test_the_betting_rate_interval_at_another_level() -> None:
@@ -199,6 +219,10 @@ def test_paired_passes_its_level_and_seed_on() -> None:
     assert cmp.difference != interval(diffs, level=0.9, seed=0)
     assert cmp.p_value == sign_flip_p(diffs, seed=5)
     assert cmp.floor == 2 / 2 ** 17
+    default = paired(alg, ref)  # level 0.95, seed 0
+    assert default.difference == interval(diffs, level=0.95, seed=0)
+    assert default.p_value == sign_flip_p(diffs, seed=0) != sign_flip_p(diffs, seed=1)
+    assert sign_flip_p(diffs) == sign_flip_p(diffs, seed=0)
     few = paired({0: 1.0, 1: 2.0, 2: 4.0}, {0: 0.0, 1: 0.0, 2: 0.0}, level=0.9)
     # differences 1, 2, 4: mean 7/3, sample variance 7/3; the 90% t interval
     half = T_95_2 * math.sqrt(7 / 3) / math.sqrt(3)
@@ -280,6 +304,33 @@ def test_betting_set_is_the_plain_loops_set_after_every_outcome(
     assert list(got.high) == pytest.approx([w[1] for w in want], abs=1e-12)
     # and the set narrows to something strictly inside the range (the test bites)
     assert lo < got.low[-1] < got.high[-1] < hi
+
+
+def test_the_bets_by_hand_for_two_outcomes_of_plus_1() -> None:
+    """At m = 0 on [-1, 1]: the first bets are +-0.9 (aGRAPA's prior pseudo-observation,
+    mean +-1/2 and variance 1/4, asks for +-1, capped); after a +1 the bet up stays at
+    its cap, the bet down is 0 (its running mean (-1/2 + 1) / 2 is positive)."""
+    w = wealth([1.0, 1.0], 0.0)
+    assert w.lam_up[0].tolist() == [0.9, 0.9]
+    assert w.lam_down[0].tolist() == [-0.9, 0.0]
+    assert w.up[0].tolist() == pytest.approx([1.9, 3.61])
+    assert w.down[0].tolist() == pytest.approx([0.1, 0.1])
+
+
+def test_one_outcome_given_as_a_number() -> None:
+    one, listed = betting_set(0.5, 0.1), betting_set([0.5], 0.1)
+    assert np.array_equal(one.low, listed.low) and np.array_equal(one.high, listed.high)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_the_set_ends_at_the_outermost_candidate_when_the_next_is_kept(sign: float) -> None:
+    """On a grid of 3 (-0.5, 0, 0.5), alpha 1/8: four outcomes of +1 bring the e-value
+    at -0.5 to 9.2 (rejected) and at 0 to (1.9^4 + 0.1) / 2 = 6.6 (kept), so the lower
+    end is -0.5, the first candidate, not -1 (and mirrored for -1)."""
+    got = betting_set([sign] * 4, 0.125, grid=3)
+    want = _reference_set([sign] * 4, 0.125, -1.0, 1.0, 3, False)
+    assert list(got.low) == [w[0] for w in want] and list(got.high) == [w[1] for w in want]
+    assert (got.low[-1], got.high[-1]) == ((-0.5, 1.0) if sign > 0 else (-1.0, 0.5))
 
 
 def test_an_e_value_exactly_at_1_over_alpha_rejects() -> None:
