@@ -176,3 +176,5 @@ def test_finite_keeps_a_number_and_drops_inf_and_nan() -> None:
 def test_the_anytime_p_reads_every_e_value_of_any_shape() -> None:
     assert anytime_p(np.array([[2.0, 4.0], [1.0, 0.5]])) == 0.25
     assert anytime_p([1.0]) == 1.0 and anytime_p([8.0]) == 0.125
+    assert anytime_p([0.5, 0.25]) == 1.0  # min(1, 1 / max e): never above 1
+    assert anytime_p([1.0, 1.855]) == 1 / 1.855  # any e above 1 counts, however small
