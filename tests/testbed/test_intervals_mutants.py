@@ -82,6 +82,7 @@ def test_contains_allows_only_a_rounding_error_past_either_end() -> None:
     iv = Interval(0.5, 0.2, 0.8, 3, "t")
     assert iv.contains(0.2) and iv.contains(0.8) and iv.contains(0.5)
     assert iv.contains(0.2 - 5e-13) and iv.contains(0.8 + 5e-13)
+    assert iv.contains(0.2 - 1e-12) and iv.contains(0.8 + 1e-12)  # 1e-12 out: still in
     assert not iv.contains(0.2 - 1e-11) and not iv.contains(0.8 + 1e-11)
 
 
