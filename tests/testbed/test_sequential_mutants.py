@@ -64,6 +64,7 @@ def test_outcomes_by_hand_with_a_zero_scale() -> None:
 def test_an_e_value_exactly_at_1_over_alpha_settles() -> None:
     d = decide({"a": [4.0] * 4}, alpha=AT_FOUR, min_trials=1, max_trials=10)
     assert d.pairs["a"].settled_after == 4 and d.pairs["a"].direction == 1
+    assert d.pairs["a"].algorithm == "a" and d.pairs["a"].futile is False
     assert d.stop and d.why == "every pair is settled"
     assert fewest_trials(AT_FOUR) == 4
     assert fewest_trials(AT_FOUR, limit=4) == 4 and fewest_trials(AT_FOUR, limit=3) is None
@@ -104,8 +105,14 @@ def test_the_decision_is_taken_at_min_trials_not_after() -> None:
     settled = [-4.0] * 6
     assert decide({"b": settled}, alpha=0.05, min_trials=6, max_trials=12).stop
     assert not decide({"b": settled}, alpha=0.05, min_trials=7, max_trials=12).stop
-    with pytest.raises(ValueError, match="one difference per finished trial"):
+    with pytest.raises(ValueError, match="one difference per finished trial") as err:
         decide({"a": [1.0, 2.0], "b": [1.0]}, alpha=0.05, min_trials=1, max_trials=5)
+    assert str(err.value) == "every pair needs one difference per finished trial"
+
+
+def test_no_pair_is_no_trial() -> None:
+    d = decide({}, alpha=0.05, min_trials=1, max_trials=5)
+    assert (d.trials, d.pairs, d.primary, d.stop) == (0, {}, (), False)
 
 
 def test_the_reasons_name_primary_pairs_and_every_futile_one() -> None:
