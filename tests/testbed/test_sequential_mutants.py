@@ -61,6 +61,14 @@ def test_outcomes_by_hand_with_a_zero_scale() -> None:
     assert many.e.tolist() == [[1.0, 1.855], [1.0, 1.855]]  # (1.9^2 + 0.1) / 2
 
 
+def test_outcomes_divide_by_no_zero_scale_and_refuse_what_is_not_finite() -> None:
+    with np.errstate(all="raise"):  # a 0 / 0 or x / 0 would raise here
+        assert outcomes([0.0, 0.5, 2.0]).tolist() == [0.0, 1.0, 1.0]
+    with pytest.raises(ValueError) as err:
+        outcomes([1.0, float("inf")])
+    assert str(err.value) == "a paired difference is not a finite number"
+
+
 def test_an_e_value_exactly_at_1_over_alpha_settles() -> None:
     d = decide({"a": [4.0] * 4}, alpha=AT_FOUR, min_trials=1, max_trials=10)
     assert d.pairs["a"].settled_after == 4 and d.pairs["a"].direction == 1
