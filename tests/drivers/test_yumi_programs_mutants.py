@@ -20,6 +20,7 @@ from __future__ import annotations
 import ast
 import math
 import re
+import warnings
 from typing import Any
 
 import pytest
@@ -148,11 +149,16 @@ def test_the_crop_and_the_mirror_place_the_canonical_square_in_the_picture() -> 
 
 
 def test_a_push_point_off_the_homography_names_the_point() -> None:
-    # w = 1 - (u + 0.5) / 128 vanishes at canonical c0 = 0.5 (u = 127.5); face 1 starts
-    # at c0 = 0.3125 + 0.1875 = 0.5 from a centre at 0.3125
-    setup = arm_setup(homography=[[0, 1, 100.5], [1, 0, 50.5], [-1 / 128, 0, 1 - 0.5 / 128]])
-    with pytest.raises(BackendError) as err:
-        plan_push(setup, (0.3125, 0.5), 0.0, 1)
+    # w = 1 - (u + 0.5) / 128 vanishes at canonical c0 = 0.5 (u = 127.5), and there
+    # x = 100 w + v - 127.5 vanishes too at c1 = 0.5 (v = 127.5): x / w is 0 / 0, y / w
+    # is 178 / 0. Face 1 starts at c0 = 0.3125 + 0.1875 = 0.5 from a centre at 0.3125.
+    # numpy's warnings of both divisions are silenced: the error is the one line below.
+    setup = arm_setup(homography=[[-100 / 128, 1, 100 - 50 / 128 - 127.5], [1, 0, 50.5],
+                                  [-1 / 128, 0, 1 - 0.5 / 128]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(BackendError) as err:
+            plan_push(setup, (0.3125, 0.5), 0.0, 1)
     assert str(err.value) == ("arm left: push point (0.5, 0.5) maps to a non-finite table "
                               "point; check the calibration's homography")
 
@@ -306,6 +312,10 @@ def test_a_program_that_starts_with_a_line_plans_from_the_given_joints() -> None
     ctrl.program("left", [Waypoint("rest", None, 60.0), *line])
     ctrl.program("left", [Waypoint("abs_j", None, 60.0, joints_deg=gate), *line])
     assert asked == ["joints"]
+    # a MoveJ first is planned from where the arm is, as a line is
+    got = commands(ctrl.program("left", [Waypoint("move_j", (400.0, 250.0, 80.0), 60.0)]
+                                ).get_program_rapid())
+    assert asked == ["joints", "joints"] and [c for c, _ in got] == ["MoveJ"]
 
 
 def test_a_target_out_of_reach_is_refused_with_nothing_built() -> None:

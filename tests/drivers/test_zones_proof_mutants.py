@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from datetime import datetime
 from pathlib import Path
 from types import SimpleNamespace
@@ -148,9 +149,13 @@ def test_the_checks_lines_name_the_restart_entry_and_the_count() -> None:
         "task T_ROB_L: the world zones are not known active: the event log holds no "
         "restart entry (cleared over RWS, or rolled over), so it cannot show them "
         f"written since the last restart; {FIX}")
-    # known but no count read: 0 zones, not enough
-    assert zones_known_problem("T_ROB_L", {"restart": 1, "known": True, "zones": None}) \
-        is not None
+    # known but no count read: 0 zones, not enough even where 1 is asked
+    assert zones_known_problem("T_ROB_L", {"restart": 1, "known": True, "zones": None}, 1) \
+        == (f"task T_ROB_L: the world zones are not known active: the newest "
+            f"'{ZONES_ACTIVE}' entry since the last restart (event log 10045, seq 1) says "
+            f"zones None, not 1; {FIX}")
+    assert zones_known_problem("T_ROB_L", {"restart": 1, "known": True, "zones": None}, 0) \
+        is None
 
 
 def test_a_refusal_names_the_first_task_the_log_does_not_prove() -> None:
@@ -403,6 +408,8 @@ def test_only_a_plain_small_file_of_this_user_that_no_one_else_may_write_is_read
                                   f"write (uid {os.geteuid()}, mode "
                                   f"{'-rw-rw-r--' if mode == 0o664 else '-rw-r--rw-'}, "
                                   f"8 bytes)")
+    path.chmod(0o601)  # others may run it, not write it: taken
+    assert read_proof_file(path) == {"a": 1}
     path.chmod(0o600)
     path.write_text(" " * (MAX_PROOF_BYTES - 2) + "{}")
     assert MAX_PROOF_BYTES == 65536 and read_proof_file(path) == {}
@@ -430,3 +437,15 @@ def test_the_record_lies_beside_the_robots_lock(tmp_path: Path) -> None:
     got = proof_path(tmp_path, SERIAL)
     assert got == lock_path(tmp_path, f"IRC5 {SERIAL}").with_suffix(".zones.json")
     assert got.name.startswith("IRC5_14000-500000-") and got.name.endswith(".zones.json")
+
+
+def test_a_device_of_this_user_is_not_a_proof_file(tmp_path: Path) -> None:
+    """A character device (/dev/null's numbers), this user's, mode 0600, that reads as
+    empty: not a plain file, whatever it would read."""
+    node = tmp_path / "dev.json"
+    try:
+        os.mknod(node, 0o600 | stat.S_IFCHR, os.makedev(1, 3))
+    except (PermissionError, AttributeError):
+        pytest.skip("no mknod here (not root)")
+    with pytest.raises(ProofFileError, match=r"^not a plain file of uid "):
+        read_proof_file(node)
