@@ -334,6 +334,16 @@ def test_an_arm_whose_side_cannot_be_told_is_refused() -> None:
                               "driver cannot tell its robtargets' arm angle; nothing is sent")
 
 
+def test_an_arm_on_another_task_is_told_by_its_name_and_an_empty_program_is_empty() -> None:
+    # the task says nothing of the side: the arm's name "left" does, so it is planned
+    ctrl = client(left=ArmPose("T_ONE", "ROB_1", REST_L, tool_z_mm=184.2))
+    got = commands(ctrl.program("left", [Waypoint("rest", None, 50.0)]).get_program_rapid())
+    assert got == [("MoveAbsJ", [[[40.0, -90.0, 30.0, 0.0, 40.0, 0.0],
+                                  [135.0, E9, E9, E9, E9, E9]],
+                                 [50.0, 100.0, 1000.0, 100.0], FINE])]
+    assert commands(client().program("left", []).get_program_rapid()) == []
+
+
 def test_a_pose_without_the_pushers_length_sends_nothing() -> None:
     ctrl = client(left=ArmPose("T_ROB_L", "ROB_L", REST_L))
     with pytest.raises(BackendError) as err:
@@ -341,6 +351,9 @@ def test_a_pose_without_the_pushers_length_sends_nothing() -> None:
     assert str(err.value) == ("arm left: no tool_z_mm (the pusher's length) to send; the "
                               "calibration file must give it (robot/README.md, 'The tool "
                               "frame')")
+    with pytest.raises(BackendError) as err:
+        ctrl.stay("T_ROB_L")  # its stay program carries its tool too
+    assert str(err.value).startswith("arm left: no tool_z_mm (the pusher's length)")
 
 
 def test_the_right_arm_holds_plus_forty_by_default() -> None:
