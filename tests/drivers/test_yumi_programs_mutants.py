@@ -318,6 +318,19 @@ def test_a_program_that_starts_with_a_line_plans_from_the_given_joints() -> None
     assert asked == ["joints", "joints"] and [c for c, _ in got] == ["MoveJ"]
 
 
+def test_a_line_is_planned_from_where_the_arm_is_not_from_nowhere() -> None:
+    """Axis 1 at 165 deg (its limit 168.5, the plan keeps 3 deg of room): no line from
+    there runs, so the program is refused, though from the gate joints it runs."""
+    line = [Waypoint("move_l", (400.0, 250.0, 80.0), 60.0)]
+    gate = gate_of(-40.0)
+    client().program("left", line, start_joints=gate)
+    with pytest.raises(BackendError) as err:
+        client().program("left", line, start_joints=(165.0, *gate[1:]))
+    assert str(err.value).startswith("arm left: the driver cannot plan its program: no "
+                                     "straight line to (400, 250, 80) the arm can run: ")
+    assert str(err.value).endswith("; nothing is sent")
+
+
 def test_a_target_out_of_reach_is_refused_with_nothing_built() -> None:
     with pytest.raises(BackendError) as err:
         client().program("left", [Waypoint("move_l", (2000.0, 0.0, 80.0), 50.0)],
