@@ -428,3 +428,27 @@ def test_every_start_runs_both_motion_tasks_the_arms_first() -> None:
     assert both.tasks() == ["T_ROB_R", "T_ROB_L"]
     # a task that is not an IRB 14000's: only the arms' own
     assert client(x=ArmPose("T_ONE", "ROB_1", REST_L, tool_z_mm=1.0)).tasks() == ["T_ONE"]
+
+
+def test_the_tool_the_controller_holds_is_the_one_planned_with() -> None:
+    """The planner solves each line for the tool's own orientation (the pose's
+    ``tool_quat_wxyz``), not for a pusher straight down: with the pusher pointing up
+    (the identity quaternion: the tool's z along the base's z) the tip at 80 mm over the
+    table puts the flange 184.2 mm lower, under the table, out of the arm's reach, so the
+    program is refused; turned 60 deg from straight down the lines are planned, but the
+    arm cannot hold the calibration's arm angle (-40) with it there."""
+    gate = gate_of(-40.0)
+    wps = [Waypoint("abs_j", None, 100.0, joints_deg=gate),
+           Waypoint("move_l", (400.0, 250.0, 80.0), 60.0),
+           Waypoint("move_l", (400.0, 250.0, 10.0), 20.0)]
+    up = ArmPose("T_ROB_L", "ROB_L", REST_L, tool_z_mm=184.2,
+                 tool_quat_wxyz=(1.0, 0.0, 0.0, 0.0))
+    with pytest.raises(BackendError, match=r"cannot plan its program: .*out of reach"):
+        client(left=up).program("left", wps)
+    h = math.radians(120.0) / 2  # 120 deg about y: 60 deg short of straight down
+    tilted = ArmPose("T_ROB_L", "ROB_L", REST_L, tool_z_mm=184.2,
+                     tool_quat_wxyz=(math.cos(h), 0.0, math.sin(h), 0.0))
+    got = commands(client(left=tilted).program("left", wps).get_program_rapid())
+    lines = [g[1][0] for g in got if g[0] == "MoveL"]
+    assert [x[1] for x in lines] == [[math.cos(h), 0.0, math.sin(h), 0.0]] * 2
+    assert all(abs(x[3][0] - (-40.0)) > 1.0 for x in lines), lines
