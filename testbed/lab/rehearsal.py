@@ -209,7 +209,8 @@ def _same_theta_0(proto: Protocol, folder: Path) -> None:
     not its camera and controller URLs, and a new session's twins have new ports: without
     this every session after a kill pretrained again (~4 min at the quick sizes) and its
     runs started from another theta_0. Each algorithm's key under the first session's
-    fleet (kept in ``lab/fleet/first.toml``) is linked to its key under this one's."""
+    fleet (kept in ``lab/fleet/first.toml``) is linked to its key under this one's, for
+    each seed a theta_0 is pretrained from (every trial's with ``pretrain_per_trial``)."""
     from testbed.experiments.fleet_config import load_fleet
     from testbed.experiments.learners import PRETRAIN_SEED
     from testbed.experiments.pretraining import pretrain_key
@@ -224,12 +225,16 @@ def _same_theta_0(proto: Protocol, folder: Path) -> None:
     then = proto.model_copy(update={"fleet": load_fleet(first)})
     both = pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
     cache = folder / ".pretrained"
+    trials = proto.trials if proto.until is None else proto.until.max_trials
+    seeds = sorted({PRETRAIN_SEED} if not proto.pretrain_per_trial else
+                   {proto.seed(k) for k in range(trials)})  # each trial's theta_0
     for a in proto.algorithms:
         critics = sorted(set(ALGORITHMS[proto.algorithm_of(a)].critics) | set(both))
-        old = pretrain_key(then.fleet_of(a), PRETRAIN_SEED, critics)
-        new = pretrain_key(proto.fleet_of(a), PRETRAIN_SEED, critics)
-        if old != new and (cache / old).is_dir() and not (cache / new).exists():
-            (cache / new).symlink_to(old, target_is_directory=True)
+        for seed in seeds:
+            old = pretrain_key(then.fleet_of(a), seed, critics)
+            new = pretrain_key(proto.fleet_of(a), seed, critics)
+            if old != new and (cache / old).is_dir() and not (cache / new).exists():
+                (cache / new).symlink_to(old, target_is_directory=True)
 
 
 def lab_calibration(lab: HardwareTwinLab, fleet: FleetConfig, fleet_file: Path, say: Say
