@@ -90,7 +90,7 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
     d = w - s
     length = np.linalg.norm(d, axis=1)
     e = d / length[:, None]
-    a = _cross(e, np.broadcast_to(r, e.shape))
+    a = _cross(e, r)
     b = _cross(e, a)
     x = -np.einsum("ni,ni->n", a, h)
     y = -np.einsum("ni,ni->n", b, h)
@@ -100,11 +100,12 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
     dh[:, _ELBOW_JOINT:] = 0.0  # axis 3's direction moves with the joints before it only
     de = (dw - e[:, None, :] * np.einsum("nki,ni->nk", dw, e)[:, :, None]) / \
         length[:, None, None]
-    da = _cross(de, np.broadcast_to(r[:, None, :], de.shape))
-    db = _cross(de, np.broadcast_to(a[:, None, :], de.shape)) + \
-        _cross(np.broadcast_to(e[:, None, :], da.shape), da)
-    dx = -(np.einsum("nki,ni->nk", da, h) + np.einsum("ni,nki->nk", a, dh))
-    dy = -(np.einsum("nki,ni->nk", db, h) + np.einsum("ni,nki->nk", b, dh))
+    # d(a.h) = (de x r).h + a.dh = de.(r x h) + a.dh; d(b.h) = (de x a + e x (de x r)).h
+    # + b.dh = de.(a x h + r x (h x e)) + b.dh: 3-vectors per pose, not per joint
+    rh = _cross(r, h)
+    ah = _cross(a, h) + _cross(r, _cross(h, e))
+    dx = -(np.einsum("nki,ni->nk", de, rh) + np.einsum("ni,nki->nk", a, dh))
+    dy = -(np.einsum("nki,ni->nk", de, ah) + np.einsum("ni,nki->nk", b, dh))
     n2 = np.maximum(x * x + y * y, 1e-300)
     return np.arctan2(y, x), (x[:, None] * dy - y[:, None] * dx) / n2[:, None]
 
