@@ -24,6 +24,7 @@ docs/rws-checklist.md has the lab read it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
@@ -61,6 +62,7 @@ def _local_points() -> tuple[Mat, Mat]:
 
 
 _SHOULDER, _WRIST = _local_points()
+_SHOULDER_L, _WRIST_L = _SHOULDER.tolist(), _WRIST.tolist()
 _ELBOW_JOINT: Final = 3
 """Chain index of axis 3, whose direction is the elbow's."""
 
@@ -79,6 +81,8 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
     joints turn): psi = atan2(-(e x (e x r)).h, -(e x r).h), e the unit shoulder-to-wrist
     vector, r the reference direction, h axis 3's direction."""
     f = np.asarray(frames, dtype=np.float64)
+    if f.shape[0] == 1:  # one pose (the solvers' every iteration): plain floats
+        return _arm_angle_one(f[0], f[0, 0, :3, :3] @ np.asarray(reference, dtype=np.float64))
     r = f[:, 0, :3, :3] @ np.asarray(reference, dtype=np.float64)  # the mount's frame
     s = (f[:, 0] @ _SHOULDER)[:, :3]
     w = (f[:, 6] @ _WRIST)[:, :3]
@@ -86,7 +90,7 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
     d = w - s
     length = np.linalg.norm(d, axis=1)
     e = d / length[:, None]
-    a = _cross(e, np.broadcast_to(r, e.shape))
+    a = _cross(e, r)
     b = _cross(e, a)
     x = -np.einsum("ni,ni->n", a, h)
     y = -np.einsum("ni,ni->n", b, h)
@@ -96,13 +100,56 @@ def arm_angle_batch(frames: npt.ArrayLike, reference: npt.ArrayLike = ARM_ANGLE_
     dh[:, _ELBOW_JOINT:] = 0.0  # axis 3's direction moves with the joints before it only
     de = (dw - e[:, None, :] * np.einsum("nki,ni->nk", dw, e)[:, :, None]) / \
         length[:, None, None]
-    da = _cross(de, np.broadcast_to(r[:, None, :], de.shape))
-    db = _cross(de, np.broadcast_to(a[:, None, :], de.shape)) + \
-        _cross(np.broadcast_to(e[:, None, :], da.shape), da)
-    dx = -(np.einsum("nki,ni->nk", da, h) + np.einsum("ni,nki->nk", a, dh))
-    dy = -(np.einsum("nki,ni->nk", db, h) + np.einsum("ni,nki->nk", b, dh))
+    # d(a.h) = (de x r).h + a.dh = de.(r x h) + a.dh; d(b.h) = (de x a + e x (de x r)).h
+    # + b.dh = de.(a x h + r x (h x e)) + b.dh: 3-vectors per pose, not per joint
+    rh = _cross(r, h)
+    ah = _cross(a, h) + _cross(r, _cross(h, e))
+    dx = -(np.einsum("nki,ni->nk", de, rh) + np.einsum("ni,nki->nk", a, dh))
+    dy = -(np.einsum("nki,ni->nk", de, ah) + np.einsum("ni,nki->nk", b, dh))
     n2 = np.maximum(x * x + y * y, 1e-300)
     return np.arctan2(y, x), (x[:, None] * dy - y[:, None] * dx) / n2[:, None]
+
+
+def _arm_angle_one(f: Mat, r: Mat) -> tuple[Mat, Mat]:
+    """:func:`arm_angle_batch` of one pose's frames (8, 4, 4), the same formulas on plain
+    floats: the inverse kinematics asks it of one pose at every iteration, where numpy's
+    call overhead on 3-vectors was most of a line's supervision (py-spy of a rehearsal's
+    calibration); ``tests/sim_twin/test_yumi_arms.py`` holds the two paths together."""
+    def cross(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
+        return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0])
+
+    def dot(a: Sequence[float], b: Sequence[float]) -> float:
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    fr = f.tolist()
+    sh, wr = _SHOULDER_L, _WRIST_L
+    s = [sum(fr[0][i][j] * sh[j] for j in range(4)) for i in range(3)]
+    w = [sum(fr[6][i][j] * wr[j] for j in range(4)) for i in range(3)]
+    h = [fr[_ELBOW_JOINT][i][2] for i in range(3)]
+    rr = r.tolist()
+    d = [w[i] - s[i] for i in range(3)]
+    length = math.sqrt(dot(d, d))
+    e = [x / length for x in d]
+    a = cross(e, rr)
+    b = cross(e, a)
+    x, y = -dot(a, h), -dot(b, h)
+    dx, dy = [], []
+    for k in range(7):
+        z = [fr[k][i][2] for i in range(3)]
+        o = [fr[k][i][3] for i in range(3)]
+        dw = cross(z, [w[i] - o[i] for i in range(3)])
+        dh = cross(z, h) if k < _ELBOW_JOINT else (0.0, 0.0, 0.0)
+        we = dot(dw, e)
+        de = [(dw[i] - e[i] * we) / length for i in range(3)]
+        da = cross(de, rr)
+        db1, db2 = cross(de, a), cross(e, da)
+        db = [db1[i] + db2[i] for i in range(3)]
+        dx.append(-(dot(da, h) + dot(a, dh)))
+        dy.append(-(dot(db, h) + dot(b, dh)))
+    n2 = max(x * x + y * y, 1e-300)
+    grad = [(x * dy[k] - y * dx[k]) / n2 for k in range(7)]
+    return np.array([math.atan2(y, x)]), np.array([grad])
 
 
 def arm_angle(pose: ArmPose, reference: npt.ArrayLike = ARM_ANGLE_REFERENCE) -> float:

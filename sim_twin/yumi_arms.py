@@ -90,14 +90,8 @@ def _frame(xyz: Sequence[float], rpy: Sequence[float]) -> Mat:
     return m
 
 
-def _rot_z(q: float) -> Mat:
-    m = np.eye(4)
-    c, s = math.cos(q), math.sin(q)
-    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = c, -s, s, c
-    return m
-
-
 _OFFSETS: Final = tuple(_frame(*link) for link in _LINKS)
+_OFFSET_STACK: Final = np.stack(_OFFSETS)
 REACH_MM: Final = float(sum(math.hypot(*xyz) for xyz, _ in _LINKS[1:]))
 """The farthest the flange can be from axis 2's origin (584.7 mm: every link from there
 in a line; the joints' ranges allow 580 at most, sampled): a bound, never an estimate."""
@@ -139,13 +133,21 @@ class ArmModel:
         self.upper = np.array([LIMITS_DEG[a][1] for a in CHAIN_AXES])
 
     def pose(self, chain_deg: Sequence[float]) -> ArmPose:
+        """Joint k's frame is the last one turned by joint k's angle about its z, then
+        offset: ``rot_z(q) @ offset`` is the offset with its rows 0 and 1 turned, made
+        for the seven joints at once (the solvers ask this at every iteration)."""
+        q = np.radians(np.asarray(chain_deg, dtype=np.float64))
+        c, s = np.cos(q)[:, None], np.sin(q)[:, None]
+        turned = _OFFSET_STACK.copy()
+        turned[:, 0] = c * _OFFSET_STACK[:, 0] - s * _OFFSET_STACK[:, 1]
+        turned[:, 1] = s * _OFFSET_STACK[:, 0] + c * _OFFSET_STACK[:, 1]
         frames = np.empty((8, 4, 4))
         m = self.base
-        for k, q in enumerate(chain_deg):
+        for k in range(7):
             frames[k] = m
-            m = m @ _rot_z(math.radians(q)) @ _OFFSETS[k]
+            m = m @ turned[k]
         frames[7] = m
-        return ArmPose(tuple(float(q) for q in chain_deg), frames)
+        return ArmPose(tuple(float(x) for x in chain_deg), frames)
 
     def frames_batch(self, chain_deg: npt.ArrayLike) -> Mat:
         """(N, 8, 4, 4): :meth:`pose`'s frames for N chain angle vectors (N, 7) at once

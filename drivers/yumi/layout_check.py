@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, Final
 
 import numpy as np
@@ -356,7 +356,44 @@ def sweep(lay: ArmLayout, reaches: Sequence[CornerReach], paths: Sequence[Pose] 
 def check_layout(arms: Sequence[ArmLayout]) -> tuple[list[str], list[str]]:
     """(report lines, FAULT reasons) of one YuMi's arms: each arm's reach, rest pose,
     table clearance and paths against the zones; with two arms, their rests and their
-    sweeps apart."""
+    sweeps apart.
+
+    A pure function of the layouts, kept for the last few asked (:data:`KEPT_CHECKS`):
+    a process asks it again of the same arms at every run's start (``testbed check``,
+    a trial's preflight, each run of a protocol or a rehearsal) and at every arm's
+    calibration, and one check costs seconds of inverse kinematics."""
+    key = tuple(_key_of(lay) for lay in arms)
+    kept = _KEPT.get(key)
+    if kept is None:
+        kept = _check_layout(arms)
+        if len(_KEPT) >= KEPT_CHECKS:
+            del _KEPT[next(iter(_KEPT))]
+        _KEPT[key] = kept
+    return list(kept[0]), list(kept[1])
+
+
+KEPT_CHECKS: Final = 8
+"""How many layouts' checks a process keeps (a lab's hosts: one YuMi each)."""
+_KEPT: dict[tuple[object, ...], tuple[tuple[str, ...], tuple[str, ...]]] = {}
+
+
+def _frozen(value: Any) -> Any:
+    """``value`` made hashable with every digit kept (a homography's array or lists)."""
+    if isinstance(value, np.ndarray):
+        return _frozen(value.tolist())
+    if is_dataclass(value) and not isinstance(value, type):
+        return (type(value).__name__, _key_of(value))
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+def _key_of(lay: Any) -> tuple[object, ...]:
+    """A dataclass's fields, each :func:`_frozen` (an arm's layout, its tool)."""
+    return tuple((f.name, _frozen(getattr(lay, f.name))) for f in fields(lay))
+
+
+def _check_layout(arms: Sequence[ArmLayout]) -> tuple[tuple[str, ...], tuple[str, ...]]:
     lines: list[str] = []
     faults: list[str] = []
     sweeps: dict[str, Capsules] = {}
@@ -383,7 +420,7 @@ def check_layout(arms: Sequence[ArmLayout]) -> tuple[list[str], list[str]]:
         got, bad = _apart(a, b, rests, sweeps)
         lines += got
         faults += bad
-    return lines, faults
+    return tuple(lines), tuple(faults)
 
 
 def _apart(a: str, b: str, rests: Mapping[str, Capsules], sweeps: Mapping[str, Capsules]

@@ -8,6 +8,7 @@ change a number is made here, once, and documented.
 from __future__ import annotations
 
 import os
+import sys
 from typing import Literal
 
 import numpy as np
@@ -74,7 +75,11 @@ def configure_torch(num_threads: int | None = None) -> int:
     (PASSIVE) against 7.7 s (spinning: the reason this default used to be half the
     cores). So the thread count follows what is free without being told.
     Deterministic algorithms are warn-only: CPU ops here are deterministic anyway; on
-    CUDA it picks deterministic kernels where they exist."""
+    CUDA it picks deterministic kernels where they exist. Set by :func:`_deterministic`,
+    not ``torch.use_deterministic_algorithms``, which imports torch's compiler (inductor
+    and dynamo) to set its flag too: 1.5 CPU-s in every process that makes a learner (a
+    trial, a protocol, each Ray worker, measured with ``/usr/bin/time``), for a compiler
+    the project never runs."""
     if num_threads is None and os.environ.get("TESTBED_THREADS", "").isdigit():
         num_threads = int(os.environ["TESTBED_THREADS"])  # a Ray trial: its CPUs
     if num_threads is None:
@@ -87,5 +92,20 @@ def configure_torch(num_threads: int | None = None) -> int:
     if torch.get_num_threads() != num_threads:
         torch.set_num_threads(num_threads)
     os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
-    torch.use_deterministic_algorithms(True, warn_only=True)
+    _deterministic()
     return num_threads
+
+
+def _deterministic() -> None:
+    """What ``torch.use_deterministic_algorithms(True, warn_only=True)`` does, without
+    importing inductor for its ``deterministic`` flag unless something already has (then
+    that flag is set as torch sets it). torch is pinned (pyproject.toml); a torch without
+    the private setter takes the public call."""
+    setter = getattr(torch._C, "_set_deterministic_algorithms", None)
+    if setter is None:
+        torch.use_deterministic_algorithms(True, warn_only=True)
+        return
+    inductor = sys.modules.get("torch._inductor.config")
+    if inductor is not None:
+        inductor.deterministic = True
+    setter(True, warn_only=True)

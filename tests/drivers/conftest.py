@@ -11,6 +11,17 @@ from pathlib import Path
 import pytest
 
 from drivers.testing.sshd import SshServer, sshd_available
+from drivers.yumi import layout_check
+
+
+@pytest.fixture(autouse=True)
+def _layout_checks_made_anew() -> Iterator[None]:
+    """Each driver test checks its layouts afresh: ``check_layout`` keeps the last few
+    in its process, and a mutation run (scripts/mutation.sh) forks every mutant from a
+    process that ran the tests on the unmutated code, whose kept checks would answer."""
+    layout_check._KEPT.clear()
+    yield
+    layout_check._KEPT.clear()
 
 
 @pytest.fixture

@@ -12,12 +12,14 @@ the left arm, below z 80; the floor at 0).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 
 from drivers.errors import BackendError
@@ -327,3 +329,25 @@ def test_the_operator_is_told_what_a_yumi_has() -> None:
                                                       "execstate": "stopped"}}, [])
                 if "623-1" in p]
     assert [w for w in option_warnings(rep) if "623-1 Multitasking" in w]
+
+
+def test_a_layout_checked_again_is_answered_as_before_and_a_changed_one_anew() -> None:
+    """``check_layout`` keeps its answers (a process asks it at every run's start); the
+    same arms get equal answers, which a caller may change without touching the kept
+    ones, and a calibration that differs in its last digit is checked anew."""
+    from drivers.yumi import layout_check
+
+    good = layout_of("left", calibration("left", table_box_mm=[150, 75, 470, 370]),
+                     zones=SHIPPED_ZONES)
+    bad = layout_of("left", calibration("left", gate_xy_mm=[230, 130]), zones=SHIPPED_ZONES)
+    assert good is not None and bad is not None
+    first = check_layout([good])
+    first[0].append("changed by the caller")
+    assert check_layout([good]) == (first[0][:-1], first[1])
+    assert len(layout_check._KEPT) == 1
+    assert check_layout([bad])[1] != []  # another layout: not the kept answer
+    h = np.asarray(good.homography, dtype=np.float64) if good.homography is not None \
+        else np.eye(3)
+    nudged = dataclasses.replace(good, homography=h + 1e-12)
+    check_layout([nudged])
+    assert len(layout_check._KEPT) == 3
