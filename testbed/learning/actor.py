@@ -43,6 +43,7 @@ from testbed.learning.critics import Combine, q_values
 from testbed.learning.features import FeatureDensity
 from testbed.learning.networks import TRUNK_FEATURES
 from testbed.learning.policy import ensemble_signals
+from testbed.learning.runtime import compiler_deterministic
 
 CriticNets = Mapping[str, tuple[nn.Module, Combine]]
 """Critic name -> (its online twin-Q network, how its heads combine)."""
@@ -125,6 +126,7 @@ class Actor:
         self._run_policy: nn.Module = self._policy
         self._run_critics: dict[str, tuple[nn.Module, Combine]] = self._critics
         if compile:  # compiled modules share the copies' parameters: sync() reaches them
+            compiler_deterministic()
             self._run_policy = torch.compile(self._policy, dynamic=False)  # type: ignore[assignment]
             self._run_critics = {
                 name: (torch.compile(net, dynamic=False), how)  # type: ignore[misc]

@@ -109,3 +109,12 @@ def _deterministic() -> None:
     if inductor is not None:
         inductor.deterministic = True
     setter(True, warn_only=True)
+
+
+def compiler_deterministic() -> None:
+    """Before ``torch.compile`` (``learning.compile_act``): the compiler's
+    ``deterministic`` flag as torch's own deterministic setting says, which
+    :func:`_deterministic` left to whoever imports the compiler."""
+    import torch._inductor.config as inductor
+
+    inductor.deterministic = torch.are_deterministic_algorithms_enabled()
