@@ -22,10 +22,10 @@ import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
+from event_log_entries import e, on, other, restart
 
 from drivers.errors import BackendError
 from drivers.yumi.controller_state import RAPID_VERSION, problems
@@ -34,7 +34,6 @@ from drivers.yumi.rws_controller import RwsYumiController
 from drivers.yumi.yumi_controller import ArmPose, Waypoint
 from drivers.yumi.zones_proof import (
     PROOF_FORMAT,
-    ZONES_ACTIVE,
     ZonesProof,
     proof_path,
     zones_known,
@@ -51,23 +50,6 @@ PUSHER_MM = 184.2
 
 
 # -- the rules, on hand-made logs (newest first) -----------------------------------------
-def e(seq: int, code: int, *args: str) -> Any:
-    return SimpleNamespace(seqnum=seq, code=code, msgtype=1, title=args[0] if args else "t",
-                           args=list(args), desc="", causes="", tstamp=f"t{seq}")
-
-
-def restart(seq: int, code: int = 10045) -> Any:
-    return e(seq, code, "System restarted")
-
-
-def on(seq: int, task: str, n: int = 5) -> Any:
-    return e(seq, 80003, ZONES_ACTIVE, task, f"zones {n}", "2026-01-01 00:00:00")
-
-
-def other(seq: int) -> Any:
-    return e(seq, 10002, "Program pointer has been reset")
-
-
 def proved_log() -> list[Any]:
     """A restart, motors off (an unrelated entry between), both tasks' entries."""
     return [on(4, "T_ROB_R"), on(3, "T_ROB_L"), e(2, 10010, "Motors OFF state"), restart(1)]

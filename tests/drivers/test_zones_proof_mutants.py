@@ -24,6 +24,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import pytest
+from event_log_entries import e, on, other, restart
 
 from drivers.yumi.zones_proof import (
     MAX_PROOF_BYTES,
@@ -47,24 +48,6 @@ TASKS = ("T_ROB_L", "T_ROB_R")
 SERIAL = "14000-500000"
 FIX = ("restart the controller so tb_zones runs (the POWER_ON event routine) and writes its "
        "entries (robot/README.md, 'The zones')")
-
-
-def e(seq: int, code: int, *args: str, title: str | None = None) -> Any:
-    return SimpleNamespace(seqnum=seq, code=code, msgtype=1,
-                           title=title if title is not None else (args[0] if args else "t"),
-                           args=list(args), tstamp=f"t{seq}")
-
-
-def restart(seq: int, code: int = 10045) -> Any:
-    return e(seq, code, "System restarted")
-
-
-def on(seq: int, task: str, n: int = 5) -> Any:
-    return e(seq, 80003, ZONES_ACTIVE, task, f"zones {n}", "2026-01-01 00:00:00")
-
-
-def other(seq: int) -> Any:
-    return e(seq, 10002, "Program pointer has been reset")
 
 
 # -- one entry ----------------------------------------------------------------------------
