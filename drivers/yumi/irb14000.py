@@ -94,6 +94,7 @@ def transform(xyz: Sequence[float], rpy: Sequence[float]) -> Mat:
 
 
 _ORIGINS: Final = tuple(transform(*o) for o in JOINT_ORIGINS)
+_ORIGIN_STACK: Final = np.stack(_ORIGINS)
 
 
 def abb_to_chain(abb_deg: Sequence[float]) -> list[float]:
@@ -151,16 +152,20 @@ class Arm:
 
     def pose(self, chain_deg: Sequence[float]) -> Pose:
         """Forward kinematics: every joint's frame and the flange's."""
+        # rz(q) @ origin is the origin with its rows 0 and 1 turned: all seven made at
+        # once (the planner asks this at every iteration of its solvers)
+        q = np.radians(np.asarray(chain_deg, dtype=np.float64))
+        c, s = np.cos(q)[:, None], np.sin(q)[:, None]
+        turned = _ORIGIN_STACK.copy()
+        turned[:, 0] = c * _ORIGIN_STACK[:, 0] - s * _ORIGIN_STACK[:, 1]
+        turned[:, 1] = s * _ORIGIN_STACK[:, 0] + c * _ORIGIN_STACK[:, 1]
         frames = np.empty((8, 4, 4))
         m = self.base
-        for k, q in enumerate(chain_deg):
+        for k in range(7):
             frames[k] = m
-            c, s = math.cos(math.radians(q)), math.sin(math.radians(q))
-            rz = np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0],
-                           [0.0, 0.0, 0.0, 1.0]])
-            m = m @ rz @ _ORIGINS[k]
+            m = m @ turned[k]
         frames[7] = m
-        return Pose(tuple(float(q) for q in chain_deg), frames)
+        return Pose(tuple(float(x) for x in chain_deg), frames)
 
     def pose_abb(self, abb_deg: Sequence[float]) -> Pose:
         """Forward kinematics of ABB-ordered joints (axes 1..6, then 7)."""
@@ -170,8 +175,11 @@ class Arm:
         """(6, 7): the velocity of ``point`` (on the flange's body) and the flange's
         angular velocity per joint rate (rad)."""
         z = pose.frames[:7, :3, 2]
-        o = pose.frames[:7, :3, 3]
-        return np.vstack([np.cross(z, point - o).T, z.T])
+        d = point - pose.frames[:7, :3, 3]
+        zxd = np.stack([z[:, 1] * d[:, 2] - z[:, 2] * d[:, 1],  # z x d row by row:
+                        z[:, 2] * d[:, 0] - z[:, 0] * d[:, 2],  # np.cross costs more
+                        z[:, 0] * d[:, 1] - z[:, 1] * d[:, 0]], axis=1)
+        return np.vstack([zxd.T, z.T])
 
     def limit_excess(self, chain_deg: Sequence[float]) -> tuple[int, float] | None:
         """(ABB axis, degrees past its range) of the joint furthest out, or None."""
