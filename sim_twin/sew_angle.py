@@ -114,7 +114,7 @@ def _arm_angle_one(f: Mat, r: Mat) -> tuple[Mat, Mat]:
     """:func:`arm_angle_batch` of one pose's frames (8, 4, 4), the same formulas on plain
     floats: the inverse kinematics asks it of one pose at every iteration, where numpy's
     call overhead on 3-vectors was most of a line's supervision (py-spy of a rehearsal's
-    calibration); ``tests/sim_twin/test_yumi_arms.py`` holds the two paths together."""
+    calibration); ``tests/sim_twin/test_sew_angle_paths.py`` holds the two paths together."""
     def cross(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
         return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
                 a[0] * b[1] - a[1] * b[0])

@@ -79,7 +79,8 @@ def configure_torch(num_threads: int | None = None) -> int:
     not ``torch.use_deterministic_algorithms``, which imports torch's compiler (inductor
     and dynamo) to set its flag too: 1.5 CPU-s in every process that makes a learner (a
     trial, a protocol, each Ray worker, measured with ``/usr/bin/time``), for a compiler
-    the project never runs."""
+    the project runs only with ``learning.compile_act`` (which sets the flag first:
+    :func:`compiler_deterministic`)."""
     if num_threads is None and os.environ.get("TESTBED_THREADS", "").isdigit():
         num_threads = int(os.environ["TESTBED_THREADS"])  # a Ray trial: its CPUs
     if num_threads is None:
