@@ -322,15 +322,19 @@ def identity_fields(system: Mapping[str, Any], ident: Mapping[str, Any]) -> dict
     return out
 
 
-def describe(rws: Any, tasks: Sequence[str]) -> ControllerReport:
+def describe(rws: Any, tasks: Sequence[str], log: Sequence[Any] | None = None
+             ) -> ControllerReport:
     """The controller as ``testbed check`` shows it: identity, RobotWare and options,
-    state, every RAPID task, and our modules in each of ``tasks`` (the arms' tasks)."""
+    state, every RAPID task, and our modules in each of ``tasks`` (the arms' tasks);
+    ``log``: the event log as just read (None: read here). Each task's ``zones_known``
+    is the log's alone (:func:`zones_known`); the driver puts its kept proof in its place
+    where the log no longer shows it (``RwsYumiController.describe``)."""
     system = rws._do_get("rw/system")
     rep = ControllerReport(**identity_fields(system, rws._do_get("ctrl/identity")))
     for item in _state_items(system):
         if item.get("_type") == "sys-options-li":
             rep.options = [str(o.get("option", "")) for o in item.get("options", [])]
-    log = rws.read_event_log()
+    log = rws.read_event_log() if log is None else log
     rep.state = asdict(read_state(rws, log))
     for name, t in rws.get_tasks().items():
         rep.tasks[name] = {"type": t.type_, "active": bool(t.active),

@@ -234,7 +234,8 @@ class RwsYumiController:
         """Where the proof is recorded for the next agent (the robot lock's folder;
         None: not recorded, a proof from the log alone at every driver's start)."""
         self._zones_file: tuple[str, str] | None = None
-        """(path, serial) of the proof file, once the first start read the serial."""
+        """(path, serial) of the proof file, once the first start or report read the
+        serial."""
         self._zones_resumed = False
         self._last_entry: int | None = None
         self._ramdisk: str | None = None
@@ -453,7 +454,7 @@ class RwsYumiController:
         return _since(log_now, prev)
 
     def _resume_zones(self) -> None:
-        """At the first start: the controller's serial (``ctrl/identity``), and the proof
+        """At the first start or report: the controller's serial (``ctrl/identity``), and the proof
         the agent before recorded for it (:meth:`ZonesProof.load`); none taken (no
         state folder, no serial, no file, one not to trust): the log alone proves."""
         self._zones_resumed = True
@@ -545,8 +546,24 @@ class RwsYumiController:
         return out
 
     def describe(self) -> dict[str, Any]:
+        """``testbed check``'s report (:func:`describe`). The zones are judged as a start
+        judges them: the log read here also goes into the kept proof (continued from the
+        agent before, as at a first start, and recorded), and a task the log alone no
+        longer shows proved (rolled past its restart entry) is reported with the proof
+        (:meth:`ZonesProof.known`). Without it, a check after a day of pushes refused
+        the trial the driver would run."""
         try:
-            return describe(self._rws, [p.task for p in self._arms.values()]).to_dict()
+            if not self._zones_resumed:
+                self._resume_zones()
+            log_now = self._rws.read_event_log()
+            self._log_new(log_now)
+            self._zones.read(log_now)
+            self._record_zones()
+            rep = describe(self._rws, [p.task for p in self._arms.values()], log_now)
+            for task, ours in rep.rapid.items():
+                if not ours["zones_known"]["known"] and (kept := self._zones.known(task)):
+                    ours["zones_known"] = kept
+            return rep.to_dict()
         except Exception as exc:
             raise BackendError(f"cannot read the YuMi controller's state: "
                                f"{one_line(exc)}") from exc

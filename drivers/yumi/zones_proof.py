@@ -184,8 +184,11 @@ class ZonesProof:
         self.newest: tuple[int, int, str] | None = None
         """The newest entry of the last read: the next read must still hold it."""
         self.gap = False
-        """Whether the last read missed entries (the log cleared or rolled past the
-        newest entry of the read before) after an earlier read or a recorded proof."""
+        """Whether a read missed entries (the log cleared or rolled past the newest entry
+        of the read before, or of a recorded proof) since the proof last held every task:
+        a read without a gap after it (a report's, then a start's) still names it."""
+        self._gap_past = ""
+        """What the gap rolled past, in the refusal's words."""
         self.resumed_from: str | None = None
         """The proof file this proof continues (:meth:`resume`) until its first read."""
 
@@ -196,13 +199,18 @@ class ZonesProof:
         at = keys.index(self.newest) if self.newest in keys else None
         if at is not None and self._evidence_matches(keys[at:]):
             unseen = log[:at]
-            self.gap = False
         else:  # the first read, or a gap: only the log itself can show it
             unseen = log
-            self.gap = self.newest is not None
+            if self.newest is not None:
+                self.gap = True
+                self._gap_past = (f"the newest entry the agent before this one recorded "
+                                  f"({self.resumed_from})" if self.resumed_from
+                                  else "the entries this driver saw")
             self.state = dict.fromkeys(self.tasks, UNKNOWN)
             self.restart, self.active = None, dict.fromkeys(self.tasks)
         self._fold(reversed(unseen))
+        if all(v == PROVED for v in self.state.values()):
+            self.gap = False
         self.newest = keys[0] if keys else None
         why = self.refusal(log)
         self.resumed_from = None
@@ -243,17 +251,28 @@ class ZonesProof:
                 why = (f"a restart{at} with no {ZONES_ACTIVE!r} entry with zones "
                        f"{self.count} after it")
             elif self.gap:
-                saw = (f"the newest entry the agent before this one recorded "
-                       f"({self.resumed_from})" if self.resumed_from
-                       else "the entries this driver saw")
-                why = (f"the event log was cleared or rolled over past {saw}, and what is "
-                       f"left shows no restart entry followed by a {ZONES_ACTIVE!r} entry")
+                why = (f"the event log was cleared or rolled over past {self._gap_past}, "
+                       f"and what is left shows no restart entry followed by a "
+                       f"{ZONES_ACTIVE!r} entry")
             else:
                 why = (f"the event log shows no restart entry followed by a "
                        f"{ZONES_ACTIVE!r} entry (cleared over RWS, or rolled over)")
             return (f"task {task}: the world zones are not known active since the last "
                     f"restart: {why}; {ZONES_FIX}")
         return None
+
+    def known(self, task: str) -> dict[str, Any] | None:
+        """``task``'s proof in :func:`zones_known`'s form, for ``testbed check`` when the
+        log alone no longer shows it (rolled past the restart entry): the restart and
+        Zones Active entries the proof holds, ``zones`` the count it checked them for
+        (:attr:`count`: the entry named at least that many), ``kept`` where it comes from;
+        None unless ``task`` is proved."""
+        restart, active = self.restart, self.active.get(task)
+        if self.state.get(task) != PROVED or restart is None or active is None:
+            return None
+        return {"restart": restart[0], "restart_code": restart[1], "active": active[0],
+                "zones": self.count, "known": True,
+                "kept": "the driver's proof, kept across the event log's rollovers"}
 
     # -- from one agent to the next -------------------------------------------------------
     def record(self, serial: str) -> dict[str, Any]:

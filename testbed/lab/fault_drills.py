@@ -10,7 +10,8 @@ touched (issue 29, point 5).
 The schedule (:func:`fault_schedule`) is drawn from the run's seed, so a run's faults
 are the same each time it is rehearsed: every kind once (in ``steps >= MIN_STEPS``), in a
 shuffled order, each planned in a slot of its own, on a host and an arm drawn at random,
-held 1 or 2 steps. At most one fault is active per host (:class:`FaultDrills`).
+held 1 or 2 steps (longer while no arm has shown it). At most one fault is active per
+host (:class:`FaultDrills`).
 A fault is injected between two steps (after the loop logged a step), and the
 scripted person clears it between two steps: reproducible, where a stop mid-motion would
 depend on timing. How each is injected and cleared is the twin's
@@ -58,7 +59,8 @@ TAIL_STEPS = 3
 SLOT_STEPS = 4
 """The steps planned for each fault: injected, held 1-2 steps, the arms back."""
 MAX_POSTPONE = 3
-"""Steps a fault waits for its host to be at work before it is injected all the same."""
+"""Steps a fault waits for its host to be at work before it is injected all the same, and
+for a row to show it before the person clears it all the same."""
 ARM_KINDS = ("rapid_error", "zone_stop")
 AT_OBSERVE = ("camera_frozen", "link_lost")
 """Faults the next observe meets, whatever the arms are doing."""
@@ -126,7 +128,11 @@ class FaultDrills:
     to be at work (an arm of it pushed in the last step; after :data:`MAX_POSTPONE`
     steps, whatever it does). At most one fault is injected per step, in the schedule's
     order among those whose host is free; none in a run's last :data:`TAIL_STEPS`
-    steps. The person clears a fault ``held`` steps after it was injected."""
+    steps. The person clears a fault ``held`` steps after it was injected once a row
+    showed it (its host's arms ``fault``), else up to :data:`MAX_POSTPONE` steps later:
+    a person clears the stop they see, and a host at work at the injection may rest the
+    next step (its arms idle, or a reset by hand), when a stop of its controller shows
+    nothing yet (a CI run met that: a guard stop held one step, never seen)."""
 
     def __init__(self, lab: HardwareTwinLab, schedule: Sequence[PlannedFault],
                  folder: Path, steps: int, say: Say) -> None:
@@ -181,7 +187,8 @@ class FaultDrills:
         for host, a in list(self.active.items()):
             if a.seen is None and "fault" in self._modes(modes, host):
                 a.seen = t
-            if t + 1 >= a.step + a.fault.held:
+            due = a.step + a.fault.held
+            if t + 1 >= due and (a.seen is not None or t + 1 >= due + MAX_POSTPONE):
                 self._clear(host, t + 1)
         if not t + 1 < self.last_step:
             return

@@ -337,11 +337,15 @@ def test_a_rolled_over_log_after_a_proved_start_goes_on(twin: Twin) -> None:
             client.execute(step(330.0 + 5 * k))
         codes = {x.code for x in twin.ctrl.elog.entries()}
         assert 10045 not in codes and 80003 in codes  # the restart rolled out, pushes done
-        assert twin.check_faults(client)  # testbed check: the log alone shows nothing
+        assert twin.check_faults(client) == []  # testbed check: the driver's kept proof
+        rep = client.describe()["rapid"]["T_ROB_L"]["zones_known"]
+        assert rep["known"] and rep["kept"] and rep["zones"] == 5, rep
     finally:
         client.close()
-    late = twin.driver()  # a driver that starts now has no proof: refused
+    late = twin.driver()  # a driver that starts now has no proof: faulted and refused
     try:
+        faults = twin.check_faults(late)
+        assert len(faults) == 2 and all("holds no restart entry" in f for f in faults), faults
         refused_with_nothing_sent(twin, late, "the event log shows no restart entry "
                                               "followed by a 'Testbed Zones Active' entry")
     finally:
@@ -395,11 +399,13 @@ def test_a_fresh_driver_goes_on_from_the_recorded_proof_after_a_rollover(
     recorded_on_the_twin(twin, tmp_path)
     bare = twin.driver()  # no proof file: the log alone shows nothing
     try:
+        assert len(twin.check_faults(bare)) == 2
         refused_with_nothing_sent(twin, bare, "the event log shows no restart entry")
     finally:
         bare.close()
     fresh = twin.driver(tmp_path)  # the next trial, or --resume after a crash
-    try:
+    try:  # its check before step 1 continues the proof as its first start would
+        assert twin.check_faults(fresh) == []
         fresh.execute(step(350.0))
         fresh.execute(step(345.0))
     finally:

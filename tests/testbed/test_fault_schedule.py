@@ -95,6 +95,33 @@ def test_drills_clear_after_the_delay_and_wait_for_the_arms_before_the_next_faul
         ("guard_stop", 2, 3, 2), ("rapid_error", 3, 4, 3), ("link_lost", 5, None, None)]
 
 
+def test_a_stop_no_arm_showed_is_held_until_one_does_or_three_steps_more(
+        tmp_path: Path) -> None:
+    plan = [PlannedFault(2, 1, "guard_stop", "yumi-a", "left"),
+            PlannedFault(2, 1, "motors_off", "yumi-b", "left")]
+    lab = FakeLab()
+    drills = FaultDrills(lab, plan, tmp_path, 30, lambda _: None)  # type: ignore[arg-type]
+    drills.after_step(1, row({}))  # yumi-a at work: its guard stop goes in
+    assert lab.done == [("fault", "yumi-a", "guard_stop")]
+    drills.after_step(2, row({"yumi-a": "idle"}))  # due, but no arm asked: still there
+    assert lab.done[1:] == [("fault", "yumi-b", "motors_off")]
+    drills.after_step(3, row({"yumi-a": "idle", "yumi-b": "fault"}))  # yumi-b's showed
+    assert lab.done[2:] == [("clear", "yumi-b", "motors_off")]
+    drills.after_step(4, row({"yumi-a": "fault"}))  # yumi-a pushed, met it: cleared
+    assert lab.done[3:] == [("clear", "yumi-a", "guard_stop")]
+    rows = {r["kind"]: r for r in (json.loads(x) for x in
+                                   (tmp_path / FAULTS_FILE).read_text().splitlines())}
+    assert (rows["guard_stop"]["seen"], rows["guard_stop"]["cleared"]) == (4, 5)
+    late = FaultDrills(FakeLab(), plan[:1], tmp_path / "x", 30,
+                       lambda _: None)  # type: ignore[arg-type]
+    (tmp_path / "x").mkdir()
+    for t in range(1, 5):  # never shown: cleared MAX_POSTPONE steps after it was due
+        late.after_step(t, row({"yumi-a": "idle"} if t > 1 else {}))
+        assert late.active, t
+    late.after_step(5, row({"yumi-a": "idle"}))
+    assert not late.active and late.lab.done[-1] == ("clear", "yumi-a", "guard_stop")
+
+
 def _drive(drills: FaultDrills, steps: range, rows: dict[int, dict[str, Any]]) -> None:
     """Each step's row as the arms would show it (a host with a fault active: both its
     arms ``fault``), then the drills between it and the next."""
