@@ -117,6 +117,60 @@ TRAIN = Verb(
     add_arguments=_train_arguments, run=cmd_train)
 
 
+# ---- values -----------------------------------------------------------------------------
+def _values_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run", metavar="RUN_DIR")
+    p.add_argument("--checkpoint", metavar="PT",
+                   help="the learner whose value critic values the pushes (default: the "
+                   "run's final learner.pt)")
+    p.add_argument("--truth", type=int, default=0, metavar="N",
+                   help="also check the advantage against the PyBullet twin's truth on N "
+                   "states no trial saw (testbed/lab/advantage_truth.py)")
+
+
+def cmd_values(args: argparse.Namespace) -> int:
+    from testbed.records.push_values import summary_lines, value_run, write_push_values
+    from testbed.records.store import RunData, RunDataError
+
+    run = Path(args.run)
+    try:
+        RunData.of_run(run).robots  # noqa: B018 (reads meta.json: is this a run's data?)
+    except (RunDataError, OSError) as exc:
+        raise ConfigError(f"RUN_DIR: {args.run!r} holds no run data ({exc})") from None
+    pt = Path(args.checkpoint) if args.checkpoint else run / "learner.pt"
+    if not pt.is_file():
+        raise ConfigError(f"--checkpoint: no such file {str(pt)!r}")
+    if args.truth < 0:
+        raise ConfigError(f"--truth: {args.truth} states; give 0 (no check) or more")
+    from testbed.learning import Learner
+
+    learner = Learner.load(pt)
+    if learner.value_updates == 0:
+        raise ConfigError(f"--checkpoint: {pt}'s value critic never trained (none "
+                          "pretrained, none trained online): its advantages would "
+                          "mean nothing; value with a learner that has one")
+    values = value_run(run, learner.push_values, learner.pre_intervention_steps)
+    path = write_push_values(run, values, pt)
+    print(f"{len(values['t'])} pushes valued with {pt} -> {path}")
+    for line in summary_lines(values):
+        print(f"  {line}")
+    if args.truth:
+        from testbed.lab.advantage_truth import check_on_twin
+
+        print(check_on_twin(learner.push_values, args.truth).line())
+    return 0
+
+
+VALUES = Verb(
+    "values", help="the value and advantage of every push of a run",
+    description="Value every push of a run (demonstrations' learner, robot and human "
+    "pushes alike) with a learner's value critic: Q(s, a), V(s) = Q(s, pi(s)) "
+    "and the advantage A = Q - V, into the run's push_values.npz (with the checkpoint's "
+    "sha256), and a summary by who pushed and by class; --truth N checks the advantage "
+    "against the twin's truth.",
+    add_arguments=_values_arguments, run=cmd_values)
+
+
 # ---- report -----------------------------------------------------------------------------
 def _report_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dirs", nargs="+", metavar="RUN_OR_PROTOCOL_DIR")

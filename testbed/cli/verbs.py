@@ -29,4 +29,5 @@ VERBS: tuple[Verb, ...] = (
     run_verbs.EVALUATE,
     data_verbs.EXPORT,
     data_verbs.TRAIN,
+    data_verbs.VALUES,
 )

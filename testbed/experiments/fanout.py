@@ -191,9 +191,7 @@ def run_protocol_on_ray(proto: Protocol, folder: Path, *, address: str | None = 
 def protocol_critics(proto: Protocol) -> list[str]:
     """The critics a protocol's theta_0 is pretrained with, as ``run_protocol_run`` asks
     (by the algorithm each name runs: a way's name is no algorithm)."""
-    from testbed.experiments.protocol import pretrain_critics
-
-    return pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
+    return proto.theta0_critics()
 
 
 def _trial_tasks(proto: Protocol, folder: Path, k: int, trial: Any, cpus: int,

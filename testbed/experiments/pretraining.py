@@ -46,27 +46,35 @@ if TYPE_CHECKING:  # the learning package imports torch: only when data is reall
 FIELDS = ("images", "actions", "next_images", "violation", "success")
 
 CRITICS = ("safety", "goal")
-"""The learner's critics (``testbed.learning.learner.CRITICS``, without importing torch)."""
+"""The learner's critics ``act`` reads (``testbed.learning.learner.CRITICS``, without
+importing torch)."""
+TRAINABLE = (*CRITICS, "value")
+"""Every critic theta_0 can pretrain: the value critic too (``learner.TRAINABLE``)."""
 
 
 def critic_set(critics: Iterable[str] | None) -> tuple[str, ...]:
-    """``critics`` checked and in ``CRITICS`` order; None: both."""
+    """``critics`` checked and in ``TRAINABLE`` order; None: safety and goal."""
     if critics is None:
         return CRITICS
     if isinstance(critics, str):
         raise TypeError(f"critics: expected a collection of names, got the string {critics!r}")
     given = set(critics)
-    unknown = sorted(given - set(CRITICS))
+    unknown = sorted(given - set(TRAINABLE))
     if unknown:
         raise ValueError(f"critics: unknown critic(s) {', '.join(map(repr, unknown))}; "
-                         f"use {', '.join(CRITICS)}")
-    return tuple(c for c in CRITICS if c in given)
+                         f"use {', '.join(TRAINABLE)}")
+    return tuple(c for c in TRAINABLE if c in given)
 
 
-def pretrain_critics(algorithms: Iterable[str]) -> list[str]:
+def pretrain_critics(algorithms: Iterable[str], weightings: Iterable[str] = ()) -> list[str]:
     """The critics theta_0 is pretrained with: every one that any of ``algorithms``
-    reads (one theta_0 for a whole protocol, no critic pretrained for nobody)."""
+    reads (one theta_0 for a whole protocol, no critic pretrained for nobody), and the
+    value critic where any of ``weightings`` (each run's ``learning.weighting``, or
+    ``"advantage"`` for one conditioned on it) is ``"advantage"``: the advantage is its
+    (``testbed/learning/advantage.py``)."""
     read: set[str] = set().union(*(ALGORITHMS[a].critics for a in algorithms))
+    if "advantage" in set(weightings):
+        read.add("value")
     return sorted(read)
 
 
@@ -303,8 +311,12 @@ rehearsal's fresh ports or a lab's new address do not throw theta_0 away."""
 
 
 ONLINE_ONLY: Final = frozenset({"compile_act", "weighting", "pre_intervention_steps",
-                                "class_weights"})
-"""Learning fields that do not shape theta_0: left out of its key."""
+                                "class_weights", "advantage_temperature",
+                                "advantage_max_weight", "advantage_refresh", "gamma_value",
+                                "conditioning", "advantage_threshold", "condition_dropout",
+                                "value_every"})
+"""Learning fields that do not shape theta_0: left out of its key (``gamma_value`` shapes
+a theta_0 that pretrains the value critic: its key then has it, :func:`pretrain_key`)."""
 
 
 def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = None) -> str:
@@ -328,6 +340,8 @@ def pretrain_key(cfg: FleetConfig, seed: int, critics: Iterable[str] | None = No
     }
     if which != CRITICS:
         fields["critics"] = list(which)
+    if "value" in which:
+        fields["gamma_value"] = cfg.learning.gamma_value
     blob = json.dumps(fields, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -255,6 +255,14 @@ class Protocol(BaseModel):
             return self.fleet
         return SweepPoint(dict(way.set)).apply(self.fleet)
 
+    def theta0_critics(self) -> list[str]:
+        """The critics theta_0 is pretrained with (:func:`pretrain_critics`): what the
+        algorithm each name runs reads (a way's name is no algorithm), and the goal
+        critic where a way learns by advantage."""
+        return pretrain_critics([self.algorithm_of(a) for a in self.algorithms],
+                                ["advantage" if self.fleet_of(a).learning.by_advantage
+                                 else "other" for a in self.algorithms])
+
     def evaluated(self) -> list[str]:
         """What each trial's evaluations evaluate (``_evaluate_all``): every algorithm's
         final policy, theta_0 (``START``) with ``evaluate_start``, the twin's expert with
@@ -509,8 +517,7 @@ def run_protocol_run(proto: Protocol, folder: Path, k: int, algorithm: str, *,
     opts = TrialOptions(algorithm=proto.algorithm_of(algorithm), steps=proto.steps,
                         seed=proto.seed(k), out=str(folder), humans=proto.humans,
                         name=f"{algorithm}-t{k}", label=algorithm,
-                        pretrain_critics=pretrain_critics(
-                            [proto.algorithm_of(a) for a in proto.algorithms]),
+                        pretrain_critics=proto.theta0_critics(),
                         pretrain_seed=proto.pretrain_seed(k))
     run_meta: dict[str, Any] = {
         **(meta or {}),

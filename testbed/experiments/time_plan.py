@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from testbed.experiments.fleet_config import FleetConfig
 from testbed.experiments.pace import FleetPace, GradPace, fleet_pace, measure_gradient
-from testbed.experiments.pretraining import critic_set, pretrain_critics
+from testbed.experiments.pretraining import critic_set
 from testbed.experiments.theta0 import CacheState, Theta0Spec, cache_state, theta0_folder
 from testbed.fleet.algorithms import ALGORITHMS
 from testbed.learning.learning_config import LearningConfig
@@ -292,7 +292,7 @@ def protocol_targets(proto: ProtocolFile, runs: Iterable[tuple[str, int]] | None
     fleet, its critics (any algorithm of the protocol reads: ``run_protocol_run``), its
     seed (the trial's with ``pretrain_per_trial``) and, when there are several, which:
     the algorithms it is for (a way's fleet may shape theta_0), its trial, or both."""
-    union = pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
+    union = proto.theta0_critics()
     todo = [(a, k) for a in proto.algorithms for k in range(proto.trials)] \
         if runs is None else list(runs)
     per_trial = any(proto.pretrain_seed(k) is not None for _, k in todo)

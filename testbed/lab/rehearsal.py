@@ -214,7 +214,6 @@ def _same_theta_0(proto: Protocol, folder: Path) -> None:
     from testbed.experiments.fleet_config import load_fleet
     from testbed.experiments.learners import PRETRAIN_SEED
     from testbed.experiments.pretraining import pretrain_key
-    from testbed.experiments.protocol import pretrain_critics
     from testbed.fleet.algorithms import ALGORITHMS
 
     first = folder / "lab" / "fleet" / "first.toml"
@@ -223,7 +222,7 @@ def _same_theta_0(proto: Protocol, folder: Path) -> None:
         first.write_bytes((first.parent / "config.toml").read_bytes())
         return
     then = proto.model_copy(update={"fleet": load_fleet(first)})
-    both = pretrain_critics([proto.algorithm_of(a) for a in proto.algorithms])
+    both = proto.theta0_critics()
     cache = folder / ".pretrained"
     trials = proto.trials if proto.until is None else proto.until.max_trials
     seeds = sorted({PRETRAIN_SEED} if not proto.pretrain_per_trial else

@@ -58,7 +58,7 @@ class CriticBatch:
     done: Tensor
 
 
-def _combine(q: Tensor, how: Combine) -> Tensor:
+def combine_heads(q: Tensor, how: Combine) -> Tensor:
     """(B, 2) twin estimates -> (B,)."""
     return q.amax(dim=1) if how == "max" else q.amin(dim=1)
 
@@ -69,7 +69,7 @@ def q_values(net: nn.Module, combine: Combine, images: Tensor, actions: Tensor) 
     with torch.no_grad():
         logits = net(images)
         taken = logits.gather(2, actions.view(-1, 1, 1).expand(-1, 2, 1)).squeeze(2)
-        return _combine(torch.sigmoid(taken), combine)
+        return combine_heads(torch.sigmoid(taken), combine)
 
 
 class Critic:
@@ -90,7 +90,7 @@ class Critic:
         with torch.no_grad():
             next_logits = self.target(batch.next_images)
             idx = batch.next_actions.view(-1, 1, 1).expand(-1, 2, 1)
-            next_q = _combine(torch.sigmoid(next_logits.gather(2, idx).squeeze(2)),
+            next_q = combine_heads(torch.sigmoid(next_logits.gather(2, idx).squeeze(2)),
                               self.spec.combine)
             y = batch.reward + self.spec.gamma * (1.0 - batch.done) * next_q
         logits = self.net(batch.images)

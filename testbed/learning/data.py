@@ -169,11 +169,14 @@ class PolicyData:
             out[given == g] = self.labeller_names.index(person)
         return out
 
-    def sample(self, batch: int, gen: torch.Generator, class_weights: Tensor | None = None
-               ) -> tuple[Tensor, Tensor]:
-        """Per-member bootstrap minibatches: images (E, B, 64, 64, 3), actions (E, B).
-        ``class_weights`` (len(FrameClass), len(EpisodeOutcome)): each sample's weight by
-        its class and outcome, times its bootstrap weight (None: the bootstrap alone)."""
+    def sample(self, batch: int, gen: torch.Generator, class_weights: Tensor | None = None,
+               sample_weights: Tensor | None = None, *, with_index: bool = False
+               ) -> Any:
+        """Per-member bootstrap minibatches: images (E, B, 64, 64, 3), actions (E, B),
+        and with ``with_index`` each drawn sample's index (E, B). ``class_weights``
+        (len(FrameClass), len(EpisodeOutcome)): each sample's weight by its class and
+        outcome, times its bootstrap weight (None: the bootstrap alone);
+        ``sample_weights`` (N,): a weight of each sample's own besides (AWR's)."""
         n = len(self)
         if n == 0:
             raise ValueError("no policy data yet")
@@ -182,6 +185,12 @@ class PolicyData:
         if class_weights is not None:
             per_sample = class_weights[self._store["classes"].long(),
                                        self._store["outcomes"].long()]
+        if sample_weights is not None:
+            if sample_weights.shape != (n,):
+                raise ValueError(f"sample_weights: shape {tuple(sample_weights.shape)}, "
+                                 f"not ({n},)")
+            per_sample = sample_weights if per_sample is None else per_sample * sample_weights
+        if per_sample is not None:
             weights = weights * per_sample[:, None]
         rows = []
         for m in range(self.ensemble_size):
@@ -191,6 +200,8 @@ class PolicyData:
             rows.append(torch.multinomial(w, batch, replacement=True, generator=gen))
         index = torch.stack(rows)
         copy = torch.randint(self.factor, index.shape, generator=gen)
+        if with_index:
+            return self._store["images"][index, copy], self._store["actions"][index], index
         return self._store["images"][index, copy], self._store["actions"][index]
 
     def classes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -205,6 +216,11 @@ class PolicyData:
     def original_images(self, index: Tensor) -> Tensor:
         """The labelled images at ``index`` as they were added (uint8 (K, 64, 64, 3))."""
         return self._store["images"][index, 0]
+
+    def originals_and_actions(self) -> tuple[Tensor, Tensor]:
+        """Every labelled image as it was added (uint8 (N, 64, 64, 3)) and its action
+        (int64 (N,)), views of the store: for valuing every sample (``advantage.py``)."""
+        return self._store["images"][:, 0], self._store["actions"]
 
     def originals(self) -> np.ndarray:
         """The labelled images as they were added (uint8 (N, 64, 64, 3), a copy)."""

@@ -20,6 +20,12 @@ episode's outcome (``class_weights``) when a member draws its minibatch; pretrai
 draws the demonstrations alike (theta_0 is the same for every weighting). ``"uniform"``
 is today's training, draw for draw.
 
+Learning by advantage (issue 46, ``advantage.py``): with ``weighting = "advantage"``
+(AWR) or ``conditioning = "advantage"`` (RECAP's way) the robot's pushes come in as for
+learning by class (every class counts), the value critic (:data:`VALUE`) trains beside
+the policy, and every sample's advantage is refreshed on a schedule of update counts
+(``_refresh_advantages``) and saved with the training state.
+
 Parts (issue 13): a learner trains online only the parts its algorithm uses
 (``train``: a subset of policy, safety, goal; default all three) and ``act`` computes
 only the critics it reads (``read``; default both): C.U.R. trains the policy and the
@@ -57,6 +63,7 @@ import torch
 from testbed.core.types import EpisodeOutcome, FrameClass
 from testbed.learning import checkpoint
 from testbed.learning.actor import Actor, infer
+from testbed.learning.advantage import AdvantageState, PushValues, push_values
 from testbed.learning.api import (
     EnsembleImpl,
     PolicyOutput,
@@ -70,7 +77,7 @@ from testbed.learning.data import PolicyData, TransitionBuffer
 from testbed.learning.features import FeatureDensity
 from testbed.learning.learning_config import ClassWeights, LearningConfig
 from testbed.learning.networks import TRUNK_FEATURES
-from testbed.learning.policy import PolicyEnsemble, ensemble_signals
+from testbed.learning.policy import POSITIVE, PolicyEnsemble, ensemble_signals
 from testbed.learning.runtime import (
     STREAM_INIT,
     STREAM_SAMPLE,
@@ -83,17 +90,23 @@ from testbed.learning.runtime import (
 )
 
 CRITICS: Final[tuple[str, ...]] = ("safety", "goal")
-"""The critics, in the order they are updated on a shared minibatch."""
+"""The critics ``act`` can read, in the order they are updated on a shared minibatch."""
+VALUE: Final = "value"
+"""The advantage's critic (``advantage.py``): the goal critic's targets at ``gamma_value``,
+made when a learner learns by advantage or pretrains it, updated after the others."""
+TRAINABLE: Final[tuple[str, ...]] = (*CRITICS, VALUE)
 
-PARTS: Final[tuple[str, ...]] = ("policy", *CRITICS)
+PARTS: Final[tuple[str, ...]] = ("policy", *TRAINABLE)
 """Everything a learner can train."""
+DEFAULT_PARTS: Final[tuple[str, ...]] = ("policy", *CRITICS)
+"""What a learner trains unless told (the value critic only where asked for)."""
 
 
-def _parts(value: Iterable[str] | None, allowed: tuple[str, ...], what: str
-           ) -> frozenset[str]:
-    """``value`` as a checked frozenset (None: all of ``allowed``)."""
+def _parts(value: Iterable[str] | None, allowed: tuple[str, ...], what: str,
+           default: tuple[str, ...] | None = None) -> frozenset[str]:
+    """``value`` as a checked frozenset (None: ``default``, else all of ``allowed``)."""
     if value is None:
-        return frozenset(allowed)
+        return frozenset(allowed if default is None else default)
     if isinstance(value, str):
         raise TypeError(f"{what}: expected a collection of names, got the string {value!r}")
     parts = frozenset(value)
@@ -131,6 +144,13 @@ def _copy_into(dst: Any, src: Any) -> bool:
     return False
 
 
+def acted_table() -> torch.Tensor:
+    """``weighting = "advantage"``'s class table: every push counts (a demonstration, a
+    human's, the robot's in any episode); its advantage weighs it, not its class."""
+    return class_table(ClassWeights(demo=1.0, teleop=1.0, robot=1.0, pre_intervention=1.0,
+                                    robot_failed=1.0))
+
+
 def class_table(w: ClassWeights) -> torch.Tensor:
     """Each (FrameClass, EpisodeOutcome)'s weight: a robot push counts ``robot`` in an
     episode that succeeded and ``robot_failed`` in any other (one still open, too: an
@@ -143,6 +163,25 @@ def class_table(w: ClassWeights) -> torch.Tensor:
     table[FrameClass.ROBOT] = w.robot_failed
     table[FrameClass.ROBOT, EpisodeOutcome.SUCCESS] = w.robot
     return table
+
+
+def _policy_state(policy: PolicyEnsemble, saved: dict[str, Any], optimizer: dict[str, Any],
+                  where: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A saved policy and its optimiser's state made to fit ``policy``: an unconditioned
+    one (theta_0, any checkpoint from before conditioning) into a policy conditioned on
+    the advantage gets zero indicator vectors (it acts as it did) and a fresh Adam state
+    for them; a conditioned one cannot go into a policy that is not (its vectors would
+    be dropped, and it would act otherwise)."""
+    if "indicator.table" in saved and policy.conditions is None:
+        raise LearningError(f"{where}: its policy is conditioned on the advantage; set "
+                            "learning.conditioning = \"advantage\" to load it")
+    if policy.conditions is None or "indicator.table" in saved:
+        return saved, optimizer
+    saved = {**saved, "indicator.table": torch.zeros_like(policy.conditions)}
+    groups = [dict(g) for g in optimizer["param_groups"]]
+    ids = list(groups[-1]["params"])
+    groups[-1]["params"] = [*ids, max(ids) + 1]  # the vectors: the last parameter
+    return saved, {**optimizer, "param_groups": groups}
 
 
 def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]:
@@ -192,7 +231,8 @@ class Learner:
         self._lock = threading.RLock()
         with torch.random.fork_rng(devices=[]):
             torch.random.default_generator.manual_seed(derive_seed(self.seed, STREAM_INIT))
-            self.policy = PolicyEnsemble(cfg.ensemble_size, self.impl).to(self.device)
+            self.policy = PolicyEnsemble(cfg.ensemble_size, self.impl, conditioned=(
+                cfg.conditioning == "advantage")).to(self.device)
             self.safety = Critic(CriticSpec("safety", cfg.gamma_safe, "max"), cfg.lr, self.device)
             self.goal = Critic(CriticSpec("goal", cfg.gamma_goal, "min"), cfg.lr, self.device)
         self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.lr)
@@ -208,25 +248,54 @@ class Learner:
         """Critic minibatches (one shared pi(s') each), whichever critics they updated."""
         self.safety_updates = 0
         self.goal_updates = 0
-        self._class_table = (class_table(cfg.class_weights)
-                             if cfg.weighting == "intervention" else None)
-        self.train_parts: frozenset[str] = frozenset(PARTS)
+        self.value: Critic | None = None
+        """The advantage's critic (:data:`VALUE`), once made (:meth:`_value_critic`)."""
+        self.value_updates = 0
+        if cfg.by_advantage:
+            self._value_critic()
+        self._class_table = (class_table(cfg.class_weights) if cfg.weighting == "intervention"
+                             else acted_table() if cfg.by_advantage else None)
+        self.advantages = (AdvantageState(
+            cfg.advantage_temperature, cfg.advantage_max_weight, cfg.advantage_refresh,
+            cfg.advantage_threshold, cfg.condition_dropout) if cfg.by_advantage else None)
+        """Each policy sample's advantage (learning by advantage: ``weighting`` or
+        ``conditioning``), else None."""
+        self.train_parts: frozenset[str] = frozenset(DEFAULT_PARTS)
         self.read_critics: frozenset[str] = frozenset(CRITICS)
         self.set_parts(train=train, read=read)
+
+    def _value_critic(self) -> Critic:
+        """The value critic, made on first need from its own seed stream (the same
+        weights whenever it is made; nothing else's draws move)."""
+        if self.value is None:
+            with torch.random.fork_rng(devices=[]):
+                torch.random.default_generator.manual_seed(
+                    derive_seed(self.seed, STREAM_INIT, 1))
+                self.value = Critic(CriticSpec(VALUE, self.cfg.gamma_value, "min"),
+                                    self.cfg.lr, self.device)
+        return self.value
 
     def set_parts(self, *, train: Iterable[str] | None = None,
                   read: Iterable[str] | None = None) -> None:
         """What this learner's algorithm uses (``AlgorithmSpec.train_parts`` / ``critics``).
 
-        ``train`` ⊆ {"policy", "safety", "goal"}: the parts ``train_step`` updates (the
+        ``train`` ⊆ {"policy", "safety", "goal", "value"}: the parts ``train_step``
+        updates (default: all but "value"; the
         critics share one minibatch and one pi(s') forward pass, skipped when no critic
         trains); ``read`` ⊆ {"safety", "goal"}: the critics ``act`` evaluates. A critic
         not read gives ``act`` a placeholder of zeros (risk 0, goal_risk 0: finite, so
         logs, keys and the console's reason stay valid; nothing reads them). None: all.
+        Learning by advantage (``weighting`` or ``conditioning`` = "advantage"), the
+        value critic trains too whenever the policy does: the advantages are its
+        (``advantage.py``).
         Weights, data and counters are untouched; ``pretrain`` takes its own set.
         """
         with self._lock:
-            self.train_parts = _parts(train, PARTS, "train")
+            self.train_parts = _parts(train, PARTS, "train", DEFAULT_PARTS)
+            if self.advantages is not None and "policy" in self.train_parts:
+                self.train_parts |= {VALUE}
+            if VALUE in self.train_parts:
+                self._value_critic()
             self.read_critics = _parts(read, CRITICS, "read")
 
     # ------------------------------------------------------------------ queries
@@ -245,6 +314,7 @@ class Learner:
                 "critic_updates": self.critic_updates,
                 "safety_updates": self.safety_updates,
                 "goal_updates": self.goal_updates,
+                "value_updates": self.value_updates,
             }
 
     def numerics(self) -> dict[str, Any]:
@@ -422,15 +492,57 @@ class Learner:
         losses: dict[str, float] = {}
         if "policy" in self.train_parts and len(self.policy_data):
             losses["policy_loss"] = self._policy_update()
-        critics = tuple(c for c in CRITICS if c in self.train_parts)
+        critics = tuple(c for c in TRAINABLE if c in self.train_parts)
         if critics and len(self.transitions):
-            losses.update(self._critic_update(critics))
+            losses.update(self._critic_update(critics, online=True))
         return losses
 
+    def push_values(self, images: npt.ArrayLike, actions: npt.ArrayLike) -> PushValues:
+        """The value critic's Q(s, a), V(s) = Q(s, pi(s)) and pi(s) of uint8 images
+        (N, 64, 64, 3) and their pushes; ``.advantage`` is A(s, a)
+        (``testbed/learning/advantage.py``). A learner without a value critic makes an
+        untrained one (``value_updates`` says whether it learnt anything)."""
+        arr = check_images(images)
+        acts = check_actions(actions, arr.shape[0])
+        with self._lock:
+            value = self._value_critic()
+            return push_values(self.policy, value.net, value.spec.combine,
+                               torch.from_numpy(arr), torch.from_numpy(acts), self.device)
+
+    def _refresh_advantages(self) -> AdvantageState | None:
+        """The samples' advantages (learning by advantage), every sample valued again
+        first when the update count says so, else the samples added since valued
+        (:class:`AdvantageState`); None when not learning by advantage."""
+        adv = self.advantages
+        if adv is None:
+            return None
+        images, actions = self.policy_data.originals_and_actions()
+        start = 0 if adv.due(self.policy_updates) else int(adv.advantage.shape[0])
+        if start < images.shape[0]:
+            value = self._value_critic()
+            got = torch.from_numpy(push_values(
+                self.policy, value.net, value.spec.combine, images[start:], actions[start:],
+                self.device).advantage)
+            if start == 0:
+                adv.set_advantages(got)
+            else:
+                adv.extend(got)
+        return adv
+
     def _policy_update(self, weighted: bool = True) -> float:
-        images, actions = self.policy_data.sample(
-            self.cfg.batch_size, self._sampler, self._class_table if weighted else None)
-        loss, per_member = self.policy.loss(images.to(self.device), actions.to(self.device))
+        adv = self._refresh_advantages() if weighted else None
+        awr = (adv.weights(len(self.policy_data))
+               if adv is not None and self.cfg.weighting == "advantage" else None)
+        images, actions, index = self.policy_data.sample(
+            self.cfg.batch_size, self._sampler, self._class_table if weighted else None,
+            awr, with_index=True)
+        indicator = None
+        if self.policy.conditions is not None:
+            indicator = (adv.indicators(index, self._sampler) if adv is not None
+                         else torch.full(index.shape, POSITIVE))  # pretraining: the demos
+            indicator = indicator.to(self.device)
+        loss, per_member = self.policy.loss(images.to(self.device), actions.to(self.device),
+                                            indicator)
         self.policy_optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.policy_optimizer.step()
@@ -454,9 +566,11 @@ class Learner:
             images = self.policy_data.original_images(index).to(self.device)
             self.features.update(self.policy.trunk_features(images))
 
-    def _critic_update(self, critics: tuple[str, ...] = CRITICS) -> dict[str, float]:
-        """One minibatch for ``critics`` (non-empty, in ``CRITICS`` order): one sample,
-        one pi(s') forward pass shared by them, one update each."""
+    def _critic_update(self, critics: tuple[str, ...] = CRITICS, online: bool = False
+                       ) -> dict[str, float]:
+        """One minibatch for ``critics`` (non-empty, in ``TRAINABLE`` order): one sample,
+        one pi(s') forward pass shared by them, one update each; ``online`` (a training
+        step's, not pretraining's): the value critic only every ``value_every``-th."""
         index = self.transitions.sample_indices(self.cfg.batch_size, self._sampler)
         b = {k: v.to(self.device) for k, v in self.transitions.gather(index).items()}
         with torch.no_grad():
@@ -476,6 +590,12 @@ class Learner:
                 reward=success, done=torch.maximum(success, violation),
             ))
             self.goal_updates += 1
+        if VALUE in critics and not (online and self.critic_updates % self.cfg.value_every):
+            losses["value_loss"] = self._value_critic().update(CriticBatch(
+                b["images"], b["actions"], b["next_images"], next_actions,
+                reward=success, done=torch.maximum(success, violation),
+            ))
+            self.value_updates += 1
         self.critic_updates += 1
         return losses
 
@@ -509,7 +629,8 @@ class Learner:
         """
         total = self.cfg.pretrain_steps if steps is None else int(steps)
         critic_total = self.cfg.critic_steps if steps is None else int(steps)
-        which = tuple(c for c in CRITICS if c in _parts(critics, CRITICS, "critics"))
+        which = tuple(c for c in TRAINABLE
+                      if c in _parts(critics, TRAINABLE, "critics", CRITICS))
         if (demo_images is None) != (demo_actions is None):
             raise ValueError("pretrain needs demo_images and demo_actions together")
         result: dict[str, float] = {}
@@ -565,6 +686,10 @@ class Learner:
                 "counters": [self.policy_updates, self.critic_updates,
                              self.safety_updates, self.goal_updates],
             }
+            if self.advantages is not None:
+                state["advantages"] = self.advantages.state_dict()
+            if self.value is not None:
+                state["value"] = {**self.value.state_dict(), "updates": self.value_updates}
             if data:
                 state["policy_data"] = self.policy_data.state_dict()
                 state["transitions"] = self.transitions.state_dict()
@@ -604,17 +729,26 @@ class Learner:
             if have != want:
                 raise LearningError(f"{where}: the learner's data {have} is not the data "
                                     f"the checkpoint was taken with {want}")
-            self._load_training(state)
+            self._load_training(state, where)
 
-    def _load_training(self, state: dict[str, Any]) -> None:
+    def _load_training(self, state: dict[str, Any], where: str = "checkpoint") -> None:
         self.seed = int(state["seed"])
         self.policy_data.seed = self.seed
-        self.policy.load_state_dict(state["policy"])
-        self.policy_optimizer.load_state_dict(state["policy_optimizer"])
+        policy, optimizer = _policy_state(self.policy, state["policy"],
+                                          state["policy_optimizer"], where)
+        self.policy.load_state_dict(policy)
+        self.policy_optimizer.load_state_dict(optimizer)
         self.safety.load_state_dict(state["safety"])
         self.goal.load_state_dict(state["goal"])
         if "features" in state:  # saved before issue 36: none yet, the next update starts it
             self.features.load_state_dict(state["features"])
+        if "value" in state:  # a learner by advantage, or one that pretrained it
+            saved = dict(state["value"])
+            self.value_updates = int(saved.pop("updates"))
+            self._value_critic().load_state_dict(saved)
+            self._value_critic().set_lr(self.cfg.lr)
+        if self.advantages is not None and "advantages" in state:
+            self.advantages.load_state_dict(state["advantages"])  # else: the next refresh
         for group in self.policy_optimizer.param_groups:
             group["lr"] = self.cfg.lr
         self.safety.set_lr(self.cfg.lr)
@@ -665,5 +799,5 @@ class Learner:
                 RuntimeWarning, stacklevel=2,
             )
         learner.transitions.load_state_dict(state["transitions"])
-        learner._load_training(state)
+        learner._load_training(state, str(path))
         return learner

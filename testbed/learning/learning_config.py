@@ -50,20 +50,56 @@ class LearningConfig(StrictModel):
         "trains them 3000 steps; the goal critic needs ~600 at batch 64 (docs/notes/learning.md)")
     gamma_safe: float = Field(0.5, ge=0, le=1)
     gamma_goal: float = Field(0.999, ge=0, le=1)
+    gamma_value: float = Field(
+        0.8, ge=0, le=1, description="the value critic's discount (the advantage's, "
+        "weighting = \"advantage\"): the goal critic's targets on a shorter horizon, "
+        "so a push that brings the goal nearer counts (docs/notes/learning.md, 'The value "
+        "of every push')")
     device: Literal["auto", "cpu", "cuda"] = "auto"
     compile_act: bool = Field(
         False, description="run the fleet loop's forward pass through torch.compile: "
         "1.65x faster at 100 arms on 2 CPU cores, ~20 s to compile, needs a C compiler "
         "(falls back to eager with a warning); not worth it for a few arms")
 
-    weighting: Literal["uniform", "intervention"] = Field(
+    weighting: Literal["uniform", "intervention", "advantage"] = Field(
         "uniform", description="uniform: the policy learns from demonstrations and human "
         "labels alike (Fleet-DAgger); intervention: also from the robot's own pushes, each "
-        "sample weighted by its class (class_weights; docs/notes/learning.md)")
+        "sample weighted by its class (class_weights; docs/notes/learning.md); advantage: "
+        "from every push, each weighted by exp(A / advantage_temperature), A its advantage "
+        "under the value critic, which then trains online (testbed/learning/advantage.py)")
+    advantage_temperature: float = Field(
+        0.1, gt=0.0, le=10.0, allow_inf_nan=False, description="AWR's temperature: the "
+        "smaller, the more a push better than the policy's counts (A lies in [-1, 1])")
+    advantage_max_weight: float = Field(
+        20.0, ge=1.0, le=1000.0, allow_inf_nan=False,
+        description="AWR's clip of a sample's weight exp(A / temperature)")
+    conditioning: Literal["none", "advantage"] = Field(
+        "none", description="advantage: the policy sees whether each sample's advantage "
+        "is above advantage_threshold and acts as if it is (RECAP's way; "
+        "testbed/learning/advantage.py); learns from every push, as weighting = advantage")
+    advantage_threshold: float = Field(
+        0.0, ge=-1.0, le=1.0, allow_inf_nan=False,
+        description="conditioning: a sample is POSITIVE where its advantage is above this")
+    condition_dropout: float = Field(
+        0.3, ge=0.0, le=1.0, allow_inf_nan=False, description="conditioning: the chance "
+        "that a drawn sample's indicator is dropped (the policy learns to act without it)")
+    advantage_refresh: int = Field(
+        100, ge=1, le=100000, description="policy updates between two passes that value "
+        "every sample again (a pass costs about two training steps; a new sample is "
+        "valued at the next update)")
+    value_every: int = Field(
+        3, ge=1, le=1000, description="the value critic trains on every n-th critic "
+        "minibatch (its share of a training step; benchmarks/bench_weighting.py)")
     pre_intervention_steps: int = Field(
         DEFAULT_PRE_STEPS, ge=0, le=1000, description="k: the robot's last k steps on an arm "
         "before a human took it are pre-intervention (testbed/records/frame_classes.py)")
     class_weights: ClassWeights = Field(default_factory=ClassWeights)
+
+    @property
+    def by_advantage(self) -> bool:
+        """Whether the policy learns from every push's advantage (weighting or
+        conditioning): the value critic then trains online, the robot's pushes come in."""
+        return self.weighting == "advantage" or self.conditioning == "advantage"
 
     @property
     def critic_steps(self) -> int:

@@ -33,33 +33,68 @@ from torch import Tensor, nn
 from torch.func import functional_call, vmap
 
 from testbed.core.types import NUM_ACTIONS
-from testbed.learning.networks import lab_network
+from testbed.learning.networks import TRUNK_FEATURES, lab_network
 
 Impl = Literal["loop", "vmap"]
 
+NO_INDICATOR, NEGATIVE, POSITIVE = 0, 1, 2
+"""The advantage indicator a conditioned policy sees (``learning.conditioning =
+"advantage"``, RECAP's way: ``advantage.py``): none (dropped, or not valued yet), a push
+no better than the policy's, a better one. Acting, it is told POSITIVE."""
+
+
+class _IndicatorVectors(nn.Module):
+    """Each member's learned vector per advantage indicator (NEGATIVE, POSITIVE), zeros
+    at first."""
+
+    def __init__(self, size: int) -> None:
+        super().__init__()
+        self.table = nn.Parameter(torch.zeros(size, 2, TRUNK_FEATURES))
+
 
 class PolicyEnsemble(nn.Module):
-    """``size`` independent members; ``forward`` gives per-member logits (E, B, K)."""
+    """``size`` independent members; ``forward`` gives per-member logits (E, B, K).
 
-    def __init__(self, size: int, impl: Impl = "loop") -> None:
+    ``conditioned``: each member also sees an advantage indicator, a learned vector per
+    member and indicator added to its trunk's features before its head (the NO_INDICATOR
+    row fixed at zero). The vectors start at zero, so a conditioned ensemble loaded from
+    an unconditioned theta_0 acts as theta_0 did until training moves them."""
+
+    def __init__(self, size: int, impl: Impl = "loop", conditioned: bool = False) -> None:
         super().__init__()
         if size < 1:
             raise ValueError("the ensemble needs at least one member")
         self.members = nn.ModuleList(lab_network(NUM_ACTIONS) for _ in range(size))
         self.impl: Impl = impl
         self._names = [name for name, _ in self.members[0].named_parameters()]
+        self.indicator = _IndicatorVectors(size) if conditioned else None
+        """A conditioned ensemble's vectors (registered after the members: its parameter
+        is the last, as an older optimiser state is extended, ``learner._policy_state``)."""
 
     @property
     def size(self) -> int:
         return len(self.members)
 
-    def forward(self, images: Tensor, features: bool = False) -> Tensor | tuple[Tensor, Tensor]:
+    @property
+    def conditions(self) -> nn.Parameter | None:
+        """(E, 2, 64): each member's vector for NEGATIVE and POSITIVE (None: not
+        conditioned)."""
+        return None if self.indicator is None else self.indicator.table
+
+    def forward(self, images: Tensor, features: bool = False,
+                indicator: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
         """``images``: uint8 (B, H, W, 3) seen by every member, or (E, B, H, W, 3) one
         batch per member. Returns logits (E, B, K); with ``features`` also each member's
-        trunk features (E, B, 64), the policy's own embedding (``features.py``)."""
+        trunk features (E, B, 64), the policy's own embedding (``features.py``).
+        ``indicator`` (a conditioned ensemble's; int64 (E, B)): each sample's advantage
+        indicator; None: POSITIVE for all (acting). An unconditioned one refuses it."""
         per_member = images.dim() == 5
         if per_member and images.shape[0] != self.size:
             raise ValueError(f"expected {self.size} member batches, got {images.shape[0]}")
+        if self.conditions is not None:
+            return self._conditioned(images, per_member, features, indicator)
+        if indicator is not None:
+            raise ValueError("an indicator for a policy not conditioned on the advantage")
         if self.impl == "vmap":
             return self._forward_vmap(images, per_member, features)
         logits, feats = [], []
@@ -73,6 +108,24 @@ class PolicyEnsemble(nn.Module):
                 logits.append(m(x))
         out = torch.stack(logits)
         return (out, torch.stack(feats)) if features else out
+
+    def _conditioned(self, images: Tensor, per_member: bool, features: bool,
+                     indicator: Tensor | None) -> Tensor | tuple[Tensor, Tensor]:
+        """Trunks, each member's indicator vector added, heads (one member after the
+        other: the heads are small, the trunks the cost)."""
+        feats = torch.stack([m[0](images[i] if per_member else images)
+                             for i, m in enumerate(self.members)])
+        assert self.conditions is not None
+        table = nn.functional.pad(self.conditions, (0, 0, 1, 0))  # row 0: NO_INDICATOR
+        if indicator is None:
+            add = table[:, POSITIVE].unsqueeze(1)
+        else:
+            if indicator.shape != feats.shape[:2]:
+                raise ValueError(f"indicator shape {tuple(indicator.shape)}, not "
+                                 f"{tuple(feats.shape[:2])}")
+            add = table[torch.arange(self.size, device=feats.device)[:, None], indicator]
+        logits = torch.stack([m[1](feats[i] + add[i]) for i, m in enumerate(self.members)])
+        return (logits, feats) if features else logits
 
     def trunk_features(self, images: Tensor) -> Tensor:
         """Each member's trunk features (E, B, 64) of uint8 images (B, H, W, 3): the
@@ -110,12 +163,14 @@ class PolicyEnsemble(nn.Module):
             return logits, feats
         return vmap(one, in_dims=dims)(stacked, images)
 
-    def loss(self, images: Tensor, actions: Tensor) -> tuple[Tensor, Tensor]:
-        """Cross-entropy of each member on its own batch.
+    def loss(self, images: Tensor, actions: Tensor, indicator: Tensor | None = None
+             ) -> tuple[Tensor, Tensor]:
+        """Cross-entropy of each member on its own batch (``indicator``: a conditioned
+        ensemble's, (E, B); None for one unconditioned).
 
         Returns (the sum over members, to backpropagate: each member's gradient is that of
         its own mean loss; the per-member losses (E,), detached)."""
-        logits = self(images)
+        logits = self(images, indicator=indicator) if indicator is not None else self(images)
         e, b, k = logits.shape
         per_sample = nn.functional.cross_entropy(
             logits.reshape(e * b, k), actions.reshape(e * b), reduction="none"

@@ -20,7 +20,7 @@ from testbed.fleet.algorithms import ALGORITHMS
 from testbed.fleet.priorities import CRITIC_OF_SIGNAL
 from testbed.learning import Learner, Transitions
 from testbed.learning import checkpoint as ckpt
-from testbed.learning.learner import CRITICS, PARTS
+from testbed.learning.learner import CRITICS, DEFAULT_PARTS, PARTS
 from testbed.learning.learning_config import LearningConfig
 
 SMALL = LearningConfig(ensemble_size=2, batch_size=16, augmentation_factor=2, lr=1e-3,
@@ -60,7 +60,8 @@ def counts(learner: Learner) -> dict[str, int]:
 def test_the_names_agree_everywhere() -> None:
     assert CRITICS == OFFLINE_CRITICS == ("safety", "goal")
     assert set(CRITIC_OF_SIGNAL.values()) == set(CRITICS)
-    assert PARTS[0] == "policy" and PARTS[1:] == CRITICS
+    assert PARTS[0] == "policy" and PARTS[1:] == (*CRITICS, "value")
+    assert ("policy", *CRITICS) == DEFAULT_PARTS  # the value critic only where asked
 
 
 def test_what_each_algorithm_trains() -> None:
@@ -85,16 +86,16 @@ def test_an_algorithm_never_trains_a_part_it_does_not_read(name: str) -> None:
     losses.update(learner.train_step())
     after = weights(learner)
     steps = 2 * SMALL.gradient_steps
-    assert counts(learner) == {p: steps if p in spec.train_parts else 0 for p in PARTS}
+    assert counts(learner) == {p: steps if p in spec.train_parts else 0 for p in DEFAULT_PARTS}
     assert set(losses) == {f"{p}_loss" for p in spec.train_parts}
-    for part in PARTS:
+    for part in DEFAULT_PARTS:
         assert same(before[part], after[part]) == (part not in spec.train_parts), part
     assert learner.stats()["critic_updates"] == (steps if spec.critics else 0)
 
 
 def test_the_critics_share_one_policy_forward_and_skip_it_when_none_trains() -> None:
     calls: list[int] = []
-    for train in (PARTS, ("policy", "safety"), ("policy", "goal"), ("policy",), ("safety",),
+    for train in (DEFAULT_PARTS, ("policy", "safety"), ("policy", "goal"), ("policy",), ("safety",),
                   ()):
         learner = filled(train=train)
         hook = learner.policy.register_forward_hook(lambda *_: calls.append(1))
@@ -126,9 +127,11 @@ def test_act_computes_only_the_critics_read() -> None:
 
 def test_set_parts_checks_the_names() -> None:
     learner = Learner(SMALL, 0)
-    assert learner.train_parts == set(PARTS) and learner.read_critics == set(CRITICS)
+    assert learner.train_parts == set(DEFAULT_PARTS) and learner.read_critics == set(CRITICS)
     with pytest.raises(ValueError, match="unknown part"):
-        learner.set_parts(train=["policy", "value"])
+        learner.set_parts(train=["policy", "values"])
+    with pytest.raises(ValueError, match="unknown part"):
+        learner.set_parts(read=["value"])  # act reads no value critic
     with pytest.raises(ValueError, match="unknown part"):
         learner.set_parts(read=["policy"])  # the policy is always read
     with pytest.raises(TypeError, match="string"):
@@ -167,7 +170,7 @@ def test_per_part_counters_are_checkpointed_and_old_checkpoints_load(tmp_path: P
     loaded = Learner.load(path, train=("policy",), read=())
     assert counts(loaded) == counts(learner) == {"policy": 2, "safety": 0, "goal": 2}
     assert loaded.train_parts == {"policy"} and loaded.read_critics == frozenset()
-    assert Learner.load(path).train_parts == set(PARTS)  # parts are not saved
+    assert Learner.load(path).train_parts == set(DEFAULT_PARTS)  # parts are not saved
     state = ckpt.load(path)
     state["counters"] = [5, 7]  # the first format: every critic step trained both
     ckpt.save_atomic(state, tmp_path / "old.pt")
