@@ -12,16 +12,19 @@ bootstrap weight x class weight (x AWR's weight): a gather and a multiply over t
 samples per step, against a forward and backward pass of 5 members on the minibatch. The
 advantage's steps (AWR's and the conditioned one's) also train the value critic (on the
 critics' shared minibatch and pi(s'): ``testbed/learning/advantage.py``), and every
-``advantage_refresh`` (25) steps they value every sample (a forward pass of the policy
-and the value critic over the data): the median step is one without that pass, the mean
-over the 25 timed steps carries one, and both are printed.
+``advantage_refresh`` (100) steps they value every sample again (a forward pass of the
+policy and the value critic over the data), and at every step the samples added since
+(a trial's labels come in every step: each learner here is given 4 new human labels
+before every timed step, the valuing of new samples timed with the step). The mean over
+the 100 timed steps carries one full re-valuing and a third of them the value critic's
+update (``value_every`` 3): the mean is the figure, the median one step without them.
 
 All are timed in the same run, interleaved (the order flips every repeat, so a load spike
 hits all alike); minima, medians, means and the ratios of the medians and of the means
 are printed for the parts C.U.R. trains (policy + safety critic) at the twin protocol's
 batch (64) and the paper's (256).
 
-    .venv/bin/python benchmarks/bench_weighting.py [--repeats 25] [--robot 600]
+    .venv/bin/python benchmarks/bench_weighting.py [--repeats 100] [--robot 600]
 """
 
 from __future__ import annotations
@@ -69,8 +72,8 @@ WEIGHTINGS = tuple(WAYS)
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=25,
-                        help="timed steps each (25: one advantage refresh among them)")
+    parser.add_argument("--repeats", type=int, default=100,
+                        help="timed steps each (100: one full advantage re-valuing among them)")
     parser.add_argument("--robot", type=int, default=600)
     args = parser.parse_args(argv)
     worst = {"intervention / uniform": 0.0, "advantage / uniform": 0.0,
@@ -84,8 +87,11 @@ def main(argv: list[str] | None = None) -> int:
             learner.train_step()
         times: dict[str, list[float]] = {w: [] for w in WEIGHTINGS}
         order = list(learners.items())
+        rng = np.random.default_rng(1)
         for r in range(args.repeats):
+            labels = rng.integers(0, 256, (4, 64, 64, 3), dtype=np.uint8)
             for name, learner in order if r % 2 == 0 else order[::-1]:
+                learner.add_human(labels, np.arange(4), labellers=np.zeros(4, np.int64))
                 start = time.perf_counter()
                 learner.train_step()
                 times[name].append(time.perf_counter() - start)

@@ -12,10 +12,13 @@ the goal afterwards, a violation worse than any distance and a success better th
 
 The figures (:func:`judge`), per push other than the policy's own (A = 0 there by
 definition): the ROC AUC of A(s, a) for "this push ends better than the policy's push
-from the same state" with a 95 % percentile interval from resampling whole states (the
-pushes of one state share its draw, so states are the unit), and the share of states
-whose highest-advantage push is the scripted expert's, beside the share where the
-policy's own push is. The push's jitter is drawn by the twin as in a trial, so a truth
+from the same state", pooled over states (it also credits knowing in which states the
+policy's push is poor), and the share of pairs within a state (a better push, one not)
+the advantage orders right, which credits ranking pushes alone; each with a 95 %
+percentile interval from resampling whole goal episodes (the states of one episode
+follow one another and share its goal, so episodes are the unit); and the share of
+states whose highest-advantage push is the scripted expert's, beside the share where
+the policy's own push is. The push's jitter is drawn by the twin as in a trial, so a truth
 is one draw of a noisy push, as a lab's would be.
 """
 
@@ -57,23 +60,30 @@ class TwinState:
     goal_xy: tuple[float, float]
     image: npt.NDArray[np.uint8]
     expert: int
+    episode: int = 0
+    """The goal episode the state belongs to (arm and goal): states of one episode
+    follow one another and are resampled together (:func:`judge`)."""
 
 
 def draw_states(cell: Any, n: int, rng: np.random.Generator) -> list[TwinState]:
-    """``n`` states of ``cell``'s arms as a trial meets them (the module doc)."""
+    """``n`` states of ``cell``'s arms as a trial meets them (the module doc), each with
+    its goal episode (a new one after a success, a timeout or a reset)."""
     out: list[TwinState] = []
+    episode = {a: k for k, a in enumerate(cell.arm_names)}
     while len(out) < n:
         images = cell.observe()
         for arm in cell.arm_names:
             s = cell.arm_state(arm)
             if not s.violating:
                 out.append(TwinState(arm, tuple(s.cube_xy), float(s.yaw), tuple(s.goal_xy),
-                                     images[arm], cell.expert_action(arm)))
+                                     images[arm], cell.expert_action(arm), episode[arm]))
         faces = {a: cell.expert_action(a) if rng.random() < P_EXPERT
                  else int(rng.integers(NUM_ACTIONS)) for a in cell.arm_names}
         for arm, o in cell.push(faces).items():
             if o.violation:
                 cell.hard_reset(arm)
+            if o.violation or o.soft_reset:
+                episode[arm] += len(cell.arm_names)
     return out[:n]
 
 
@@ -107,13 +117,22 @@ class AdvantageTruth:
     auroc: float
     auroc_low: float
     auroc_high: float
+    within: float
+    """Within states only: the share of pairs (a push better than the policy's, one not,
+    from the same state) the advantage orders right (ties half): ranking pushes, not
+    states."""
+    within_low: float
+    within_high: float
+    episodes: int
     top_is_expert: float
     policy_is_expert: float
 
     def line(self) -> str:
-        return (f"advantage vs the twin's truth, {self.states} held-out states: AUROC "
-                f"{self.auroc:.3f} [{self.auroc_low:.3f}, {self.auroc_high:.3f}] (95 %, "
-                f"states resampled) for 'better than the policy's push' over "
+        return (f"advantage vs the twin's truth, {self.states} held-out states in "
+                f"{self.episodes} goal episodes: AUROC {self.auroc:.3f} "
+                f"[{self.auroc_low:.3f}, {self.auroc_high:.3f}], within states "
+                f"{self.within:.3f} [{self.within_low:.3f}, {self.within_high:.3f}] (95 %, "
+                f"episodes resampled) for 'better than the policy's push' over "
                 f"{self.pushes} pushes ({self.better} better); highest-advantage push = "
                 f"the expert's in {self.top_is_expert:.0%} of states, the policy's own "
                 f"push in {self.policy_is_expert:.0%}")
@@ -135,20 +154,43 @@ def judge(states: list[TwinState], truth: npt.NDArray[np.float64], value: ValueF
     other = np.arange(NUM_ACTIONS)[None, :] != pi[:, None]
     better = truth > own[:, None]
     per_state = [(adv[i][other[i]], better[i][other[i]]) for i in range(s)]
+    pairs = [_concordance(*per_state[i]) for i in range(s)]  # (right, pairs) per state
 
     def area(idx: npt.NDArray[np.int64]) -> float:
         return auroc(np.concatenate([per_state[i][0] for i in idx]),
                      np.concatenate([per_state[i][1] for i in idx]))
 
+    def within(idx: npt.NDArray[np.int64]) -> float:
+        right, total = np.sum([pairs[i] for i in idx], axis=0)
+        return float(right / total) if total else float("nan")
+
+    # states of one goal episode follow one another: whole episodes are resampled
+    episode = np.asarray([x.episode for x in states])
+    groups = [np.flatnonzero(episode == e) for e in np.unique(episode)]
     rng = np.random.default_rng(seed)
-    boots = [area(rng.integers(0, s, s)) for _ in range(RESAMPLES)]
-    low, high = np.nanquantile(boots, [0.025, 0.975])
+    draws = [np.concatenate([groups[g] for g in rng.integers(0, len(groups), len(groups))])
+             for _ in range(RESAMPLES)]
+    low, high = np.nanquantile([area(d) for d in draws], [0.025, 0.975])
+    w_low, w_high = np.nanquantile([within(d) for d in draws], [0.025, 0.975])
     expert = np.asarray([x.expert for x in states])
+    every = np.arange(s)
     return AdvantageTruth(
         states=s, pushes=int(other.sum()), better=int(better[other].sum()),
-        auroc=area(np.arange(s)), auroc_low=float(low), auroc_high=float(high),
-        top_is_expert=float(np.mean(adv.argmax(axis=1) == expert)),
+        auroc=area(every), auroc_low=float(low), auroc_high=float(high),
+        within=within(every), within_low=float(w_low), within_high=float(w_high),
+        episodes=len(groups), top_is_expert=float(np.mean(adv.argmax(axis=1) == expert)),
         policy_is_expert=float(np.mean(pi == expert)))
+
+
+def _concordance(score: npt.NDArray[np.float64], label: npt.NDArray[np.bool_]
+                 ) -> tuple[float, int]:
+    """(pairs ordered right, ties half; pairs) of one state's pushes: each better push
+    against each one not better."""
+    pos, neg = score[label], score[~label]
+    if not len(pos) or not len(neg):
+        return 0.0, 0
+    diff = pos[:, None] - neg[None, :]
+    return float((diff > 0).sum() + 0.5 * (diff == 0).sum()), int(diff.size)
 
 
 def check_on_twin(value: ValueFn, states: int, seed: int = TRUTH_SEED) -> AdvantageTruth:

@@ -24,9 +24,9 @@ docs/notes/learning.md, "The value of every push".
 
 Two ways to learn from it, each on every push (the demonstrations, the humans' and the
 robot's own in any episode), both from the advantages kept per sample
-(:class:`AdvantageState`): a new sample is valued at the next policy update, every
-sample again every ``advantage_refresh`` updates (a pass over the data costs about two
-training steps, ``benchmarks/bench_weighting.py``):
+(:class:`AdvantageState`): new samples are valued every :data:`NEW_EVERY` policy
+updates, every sample again every ``advantage_refresh`` updates (a pass over the data
+costs about two training steps, ``benchmarks/bench_weighting.py``):
 
 * ``learning.weighting = "advantage"``: advantage-weighted regression (AWR, Peng et al.
   2019), the simpler baseline: each sample's minibatch weight is
@@ -54,6 +54,10 @@ __all__ = ["AdvantageState", "PushValues", "awr_weights", "push_values"]
 
 CHUNK = 256
 """Images per forward pass when valuing many pushes (the training batch's size)."""
+NEW_EVERY = 10
+"""Policy updates between two valuings of the samples added since: a pass over a few
+images costs a forward of every member whatever their number (4 a step cost 4-5 % of a
+batch-64 step, ``benchmarks/bench_weighting.py``); they count 1 until then."""
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,7 @@ class AdvantageState:
 
     Refreshed over every sample when the policy update count is a multiple of
     ``refresh`` (the first update included); between refreshes the samples added since
-    are valued at the next update (a few a step: :meth:`extend`). The schedule depends
+    are valued every :data:`NEW_EVERY` updates (a few a step: :meth:`extend`). The schedule depends
     on the count alone, and the advantages are saved with the learner's training state,
     so a resumed trial draws the same minibatches. A sample not valued yet (read before
     the learner's next update) counts 1 (as in uniform weighting), indicator
@@ -140,6 +144,11 @@ class AdvantageState:
         """A refresh: every sample's advantage now (order added)."""
         self.advantage = advantage.detach().float().clone()
         self.refreshes += 1
+
+    @staticmethod
+    def new_due(updates: int) -> bool:
+        """Whether the update after ``updates`` values the samples added since."""
+        return updates % NEW_EVERY == 0
 
     def extend(self, advantage: Tensor) -> None:
         """The advantages of the samples added since the last value, valued now (the

@@ -511,14 +511,15 @@ class Learner:
 
     def _refresh_advantages(self) -> AdvantageState | None:
         """The samples' advantages (learning by advantage), every sample valued again
-        first when the update count says so, else the samples added since valued
-        (:class:`AdvantageState`); None when not learning by advantage."""
+        first when the update count says so, else the samples added since, every
+        ``NEW_EVERY``-th update (:class:`AdvantageState`); None when not learning by
+        advantage."""
         adv = self.advantages
         if adv is None:
             return None
         images, actions = self.policy_data.originals_and_actions()
         start = 0 if adv.due(self.policy_updates) else int(adv.advantage.shape[0])
-        if start < images.shape[0]:
+        if start < images.shape[0] and (start == 0 or adv.new_due(self.policy_updates)):
             value = self._value_critic()
             got = torch.from_numpy(push_values(
                 self.policy, value.net, value.spec.combine, images[start:], actions[start:],

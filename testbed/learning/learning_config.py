@@ -85,8 +85,8 @@ class LearningConfig(StrictModel):
         "that a drawn sample's indicator is dropped (the policy learns to act without it)")
     advantage_refresh: int = Field(
         100, ge=1, le=100000, description="policy updates between two passes that value "
-        "every sample again (a pass costs about two training steps; a new sample is "
-        "valued at the next update)")
+        "every sample again (a pass costs about two training steps; new samples are "
+        "valued every 10 updates)")
     value_every: int = Field(
         3, ge=1, le=1000, description="the value critic trains on every n-th critic "
         "minibatch (its share of a training step; benchmarks/bench_weighting.py)")

@@ -1,7 +1,8 @@
 """The advantage's check against the twin's truth (issue 46, item 1) can tell right from
 wrong: on real twin states and real PyBullet pushes, an advantage that IS the truth scores
-AUROC 1, its negation 0, one that ignores the state about 0.5; and a state put back
-gives the same push result as the trial's own state did (the truth is the twin's).
+AUROC 1 (pooled and within states), its negation 0, one that ignores the state about
+0.5; and a state put back twice pushes the same again, up to the push's own jitter (the
+truth is reproducible).
 
 The real learner's figure comes from a trained critic: tests/testbed/learning/
 test_critics_on_twin.py, which has one.
@@ -54,7 +55,10 @@ def test_the_check_scores_the_truth_one_its_negation_zero(drawn) -> None:  # typ
     wrong = judge(states, truth, _oracle(states, truth, -1.0, face0))
     assert 10 < right.better < right.pushes == 24 * (NUM_ACTIONS - 1)
     assert right.auroc == 1.0 and right.auroc_low == 1.0
+    assert right.within == 1.0 and right.within_low == 1.0
     assert wrong.auroc == 0.0 and wrong.auroc_high == 0.0
+    assert wrong.within == 0.0 and wrong.within_high == 0.0
+    assert 1 < right.episodes < 24  # consecutive states share goal episodes
     assert right.top_is_expert > 0.5  # the expert's push is usually the best in truth
 
     def blind(images: np.ndarray, actions: np.ndarray) -> SimpleNamespace:
@@ -62,7 +66,8 @@ def test_the_check_scores_the_truth_one_its_negation_zero(drawn) -> None:  # typ
                                policy_action=np.zeros(len(actions), np.int64))
     chance = judge(states, truth, blind)
     assert 0.2 < chance.auroc < 0.8 and chance.auroc_low < 0.5 < chance.auroc_high
-    assert "AUROC 1.000 [1.000, 1.000]" in right.line()
+    assert 0.2 < chance.within < 0.8 and chance.within_low < 0.5 < chance.within_high
+    assert "AUROC 1.000 [1.000, 1.000], within states 1.000 [1.000, 1.000]" in right.line()
 
 
 def test_a_state_put_back_pushes_as_the_state_itself(drawn) -> None:  # type: ignore[no-untyped-def]

@@ -340,8 +340,34 @@ def test_a_bad_monitor_config_names_its_field(section: str, field: str, words: s
     scored no horizon, calibrated on too few episodes for its bound, watched a critic
     the monitor algorithm never trains, or a failure head it does not have."""
     monkeypatch.chdir(tmp_path)
-    cfg = write(tmp_path / "m.toml", f"[monitor]\n{section}\n")
-    line = one_line(["trial", "--config", str(cfg), "--algorithm", "monitor", "--out",
-                     str(tmp_path / "runs")], capsys)
+    _names_its_field(tmp_path, capsys, f"[monitor]\n{section}\n", field, words,
+                     ["--algorithm", "monitor"])
+
+
+def _names_its_field(tmp_path: Path, capsys: pytest.CaptureFixture[str], toml: str,
+                     field: str, words: str, argv: list[str]) -> None:
+    """``testbed trial`` with the config ``toml``: one line naming ``field`` with
+    ``words``, exit 2 (``one_line``), no run folder made."""
+    cfg = write(tmp_path / "m.toml", toml)
+    line = one_line(["trial", "--config", str(cfg), *argv, "--out", str(tmp_path / "runs")],
+                    capsys)
     assert field in line and words in line, line
     assert not (tmp_path / "runs").exists()
+
+
+# ---- learning from every push (issue 46, item 6) ----------------------------------------
+@pytest.mark.parametrize(("section", "field", "words"), [
+    ('weighting = "advantages"', "learning.weighting", "'advantage'"),
+    ('conditioning = "recap"', "learning.conditioning", "'advantage'"),
+    ("advantage_temperature = 0.0", "learning.advantage_temperature", "greater than 0"),
+    ("advantage_temperature = 20.0", "learning.advantage_temperature", "less than or equal"),
+    ("advantage_threshold = 1.5", "learning.advantage_threshold", "less than or equal to 1"),
+    ("advantage_max_weight = 0.5", "learning.advantage_max_weight", "greater than or equal"),
+    ("condition_dropout = -0.1", "learning.condition_dropout", "greater than or equal"),
+    ("gamma_value = 1.2", "learning.gamma_value", "less than or equal to 1"),
+    ("value_every = 0", "learning.value_every", "greater than or equal to 1"),
+])
+def test_a_bad_advantage_config_names_its_field(section: str, field: str, words: str,
+                                                tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    _names_its_field(tmp_path, capsys, f"[learning]\n{section}\n", field, words, [])

@@ -157,9 +157,13 @@ def test_every_push_counts_and_the_value_critic_trains_for_the_advantage() -> No
     assert learner.value_updates == 3 and learner.goal_updates == 0
     assert learner.advantages is not None
     assert learner.advantages.refreshes == 3  # before updates 0, 2 and 4
-    learner.add_human(images[:3], actions[:3])  # new labels: valued at the next update
-    assert learner.advantages.advantage.shape == (40,)
-    learner.train_step()  # update 5: no refresh, the 3 new ones valued
+    learner.advantages.refresh = 1000  # from here only new samples are valued
+    learner.add_human(images[:3], actions[:3])  # new labels: valued at update 10
+    for _ in range(5):  # updates 5..9: not yet (NEW_EVERY 10), they count 1
+        learner.train_step()
+        assert learner.advantages.advantage.shape == (40,)
+    assert learner.advantages.weights(43)[40:].tolist() == [1.0, 1.0, 1.0]
+    learner.train_step()  # update 10: the 3 new ones valued, no refresh
     assert learner.advantages.advantage.shape == (43,) and learner.advantages.refreshes == 3
     np.testing.assert_allclose(learner.advantages.advantage[40:].numpy(),
                                learner.push_values(images[:3], actions[:3]).advantage,

@@ -129,12 +129,13 @@ def test_goal_critic_auc_on_twin(
 
 def test_the_advantage_ranks_pushes_as_the_twin_does(
         trained: tuple[Learner, Transitions, npt.NDArray[np.float64]]) -> None:
-    """Issue 46, item 1: on states of a cell no training or tuning saw, the value
-    critic's advantage ranks a push that ends better in the twin than the policy's own
-    above one that does not, with the check's 95 % lower bound above 0.65 (declared
-    before this cell was looked at), and better than the goal critic's would
+    """Issue 46, item 1: on states of a cell no training or tuning saw, this learner's
+    value critic ranks a push that ends better in the twin than the policy's own above
+    one that does not, the check's 95 % lower bound (goal episodes resampled) above 0.65
     (testbed/lab/advantage_truth.py; the check's power: tests/testbed/
-    test_advantage_truth.py)."""
+    test_advantage_truth.py). One learner (seed 0): across learner seeds the figure
+    varies widely (docs/notes/learning.md, "The value of every push"); the goal
+    critic's figure on the same states is printed beside it, not compared."""
     from testbed.lab.advantage_truth import (
         TRUTH_SEED,
         draw_states,
@@ -155,6 +156,6 @@ def test_the_advantage_ranks_pushes_as_the_twin_does(
         return push_values(learner.policy, learner.goal.net, "min", torch.from_numpy(images),
                            torch.from_numpy(actions), learner.device)
 
-    goal = judge(states, truth, by_goal_critic)  # the ablation: the horizon is what pays
+    goal = judge(states, truth, by_goal_critic)  # beside it: the seed's goal critic
     print(f"value critic: {got.line()}\ngoal critic: {goal.line()}")
-    assert got.auroc_low > 0.65 and got.auroc > goal.auroc, (got.line(), goal.line())
+    assert got.auroc_low > 0.65 and got.within_low > 0.65, got.line()
