@@ -77,7 +77,12 @@ from testbed.learning.data import PolicyData, TransitionBuffer
 from testbed.learning.features import FeatureDensity
 from testbed.learning.learning_config import ClassWeights, LearningConfig
 from testbed.learning.networks import TRUNK_FEATURES
-from testbed.learning.policy import POSITIVE, PolicyEnsemble, ensemble_signals
+from testbed.learning.policy import (
+    POSITIVE,
+    PolicyEnsemble,
+    ensemble_signals,
+    fit_saved_policy,
+)
 from testbed.learning.runtime import (
     STREAM_INIT,
     STREAM_SAMPLE,
@@ -163,25 +168,6 @@ def class_table(w: ClassWeights) -> torch.Tensor:
     table[FrameClass.ROBOT] = w.robot_failed
     table[FrameClass.ROBOT, EpisodeOutcome.SUCCESS] = w.robot
     return table
-
-
-def _policy_state(policy: PolicyEnsemble, saved: dict[str, Any], optimizer: dict[str, Any],
-                  where: str) -> tuple[dict[str, Any], dict[str, Any]]:
-    """A saved policy and its optimiser's state made to fit ``policy``: an unconditioned
-    one (theta_0, any checkpoint from before conditioning) into a policy conditioned on
-    the advantage gets zero indicator vectors (it acts as it did) and a fresh Adam state
-    for them; a conditioned one cannot go into a policy that is not (its vectors would
-    be dropped, and it would act otherwise)."""
-    if "indicator.table" in saved and policy.conditions is None:
-        raise LearningError(f"{where}: its policy is conditioned on the advantage; set "
-                            "learning.conditioning = \"advantage\" to load it")
-    if policy.conditions is None or "indicator.table" in saved:
-        return saved, optimizer
-    saved = {**saved, "indicator.table": torch.zeros_like(policy.conditions)}
-    groups = [dict(g) for g in optimizer["param_groups"]]
-    ids = list(groups[-1]["params"])
-    groups[-1]["params"] = [*ids, max(ids) + 1]  # the vectors: the last parameter
-    return saved, {**optimizer, "param_groups": groups}
 
 
 def _ticks(phase: str, total: int, progress: ProgressFn | None) -> Iterator[int]:
@@ -735,8 +721,8 @@ class Learner:
     def _load_training(self, state: dict[str, Any], where: str = "checkpoint") -> None:
         self.seed = int(state["seed"])
         self.policy_data.seed = self.seed
-        policy, optimizer = _policy_state(self.policy, state["policy"],
-                                          state["policy_optimizer"], where)
+        policy, optimizer = fit_saved_policy(self.policy, state["policy"],
+                                             state["policy_optimizer"], where)
         self.policy.load_state_dict(policy)
         self.policy_optimizer.load_state_dict(optimizer)
         self.safety.load_state_dict(state["safety"])

@@ -26,7 +26,7 @@ Signals for the priorities (all in [0, 1]):
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor, nn
@@ -34,6 +34,7 @@ from torch.func import functional_call, vmap
 
 from testbed.core.types import NUM_ACTIONS
 from testbed.learning.networks import TRUNK_FEATURES, lab_network
+from testbed.learning.runtime import LearningError
 
 Impl = Literal["loop", "vmap"]
 
@@ -69,7 +70,7 @@ class PolicyEnsemble(nn.Module):
         self._names = [name for name, _ in self.members[0].named_parameters()]
         self.indicator = _IndicatorVectors(size) if conditioned else None
         """A conditioned ensemble's vectors (registered after the members: its parameter
-        is the last, as an older optimiser state is extended, ``learner._policy_state``)."""
+        is the last, as an older optimiser state is extended, :func:`fit_saved_policy`)."""
 
     @property
     def size(self) -> int:
@@ -195,3 +196,22 @@ def ensemble_signals(logits: Tensor) -> dict[str, Tensor]:
         "uncertainty": (mutual_info / math.log(k)).clamp(0.0, 1.0),
         "novelty": (variance / (1.0 - 1.0 / k)).clamp(0.0, 1.0),
     }
+
+
+def fit_saved_policy(policy: PolicyEnsemble, saved: dict[str, Any], optimizer: dict[str, Any],
+                     where: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A saved policy and its optimiser's state made to fit ``policy``: an unconditioned
+    one (theta_0, any checkpoint from before conditioning) into a policy conditioned on
+    the advantage gets zero indicator vectors (it acts as it did) and a fresh Adam state
+    for them; a conditioned one cannot go into a policy that is not (its vectors would
+    be dropped, and it would act otherwise)."""
+    if "indicator.table" in saved and policy.conditions is None:
+        raise LearningError(f"{where}: its policy is conditioned on the advantage; set "
+                            "learning.conditioning = \"advantage\" to load it")
+    if policy.conditions is None or "indicator.table" in saved:
+        return saved, optimizer
+    saved = {**saved, "indicator.table": torch.zeros_like(policy.conditions)}
+    groups = [dict(g) for g in optimizer["param_groups"]]
+    ids = list(groups[-1]["params"])
+    groups[-1]["params"] = [*ids, max(ids) + 1]  # the vectors: the last parameter
+    return saved, {**optimizer, "param_groups": groups}

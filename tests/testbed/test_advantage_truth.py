@@ -15,6 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import sim_twin.cell as cell_module
 from testbed.core.types import NUM_ACTIONS
 from testbed.lab.advantage_truth import (
     TRUTH_SEED,
@@ -23,8 +24,6 @@ from testbed.lab.advantage_truth import (
     push_truth,
     truth_of_states,
 )
-
-cell_module = pytest.importorskip("sim_twin.cell")
 
 
 @pytest.fixture(scope="module")
