@@ -463,3 +463,54 @@ def test_another_serial_or_a_corrupt_record_proves_from_the_log_alone(
     finally:
         client.close()
     assert ZonesProof(TASKS).load(path, SERIAL) is None
+
+
+# -- what testbed check's report says of the zones (the mutation entry yumi_check) --------
+def test_the_kept_proof_in_a_report_names_its_evidence_and_nothing_unproved() -> None:
+    proof = ZonesProof(TASKS)
+    assert proof.known("T_ROB_L") is None  # nothing read yet
+    log = [on(4, "T_ROB_R"), restart(3), on(2, "T_ROB_L"), restart(1)]
+    assert proof.read(log) is not None  # T_ROB_L's entry came before the last restart
+    assert proof.known("T_ROB_L") is None and proof.known("T_ROB_R") is not None
+    assert proof.read([on(5, "T_ROB_L"), *log]) is None
+    assert proof.known("T_ROB_L") == {
+        "restart": 3, "restart_code": 10045, "active": 5, "zones": 5, "known": True,
+        "kept": "the driver's proof, kept across the event log's rollovers"}
+    assert proof.known("T_ROB_R")["active"] == 4  # type: ignore[index]
+    gone = ZonesProof(TASKS)
+    gone.state, gone.active = dict(proof.state), dict(proof.active)  # evidence half lost
+    assert gone.known("T_ROB_L") is None
+    gone.restart, gone.active["T_ROB_L"] = proof.restart, None
+    assert gone.known("T_ROB_L") is None
+
+
+def test_a_report_reads_the_log_it_is_given_and_names_every_task(twin: Twin) -> None:
+    from drivers.yumi.controller_state import describe
+
+    client = twin.driver()
+    try:
+        rws = client._rws
+        log = rws.read_event_log()
+        rep = describe(rws, list(TASKS), log)
+        assert all(rep.rapid[t]["zones_known"]["known"] for t in TASKS)
+        assert rep.serial == SERIAL and rep.robotware
+        assert any(o.startswith("623-1") for o in rep.options), rep.options  # Multitasking
+        assert describe(rws, list(TASKS)).rapid == rep.rapid  # no log given: read there
+        assert rep.state["ctrlstate"] == "motoron"
+        for t in TASKS:
+            assert rep.tasks[t] == {"type": "norm", "active": True,  # RWS says "norm"
+                                    "excstate": rep.tasks[t]["excstate"], "motion": True}
+            assert rep.rapid[t]["version"] == RAPID_VERSION
+        assert not any(describe(rws, list(TASKS), [])  # an empty log given: not known
+                       .rapid[t]["zones_known"]["known"] for t in TASKS)
+    finally:
+        client.close()
+    twin.url = twin.url.replace("http://", "http://127.0.0.2:1/#")  # nothing listens
+    broken = twin.driver()
+    try:
+        with pytest.raises(BackendError, match=r"cannot read the YuMi controller's state: "
+                                               r"\S") as got:
+            broken.describe()
+        assert not str(got.value).endswith("None")  # the client's own words
+    finally:
+        broken.close()
